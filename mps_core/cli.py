@@ -1,0 +1,120 @@
+"""The ``mps`` command line.
+
+    mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--delta-deg D]
+                  [--derivatives central|autodiff] [--iterations K] [--rtol R] [--atol A]
+                  [--no-chart-switching] [--csv FILE] [--events FILE]
+    mps scenes
+
+SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from . import __version__
+from .errors import MpsError
+from .scene import load_scene, preset_names
+from .solvers import SOLVERS
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mps", description="Digital twin of a crank press.")
+    p.add_argument("--version", action="version", version=f"mps {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", help="simulate a scene headless and print a summary")
+    r.add_argument("scene", help="preset name or scene file (TOML)")
+    r.add_argument("--t-end", type=float, metavar="S", help="end time (s)")
+    g = r.add_mutually_exclusive_group()
+    g.add_argument("--steps", type=int, metavar="N", help="number of steps")
+    g.add_argument("--dt", type=float, metavar="S",
+                   help="step (s); the output grid for the adaptive solvers")
+    r.add_argument("--solver", choices=SOLVERS)
+    r.add_argument("--delta-deg", type=float, metavar="D",
+                   help="virtual displacement of the central differences (degrees)")
+    r.add_argument("--derivatives", choices=("central", "autodiff"),
+                   help="derivative scheme: the seed's central differences or exact jets")
+    r.add_argument("--iterations", type=int, metavar="K",
+                   help="corrections per step of the linear acceleration method")
+    r.add_argument("--rtol", type=float, help="relative tolerance (dop853, radau)")
+    r.add_argument("--atol", type=float, help="absolute tolerance (dop853, radau)")
+    r.add_argument("--no-chart-switching", action="store_true",
+                   help="stay in the initial chart; stop with an error where it degenerates")
+    r.add_argument("--csv", metavar="FILE", help="write one row per step to FILE")
+    r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
+
+    sub.add_parser("scenes", help="list the preset scenes")
+    return p
+
+
+def _run(args) -> int:
+    scene = load_scene(args.scene)
+    scene = scene.with_overrides(
+        t_end=args.t_end, steps=args.steps, dt=args.dt, solver=args.solver,
+        delta=None if args.delta_deg is None else math.radians(args.delta_deg),
+        scheme=args.derivatives, iterations=args.iterations, rtol=args.rtol, atol=args.atol,
+        chart_switching=False if args.no_chart_switching else None)
+    from . import build
+
+    sim = build(scene)
+    c0 = time.process_time()
+    traj = sim.run(scene.t_end, scene.dt)
+    cpu = time.process_time() - c0
+    s = scene.solver
+    print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
+          f"{scene.steps} steps of {scene.dt:.6g} s")
+    detail = f"{s.scheme} derivatives"
+    if s.scheme == "central":
+        detail += f", delta = {math.degrees(s.delta):g} deg"
+    if s.name == "linear-acceleration":
+        detail += f", {s.iterations} correction(s) a step"
+    if s.name in ("dop853", "radau"):
+        detail += f", rtol = {s.rtol:g}, atol = {s.atol:g}"
+    print(f"solver {s.name} ({detail})")
+    i = -1
+    print(f"at t = {traj.t[i]:.6g} s: phi = {traj.phi[i]:.10g} rad ({math.degrees(traj.phi[i]):.6g} deg), "
+          f"phi_dot = {traj.phi_dot[i]:.10g} rad/s, phi_ddot = {traj.phi_ddot[i]:.10g} rad/s^2")
+    print(f"               psi = {traj.psi[i]:.10g} rad ({math.degrees(traj.psi[i]):.6g} deg), "
+          f"psi_dot = {traj.psi_dot[i]:.10g} rad/s, x_C = {traj.x_C[i] * 1000:.6g} mm")
+    e = traj.energy
+    print(f"energy T + V: {e[0]:.6g} J -> {e[-1]:.6g} J")
+    charts = [ev for ev in traj.events if ev["kind"] == "chart"]
+    if charts:
+        seq = " -> ".join([charts[0]["from"]] + [ev["to"] for ev in charts])
+        print(f"charts: {seq} (at t = " + ", ".join(f"{ev['t']:.6g}" for ev in charts) + " s)")
+    else:
+        print(f"chart: {traj.chart[0]} throughout")
+    c = traj.counts
+    print(f"work: {c['evaluations']} evaluations, {c['position_points']} position points in "
+          f"{c['position_calls']} calls; CPU {cpu * 1e3:.1f} ms "
+          f"({cpu / max(1, c['steps']) * 1e6:.1f} us a step)")
+    if args.csv:
+        traj.to_csv(args.csv)
+        print(f"wrote {len(traj)} rows to {args.csv}")
+    if args.events:
+        traj.events_to_jsonl(args.events)
+        print(f"wrote {len(traj.events)} events to {args.events}")
+    return 0
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "run":
+            return _run(args)
+        if args.command == "scenes":
+            for n in preset_names():
+                print(n)
+            return 0
+    except MpsError as exc:
+        print(f"mps: error: {exc}", file=sys.stderr)
+        return 2
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,68 @@
+"""The contract of an effect: a small unit that applies forces and torques to the mechanism.
+
+An effect declares the points and bodies it acts on (``acts_on``), is bound once to a mechanism
+(names checked, indices cached), and then, for a kinematic state, returns its **loads**: forces at
+points of bodies and torques on bodies, in the frame's axes. The engine turns loads into
+generalized forces by virtual work, ``Q_i = Σ F·v*_P,i + Σ M·ω*_b,i``; adding an effect never
+touches the engine. A conservative effect also gives its potential energy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Loads:
+    """Forces ``(point, Fx, Fy)`` and torques ``(body, M)`` that an effect applies to moving bodies.
+
+    ``frame`` holds what the same effect applies to the frame (for the foundation load): forces
+    ``(point, Fx, Fy)`` and torques ``("frame", M)``; empty where the effect has no reaction on it.
+    """
+
+    forces: list = field(default_factory=list)
+    torques: list = field(default_factory=list)
+    frame: list = field(default_factory=list)
+
+
+class Effect:
+    """Base class. Subclasses set ``kind`` and implement :meth:`loads`."""
+
+    kind: str = "effect"
+    conservative: bool = False
+
+    def __init__(self, name: str | None = None):
+        self.name = name or self.kind
+
+    #: the points and bodies this effect acts on (names), filled in by :meth:`bind`
+    acts_on: tuple[str, ...] = ()
+
+    def bind(self, mechanism) -> None:
+        """Check names against the mechanism and cache what :meth:`loads` needs."""
+
+    def loads(self, t: float, kin) -> Loads:
+        raise NotImplementedError
+
+    def potential(self, kin) -> float:
+        """Potential energy (J) for conservative effects; 0 for the others."""
+        return 0.0
+
+    def power(self, t: float, kin) -> float:
+        """Mechanical power (W) this effect delivers to the moving bodies."""
+        ld = self.loads(t, kin)
+        p = 0.0
+        for point, fx, fy in ld.forces:
+            v = kin.velocity(point)
+            p += fx * v[0] + fy * v[1]
+        for body, m in ld.torques:
+            p += m * kin.rate(body)
+        return float(p)
+
+
+def vector2(value, field_name: str) -> np.ndarray:
+    v = np.asarray(value, dtype=float)
+    if v.shape != (2,):
+        raise ValueError(f"{field_name}: expected two numbers (x, y), got {value!r}")
+    return v

@@ -1,0 +1,40 @@
+"""Gravity on every body's centre of mass."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Loads
+
+
+class Gravity(Effect):
+    """Uniform gravity ``g`` (m/s², frame axes) on each body's centre of mass.
+
+    Potential energy ``V = −Σ m_b g·r_Gb``; the frame receives nothing directly (the weights reach
+    it through the joints, which the reactions account for).
+    """
+
+    kind = "gravity"
+    conservative = True
+
+    def __init__(self, g=(-9.81, 0.0), name: str | None = None):
+        super().__init__(name)
+        self.g = np.asarray(g, dtype=float)
+        if self.g.shape != (2,) or not np.all(np.isfinite(self.g)):
+            raise ValueError(f"gravity g: expected two finite numbers (m/s²), got {g!r}")
+
+    def bind(self, mechanism) -> None:
+        self._weights = [(f"G_{b.name}", b.mass * self.g[0], b.mass * self.g[1], b.mass)
+                         for b in mechanism.bodies]
+        self.acts_on = tuple(p for p, *_ in self._weights)
+
+    def loads(self, t, kin) -> Loads:
+        return Loads(forces=[(p, fx, fy) for p, fx, fy, _ in self._weights])
+
+    def potential(self, kin) -> float:
+        gx, gy = self.g
+        v = 0.0
+        for p, _, _, m in self._weights:
+            x, y = kin.position(p)
+            v -= m * (gx * x + gy * y)
+        return float(v)

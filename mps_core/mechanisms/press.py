@@ -1,0 +1,234 @@
+"""The press's executive mechanism: crank 1 (O–A), rod 2 (A–B), rocker 3 (C–B), slider 4 (C).
+
+Frame: origin at the crank bearing O, x along the slider guide pointing up, y across it. The slider's
+point C runs on the x axis. Observables: φ (angle of O→A), ψ (angle of C→B), x_C, θ2 (angle of A→B).
+
+Charts (each with closed-form positions, contract §2):
+
+``phi-psi+`` / ``phi-psi-``
+    (φ, ψ), the seed's chart, with assembly σ = ±1:
+    x_B = l1 cos φ + σ √(l2² − (l3 sin ψ − l1 sin φ)²). Degenerates where the rod AB stands
+    across the guide (the square root's argument reaches zero). Regularity |x_B − x_A| / l2.
+``phi-xc+`` / ``phi-xc-``
+    (φ, x_C), B from the intersection of the circles (A, l2) and (C, l3), on the side κ = ±1 of
+    A→C. Degenerates where rod and rocker are in line. Regularity |sin ∠ABC|.
+``psi-xc+`` / ``psi-xc-``
+    (ψ, x_C), A from the intersection of the circles (O, l1) and (B, l2). Degenerates where crank
+    and rod are in line. Regularity |sin ∠OAB|.
+
+Structures (contract §5): ``free`` (nothing frozen), ``locked`` (ψ frozen at ψ_lock, the latch
+closed), and, where a top stop x_top is given, ``held`` (x_C frozen at x_top).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ChartDomainError, SceneError
+from ..jet import value_of
+from ..mechanism import Body, Chart, ChartView, Mechanism, Observable, Structure
+
+PHI = Observable("phi", "angle", ("O", "A"))
+PSI = Observable("psi", "angle", ("C", "B"))
+X_C = Observable("x_C", "x", ("C",))
+THETA2 = Observable("theta2", "angle", ("A", "B"))
+
+
+@dataclass(frozen=True)
+class PressGeometry:
+    """Link lengths (m): crank l1 = |OA|, rod l2 = |AB|, rocker l3 = |CB|."""
+
+    l1: float = 0.015
+    l2: float = 0.040
+    l3: float = 0.030
+
+    def __post_init__(self):
+        for name in ("l1", "l2", "l3"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SceneError(f"mechanism.{name}_mm", v, "a positive length")
+
+
+@dataclass(frozen=True)
+class BodyData:
+    """Mass (kg), moment of inertia about the centre of mass (kg·m²), and the centre of mass in
+    the body frame (m): along the body's first axis and across it (see :class:`Body`)."""
+
+    mass: float
+    inertia: float
+    com: tuple[float, float] | None = None
+
+
+#: The seed's bodies (contract §3): centres of mass of crank at A, rod at B, rocker and slider at C.
+SEED_BODIES = {
+    "crank": BodyData(4.6, 0.034),
+    "rod": BodyData(20.0, 0.036),
+    "rocker": BodyData(18.0, 0.0441),
+    "slider": BodyData(100.0, 0.0),
+}
+
+# Body frames: origin point, point the first axis points to, and the seed's centre of mass.
+_FRAMES = {
+    "crank": ("O", "A", "l1", lambda g: (g.l1, 0.0)),
+    "rod": ("A", "B", "l2", lambda g: (g.l2, 0.0)),
+    "rocker": ("C", "B", "l3", lambda g: (0.0, 0.0)),
+    "slider": ("C", None, None, lambda g: (0.0, 0.0)),
+}
+
+
+def _domain(chart: str, arg, what: str):
+    v = value_of(arg)
+    if np.any(~(np.asarray(v) > 0.0)):
+        raise ChartDomainError(chart, f"{what} has no real solution here")
+
+
+def _cross(ax, ay, bx, by):
+    return ax * by - ay * bx
+
+
+class PressMechanism(Mechanism):
+    points = ("O", "A", "B", "C")
+    fixed_points = ("O",)
+    observables = {o.name: o for o in (PHI, PSI, X_C, THETA2)}
+
+    def __init__(self, geometry: PressGeometry | None = None, bodies: dict | None = None,
+                 psi_lock: float = 0.0, x_top: float | None = None):
+        g = geometry or PressGeometry()
+        self.geometry = g
+        data = dict(SEED_BODIES)
+        data.update(bodies or {})
+        self.bodies = tuple(self._body(name, data[name]) for name in ("crank", "rod", "rocker",
+                                                                       "slider"))
+        self.psi_lock = float(psi_lock)
+        self.x_top = None if x_top is None else float(x_top)
+        structures = {"free": Structure("free"), "locked": Structure("locked", {"psi": psi_lock})}
+        if x_top is not None:
+            structures["held"] = Structure("held", {"x_C": self.x_top})
+        self.structures = structures
+        self.charts = tuple(self._phi_psi(s) for s in (1, -1)) + \
+            tuple(self._phi_xc(k) for k in (1, -1)) + tuple(self._psi_xc(k) for k in (1, -1))
+
+    # -- bodies ---------------------------------------------------------------------------
+    def _body(self, name: str, d: BodyData) -> Body:
+        origin, toward, lname, seed_com = _FRAMES[name]
+        length = getattr(self.geometry, lname) if lname else 0.0
+        com = d.com if d.com is not None else seed_com(self.geometry)
+        return Body(name, float(d.mass), float(d.inertia), origin, toward, length,
+                    (float(com[0]), float(com[1])))
+
+    # -- charts ---------------------------------------------------------------------------
+    def _phi_psi(self, sigma: int) -> Chart:
+        l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
+        name = "phi-psi" + ("+" if sigma > 0 else "-")
+
+        def positions(q):
+            phi, psi = q
+            ax, ay = l1 * np.cos(phi), l1 * np.sin(phi)
+            by = l3 * np.sin(psi)
+            dy = by - ay
+            arg = l2 * l2 - dy * dy
+            _domain(name, arg, "x_B (rod across the guide)")
+            bx = ax + sigma * np.sqrt(arg)
+            return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (bx - l3 * np.cos(psi), 0.0)}
+
+        def regularity(pose):
+            return abs(pose["B"][0] - pose["A"][0]) / l2
+
+        def owns(pose):
+            return sigma * (pose["B"][0] - pose["A"][0]) > 0.0
+
+        return Chart(name, (PHI, PSI), positions, regularity, owns, (1.0, 1.0))
+
+    def _phi_xc(self, kappa: int) -> Chart:
+        l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
+        name = "phi-xc" + ("+" if kappa > 0 else "-")
+
+        def positions(q):
+            phi, xc = q
+            ax, ay = l1 * np.cos(phi), l1 * np.sin(phi)
+            dx, dy = xc - ax, -ay
+            d2 = dx * dx + dy * dy
+            _domain(name, d2, "the distance AC")
+            d = np.sqrt(d2)
+            a = (l2 * l2 - l3 * l3 + d2) / (2.0 * d)
+            h2 = l2 * l2 - a * a
+            _domain(name, h2, "B (rod and rocker in line)")
+            h = np.sqrt(h2)
+            ux, uy = dx / d, dy / d
+            return {"O": (0.0, 0.0), "A": (ax, ay),
+                    "B": (ax + a * ux - kappa * h * uy, ay + a * uy + kappa * h * ux),
+                    "C": (xc, 0.0)}
+
+        def regularity(pose):
+            (ax, ay), (bx, by), (cx, cy) = pose["A"], pose["B"], pose["C"]
+            return abs(_cross(ax - bx, ay - by, cx - bx, cy - by)) / (l2 * l3)
+
+        def owns(pose):
+            (ax, ay), (bx, by), (cx, cy) = pose["A"], pose["B"], pose["C"]
+            return kappa * _cross(cx - ax, cy - ay, bx - ax, by - ay) > 0.0
+
+        return Chart(name, (PHI, X_C), positions, regularity, owns, (1.0, l1))
+
+    def _psi_xc(self, kappa: int) -> Chart:
+        l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
+        name = "psi-xc" + ("+" if kappa > 0 else "-")
+
+        def positions(q):
+            psi, xc = q
+            bx, by = xc + l3 * np.cos(psi), l3 * np.sin(psi)
+            d2 = bx * bx + by * by
+            _domain(name, d2, "the distance OB")
+            d = np.sqrt(d2)
+            a = (l1 * l1 - l2 * l2 + d2) / (2.0 * d)
+            h2 = l1 * l1 - a * a
+            _domain(name, h2, "A (crank and rod in line)")
+            h = np.sqrt(h2)
+            ux, uy = bx / d, by / d
+            return {"O": (0.0, 0.0), "A": (a * ux - kappa * h * uy, a * uy + kappa * h * ux),
+                    "B": (bx, by), "C": (xc, 0.0)}
+
+        def regularity(pose):
+            (ax, ay), (bx, by) = pose["A"], pose["B"]
+            return abs(_cross(ax, ay, bx - ax, by - ay)) / (l1 * l2)
+
+        def owns(pose):
+            (ax, ay), (bx, by) = pose["A"], pose["B"]
+            return kappa * _cross(bx, by, ax, ay) > 0.0
+
+        return Chart(name, (PSI, X_C), positions, regularity, owns, (1.0, l1))
+
+    def chart(self, name: str) -> Chart:
+        for c in self.charts:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    # -- initial states -------------------------------------------------------------------
+    def initial_state(self, structure: str, phi: float, phi_dot: float, psi: float | None = None,
+                      psi_dot: float = 0.0, sigma: int = 1):
+        """(view, q, q̇) for an initial state given by φ, φ̇ (and ψ, ψ̇ in ``free``) on the
+        assembly σ of the seed's chart."""
+        chart = self.chart("phi-psi" + ("+" if sigma > 0 else "-"))
+        if structure == "free":
+            if psi is None:
+                raise SceneError("initial.psi_deg", None, "an initial rocker angle (free structure)")
+            view = ChartView(chart)
+            q, qd = np.array([phi, psi], float), np.array([phi_dot, psi_dot], float)
+        elif structure == "locked":
+            if psi is not None and abs(psi - self.psi_lock) > 1e-12:
+                raise SceneError("initial.psi_deg", math.degrees(psi),
+                                 f"ψ = ψ_lock = {math.degrees(self.psi_lock):g}° in the locked structure")
+            view = ChartView(chart, {"psi": self.psi_lock})
+            q, qd = np.array([phi], float), np.array([phi_dot], float)
+        else:
+            raise SceneError("structure.initial", structure, "'free' or 'locked'")
+        try:
+            view.positions(list(q))
+        except ChartDomainError:
+            raise SceneError("initial", {"phi_deg": math.degrees(phi),
+                                         "psi_deg": None if psi is None else math.degrees(psi)},
+                             "a configuration where the links assemble (|l3·sin ψ − l1·sin φ| < l2)")
+        return view, q, qd

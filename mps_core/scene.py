@@ -1,0 +1,417 @@
+"""Scene files: TOML in, a validated scene in SI units out.
+
+A scene names the mechanism and its bodies, the structure and the initial state, the effects it
+wants (only those are built and evaluated), the solver and the charts' policy. Files for people
+use units in the key names (``l1_mm``, ``phi_deg``, ``t_end_s``); inside, everything is SI.
+Everything is validated before anything runs: an unknown key, a wrong type, a missing unit or a
+non-physical value raises :class:`~mps_core.errors.SceneError` naming the field, the value and
+what was expected.
+
+Presets ship in ``mps_core/scenes/*.toml``; ``load_scene("paper")`` loads one, any other string
+is read as a path.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from .effects import MOTOR_PRESETS, Gravity, Motor, MotorData
+from .engine import SCHEMES
+from .errors import SceneError
+from .mechanisms.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
+from .simulation import ChartPolicy, SolverSettings
+from .solvers import SOLVERS
+
+BODY_NAMES = ("crank", "rod", "rocker", "slider")
+STRUCTURES = ("free", "locked")
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    kind: str
+    params: dict
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene, SI units."""
+
+    name: str
+    description: str
+    geometry: PressGeometry
+    assembly: int
+    bodies: dict
+    structure: str
+    psi_lock: float
+    initial: dict
+    effects: tuple
+    solver: SolverSettings
+    t_end: float
+    dt: float
+    charts: ChartPolicy
+    text: str = ""
+    origin: str = ""
+
+    @property
+    def steps(self) -> int:
+        return max(1, int(round(self.t_end / self.dt)))
+
+    def with_overrides(self, *, t_end=None, steps=None, dt=None, solver=None, delta=None,
+                       scheme=None, iterations=None, rtol=None, atol=None,
+                       chart_switching=None) -> "Scene":
+        """The same scene with run settings changed (the CLI's options), validated again."""
+        s = self
+        if steps is not None and dt is not None:
+            raise SceneError("steps/dt", (steps, dt), "either a number of steps or a step, not both")
+        t_end = s.t_end if t_end is None else _positive("t_end_s", t_end, upper=1e5)
+        if steps is not None:
+            if not isinstance(steps, int) or steps < 1:
+                raise SceneError("solver.steps", steps, "a positive integer")
+            dt = t_end / steps
+        elif dt is None:
+            dt = s.dt if t_end == s.t_end else t_end / max(1, round(s.t_end / s.dt))
+        _check_dt("solver.dt_s", dt, t_end)
+        st = s.solver
+        if solver is not None:
+            _choice("solver.method", solver, SOLVERS)
+            st = replace(st, name=solver)
+        if delta is not None:
+            st = replace(st, delta=_delta("solver.delta_deg", math.degrees(delta)))
+        if scheme is not None:
+            _choice("solver.derivatives", scheme, SCHEMES)
+            st = replace(st, scheme=scheme)
+        if iterations is not None:
+            if not isinstance(iterations, int) or iterations < 1:
+                raise SceneError("solver.corrector_iterations", iterations, "an integer >= 1")
+            st = replace(st, iterations=iterations)
+        if rtol is not None:
+            st = replace(st, rtol=_tol("solver.rtol", rtol))
+        if atol is not None:
+            st = replace(st, atol=_tol("solver.atol", atol))
+        ch = s.charts if chart_switching is None else replace(s.charts, switching=chart_switching)
+        return replace(s, t_end=t_end, dt=dt, solver=st, charts=ch)
+
+    # -- building -------------------------------------------------------------------------
+    def mechanism(self) -> PressMechanism:
+        return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock)
+
+    def build_effects(self, mechanism) -> list:
+        return [_EFFECT_BUILDERS[e.kind](e.params) for e in self.effects]
+
+    def initial_state(self, mechanism):
+        i = self.initial
+        return mechanism.initial_state(self.structure, i["phi"], i["phi_dot"], i.get("psi"),
+                                       i.get("psi_dot", 0.0), sigma=self.assembly)
+
+
+# -- field checks -------------------------------------------------------------------------
+def _num(fieldname, v, expected="a number") -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise SceneError(fieldname, v, expected)
+    return float(v)
+
+
+def _positive(fieldname, v, upper=None, unit="") -> float:
+    x = _num(fieldname, v, f"a positive number{unit}")
+    if x <= 0 or (upper is not None and x > upper):
+        rng = f" up to {upper:g}" if upper is not None else ""
+        raise SceneError(fieldname, v, f"a positive number{unit}{rng}")
+    return x
+
+
+def _choice(fieldname, v, options):
+    if v not in options:
+        raise SceneError(fieldname, v, "one of " + ", ".join(repr(o) for o in options))
+    return v
+
+
+def _delta(fieldname, deg) -> float:
+    x = _num(fieldname, deg, "a virtual displacement in degrees")
+    if not (1e-7 <= x <= 5.0):
+        raise SceneError(fieldname, deg, "a virtual displacement between 1e-7° and 5°")
+    return math.radians(x)
+
+
+def _tol(fieldname, v) -> float:
+    x = _num(fieldname, v, "a tolerance")
+    if not (1e-15 <= x <= 1e-2):
+        raise SceneError(fieldname, v, "a tolerance between 1e-15 and 1e-2")
+    return x
+
+
+def _check_dt(fieldname, dt, t_end):
+    x = _num(fieldname, dt, "a step in seconds")
+    if not (1e-8 <= x <= 0.1):
+        raise SceneError(fieldname, dt, "a step between 1e-8 s and 0.1 s")
+    if x > t_end:
+        raise SceneError(fieldname, dt, f"a step no longer than t_end_s = {t_end:g}")
+    if t_end / x > 5e7:
+        raise SceneError(fieldname, dt, f"at most 5e7 steps over t_end_s = {t_end:g}")
+
+
+class _Table:
+    """Reads one TOML table, remembering which keys were used so leftovers are refused."""
+
+    def __init__(self, data, path: str, units_hint: dict | None = None):
+        if not isinstance(data, dict):
+            raise SceneError(path, data, "a table")
+        self.data = data
+        self.path = path
+        self.used: set[str] = set()
+        self.units_hint = units_hint or {}
+
+    def get(self, key, default=None, required=False):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                raise SceneError(f"{self.path}.{key}", None, "a value (this field is required)")
+            return default
+        return self.data[key]
+
+    def field(self, key):
+        return f"{self.path}.{key}"
+
+    def done(self):
+        for k in self.data:
+            if k not in self.used:
+                hint = self.units_hint.get(k)
+                exp = f"no such key (did you mean {hint!r}? units go in the key's name)" if hint \
+                    else "no such key; known keys: " + ", ".join(sorted(self.used))
+                raise SceneError(f"{self.path}.{k}", self.data[k], exp)
+
+
+_UNIT_HINTS = {
+    "mechanism": {"l1": "l1_mm", "l2": "l2_mm", "l3": "l3_mm"},
+    "initial": {"phi": "phi_deg", "psi": "psi_deg", "phi_dot": "phi_dot_rad_s",
+                "psi_dot": "psi_dot_rad_s"},
+    "solver": {"t_end": "t_end_s", "dt": "dt_s", "delta": "delta_deg"},
+    "body": {"mass": "mass_kg", "inertia": "inertia_kg_m2", "com": "com_mm", "J": "inertia_kg_m2",
+             "m": "mass_kg"},
+    "structure": {"psi_lock": "psi_lock_deg"},
+}
+
+
+def _build_gravity(p):
+    return Gravity(p["g"])
+
+
+def _build_motor(p):
+    data: MotorData = p["data"]
+    if p.get("ratio") is not None:
+        return Motor(data, p["ratio"], p["efficiency"])
+    return Motor.for_crank_speed(data, p["crank_speed"], efficiency=p["efficiency"])
+
+
+_EFFECT_BUILDERS = {"gravity": _build_gravity, "motor": _build_motor}
+
+
+def _effect(i, raw) -> EffectSpec:
+    path = f"effects[{i}]"
+    t = _Table(raw, path)
+    kind = t.get("type", required=True)
+    _choice(f"{path}.type", kind, tuple(_EFFECT_BUILDERS))
+    if kind == "gravity":
+        g = t.get("g_m_s2", [-9.81, 0.0])
+        if (not isinstance(g, list) or len(g) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                           and math.isfinite(x) for x in g)):
+            raise SceneError(f"{path}.g_m_s2", g, "two numbers [g_x, g_y] in m/s²")
+        t.done()
+        return EffectSpec("gravity", {"g": (float(g[0]), float(g[1]))})
+    # motor
+    model = t.get("model", "4A80B4U3")
+    base = MOTOR_PRESETS.get(model)
+    if base is None and model != "custom":
+        raise SceneError(f"{path}.model", model,
+                         "a motor preset (" + ", ".join(MOTOR_PRESETS) + ") or 'custom'")
+    vals = {}
+    for key, attr in (("power_w", "power_w"), ("sync_rpm", "sync_rpm"),
+                      ("rated_slip", "rated_slip"), ("breakdown_ratio", "breakdown_ratio")):
+        v = t.get(key)
+        if v is None:
+            if base is None:
+                raise SceneError(f"{path}.{key}", None, "a value (custom motor)")
+            vals[attr] = getattr(base, attr)
+        else:
+            vals[attr] = _positive(f"{path}.{key}", v)
+    if not (0 < vals["rated_slip"] < 1):
+        raise SceneError(f"{path}.rated_slip", vals["rated_slip"], "a slip between 0 and 1")
+    if vals["breakdown_ratio"] <= 1:
+        raise SceneError(f"{path}.breakdown_ratio", vals["breakdown_ratio"],
+                         "M_k/M_n greater than 1")
+    data = MotorData(**vals, source=base.source if base and vals == {
+        k: getattr(base, k) for k in vals} else "scene")
+    ratio = t.get("ratio")
+    speed = t.get("crank_speed_rad_s")
+    if ratio is not None and speed is not None:
+        raise SceneError(f"{path}.ratio", ratio, "either ratio or crank_speed_rad_s, not both")
+    if ratio is not None:
+        ratio = _positive(f"{path}.ratio", ratio)
+    else:
+        speed = _positive(f"{path}.crank_speed_rad_s", 43.5 if speed is None else speed)
+    eff = t.get("efficiency", 1.0)
+    eff = _num(f"{path}.efficiency", eff, "an efficiency in (0, 1]")
+    if not (0 < eff <= 1):
+        raise SceneError(f"{path}.efficiency", eff, "an efficiency in (0, 1]")
+    t.done()
+    return EffectSpec("motor", {"data": data, "ratio": ratio, "crank_speed": speed,
+                                "efficiency": eff})
+
+
+def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
+    top = _Table(raw, "scene file")
+    meta = _Table(top.get("scene", {}), "scene")
+    sname = meta.get("name", name)
+    if not isinstance(sname, str) or not sname:
+        raise SceneError("scene.name", sname, "a non-empty string")
+    desc = meta.get("description", "")
+    if not isinstance(desc, str):
+        raise SceneError("scene.description", desc, "a string")
+    meta.get("source")
+    meta.done()
+
+    mt = _Table(top.get("mechanism", {}), "mechanism", _UNIT_HINTS["mechanism"])
+    mtype = mt.get("type", "press")
+    _choice("mechanism.type", mtype, ("press",))
+    l1 = _positive("mechanism.l1_mm", mt.get("l1_mm", 15.0), unit=" (mm)") / 1000.0
+    l2 = _positive("mechanism.l2_mm", mt.get("l2_mm", 40.0), unit=" (mm)") / 1000.0
+    l3 = _positive("mechanism.l3_mm", mt.get("l3_mm", 30.0), unit=" (mm)") / 1000.0
+    if l2 <= l1:
+        raise SceneError("mechanism.l2_mm", l2 * 1000,
+                         f"a rod longer than the crank (l1_mm = {l1 * 1000:g}) so the crank can turn")
+    assembly = mt.get("assembly", 1)
+    _choice("mechanism.assembly", assembly, (1, -1))
+    mt.done()
+    geometry = PressGeometry(l1, l2, l3)
+
+    bt = _Table(top.get("bodies", {}), "bodies")
+    bodies = {}
+    for bname in BODY_NAMES:
+        raw_b = bt.get(bname)
+        d = SEED_BODIES[bname]
+        if raw_b is None:
+            bodies[bname] = d
+            continue
+        b = _Table(raw_b, f"bodies.{bname}", _UNIT_HINTS["body"])
+        mass = _positive(f"bodies.{bname}.mass_kg", b.get("mass_kg", d.mass), unit=" (kg)")
+        inertia = _num(f"bodies.{bname}.inertia_kg_m2", b.get("inertia_kg_m2", d.inertia),
+                       "a moment of inertia >= 0 (kg·m²)")
+        if inertia < 0:
+            raise SceneError(f"bodies.{bname}.inertia_kg_m2", inertia,
+                             "a moment of inertia >= 0 (kg·m²)")
+        com = b.get("com_mm")
+        if com is not None:
+            if (not isinstance(com, list) or len(com) != 2
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in com)):
+                raise SceneError(f"bodies.{bname}.com_mm", com,
+                                 "two numbers [along, across] in mm in the body frame")
+            com = (com[0] / 1000.0, com[1] / 1000.0)
+        b.done()
+        bodies[bname] = BodyData(mass, inertia, com)
+    bt.done()
+
+    stt = _Table(top.get("structure", {}), "structure", _UNIT_HINTS["structure"])
+    structure = stt.get("initial", "free")
+    _choice("structure.initial", structure, STRUCTURES)
+    psi_lock = math.radians(_num("structure.psi_lock_deg", stt.get("psi_lock_deg", 0.0)))
+    stt.done()
+
+    it = _Table(top.get("initial", {}), "initial", _UNIT_HINTS["initial"])
+    phi = math.radians(_num("initial.phi_deg", it.get("phi_deg", required=True)))
+    phi_dot = _num("initial.phi_dot_rad_s", it.get("phi_dot_rad_s", 0.0))
+    psi_deg = it.get("psi_deg")
+    psi = None if psi_deg is None else math.radians(_num("initial.psi_deg", psi_deg))
+    psi_dot = _num("initial.psi_dot_rad_s", it.get("psi_dot_rad_s", 0.0))
+    it.done()
+    if structure == "locked":
+        if psi_dot != 0.0:
+            raise SceneError("initial.psi_dot_rad_s", psi_dot, "0 in the locked structure")
+    initial = {"phi": phi, "phi_dot": phi_dot, "psi": psi, "psi_dot": psi_dot}
+
+    raw_effects = top.get("effects", [])
+    if not isinstance(raw_effects, list):
+        raise SceneError("effects", raw_effects, "an array of tables [[effects]]")
+    effects = tuple(_effect(i, e) for i, e in enumerate(raw_effects))
+    kinds = [e.kind for e in effects]
+    for k in set(kinds):
+        if kinds.count(k) > 1:
+            raise SceneError("effects", kinds, f"each effect once ({k!r} is listed twice)")
+
+    sv = _Table(top.get("solver", {}), "solver", _UNIT_HINTS["solver"])
+    method = sv.get("method", "linear-acceleration")
+    _choice("solver.method", method, SOLVERS)
+    scheme = sv.get("derivatives", "central")
+    _choice("solver.derivatives", scheme, SCHEMES)
+    delta = _delta("solver.delta_deg", sv.get("delta_deg", 0.1))
+    iters = sv.get("corrector_iterations", 1)
+    if isinstance(iters, bool) or not isinstance(iters, int) or iters < 1 or iters > 50:
+        raise SceneError("solver.corrector_iterations", iters, "an integer from 1 to 50")
+    rtol = _tol("solver.rtol", sv.get("rtol", 1e-9))
+    atol = _tol("solver.atol", sv.get("atol", 1e-12))
+    t_end = _positive("solver.t_end_s", sv.get("t_end_s", required=True), upper=1e5, unit=" (s)")
+    steps = sv.get("steps")
+    dt = sv.get("dt_s")
+    if steps is not None and dt is not None:
+        raise SceneError("solver.steps", steps, "either steps or dt_s, not both")
+    if steps is not None:
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise SceneError("solver.steps", steps, "a positive integer")
+        dt = t_end / steps
+    elif dt is None:
+        dt = 1e-3
+    _check_dt("solver.dt_s", dt, t_end)
+    sv.done()
+
+    ct = _Table(top.get("charts", {}), "charts")
+    switching = ct.get("switching", True)
+    if not isinstance(switching, bool):
+        raise SceneError("charts.switching", switching, "true or false")
+    switch_below = _num("charts.switch_below", ct.get("switch_below", 0.5))
+    fail_below = _num("charts.fail_below", ct.get("fail_below", 1e-3))
+    if not (0 < fail_below < switch_below < 1):
+        raise SceneError("charts.switch_below", switch_below,
+                         f"a regularity between charts.fail_below = {fail_below:g} and 1")
+    ct.done()
+    top.done()
+
+    scene = Scene(sname, desc, geometry, assembly, bodies, structure, psi_lock, initial, effects,
+                  SolverSettings(method, scheme, delta, iters, rtol, atol), t_end, float(dt),
+                  ChartPolicy(switching, switch_below, fail_below), text, origin)
+    # the initial state must assemble: checked now, before anything runs
+    scene.initial_state(scene.mechanism())
+    return scene
+
+
+def preset_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("mps_core.scenes").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def load_scene(spec: str | Path) -> Scene:
+    """A preset by name, or a scene file by path."""
+    spec = str(spec)
+    if spec in preset_names():
+        res = resources.files("mps_core.scenes").joinpath(spec + ".toml")
+        text = res.read_text()
+        origin = f"preset:{spec}"
+    else:
+        path = Path(spec)
+        if not path.exists():
+            raise SceneError("scene", spec, "a preset name (" + ", ".join(preset_names())
+                             + ") or the path of a scene file")
+        text = path.read_text()
+        origin = str(path)
+    return scene_from_text(text, name=Path(spec).stem, origin=origin)
+
+
+def scene_from_text(text: str, *, name: str = "scene", origin: str = "") -> Scene:
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError("scene file", origin or name, f"valid TOML ({exc})") from None
+    return scene_from_dict(raw, name=name, text=text, origin=origin)

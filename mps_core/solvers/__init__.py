@@ -1,0 +1,24 @@
+"""Integrators behind one contract (:class:`~mps_core.solvers.base.Solver`)."""
+
+from .adaptive import AdaptiveSolver
+from .base import Solver
+from .linear_acceleration import LinearAcceleration
+from .rk4 import RK4
+
+SOLVERS = ("linear-acceleration", "rk4", "dop853", "radau")
+
+
+def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol=1e-9,
+                atol=1e-12, scales=None):
+    """A solver by its scene/CLI name."""
+    if name == "linear-acceleration":
+        return LinearAcceleration(fun, t0, q0, qd0, current, iterations=iterations)
+    if name == "rk4":
+        return RK4(fun, t0, q0, qd0, current)
+    if name in ("dop853", "radau"):
+        return AdaptiveSolver(fun, t0, q0, qd0, current, method=name, rtol=rtol, atol=atol,
+                              scales=scales)
+    raise ValueError(f"solver {name!r}: expected one of {', '.join(SOLVERS)}")
+
+
+__all__ = ["Solver", "LinearAcceleration", "RK4", "AdaptiveSolver", "SOLVERS", "make_solver"]

@@ -1,0 +1,73 @@
+"""Adaptive reference solvers: scipy's DOP853 and Radau over the same right-hand side.
+
+The scipy solver runs on y = (q, q̇) with its own step-size control (``rtol``, ``atol``).
+:meth:`AdaptiveSolver.step_to` takes internal steps until ``t_target`` is passed, then reports the
+state at ``t_target`` from scipy's dense output and evaluates the equations there (counted in
+``nfev`` like every other call). After each internal step ``interrupt(t, q, q̇)`` may stop the
+solver at that step's end (a change of chart is due). ``atol`` applies to q and q̇ component by
+component, scaled by the chart's coordinate scales where given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate import DOP853, Radau
+
+from ..errors import NumericalError
+from .base import Solver
+
+_METHODS = {"dop853": DOP853, "radau": Radau}
+
+
+class AdaptiveSolver(Solver):
+    order = None
+
+    def __init__(self, fun, t0, q0, qd0, current=None, method="dop853", rtol=1e-9, atol=1e-12,
+                 scales=None, t_bound=np.inf, max_step=np.inf):
+        if method not in _METHODS:
+            raise ValueError(f"adaptive method {method!r}: expected one of {', '.join(_METHODS)}")
+        if not (0 < rtol < 1) or not (atol > 0):
+            raise ValueError(f"tolerances rtol = {rtol!r}, atol = {atol!r}: expected 0 < rtol < 1, atol > 0")
+        self.name = method
+        super().__init__(fun, t0, q0, qd0, current)
+        n = self.q.size
+        sc = np.ones(n) if scales is None else np.asarray(scales, float)
+        self._n = n
+        self._last_eval = None
+
+        def f(t, y):
+            e = self._call(t, y[:n], y[n:])
+            self._last_eval = e
+            return np.concatenate((y[n:], e.qdd))
+
+        y0 = np.concatenate((self.q, self.qd))
+        self._scipy = _METHODS[method](f, self.t, y0, t_bound, rtol=rtol,
+                                       atol=atol * np.concatenate((sc, sc)), max_step=max_step)
+
+    def step_to(self, t_target, interrupt=None):
+        s, n = self._scipy, self._n
+        while s.t < t_target:
+            if s.status != "running":
+                raise NumericalError(f"{self.name} stopped: {s.status}", s.t)
+            msg = s.step()
+            if s.status == "failed":
+                raise NumericalError(f"{self.name} failed: {msg}", s.t)
+            self.nsteps += 1
+            if s.t < t_target and interrupt is not None and interrupt(s.t, s.y[:n], s.y[n:]):
+                self._dense = self._wrap(s.dense_output())
+                self.t, self.q, self.qd = s.t, s.y[:n].copy(), s.y[n:].copy()
+                self.current = self._call(self.t, self.q, self.qd)
+                return
+        sol = s.dense_output()
+        y = sol(t_target)
+        self._dense = self._wrap(sol)
+        self.t, self.q, self.qd = t_target, y[:n].copy(), y[n:].copy()
+        self.current = self._call(self.t, self.q, self.qd)
+
+    def _wrap(self, sol):
+        n = self._n
+
+        def dense(t):
+            y = sol(t)
+            return y[:n], y[n:]
+        return dense

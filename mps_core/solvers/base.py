@@ -1,0 +1,72 @@
+"""The contract every integrator keeps (scipy's ``OdeSolver`` is the model).
+
+A solver advances a second-order system ``q̈ = f(t, q, q̇)``:
+
+* it is built from ``fun(t, q, q̇) -> Evaluation`` (any object with a ``qdd`` array) and an initial
+  state, and evaluates ``fun`` there once unless the caller passes that evaluation as ``current``;
+* :meth:`Solver.step_to` advances to ``t_target``. Fixed-step solvers take exactly one step of
+  ``t_target − t``; adaptive ones take as many internal steps as their tolerances ask and may stop
+  early where ``interrupt(t, q, q̇)`` returns True after an internal step;
+* a step is all or nothing: if ``fun`` raises, the exception propagates and ``t``, ``q``, ``q̇``,
+  ``current`` are those of the step's start;
+* after a step ``current`` is the evaluation at the new state (the next step's start and the
+  accelerations reported for it), and :meth:`dense_output` interpolates (q, q̇) inside the step;
+* ``nfev`` counts the calls of ``fun``, ``nsteps`` the steps.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+
+class Solver:
+    name = "solver"
+    #: order of convergence of the global error in the step
+    order = 0
+    #: calls of ``fun`` per fixed step (None for adaptive solvers)
+    evaluations_per_step: int | None = None
+
+    def __init__(self, fun: Callable, t0: float, q0, qd0, current=None):
+        self.fun = fun
+        self.t = float(t0)
+        self.q = np.array(q0, dtype=float)
+        self.qd = np.array(qd0, dtype=float)
+        self.nfev = 0
+        self.nsteps = 0
+        self._dense = None
+        self.current = current if current is not None else self._call(self.t, self.q, self.qd)
+
+    def _call(self, t, q, qd):
+        self.nfev += 1
+        return self.fun(t, q, qd)
+
+    def step_to(self, t_target: float, interrupt: Callable | None = None) -> None:
+        raise NotImplementedError
+
+    def dense_output(self) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
+        """(q, q̇) at a time inside the last step."""
+        if self._dense is None:
+            raise RuntimeError("no step taken yet")
+        return self._dense
+
+
+class CubicHermite:
+    """q by the cubic Hermite polynomial of (q, q̇) at both ends, q̇ by that of (q̇, q̈)."""
+
+    def __init__(self, t0, t1, q0, qd0, qdd0, q1, qd1, qdd1):
+        self.t0, self.h = t0, t1 - t0
+        self.data = (q0, qd0, qdd0, q1, qd1, qdd1)
+
+    def __call__(self, t):
+        q0, qd0, qdd0, q1, qd1, qdd1 = self.data
+        h = self.h
+        s = (t - self.t0) / h
+        h00 = (1 + 2 * s) * (1 - s) ** 2
+        h10 = s * (1 - s) ** 2
+        h01 = s * s * (3 - 2 * s)
+        h11 = s * s * (s - 1)
+        q = h00 * q0 + h10 * h * qd0 + h01 * q1 + h11 * h * qd1
+        qd = h00 * qd0 + h10 * h * qdd0 + h01 * qd1 + h11 * h * qdd1
+        return q, qd

@@ -1,0 +1,109 @@
+"""The partial-system engine against the exact (symbolic) equations of the press."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mps_core.effects import MOTOR_PRESETS, Gravity, Motor
+from mps_core.engine import PartialSystems, stencil
+from mps_core.mechanism import ChartView
+from mps_core.mechanisms import PressMechanism
+from reference import press_exact as pe
+
+STATES = [(-1.1187560505, -0.8087855754), (0.3, -1.0), (2.0, -0.4), (-2.5, -1.3)]
+
+
+def engine(scheme, delta=math.radians(0.1), effects=None):
+    m = PressMechanism()
+    eff = effects if effects is not None else [
+        Gravity((-9.81, 0.0)), Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)]
+    return m, PartialSystems(m, eff, scheme, delta)
+
+
+def test_stencil_sizes():
+    assert len(stencil(1)[0]) == 5
+    assert len(stencil(2)[0]) == 13
+    assert len(stencil(3)[0]) == 1 + 12 + 12
+
+
+@pytest.mark.parametrize("q", STATES)
+def test_central_analogs_and_mass_matrix_are_second_order(q):
+    exact = pe.lagrange_phi_psi()
+    J_exact = {p: np.asarray(exact.jacobian(p, *q), float) for p in "ABC"}
+    M_exact = np.asarray(exact.mass_matrix(*q), float)
+    errs_J, errs_A = [], []
+    for deg in (0.4, 0.2, 0.1):
+        m, eng = engine("central", math.radians(deg))
+        view = ChartView(m.chart("phi-psi+"))
+        e = eng.evaluate(view, 0.0, q, [43.5, 0.0])
+        errs_J.append(max(np.abs(e.kin.analog(p) - J_exact[p]).max() for p in "ABC"))
+        errs_A.append(np.abs(e.A - M_exact).max())
+    for errs in (errs_J, errs_A):
+        ratios = [errs[i] / errs[i + 1] for i in range(len(errs) - 1)]
+        assert all(3.5 < r < 4.5 for r in ratios), (errs, ratios)
+
+
+@pytest.mark.parametrize("q", STATES)
+def test_autodiff_matches_exact_equations(q):
+    exact = pe.lagrange_phi_psi()
+    m, eng = engine("autodiff")
+    view = ChartView(m.chart("phi-psi+"))
+    qd = np.array([43.5, -12.0])
+    e = eng.evaluate(view, 0.0, q, qd)
+    M_exact = np.asarray(exact.mass_matrix(*q), float)
+    assert np.allclose(e.A, M_exact, rtol=1e-12, atol=1e-14)
+    qdd_exact = exact.qdd(0.0, np.array(q), qd, motor=True)
+    assert np.allclose(e.qdd, qdd_exact, rtol=1e-10, atol=1e-8)
+
+
+@pytest.mark.parametrize("q", STATES)
+def test_central_accelerations_converge_to_exact(q):
+    exact = pe.lagrange_phi_psi()
+    qd = np.array([43.5, -12.0])
+    qdd_exact = exact.qdd(0.0, np.array(q), qd, motor=True)
+    errs = []
+    for deg in (0.4, 0.2, 0.1):
+        m, eng = engine("central", math.radians(deg))
+        errs.append(np.abs(eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, q, qd).qdd
+                           - qdd_exact).max())
+    assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
+
+
+def test_any_chart_gives_the_same_physical_accelerations():
+    """The same physical state evaluated in every regular chart: the same crank acceleration."""
+    m, eng = engine("autodiff")
+    home = ChartView(m.chart("phi-psi+"))
+    q, qd = np.array([0.3, -1.0]), np.array([43.5, -12.0])
+    e0 = eng.evaluate(home, 0.0, q, qd)
+    jets = home.pose_jets(q, qd)
+    for view in m.views("free"):
+        if not view.owns(e0.kin.pose):
+            continue
+        q2, qd2 = view.state_from(jets, {"phi": q[0], "psi": q[1]})
+        e = eng.evaluate(view, 0.0, q2, qd2)
+        for p in "ABC":
+            assert np.allclose(e.kin.position(p), e0.kin.position(p), atol=1e-15)
+            assert np.allclose(e.kin.velocity(p), e0.kin.velocity(p), rtol=1e-12, atol=1e-12)
+        # kinetic energy is a scalar: the same in every chart
+        assert math.isclose(e.kinetic_energy, e0.kinetic_energy, rel_tol=1e-12)
+        # crank angular acceleration, read through the new chart's exact mapping
+        phi_jet = m.observables["phi"].jet(view.pose_jets(q2, qd2), 2)
+        phi_ddot = float(phi_jet.grad @ e.qdd + phi_jet.d2)
+        assert math.isclose(phi_ddot, e0.qdd[0], rel_tol=1e-9), view.name
+
+
+def test_effects_only_those_listed_are_called():
+    class Spy(Gravity):
+        calls = 0
+
+        def loads(self, t, kin):
+            Spy.calls += 1
+            return super().loads(t, kin)
+
+    m, eng = engine("central", effects=[Spy((-9.81, 0.0))])
+    eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, STATES[0], [1.0, 0.0])
+    assert Spy.calls == 1
+    m, eng = engine("central", effects=[])
+    e = eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, STATES[0], [0.0, 0.0])
+    assert np.all(e.Q == 0.0) and np.allclose(e.qdd, 0.0)
