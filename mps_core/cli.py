@@ -11,6 +11,7 @@ SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import sys
 import time
@@ -48,7 +49,19 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
 
     sub.add_parser("scenes", help="list the preset scenes")
+    for name in PLUGINS:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name is not None and name.startswith(exc.name):
+                continue
+            raise
+        mod.register(sub)
     return p
+
+
+#: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
+PLUGINS = ("mps_core.loads_cli", "mps_core.bench.cli")
 
 
 def _run(args) -> int:
@@ -110,6 +123,8 @@ def main(argv=None) -> int:
             for n in preset_names():
                 print(n)
             return 0
+        if hasattr(args, "func"):
+            return int(args.func(args) or 0)
     except MpsError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2

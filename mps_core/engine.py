@@ -183,7 +183,7 @@ class PartialSystems:
         Q = np.zeros(kin.J.shape[-1])
         for e in self.effects:
             ld = e.loads(t, kin)
-            for point, fx, fy in ld.forces:
+            for _body, point, fx, fy in ld.forces:
                 J = kin.J[kin.names[point]]
                 Q += fx * J[0] + fy * J[1]
             for body, m in ld.torques:

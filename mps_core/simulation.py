@@ -52,12 +52,15 @@ class Simulation:
 
     def __init__(self, mechanism, structure: str, effects, initial, *,
                  solver: SolverSettings = SolverSettings(), charts: ChartPolicy = ChartPolicy(),
-                 t0: float = 0.0):
+                 t0: float = 0.0, observers=()):
         self.mechanism = mechanism
         self.structure = structure
         self.settings = solver
         self.policy = charts
         self.engine = PartialSystems(mechanism, effects, solver.scheme, solver.delta)
+        #: called at every recorded step: ``observe(simulation, evaluation)``; their
+        #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
+        self.observers = list(observers)
         self.views = mechanism.views(structure)
         view, q, qd = initial
         self.view: ChartView = view
@@ -229,10 +232,14 @@ class Simulation:
         rows["V"].append(self.engine.potential_energy(e.kin))
         rows["structure"].append(self.structure)
         rows["chart"].append(e.view.name)
+        for ob in self.observers:
+            ob.observe(self, e)
 
     def _trajectory(self, rows) -> Trajectory:
         cols = {k: (np.array(v, dtype=float) if k not in ("structure", "chart") else np.array(v))
                 for k, v in rows.items()}
+        for ob in self.observers:
+            cols.update(ob.columns())
         counts = dict(self.engine.counts)
         counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
         counts["steps"] = self.solver_steps + self.solver.nsteps

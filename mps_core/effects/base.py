@@ -16,10 +16,12 @@ import numpy as np
 
 @dataclass
 class Loads:
-    """Forces ``(point, Fx, Fy)`` and torques ``(body, M)`` that an effect applies to moving bodies.
+    """What an effect applies, in the frame's axes.
 
-    ``frame`` holds what the same effect applies to the frame (for the foundation load): forces
-    ``(point, Fx, Fy)`` and torques ``("frame", M)``; empty where the effect has no reaction on it.
+    ``forces``: ``(body, point, Fx, Fy)``, a force on a moving body at one of its points (a
+    mechanism point or a centre of mass ``G_<body>``); ``torques``: ``(body, M)``.
+    ``frame``: what the same effect applies to the frame (for the foundation load), forces
+    ``("frame", point, Fx, Fy)`` and torques ``("frame", M)``; empty where it has no reaction there.
     """
 
     forces: list = field(default_factory=list)
@@ -53,7 +55,7 @@ class Effect:
         """Mechanical power (W) this effect delivers to the moving bodies."""
         ld = self.loads(t, kin)
         p = 0.0
-        for point, fx, fy in ld.forces:
+        for _body, point, fx, fy in ld.forces:
             v = kin.velocity(point)
             p += fx * v[0] + fy * v[1]
         for body, m in ld.torques:

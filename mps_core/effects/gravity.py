@@ -24,17 +24,18 @@ class Gravity(Effect):
             raise ValueError(f"gravity g: expected two finite numbers (m/s²), got {g!r}")
 
     def bind(self, mechanism) -> None:
-        self._weights = [(f"G_{b.name}", b.mass * self.g[0], b.mass * self.g[1], b.mass)
+        self._weights = [(b.name, f"G_{b.name}", b.mass * self.g[0], b.mass * self.g[1], b.mass)
                          for b in mechanism.bodies]
-        self.acts_on = tuple(p for p, *_ in self._weights)
+        self._forces = [w[:4] for w in self._weights]
+        self.acts_on = tuple(w[0] for w in self._weights)
 
     def loads(self, t, kin) -> Loads:
-        return Loads(forces=[(p, fx, fy) for p, fx, fy, _ in self._weights])
+        return Loads(forces=self._forces)
 
     def potential(self, kin) -> float:
         gx, gy = self.g
         v = 0.0
-        for p, _, _, m in self._weights:
+        for _, p, _, _, m in self._weights:
             x, y = kin.position(p)
             v -= m * (gx * x + gy * y)
         return float(v)
