@@ -2,7 +2,7 @@
 
     mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--delta-deg D]
                   [--derivatives central|autodiff] [--iterations K] [--rtol R] [--atol A]
-                  [--no-chart-switching] [--csv FILE] [--events FILE]
+                  [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE]
     mps scenes
 
 SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
@@ -45,6 +45,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--atol", type=float, help="absolute tolerance (dop853, radau)")
     r.add_argument("--no-chart-switching", action="store_true",
                    help="stay in the initial chart; stop with an error where it degenerates")
+    r.add_argument("--reactions", action="store_true",
+                   help="compute the joint reactions and the foundation load at every step "
+                        "(adds their columns to --csv)")
     r.add_argument("--csv", metavar="FILE", help="write one row per step to FILE")
     r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
 
@@ -74,6 +77,10 @@ def _run(args) -> int:
     from . import build
 
     sim = build(scene)
+    if args.reactions:
+        from .reactions import ReactionObserver
+
+        sim.observers.append(ReactionObserver())
     c0 = time.process_time()
     traj = sim.run(scene.t_end, scene.dt)
     cpu = time.process_time() - c0
@@ -105,8 +112,21 @@ def _run(args) -> int:
     print(f"work: {c['evaluations']} evaluations, {c['position_points']} position points in "
           f"{c['position_calls']} calls; CPU {cpu * 1e3:.1f} ms "
           f"({cpu / max(1, c['steps']) * 1e6:.1f} us a step)")
+    if args.reactions:
+        import numpy as np
+
+        f = np.hypot(traj["F_found_x"], traj["F_found_y"])
+        print(f"reactions: foundation force peak {f.max():.6g} N, M_found_O peak "
+              f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
+              f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
+              f"N*m, balance {traj['balance_residual_N'].max():.3g} N")
     if args.csv:
-        traj.to_csv(args.csv)
+        if args.reactions:
+            from .reactions import write_csv
+
+            write_csv(traj, args.csv)
+        else:
+            traj.to_csv(args.csv)
         print(f"wrote {len(traj)} rows to {args.csv}")
     if args.events:
         traj.events_to_jsonl(args.events)

@@ -1,0 +1,96 @@
+"""``mps loads SCENE|RECORDING``: the load report of a steady working cycle.
+
+    mps loads SCENE|RECORDING [--json FILE] [--csv FILE] [--png FILE] [--harmonics N]
+                              [--structure NAME] [--t-end S] [--dt S] [--events FILE]
+
+SCENE is a preset name or a scene file: it is run with reactions. RECORDING is a CSV written by
+``mps run SCENE --reactions --csv FILE`` (one row a step, the reaction columns included), with
+its event log (``--events FILE``, JSON lines from ``mps run --events``) for the transients. The
+report (see :mod:`mps_core.loads`) is printed as a table; ``--json``/``--csv`` write it for tools
+and ``--png`` draws the figure.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from . import loads
+from .reactions import ReactionObserver, read_csv
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "loads", help="load report over a steady working cycle: peaks, RMS, harmonics, impulses")
+    p.add_argument("source", metavar="SCENE|RECORDING",
+                   help="preset name, scene file (TOML), or a CSV from mps run --reactions --csv")
+    p.add_argument("--json", metavar="FILE", help="write the report as JSON")
+    p.add_argument("--csv", metavar="FILE", help="write one row a quantity as CSV")
+    p.add_argument("--png", metavar="FILE", help="draw the figure (time series + harmonics)")
+    p.add_argument("--harmonics", type=int, default=loads.N_HARMONICS, metavar="N",
+                   help=f"harmonics of the crank frequency (default {loads.N_HARMONICS})")
+    p.add_argument("--structure", default="locked", metavar="NAME",
+                   help="the working structure whose last full revolution is analysed "
+                        "(default locked)")
+    p.add_argument("--t-end", type=float, metavar="S", help="end time of the run (s), scenes only")
+    p.add_argument("--dt", type=float, metavar="S", help="step of the run (s), scenes only")
+    p.add_argument("--events", metavar="FILE",
+                   help="a recording's event log (JSON lines) for the transients' impulses")
+    p.set_defaults(func=run)
+
+
+def _columns(args):
+    src = args.source
+    if src.lower().endswith(".csv"):
+        if args.t_end is not None or args.dt is not None:
+            raise loads.LoadReportError("--t-end and --dt apply to scenes, not to a recording")
+        if not Path(src).exists():
+            raise loads.LoadReportError(f"recording {src!r}: no such file")
+        return read_csv(src), _events(args.events), Path(src).name
+    if args.events is not None:
+        raise loads.LoadReportError("--events applies to a recording; a scene's run keeps its own")
+    from . import build
+    from .scene import load_scene
+
+    scene = load_scene(src).with_overrides(t_end=args.t_end, dt=args.dt)
+    sim = build(scene)
+    obs = ReactionObserver()
+    sim.observers.append(obs)
+    traj = sim.run(scene.t_end, scene.dt)
+    return traj.columns, list(traj.events), scene.name
+
+
+def _events(path) -> list[dict]:
+    if path is None:
+        return []
+    p = Path(path)
+    if not p.exists():
+        raise loads.LoadReportError(f"--events {path!r}: no such file")
+    out = []
+    for i, line in enumerate(p.read_text().splitlines(), 1):
+        if line.strip():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError as exc:
+                raise loads.LoadReportError(f"--events {path}: line {i} is not JSON ({exc.msg})") \
+                    from None
+    return out
+
+
+def run(args) -> int:
+    if not 1 <= args.harmonics <= 50:
+        raise loads.LoadReportError(f"--harmonics = {args.harmonics}: expected 1 to 50")
+    columns, events, name = _columns(args)
+    report = loads.load_report(columns, n=args.harmonics, mode=args.structure, events=events,
+                               source=name)
+    print(loads.format_table(report))
+    if args.json:
+        loads.write_json(report, args.json)
+        print(f"wrote {args.json}")
+    if args.csv:
+        loads.write_csv(report, args.csv)
+        print(f"wrote {args.csv}")
+    if args.png:
+        loads.write_png(report, columns, args.png)
+        print(f"wrote {args.png}")
+    return 0
