@@ -24,7 +24,7 @@ def build(scene: Scene | str) -> Simulation:
         scene = load_scene(scene)
     mech = scene.mechanism()
     return Simulation(mech, scene.structure, scene.build_effects(mech), scene.initial_state(mech),
-                      solver=scene.solver, charts=scene.charts)
+                      solver=scene.solver, charts=scene.charts, commands=scene.commands)
 
 
 def simulate(scene: Scene | str, **overrides) -> Trajectory:

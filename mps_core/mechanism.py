@@ -119,6 +119,8 @@ class Chart:
     regularity: Callable[[Mapping], float]
     owns: Callable[[Mapping], bool]
     scales: tuple[float, ...]
+    #: structures that may use this chart (None: every structure whose frozen coordinates it has)
+    only_in: tuple[str, ...] | None = None
 
     @property
     def size(self) -> int:
@@ -226,6 +228,8 @@ class Mechanism:
         out = []
         for chart in self.charts:
             names = {c.name for c in chart.coordinates}
+            if chart.only_in is not None and s.name not in chart.only_in:
+                continue
             if all(k in names for k in s.frozen):
                 out.append(ChartView(chart, s.frozen))
         return out

@@ -1,4 +1,9 @@
-"""Names used everywhere (CSV columns, units): defined once here."""
+"""Names used everywhere (CSV columns, units): defined once here.
+
+W is the work done on the moving links by the non-conservative effects (motor, cylinders,
+technological load, friction, dampers) since the start; E_impact the kinetic energy lost in
+impacts. The energy balance: T + V − (T0 + V0) = W − E_impact.
+"""
 
 #: columns of a trajectory, in CSV order, with their units
 COLUMNS = {
@@ -12,6 +17,8 @@ COLUMNS = {
     "x_C": "m",
     "T": "J",
     "V": "J",
+    "W": "J",
+    "E_impact": "J",
     "structure": "",
     "chart": "",
 }

@@ -20,15 +20,17 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .effects import MOTOR_PRESETS, Gravity, Motor, MotorData
+from .effects import (MOTOR_PRESETS, Blanking, DisengageCylinder, EngageCylinder, Gravity,
+                      GuideFriction, JointFriction, Latch, Motor, MotorData, RetentionSprings,
+                      SliderDamper, TopStop)
 from .engine import SCHEMES
 from .errors import SceneError
 from .mechanisms.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
-from .simulation import ChartPolicy, SolverSettings
+from .simulation import COMMANDS, ChartPolicy, SolverSettings
 from .solvers import SOLVERS
 
 BODY_NAMES = ("crank", "rod", "rocker", "slider")
-STRUCTURES = ("free", "locked")
+STRUCTURES = ("free", "locked", "held")
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class Scene:
     geometry: PressGeometry
     assembly: int
     bodies: dict
+    x_top: float | None
     structure: str
     psi_lock: float
     initial: dict
@@ -54,6 +57,7 @@ class Scene:
     t_end: float
     dt: float
     charts: ChartPolicy
+    commands: tuple = ()
     text: str = ""
     origin: str = ""
 
@@ -98,10 +102,15 @@ class Scene:
 
     # -- building -------------------------------------------------------------------------
     def mechanism(self) -> PressMechanism:
-        return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock)
+        return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock, x_top=self.x_top)
 
     def build_effects(self, mechanism) -> list:
-        return [_EFFECT_BUILDERS[e.kind](e.params) for e in self.effects]
+        """The effects the scene lists, and only those (a spring's damping is its own unit)."""
+        out = []
+        for e in self.effects:
+            built = _EFFECT_BUILDERS[e.kind](e.params, self)
+            out.extend(built if isinstance(built, list) else [built])
+        return out
 
     def initial_state(self, mechanism):
         i = self.initial
@@ -196,18 +205,48 @@ _UNIT_HINTS = {
 }
 
 
-def _build_gravity(p):
+def _build_gravity(p, scene):
     return Gravity(p["g"])
 
 
-def _build_motor(p):
+def _build_motor(p, scene):
     data: MotorData = p["data"]
     if p.get("ratio") is not None:
         return Motor(data, p["ratio"], p["efficiency"])
     return Motor.for_crank_speed(data, p["crank_speed"], efficiency=p["efficiency"])
 
 
-_EFFECT_BUILDERS = {"gravity": _build_gravity, "motor": _build_motor}
+def _build_springs(p, scene):
+    out = [RetentionSprings(p["stiffness"], p["preload"], scene.x_top)]
+    if p["damping"] > 0.0:
+        out.append(SliderDamper(p["damping"], name="springs-damping"))
+    return out
+
+
+_EFFECT_BUILDERS = {
+    "gravity": _build_gravity,
+    "motor": _build_motor,
+    "springs": _build_springs,
+    "top_stop": lambda p, sc: TopStop(sc.x_top, p["model"], p["stiffness"], p["damping"]),
+    "engage_cylinder": lambda p, sc: EngageCylinder(p["force"], p["stroke"], sc.x_top),
+    "latch": lambda p, sc: Latch(sc.psi_lock),
+    "disengage_cylinder": lambda p, sc: DisengageCylinder(p["torque"], p["duration"]),
+    "blanking": lambda p, sc: Blanking(p["peak_force"], p["x_contact"], p["thickness"],
+                                       p["breakthrough"]),
+    "joint_friction": lambda p, sc: JointFriction(p["coulomb"], p["viscous"], p["rate_smooth"],
+                                                  p["joints"]),
+    "guide_friction": lambda p, sc: GuideFriction(p["coulomb"], p["viscous"], p["speed_smooth"]),
+}
+
+#: effects that need the top stop's position (mechanism.x_top_mm)
+_NEEDS_X_TOP = ("springs", "top_stop", "engage_cylinder")
+
+
+def _nonneg(fieldname, v, unit) -> float:
+    x = _num(fieldname, v, f"a number >= 0{unit}")
+    if x < 0:
+        raise SceneError(fieldname, v, f"a number >= 0{unit}")
+    return x
 
 
 def _effect(i, raw) -> EffectSpec:
@@ -215,6 +254,11 @@ def _effect(i, raw) -> EffectSpec:
     t = _Table(raw, path)
     kind = t.get("type", required=True)
     _choice(f"{path}.type", kind, tuple(_EFFECT_BUILDERS))
+    simple = _SIMPLE_EFFECTS.get(kind)
+    if simple is not None:
+        params = simple(t, path)
+        t.done()
+        return EffectSpec(kind, params)
     if kind == "gravity":
         g = t.get("g_m_s2", [-9.81, 0.0])
         if (not isinstance(g, list) or len(g) != 2
@@ -263,6 +307,98 @@ def _effect(i, raw) -> EffectSpec:
                                 "efficiency": eff})
 
 
+def _springs(t, path):
+    k = _positive(f"{path}.stiffness_n_m", t.get("stiffness_n_m", required=True), unit=" (N/m)")
+    f0 = _nonneg(f"{path}.preload_n", t.get("preload_n", required=True), " (N)")
+    c = _nonneg(f"{path}.damping_n_s_m", t.get("damping_n_s_m", 0.0), " (N·s/m)")
+    return {"stiffness": k, "preload": f0, "damping": c}
+
+
+def _top_stop(t, path):
+    model = t.get("model", "rigid")
+    _choice(f"{path}.model", model, ("rigid", "elastic"))
+    k = t.get("stiffness_n_m", 0.0 if model == "rigid" else None)
+    if model == "elastic":
+        if k is None:
+            raise SceneError(f"{path}.stiffness_n_m", None, "a contact stiffness (elastic stop)")
+        k = _positive(f"{path}.stiffness_n_m", k, unit=" (N/m)")
+    c = _nonneg(f"{path}.damping_n_s_m", t.get("damping_n_s_m", 0.0), " (N·s/m)")
+    return {"model": model, "stiffness": float(k), "damping": c}
+
+
+def _engage(t, path):
+    f = _positive(f"{path}.force_n", t.get("force_n", required=True), unit=" (N)")
+    stroke = _positive(f"{path}.stroke_mm", t.get("stroke_mm", required=True), upper=10.0,
+                       unit=" (mm)") / 1000.0
+    return {"force": f, "stroke": stroke}
+
+
+def _latch(t, path):
+    return {}
+
+
+def _disengage(t, path):
+    m = _positive(f"{path}.torque_nm", t.get("torque_nm", required=True), unit=" (N·m)")
+    d = _positive(f"{path}.duration_s", t.get("duration_s", required=True), upper=10.0,
+                  unit=" (s)")
+    return {"torque": m, "duration": d}
+
+
+def _blanking(t, path):
+    per = _positive(f"{path}.perimeter_mm", t.get("perimeter_mm", required=True), unit=" (mm)")
+    th = _positive(f"{path}.thickness_mm", t.get("thickness_mm", required=True), upper=20.0,
+                   unit=" (mm)")
+    tau = _positive(f"{path}.shear_strength_mpa", t.get("shear_strength_mpa", required=True),
+                    upper=3000.0, unit=" (MPa)")
+    xc = _num(f"{path}.contact_mm", t.get("contact_mm", required=True), "a slider position (mm)")
+    bt = _num(f"{path}.breakthrough", t.get("breakthrough", 0.5), "a fraction of the thickness")
+    if not (0 < bt <= 1):
+        raise SceneError(f"{path}.breakthrough", bt, "a fraction of the thickness in (0, 1]")
+    # peak blanking force L·t·τ (mm · mm · N/mm²)
+    return {"peak_force": per * th * tau, "x_contact": xc / 1000.0, "thickness": th / 1000.0,
+            "breakthrough": bt}
+
+
+def _joint_friction(t, path):
+    joints = t.get("joints", ["O", "A", "B", "C"])
+    if not isinstance(joints, list) or not joints or any(j not in ("O", "A", "B", "C")
+                                                          for j in joints):
+        raise SceneError(f"{path}.joints", joints, "a list of joints among 'O', 'A', 'B', 'C'")
+    return {"coulomb": _nonneg(f"{path}.coulomb_nm", t.get("coulomb_nm", 0.0), " (N·m)"),
+            "viscous": _nonneg(f"{path}.viscous_nm_s", t.get("viscous_nm_s", 0.0), " (N·m·s)"),
+            "rate_smooth": _positive(f"{path}.rate_smooth_rad_s",
+                                     t.get("rate_smooth_rad_s", 0.05), unit=" (rad/s)"),
+            "joints": tuple(joints)}
+
+
+def _guide_friction(t, path):
+    return {"coulomb": _nonneg(f"{path}.coulomb_n", t.get("coulomb_n", 0.0), " (N)"),
+            "viscous": _nonneg(f"{path}.viscous_n_s_m", t.get("viscous_n_s_m", 0.0), " (N·s/m)"),
+            "speed_smooth": _positive(f"{path}.speed_smooth_m_s",
+                                      t.get("speed_smooth_m_s", 1e-3), unit=" (m/s)")}
+
+
+_SIMPLE_EFFECTS = {"springs": _springs, "top_stop": _top_stop, "engage_cylinder": _engage,
+                   "latch": _latch, "disengage_cylinder": _disengage, "blanking": _blanking,
+                   "joint_friction": _joint_friction, "guide_friction": _guide_friction}
+
+
+def _commands(raw) -> tuple:
+    if not isinstance(raw, list):
+        raise SceneError("commands", raw, "an array of tables [[commands]] with t_s and command")
+    out = []
+    for i, c in enumerate(raw):
+        t = _Table(c, f"commands[{i}]", {"t": "t_s"})
+        ts = _num(f"commands[{i}].t_s", t.get("t_s", required=True), "a time in seconds >= 0")
+        if ts < 0:
+            raise SceneError(f"commands[{i}].t_s", ts, "a time in seconds >= 0")
+        name = t.get("command", required=True)
+        _choice(f"commands[{i}].command", name, COMMANDS)
+        t.done()
+        out.append((ts, name))
+    return tuple(sorted(out))
+
+
 def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
     top = _Table(raw, "scene file")
     meta = _Table(top.get("scene", {}), "scene")
@@ -286,6 +422,14 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
                          f"a rod longer than the crank (l1_mm = {l1 * 1000:g}) so the crank can turn")
     assembly = mt.get("assembly", 1)
     _choice("mechanism.assembly", assembly, (1, -1))
+    x_top = mt.get("x_top_mm")
+    if x_top is not None:
+        x_top = _num("mechanism.x_top_mm", x_top, "the top stop's position (mm)") / 1000.0
+        lo, hi = l2 - l1 - l3, l1 + l2 + l3
+        if not (lo < x_top < hi):
+            raise SceneError("mechanism.x_top_mm", x_top * 1000,
+                             f"a slider position the links can reach ({lo * 1000:g} to "
+                             f"{hi * 1000:g} mm)")
     mt.done()
     geometry = PressGeometry(l1, l2, l3)
 
@@ -333,6 +477,8 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
             raise SceneError("initial.psi_dot_rad_s", psi_dot, "0 in the locked structure")
     initial = {"phi": phi, "phi_dot": phi_dot, "psi": psi, "psi_dot": psi_dot}
 
+    commands = _commands(top.get("commands", []))
+
     raw_effects = top.get("effects", [])
     if not isinstance(raw_effects, list):
         raise SceneError("effects", raw_effects, "an array of tables [[effects]]")
@@ -341,6 +487,22 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     for k in set(kinds):
         if kinds.count(k) > 1:
             raise SceneError("effects", kinds, f"each effect once ({k!r} is listed twice)")
+    for i, e in enumerate(effects):
+        if e.kind in _NEEDS_X_TOP and x_top is None:
+            raise SceneError("mechanism.x_top_mm", None,
+                             f"the top stop's position (effects[{i}] {e.kind!r} needs it)")
+    rigid_stop = any(e.kind == "top_stop" and e.params["model"] == "rigid" for e in effects)
+    if structure == "held" and not rigid_stop:
+        raise SceneError("structure.initial", structure,
+                         "a rigid top_stop effect for the held structure")
+    for i, (ts, name) in enumerate(commands):
+        need = {"engage": ("latch", "engage_cylinder"), "disengage": ("latch",),
+                "stop": ("motor",), "start": ("motor",)}[name]
+        missing = [k for k in need if k not in kinds]
+        if missing:
+            raise SceneError(f"commands[{i}].command", name,
+                             "a command whose effects the scene lists (missing: "
+                             + ", ".join(missing) + ")")
 
     sv = _Table(top.get("solver", {}), "solver", _UNIT_HINTS["solver"])
     method = sv.get("method", "linear-acceleration")
@@ -353,6 +515,8 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
         raise SceneError("solver.corrector_iterations", iters, "an integer from 1 to 50")
     rtol = _tol("solver.rtol", sv.get("rtol", 1e-9))
     atol = _tol("solver.atol", sv.get("atol", 1e-12))
+    stiff = sv.get("stiff", "subdivide")
+    _choice("solver.stiff", stiff, ("subdivide", "error"))
     t_end = _positive("solver.t_end_s", sv.get("t_end_s", required=True), upper=1e5, unit=" (s)")
     steps = sv.get("steps")
     dt = sv.get("dt_s")
@@ -379,11 +543,24 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     ct.done()
     top.done()
 
-    scene = Scene(sname, desc, geometry, assembly, bodies, structure, psi_lock, initial, effects,
-                  SolverSettings(method, scheme, delta, iters, rtol, atol), t_end, float(dt),
-                  ChartPolicy(switching, switch_below, fail_below), text, origin)
-    # the initial state must assemble: checked now, before anything runs
-    scene.initial_state(scene.mechanism())
+    scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
+                  effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff),
+                  t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
+                  text, origin)
+    for i, (ts, name) in enumerate(commands):
+        if ts > t_end:
+            raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {t_end:g}")
+    # the initial state must assemble (and lie on the closure): checked before anything runs
+    mech = scene.mechanism()
+    view, q, _ = scene.initial_state(mech)
+    if structure == "held" and initial["psi"] is not None:
+        pose = view.positions(list(q))
+        psi0 = math.atan2(pose["B"][1] - pose["C"][1], pose["B"][0] - pose["C"][0])
+        d = (initial["psi"] - psi0 + math.pi) % (2 * math.pi) - math.pi
+        if abs(d) > math.radians(10.0):
+            raise SceneError("initial.psi_deg", math.degrees(initial["psi"]),
+                             f"a rocker angle near the closure's {math.degrees(psi0):.2f}° (in "
+                             "held, ψ follows from the closure; psi_deg picks the assembly)")
     return scene
 
 

@@ -1,30 +1,73 @@
-"""The run driver: steps a solver on the engine, keeps the chart regular, records the trajectory.
+"""The run driver: steps a solver on the engine through structures, events, commands and charts.
 
-Charts. After every step the driver reads the current chart's regularity at the new state. Below
-``switch_below`` it moves to the regular chart of the same structure that owns the configuration
-(right assembly) and is most regular there, mapping q and q̇ exactly: the configuration and the
-point velocities come from jets (exact derivatives) in the old chart and are read off as the new
-chart's coordinates and their rates; angles are unwrapped to stay continuous. A step that leaves
-its chart's domain is not taken: the driver changes chart at the step's start and takes it again.
-If no chart is regular (all below ``fail_below``) the configuration is a true singularity of the
-machine and :class:`~mps_core.errors.SingularConfiguration` is raised; with switching turned off
-the run stops with :class:`~mps_core.errors.ChartBreakdown` where its chart degenerates.
+**Structures** (contract §5): ``free`` (φ, ψ), ``locked`` (ψ frozen at ψ_lock: the latch closed),
+``held`` (x_C frozen at x_top: the slider on its top stop). Switches:
+
+* latch closes (latch armed, ψ reaches ψ_lock): perfectly plastic impact,
+  ``q̇⁺ = q̇⁻ − A⁻¹g (gᵀq̇⁻)/(gᵀA⁻¹g)`` with g = ∇ψ, then ``locked``;
+* slider reaches its top stop moving up: the same impact with g = ∇x_C, then ``held``;
+* slider leaves its top stop: where the stop's reaction λ (the generalized force along x_C the
+  stop must give the slider, from the unfrozen chart's equations) turns tensile, then ``free``;
+* latch opens at a ``disengage`` command: ``free`` with ψ̇ = 0, no jump.
+
+**Events** are located inside the step: after each step the event functions are compared with
+their values at the step's start; at a sign change the root of the function along the step's dense
+output is found (Brent, |Δt| ≤ 1e-13 s), the step is cut there, the solver restarted from the
+interpolated state at the root, and the event's action applied. Each event is logged (time, kind,
+velocities before and after, kinetic energy lost, impulse). **Commands** (``engage``,
+``disengage``, ``stop``, ``start``) are applied at their exact time by cutting the step there.
+
+**Charts** (see :mod:`mps_core.mechanism`): after every step the current chart's regularity is
+read; below ``switch_below`` the driver moves to the most regular chart of the structure that
+owns the configuration, mapping q and q̇ exactly through jets. A step that leaves its chart's
+domain is retaken in another chart. No regular chart: :class:`SingularConfiguration`; switching
+off: :class:`ChartBreakdown`.
+
+**Stiff effects**: before each fixed step the shortest period T_min of the stiff effects
+(generalized eigenproblem K v = ω² A v) is compared with the method's stability limit (linear
+acceleration √3/π·T_min ≈ 0.551·T_min; RK4 2√2/ω ≈ 0.450·T_min). Policy ``subdivide`` cuts the
+step into stable substeps; ``error`` raises :class:`StabilityError` saying why.
+
+**Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
+their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
+``T + V − (T0 + V0) − W + E_impact`` closes to the integration error.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
+from scipy.optimize import brentq
 
+from .effects import Controls, Latch, Motor, TopStop
+from .effects.controls import ControlledEffect
 from .engine import PartialSystems
-from .errors import (ChartBreakdown, ChartDomainError, NumericalError, SingularConfiguration,
-                     config_in_degrees)
+from .errors import (ChartBreakdown, ChartDomainError, MpsError, NumericalError,
+                     SimulationError, SingularConfiguration, config_in_degrees)
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
 from .solvers import make_solver
 from .trajectory import Trajectory
+
+COMMANDS = ("engage", "disengage", "stop", "start")
+LA_LIMIT = math.sqrt(3.0) / math.pi          # linear acceleration: dt < 0.551 T_min
+RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)   # RK4: ω dt < 2√2
+
+
+class StabilityError(SimulationError):
+    """A fixed step exceeds the solver's stability limit for a stiff effect."""
+
+
+class CommandRefused(MpsError):
+    """A command that makes no sense in the machine's present state (or an unknown word)."""
+
+    def __init__(self, command, reason: str):
+        self.command = command
+        self.reason = reason
+        super().__init__(f"command {command!r} refused: {reason}")
 
 
 @dataclass(frozen=True)
@@ -45,33 +88,79 @@ class SolverSettings:
     iterations: int = 1
     rtol: float = 1e-9
     atol: float = 1e-12
+    #: what to do with a fixed step beyond the stability limit of a stiff effect
+    stiff: str = "subdivide"
+
+
+@dataclass
+class _Event:
+    name: str
+    fn: Callable
+    direction: int          # +1 rising through zero, -1 falling, 0 either
+    action: Callable
 
 
 class Simulation:
-    """One run of a mechanism in a structure, from an initial chart state."""
+    """One run of a mechanism: structures, events, commands, charts."""
 
     def __init__(self, mechanism, structure: str, effects, initial, *,
                  solver: SolverSettings = SolverSettings(), charts: ChartPolicy = ChartPolicy(),
-                 t0: float = 0.0, observers=()):
+                 t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None):
         self.mechanism = mechanism
-        self.structure = structure
         self.settings = solver
         self.policy = charts
-        self.engine = PartialSystems(mechanism, effects, solver.scheme, solver.delta)
+        self.effects = list(effects)
+        self.controls = controls or Controls(structure=structure)
+        self.controls.structure = structure
+        for e in self.effects:
+            if isinstance(e, ControlledEffect):
+                e.use(self.controls)
+        self.engine = PartialSystems(mechanism, self.effects, solver.scheme, solver.delta)
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
-        self.views = mechanism.views(structure)
+        self.latch = next((e for e in self.effects if isinstance(e, Latch)), None)
+        self.stop = next((e for e in self.effects if isinstance(e, TopStop) and e.rigid), None)
+        self.motor = next((e for e in self.effects if isinstance(e, Motor)), None)
+        if self.motor is not None:
+            self.controls.motor_on = self.motor.enabled
+        self.engage = next((e for e in self.effects if e.kind == "engage_cylinder"), None)
+        self._nc = [e for e in self.effects if not e.conservative]
+        self._stiff = [e for e in self.effects if hasattr(e, "stiffness")]
+        self._views: dict[str, list[ChartView]] = {}
+        self._full: dict[str, ChartView] = {}
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
+        self.pending: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
         self.solver_nfev = 0
         self.solver_steps = 0
+        self.work = 0.0
+        self.impact_loss = 0.0
         self._report = getattr(mechanism, "report", {"phi": 2, "psi": 2, "x_C": 0})
-        self.phys = {}
+        self.phys: dict[str, float] = {}
         self.solver = self._new_solver(t0, q, qd)
-        self._update_phys(self.solver.current, init=True)
+        self._update_phys(self.solver.current)
+        self._power_now = self._power(self.solver.current)
         self._check_chart()
+        self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
+        self._seg_start = self.solver.t
+        if self._ev_prev.get("stop-release", -1.0) > 0.0:
+            self._release_stop(self.solver.t)
+
+    # -- state ----------------------------------------------------------------------------
+    @property
+    def structure(self) -> str:
+        return self.controls.structure
+
+    @property
+    def t(self) -> float:
+        return self.solver.t
+
+    def views(self, structure: str) -> list[ChartView]:
+        if structure not in self._views:
+            self._views[structure] = self.mechanism.views(structure)
+        return self._views[structure]
 
     # -- solver management ----------------------------------------------------------------
     def _fun(self, view):
@@ -89,6 +178,16 @@ class Simulation:
             self.solver_steps += old.nsteps
         return make_solver(s.name, self._fun(self.view), t, q, qd, iterations=s.iterations,
                            rtol=s.rtol, atol=s.atol, scales=self.view.scales)
+
+    def _restart(self, view, t, q, qd):
+        self.view = view
+        self.solver = self._new_solver(t, q, qd)
+        self._power_now = self._power(self.solver.current)
+        self._ev_prev = self._event_values(t, self.solver.q, self.solver.qd)
+        self._seg_start = t
+        # the forces may have changed (a command, an impact): a stop that would now pull lets go
+        if self._ev_prev.get("stop-release", -1.0) > 0.0:
+            self._release_stop(t)
 
     # -- physical observables -------------------------------------------------------------
     def _observe(self, e):
@@ -115,19 +214,29 @@ class Simulation:
                 out[name] = (v, float(j.d1), float(j.grad @ e.qdd + j.d2))
         return out
 
-    def _update_phys(self, e, init=False):
+    def _update_phys(self, e):
         for name, (v, _, _) in self._observe(e).items():
             self.phys[name] = v
+
+    def _physical_rates(self, view, q, qd) -> dict:
+        """Physical φ, ψ, x_C and their rates at a chart state (exact, through jets)."""
+        jets = view.pose_jets(q, qd)
+        out = {}
+        for name in ("phi", "psi", "x_C"):
+            j = self.mechanism.observables[name].jet(jets, view.n)
+            v = float(j.val)
+            if name in self.phys and self.mechanism.observables[name].is_angle:
+                v = unwrap_to(v, self.phys[name])
+            out[name] = v
+            out[name + "_dot"] = float(j.d1)
+        return out
 
     def config(self, e=None) -> dict:
         e = e or self.solver.current
         vals = {k: v for k, (v, _, _) in self._observe(e).items()}
-        return config_in_degrees(vals) | {"chart": self.view.name}
+        return config_in_degrees(vals) | {"structure": self.structure, "chart": self.view.name}
 
     # -- charts ---------------------------------------------------------------------------
-    def _regularity(self, view, pose) -> float:
-        return view.regularity(pose)
-
     def _check_chart(self):
         e = self.solver.current
         reg = self.view.regularity(e.kin.pose)
@@ -141,16 +250,20 @@ class Simulation:
             return
         self._switch(reg, forced=False)
 
-    def _switch(self, reg_now: float, forced: bool):
-        e = self.solver.current
-        pose = e.kin.pose
+    def _best_view(self, structure, pose, exclude=None):
         best, best_reg = None, -1.0
-        for v in self.views:
-            if v.chart is self.view.chart or not v.owns(pose):
+        for v in self.views(structure):
+            if (exclude is not None and v.chart is exclude) or not v.owns(pose):
                 continue
             r = v.regularity(pose)
             if r > best_reg:
                 best, best_reg = v, r
+        return best, best_reg
+
+    def _switch(self, reg_now: float, forced: bool):
+        e = self.solver.current
+        pose = e.kin.pose
+        best, best_reg = self._best_view(self.structure, pose, exclude=self.view.chart)
         if best is None or best_reg < self.policy.fail_below:
             if forced or reg_now < self.policy.fail_below:
                 raise SingularConfiguration(
@@ -160,31 +273,363 @@ class Simulation:
             return
         if best_reg <= reg_now and not forced:
             return
-        jets = self.view.pose_jets(e.q, e.qd)
-        q, qd = best.state_from(jets, self.phys)
-        check = best.positions(list(q))
-        for p, (x, y) in pose.items():
-            if p in check:
-                cx, cy = check[p]
-                if abs(cx - x) + abs(cy - y) > 1e-9 * (1.0 + abs(x) + abs(y)):
-                    raise NumericalError(f"chart change {self.view.name} -> {best.name} does not "
-                                         f"reproduce point {p}", e.t, self.config(e))
+        q, qd = self._map_state(self.view, e.q, e.qd, best)
         self.events.append({"t": e.t, "kind": "chart", "from": self.view.name, "to": best.name,
                             "regularity_from": reg_now, "regularity_to": best_reg,
                             "forced": forced})
-        self.view = best
-        self.solver = self._new_solver(e.t, q, qd)
+        self._restart(best, e.t, q, qd)
+
+    def _map_state(self, view, q, qd, target):
+        """(q, q̇) of ``target`` for the state (q, q̇) of ``view``: exact, through jets."""
+        jets = view.pose_jets(q, qd)
+        q2, qd2 = target.state_from(jets, self.phys)
+        pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
+                    float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
+        check = target.positions(list(q2))
+        for p, (x, y) in pose.items():
+            cx, cy = check[p]
+            if abs(cx - x) + abs(cy - y) > 1e-9 * (1.0 + abs(x) + abs(y)):
+                raise NumericalError(f"changing to chart {target.name} does not reproduce point "
+                                     f"{p}", self.solver.t, self.config())
+        return q2, qd2
+
+    # -- events ---------------------------------------------------------------------------
+    def _observable(self, name, view, q) -> float:
+        k = view.coordinate_index(name)
+        if k is not None:
+            return float(q[k])
+        if name in view.frozen:
+            return float(view.frozen[name])
+        pose = view.positions(list(q))
+        v = self.mechanism.observables[name].value(
+            {p: (float(x), float(y)) for p, (x, y) in pose.items()})
+        if self.mechanism.observables[name].is_angle and name in self.phys:
+            v = unwrap_to(v, self.phys[name])
+        return v
+
+    def _event_list(self) -> list[_Event]:
+        ev = []
+        s = self.structure
+        if s == "free":
+            if self.latch is not None and self.controls.latch_armed:
+                lock = self.latch.psi_lock
+                ev.append(_Event("latch-closes",
+                                 lambda t, v, q, qd: self._observable("psi", v, q) - lock, 0,
+                                 self._close_latch))
+            if self.stop is not None:
+                top = self.stop.x_top
+                ev.append(_Event("stop-contact",
+                                 lambda t, v, q, qd: self._observable("x_C", v, q) - top, +1,
+                                 self._hit_stop))
+        elif s == "held" and self.stop is not None:
+            ev.append(_Event("stop-release", lambda t, v, q, qd: self._stop_force(t, q, qd, v),
+                             +1, self._release_stop))
+        if self.view.chart.name.startswith("phi-xc~"):
+            ev.append(_Event("change-point",
+                             lambda t, v, q, qd: math.sin(0.5 * self._observable("phi", v, q)),
+                             0, self._record_change_point))
+        return ev
+
+    def _event_values(self, t, q, qd) -> dict:
+        return {e.name: e.fn(t, self.view, q, qd) for e in self._event_list()}
+
+    @staticmethod
+    def _crossed(a: float, b: float, direction: int) -> bool:
+        if direction > 0:
+            return a < 0.0 <= b
+        if direction < 0:
+            return a > 0.0 >= b
+        return (a < 0.0 <= b) or (a > 0.0 >= b)
 
     def _interrupt(self, t, q, qd) -> bool:
+        """Called by adaptive solvers after each internal step: stop for an event or a chart."""
         try:
             pose = self.view.positions(list(q))
         except ChartDomainError:
             return True
         reg = self.view.regularity({k: (float(x), float(y)) for k, (x, y) in pose.items()})
         limit = self.policy.switch_below if self.policy.switching else self.policy.fail_below
-        return reg < limit
+        if reg < limit:
+            return True
+        vals = self._event_values(t, q, qd)
+        for e in self._event_list():
+            if e.name in self._ev_prev and self._crossed(self._ev_prev[e.name], vals[e.name],
+                                                           e.direction):
+                return True
+        self._ev_prev = vals
+        self._seg_start = t
+        return False
+
+    def _locate_event(self):
+        """(earliest event root inside the last step or None, event values at the step's end)."""
+        s = self.solver
+        events = self._event_list()
+        if not events:
+            return None, {}
+        vals = self._event_values(s.t, s.q, s.qd)
+        dense = s.dense_output()
+        t_a = self._seg_start
+        first = None
+        for e in events:
+            a, b = self._ev_prev.get(e.name), vals[e.name]
+            if a is None or not self._crossed(a, b, e.direction):
+                continue
+
+            def g(t, fn=e.fn):
+                q, qd = dense(t)
+                return fn(t, self.view, q, qd)
+
+            if a == 0.0:
+                root = t_a
+            else:
+                root = brentq(g, t_a, s.t, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+            if first is None or root < first[0]:
+                first = (root, e, b)
+        return first, vals
+
+    def _cut_at(self, t_e: float):
+        """Restart the solver from the last step's interpolant at t_e (same chart)."""
+        q, qd = self.solver.dense_output()(t_e)
+        self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
+
+    # -- actions --------------------------------------------------------------------------
+    def _impact(self, obs_name: str, kind: str, new_structure: str, t: float) -> dict:
+        """Perfectly plastic impact on the constraint ∇(observable) · q̇ = 0."""
+        view, e = self.view, self.solver.current
+        q, qd = e.q, e.qd
+        jets = view.pose_jets(q, qd)
+        g = np.asarray(self.mechanism.observables[obs_name].jet(jets, view.n).grad, float)
+        Ainv_g = np.linalg.solve(e.A, g)
+        gAg = float(g @ Ainv_g)
+        s = float(g @ qd)
+        qd_plus = qd - Ainv_g * (s / gAg)
+        lost = 0.5 * s * s / gAg
+        before = self._physical_rates(view, q, qd)
+        after = self._physical_rates(view, q, qd_plus)
+        self.impact_loss += lost
+        rec = {"t": t, "kind": kind, "from": self.structure, "to": new_structure,
+               "velocities_before": {k: before[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
+               "velocities_after": {k: after[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
+               "energy_lost": lost,
+               "impulse": -s / gAg,
+               "impulse_unit": "N*m*s" if obs_name == "psi" else "N*s",
+               "state": {k: before[k] for k in ("phi", "psi", "x_C")}}
+        self._enter(new_structure, q, qd_plus, t)
+        return rec
+
+    def _enter(self, structure: str, q, qd, t):
+        """Change structure at t from the current view's state (q, q̇) (already consistent)."""
+        jets = self.view.pose_jets(q, qd)
+        pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
+                    float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
+        best, reg = self._best_view(structure, pose)
+        if best is None or reg < self.policy.fail_below:
+            raise SingularConfiguration(f"no chart of structure {structure!r} is regular here",
+                                        t, self.config())
+        q2, qd2 = self._map_state(self.view, q, qd, best)
+        self.controls.structure = structure
+        self._restart(best, t, q2, qd2)
+
+    def _close_latch(self, t):
+        rec = self._impact("psi", "latch-closes", "locked", t)
+        self.events.append(rec)
+
+    def _hit_stop(self, t):
+        rec = self._impact("x_C", "stop-contact", "held", t)
+        self.events.append(rec)
+
+    def _release_stop(self, t):
+        e = self.solver.current
+        rates = self._physical_rates(self.view, e.q, e.qd)
+        self._enter("free", e.q, e.qd, t)
+        self.events.append({"t": t, "kind": "stop-release", "from": "held", "to": "free",
+                            "velocities_before": {k: rates[k] for k in ("phi_dot", "psi_dot",
+                                                                         "x_C_dot")},
+                            "energy_lost": 0.0, "impulse": 0.0})
+
+    def _record_change_point(self, t):
+        e = self.solver.current
+        rates = self._physical_rates(self.view, e.q, e.qd)
+        self.events.append({"t": t, "kind": "change-point", "choice": "smooth continuation",
+                            "phi": rates["phi"], "psi": rates["psi"],
+                            "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")}})
+
+    def _stop_force(self, t, q, qd, view=None) -> float:
+        """λ: the force along x the top stop must give the slider to keep it at x_top (< 0:
+        pushing it down, compressive; > 0 would be a pull). From the unfrozen chart's equations:
+        λ = (A q̈ + h − Q) along x_C, with q̈ the held structure's accelerations."""
+        view = view or self.view
+        chart = view.chart
+        full = self._full.get(chart.name)
+        if full is None:
+            full = self._full[chart.name] = ChartView(chart)
+        qf = np.array(view.full(list(q)), float)
+        qdf = np.zeros(full.n)
+        qdf[list(view.free)] = qd
+        e = self.engine.evaluate(full, t, qf, qdf)
+        c = full.coordinate_index("x_C")
+        f = list(view.free)
+        A, h, Q = e.A, e.h, e.Q
+        qdd_f = np.linalg.solve(A[np.ix_(f, f)], Q[f] - h[f])
+        return float(A[c, f] @ qdd_f + h[c] - Q[c])
+
+    # -- commands -------------------------------------------------------------------------
+    def check_command(self, name) -> None:
+        """Raise :class:`CommandRefused` if ``name`` makes no sense now."""
+        if not isinstance(name, str) or name not in COMMANDS:
+            raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
+        c = self.controls
+        if name == "engage":
+            if self.latch is None or self.engage is None:
+                raise CommandRefused(name, "this scene has no latch and engage cylinder")
+            if self.structure == "locked":
+                raise CommandRefused(name, "the latch is already closed (working)")
+            if c.engage_on:
+                raise CommandRefused(name, "already engaging")
+        elif name == "disengage":
+            if self.structure != "locked" and not c.engage_on:
+                raise CommandRefused(name, "the press is not engaged")
+        elif name in ("stop", "start"):
+            if self.motor is None:
+                raise CommandRefused(name, "this scene has no motor")
+            if name == "stop" and not c.motor_on:
+                raise CommandRefused(name, "the motor is already off")
+            if name == "start" and c.motor_on:
+                raise CommandRefused(name, "the motor is already on")
+
+    def command(self, name: str, t: float | None = None) -> None:
+        """Take a command now (t None) or at a later simulated time; refused ones raise."""
+        if t is None or t <= self.solver.t:
+            self.check_command(name)
+            self._apply_command(name, self.solver.t)
+        else:
+            if not isinstance(name, str) or name not in COMMANDS:
+                raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
+            self.pending.append((float(t), name))
+            self.pending.sort()
+
+    def _apply_command(self, name, t):
+        c = self.controls
+        rec = {"t": t, "kind": "command", "command": name, "structure": self.structure}
+        if name == "engage":
+            c.engage_on = True
+            c.latch_armed = True
+        elif name == "disengage":
+            c.engage_on = False
+            c.latch_armed = False
+            c.disengage_at = t
+            if self.structure == "locked":
+                e = self.solver.current
+                self.events.append(rec)
+                self._enter("free", e.q, e.qd, t)
+                self.events.append({"t": t, "kind": "latch-opens", "from": "locked",
+                                    "to": "free", "energy_lost": 0.0, "impulse": 0.0})
+                return
+        elif name == "stop":
+            c.motor_on = False
+            self.motor.enabled = False
+        elif name == "start":
+            c.motor_on = True
+            self.motor.enabled = True
+        self.events.append(rec)
+        # the forces changed: the state carries on, its accelerations are new
+        e = self.solver.current
+        self._restart(self.view, t, e.q, e.qd)
+
+    # -- stability ------------------------------------------------------------------------
+    def _stable_step(self, dt: float) -> float:
+        """The largest step not beyond the solver's stability limit for the stiff effects."""
+        name = self.settings.name
+        if not self._stiff or name not in ("linear-acceleration", "rk4"):
+            return dt
+        e = self.solver.current
+        K = sum(s.stiffness(e.kin) for s in self._stiff)
+        if not np.any(K):
+            return dt
+        w2 = float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(e.A, K)))))
+        if w2 <= 0.0:
+            return dt
+        t_min = 2.0 * math.pi / math.sqrt(w2)
+        limit = (LA_LIMIT if name == "linear-acceleration" else RK4_LIMIT) * t_min
+        if dt <= 0.9 * limit:
+            return dt
+        if self.settings.stiff == "error":
+            which = ", ".join(s.name for s in self._stiff)
+            raise StabilityError(
+                f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
+                f"({'√3/π' if name == 'linear-acceleration' else '2√2/2π'} of the shortest "
+                f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
+                "or solver.stiff = 'subdivide'", e.t, self.config(e))
+        m = math.ceil(dt / (0.5 * limit))
+        return dt / m
+
+    # -- work and energy ------------------------------------------------------------------
+    def _power(self, e) -> float:
+        p = 0.0
+        for eff in self._nc:
+            p += eff.power(e.t, e.kin)
+        return p
+
+    def _account(self, t_a, p_a):
+        p_b = self._power(self.solver.current)
+        self.work += 0.5 * (p_a + p_b) * (self.solver.t - t_a)
+        return p_b
 
     # -- the run --------------------------------------------------------------------------
+    def advance_to(self, t_target: float) -> None:
+        """Integrate to t_target, through commands, events and chart changes on the way."""
+        tol = 1e-12 * max(1.0, abs(t_target))
+        failures = 0
+        while self.solver.t < t_target - tol:
+            t0 = self.solver.t
+            if self.pending and self.pending[0][0] <= t0 + tol:
+                t_cmd, name = self.pending.pop(0)
+                try:
+                    self.check_command(name)
+                except CommandRefused as exc:
+                    self.events.append({"t": t0, "kind": "command-refused", "command": name,
+                                        "reason": exc.reason})
+                    continue
+                self._apply_command(name, t0)
+                continue
+            t_next = t_target
+            if self.pending and self.pending[0][0] < t_next:
+                t_next = self.pending[0][0]
+            t_next = t0 + self._stable_step(t_next - t0)
+            p_a = self._power_now
+            self._seg_start = t0
+            try:
+                self.solver.step_to(t_next, interrupt=self._interrupt)
+            except ChartDomainError as exc:
+                failures += 1
+                e = self.solver.current
+                if not self.policy.switching:
+                    raise ChartBreakdown(
+                        f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
+                        "chart switching is off", e.t, self.config(e)) from None
+                if failures > len(self.views(self.structure)):
+                    raise SingularConfiguration(
+                        f"every chart of structure {self.structure!r} fails in the step "
+                        f"from here ({exc.detail})", e.t, self.config(e)) from None
+                self._switch(self.view.regularity(e.kin.pose), forced=True)
+                continue
+            failures = 0
+            hit, vals = self._locate_event()
+            if hit is not None:
+                t_e, ev, after_value = hit
+                self._cut_at(t_e)
+                self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
+                ev.action(t_e)
+                if ev.name == "change-point":
+                    self._restart(self.view, t_e, self.solver.q, self.solver.qd)
+                    self._ev_prev[ev.name] = after_value
+                self._update_phys(self.solver.current)
+                continue
+            self._power_now = self._account(t0, p_a)
+            self._ev_prev = vals
+            self._update_phys(self.solver.current)
+            self._check_chart()
+
     def run(self, t_end: float, dt: float) -> Trajectory:
         t0 = self.solver.t
         if not (t_end > t0):
@@ -194,27 +639,9 @@ class Simulation:
         n = max(1, int(round((t_end - t0) / dt)))
         rows = {k: [] for k in COLUMNS}
         self._record(rows, self.solver.current)
-        failures = 0
         for k in range(1, n + 1):
             tk = t_end if k == n else t0 + k * (t_end - t0) / n
-            while self.solver.t < tk - 1e-12 * (t_end - t0):
-                try:
-                    self.solver.step_to(tk, interrupt=self._interrupt)
-                except ChartDomainError as exc:
-                    failures += 1
-                    e = self.solver.current
-                    if not self.policy.switching:
-                        raise ChartBreakdown(
-                            f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
-                            "chart switching is off", e.t, self.config(e)) from None
-                    if failures > len(self.views):
-                        raise SingularConfiguration(
-                            f"every chart of structure {self.structure!r} fails in the step "
-                            f"from here ({exc.detail})", e.t, self.config(e)) from None
-                    self._switch(self.view.regularity(e.kin.pose), forced=True)
-                    continue
-                failures = 0
-                self._check_chart()
+            self.advance_to(tk)
             self._update_phys(self.solver.current)
             self._record(rows, self.solver.current)
         return self._trajectory(rows)
@@ -230,6 +657,8 @@ class Simulation:
         rows["x_C"].append(obs["x_C"][0])
         rows["T"].append(e.kinetic_energy)
         rows["V"].append(self.engine.potential_energy(e.kin))
+        rows["W"].append(self.work)
+        rows["E_impact"].append(self.impact_loss)
         rows["structure"].append(self.structure)
         rows["chart"].append(e.view.name)
         for ob in self.observers:

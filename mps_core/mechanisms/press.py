@@ -16,6 +16,13 @@ Charts (each with closed-form positions, contract §2):
     (ψ, x_C), A from the intersection of the circles (O, l1) and (B, l2). Degenerates where crank
     and rod are in line. Regularity |sin ∠OAB|.
 
+``phi-xc~+`` / ``phi-xc~-`` (``held`` only, and only at the change point x_top = l1 + l2 − l3)
+    The smooth continuation through the change-point configuration: (φ, x_C) with B on the side
+    κ = ±sign(sin(φ/2)) of A→C, so that B changes side each time the crank passes φ = 0 (mod 2π),
+    where O, A, C, B lie on the x axis and the two assemblies meet. On this path the four-bar's
+    positions are smooth (the rocker swings to ψ > 0 on alternate turns); the chart has no
+    singularity in ``held`` at that ground length (regularity 1).
+
 Structures (contract §5): ``free`` (nothing frozen), ``locked`` (ψ frozen at ψ_lock, the latch
 closed), and, where a top stop x_top is given, ``held`` (x_C frozen at x_top).
 """
@@ -89,6 +96,20 @@ def _cross(ax, ay, bx, by):
     return ax * by - ay * bx
 
 
+def _sqrt_touching(x):
+    """√x for an argument that touches zero (a double root): the jet's derivatives stay finite by
+    taking them from the plain value where x = 0 exactly (the branch's tangent is then set by the
+    sign flip of the continuation)."""
+    from ..jet import Jet
+
+    if isinstance(x, Jet):
+        v = np.asarray(x.val)
+        if np.all(v > 0.0):
+            return x.sqrt()
+        return Jet(np.sqrt(np.maximum(v, 0.0)), x.grad * 0.0, x.d1 * 0.0, x.d2 * 0.0)
+    return np.sqrt(np.maximum(x, 0.0))
+
+
 class PressMechanism(Mechanism):
     points = ("O", "A", "B", "C")
     fixed_points = ("O",)
@@ -110,6 +131,14 @@ class PressMechanism(Mechanism):
         self.structures = structures
         self.charts = tuple(self._phi_psi(s) for s in (1, -1)) + \
             tuple(self._phi_xc(k) for k in (1, -1)) + tuple(self._psi_xc(k) for k in (1, -1))
+        if self.at_change_point:
+            self.charts += tuple(self._phi_xc(k, continuation=True) for k in (1, -1))
+
+    @property
+    def at_change_point(self) -> bool:
+        """x_top equals l1 + l2 − l3 (to 1e-12 m): the held four-bar is a change-point linkage."""
+        g = self.geometry
+        return self.x_top is not None and abs(self.x_top - (g.l1 + g.l2 - g.l3)) < 1e-12
 
     # -- bodies ---------------------------------------------------------------------------
     def _body(self, name: str, d: BodyData) -> Body:
@@ -142,12 +171,18 @@ class PressMechanism(Mechanism):
 
         return Chart(name, (PHI, PSI), positions, regularity, owns, (1.0, 1.0))
 
-    def _phi_xc(self, kappa: int) -> Chart:
+    def _phi_xc(self, kappa: int, continuation: bool = False) -> Chart:
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
-        name = "phi-xc" + ("+" if kappa > 0 else "-")
+        name = ("phi-xc~" if continuation else "phi-xc") + ("+" if kappa > 0 else "-")
+
+        def side(phi):
+            if not continuation:
+                return kappa
+            return kappa * np.sign(np.sin(0.5 * np.asarray(value_of(phi))))
 
         def positions(q):
             phi, xc = q
+            k = side(phi)
             ax, ay = l1 * np.cos(phi), l1 * np.sin(phi)
             dx, dy = xc - ax, -ay
             d2 = dx * dx + dy * dy
@@ -155,22 +190,33 @@ class PressMechanism(Mechanism):
             d = np.sqrt(d2)
             a = (l2 * l2 - l3 * l3 + d2) / (2.0 * d)
             h2 = l2 * l2 - a * a
-            _domain(name, h2, "B (rod and rocker in line)")
-            h = np.sqrt(h2)
+            if continuation:
+                # h² touches zero at the change point: rounding below zero is no domain error
+                h = _sqrt_touching(h2)
+            else:
+                _domain(name, h2, "B (rod and rocker in line)")
+                h = np.sqrt(h2)
             ux, uy = dx / d, dy / d
             return {"O": (0.0, 0.0), "A": (ax, ay),
-                    "B": (ax + a * ux - kappa * h * uy, ay + a * uy + kappa * h * ux),
+                    "B": (ax + a * ux - k * h * uy, ay + a * uy + k * h * ux),
                     "C": (xc, 0.0)}
 
         def regularity(pose):
+            if continuation:
+                return 1.0
             (ax, ay), (bx, by), (cx, cy) = pose["A"], pose["B"], pose["C"]
             return abs(_cross(ax - bx, ay - by, cx - bx, cy - by)) / (l2 * l3)
 
         def owns(pose):
             (ax, ay), (bx, by), (cx, cy) = pose["A"], pose["B"], pose["C"]
-            return kappa * _cross(cx - ax, cy - ay, bx - ax, by - ay) > 0.0
+            c = _cross(cx - ax, cy - ay, bx - ax, by - ay)
+            if continuation:
+                phi = math.atan2(ay, ax)
+                return side(phi) * c >= 0.0
+            return kappa * c > 0.0
 
-        return Chart(name, (PHI, X_C), positions, regularity, owns, (1.0, l1))
+        return Chart(name, (PHI, X_C), positions, regularity, owns, (1.0, l1),
+                     only_in=("held",) if continuation else None)
 
     def _psi_xc(self, kappa: int) -> Chart:
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
@@ -223,8 +269,12 @@ class PressMechanism(Mechanism):
                                  f"ψ = ψ_lock = {math.degrees(self.psi_lock):g}° in the locked structure")
             view = ChartView(chart, {"psi": self.psi_lock})
             q, qd = np.array([phi], float), np.array([phi_dot], float)
+        elif structure == "held":
+            if self.x_top is None:
+                raise SceneError("structure.initial", structure, "a top stop (x_top) for 'held'")
+            return self._held_initial(phi, phi_dot, psi)
         else:
-            raise SceneError("structure.initial", structure, "'free' or 'locked'")
+            raise SceneError("structure.initial", structure, "'free', 'locked' or 'held'")
         try:
             view.positions(list(q))
         except ChartDomainError:
@@ -232,3 +282,29 @@ class PressMechanism(Mechanism):
                                          "psi_deg": None if psi is None else math.degrees(psi)},
                              "a configuration where the links assemble (|l3·sin ψ − l1·sin φ| < l2)")
         return view, q, qd
+
+    def _held_initial(self, phi: float, phi_dot: float, psi_hint: float | None):
+        """Slider at x_top; ψ from the four-bar closure on the assembly nearest ``psi_hint``."""
+        best = None
+        for view in self.views("held"):
+            if view.coordinates[0].name != "phi":
+                continue
+            try:
+                pose = view.positions([phi])
+            except ChartDomainError:
+                continue
+            (bx, by), (cx, cy) = pose["B"], pose["C"]
+            psi = float(np.arctan2(by - cy, bx - cx))
+            if psi_hint is not None:
+                from ..mechanism import unwrap_to
+                psi = unwrap_to(psi, psi_hint)
+            dist = 0.0 if psi_hint is None else abs(psi - psi_hint)
+            score = (round(dist, 9), -view.regularity(
+                {k: (float(x), float(y)) for k, (x, y) in pose.items()}))
+            if best is None or score < best[0]:
+                best = (score, view)
+        if best is None:
+            raise SceneError("initial.phi_deg", math.degrees(phi),
+                             f"a crank angle where the four-bar assembles with the slider at "
+                             f"x_top = {self.x_top * 1000:g} mm")
+        return best[1], np.array([phi], float), np.array([phi_dot], float)

@@ -1,0 +1,30 @@
+"""The machine's control state: what the operator's commands and the structure switch on and off.
+
+One :class:`Controls` object is shared by a run's driver (which changes it at commands and
+structure events) and the effects that depend on it (cylinders, latch, technological load).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Controls:
+    structure: str = "free"
+    motor_on: bool = True
+    #: the engage cylinder is pressurised (engage command until disengage)
+    engage_on: bool = False
+    #: the latch catches the rocker when it reaches psi_lock
+    latch_armed: bool = False
+    #: time of the last disengage command (the disengage cylinder acts from then)
+    disengage_at: float | None = None
+
+
+class ControlledEffect:
+    """Mixin: an effect that reads the shared controls (set by the driver through ``use``)."""
+
+    controls: Controls = None  # type: ignore[assignment]
+
+    def use(self, controls: Controls) -> None:
+        self.controls = controls

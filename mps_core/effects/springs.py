@@ -1,0 +1,57 @@
+"""Retention springs between the frame and the slider, and their damping."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Loads
+
+
+class RetentionSprings(Effect):
+    """Springs that pull the slider up (+x) toward its top stop.
+
+    Force on the slider at C along x: ``F = F0 + k·(x_top − x_C)`` (the preload F0 at x_top, more
+    as the slider goes down); the frame receives −F. Potential
+    ``V = F0·(x_top − x_C) + ½k·(x_top − x_C)²``. Generalized stiffness ``k·J_Cxᵀ J_Cx`` (for the
+    stability check of fixed-step solvers).
+    """
+
+    kind = "springs"
+    conservative = True
+
+    def __init__(self, stiffness: float, preload: float, x_top: float, name=None):
+        super().__init__(name)
+        self.k = float(stiffness)
+        self.f0 = float(preload)
+        self.x_top = float(x_top)
+        self.acts_on = ("slider",)
+
+    def force(self, x: float) -> float:
+        return self.f0 + self.k * (self.x_top - x)
+
+    def loads(self, t, kin) -> Loads:
+        f = self.force(kin.position("C")[0])
+        return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def potential(self, kin) -> float:
+        s = self.x_top - kin.position("C")[0]
+        return self.f0 * s + 0.5 * self.k * s * s
+
+    def stiffness(self, kin) -> np.ndarray:
+        j = kin.analog("C")[0]
+        return self.k * np.outer(j, j)
+
+
+class SliderDamper(Effect):
+    """Viscous damping of the slider against the frame: ``F = −c·ẋ_C`` (non-conservative)."""
+
+    kind = "damper"
+
+    def __init__(self, damping: float, name=None):
+        super().__init__(name)
+        self.c = float(damping)
+        self.acts_on = ("slider",)
+
+    def loads(self, t, kin) -> Loads:
+        f = -self.c * kin.velocity("C")[0]
+        return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])

@@ -1,0 +1,56 @@
+"""The slider's top stop.
+
+``rigid`` (the press preset): no force law; the structure handles it. The slider reaching x_top
+moving up is a plastic impact into the ``held`` structure, and leaving it is an event where the
+stop's reaction would turn tensile (:mod:`mps_core.simulation`).
+
+``elastic``: a one-sided penalty spring-damper for studies of contact stiffness:
+``F = −k·(x_C − x_top) − c·ẋ_C`` on the slider while x_C > x_top (never pulling).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Effect, Loads
+
+
+class TopStop(Effect):
+    kind = "top_stop"
+
+    def __init__(self, x_top: float, model: str = "rigid", stiffness: float = 0.0,
+                 damping: float = 0.0, name=None):
+        super().__init__(name)
+        self.x_top = float(x_top)
+        self.model = model
+        self.k = float(stiffness)
+        self.c = float(damping)
+        self.acts_on = ("slider",)
+        self.conservative = model == "elastic" and self.c == 0.0
+
+    @property
+    def rigid(self) -> bool:
+        return self.model == "rigid"
+
+    def loads(self, t, kin) -> Loads:
+        if self.rigid:
+            return Loads()
+        pen = kin.position("C")[0] - self.x_top
+        if pen <= 0.0:
+            return Loads()
+        f = -self.k * pen - self.c * kin.velocity("C")[0]
+        f = min(f, 0.0)
+        return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def potential(self, kin) -> float:
+        if self.rigid:
+            return 0.0
+        pen = kin.position("C")[0] - self.x_top
+        return 0.5 * self.k * pen * pen if pen > 0.0 else 0.0
+
+    def stiffness(self, kin) -> np.ndarray:
+        n = kin.J.shape[-1]
+        if self.rigid or kin.position("C")[0] <= self.x_top:
+            return np.zeros((n, n))
+        j = kin.analog("C")[0]
+        return self.k * np.outer(j, j)
