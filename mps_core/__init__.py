@@ -23,8 +23,14 @@ def build(scene: Scene | str) -> Simulation:
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     mech = scene.mechanism()
+    observers = []
+    if scene.reactions:
+        from .reactions import ReactionObserver
+
+        observers.append(ReactionObserver())
     return Simulation(mech, scene.structure, scene.build_effects(mech), scene.initial_state(mech),
-                      solver=scene.solver, charts=scene.charts, commands=scene.commands)
+                      solver=scene.solver, charts=scene.charts, commands=scene.commands,
+                      observers=observers)
 
 
 def simulate(scene: Scene | str, **overrides) -> Trajectory:

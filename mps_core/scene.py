@@ -58,6 +58,8 @@ class Scene:
     dt: float
     charts: ChartPolicy
     commands: tuple = ()
+    #: outputs the scene asks for (only those are computed): reactions and foundation load
+    reactions: bool = False
     text: str = ""
     origin: str = ""
 
@@ -178,6 +180,11 @@ class _Table:
         self.used.add(key)
         if key not in self.data:
             if required:
+                near = [k for k, v in self.units_hint.items() if v == key and k in self.data]
+                if near:
+                    raise SceneError(f"{self.path}.{near[0]}", self.data[near[0]],
+                                     f"no such key (did you mean {key!r}? units go in the "
+                                     "key's name)")
                 raise SceneError(f"{self.path}.{key}", None, "a value (this field is required)")
             return default
         return self.data[key]
@@ -316,8 +323,8 @@ def _springs(t, path):
 
 def _top_stop(t, path):
     model = t.get("model", "rigid")
-    _choice(f"{path}.model", model, ("rigid", "elastic"))
-    k = t.get("stiffness_n_m", 0.0 if model == "rigid" else None)
+    _choice(f"{path}.model", model, ("rigid", "clamp", "elastic"))
+    k = t.get("stiffness_n_m", None if model == "elastic" else 0.0)
     if model == "elastic":
         if k is None:
             raise SceneError(f"{path}.stiffness_n_m", None, "a contact stiffness (elastic stop)")
@@ -491,10 +498,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
         if e.kind in _NEEDS_X_TOP and x_top is None:
             raise SceneError("mechanism.x_top_mm", None,
                              f"the top stop's position (effects[{i}] {e.kind!r} needs it)")
-    rigid_stop = any(e.kind == "top_stop" and e.params["model"] == "rigid" for e in effects)
+    rigid_stop = any(e.kind == "top_stop" and e.params["model"] in ("rigid", "clamp")
+                     for e in effects)
     if structure == "held" and not rigid_stop:
         raise SceneError("structure.initial", structure,
-                         "a rigid top_stop effect for the held structure")
+                         "a rigid (or clamp) top_stop effect for the held structure")
     for i, (ts, name) in enumerate(commands):
         need = {"engage": ("latch", "engage_cylinder"), "disengage": ("latch",),
                 "stop": ("motor",), "start": ("motor",)}[name]
@@ -531,6 +539,12 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     _check_dt("solver.dt_s", dt, t_end)
     sv.done()
 
+    ot = _Table(top.get("outputs", {}), "outputs")
+    reactions = ot.get("reactions", False)
+    if not isinstance(reactions, bool):
+        raise SceneError("outputs.reactions", reactions, "true or false")
+    ot.done()
+
     ct = _Table(top.get("charts", {}), "charts")
     switching = ct.get("switching", True)
     if not isinstance(switching, bool):
@@ -546,7 +560,7 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
                   effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff),
                   t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
-                  text, origin)
+                  reactions, text, origin)
     for i, (ts, name) in enumerate(commands):
         if ts > t_end:
             raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {t_end:g}")

@@ -24,9 +24,13 @@ domain is retaken in another chart. No regular chart: :class:`SingularConfigurat
 off: :class:`ChartBreakdown`.
 
 **Stiff effects**: before each fixed step the shortest period T_min of the stiff effects
-(generalized eigenproblem K v = ω² A v) is compared with the method's stability limit (linear
-acceleration √3/π·T_min ≈ 0.551·T_min; RK4 2√2/ω ≈ 0.450·T_min). Policy ``subdivide`` cuts the
-step into stable substeps; ``error`` raises :class:`StabilityError` saying why.
+(generalized eigenproblem K v = ω² A v) is compared with the method's stability limit: the
+seed's linear acceleration predictor-corrector ω·Δt ≤ 2 (Δt ≤ T_min/π ≈ 0.318·T_min; the
+implicit method's √3/π·T_min ≈ 0.551·T_min is not this explicit scheme's), RK4 ω·Δt ≤ 2√2
+(≈ 0.450·T_min). Policy ``subdivide`` cuts the step into stable substeps; ``error`` raises
+:class:`StabilityError` saying why. (With an even number of corrections the predictor-corrector
+is weakly unstable at any step: its amplification exceeds 1 by about (ω·Δt)⁶/10⁴ per step for
+2 corrections; one or three corrections are stable and slightly dissipative.)
 
 **Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
 their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
@@ -53,8 +57,12 @@ from .solvers import make_solver
 from .trajectory import Trajectory
 
 COMMANDS = ("engage", "disengage", "stop", "start")
-LA_LIMIT = math.sqrt(3.0) / math.pi          # linear acceleration: dt < 0.551 T_min
-RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)   # RK4: ω dt < 2√2
+#: stability limits as fractions of the shortest period T_min, from the amplification matrix of
+#: each method on q̈ = −ω²q. The seed's explicit predictor-corrector (one correction) is stable
+#: for ω·Δt ≤ 2, i.e. Δt ≤ T_min/π ≈ 0.318 T_min (the implicit linear acceleration method's
+#: √3/π ≈ 0.551 T_min does not apply to it); RK4 for ω·Δt ≤ 2√2 (Δt ≤ 0.450 T_min).
+LA_LIMIT = 1.0 / math.pi
+RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)
 
 
 class StabilityError(SimulationError):
@@ -250,30 +258,42 @@ class Simulation:
             return
         self._switch(reg, forced=False)
 
-    def _best_view(self, structure, pose, exclude=None):
-        best, best_reg = None, -1.0
+    def _candidates(self, structure, pose, exclude=None) -> list[tuple[float, ChartView]]:
+        """Views of a structure that own the configuration, most regular first."""
+        out = []
         for v in self.views(structure):
             if (exclude is not None and v.chart is exclude) or not v.owns(pose):
                 continue
-            r = v.regularity(pose)
-            if r > best_reg:
-                best, best_reg = v, r
-        return best, best_reg
+            out.append((v.regularity(pose), v))
+        out.sort(key=lambda rv: -rv[0])
+        return out
+
+    def _map_first(self, candidates, q, qd):
+        """The first candidate view into which the state maps exactly: (view, q, q̇, regularity).
+
+        A chart's branch test sees only the configuration; a chart whose branch depends on how
+        often the crank has turned (the change-point continuation) is confirmed by the mapping.
+        """
+        for reg, v in candidates:
+            try:
+                q2, qd2 = self._map_state(self.view, q, qd, v)
+            except (NumericalError, ChartDomainError):
+                continue
+            return v, q2, qd2, reg
+        return None, None, None, -1.0
 
     def _switch(self, reg_now: float, forced: bool):
         e = self.solver.current
-        pose = e.kin.pose
-        best, best_reg = self._best_view(self.structure, pose, exclude=self.view.chart)
-        if best is None or best_reg < self.policy.fail_below:
+        cands = [c for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
+                 if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)]
+        best, q, qd, best_reg = self._map_first(cands, e.q, e.qd)
+        if best is None:
             if forced or reg_now < self.policy.fail_below:
                 raise SingularConfiguration(
                     f"no chart of structure {self.structure!r} is regular here (best "
-                    f"regularity {max(best_reg, reg_now):.3g}): a singular position of the machine",
+                    f"regularity {reg_now:.3g}): a singular position of the machine",
                     e.t, self.config(e))
             return
-        if best_reg <= reg_now and not forced:
-            return
-        q, qd = self._map_state(self.view, e.q, e.qd, best)
         self.events.append({"t": e.t, "kind": "chart", "from": self.view.name, "to": best.name,
                             "regularity_from": reg_now, "regularity_to": best_reg,
                             "forced": forced})
@@ -321,7 +341,7 @@ class Simulation:
                 ev.append(_Event("stop-contact",
                                  lambda t, v, q, qd: self._observable("x_C", v, q) - top, +1,
                                  self._hit_stop))
-        elif s == "held" and self.stop is not None:
+        elif s == "held" and self.stop is not None and self.stop.model != "clamp":
             ev.append(_Event("stop-release", lambda t, v, q, qd: self._stop_force(t, q, qd, v),
                              +1, self._release_stop))
         if self.view.chart.name.startswith("phi-xc~"):
@@ -407,6 +427,9 @@ class Simulation:
         before = self._physical_rates(view, q, qd)
         after = self._physical_rates(view, q, qd_plus)
         self.impact_loss += lost
+        for ob in self.observers:
+            if hasattr(ob, "impact"):
+                ob.impact(self, t, view, q, qd, qd_plus, closing=(obs_name,))
         rec = {"t": t, "kind": kind, "from": self.structure, "to": new_structure,
                "velocities_before": {k: before[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
                "velocities_after": {k: after[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
@@ -422,11 +445,11 @@ class Simulation:
         jets = self.view.pose_jets(q, qd)
         pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
                     float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
-        best, reg = self._best_view(structure, pose)
-        if best is None or reg < self.policy.fail_below:
+        cands = [c for c in self._candidates(structure, pose) if c[0] >= self.policy.fail_below]
+        best, q2, qd2, _ = self._map_first(cands, q, qd)
+        if best is None:
             raise SingularConfiguration(f"no chart of structure {structure!r} is regular here",
                                         t, self.config())
-        q2, qd2 = self._map_state(self.view, q, qd, best)
         self.controls.structure = structure
         self._restart(best, t, q2, qd2)
 
@@ -557,7 +580,7 @@ class Simulation:
             which = ", ".join(s.name for s in self._stiff)
             raise StabilityError(
                 f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
-                f"({'√3/π' if name == 'linear-acceleration' else '2√2/2π'} of the shortest "
+                f"({'1/π' if name == 'linear-acceleration' else '2√2/2π'} of the shortest "
                 f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
                 "or solver.stiff = 'subdivide'", e.t, self.config(e))
         m = math.ceil(dt / (0.5 * limit))
@@ -574,6 +597,29 @@ class Simulation:
         p_b = self._power(self.solver.current)
         self.work += 0.5 * (p_a + p_b) * (self.solver.t - t_a)
         return p_b
+
+    # -- the state, for sinks ---------------------------------------------------------------
+    def snapshot(self) -> dict:
+        """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,
+        energies, structure, chart), plus ``x_C_dot`` and the controls."""
+        e = self.solver.current
+        obs = self._observe(e)
+        out = {"t": e.t}
+        for name in ("phi", "psi"):
+            v, vd, vdd = obs[name]
+            out[name], out[name + "_dot"], out[name + "_ddot"] = v, vd, vdd
+        out["x_C"] = obs["x_C"][0]
+        out["x_C_dot"] = float(e.kin.velocity("C")[0])
+        out["T"] = e.kinetic_energy
+        out["V"] = self.engine.potential_energy(e.kin)
+        out["W"] = self.work
+        out["E_impact"] = self.impact_loss
+        out["structure"] = self.structure
+        out["chart"] = self.view.name
+        c = self.controls
+        out["motor_on"], out["engage_on"], out["latch_armed"] = c.motor_on, c.engage_on, \
+            c.latch_armed
+        return out
 
     # -- the run --------------------------------------------------------------------------
     def advance_to(self, t_target: float) -> None:

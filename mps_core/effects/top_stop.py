@@ -4,6 +4,10 @@
 moving up is a plastic impact into the ``held`` structure, and leaving it is an event where the
 stop's reaction would turn tensile (:mod:`mps_core.simulation`).
 
+``clamp``: the slider is clamped at x_top (a bilateral hold): ``held`` never releases, whatever
+the reaction. For studies of the idle four-bar itself, e.g. through its change point, where a
+one-sided stop cannot hold (the reaction grows without bound as the transmission angle → 0).
+
 ``elastic``: a one-sided penalty spring-damper for studies of contact stiffness:
 ``F = −k·(x_C − x_top) − c·ẋ_C`` on the slider while x_C > x_top (never pulling).
 """
@@ -30,7 +34,8 @@ class TopStop(Effect):
 
     @property
     def rigid(self) -> bool:
-        return self.model == "rigid"
+        """No force law: the structure ``held`` does the holding (rigid or clamp)."""
+        return self.model in ("rigid", "clamp")
 
     def loads(self, t, kin) -> Loads:
         if self.rigid:

@@ -79,6 +79,44 @@ BAD = [
     (PAPER_TEXT + '\n[[effects]]\ntype = "gravity"\n', "effects", "each effect once"),
 ]
 
+IDLE_TEXT = load_scene("idle").text
+PC_TEXT = load_scene("press-cycle").text
+
+
+def edit_idle(old, new, text=None):
+    text = text or IDLE_TEXT
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+BAD += [
+    (PAPER_TEXT + '\n[[effects]]\ntype = "springs"\nstiffness_n_m = 1e4\npreload_n = 10.0\n',
+     "mechanism.x_top_mm", "needs it"),
+    (edit_idle("x_top_mm = 25.5", "x_top_mm = 90.0"), "mechanism.x_top_mm", "can reach"),
+    (edit_idle("stiffness_n_m = 20000.0", "stiffness_n_m = -5.0"), "effects[2].stiffness_n_m",
+     "positive"),
+    (edit_idle("preload_n = 2500.0", ""), "effects[2].preload_n", "required"),
+    (edit_idle('model = "rigid"', 'model = "rubber"'), "effects[3].model", "one of"),
+    (edit_idle('model = "rigid"', 'model = "elastic"'), "effects[3].stiffness_n_m",
+     "contact stiffness"),
+    (edit_idle('[[effects]]\ntype = "top_stop"\nmodel = "rigid"', ""), "structure.initial",
+     "top_stop effect for the held"),
+    (edit_idle("psi_deg = -46.34", "psi_deg = -120.0"), "initial.psi_deg", "near the closure"),
+    (edit_idle('command = "engage"', 'command = "jump"', PC_TEXT), "commands[0].command",
+     "one of"),
+    (edit_idle("t_s = 0.4351", "t_s = 7.0", PC_TEXT), "commands[1].t_s", "within t_end_s"),
+    (edit_idle("t_s = 0.008", "t = 0.008", PC_TEXT), "commands[0].t", "t_s"),
+    (edit_idle('[[effects]]\ntype = "latch"\n', "", PC_TEXT), "commands[0].command",
+     "missing: latch"),
+    (edit_idle("thickness_mm = 1.0", "thickness_mm = 0.0", PC_TEXT), "effects[7].thickness_mm",
+     "positive"),
+    (edit_idle("stroke_mm = 1.5", "stroke_mm = 40.0", PC_TEXT), "effects[4].stroke_mm",
+     "up to 10"),
+    (edit_idle("[solver]", "[solver]\nstiff = \"ignore\"", PC_TEXT), "solver.stiff", "one of"),
+    (edit_idle("[solver]", "[outputs]\nreactions = 1\n\n[solver]", PC_TEXT),
+     "outputs.reactions", "true or false"),
+]
+
 
 @pytest.mark.parametrize("text,field,expected", BAD, ids=[b[1] + ":" + b[2] for b in BAD])
 def test_bad_scene_is_refused_with_a_clear_message(text, field, expected):
