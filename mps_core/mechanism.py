@@ -29,6 +29,9 @@ from .jet import Jet, seed
 
 TWO_PI = 2.0 * math.pi
 
+#: the name of the fixed frame (the press body) as a body in joints and loads
+FRAME = "frame"
+
 
 def unwrap_to(angle: float, reference: float) -> float:
     """The angle equal to ``angle`` modulo 2π that lies nearest to ``reference``."""
@@ -128,6 +131,26 @@ class Chart:
 
 
 @dataclass(frozen=True)
+class Joint:
+    """A joint's reaction: what ``receiver`` gets from ``giver`` (which gets the opposite).
+
+    ``components`` is a subset of ``("x", "y", "m")``: force components in the frame's axes,
+    applied at ``point``, and a moment about z. ``columns`` names each component's value.
+    ``requires``: the frozen coordinate that makes this joint carry load (``"psi"``: latch
+    closed, ``"x_C"``: slider held at its stop); ``None``: always present.
+    """
+
+    name: str
+    point: str | None
+    receiver: str
+    giver: str
+    components: tuple[str, ...]
+    columns: tuple[str, ...]
+    requires: str | None = None
+    meaning: str = ""
+
+
+@dataclass(frozen=True)
 class Structure:
     """A structure of the mechanism: the observables it freezes and their values."""
 
@@ -221,6 +244,8 @@ class Mechanism:
     structures: Mapping[str, Structure] = {}
     #: points whose positions are fixed in the frame (their analogs are zero)
     fixed_points: tuple[str, ...] = ()
+    #: joints whose reactions Newton–Euler per body solves for (mps_core.reactions)
+    joints: tuple[Joint, ...] = ()
 
     def views(self, structure: str | Structure) -> list[ChartView]:
         """Every chart usable in a structure, with that structure's coordinates frozen."""

@@ -70,51 +70,12 @@ import numpy as np
 
 from .engine import Kinematics
 from .jet import Jet
-from .mechanism import ChartView, Mechanism
-from .names import COLUMNS, NUMERIC_COLUMNS
-
-FRAME = "frame"
+from .mechanism import FRAME, ChartView, Joint, Mechanism
 
 
-@dataclass(frozen=True)
-class Joint:
-    """A joint's reaction: what ``receiver`` gets from ``giver`` (which gets the opposite).
 
-    ``components`` is a subset of ``("x", "y", "m")``: force components in the frame's axes,
-    applied at ``point``, and a moment about z. ``columns`` names each component's value.
-    ``requires``: the frozen coordinate that makes this joint carry load (``"psi"``: latch
-    closed, ``"x_C"``: slider held at its stop); ``None``: always present.
-    """
+from .mechanisms.press import PRESS_JOINTS  # noqa: E402  (the contract's §7 joints)
 
-    name: str
-    point: str | None
-    receiver: str
-    giver: str
-    components: tuple[str, ...]
-    columns: tuple[str, ...]
-    requires: str | None = None
-    meaning: str = ""
-
-
-#: the press's joints (contract §7); a mechanism may provide its own as ``mechanism.joints``
-PRESS_JOINTS: tuple[Joint, ...] = (
-    Joint("F_O", "O", FRAME, "crank", ("x", "y"), ("F_O_x", "F_O_y"),
-          meaning="force the frame receives from the crank at O"),
-    Joint("F_A", "A", "crank", "rod", ("x", "y"), ("F_A_x", "F_A_y"),
-          meaning="force the crank receives from the rod at A"),
-    Joint("F_B", "B", "rod", "rocker", ("x", "y"), ("F_B_x", "F_B_y"),
-          meaning="force the rod receives from the rocker at B"),
-    Joint("F_C", "C", "slider", "rocker", ("x", "y"), ("F_C_x", "F_C_y"),
-          meaning="force the slider receives from the rocker at C"),
-    Joint("N_guide", "C", FRAME, "slider", ("y",), ("N_guide",),
-          meaning="force along y the frame receives from the slider through the guide, at C"),
-    Joint("M_guide", None, FRAME, "slider", ("m",), ("M_guide",),
-          meaning="moment the frame receives from the slider through the guide"),
-    Joint("M_latch", None, "slider", "rocker", ("m",), ("M_latch",), requires="psi",
-          meaning="moment the slider receives from the rocker through the closed latch"),
-    Joint("F_stop", "C", FRAME, "slider", ("x",), ("F_stop",), requires="x_C",
-          meaning="force along x the frame receives from the slider at the top stop, at C"),
-)
 
 #: reaction columns of a trajectory, in CSV order, with their units (contract §7, then residuals)
 REACTION_COLUMNS: dict[str, str] = {
@@ -230,7 +191,7 @@ def body_motion(mechanism: Mechanism, view: ChartView, q, qd) -> BodyMotion:
 def active_joints(mechanism: Mechanism, frozen: Iterable[str]) -> list[Joint]:
     """The joints that carry load in a structure with these frozen coordinates."""
     frozen = set(frozen)
-    joints = getattr(mechanism, "joints", PRESS_JOINTS)
+    joints = mechanism.joints
     return [j for j in joints if j.requires is None or j.requires in frozen]
 
 
@@ -609,17 +570,8 @@ class ReactionObserver:
 # -- CSV with the reaction columns ----------------------------------------------------------
 def write_csv(trajectory, path, extra: Mapping[str, str] = REACTION_COLUMNS) -> Path:
     """The trajectory's CSV (:data:`~mps_core.names.COLUMNS`) followed by the ``extra`` columns
-    it holds (by default the reactions), same number format as ``Trajectory.to_csv``."""
-    path = Path(path)
-    cols = trajectory.columns
-    names = list(COLUMNS) + [k for k in extra if k in cols]
-    numeric = set(NUMERIC_COLUMNS) | set(extra)
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        for row in zip(*[cols[k] for k in names]):
-            w.writerow([repr(float(v)) if k in numeric else v for k, v in zip(names, row)])
-    return path
+    it holds (by default the reactions)."""
+    return trajectory.to_csv(path, extra=[k for k in extra if k in trajectory.columns])
 
 
 def read_csv(path) -> dict[str, np.ndarray]:

@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
 
 from .effects import (MOTOR_PRESETS, Blanking, DisengageCylinder, EngageCylinder, Gravity,
                       GuideFriction, JointFriction, Latch, Motor, MotorData, RetentionSprings,

@@ -39,16 +39,18 @@ class Trajectory:
     def energy(self) -> np.ndarray:
         return self.columns["T"] + self.columns["V"]
 
-    def to_csv(self, path) -> Path:
+    def to_csv(self, path, extra=()) -> Path:
+        """One row per step: the columns of :data:`mps_core.names.COLUMNS`, then ``extra``
+        numeric columns the trajectory holds (e.g. the reactions)."""
         path = Path(path)
-        names = list(COLUMNS)
+        names = list(COLUMNS) + [k for k in extra if k not in COLUMNS]
+        numeric = set(NUMERIC_COLUMNS) | set(extra)
         with path.open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(names)
             cols = [self.columns[k] for k in names]
             for row in zip(*cols):
-                w.writerow([repr(float(v)) if k in NUMERIC_COLUMNS else v
-                            for k, v in zip(names, row)])
+                w.writerow([repr(float(v)) if k in numeric else v for k, v in zip(names, row)])
         return path
 
     def events_to_jsonl(self, path) -> Path:

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import ChartDomainError, SceneError
 from ..jet import value_of
-from ..mechanism import Body, Chart, ChartView, Mechanism, Observable, Structure
+from ..mechanism import FRAME, Body, Chart, ChartView, Joint, Mechanism, Observable, Structure
 
 PHI = Observable("phi", "angle", ("O", "A"))
 PSI = Observable("psi", "angle", ("C", "B"))
@@ -110,9 +110,31 @@ def _sqrt_touching(x):
     return np.sqrt(np.maximum(x, 0.0))
 
 
+#: the press's joints (contract §7); a mechanism may provide its own as ``mechanism.joints``
+PRESS_JOINTS: tuple[Joint, ...] = (
+    Joint("F_O", "O", FRAME, "crank", ("x", "y"), ("F_O_x", "F_O_y"),
+          meaning="force the frame receives from the crank at O"),
+    Joint("F_A", "A", "crank", "rod", ("x", "y"), ("F_A_x", "F_A_y"),
+          meaning="force the crank receives from the rod at A"),
+    Joint("F_B", "B", "rod", "rocker", ("x", "y"), ("F_B_x", "F_B_y"),
+          meaning="force the rod receives from the rocker at B"),
+    Joint("F_C", "C", "slider", "rocker", ("x", "y"), ("F_C_x", "F_C_y"),
+          meaning="force the slider receives from the rocker at C"),
+    Joint("N_guide", "C", FRAME, "slider", ("y",), ("N_guide",),
+          meaning="force along y the frame receives from the slider through the guide, at C"),
+    Joint("M_guide", None, FRAME, "slider", ("m",), ("M_guide",),
+          meaning="moment the frame receives from the slider through the guide"),
+    Joint("M_latch", None, "slider", "rocker", ("m",), ("M_latch",), requires="psi",
+          meaning="moment the slider receives from the rocker through the closed latch"),
+    Joint("F_stop", "C", FRAME, "slider", ("x",), ("F_stop",), requires="x_C",
+          meaning="force along x the frame receives from the slider at the top stop, at C"),
+)
+
+
 class PressMechanism(Mechanism):
     points = ("O", "A", "B", "C")
     fixed_points = ("O",)
+    joints = PRESS_JOINTS
     observables = {o.name: o for o in (PHI, PSI, X_C, THETA2)}
 
     def __init__(self, geometry: PressGeometry | None = None, bodies: dict | None = None,

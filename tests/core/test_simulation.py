@@ -8,7 +8,6 @@ import pytest
 
 from mps_core import (ChartBreakdown, SingularConfiguration, build, load_scene,
                       scene_from_text, simulate)
-from mps_core.mechanisms import PressGeometry
 from reference import press_exact as pe
 
 PAPER = load_scene("paper")

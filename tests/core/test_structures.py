@@ -1,7 +1,6 @@
 """The variable structure: switches as events inside the step, impacts, commands, hard cases."""
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,8 +8,6 @@ from scipy.optimize import brentq
 
 from mps_core import build, load_scene, scene_from_text, simulate
 from mps_core.effects import Controls, Gravity, Latch
-from mps_core.engine import PartialSystems
-from mps_core.mechanism import ChartView
 from mps_core.mechanisms import PressMechanism
 from mps_core.simulation import (CommandRefused, Simulation, SolverSettings, StabilityError)
 from reference import press_exact as pe
