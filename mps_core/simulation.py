@@ -223,8 +223,20 @@ class Simulation:
         return out
 
     def _update_phys(self, e):
-        for name, (v, _, _) in self._observe(e).items():
-            self.phys[name] = v
+        """The current values of the reported angles: references for unwrapping (positions only)."""
+        pose = None
+        for name in self._report:
+            k = e.view.coordinate_index(name)
+            if k is not None:
+                self.phys[name] = float(e.q[k])
+            elif name in e.view.frozen:
+                self.phys[name] = float(e.view.frozen[name])
+            else:
+                obs = self.mechanism.observables[name]
+                pose = pose or e.kin.pose
+                v = obs.value(pose)
+                self.phys[name] = unwrap_to(v, self.phys[name]) if (
+                    obs.is_angle and name in self.phys) else v
 
     def _physical_rates(self, view, q, qd) -> dict:
         """Physical φ, ψ, x_C and their rates at a chart state (exact, through jets)."""
@@ -569,7 +581,9 @@ class Simulation:
         K = sum(s.stiffness(e.kin) for s in self._stiff)
         if not np.any(K):
             return dt
-        w2 = float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(e.A, K)))))
+        # ω²_max of K v = ω² A v is at most trace(A⁻¹K) (A SPD, K PSD): a bound on the safe side
+        # (at most n times too large) that needs no eigensolver
+        w2 = float(np.trace(np.linalg.solve(e.A, K)))
         if w2 <= 0.0:
             return dt
         t_min = 2.0 * math.pi / math.sqrt(w2)
