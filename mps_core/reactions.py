@@ -364,6 +364,31 @@ class Reactions:
         return np.array([self.values["F_found_x"], self.values["F_found_y"]])
 
 
+def _frame_share(sysm, u, motion, values) -> tuple[np.ndarray, float, float]:
+    """Put each solved unknown into ``values`` and sum what the frame receives through the
+    joints: (force, moment about the system's origin, drive torque solved as an unknown)."""
+    R_F = np.zeros(2)
+    R_M = 0.0
+    drive = 0.0
+    o = sysm.origin
+    for (j, comp, col), val in zip(sysm.cols, u):
+        if j is None:
+            drive += val
+            continue
+        values[col] = float(val)
+        sign = 1.0 if j.receiver == FRAME else (-1.0 if j.giver == FRAME else 0.0)
+        if sign == 0.0:
+            continue
+        if comp == "m":
+            R_M += sign * val
+            continue
+        f = np.array([val, 0.0] if comp == "x" else [0.0, val]) * sign
+        p = motion.X[motion.names[j.point]] - o
+        R_F += f
+        R_M += p[0] * f[1] - p[1] * f[0]
+    return R_F, R_M, drive
+
+
 def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, q, qd, qdd, *,
                       kin: Kinematics | None = None, drive: str | None = None,
                       scale: float | None = None) -> Reactions:
@@ -397,25 +422,9 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     u, r, rank = sysm.solve(b, scale if scale is not None else length_scale(mechanism))
     values = dict.fromkeys(REACTION_COLUMNS, 0.0)
     # what the frame receives from the moving links through the joints
-    R_F = np.zeros(2)
-    R_M = 0.0
-    o = sysm.origin
-    for (j, comp, col), val in zip(sysm.cols, u):
-        if j is None:
-            m_motor += val
-            R_M -= val
-            continue
-        values[col] = float(val)
-        sign = 1.0 if j.receiver == FRAME else (-1.0 if j.giver == FRAME else 0.0)
-        if sign == 0.0:
-            continue
-        if comp == "m":
-            R_M += sign * val
-            continue
-        f = np.array([val, 0.0] if comp == "x" else [0.0, val]) * sign
-        p = motion.X[motion.names[j.point]] - o
-        R_F += f
-        R_M += p[0] * f[1] - p[1] * f[0]
+    R_F, R_M, drive_solved = _frame_share(sysm, u, motion, values)
+    m_motor += drive_solved
+    R_M -= drive_solved
     values["M_motor"] = float(m_motor)
     F_found = R_F + frame_F
     values["F_found_x"], values["F_found_y"] = float(F_found[0]), float(F_found[1])
@@ -425,7 +434,7 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     # balance of the whole moving system, from its own momentum (not from the solve's rows)
     p_dot = (mass[:, None] * aG).sum(axis=0)
     bal_F = p_dot - (ext[:, :2].sum(axis=0) - R_F)
-    g = G - o
+    g = G - sysm.origin
     h_dot = float(np.sum(g[:, 0] * mass * aG[:, 1] - g[:, 1] * mass * aG[:, 0])
                   + inertia @ alpha)
     bal_M = h_dot - (ext_M_O - R_M)
@@ -503,21 +512,7 @@ def impulses(mechanism: Mechanism, view: ChartView, q, qd_minus, qd_plus, *,
     b[2::3] = inertia * dw
     u, r, rank = sysm.solve(b, scale if scale is not None else length_scale(mechanism))
     values = {c: 0.0 for c in _JOINT_COLUMNS}
-    R_F = np.zeros(2)
-    R_M = 0.0
-    o = sysm.origin
-    for (j, comp, col), val in zip(sysm.cols, u):
-        values[col] = float(val)
-        sign = 1.0 if j.receiver == FRAME else (-1.0 if j.giver == FRAME else 0.0)
-        if sign == 0.0:
-            continue
-        if comp == "m":
-            R_M += sign * val
-            continue
-        f = np.array([val, 0.0] if comp == "x" else [0.0, val]) * sign
-        p = motion.X[motion.names[j.point]] - o
-        R_F += f
-        R_M += p[0] * f[1] - p[1] * f[0]
+    R_F, R_M, _ = _frame_share(sysm, u, motion, values)
     values["F_found_x"], values["F_found_y"], values["M_found_O"] = (
         float(R_F[0]), float(R_F[1]), float(R_M))
     jumps = {bd.name: (float(mass[k] * dv[k, 0]), float(mass[k] * dv[k, 1]),
