@@ -23,6 +23,21 @@ Two derivative schemes:
     (:mod:`mps_core.jet`): the Jacobians give A, and the second directional derivative along q̇
     gives the velocity terms directly, h = Σ_b m_b J_Gᵀ (J̇_G q̇) + J_b ω*_b θ̈_b|q̈=0, which equals
     Σ_jk (A_ij,k − ½A_jk,i) q̇_j q̇_k identically.
+
+How an evaluation is organised (it is the inner loop of every run, so it is written to make few
+numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost):
+
+* everything that depends only on the mechanism is built once per engine: the centres of mass
+  and the rotating bodies' link vectors are linear in the points' coordinates, so one matrix
+  ``M`` maps the points' coordinates to all named points, centres of mass and link vectors;
+* everything that depends on the chart view is built once per view (a :class:`_Plan`): the
+  stencil's displacements and one matrix ``K`` whose columns select the base points of the
+  stencil and take the central differences there;
+* so an evaluation is: one position call on the stencil, ``Z = M @ (P @ K)`` (positions at the
+  base points and every analog at every base point, in one pass), the angular analogs from the
+  link vectors, the mass matrices at the base points as one batched product, and, for n ≤ 2,
+  the velocity terms and the solve in closed form on floats. The numbers are the seed's
+  formulas; only the order of floating-point operations differs from a literal transcription.
 """
 
 from __future__ import annotations
@@ -34,7 +49,7 @@ from functools import lru_cache
 import numpy as np
 
 from .errors import ChartDomainError, NumericalError, config_in_degrees
-from .jet import Jet, seed
+from .jet import Jet, ScalarJet, seed
 from .mechanism import ChartView, Mechanism
 
 SCHEMES = ("central", "autodiff")
@@ -46,7 +61,8 @@ def stencil(n: int):
 
     Returns ``(offsets, plus, minus)``: ``offsets`` is (S, n); for each base point
     b ∈ [q, q+Δe_1, q−Δe_1, …, q+Δe_n, q−Δe_n] and coordinate i, ``plus[b, i]`` and
-    ``minus[b, i]`` index the stencil points b ± Δe_i.
+    ``minus[b, i]`` index the stencil points b ± Δe_i. The base points are the stencil's
+    first 1 + 2n points, in that order.
     """
     eye = np.eye(n, dtype=int)
     pts = [tuple([0] * n)]
@@ -71,10 +87,11 @@ def stencil(n: int):
 class Kinematics:
     """Positions, velocity analogs and velocities at one configuration, by name.
 
-    Points are the mechanism's points and the centres of mass ``G_<body>``.
+    Points are the mechanism's points and the centres of mass ``G_<body>``. ``pose`` (the
+    positions as ``{point: (x, y)}``) is built on first use and kept.
     """
 
-    __slots__ = ("t", "q", "qd", "names", "X", "J", "W", "bodies", "_omega_index")
+    __slots__ = ("t", "q", "qd", "names", "X", "J", "W", "bodies", "_pose")
 
     def __init__(self, t, q, qd, names, X, J, W, bodies):
         self.t = t
@@ -85,6 +102,7 @@ class Kinematics:
         self.J = J                  # (NP, 2, n) velocity analogs
         self.W = W                  # (nbody, n) angular analogs (zero rows: translating bodies)
         self.bodies = bodies        # {body name: row}
+        self._pose = None
 
     def position(self, point: str) -> np.ndarray:
         return self.X[self.names[point]]
@@ -103,7 +121,11 @@ class Kinematics:
 
     @property
     def pose(self) -> dict:
-        return {k: (self.X[i, 0], self.X[i, 1]) for k, i in self.names.items()}
+        p = self._pose
+        if p is None:
+            xy = self.X.tolist()
+            p = self._pose = {k: (xy[i][0], xy[i][1]) for k, i in self.names.items()}
+        return p
 
 
 @dataclass
@@ -125,6 +147,51 @@ class Evaluation:
         return 0.5 * float(self.qd @ self.A @ self.qd)
 
 
+class _Plan:
+    """What an evaluation in one chart view reuses (see the module's docstring)."""
+
+    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale")
+
+    def __init__(self, view: ChartView, delta: float):
+        n = view.n
+        offsets, plus, minus = stencil(n)
+        d = delta * np.asarray(view.scales, dtype=float)
+        S, B = len(offsets), plus.shape[0]
+        self.n, self.S, self.B, self.d = n, S, B, d
+        self.odT = np.ascontiguousarray((offsets * d).T)          # (n, S)
+        inv2d = 1.0 / (2.0 * d)
+        self.inv2d = inv2d.tolist()
+        # columns: B base positions, B·n analogs (base-major), one row sum (finiteness check)
+        # the differences are taken exactly (±1) and scaled by 1/2Δ_i afterwards: the same
+        # round-off as (r(q + Δe_i) − r(q − Δe_i)) / 2Δ_i
+        K = np.zeros((S, B + B * n + 1))
+        K[np.arange(B), np.arange(B)] = 1.0
+        for b in range(B):
+            for i in range(n):
+                K[plus[b, i], B + b * n + i] += 1.0
+                K[minus[b, i], B + b * n + i] -= 1.0
+        K[:, -1] = 1.0
+        self.K = K
+        self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
+
+
+def _owner(cls, name):
+    for k in cls.__mro__:
+        if name in k.__dict__:
+            return k
+    return None
+
+
+def _fast_path(effect):
+    """An effect's ``generalized_force(t, kin)`` where it has one for the same ``loads`` (a
+    subclass that overrides ``loads`` alone keeps the general path)."""
+    cls = type(effect)
+    gf = _owner(cls, "generalized_force")
+    if gf is not None and gf is _owner(cls, "loads"):
+        return effect.generalized_force
+    return None
+
+
 class PartialSystems:
     """The engine: evaluates q̈ for a mechanism, its scene's effects and a derivative scheme.
 
@@ -143,6 +210,7 @@ class PartialSystems:
         self.effects = list(effects)
         for e in self.effects:
             e.bind(mechanism)
+        self._effect_paths = [(_fast_path(e), e) for e in self.effects]
         self.scheme = scheme
         self.delta = float(delta)
         self.counts = {"evaluations": 0, "position_calls": 0, "position_points": 0}
@@ -155,39 +223,111 @@ class PartialSystems:
         self._mass = np.array([b.mass for b in bodies])
         self._inertia = np.array([b.inertia for b in bodies])
         self._rot = [k for k, b in enumerate(bodies) if b.rotates]
-        self._rot_p = np.array([self._names[bodies[k].origin] for k in self._rot], dtype=int)
-        self._rot_q = np.array([self._names[bodies[k].toward] for k in self._rot], dtype=int)
-        self._com_rows = np.array([self._names[f"G_{b.name}"] for b in bodies], dtype=int)
+        self._build_maps()
+        self._plans: dict = {}
+        self._evaluate = self._central_evaluate if scheme == "central" else self._autodiff_evaluate
+
+    def _build_maps(self):
+        """The map from the points' coordinates (x0, y0, x1, y1, …) to, in pairs (x, y): the
+        named points and centres of mass (pairs 0 … NP−1), the rotating bodies' link vectors
+        toward − origin (pairs NP … NP+nrot−1), and a pair (Σ of everything, 0) that makes a
+        non-finite position show in one number. Kept transposed (``_MT``), so that a result's
+        last axis is x, y, x, y, …: viewed as complex numbers x + iy, an angular analog is
+        ω* = (r × v*)/|r|² = Im(v*/r) in one division."""
+        mech = self.mechanism
+        npts = len(self._point_names)
+        NP = len(self._names)
+        nrot = len(self._rot)
+        M = np.zeros((2 * NP + 2 * nrot + 2, 2 * npts))
+        offset = np.zeros((NP, 2))
+        for k in range(npts):
+            M[2 * k, 2 * k] = M[2 * k + 1, 2 * k + 1] = 1.0
+        for b in mech.bodies:
+            r = 2 * self._names[f"G_{b.name}"]
+            o = 2 * self._names[b.origin]
+            a, c = b.com
+            if b.toward is None:
+                M[r, o] = M[r + 1, o + 1] = 1.0
+                offset[r // 2] = (a, c)
+                continue
+            t = 2 * self._names[b.toward]
+            al, be = a / b.length, c / b.length
+            # G = P_o + al (P_t − P_o) + be n(P_t − P_o), n(x, y) = (−y, x)   (Body.com_of)
+            M[r, o] += 1.0 - al
+            M[r, t] += al
+            M[r, t + 1] -= be
+            M[r, o + 1] += be
+            M[r + 1, o + 1] += 1.0 - al
+            M[r + 1, t + 1] += al
+            M[r + 1, t] += be
+            M[r + 1, o] -= be
+        for j, k in enumerate(self._rot):
+            b = mech.bodies[k]
+            r = 2 * NP + 2 * j
+            o, t = 2 * self._names[b.origin], 2 * self._names[b.toward]
+            M[r, t] += 1.0
+            M[r, o] -= 1.0
+            M[r + 1, t + 1] += 1.0
+            M[r + 1, o + 1] -= 1.0
+        M[-2, :] = 1.0
+        self._MT = np.ascontiguousarray(M.T)
+        self._offset = offset.reshape(-1) if np.any(offset != 0.0) else None
+        self._np, self._npts, self._nrot = NP, npts, nrot
+        nbody = len(mech.bodies)
+        # weights of U's rows [v*_G (x, y per body); ω*_rot]: A = U diag(w) Uᵀ
+        self._w = np.concatenate((np.repeat(self._mass, 2), self._inertia[self._rot]))
+        self._rot_all = self._rot == list(range(nbody))
+        self._rot_idx = np.array(self._rot, dtype=int)
+        self._point_slots = [(p, 2 * k, 2 * k + 1) for k, p in enumerate(self._point_names)]
+
+    def _omega_rows(self, Wr, n):
+        """(nbody, n) angular analogs from the rotating bodies' (n, nrot)."""
+        if self._rot_all:
+            return Wr.T
+        W = np.zeros((len(self._mass), n))
+        W[self._rot_idx] = Wr.T
+        return W
+
+    def _plan(self, view) -> _Plan:
+        plan = self._plans.get(view)
+        if plan is None:
+            if len(self._plans) > 256:
+                self._plans.clear()
+            plan = self._plans[view] = _Plan(view, self.delta)
+        return plan
 
     # -- public ---------------------------------------------------------------------------
     def evaluate(self, view: ChartView, t: float, q, qd) -> Evaluation:
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
-        if self.scheme == "central":
-            kin, A, h = self._central(view, t, q, qd)
-        else:
-            kin, A, h = self._autodiff(view, t, q, qd)
-        Q = self.generalized_forces(t, kin)
-        try:
-            qdd = np.linalg.solve(A, Q - h)
-        except np.linalg.LinAlgError:
-            qdd = np.full(view.n, np.nan)
-        if not np.all(np.isfinite(qdd)):
-            raise NumericalError(
-                f"the equations of motion have no finite solution in chart {view.name} "
-                f"(mass matrix {A.tolist()})", t, self._config(view, q))
+        e = self._evaluate(view, t, q, qd)
         self.counts["evaluations"] += 1
-        return Evaluation(view, t, q, qd, qdd, A, h, Q, kin)
+        return e
 
     def generalized_forces(self, t: float, kin: Kinematics) -> np.ndarray:
+        """Q = Σ over the effects of the virtual work of their loads. An effect may give its
+        generalized force directly (``generalized_force(t, kin)``, the same number in fewer
+        operations, as gravity and the motor do); it is used where the effect's class defines it
+        together with its ``loads``."""
+        if len(self._effect_paths) != len(self.effects):
+            self._effect_paths = [(_fast_path(e), e) for e in self.effects]
+        Q = None
+        for fast, e in self._effect_paths:
+            if fast is not None:
+                Qe = fast(t, kin)
+            else:
+                Qe = self._virtual_work(e.loads(t, kin), kin)
+            Q = Qe if Q is None else Q + Qe
+        return np.zeros(kin.J.shape[-1]) if Q is None else Q
+
+    @staticmethod
+    def _virtual_work(ld, kin) -> np.ndarray:
         Q = np.zeros(kin.J.shape[-1])
-        for e in self.effects:
-            ld = e.loads(t, kin)
-            for _body, point, fx, fy in ld.forces:
-                J = kin.J[kin.names[point]]
-                Q += fx * J[0] + fy * J[1]
-            for body, m in ld.torques:
-                Q += m * kin.W[kin.bodies[body]]
+        for _body, point, fx, fy in ld.forces:
+            J = kin.J[kin.names[point]]
+            Q += fx * J[0] + fy * J[1]
+        for body, m in ld.torques:
+            Q += m * kin.W[kin.bodies[body]]
         return Q
 
     def potential_energy(self, kin: Kinematics) -> float:
@@ -198,100 +338,193 @@ class PartialSystems:
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         if self.scheme == "central":
-            return self._central(view, t, q, qd, want_mass=False)[0]
-        return self._autodiff(view, t, q, qd, want_mass=False)[0]
+            return self._central(view, t, q, qd)[0]
+        return self._autodiff(view, t, q, qd)[0]
 
     # -- the schemes ----------------------------------------------------------------------
-    def _stack(self, pose, shape):
-        """(NP, 2, ...) array of the named points and the centres of mass."""
-        rows = []
-        for p in self._point_names:
+    def _points_matrix(self, pose, cols):
+        P = np.empty((2 * self._npts, cols))
+        for p, rx, ry in self._point_slots:
             x, y = pose[p]
-            rows.append((np.broadcast_to(x, shape), np.broadcast_to(y, shape)))
-        for b in self.mechanism.bodies:
-            gx, gy = b.com_of(pose)
-            rows.append((np.broadcast_to(gx, shape), np.broadcast_to(gy, shape)))
-        return np.array(rows, dtype=float)
+            P[rx] = x
+            P[ry] = y
+        return P
 
-    def _central(self, view, t, q, qd, want_mass=True):
-        n = view.n
-        offsets, plus, minus = stencil(n)
-        d = self.delta * view.scales
-        pts = q + offsets * d
-        pose = view.positions([pts[:, i] for i in range(n)])
-        self.counts["position_calls"] += 1
-        self.counts["position_points"] += len(pts)
-        X = self._stack(pose, (len(pts),))                      # (NP, 2, S)
-        if not np.all(np.isfinite(X)):
+    def _central(self, view, t, q, qd):
+        """(kin, Zt, Wr, plan): kinematics at q; Zt (columns of K × pairs of M): positions at the
+        base points, then every analog at every base point; Wr (B, n, nrot) the angular ones."""
+        plan = self._plans.get(view) or self._plan(view)
+        n, B = plan.n, plan.B
+        pose = view.positions(list(q[:, None] + plan.odT))
+        counts = self.counts
+        counts["position_calls"] += 1
+        counts["position_points"] += plan.S
+        Zt = (self._points_matrix(pose, plan.S) @ plan.K).T @ self._MT
+        if not math.isfinite(Zt[-1, -2]):
             raise ChartDomainError(view.name, "a stencil point has no real configuration")
-        V = (X[:, :, plus] - X[:, :, minus]) / (2.0 * d)        # (NP, 2, nbase, n)
-        nbody = len(self._mass)
-        W = np.zeros((nbody, plus.shape[0], n))
-        if self._rot:
-            base = np.array([0] + [k for i in range(n) for k in (1 + 2 * i, 2 + 2 * i)])
-            R = X[self._rot_q][:, :, base] - X[self._rot_p][:, :, base]   # (nrot, 2, nbase)
-            VR = V[self._rot_q] - V[self._rot_p]                          # (nrot, 2, nbase, n)
-            r2 = R[:, 0] ** 2 + R[:, 1] ** 2
-            W[self._rot] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
-        kin = Kinematics(t, q, qd, self._names, X[:, :, 0], V[:, :, 0, :], W[:, 0, :],
-                         self._body_index)
-        if not want_mass:
-            return kin, None, None
-        VG = V[self._com_rows]                                   # (nbody, 2, nbase, n)
-        Ab = (np.einsum("b,bkci,bkcj->cij", self._mass, VG, VG)
-              + np.einsum("b,bci,bcj->cij", self._inertia, W, W))
-        A = Ab[0]
-        dA = (Ab[1::2] - Ab[2::2]) / (2.0 * d)[:, None, None]  # dA[k, i, j] = A_ij,k
-        h = (np.einsum("kij,j,k->i", dA, qd, qd) - 0.5 * np.einsum("ijk,j,k->i", dA, qd, qd))
-        return kin, A, h
+        Zt[B:-1] *= plan.scale
+        NP, NP2 = self._np, 2 * self._np
+        X = Zt[0, :NP2]
+        if self._offset is not None:
+            X = X + self._offset
+        X = X.reshape(NP, 2)
+        J = Zt[B:B + n, :NP2].T.reshape(NP, 2, n)
+        nrot = self._nrot
+        if nrot:
+            Zc = Zt[:-1].view(complex)                               # pairs as x + iy
+            Rc = Zc[:B, NP:NP + nrot]
+            Wr = (Zc[B:B + B * n, NP:NP + nrot].reshape(B, n, nrot) / Rc[:, None, :]).imag
+            W = Wr[0].T if self._rot_all else self._omega_rows(Wr[0], n)
+        else:
+            Wr = None
+            W = np.zeros((len(self._mass), n))
+        kin = Kinematics(t, q, qd, self._names, X, J, W, self._body_index)
+        return kin, Zt, Wr, plan
 
-    def _autodiff(self, view, t, q, qd, want_mass=True):
+    def _central_evaluate(self, view, t, q, qd):
+        kin, Zt, Wr, plan = self._central(view, t, q, qd)
+        n, B = plan.n, plan.B
+        Ut = Zt[B:B + B * n, 2 * self._npts:2 * self._np].reshape(B, n, -1)   # v*_G: (B, n, ·)
+        if Wr is not None:
+            Ut = np.concatenate((Ut, Wr), axis=2)
+        Ab = (Ut * self._w) @ Ut.transpose(0, 2, 1)                # (B, n, n): A at the bases
+        Q = self.generalized_forces(t, kin)
+        if n <= 2:
+            return self._solve_small(view, t, q, qd, Ab, Q, kin, plan)
+        A = Ab[0]
+        dA = (Ab[1::2] - Ab[2::2]) * (1.0 / (2.0 * plan.d))[:, None, None]   # dA[k, i, j]
+        h = (np.tensordot(qd, dA, 1) @ qd) - 0.5 * ((dA @ qd) @ qd)
+        return self._finish(view, t, q, qd, A, h, Q, kin)
+
+    def _solve_small(self, view, t, q, qd, Ab, Q, kin, plan):
+        """n = 1 or 2: velocity terms by central differences of A, and the solve, on floats."""
+        AL = Ab.tolist()
+        v = qd.tolist()
+        Ql = Q.tolist()
+        c = plan.inv2d
+        if plan.n == 2:
+            (a00, a01), (a10, a11) = AL[0]
+            v0, v1 = v
+            # dA[k] = (A(q + Δe_k) − A(q − Δe_k)) / 2Δ_k
+            (p00, p01), (p10, p11) = AL[1]
+            (m00, m01), (m10, m11) = AL[2]
+            c0 = c[0]
+            d000, d001, d010, d011 = ((p00 - m00) * c0, (p01 - m01) * c0,
+                                      (p10 - m10) * c0, (p11 - m11) * c0)
+            (p00, p01), (p10, p11) = AL[3]
+            (m00, m01), (m10, m11) = AL[4]
+            c1 = c[1]
+            d100, d101, d110, d111 = ((p00 - m00) * c1, (p01 - m01) * c1,
+                                      (p10 - m10) * c1, (p11 - m11) * c1)
+            # h_i = Σ_jk dA[k][i][j] q̇_j q̇_k − ½ Σ_jk dA[i][j][k] q̇_j q̇_k
+            h0 = ((d000 * v0 + d001 * v1) * v0 + (d100 * v0 + d101 * v1) * v1
+                  - 0.5 * ((d000 * v0 + d001 * v1) * v0 + (d010 * v0 + d011 * v1) * v1))
+            h1 = ((d010 * v0 + d011 * v1) * v0 + (d110 * v0 + d111 * v1) * v1
+                  - 0.5 * ((d100 * v0 + d101 * v1) * v0 + (d110 * v0 + d111 * v1) * v1))
+            r0, r1 = Ql[0] - h0, Ql[1] - h1
+            det = a00 * a11 - a01 * a10
+            try:
+                qdd = [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a10 * r0) / det]
+            except ZeroDivisionError:
+                qdd = [math.nan, math.nan]
+            h = [h0, h1]
+        else:
+            a = AL[0][0][0]
+            d = (AL[1][0][0] - AL[2][0][0]) * c[0]
+            h0 = 0.5 * d * v[0] * v[0]
+            try:
+                qdd = [(Ql[0] - h0) / a]
+            except ZeroDivisionError:
+                qdd = [math.nan]
+            h = [h0]
+        for x in qdd:
+            if not math.isfinite(x):
+                self._no_solution(view, t, q, Ab[0])
+        return Evaluation(view, t, q, qd, np.array(qdd), Ab[0], np.array(h), Q, kin)
+
+    def _finish(self, view, t, q, qd, A, h, Q, kin):
+        try:
+            qdd = np.linalg.solve(A, Q - h)
+        except np.linalg.LinAlgError:
+            qdd = np.full(view.n, np.nan)
+        if not np.all(np.isfinite(qdd)):
+            self._no_solution(view, t, q, A)
+        return Evaluation(view, t, q, qd, qdd, A, h, Q, kin)
+
+    def _no_solution(self, view, t, q, A):
+        raise NumericalError(
+            f"the equations of motion have no finite solution in chart {view.name} "
+            f"(mass matrix {np.asarray(A).tolist()})", t, self._config(view, q))
+
+    def _autodiff(self, view, t, q, qd):
+        """(kin, Zt, Wr, theta2) from one position call on jets: Zt's rows are the value, the
+        n partial derivatives, d1 and d2 (along q̇) of every pair of M; Wr (n, nrot) the angular
+        analogs, theta2 (nrot,) the angles' second rates at q̈ = 0."""
         n = view.n
-        jets = seed(q, qd)
-        pose = view.positions(jets)
+        pose = view.positions(seed(q, qd))
         self.counts["position_calls"] += 1
         self.counts["position_points"] += 1
-        NP = len(self._names)
-        X = np.empty((NP, 2))
-        J = np.zeros((NP, 2, n))
-        D1 = np.zeros((NP, 2))
-        D2 = np.zeros((NP, 2))
-        full = dict(pose)
-        for b in self.mechanism.bodies:
-            full[f"G_{b.name}"] = b.com_of(pose)
-        for name, row in self._names.items():
-            for k, c in enumerate(full[name]):
-                if isinstance(c, Jet):
-                    X[row, k] = c.val
-                    J[row, k] = c.grad
-                    D1[row, k] = c.d1
-                    D2[row, k] = c.d2
+        rows = []
+        zero = [0.0] * (n + 2)
+        for p in self._point_names:
+            for c in pose[p]:
+                if c.__class__ is ScalarJet:
+                    rows.append([c.val, *c.g, c.d1, c.d2])
+                elif isinstance(c, Jet):
+                    rows.append([float(c.val), *np.reshape(c.grad, n).tolist(), float(c.d1),
+                                 float(c.d2)])
                 else:
-                    X[row, k] = c
-        if not np.all(np.isfinite(X)) or not np.all(np.isfinite(J)):
+                    rows.append([float(c), *zero])
+        Zt = np.array(rows).T @ self._MT
+        if not all(math.isfinite(x) for x in Zt[:1 + n, -2].tolist()):
             raise ChartDomainError(view.name, "no real configuration at this point")
-        nbody = len(self._mass)
-        W = np.zeros((nbody, n))
-        theta2 = np.zeros(nbody)
-        if self._rot:
-            R = X[self._rot_q] - X[self._rot_p]
-            R1 = D1[self._rot_q] - D1[self._rot_p]
-            R2 = D2[self._rot_q] - D2[self._rot_p]
-            RJ = J[self._rot_q] - J[self._rot_p]
-            r2 = R[:, 0] ** 2 + R[:, 1] ** 2
-            W[self._rot] = (R[:, 0, None] * RJ[:, 1] - R[:, 1, None] * RJ[:, 0]) / r2[:, None]
-            w1 = (R[:, 0] * R1[:, 1] - R[:, 1] * R1[:, 0]) / r2
-            theta2[self._rot] = ((R[:, 0] * R2[:, 1] - R[:, 1] * R2[:, 0]) / r2
-                                 - 2.0 * w1 * (R[:, 0] * R1[:, 0] + R[:, 1] * R1[:, 1]) / r2)
+        NP, NP2 = self._np, 2 * self._np
+        X = Zt[0, :NP2]
+        if self._offset is not None:
+            X = X + self._offset
+        X = X.reshape(NP, 2)
+        J = Zt[1:1 + n, :NP2].T.reshape(NP, 2, n)
+        nrot = self._nrot
+        if nrot:
+            Zc = Zt[:, :-2].view(complex)
+            # (∂r, ṙ, r̈)/r: Im gives ω* and the angle's rate, Re the rate of ln |r|
+            quo = Zc[1:, NP:NP + nrot] / Zc[0, NP:NP + nrot]
+            Wr = quo[:n].imag
+            w1, dot1 = quo[n].imag, quo[n].real
+            theta2 = quo[n + 1].imag - 2.0 * w1 * dot1
+            W = self._omega_rows(Wr, n)
+        else:
+            Wr = theta2 = None
+            W = np.zeros((len(self._mass), n))
         kin = Kinematics(t, q, qd, self._names, X, J, W, self._body_index)
-        if not want_mass:
-            return kin, None, None
-        JG = J[self._com_rows]
-        A = (np.einsum("b,bki,bkj->ij", self._mass, JG, JG)
-             + np.einsum("b,bi,bj->ij", self._inertia, W, W))
-        h = (np.einsum("b,bki,bk->i", self._mass, JG, D2[self._com_rows])
-             + np.einsum("b,bi,b->i", self._inertia, W, theta2))
-        return kin, A, h
+        return kin, Zt, Wr, theta2
+
+    def _autodiff_evaluate(self, view, t, q, qd):
+        kin, Zt, Wr, theta2 = self._autodiff(view, t, q, qd)
+        n = view.n
+        G = Zt[:, 2 * self._npts:2 * self._np]          # (n + 3, 2·nbody)
+        if Wr is None:
+            U, D = G[1:1 + n], G[2 + n]
+        else:
+            U = np.concatenate((G[1:1 + n], Wr), axis=1)
+            D = np.concatenate((G[2 + n], theta2))
+        Uw = U * self._w
+        A = Uw @ U.T
+        h = Uw @ D
+        Q = self.generalized_forces(t, kin)
+        if n == 2:
+            (a00, a01), (a10, a11) = A.tolist()
+            r0, r1 = (Q - h).tolist()
+            det = a00 * a11 - a01 * a10
+            try:
+                qdd = [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a10 * r0) / det]
+            except ZeroDivisionError:
+                qdd = [math.nan, math.nan]
+            for x in qdd:
+                if not math.isfinite(x):
+                    self._no_solution(view, t, q, A)
+            return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin)
+        return self._finish(view, t, q, qd, A, h, Q, kin)
 
     def _config(self, view, q):
         return config_in_degrees({c.name: float(v) for c, v in zip(view.coordinates, q)})

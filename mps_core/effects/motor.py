@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from .base import Effect, Loads
 
 
@@ -83,12 +85,31 @@ class Motor(Effect):
     def bind(self, mechanism) -> None:
         mechanism.body(self.body)  # raises KeyError for an unknown body
 
+    def _constants(self):
+        """(ω_sync, M_k, s_k) of ``data``, computed once per data (the same formulas)."""
+        d = self.data
+        if self.__dict__.get("_data_of") is not d:
+            self._k = (d.omega_sync, d.breakdown_torque, d.breakdown_slip)
+            self._data_of = d
+        return self._k
+
     def torque(self, body_rate: float) -> float:
         if not self.enabled:
             return 0.0
-        s = 1.0 - self.ratio * body_rate / self.data.omega_sync
-        return self.ratio * self.efficiency * self.data.torque(s)
+        w_sync, mk, sk = self._constants()
+        s = 1.0 - self.ratio * body_rate / w_sync
+        # MotorData.torque with its constants kept
+        return self.ratio * self.efficiency * (2.0 * mk * s * sk / (s * s + sk * sk))
 
     def loads(self, t, kin) -> Loads:
         m = self.torque(kin.rate(self.body))
         return Loads(torques=[(self.body, m)], frame=[("frame", -m)])
+
+    def generalized_force(self, t, kin) -> np.ndarray:
+        """Q = M·ω*_body: the virtual work of :meth:`loads`."""
+        w = kin.W[kin.bodies[self.body]]
+        return self.torque(float(w @ kin.qd)) * w
+
+    def power(self, t, kin) -> float:
+        rate = kin.rate(self.body)
+        return float(self.torque(rate) * rate)

@@ -23,7 +23,7 @@ class AdaptiveSolver(Solver):
     order = None
 
     def __init__(self, fun, t0, q0, qd0, current=None, method="dop853", rtol=1e-9, atol=1e-12,
-                 scales=None, t_bound=np.inf, max_step=np.inf):
+                 scales=None, t_bound=np.inf, max_step=np.inf, first_step=None):
         if method not in _METHODS:
             raise ValueError(f"adaptive method {method!r}: expected one of {', '.join(_METHODS)}")
         if not (0 < rtol < 1) or not (atol > 0):
@@ -34,15 +34,39 @@ class AdaptiveSolver(Solver):
         sc = np.ones(n) if scales is None else np.asarray(scales, float)
         self._n = n
         self._last_eval = None
+        y0 = np.concatenate((self.q, self.qd))
+        # scipy evaluates the right-hand side at the initial state once more: it is `current`
+        start = [self.t, y0, self.current]
 
         def f(t, y):
+            if start[2] is not None:
+                t_s, y_s, e_s = start
+                start[2] = None
+                if t == t_s and np.array_equal(y, y_s):
+                    return np.concatenate((y[n:], e_s.qdd))
             e = self._call(t, y[:n], y[n:])
             self._last_eval = e
             return np.concatenate((y[n:], e.qdd))
 
-        y0 = np.concatenate((self.q, self.qd))
+        if first_step is not None and not (0 < first_step < np.inf):
+            first_step = None
         self._scipy = _METHODS[method](f, self.t, y0, t_bound, rtol=rtol,
-                                       atol=atol * np.concatenate((sc, sc)), max_step=max_step)
+                                       atol=atol * np.concatenate((sc, sc)), max_step=max_step,
+                                       first_step=first_step)
+        self._sol = None            # the last internal step's interpolant, built once
+
+    @property
+    def step_size(self):
+        """The size of the last internal step (None before the first): a good ``first_step``
+        for a solver that carries on from here (after a change of chart)."""
+        return self._scipy.step_size
+
+    def _interpolant(self):
+        s = self._scipy
+        if self._sol is None or self._sol[0] != s.t:
+            # DOP853's dense output costs three more evaluations: once per internal step
+            self._sol = (s.t, s.dense_output())
+        return self._sol[1]
 
     def step_to(self, t_target, interrupt=None):
         s, n = self._scipy, self._n
@@ -54,11 +78,11 @@ class AdaptiveSolver(Solver):
                 raise NumericalError(f"{self.name} failed: {msg}", s.t)
             self.nsteps += 1
             if s.t < t_target and interrupt is not None and interrupt(s.t, s.y[:n], s.y[n:]):
-                self._dense = self._wrap(s.dense_output())
+                self._dense = self._wrap(self._interpolant())
                 self.t, self.q, self.qd = s.t, s.y[:n].copy(), s.y[n:].copy()
                 self.current = self._call(self.t, self.q, self.qd)
                 return
-        sol = s.dense_output()
+        sol = self._interpolant()
         y = sol(t_target)
         self._dense = self._wrap(sol)
         self.t, self.q, self.qd = t_target, y[:n].copy(), y[n:].copy()

@@ -34,15 +34,20 @@ class LinearAcceleration(Solver):
         super().__init__(fun, t0, q0, qd0, current)
 
     def step_to(self, t_target, interrupt=None):
+        # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate); the same
+        # operations in the same order as the vector formulas above
         t0, q0, qd0 = self.t, self.q, self.qd
         dt = t_target - t0
         a0 = self.current.qdd
-        qdp = qd0 + a0 * dt
-        qp = q0 + qd0 * dt + a0 * (0.5 * dt * dt)
+        ql, vl, al = q0.tolist(), qd0.tolist(), a0.tolist()
+        h2, h6, hh = 0.5 * dt * dt, dt * dt / 6.0, 0.5 * dt
+        qdp = np.array([v + a * dt for v, a in zip(vl, al)])
+        qp = np.array([q + v * dt + a * h2 for q, v, a in zip(ql, vl, al)])
         a1 = self._call(t_target, qp, qdp).qdd
         for k in range(self.iterations):
-            qd1 = qd0 + (a0 + a1) * (0.5 * dt)
-            q1 = q0 + qd0 * dt + (2.0 * a0 + a1) * (dt * dt / 6.0)
+            a1l = a1.tolist()
+            qd1 = np.array([v + (a + b) * hh for v, a, b in zip(vl, al, a1l)])
+            q1 = np.array([q + v * dt + (2.0 * a + b) * h6 for q, v, a, b in zip(ql, vl, al, a1l)])
             e = self._call(t_target, q1, qd1)
             if k + 1 < self.iterations:
                 a1 = e.qdd
@@ -56,10 +61,19 @@ class _LinearAccelerationCubic:
 
     def __init__(self, t0, dt, q0, qd0, a0, a1):
         self.t0, self.dt = t0, dt
-        self.q0, self.qd0, self.a0, self.j = q0, qd0, a0, (a1 - a0) / dt
+        self.q0, self.qd0, self.a0, self._a1 = q0, qd0, a0, a1
+        self._j = None
+
+    @property
+    def j(self):
+        """The step's constant jerk (q̈₁ − q̈₀)/Δt."""
+        if self._j is None:
+            self._j = (self._a1 - self.a0) / self.dt
+        return self._j
 
     def __call__(self, t):
         tau = t - self.t0
-        q = self.q0 + self.qd0 * tau + self.a0 * (tau * tau / 2.0) + self.j * (tau ** 3 / 6.0)
-        qd = self.qd0 + self.a0 * tau + self.j * (tau * tau / 2.0)
+        j = self.j
+        q = self.q0 + self.qd0 * tau + self.a0 * (tau * tau / 2.0) + j * (tau ** 3 / 6.0)
+        qd = self.qd0 + self.a0 * tau + j * (tau * tau / 2.0)
         return q, qd

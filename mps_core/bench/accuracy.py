@@ -1,0 +1,334 @@
+"""``mps bench accuracy``: the work-precision study.
+
+For each case (:mod:`mps_core.bench.common`), each solver, each step size of the ladder (the
+paper's 1.25 ms halved down to about 1e-5 s) or each tolerance (adaptive solvers), and each
+derivative scheme (central differences at Δ = 1°, 0.1°, 0.01°, 0.001°, and exact derivatives):
+the error against the case's reference (φ at the end time; max |φ − φ_ref|, |φ̇ − φ̇_ref|,
+|φ̈ − φ̈_ref| over the run, sampled on the paper's 1.25 ms grid, which every run's grid contains;
+and for scenes with events, the events' timing), the CPU time of the run (median of repeats) and
+the work (right-hand sides, position points). The peer, scipy's DOP853 on the exact equations
+(:mod:`mps_core.bench.peers`), runs side by side on the same cases.
+
+Where finite differences stop helping: :func:`delta_study` shrinks Δ by decades, per evaluation
+(q̈ against exact derivatives at the states of a run) and per run (RK4 at a fine step against the
+reference): the error falls as Δ² until round-off, growing as ε/Δ², takes over.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import build
+from ..engine import PartialSystems
+from .common import (DT_LADDER, Case, Reference, Setting, available_cases, reference_for,
+                     resolve_case, run_setting)
+
+FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "dop853", "radau", "peer")
+DELTAS_DEG = (1.0, 0.1, 0.01, 0.001)
+LA_ITERATIONS = 3
+GRID = DT_LADDER[0]            # errors are sampled on the paper's 1.25 ms grid
+#: central differences stop adaptive solvers below this tolerance (their O(Δ²) error and
+#: round-off are noise to the error estimate: the steps shrink without end)
+CENTRAL_MIN_RTOL = 1e-8
+MAX_EVALUATIONS = 300_000
+ADAPTIVE_RTOLS = {"dop853": (1e-4, 1e-6, 1e-8, 1e-10, 1e-12), "radau": (1e-4, 1e-6, 1e-8)}
+PEER_RTOLS = tuple(10.0 ** -k for k in range(3, 13))
+DELTA_STUDY_DEG = tuple(10.0 ** -k for k in range(0, 7))
+
+COLUMNS = ("case", "solver", "scheme", "delta_deg", "iterations", "dt", "rtol", "steps",
+           "evaluations", "position_points", "cpu_s", "cpu_per_sim_s", "repeats", "err_end_phi",
+           "max_err_phi", "max_err_phi_dot", "max_err_phi_ddot", "max_err_event_t", "horizon_s")
+
+
+def _schemes(full: bool):
+    out = [("central", d) for d in (DELTAS_DEG if full else (0.1,))]
+    return out + [("autodiff", 0.0)]
+
+
+def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None = None):
+    """[(Setting, dt)] for a case: everything for short cases, fewer rungs, schemes and
+    tolerances as the case gets longer (and with ``quick``)."""
+    long = case.t_end > 0.2
+    if rungs is None:
+        rungs = 3 if quick else (5 if long else len(DT_LADDER))
+    ladder = DT_LADDER[:rungs] if not quick else DT_LADDER[:2 * rungs - 1:2]
+    schemes = _schemes(full=not quick and not long)
+    out = []
+    for fam in families:
+        if fam in ("linear-acceleration", "la-iterated", "rk4"):
+            solver = "rk4" if fam == "rk4" else "linear-acceleration"
+            it = LA_ITERATIONS if fam == "la-iterated" else 1
+            for scheme, d in schemes:
+                for dt in ladder:
+                    out.append((Setting(solver, scheme, d, it), dt))
+        elif fam in ADAPTIVE_RTOLS:
+            rtols = ADAPTIVE_RTOLS[fam]
+            if quick:
+                rtols = (1e-6, 1e-9) if fam == "dop853" else (1e-6,)
+            elif long:
+                rtols = tuple(r for r in rtols if r >= 1e-10) if fam == "dop853" else (1e-4, 1e-6)
+            sch = [("autodiff", 0.0)]
+            if not quick and not long:
+                sch += [("central", 0.1)] + ([("central", 0.01)] if fam == "dop853" else [])
+            for scheme, d in sch:
+                for r in rtols:
+                    if scheme == "central" and r < CENTRAL_MIN_RTOL:
+                        continue
+                    out.append((Setting(fam, scheme, d, 1, r), GRID))
+        elif fam == "peer":
+            from .peers import supports
+
+            if not supports(case.scene)[0]:
+                continue
+            rtols = (1e-3, 1e-6, 1e-9) if quick else PEER_RTOLS
+            for r in rtols:
+                out.append((Setting("peer", "exact", 0.0, 1, r), GRID))
+        else:
+            raise ValueError(f"solver {fam!r}: expected one of {', '.join(FAMILIES)}")
+    return out
+
+
+def _on_grid(t):
+    t = np.asarray(t, float)
+    k = np.round(t / GRID)
+    return np.abs(t - k * GRID) < 1e-9 * GRID
+
+
+def errors(traj_t, phi, phi_dot, phi_ddot, ref: Reference, traj=None) -> dict:
+    """Errors on the 1.25 ms grid up to the reference's horizon: at its last point, and the
+    maxima; and the events' timing where the reference has events."""
+    t_all = np.asarray(traj_t)
+    sel = _on_grid(t_all) & (t_all <= ref.horizon + 1e-12)
+    t = t_all[sel]
+    rp, rpd, rpdd = ref.sample(t)
+    e = np.abs(np.asarray(phi)[sel] - rp)
+    out = {"err_end_phi": float(e[-1]),
+           "max_err_phi": float(e.max()),
+           "max_err_phi_dot": float(np.abs(np.asarray(phi_dot)[sel] - rpd).max()),
+           "max_err_phi_ddot": float(np.abs(np.asarray(phi_ddot)[sel] - rpdd).max()),
+           "max_err_event_t": "", "horizon_s": float(t[-1])}
+    if ref.events and traj is not None:
+        from .common import event_timing_error
+        out["max_err_event_t"] = event_timing_error(traj, ref)
+    return out
+
+
+def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
+            budget: float = 1.0) -> dict:
+    row = {"case": case.name, "solver": s.family, "scheme": s.scheme_label,
+           "delta_deg": s.delta_deg if s.scheme == "central" else "",
+           "iterations": s.iterations if s.solver == "linear-acceleration" else "",
+           "dt": dt if not s.adaptive else "", "rtol": s.rtol if s.adaptive else ""}
+    if s.solver == "peer":
+        from .common import cpu_median
+        from .peers import run_peer
+
+        t_grid = np.linspace(0.0, case.t_end, int(round(case.t_end / GRID)) + 1)
+        cpu, run, n = cpu_median(
+            lambda: run_peer(case.scene, case.t_end, t_grid, rtol=s.rtol), repeats, budget)
+        row.update(steps="", evaluations=run.nfev, position_points="", cpu_s=cpu,
+                   cpu_per_sim_s=cpu / case.t_end, repeats=n)
+        row.update(errors(run.t, run.phi, run.phi_dot, run.phi_ddot, ref))
+        return row
+    cpu, traj, n = run_setting(case, s, dt, repeats, budget, MAX_EVALUATIONS)
+    c = traj.counts
+    row.update(steps=c["steps"], evaluations=c["evaluations"],
+               position_points=c["position_points"], cpu_s=cpu, cpu_per_sim_s=cpu / case.t_end,
+               repeats=n)
+    row.update(errors(traj.t, traj.phi, traj.phi_dot, traj.phi_ddot, ref, traj))
+    return row
+
+
+# -- where finite differences stop helping ----------------------------------------------------
+def delta_study(case: Case, ref: Reference | None, deltas=DELTA_STUDY_DEG,
+                dt: float = DT_LADDER[4], trajectory: bool = True):
+    """Rows (Δ, max relative error of q̈ per evaluation, max φ error of an RK4 run at ``dt``).
+
+    Per evaluation: at the states of an RK4 run with exact derivatives (every fourth
+    right-hand side, all charts it visits), q̈ by central differences against q̈ exact.
+    Per run (``trajectory``): RK4 at ``dt`` with central differences against the reference."""
+    scene = case.scene.with_overrides(t_end=min(case.t_end, 0.1), dt=DT_LADDER[3],
+                                      solver="rk4", scheme="autodiff")
+    sim = build(scene)
+    states = []
+    original = sim.engine.evaluate
+
+    def spy(view, t, q, qd):
+        e = original(view, t, q, qd)
+        states.append(e)
+        return e
+
+    sim.engine.evaluate = spy
+    sim.run(scene.t_end, scene.dt)
+    states = states[::4]
+    rows = []
+    sub = Case(case.name, case.scene, min(case.t_end, 0.1))
+    # exact derivatives again now: effects with state (controls) are compared on one footing
+    exact = PartialSystems(sim.mechanism, sim.engine.effects, "autodiff")
+    states = [(e, exact.evaluate(e.view, e.t, e.q, e.qd).qdd) for e in states]
+    for d in deltas:
+        eng = PartialSystems(sim.mechanism, sim.engine.effects, "central", math.radians(d))
+        rel = 0.0
+        for e, qdd_exact in states:
+            try:
+                qdd = eng.evaluate(e.view, e.t, e.q, e.qd).qdd
+            except Exception:           # a stencil leaving the chart's domain: not counted
+                continue
+            rel = max(rel, float(np.abs(qdd - qdd_exact).max() / np.abs(qdd_exact).max()))
+        if not trajectory:
+            rows.append({"delta_deg": d, "max_rel_err_qdd": rel, "max_err_phi_rk4": math.nan,
+                         "rk4_dt": dt, "states": len(states)})
+            continue
+        _cpu, traj, _n = run_setting(sub, Setting("rk4", "central", d), dt, repeats=1)
+        sel = _on_grid(traj.t)
+        err = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0])
+                    .max())
+        rows.append({"delta_deg": d, "max_rel_err_qdd": rel, "max_err_phi_rk4": err,
+                     "rk4_dt": dt, "states": len(states)})
+    if not trajectory:
+        return rows
+    _cpu, traj, _n = run_setting(sub, Setting("rk4", "autodiff"), dt, repeats=1)
+    sel = _on_grid(traj.t)
+    exact = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
+    rows.append({"delta_deg": 0.0, "max_rel_err_qdd": 0.0, "max_err_phi_rk4": exact,
+                 "rk4_dt": dt, "states": len(states)})
+    return rows
+
+
+# -- picking a setting ----------------------------------------------------------------------
+def recommendations(rows, targets=tuple(10.0 ** -k for k in range(2, 11))):
+    """For each target max |φ − φ_ref|: the cheapest measured setting that meets it (the
+    engine's, and the peer's for comparison)."""
+    out = []
+    for tgt in targets:
+        ok = [r for r in rows if r["max_err_phi"] <= tgt]
+        mine = [r for r in ok if r["solver"] != "peer"]
+        peer = [r for r in ok if r["solver"] == "peer"]
+        best = min(mine, key=lambda r: r["cpu_s"]) if mine else None
+        bp = min(peer, key=lambda r: r["cpu_s"]) if peer else None
+        out.append((tgt, best, bp))
+    return out
+
+
+def describe(r) -> str:
+    if r is None:
+        return "-"
+    s = f"{r['solver']}, {r['scheme']}"
+    if r["dt"] != "":
+        s += f", dt {r['dt']:.3g} s"
+    if r["rtol"] != "":
+        s += f", rtol {r['rtol']:.0e}"
+    return s
+
+
+# -- output ---------------------------------------------------------------------------------
+def _fmt(v, kind="g"):
+    if v == "" or v is None:
+        return "-"
+    if isinstance(v, float):
+        if math.isinf(v):
+            return "inf"
+        return f"{v:.2e}" if kind == "e" else f"{v:.3g}"
+    return str(v)
+
+
+def format_table(rows) -> str:
+    head = ("solver", "scheme", "dt/rtol", "steps", "evals", "points", "CPU s", "CPU/sim s",
+            "err_end φ", "max|Δφ|", "max|Δφ̇|", "max|Δφ̈|")
+    lines = []
+    for r in rows:
+        step = _fmt(r["dt"], "g") if r["dt"] != "" else "rtol " + f"{r['rtol']:.0e}"
+        lines.append((r["solver"], r["scheme"], step, _fmt(r["steps"]), _fmt(r["evaluations"]),
+                      _fmt(r["position_points"]), f"{r['cpu_s']:.4f}",
+                      f"{r['cpu_per_sim_s']:.3g}", _fmt(r["err_end_phi"], "e"),
+                      _fmt(r["max_err_phi"], "e"), _fmt(r["max_err_phi_dot"], "e"),
+                      _fmt(r["max_err_phi_ddot"], "e")))
+        if r.get("max_err_event_t") not in ("", None):
+            lines[-1] = lines[-1] + (_fmt(r["max_err_event_t"], "e"),)
+    if any(len(x) > len(head) for x in lines):
+        head = head + ("max|Δt_event|",)
+    widths = [max(len(str(x[i])) for x in [head] + lines if i < len(x)) for i in range(len(head))]
+    fmt = lambda x: "  ".join(str(v).rjust(w) if i > 1 else str(v).ljust(w)  # noqa: E731
+                              for i, (v, w) in enumerate(zip(x, widths)))
+    return "\n".join([fmt(head), fmt(tuple("-" * w for w in widths))] + [fmt(x) for x in lines])
+
+
+def write_csv(rows, path: Path, columns=COLUMNS) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(columns), extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    return path
+
+
+def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0, rungs=None,
+          log=print):
+    """Run the study; returns {case: {"rows": [...], "delta": [...], "reference": Reference}}."""
+    out = {}
+    for name in case_names or available_cases():
+        case = resolve_case(name)
+        settings = plan(case, families, quick, rungs)
+        ref = reference_for(case, GRID)
+        hz = f"; reference uncertain to {ref.uncertainty:.1e} rad (against a tenfold tolerance)"
+        if ref.horizon < case.t_end:
+            hz += (f" up to t = {ref.horizon:.3g} s, where that passes 1e-7 rad (the motion is "
+                   "chaotic): errors are measured up to there")
+        log(f"case {case.name}: {case.note}; t_end = {case.t_end:g} s; reference: {ref.label} "
+            f"({ref.cpu:.2f} s CPU){hz}; {len(settings)} runs")
+        rows = []
+        for s, dt in settings:
+            try:
+                rows.append(run_one(case, s, dt, ref, repeats, budget))
+            except Exception as exc:    # a setting that fails (unstable, singular) is a result
+                log(f"  {s.label} at {dt:g}: failed ({type(exc).__name__}: {exc})")
+        delta = [] if quick or out else delta_study(case, ref)
+        out[case.name] = {"rows": rows, "delta": delta, "reference": ref, "case": case}
+    return out
+
+
+def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
+    for name, res in results.items():
+        rows = res["rows"]
+        ref = res["reference"]
+        upto = "" if ref.horizon >= res["case"].t_end else f", up to t = {ref.horizon:.3g} s"
+        log(f"\n== {name}: work-precision (errors against: {ref.label}{upto}) ==")
+        log(format_table(rows))
+        if res["delta"]:
+            log(f"\n-- {name}: central differences against exact derivatives as Δ shrinks --")
+            log("   Δ (deg)   max rel. error of q̈ (per evaluation)   max|Δφ| RK4 "
+                f"dt={res['delta'][0]['rk4_dt']:.3g} s")
+            for d in res["delta"]:
+                lab = f"{d['delta_deg']:g}" if d["delta_deg"] else "exact"
+                log(f"   {lab:>7}   {d['max_rel_err_qdd']:>36.2e}   {d['max_err_phi_rk4']:.2e}")
+        log(f"\n-- {name}: the cheapest setting for a target accuracy (max |φ − φ_ref|) --")
+        for tgt, best, peer in recommendations(rows):
+            b = "-" if best is None else (f"{describe(best)}: {best['cpu_per_sim_s']:.3g} s CPU "
+                                          f"per simulated s")
+            p = "-" if peer is None else f"peer {peer['cpu_per_sim_s']:.3g} s"
+            log(f"   {tgt:.0e} rad: {b}   [{p}]")
+    if out_dir is None:
+        return
+    out_dir = Path(out_dir)
+    allrows = [r for res in results.values() for r in res["rows"]]
+    log(f"\nwrote {write_csv(allrows, out_dir / 'accuracy.csv')}")
+    drows = [dict(d, case=n) for n, res in results.items() for d in res["delta"]]
+    if drows:
+        log(f"wrote {write_csv(drows, out_dir / 'accuracy-delta.csv', ('case',) + tuple(k for k in drows[0] if k != 'case'))}")
+    if plot:
+        from .plot import plot_accuracy
+
+        for name, res in results.items():
+            p = plot_accuracy(name, res, out_dir / f"accuracy-{name}.png")
+            if p is not None:
+                log(f"wrote {p}")
+            else:
+                log("no plot: matplotlib is not installed (pip install 'mps[bench]')")
+                break
+

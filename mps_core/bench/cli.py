@@ -1,0 +1,77 @@
+"""``mps bench``: the work-precision study and the speed benchmark.
+
+    mps bench accuracy [CASE …] [--solvers NAME,…] [--quick] [--rungs N] [--repeats N]
+                       [--out DIR] [--no-plot]
+    mps bench speed [CASE …] [--quick] [--out DIR]
+
+CASE is ``paper`` (0.1 s), ``paper-long`` (1 s), ``press-cycle`` (where that preset exists) or
+any preset name or scene file (over its own t_end); by default every built-in case.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .accuracy import FAMILIES
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("bench", help="benchmarks: work-precision study, speed")
+    sub = p.add_subparsers(dest="bench", required=True)
+
+    a = sub.add_parser("accuracy", help="work-precision study against an exact reference")
+    a.add_argument("cases", nargs="*", metavar="CASE",
+                   help="paper, paper-long, press-cycle, or a preset/scene file "
+                        "(default: every built-in case)")
+    a.add_argument("--solvers", metavar="NAME,…",
+                   help="comma-separated subset of " + ", ".join(FAMILIES))
+    a.add_argument("--quick", action="store_true",
+                   help="three step sizes, two derivative schemes, fewer tolerances, one repeat")
+    a.add_argument("--rungs", type=int, metavar="N",
+                   help="step sizes: the first N of 1.25 ms, 0.625 ms, … (8 reach 1e-5 s)")
+    a.add_argument("--repeats", type=int, default=3, metavar="N",
+                   help="CPU time: median of up to N runs (fewer for runs over 1 s)")
+    a.add_argument("--out", metavar="DIR", default="bench-out",
+                   help="where to write accuracy.csv and the plots (default bench-out)")
+    a.add_argument("--no-plot", action="store_true", help="no PNG")
+    a.set_defaults(func=_accuracy)
+
+    s = sub.add_parser("speed", help="CPU per step, real-time factor at 1 kHz, cost of effects")
+    s.add_argument("cases", nargs="*", metavar="CASE",
+                   help="paper, press-cycle, or a preset/scene file (default: paper and "
+                        "press-cycle where it exists)")
+    s.add_argument("--quick", action="store_true", help="fewer solvers and repeats")
+    s.add_argument("--out", metavar="DIR", help="also write speed.csv there")
+    s.set_defaults(func=_speed)
+
+
+def _accuracy(args) -> int:
+    from . import accuracy
+
+    families = FAMILIES
+    if args.solvers:
+        families = tuple(x.strip() for x in args.solvers.split(",") if x.strip())
+        bad = [f for f in families if f not in FAMILIES]
+        if bad:
+            raise SystemExit(f"mps bench accuracy: unknown solver(s) {', '.join(bad)}; "
+                             f"expected {', '.join(FAMILIES)}")
+    repeats = 1 if args.quick else args.repeats
+    res = accuracy.study(args.cases or None, families, quick=args.quick, repeats=repeats,
+                         rungs=args.rungs)
+    accuracy.report(res, Path(args.out), plot=not args.no_plot)
+    return 0
+
+
+def _speed(args) -> int:
+    from . import speed
+    from .accuracy import write_csv
+
+    res = speed.study(args.cases or None, quick=args.quick)
+    speed.report(res)
+    if args.out:
+        rows = speed.as_rows(res)
+        cols = []
+        for r in rows:
+            cols += [k for k in r if k not in cols]
+        print(f"\nwrote {write_csv(rows, Path(args.out) / 'speed.csv', tuple(cols))}")
+    return 0

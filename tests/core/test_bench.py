@@ -1,0 +1,237 @@
+"""The benchmarks (`mps bench`): the peer's exact model, the work-precision study's orders and
+work budgets, the round-off floor of central differences; and that the fast paths of the engine
+and the jets give the numbers of the general ones. No wall-clock assertions."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mps_core import build, load_scene, simulate
+from mps_core.bench import accuracy
+from mps_core.bench.common import Case, Setting, resolve_case
+from mps_core.bench.peers import exact_model, run_peer, supports
+from mps_core.effects import Gravity, Motor
+from mps_core.engine import PartialSystems
+from mps_core.jet import Jet, ScalarJet, seed
+
+PAPER = load_scene("paper")
+
+
+def slope(x, y):
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+# -- the peer ------------------------------------------------------------------------------
+def test_exact_model_agrees_with_the_independent_reference(paper_reference):
+    """Two formulations derived separately (three coordinates and one closure here, four and
+    two in tests/reference) give the same motion through the branch point."""
+    r = paper_reference
+    run = run_peer(PAPER, 0.1, r.t, rtol=1e-12, atol=1e-12)
+    assert np.abs(run.phi - r.phi).max() < 1e-9
+    assert np.abs(run.phi_dot - r.phi_dot).max() < 1e-7
+    assert np.abs(run.phi_ddot - r.phi_ddot).max() < 1e-4 * np.abs(r.phi_ddot).max()
+    assert run.closure < 1e-10 and run.nfev > 0
+
+
+def test_exact_model_covers_only_what_it_knows():
+    assert supports(PAPER) == (True, "")
+    locked = PAPER.with_overrides()
+    from dataclasses import replace
+
+    ok, why = supports(replace(locked, structure="locked"))
+    assert not ok and "structure" in why
+    with pytest.raises(ValueError, match="does not cover"):
+        exact_model(replace(locked, structure="locked"))
+
+
+# -- the work-precision study ----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def quick_study():
+    return accuracy.study(["paper"], ("linear-acceleration", "rk4", "peer"), quick=True,
+                          repeats=1, log=lambda *a: None)["paper"]
+
+
+def _series(rows, solver, scheme):
+    rs = sorted((r for r in rows if r["solver"] == solver and r["scheme"] == scheme),
+                key=lambda r: -r["dt"])
+    return [r["dt"] for r in rs], [r["max_err_phi"] for r in rs], rs
+
+
+@pytest.mark.parametrize("solver,order", [("linear-acceleration", 2.0), ("rk4", 4.0)])
+def test_measured_orders_on_paper_through_the_branch_point(quick_study, solver, order):
+    dts, errs, _ = _series(quick_study["rows"], solver, "autodiff")
+    assert len(dts) == 3
+    assert abs(slope(dts, errs) - order) < 0.25, errs
+
+
+def test_rk4_with_central_differences_levels_off_at_the_delta_error(quick_study):
+    """At Δ = 0.1° the derivative error (O(Δ²), not the step) bounds RK4's accuracy."""
+    _, central, _ = _series(quick_study["rows"], "rk4", "central 0.1°")
+    _, exact, _ = _series(quick_study["rows"], "rk4", "autodiff")
+    assert max(central) / min(central) < 1.5
+    assert exact[-1] < 1e-3 * central[-1]
+
+
+@pytest.mark.parametrize("solver,per_step", [("linear-acceleration", 2), ("rk4", 4)])
+def test_work_budgets_of_the_study_rows(quick_study, solver, per_step):
+    """Position points per evaluation: 13 (central, n = 2), 1 (jets); evaluations per step as
+    the design says, plus one at each change of chart (the solver restarts there)."""
+    for scheme, points in (("central 0.1°", 13), ("autodiff", 1)):
+        for r in _series(quick_study["rows"], solver, scheme)[2]:
+            assert r["position_points"] == points * r["evaluations"]
+            extra = r["evaluations"] - 1 - per_step * r["steps"]
+            assert 1 <= extra <= 4, r          # paper's 0.1 s: 2–3 changes of chart
+
+
+def test_peer_rows_and_recommendations(quick_study):
+    peer = [r for r in quick_study["rows"] if r["solver"] == "peer"]
+    assert [r["rtol"] for r in peer] == [1e-3, 1e-6, 1e-9]
+    errs = [r["max_err_phi"] for r in peer]
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-8
+    rec = accuracy.recommendations(quick_study["rows"], targets=(1e-2, 1e-6))
+    assert rec[0][1] is not None and rec[0][1]["max_err_phi"] <= 1e-2
+    table = accuracy.format_table(quick_study["rows"])
+    assert "rk4" in table and "peer" in table and "max|Δφ|" in table
+
+
+def test_central_differences_are_second_order_until_round_off():
+    """Per evaluation, q̈ by central differences against exact derivatives: error ∝ Δ² from 1°
+    to 0.01°, then round-off (∝ ε/Δ²) takes over: smaller Δ stops helping."""
+    case = Case("paper", PAPER, 0.1)
+    rows = accuracy.delta_study(case, None, deltas=(1.0, 0.1, 0.01, 1e-5), trajectory=False)
+    e = {r["delta_deg"]: r["max_rel_err_qdd"] for r in rows}
+    assert abs(slope([1.0, 0.1, 0.01], [e[1.0], e[0.1], e[0.01]]) - 2.0) < 0.2, e
+    assert e[1e-5] > 10 * e[0.01], e
+
+
+# -- work budgets ------------------------------------------------------------------------------
+@pytest.mark.parametrize("iterations", [2, 3])
+@pytest.mark.parametrize("scheme,points", [("central", 13), ("autodiff", 1)])
+def test_iterated_corrector_budget(iterations, scheme, points):
+    traj = simulate(PAPER, iterations=iterations, scheme=scheme, steps=20, t_end=0.02)
+    c = traj.counts
+    assert not traj.events
+    assert c["evaluations"] == 1 + (1 + iterations) * 20
+    assert c["position_points"] == points * c["evaluations"] == points * c["position_calls"]
+
+
+def test_dop853_builds_its_dense_output_once_per_internal_step(monkeypatch):
+    """Outputs at 1 kHz inside one internal step share its interpolant (DOP853's costs three
+    evaluations), and a solver's start is evaluated once."""
+    from scipy.integrate import DOP853
+
+    calls = {"n": 0}
+    original = DOP853.dense_output
+
+    def counted(self):
+        calls["n"] += 1
+        return original(self)
+
+    monkeypatch.setattr(DOP853, "dense_output", counted)
+    scene = PAPER.with_overrides(solver="dop853", scheme="autodiff", rtol=1e-6, atol=1e-9,
+                                 t_end=0.03, dt=1e-3)
+    traj = build(scene).run(scene.t_end, scene.dt)
+    c = traj.counts
+    assert not traj.events
+    assert len(traj.t) - 1 == 30 and c["steps"] < 15
+    assert calls["n"] <= c["steps"]
+
+
+# -- the fast paths give the general paths' numbers ------------------------------------------
+def _press_positions(q):
+    m = PAPER.mechanism()
+    return {"psi-xc+": m.chart("psi-xc+").positions, "phi-psi+": m.chart("phi-psi+").positions}
+
+
+@pytest.mark.parametrize("chart", ["phi-psi+", "psi-xc+"])
+def test_scalar_jets_equal_array_jets(chart):
+    f = _press_positions(None)[chart]
+    q = np.array([-1.1, -0.8]) if chart == "phi-psi+" else np.array([-0.8, 0.024])
+    v = np.array([43.5, -7.0])
+    one = f(seed(q, v))
+    arr = f(seed(q[None, :], v[None, :]))
+    for p in "ABC":
+        for a, b in zip(one[p], arr[p]):
+            if not isinstance(a, Jet):
+                continue
+            assert isinstance(a, ScalarJet)
+            assert np.allclose(a.val, b.val[0], rtol=1e-15, atol=1e-18)
+            assert np.allclose(a.grad, b.grad[0], rtol=1e-14, atol=1e-17)
+            assert np.allclose(a.d1, b.d1[0], rtol=1e-14, atol=1e-17)
+            assert np.allclose(a.d2, b.d2[0], rtol=1e-13, atol=1e-15)
+
+
+def test_scalar_jets_follow_numpy_at_the_edges():
+    x, = seed(np.array([0.0]), np.array([1.0]))
+    with np.errstate(all="ignore"):
+        r = (x * 0.0).reciprocal()
+        assert math.isinf(r.val) or math.isnan(r.val)
+        s = (x - 1.0).sqrt()
+        assert math.isnan(s.val)
+    assert isinstance(Jet.constant(2.0, 2), ScalarJet) and Jet.constant(2.0, 2).grad.shape == (2,)
+    # mixed with an array-valued jet, the array rules apply
+    y = x + Jet(np.array([1.0, 2.0]), np.zeros((2, 1)), np.zeros(2), np.zeros(2))
+    assert isinstance(y, Jet) and np.shape(y.val) == (2,)
+
+
+class _GravityGeneral(Gravity):
+    def loads(self, t, kin):
+        return super().loads(t, kin)
+
+
+class _MotorGeneral(Motor):
+    def loads(self, t, kin):
+        return super().loads(t, kin)
+
+
+@pytest.mark.parametrize("scheme", ["central", "autodiff"])
+def test_effects_fast_path_equals_virtual_work_of_their_loads(scheme):
+    """Gravity's and the motor's generalized forces (one product each) are the virtual work of
+    their loads; a subclass that overrides `loads` alone goes the general way."""
+    sim = build(PAPER.with_overrides(scheme=scheme))
+    g, m = sim.engine.effects
+    slow = [_GravityGeneral(g.g), _MotorGeneral(m.data, m.ratio, m.efficiency)]
+    e_fast = sim.engine.evaluate(sim.view, 0.0, sim.solver.q, sim.solver.qd)
+    eng = PartialSystems(sim.mechanism, slow, scheme, sim.engine.delta)
+    e_slow = eng.evaluate(sim.view, 0.0, sim.solver.q, sim.solver.qd)
+    assert np.allclose(e_fast.Q, e_slow.Q, rtol=1e-13, atol=1e-12)
+    assert np.allclose(e_fast.qdd, e_slow.qdd, rtol=1e-12)
+    assert g.potential(e_fast.kin) == pytest.approx(
+        -sum(b.mass * (g.g @ e_fast.kin.position(f"G_{b.name}")) for b in sim.mechanism.bodies),
+        rel=1e-14)
+    from mps_core.effects import Effect
+
+    assert m.power(0.0, e_fast.kin) == pytest.approx(Effect.power(m, 0.0, e_fast.kin),
+                                                      rel=1e-14)
+
+
+def test_kinematics_pose_is_built_once():
+    sim = build(PAPER)
+    kin = sim.solver.current.kin
+    assert kin.pose is kin.pose
+    assert kin.pose["A"] == pytest.approx(tuple(kin.position("A")), abs=0.0)
+
+
+# -- the command line ------------------------------------------------------------------------
+def test_bench_accuracy_command_writes_table_csv_and_plot(tmp_path, capsys):
+    from mps_core.cli import main
+
+    assert main(["bench", "accuracy", "paper", "--quick", "--solvers", "rk4,peer",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "work-precision" in out and "cheapest setting" in out
+    rows = (tmp_path / "accuracy.csv").read_text().splitlines()
+    assert rows[0].startswith("case,solver,scheme") and len(rows) == 1 + 6 + 3
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return
+    assert (tmp_path / "accuracy-paper.png").stat().st_size > 10_000
+
+
+def test_cases_resolve():
+    assert resolve_case("paper").t_end == 0.1
+    assert resolve_case("paper-long").t_end == 1.0
+    s = Setting("linear-acceleration", "central", 0.1, iterations=3)
+    assert s.family == "la-iterated" and "×3" in s.label
