@@ -1,0 +1,237 @@
+"""Benchmarks of the node (not tests): what the README reports, measured on this machine.
+
+    .venv/bin/python -m mps_ros.bench [--steps 10000] [--json FILE]
+
+1. **realtime, 1 kHz**: press-cycle at dt = 1 ms, realtime x1, recording on, for ``--steps``
+   steps, with an external subscriber in another process taking every topic (reliable): the
+   node's achieved real-time factor, step compute time p50/p99, latency (publication after the
+   step's deadline) p50/p99, deadline misses per 10^4 steps, the messages a second the
+   subscriber received, and the node's CPU share (its user + system time over the wall time).
+2. **as fast as possible**: the same scene and step, no subscriber, recording on and off: the
+   largest real-time factor; and ``mps record`` (no ROS at all) for comparison.
+
+Every process stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set) with ROS
+logs in a temporary folder; give it a ROS_DOMAIN_ID of its own. ``probe`` is the subscriber's
+entry point (``python -m mps_ros.bench probe``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .demo import ros_env, stop_group
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    tick = os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / tick      # utime + stime
+
+
+def _final_stats(log: str) -> dict:
+    m = re.search(r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
+                  r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, (?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
+                  r"(\d+) messages", log)
+    if not m:
+        raise RuntimeError("no final statistics in the node's log:\n" + log[-3000:])
+    g = m.groups()
+    out = {"rtf": float(g[0]), "step_p50_ms": float(g[1]), "step_p99_ms": float(g[2]),
+           "publish_p50_ms": float(g[3]), "publish_p99_ms": float(g[4]),
+           "misses": int(g[7]), "messages": int(g[8])}
+    if g[5] is not None:
+        out["latency_p50_ms"], out["latency_p99_ms"] = float(g[5]), float(g[6])
+    return out
+
+
+def _node(params: dict, env, log_path: Path) -> subprocess.Popen:
+    args = []
+    for k, v in params.items():
+        args += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+    return subprocess.Popen([sys.executable, "-m", "mps_core.cli", "node", "press-cycle",
+                             "--ros-args", *args], env=env, stdout=open(log_path, "wb"),
+                            stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
+             outputs: str | None = None, publish_every: int = 1) -> dict:
+    t_end = steps * 1e-3
+    params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
+                  wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
+                  publish_every=publish_every)
+    if outputs:
+        params["outputs"] = "[" + outputs + "]"
+    node = _node(params, env, tmp / "rt.log")
+    probe = subprocess.Popen([sys.executable, "-m", "mps_ros.bench", "probe"]
+                             + (["--deserialize"] if deserialize else []), env=env,
+                             stdout=subprocess.PIPE, stderr=open(tmp / "probe.log", "wb"),
+                             text=True, start_new_session=True)
+    try:
+        cpu0 = wall0 = None
+        log = tmp / "rt.log"
+        end = time.monotonic() + 60
+        while time.monotonic() < end and "scene press-cycle" not in log.read_text():
+            time.sleep(0.01)
+        # the node steps once the subscriber is there (+ start_delay); measure from then
+        time.sleep(0.4)
+        cpu0, wall0 = _cpu_seconds(node.pid), time.monotonic()
+        cpu1 = wall1 = None
+        while node.poll() is None:
+            try:
+                cpu1, wall1 = _cpu_seconds(node.pid), time.monotonic()
+            except (FileNotFoundError, ProcessLookupError):
+                break
+            time.sleep(0.05)
+        node.wait(t_end * 3 + 60)
+        out, _ = probe.communicate(timeout=60)
+        got = json.loads(out.strip().splitlines()[-1])
+        st = _final_stats(log.read_text())
+        st["cpu_share"] = (cpu1 - cpu0) / (wall1 - wall0) if wall1 else float("nan")
+        st["subscriber_msgs_per_s"] = got["rate"]
+        st["subscriber_received"] = got["received"]
+        st["misses_per_1e4"] = st["misses"] * 1e4 / steps
+        return st
+    finally:
+        stop_group(node)
+        stop_group(probe)
+
+
+def afap(recording: bool, env, tmp: Path, steps: int) -> dict:
+    node = _node(dict(pacing="as_fast_as_possible", dt=0.001, t_end=steps * 1e-3,
+                      recording=(tmp / "afap.mcap") if recording else "none"),
+                 env, tmp / "afap.log")
+    try:
+        node.wait(600)
+        return _final_stats((tmp / "afap.log").read_text())
+    finally:
+        stop_group(node)
+
+
+def record_only(tmp: Path, steps: int) -> dict:
+    from .recording import record
+
+    _, st, _ = record("press-cycle", tmp / "rec.mcap", dt=0.001, t_end=steps * 1e-3,
+                      stop_on_signals=False)
+    return {"rtf": st["real_time_factor"], "step_p50_ms": st["step_time_p50_ms"],
+            "step_p99_ms": st["step_time_p99_ms"]}
+
+
+def probe() -> int:
+    """The external subscriber: every topic of press_twin, reliable; prints one JSON line."""
+    from .node import env_defaults
+
+    env_defaults()
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from .node import MSG_CLASSES
+    from .topics import TOPICS, resolve
+
+    rclpy.init()
+    node = Node("press_twin_probe")
+    state = {"n": 0, "first": None, "last": None, "ended": False}
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+    def count(msg):
+        now = time.monotonic()
+        state["n"] += 1
+        state["first"] = state["first"] or now
+        state["last"] = now
+
+    def events(msg):
+        count(msg)
+        if '"kind":"run-end"' in msg.data:
+            state["ended"] = True
+
+    raw = "--deserialize" not in sys.argv
+    for t in TOPICS:
+        if t.key == "~/events":
+            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), events, qos)
+        else:       # counted as delivered, serialized (raw) unless --deserialize
+            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), count, qos,
+                                     raw=raw)
+    deadline = time.monotonic() + 3600
+    while not state["ended"] and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+        if state["last"] is not None and time.monotonic() - state["last"] > 5.0:
+            break                              # the node is gone without its run-end event
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    span = (state["last"] or 0) - (state["first"] or 0)
+    print(json.dumps({"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0}),
+          flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("what", nargs="?", default="all", choices=("all", "realtime", "afap", "probe"))
+    p.add_argument("--steps", type=int, default=10_000, help="steps of the realtime run")
+    p.add_argument("--afap-steps", type=int, default=5_000, help="steps of each AFAP run")
+    p.add_argument("--json", help="write the figures to this file")
+    p.add_argument("--outputs", metavar="LIST",
+                   help="the realtime run's outputs, comma-separated (default: all)")
+    p.add_argument("--publish-every", type=int, default=1, metavar="N",
+                   help="the realtime run publishes every N-th step (default 1)")
+    p.add_argument("--deserialize", action="store_true",
+                   help="the subscriber deserializes every message into a Python object "
+                        "(default: it takes them serialized, as delivered)")
+    a = p.parse_args(argv)
+    if a.what == "probe":
+        return probe()
+    env = ros_env()
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR",
+                                           "RMW_IMPLEMENTATION")})
+    res = {"machine": f"{os.cpu_count()} cores, load average "
+                      f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"}
+    with tempfile.TemporaryDirectory(prefix="mps-bench-") as d:
+        tmp = Path(d)
+        if a.what in ("all", "realtime"):
+            r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every)
+            res["realtime_1kHz"] = r
+            how = "deserializing" if a.deserialize else "taking them serialized"
+            print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
+                  f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
+                  f"subscriber ({how}):\n"
+                  f"  achieved real-time factor   {r['rtf']:.3f}\n"
+                  f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
+                  f"{r['step_p99_ms']:.3f} ms\n"
+                  f"  publish (+ record) p50 / p99 {r['publish_p50_ms']:.3f} / "
+                  f"{r['publish_p99_ms']:.3f} ms\n"
+                  f"  latency p50 / p99           {r.get('latency_p50_ms', float('nan')):.3f} / "
+                  f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
+                  f"step's deadline)\n"
+                  f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
+                  f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
+                  f"({r['subscriber_received']} of {r['messages']} published)\n"
+                  f"  node CPU share              {100 * r['cpu_share']:.0f} % of one core",
+                  flush=True)
+        if a.what in ("all", "afap"):
+            on = afap(True, env, tmp, a.afap_steps)
+            off = afap(False, env, tmp, a.afap_steps)
+            rec = record_only(tmp, a.afap_steps)
+            res["afap"] = {"recording_on": on, "recording_off": off, "mps_record": rec}
+            print(f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
+                  f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
+                  f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
+                  f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}", flush=True)
+    print(res["machine"])
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,88 @@
+"""CDR (XCDR1, little endian) encoders for the twin's per-step message types, from the message
+dicts :mod:`mps_ros.twin` builds.
+
+The node publishes these bytes (``Publisher.publish`` of a serialized message) and the recorder
+writes the same bytes into the MCAP file, so what goes on the wire and what is recorded are one
+thing. Padding is always zero. They give exactly the bytes of mcap-ros2-support's generic encoder
+(``tests/ros/test_recording.py`` checks that, and rclpy's deserialization of them), at a fraction
+of its cost: the per-step types only; anything else goes through the generic encoder.
+"""
+
+from __future__ import annotations
+
+import struct
+
+_HEAD = b"\x00\x01\x00\x00"      # encapsulation: CDR little endian
+_u32 = struct.Struct("<I").pack
+_time = struct.Struct("<iI").pack
+_vec6 = struct.Struct("<6d").pack
+
+
+def _align(buf: bytearray, n: int) -> None:
+    r = (len(buf) - 4) % n
+    if r:
+        buf += b"\x00" * (n - r)
+
+
+def _string(buf: bytearray, s: str) -> None:
+    b = s.encode()
+    _align(buf, 4)
+    buf += _u32(len(b) + 1)
+    buf += b
+    buf += b"\x00"
+
+
+def _f64s(buf: bytearray, vals) -> None:
+    _align(buf, 4)
+    buf += _u32(len(vals))
+    if vals:
+        _align(buf, 8)
+        buf += struct.pack(f"<{len(vals)}d", *vals)
+
+
+def _header(buf: bytearray, h: dict) -> None:
+    st = h["stamp"]
+    buf += _time(st["sec"], st["nanosec"])
+    _string(buf, h["frame_id"])
+
+
+def clock(d: dict) -> bytes:
+    st = d["clock"]
+    return _HEAD + _time(st["sec"], st["nanosec"])
+
+
+def string(d: dict) -> bytes:
+    buf = bytearray(_HEAD)
+    _string(buf, d["data"])
+    return bytes(buf)
+
+
+def wrench_stamped(d: dict) -> bytes:
+    buf = bytearray(_HEAD)
+    _header(buf, d["header"])
+    _align(buf, 8)
+    f, t = d["wrench"]["force"], d["wrench"]["torque"]
+    buf += _vec6(f["x"], f["y"], f["z"], t["x"], t["y"], t["z"])
+    return bytes(buf)
+
+
+def joint_state(d: dict) -> bytes:
+    buf = bytearray(_HEAD)
+    _header(buf, d["header"])
+    names = d["name"]
+    _align(buf, 4)
+    buf += _u32(len(names))
+    for n in names:
+        _string(buf, n)
+    _f64s(buf, d["position"])
+    _f64s(buf, d["velocity"])
+    _f64s(buf, d["effort"])
+    return bytes(buf)
+
+
+ENCODERS = {
+    "rosgraph_msgs/msg/Clock": clock,
+    "std_msgs/msg/String": string,
+    "geometry_msgs/msg/WrenchStamped": wrench_stamped,
+    "sensor_msgs/msg/JointState": joint_state,
+}

@@ -1,0 +1,192 @@
+"""``mps`` subcommands of the ROS face and the recordings (a plugin of :mod:`mps_core.cli`).
+
+    mps node [SCENE] [--ros-args ...]             the ROS 2 node press_twin (needs rclpy)
+    mps operator [SCENE] [--at T:WORD ...]        send mode commands at simulated times
+    mps demo [SCENE]                              node + operator, realtime, recorded (make run)
+    mps record SCENE --out FILE.mcap              the node's recording without ROS
+    mps recover IN.mcap [OUT.mcap]                complete a recording cut short (SIGKILL)
+
+Nothing here is imported before its subcommand runs: ``mps`` starts fast and works without
+rclpy (``node``, ``operator`` and ``demo`` then say what to install).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+ROS_MISSING = ("mps: error: this command needs ROS 2 Jazzy's rclpy: install the ros extra "
+               "(pip install -e '.[ros]', or `make run`)")
+
+
+def _ros_import(modname):
+    import importlib
+
+    try:
+        return importlib.import_module(modname)
+    except ImportError as exc:
+        if "rclpy" in str(exc) or "_msgs" in str(exc) or "std_srvs" in str(exc):
+            print(ROS_MISSING, file=sys.stderr)
+            print(f"    ({exc})", file=sys.stderr)
+            return None
+        raise
+
+
+def _node(args) -> int:
+    mod = _ros_import("mps_ros.node")
+    if mod is None:
+        return 2
+    argv = ([args.scene] if args.scene else []) + (["--ros-args", *args.ros_args]
+                                                   if args.ros_args else [])
+    return mod.main(argv)
+
+
+def _operator(args) -> int:
+    mod = _ros_import("mps_ros.operator")
+    if mod is None:
+        return 2
+    return mod.run_operator(args)
+
+
+def _demo(args) -> int:
+    from . import demo
+
+    return demo.main(args)
+
+
+def _outputs(text):
+    from .topics import OUTPUTS
+
+    if text is None:
+        return OUTPUTS
+    return tuple(x for x in text.replace(",", " ").split() if x)
+
+
+def _record(args) -> int:
+    from .recording import record
+
+    def log(level, text):
+        if level != "info" or args.verbose:
+            print(f"[{level}] {text}", file=sys.stderr)
+
+    try:
+        path, stats, counts = record(
+            args.scene, args.out, dt=args.dt, t_end=args.t_end, outputs=_outputs(args.outputs),
+            publish_every=args.publish_every, pacing=args.pacing,
+            real_time_factor=args.real_time_factor, scene_commands=not args.no_scene_commands,
+            log=log)
+    except ValueError as exc:
+        print(f"mps: error: {exc}", file=sys.stderr)
+        return 2
+    total = sum(counts.values())
+    print(f"recorded {stats['steps']} steps to t = {stats['sim_time']:g} s in "
+          f"{stats['wall_time']:.3g} s (real-time factor {stats['real_time_factor']:.3g}): "
+          f"{total} messages on {sum(1 for n in counts.values() if n)} topics -> {path}")
+    for topic, n in sorted(counts.items()):
+        print(f"  {topic:32s} {n}")
+    return 0
+
+
+def _recover(args) -> int:
+    from pathlib import Path
+
+    from .recording import recover
+
+    src = Path(args.input)
+    dst = Path(args.output) if args.output else src.with_name(src.stem + "-recovered.mcap")
+    try:
+        rep = recover(src, dst)
+    except (OSError, ValueError) as exc:
+        print(f"mps: error: {exc}", file=sys.stderr)
+        return 2
+    state = "complete" if rep.complete else (f"cut short at byte {rep.truncated_at} of "
+                                             f"{src.stat().st_size}")
+    print(f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
+          f"{len(rep.topics)} topics -> {dst}")
+    return 0
+
+
+def _positive(text):
+    v = float(text)
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"{text}: expected a positive number")
+    return v
+
+
+def _count(text):
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text}: expected an integer >= 1")
+    return v
+
+
+def register(sub) -> None:
+    n = sub.add_parser("node", help="the ROS 2 node press_twin (publishes, records; needs rclpy)",
+                       description="Start the ROS 2 node press_twin on SCENE (default "
+                                   "press-cycle). Parameters as ROS arguments, e.g. --ros-args "
+                                   "-p pacing:=as_fast_as_possible -p dt:=0.001 or "
+                                   "--params-file config/press_twin.yaml.")
+    n.add_argument("scene", nargs="?", help="preset name or scene file (the scene parameter's "
+                                            "default)")
+    n.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
+                   help="ROS 2 arguments (everything after it goes to ROS)")
+    n.set_defaults(func=_node)
+
+    o = sub.add_parser("operator", help="send mode commands to press_twin at simulated times",
+                       description="A small ROS 2 client: watches /clock and sends each command "
+                                   "on /press_twin/mode when the simulated time reaches it "
+                                   "(default: the scene's own [[commands]]), prints the node's "
+                                   "answers, and ends with the run.")
+    o.add_argument("scene", nargs="?", default="press-cycle",
+                   help="scene whose [[commands]] to send (default press-cycle)")
+    o.add_argument("--at", action="append", metavar="T:WORD", default=None,
+                   help="send WORD at simulated time T (s) instead of the scene's commands; "
+                        "repeat")
+    o.add_argument("--node", default="/press_twin", help="the node's name (default /press_twin)")
+    o.add_argument("--timeout", type=_positive, default=120.0,
+                   help="give up after this many wall seconds (default 120)")
+    o.set_defaults(func=_operator)
+
+    d = sub.add_parser("demo", help="node + operator on a scene, realtime, recorded (make run)",
+                       description="Start press_twin on SCENE in realtime with the scene's "
+                                   "commands off, and an operator that sends them on "
+                                   "/press_twin/mode at their simulated times; run to the end; "
+                                   "print where the recording is and how to view it.")
+    d.add_argument("scene", nargs="?", default="press-cycle")
+    d.add_argument("--dt", type=_positive, default=1e-3, help="step (s), default 0.001 (1 kHz)")
+    d.add_argument("--real-time-factor", type=_positive, default=1.0)
+    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME.mcap)")
+    d.set_defaults(func=_demo)
+
+    r = sub.add_parser("record", help="write the node's MCAP recording without ROS",
+                       description="Run SCENE headless (the scene's own commands) and write "
+                                   "every message the node would publish to an MCAP file: same "
+                                   "topics, types, values and metadata, no ROS needed.")
+    r.add_argument("scene", help="preset name or scene file")
+    r.add_argument("--out", required=True, metavar="FILE.mcap")
+    r.add_argument("--dt", type=_positive, help="step (s); default the scene's")
+    r.add_argument("--t-end", type=_positive, help="end time (s); default the scene's")
+    r.add_argument("--publish-every", type=_count, default=1, metavar="N",
+                   help="record every N-th step (default 1)")
+    r.add_argument("--outputs", metavar="LIST",
+                   help="comma-separated subset of joint_states,reactions,foundation,clock,"
+                        "structure,events,diagnostics (default all)")
+    r.add_argument("--pacing", choices=("as_fast_as_possible", "realtime"),
+                   default="as_fast_as_possible")
+    r.add_argument("--real-time-factor", type=_positive, default=1.0)
+    r.add_argument("--no-scene-commands", action="store_true",
+                   help="ignore the scene's [[commands]]")
+    r.add_argument("-v", "--verbose", action="store_true", help="print every command applied")
+    r.set_defaults(func=_record)
+
+    c = sub.add_parser("recover", help="complete an MCAP recording cut short (e.g. SIGKILL)",
+                       description="Copy every whole chunk of IN (a recording whose writer was "
+                                   "killed: no summary, no footer) into a complete file OUT "
+                                   "(default IN-recovered.mcap).")
+    c.add_argument("input", metavar="IN.mcap")
+    c.add_argument("output", nargs="?", metavar="OUT.mcap")
+    c.set_defaults(func=_recover)

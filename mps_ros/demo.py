@@ -1,0 +1,138 @@
+"""``mps demo`` (what ``make run`` runs): the node on a scene in realtime with the scene's own
+commands off, and an operator client that sends them on ``/press_twin/mode`` at their simulated
+times, each in its own process; runs to the end, then says where the recording is and how to
+view it. Discovery stays on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set)
+and ROS logs go to a temporary folder unless ROS_LOG_DIR is set. No process is left behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def ros_env() -> dict:
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    if not env.get("ROS_LOG_DIR"):
+        env["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="mps-ros-log-")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def stop_group(proc: subprocess.Popen, grace: float = 3.0) -> None:
+    """End a process started with its own session, and everything it started."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            pass
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)     # stragglers of the group, if any
+    except ProcessLookupError:
+        pass
+    try:
+        proc.wait(grace)
+    except subprocess.TimeoutExpired:
+        pass
+
+
+def mps(*args) -> list[str]:
+    return [sys.executable, "-m", "mps_core.cli", *args]
+
+
+def summary(path: Path) -> str:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as r:
+        n = sum(c.msgcount for c in r.connections)
+        topics = sorted({c.topic for c in r.connections})
+    return f"{n} messages on {len(topics)} topics, {path.stat().st_size / 1e6:.2f} MB"
+
+
+def view_help(path: Path) -> str:
+    import importlib.util
+
+    p = str(path)
+    here = Path(sys.executable).with_name("rerun")
+    rerun = str(here) if here.exists() else "pip install rerun-sdk && rerun"
+    view = ""
+    if importlib.util.find_spec("mps_ros.view_cli") is not None:
+        view = f"\n           or .venv/bin/mps view {p} (the press drawn, its loads as arrows)"
+    return f"""How to view it:
+  Foxglove (desktop or web app): Open local file... -> {p}
+      plot /joint_states.position[0] (crank angle), /press_twin/foundation.wrench.force.x, ...
+  Rerun:   {rerun} --bind 127.0.0.1 {p}{view}
+  Python:  .venv/bin/python -c "from pathlib import Path; from rosbags.highlevel import AnyReader; \\
+r = AnyReader([Path('{p}')]); r.open(); [print(c.topic, c.msgtype, c.msgcount) for c in r.connections]"
+  ROS 2 Jazzy:  ros2 bag info {p}   |   ros2 bag play {p}
+  metadata (the scene's TOML, the software version) and a file cut short: see the README,
+  "The ROS 2 node and recordings"."""
+
+
+def main(args) -> int:
+    from mps_core import load_scene
+
+    from .recording import default_path
+
+    scene = load_scene(args.scene)
+    out = Path(args.out) if args.out else default_path(scene.name)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    env = ros_env()
+    cmds = ", ".join(f"{w} at {t:g} s" for t, w in scene.commands) or "none"
+    print(f"demo: scene {scene.name}, {scene.t_end:g} s in realtime (x{args.real_time_factor:g}) "
+          f"at {1 / args.dt:g} Hz; the operator sends: {cmds}", flush=True)
+    print(f"demo: ROS_DOMAIN_ID={env.get('ROS_DOMAIN_ID', '0')}, "
+          f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}, "
+          f"logs in {env['ROS_LOG_DIR']}", flush=True)
+    node_cmd = mps("node", args.scene, "--ros-args",
+                   "-p", "pacing:=realtime", "-p", f"real_time_factor:={args.real_time_factor!r}",
+                   "-p", f"dt:={args.dt!r}", "-p", "scene_commands:=false",
+                   "-p", f"recording:={out}", "-p", "wait_for_commanders:=1",
+                   "-p", "wait_timeout:=30.0", "-p", "start_delay:=1.0")
+    op_cmd = mps("operator", args.scene)
+    procs = []
+    try:
+        node = subprocess.Popen(node_cmd, env=env, start_new_session=True)
+        procs.append(node)
+        op = subprocess.Popen(op_cmd, env=env, start_new_session=True)
+        procs.append(op)
+        limit = 60.0 + scene.t_end / args.real_time_factor
+        try:
+            node_rc = node.wait(limit)
+        except subprocess.TimeoutExpired:
+            print(f"demo: the node did not finish within {limit:g} s; stopping it", flush=True)
+            stop_group(node)
+            node_rc = node.returncode
+        try:
+            op_rc = op.wait(15.0)
+        except subprocess.TimeoutExpired:
+            stop_group(op)
+            op_rc = op.returncode
+    finally:
+        for p in procs:
+            stop_group(p)
+    print(flush=True)
+    if not out.exists():
+        print(f"demo: no recording was written (node exit code {node_rc})", file=sys.stderr)
+        return 1
+    print(f"Recording: {out.resolve()}")
+    try:
+        print(f"           {summary(out)}")
+    except Exception as exc:      # a file cut short: say how to recover it
+        print(f"           not readable as it is ({exc}); recover it with "
+              f"`mps recover {out}`")
+    print(view_help(out))
+    if node_rc != 0 or op_rc != 0:
+        print(f"demo: node exit code {node_rc}, operator exit code {op_rc}", file=sys.stderr)
+        return 1
+    return 0

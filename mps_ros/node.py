@@ -1,0 +1,425 @@
+"""The ROS 2 node ``press_twin``: loads a scene, steps mps_core, publishes and records.
+
+    mps node [SCENE] [--ros-args -p NAME:=VALUE ... --params-file FILE.yaml]
+
+Topics, types, frames and signs: :mod:`mps_ros.topics` (and the README). The run itself (steps,
+pacing, commands, diagnostics) is :class:`mps_ros.twin.Runner`, the same one ``mps record``
+uses; this module adds the ROS side: parameters, publishers, the ``~/mode`` subscription and the
+``~/engage``, ``~/disengage``, ``~/stop``, ``~/start`` services (std_srvs/Trigger), the
+recorder, signals. ROS callbacks run in a background executor thread and only queue commands;
+the run loop applies them at the next step boundary and answers on ``~/mode/status`` (and to
+the service caller).
+
+Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin.yaml``):
+
+==========================  ==========================================================================
+``scene``                   preset name or scene file (default: the command line's SCENE, else
+                            ``press-cycle``)
+``pacing``                  ``realtime`` (default) or ``as_fast_as_possible``
+``real_time_factor``        simulated seconds per wall second in realtime pacing (default 1.0)
+``dt``, ``t_end``           step and end time (s); 0 (default): the scene's
+``publish_every``           publish (and record) every N-th step (default 1); commands and events
+                            are taken at every step
+``outputs``                 what to compute and publish, a subset of joint_states, reactions,
+                            foundation, clock, structure, events, diagnostics (default: all); the
+                            reactions are solved only if reactions or foundation is asked for
+``recording``               MCAP path; ``auto`` (default): recordings/SCENE-DATE-TIME.mcap;
+                            ``none`` or empty: no recording
+``recording_flush_period``  wall seconds after which a chunk is written even if not full (1.0)
+``scene_commands``          apply the scene's own [[commands]] (default true); false: an operator
+                            sends them on ``~/mode``
+``qos_depth``               history depth of every publisher (keep last, reliable; 1000)
+``wait_for_subscribers``    start stepping when every published topic has this many subscribers
+``wait_for_commanders``     ... and ``~/mode`` has this many publishers (default 0, 0)
+``wait_timeout``            start anyway after this many seconds (10.0)
+``start_delay``             then wait this many wall seconds more, e.g. for discovery to settle
+                            both ways (0.0)
+``command_burst``,          flood limit: at most ``command_burst`` commands at once, then
+``command_rate``            ``command_rate`` a second (10, 20.0); the rest are refused
+``diagnostics_period``      wall seconds between /diagnostics messages (1.0)
+==========================  ==========================================================================
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+
+DEFAULT_SCENE = "press-cycle"
+
+
+def env_defaults() -> None:
+    """Loopback-only discovery and a temporary log folder unless the environment says
+    otherwise (set before rclpy starts)."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_LOG_DIR", os.path.join(tempfile.gettempdir(), "mps-ros-log"))
+    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+
+
+env_defaults()
+
+import rclpy  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rcl_interfaces.msg import ParameterDescriptor  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from .topics import BY_KEY, MODE, NODE_NAME, OUTPUTS, TOPICS, qos_yaml  # noqa: E402
+from .twin import PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs  # noqa: E402
+
+from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
+
+MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": JointState,
+               "geometry_msgs/msg/WrenchStamped": WrenchStamped, "std_msgs/msg/String": String,
+               "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
+
+
+class RosSink:
+    """A :class:`~mps_ros.twin.Runner` sink that publishes each message's CDR bytes on its
+    topic: the very bytes the recorder writes."""
+
+    def __init__(self, publishers: dict):
+        self.pubs = publishers     # key -> publisher
+
+    def emit(self, key, msg, data, t_ns):
+        p = self.pubs.get(key)
+        if p is not None:
+            p.publish(data)
+
+    def tick(self):
+        pass
+
+
+class ParameterError(ValueError):
+    pass
+
+
+class PressTwin(Node):
+    """The node. Construct, then :meth:`run` (blocks until the run ends or is stopped)."""
+
+    def __init__(self, default_scene: str | None = None, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self._declare(default_scene or DEFAULT_SCENE)
+        p = self._params()
+        self.p = p
+        from mps_core import MpsError
+
+        try:
+            self.twin = Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
+                             outputs=p["outputs"], scene_commands=p["scene_commands"])
+        except (MpsError, OSError, ValueError) as exc:
+            raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        self.qos_text = qos_yaml(depth=p["qos_depth"])
+        outputs = set(self.twin.outputs)
+        self.pubs: dict[str, object] = {}
+        self.names: dict[str, str] = {}
+        for t in TOPICS:
+            if t.output and t.output not in outputs:
+                continue
+            pub = self.create_publisher(MSG_CLASSES[t.msgtype], t.key, qos)
+            self.pubs[t.key] = pub
+            self.names[t.key] = pub.topic_name
+        self.inbox = Inbox()
+        self.closed = False
+        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                              reliability=ReliabilityPolicy.RELIABLE)
+        self.mode_sub = self.create_subscription(String, MODE.key, self._on_mode, mode_qos)
+        self.names[MODE.key] = self.mode_sub.topic_name
+        self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
+                         for w in COMMAND_WORDS]
+        self.recorder = None
+        self.runner = Runner(self.twin, sinks=[RosSink(self.pubs)], pacing=p["pacing"],
+                             real_time_factor=p["real_time_factor"],
+                             publish_every=p["publish_every"],
+                             diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
+                             gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
+                             name=self.get_fully_qualified_name().lstrip("/"))
+
+    # -- parameters -----------------------------------------------------------------------
+    _DEFAULTS = {
+        "scene": None, "pacing": "realtime", "real_time_factor": 1.0, "dt": 0.0, "t_end": 0.0,
+        "publish_every": 1, "outputs": list(OUTPUTS), "recording": "auto",
+        "recording_flush_period": 1.0, "scene_commands": True, "qos_depth": 1000,
+        "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
+        "start_delay": 0.0,
+        "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
+    }
+
+    def _declare(self, scene: str):
+        for name, default in self._DEFAULTS.items():
+            value = scene if name == "scene" else default
+            self.declare_parameter(name, value, ParameterDescriptor(
+                name=name, read_only=True, dynamic_typing=True))
+
+    def _params(self) -> dict:
+        raw = {n: self.get_parameter(n).value for n in self._DEFAULTS}
+        out = {}
+
+        def number(n, lo=0.0, strict=False):
+            v = raw[n]
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ParameterError(f"parameter {n}: {v!r} is not a number")
+            v = float(v)
+            if not (v > lo if strict else v >= lo) or v != v or v == float("inf"):
+                raise ParameterError(f"parameter {n}: {v!r} must be {'>' if strict else '>='} "
+                                     f"{lo:g}")
+            return v
+
+        def integer(n, lo):
+            v = raw[n]
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise ParameterError(f"parameter {n}: {v!r} must be an integer >= {lo}")
+            return v
+
+        out["scene"] = str(raw["scene"])
+        if raw["pacing"] not in PACINGS:
+            raise ParameterError(f"parameter pacing: {raw['pacing']!r}, expected one of "
+                                 f"{', '.join(PACINGS)}")
+        out["pacing"] = raw["pacing"]
+        out["real_time_factor"] = number("real_time_factor", strict=True)
+        out["dt"] = number("dt")
+        out["t_end"] = number("t_end")
+        out["publish_every"] = integer("publish_every", 1)
+        o = raw["outputs"]
+        if isinstance(o, str):
+            o = [x for x in o.replace(",", " ").split()]
+        try:
+            out["outputs"] = check_outputs(o)
+        except ValueError as exc:
+            raise ParameterError(f"parameter outputs: {exc}") from None
+        out["recording"] = str(raw["recording"]).strip()
+        out["recording_flush_period"] = number("recording_flush_period", strict=True)
+        if not isinstance(raw["scene_commands"], bool):
+            raise ParameterError(f"parameter scene_commands: {raw['scene_commands']!r}, "
+                                 "expected true or false")
+        out["scene_commands"] = raw["scene_commands"]
+        out["qos_depth"] = integer("qos_depth", 1)
+        out["wait_for_subscribers"] = integer("wait_for_subscribers", 0)
+        out["wait_for_commanders"] = integer("wait_for_commanders", 0)
+        out["wait_timeout"] = number("wait_timeout")
+        out["start_delay"] = number("start_delay")
+        out["command_burst"] = integer("command_burst", 1)
+        out["command_rate"] = number("command_rate", strict=True)
+        out["diagnostics_period"] = number("diagnostics_period", strict=True)
+        return out
+
+    # -- callbacks (executor thread): queue only ------------------------------------------
+    def _log(self, level: str, text: str):
+        lg = self.get_logger()
+        # one call site a severity: rclpy's logger insists
+        if level == "warn":
+            lg.warning(text)
+        elif level == "error":
+            lg.error(text)
+        else:
+            lg.info(text)
+
+    def _on_mode(self, msg: String):
+        if self.closed:
+            self.get_logger().warning(f"refused command {msg.data[:40]!r}: the run has ended")
+            return
+        self.inbox.put(Command(msg.data, "topic"))
+
+    def _service(self, word: str):
+        def callback(request, response):
+            if self.closed:
+                response.success, response.message = False, "refused: the run has ended"
+                return response
+            done = threading.Event()
+            box = {}
+
+            def reply(ack):
+                box["ack"] = ack
+                done.set()
+
+            self.inbox.put(Command(word, "service", reply))
+            if not done.wait(10.0):
+                response.success, response.message = False, "no answer: the run is not stepping"
+                return response
+            ack = box["ack"]
+            response.success = bool(ack["accepted"])
+            response.message = (f"{word} applied at t = {ack['t']:.6f} s" if ack["accepted"]
+                                else f"refused: {ack['reason']}")
+            return response
+        return callback
+
+    # -- the run ----------------------------------------------------------------------------
+    def _wait_for_peers(self, stop: threading.Event) -> None:
+        n_sub, n_cmd = self.p["wait_for_subscribers"], self.p["wait_for_commanders"]
+        if not (n_sub or n_cmd):
+            return
+        deadline = time.monotonic() + self.p["wait_timeout"]
+        while not stop.is_set():
+            subs = min(pub.get_subscription_count() for pub in self.pubs.values())
+            cmds = self.count_publishers(self.names[MODE.key])
+            if subs >= n_sub and cmds >= n_cmd:
+                return
+            if time.monotonic() > deadline:
+                self.get_logger().warning(
+                    f"starting without all peers after {self.p['wait_timeout']:g} s "
+                    f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd})")
+                return
+            time.sleep(0.01)
+
+    def open_recording(self):
+        from .recording import Recorder, RecordingSink, _run_metadata, default_path
+
+        path = self.p["recording"]
+        if path.lower() in ("", "none", "off", "false"):
+            return None
+        if path == "auto":
+            path = default_path(self.twin.scene.name)
+        meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
+                             self.p["publish_every"])
+        meta["node"] = self.get_fully_qualified_name()
+        meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
+        meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
+        self.recorder = Recorder(path, scene_name=self.twin.scene.name,
+                                 scene_text=self.twin.scene.text, metadata=meta,
+                                 flush_period=self.p["recording_flush_period"])
+        qos = {k: self.qos_text for k in BY_KEY}
+        qos[MODE.key] = qos_yaml(depth=100)
+        self.runner.sinks.append(RecordingSink(self.recorder, names=dict(self.names), qos=qos))
+        return self.recorder
+
+    def run(self, stop: threading.Event) -> dict:
+        tw = self.twin
+        self.get_logger().info(
+            f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
+            f"{self.p['pacing']}" + (f" x{self.p['real_time_factor']:g}"
+                                     if self.p['pacing'] == 'realtime' else "")
+            + f", outputs {', '.join(tw.outputs)}"
+            + ("" if self.p["scene_commands"] else ", scene commands off (listening on "
+               f"{self.names[MODE.key]})"))
+        self._wait_for_peers(stop)
+        stop.wait(self.p["start_delay"])
+        if stop.is_set():
+            self.runner.request_stop("signal")
+        return self.runner.run()
+
+    def drain(self, timeout: float = 1.0) -> None:
+        """Give the subscribers a bounded time to acknowledge what was published (the writers
+        learn of acknowledgements at their heartbeats: this mostly waits out ``timeout``)."""
+        end = time.monotonic() + timeout
+        for pub in self.pubs.values():
+            left = end - time.monotonic()
+            if left <= 0:
+                break
+            try:
+                pub.wait_for_all_acked(rclpy.duration.Duration(seconds=left))
+            except Exception:
+                pass
+
+
+def _split_argv(argv):
+    """(scene or None, ROS arguments) from a command line like ``[SCENE] [--ros-args ...]``."""
+    argv = list(argv)
+    if "--ros-args" in argv:
+        i = argv.index("--ros-args")
+        plain, ros = argv[:i], argv[i:]
+    else:
+        plain, ros = argv, []
+    plain = [a for a in plain if a]
+    if len(plain) > 1:
+        raise SystemExit(f"press_twin: one scene at most, got {plain}")
+    return (plain[0] if plain else None), ros
+
+
+def main(argv=None) -> int:
+    """``mps node [SCENE] [--ros-args ...]`` (argv without the program name)."""
+    env_defaults()
+    if argv is None:
+        argv = sys.argv[1:]
+    scene, ros = _split_argv(argv)
+    stop = threading.Event()
+    runner_box: dict = {}
+
+    def on_signal(signum, _frame):
+        name = signal.Signals(signum).name
+        stop.set()
+        r = runner_box.get("runner")
+        if r is not None:
+            r.request_stop(name)
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=[NODE_NAME, *ros],
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = None
+    executor = None
+    thread = None
+    code = 0
+    try:
+        try:
+            node = PressTwin(scene)
+        except ParameterError as exc:
+            print(f"press_twin: error: {exc}", file=sys.stderr, flush=True)
+            return 2
+        runner_box["runner"] = node.runner
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+
+        def spin():
+            try:
+                executor.spin()
+            except (ExternalShutdownException, Exception):
+                pass
+        thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
+        thread.start()
+        rec = node.open_recording()
+        if rec is not None:
+            node.get_logger().info(f"recording to {rec.path}")
+        from mps_core import MpsError
+
+        try:
+            stats = node.run(stop)
+        except MpsError as exc:
+            node.get_logger().error(f"the simulation stopped: {exc}")
+            stats = node.runner.stats()
+            code = 2
+        finally:
+            node.closed = True
+            if node.recorder is not None:
+                node.recorder.finish()
+        node.drain()
+        why = node.runner.stop_reason or "end"
+        node.get_logger().info(
+            f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
+            f"{node.twin.t:.6g} s after {stats['steps']} steps: real-time factor "
+            f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
+            f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
+            f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
+            + (f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 "
+               f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
+            + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
+            f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused")
+        if node.recorder is not None:
+            node.get_logger().info(f"recording finished: {node.recorder.path} "
+                                   f"({node.recorder.messages} messages)")
+        return code
+    finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+        if thread is not None:
+            thread.join(timeout=2.0)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,373 @@
+"""MCAP recordings of the twin, without ROS (mcap, mcap-ros2-support and rosbags only).
+
+One module for the node and for ``mps record``: both hand the message dicts they publish to a
+:class:`Recorder`, which serializes them to CDR with mcap-ros2-support's encoder (the same
+values, the same bytes, whichever process made them).
+
+The file: profile ``ros2``; one schema a type, encoding ``ros2msg``, the definition with all
+the definitions it depends on (rosbags' Jazzy type store); channels ``cdr`` with
+``offered_qos_profiles`` (rosbag2's YAML) in their metadata; messages in zstd-compressed chunks,
+``log_time`` = ``publish_time`` = the simulated time at which the node published (or, for a
+command, received) them, in nanoseconds; two metadata records at the start, ``mps`` (software,
+version, run settings) and ``scene`` (the scene's TOML text), so a recording describes itself.
+
+**Safety.** A chunk is written when it is full (``chunk_size``) or ``flush_period`` wall seconds
+after the last one, straight to the file (no user-space buffer). On a normal end, Ctrl-C or
+SIGTERM the caller calls :meth:`Recorder.finish`, which writes the summary and the footer. A
+process killed hard (SIGKILL, power loss) leaves a file without a footer: every chunk written so
+far is intact, and :func:`recover` (``mps recover IN OUT``) copies them into a complete file.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from mcap.writer import CompressionType, Writer
+
+from .topics import BY_KEY, DEPTH, NODE_NAME, qos_yaml, resolve
+
+PROFILE = "ros2"
+MAGIC = b"\x89MCAP0\r\n"
+
+_msgdefs: dict[str, str] = {}
+_encoders: dict[str, object] = {}
+
+
+def msgdef(msgtype: str) -> str:
+    """The ros2msg definition of ``msgtype`` with every definition it depends on."""
+    if msgtype not in _msgdefs:
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS2_JAZZY)
+        _msgdefs[msgtype], _ = ts.generate_msgdef(msgtype, ros_version=2)
+    return _msgdefs[msgtype]
+
+
+def generic_encoder(msgtype: str):
+    """A function message dict -> CDR bytes: mcap-ros2-support's encoder for ``msgtype``."""
+    if msgtype not in _encoders:
+        from mcap_ros2._dynamic import serialize_dynamic
+
+        _encoders[msgtype] = serialize_dynamic(msgtype, msgdef(msgtype))[msgtype]
+    return _encoders[msgtype]
+
+
+def encoder(msgtype: str):
+    """A function message dict -> CDR bytes: :mod:`mps_ros.cdr`'s for the per-step types (the
+    same bytes, faster), mcap-ros2-support's for the others."""
+    from .cdr import ENCODERS
+
+    return ENCODERS.get(msgtype) or generic_encoder(msgtype)
+
+
+def default_path(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(directory) / f"{scene_name}-{stamp}.mcap"
+
+
+class _Direct:
+    """A file written straight through to the OS: what the MCAP writer has written is in the
+    file even if the process is killed the next instant (no user-space buffer to lose)."""
+
+    def __init__(self, path):
+        self._f = open(path, "wb", buffering=0)
+
+    def write(self, data) -> int:
+        view = memoryview(data)
+        done = 0
+        while done < len(view):
+            done += self._f.write(view[done:])
+        return done
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self._f.close()
+
+
+@dataclass
+class _Channel:
+    id: int
+    count: int = 0
+
+
+class Recorder:
+    """An MCAP recording being written. ``metadata``: extra key/values for the ``mps`` record;
+    ``scene_text``: the scene's TOML (the ``scene`` record)."""
+
+    def __init__(self, path, *, scene_name: str = "", scene_text: str = "",
+                 metadata: dict | None = None, chunk_size: int = 512 * 1024,
+                 flush_period: float = 1.0, compression: str = "zstd"):
+        from mps_core import __version__
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._stream = _Direct(self.path)
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                "none": CompressionType.NONE}[compression]
+        self._w = Writer(self._stream, chunk_size=chunk_size, compression=comp)
+        self._w.start(profile=PROFILE, library=f"mps {__version__} (mcap writer)")
+        meta = {"software": "mps", "version": __version__, "scene": scene_name,
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        meta.update({k: str(v) for k, v in (metadata or {}).items()})
+        self._w.add_metadata("mps", meta)
+        self._w.add_metadata("scene", {"name": scene_name, "toml": scene_text})
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, _Channel] = {}
+        self.flush_period = float(flush_period)
+        self._last_flush = time.monotonic()
+        self._pending = 0
+        self.finished = False
+        self.messages = 0
+
+    def channel(self, topic: str, msgtype: str, qos: str | None = None) -> _Channel:
+        ch = self._channels.get(topic)
+        if ch is None:
+            sid = self._schemas.get(msgtype)
+            if sid is None:
+                sid = self._schemas[msgtype] = self._w.register_schema(
+                    msgtype, "ros2msg", msgdef(msgtype).encode())
+            cid = self._w.register_channel(topic, "cdr", sid,
+                                           {"offered_qos_profiles": qos or qos_yaml()})
+            ch = self._channels[topic] = _Channel(cid)
+        return ch
+
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+        """Record one message: its CDR bytes (see :func:`encoder`), at simulated time t_ns."""
+        ch = self._channels.get(topic) or self.channel(topic, msgtype, qos)
+        ch.count += 1
+        self.messages += 1
+        self._pending += 1
+        self._w.add_message(ch.id, log_time=t_ns, data=data, publish_time=t_ns,
+                            sequence=ch.count)
+
+    def tick(self) -> None:
+        """Close the chunk in progress if it is older than ``flush_period`` (wall time)."""
+        if self._pending and time.monotonic() - self._last_flush >= self.flush_period:
+            self.flush()
+
+    def flush(self) -> None:
+        self._w.flush()
+        self._pending = 0
+        self._last_flush = time.monotonic()
+
+    def counts(self) -> dict[str, int]:
+        return {t: c.count for t, c in self._channels.items()}
+
+    def finish(self) -> None:
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            self._w.finish()
+        finally:
+            self._stream.close()
+
+
+class RecordingSink:
+    """A :class:`~mps_ros.twin.Runner` sink that records every message under its full topic
+    name (``names``: key -> topic, e.g. from the node's publishers; default: the node's default
+    names) with the QoS it was offered with (``qos``: key -> YAML)."""
+
+    def __init__(self, recorder: Recorder, names: dict | None = None, qos: dict | None = None,
+                 node: str = NODE_NAME):
+        self.rec = recorder
+        self.names = names or {}
+        self.qos = qos or {}
+        self.node = node
+
+    def _topic(self, key):
+        name = self.names.get(key)
+        if name is None:
+            name = self.names[key] = resolve(key, self.node)
+        return name
+
+    def prepare(self, keys) -> None:
+        """Register the channels of ``keys`` now (schemas and channels head the file)."""
+        for key in keys:
+            self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
+
+    def emit(self, key, msg, data, t_ns):
+        self.rec.write(self._topic(key), BY_KEY[key].msgtype, data, t_ns, self.qos.get(key))
+
+    received = emit
+
+    def tick(self):
+        self.rec.tick()
+
+
+# -- reading back and recovering --------------------------------------------------------------
+def read_metadata(path) -> dict[str, dict[str, str]]:
+    """The metadata records of a recording (complete or cut short), by name."""
+    out = {}
+    for rec in _records(Path(path)):
+        if rec[0] == "metadata":
+            out[rec[1].name] = dict(rec[1].metadata)
+    return out
+
+
+@dataclass
+class Recovered:
+    messages: int = 0
+    chunks: int = 0
+    complete: bool = False
+    truncated_at: int | None = None
+    topics: dict = field(default_factory=dict)
+
+
+def _records(path: Path, report: Recovered | None = None):
+    """Records of an MCAP file in order, chunks opened; stops quietly at the first record that
+    is cut short or damaged (a file whose writer was killed). Yields ("header", Header),
+    ("metadata", Metadata), ("schema", Schema), ("channel", Channel), ("message", Message),
+    ("end", None)."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
+    from mcap.stream_reader import breakup_chunk
+
+    data = path.read_bytes()
+    if data[:8] != MAGIC:
+        raise ValueError(f"{path}: not an MCAP file (bad magic)")
+    pos, size = 8, len(data)
+    while True:
+        if pos + 9 > size:
+            break
+        opcode = data[pos]
+        (length,) = struct.unpack_from("<Q", data, pos + 1)
+        body_start = pos + 9
+        if body_start + length > size:
+            break
+        body = data[body_start:body_start + length]
+        stream = ReadDataStream(io.BytesIO(body))
+        try:
+            if opcode == 0x01:
+                yield "header", Header.read(stream)
+            elif opcode == 0x02:          # footer: the file is complete
+                if report is not None:
+                    report.complete = True
+                yield "end", None
+                return
+            elif opcode == 0x03:
+                yield "schema", Schema.read(stream)
+            elif opcode == 0x04:
+                yield "channel", Channel.read(stream)
+            elif opcode == 0x05:
+                yield "message", Message.read(stream, length)
+            elif opcode == 0x06:
+                chunk = Chunk.read(stream)
+                inner = breakup_chunk(chunk, validate_crc=True)
+                if report is not None:
+                    report.chunks += 1
+                for r in inner:
+                    kind = {Schema: "schema", Channel: "channel", Message: "message"}.get(type(r))
+                    if kind:
+                        yield kind, r
+            elif opcode == 0x0C:
+                yield "metadata", Metadata.read(stream)
+            elif opcode == 0x0F:          # data end
+                pass
+        except Exception:
+            break
+        pos = body_start + length
+    if report is not None:
+        report.truncated_at = pos
+
+
+def recover(src, dst) -> Recovered:
+    """Copy what is intact in ``src`` (e.g. a recording whose writer was killed: no footer, the
+    last chunk cut short) into a complete MCAP file ``dst``: header, metadata, schemas, channels
+    and every message of every whole chunk, in their order."""
+    src, dst = Path(src), Path(dst)
+    if src.resolve() == dst.resolve():
+        raise ValueError("recover writes a new file: give an output path other than the input")
+    report = Recovered()
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with open(dst, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        started = False
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        topics: dict[int, str] = {}
+        for kind, r in _records(src, report):
+            if kind == "header":
+                w.start(profile=r.profile, library=r.library)
+                started = True
+                continue
+            if not started:
+                w.start(profile=PROFILE, library="mps recover")
+                started = True
+            if kind == "metadata":
+                w.add_metadata(r.name, dict(r.metadata))
+            elif kind == "schema" and r.id not in schemas:
+                schemas[r.id] = w.register_schema(r.name, r.encoding, r.data)
+            elif kind == "channel" and r.id not in channels:
+                channels[r.id] = w.register_channel(r.topic, r.message_encoding,
+                                                    schemas.get(r.schema_id, 0), dict(r.metadata))
+                topics[r.id] = r.topic
+            elif kind == "message" and r.channel_id in channels:
+                w.add_message(channels[r.channel_id], log_time=r.log_time, data=r.data,
+                              publish_time=r.publish_time, sequence=r.sequence)
+                report.messages += 1
+                t = topics[r.channel_id]
+                report.topics[t] = report.topics.get(t, 0) + 1
+        if not started:
+            w.start(profile=PROFILE, library="mps recover")
+        w.finish()
+    return report
+
+
+def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
+           pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
+           scene_commands: bool = True, flush_period: float = 1.0, log=None,
+           stop_on_signals: bool = True) -> tuple[Path, dict, dict]:
+    """The node's recording made without ROS: run ``scene`` with the scene's own commands and
+    write every message the node would publish to ``out``. Returns (path, stats, counts)."""
+    import signal
+
+    from .topics import OUTPUTS
+    from .twin import Runner, Twin
+
+    twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS,
+                scene_commands=scene_commands)
+    rec = Recorder(out, scene_name=twin.scene.name, scene_text=twin.scene.text,
+                   metadata=_run_metadata(twin, "mps record", pacing, real_time_factor,
+                                          publish_every), flush_period=flush_period)
+    sink = RecordingSink(rec, qos={k: qos_yaml(depth=DEPTH) for k in BY_KEY})
+    runner = Runner(twin, sinks=[sink], pacing=pacing, real_time_factor=real_time_factor,
+                    publish_every=publish_every, log=log)
+    old = {}
+    if stop_on_signals:
+        def stop(signum, _frame):
+            runner.request_stop(signal.Signals(signum).name)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, stop)
+    try:
+        stats = runner.run()
+    finally:
+        rec.finish()
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    return rec.path, stats, rec.counts()
+
+
+def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:
+    d = twin.describe()
+    return {"source": source, "scene_origin": d["origin"], "t0_s": repr(d["t0"]),
+            "t_end_s": repr(d["t_end"]), "dt_s": repr(d["dt"]), "steps": str(d["steps"]),
+            "solver": d["solver"], "derivatives": d["derivatives"],
+            "outputs": ",".join(d["outputs"]), "scene_commands": str(d["scene_commands"]).lower(),
+            "pacing": pacing, "real_time_factor": repr(float(rtf)),
+            "publish_every": str(int(publish_every)), "time": "simulated, ns from t = 0"}
+
+
+__all__ = ["Recorder", "RecordingSink", "recover", "record", "read_metadata", "msgdef",
+           "encoder", "generic_encoder", "default_path", "Recovered"]

@@ -1,0 +1,154 @@
+"""Names of the ROS face, defined once: the node, its topics and their types, frames, joints,
+the wrenches and what each carries, the outputs a run can be asked for, the QoS it offers.
+
+Pure Python (no rclpy): the node, the recorder, ``mps record`` and the tests all read these.
+
+Topic keys are the names as the node creates them: ``~/x`` is private to the node
+(``/press_twin/x`` by default), ``/x`` is absolute, ``x`` is relative to the node's namespace
+(``/x`` by default). :func:`resolve` gives the full name without ROS, as ``rclpy`` would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+NODE_NAME = "press_twin"
+
+#: the press frame: origin at the crank bearing O, x along the slider guide (up), y across,
+#: z out of the plane (contract §2); the frame every other frame id here is parallel to
+FRAME_ID = "press"
+
+#: joints of ``joint_states``, in order, with what their position, velocity and effort are
+JOINTS: tuple[tuple[str, str, str, str], ...] = (
+    ("crank", "phi: the crank angle from x (rad, continuous)", "phi_dot (rad/s)",
+     "M_motor: the torque the crank receives from the motor (N*m)"),
+    ("rod", "the rod's angle from x, direction A->B (rad)", "its rate (rad/s)",
+     "NaN: a passive joint"),
+    ("rocker", "psi: the rocker angle from x, direction C->B (rad, continuous)", "psi_dot (rad/s)",
+     "M_latch: the moment the slider receives from the rocker through the closed latch (N*m; "
+     "0 while the latch is open)"),
+    ("slider", "x_C: the slider's position along the guide (m)", "x_C_dot (m/s)",
+     "F_stop: the force along x the frame receives from the slider at the top stop (N, "
+     "positive when compressed; 0 off the stop)"),
+)
+JOINT_NAMES = tuple(j[0] for j in JOINTS)
+
+
+@dataclass(frozen=True)
+class Wrench:
+    """One geometry_msgs/WrenchStamped topic: which reaction columns fill it, where it acts.
+
+    ``force`` gives the reaction columns for force.x and force.y (None: zero); ``torque`` the
+    column for torque.z. The frame ``frame_id`` is parallel to the press frame with its origin
+    at ``point``, so the torque is about that point (ROS's convention for a wrench)."""
+
+    name: str
+    frame_id: str
+    point: str
+    force: tuple[str | None, str | None]
+    torque: str | None
+    meaning: str
+
+    @property
+    def key(self) -> str:
+        return "~/foundation" if self.name == "foundation" else f"~/reactions/{self.name}"
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return tuple(c for c in (*self.force, self.torque) if c is not None)
+
+
+#: one wrench a joint reaction (contract §7; signs as ``mps_core.reactions``: what the
+#: *receiving* body gets), then the foundation resultant
+WRENCHES: tuple[Wrench, ...] = (
+    Wrench("O", "press", "O", ("F_O_x", "F_O_y"), None,
+           "the force the frame receives from the crank at O"),
+    Wrench("A", "press_A", "A", ("F_A_x", "F_A_y"), None,
+           "the force the crank receives from the rod at A"),
+    Wrench("B", "press_B", "B", ("F_B_x", "F_B_y"), None,
+           "the force the rod receives from the rocker at B"),
+    Wrench("C", "press_C", "C", ("F_C_x", "F_C_y"), None,
+           "the force the slider receives from the rocker at C"),
+    Wrench("guide", "press_C", "C", (None, "N_guide"), "M_guide",
+           "the force (along y) and moment the frame receives from the slider through the guide"),
+    Wrench("latch", "press_C", "C", (None, None), "M_latch",
+           "the moment the slider receives from the rocker through the closed latch (0 open)"),
+    Wrench("stop", "press_C", "C", ("F_stop", None), None,
+           "the force along x the frame receives from the slider at the top stop (positive "
+           "when compressed; 0 off the stop)"),
+    Wrench("motor", "press", "O", (None, None), "M_motor",
+           "the torque the crank receives from the motor (the frame receives its opposite "
+           "through the stator)"),
+)
+FOUNDATION = Wrench("foundation", "press", "O", ("F_found_x", "F_found_y"), "M_found_O",
+                    "the resultant the frame receives from the moving links and the effects "
+                    "(the load on the foundation), moment about O")
+
+
+@dataclass(frozen=True)
+class Topic:
+    key: str
+    msgtype: str
+    output: str          # the output that enables it ("" : always there)
+    meaning: str
+
+
+#: outputs a run can be asked for; reactions are solved only if "reactions" or "foundation" is
+OUTPUTS = ("joint_states", "reactions", "foundation", "clock", "structure", "events",
+           "diagnostics")
+
+TOPICS: tuple[Topic, ...] = (
+    Topic("joint_states", "sensor_msgs/msg/JointState", "joint_states",
+          "crank, rod, rocker angles and the slider position, rates, efforts; every step"),
+    *(Topic(w.key, "geometry_msgs/msg/WrenchStamped", "reactions", w.meaning) for w in WRENCHES),
+    Topic(FOUNDATION.key, "geometry_msgs/msg/WrenchStamped", "foundation", FOUNDATION.meaning),
+    Topic("/clock", "rosgraph_msgs/msg/Clock", "clock", "the simulated time, every step"),
+    Topic("~/structure", "std_msgs/msg/String", "structure",
+          "the structure at this step: free, held or locked"),
+    Topic("~/events", "std_msgs/msg/String", "events",
+          "one JSON object an event (the core's event log: commands, impacts, chart changes; "
+          "run-start and run-end)"),
+    Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "diagnostics",
+          "pacing: achieved real-time factor, step time and latency p50/p99, deadline misses"),
+    Topic("~/mode/status", "std_msgs/msg/String", "",
+          "one JSON object a command received: accepted or refused, why, at which time"),
+)
+#: commands in (the node subscribes; recordings hold what it received)
+MODE = Topic("~/mode", "std_msgs/msg/String", "",
+             "mode commands: engage, disengage, stop, start")
+BY_KEY = {t.key: t for t in (*TOPICS, MODE)}
+
+MSGTYPES = sorted({t.msgtype for t in (*TOPICS, MODE)})
+
+
+def resolve(key: str, node: str = NODE_NAME, namespace: str = "/") -> str:
+    """The full topic name of ``key`` for a node called ``node`` in ``namespace``."""
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    if key.startswith("~/"):
+        return f"{ns}/{node}/{key[2:]}"
+    if key.startswith("/"):
+        return key
+    return f"{ns}/{key}"
+
+
+# -- QoS offered, as rosbag2 (Jazzy) writes it into a recording's channels ----------------------
+DEPTH = 1000
+_INFINITE = "    sec: 9223372036\n    nsec: 854775807\n"
+
+
+def qos_yaml(*, depth: int = DEPTH, reliable: bool = True, transient_local: bool = False) -> str:
+    """``offered_qos_profiles`` of a channel: the YAML rosbag2 writes (policies as words)."""
+    return ("- history: keep_last\n"
+            f"  depth: {int(depth)}\n"
+            f"  reliability: {'reliable' if reliable else 'best_effort'}\n"
+            f"  durability: {'transient_local' if transient_local else 'volatile'}\n"
+            "  deadline:\n" + _INFINITE +
+            "  lifespan:\n" + _INFINITE +
+            "  liveliness: automatic\n"
+            "  liveliness_lease_duration:\n" + _INFINITE +
+            "  avoid_ros_namespace_conventions: false")
+
+
+__all__ = ["NODE_NAME", "FRAME_ID", "JOINTS", "JOINT_NAMES", "Wrench", "WRENCHES", "FOUNDATION",
+           "Topic", "TOPICS", "MODE", "BY_KEY", "MSGTYPES", "OUTPUTS", "DEPTH", "resolve",
+           "qos_yaml"]

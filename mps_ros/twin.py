@@ -1,0 +1,525 @@
+"""The twin's run, without ROS: steps a scene, turns each step into messages, takes commands,
+paces, measures, and hands every message to its sinks (the ROS publishers, the MCAP recorder).
+
+The node (:mod:`mps_ros.node`) and ``mps record`` run the same :class:`Runner` over the same
+:class:`Twin`, so a recording made with or without ROS holds the same messages, and what the
+node publishes is exactly what it records. Messages are plain dicts in the field layout of their
+ROS types (what the MCAP writer serializes and the node copies into rclpy messages).
+
+**Steps.** Step k is at ``t_k = t0 + k·(t_end − t0)/n`` with ``n = round((t_end − t0)/dt)``, as
+``mps_core``'s own ``run`` takes them; the state at t_k is published, then the commands that
+came in meanwhile are applied at t_k (the first step boundary after their arrival), then the
+twin steps to t_{k+1}. Events (impacts, chart changes, commands) keep their exact times.
+
+**Pacing.** ``as_fast_as_possible``: no waiting. ``realtime``: step k's messages go out at wall
+time ``start + (t_k − t0)/real_time_factor``; a step computed after its deadline is a *deadline
+miss* (it goes out late; the schedule is kept, so the run catches up when it can).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Iterable
+
+import numpy as np
+
+from mps_core.simulation import COMMANDS
+
+from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
+
+EXPECTED = "expected one of " + ", ".join(COMMANDS)
+
+PACINGS = ("realtime", "as_fast_as_possible")
+
+
+def stamp(t: float) -> dict:
+    """builtin_interfaces/Time of a simulated time (s), to the nearest nanosecond."""
+    ns = int(round(t * 1e9))
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+def to_ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+def _jsonable(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (set, tuple)):
+        return list(v)
+    return str(v)
+
+
+def to_json(obj) -> str:
+    return json.dumps(obj, default=_jsonable, separators=(",", ":"))
+
+
+def check_outputs(outputs: Iterable[str]) -> tuple[str, ...]:
+    out = []
+    for o in outputs:
+        o = str(o).strip()
+        if not o:
+            continue
+        if o not in OUTPUTS:
+            raise ValueError(f"unknown output {o!r}: expected some of {', '.join(OUTPUTS)}")
+        if o not in out:
+            out.append(o)
+    return tuple(out)
+
+
+class Twin:
+    """A scene stepped on a fixed grid, with its messages.
+
+    ``dt``/``t_end``: override the scene's (None: the scene's). ``scene_commands``: False drops
+    the scene's own [[commands]] schedule (an operator sends them instead). ``outputs``: the
+    subset of :data:`~mps_ros.topics.OUTPUTS` to produce; the reactions are solved only when
+    ``reactions`` or ``foundation`` is among them."""
+
+    def __init__(self, scene, *, dt: float | None = None, t_end: float | None = None,
+                 outputs: Iterable[str] = OUTPUTS, scene_commands: bool = True):
+        from mps_core import build, load_scene
+
+        if not hasattr(scene, "with_overrides"):
+            scene = load_scene(scene)
+        # the scene's step unless told (a new t_end alone keeps the step, not the step count)
+        scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None)
+        if not scene_commands:
+            scene = replace(scene, commands=())
+        self.scene = scene
+        self.scene_commands = scene_commands
+        self.outputs = check_outputs(outputs)
+        self.solve_reactions = "reactions" in self.outputs or "foundation" in self.outputs
+        self.sim = build(scene)
+        self.t0 = self.sim.t
+        self.t_end = scene.t_end
+        self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
+        self.dt = (self.t_end - self.t0) / self.n
+        self.k = 0
+        self._events_seen = 0
+
+    # -- stepping -------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return self.sim.t
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.n
+
+    def time_of(self, k: int) -> float:
+        return self.t_end if k == self.n else self.t0 + k * (self.t_end - self.t0) / self.n
+
+    def step(self) -> None:
+        self.k += 1
+        self.sim.advance_to(self.time_of(self.k))
+
+    # -- commands -------------------------------------------------------------------------
+    def command(self, word: str) -> tuple[bool, str | None]:
+        """Apply a command now (at the present step's time) or say why not."""
+        from mps_core.simulation import CommandRefused
+
+        if self.done:
+            return False, "the run has ended"
+        try:
+            self.sim.command(word)
+        except CommandRefused as exc:
+            return False, exc.reason
+        return True, None
+
+    # -- messages -------------------------------------------------------------------------
+    def reactions(self) -> dict | None:
+        if not self.solve_reactions:
+            return None
+        from mps_core.reactions import compute_reactions
+
+        e = self.sim.solver.current
+        rx = compute_reactions(self.sim.mechanism, self.sim.engine.effects, e.view, e.t, e.q,
+                               e.qd, e.qdd, kin=e.kin)
+        return rx.values
+
+    def joint_values(self, snap: dict) -> tuple[list, list]:
+        """Positions and velocities of :data:`~mps_ros.topics.JOINT_NAMES`."""
+        kin = self.sim.solver.current.kin
+        xa, ya = kin.position("A")
+        xb, yb = kin.position("B")
+        rod = math.atan2(float(yb - ya), float(xb - xa))
+        return ([snap["phi"], rod, snap["psi"], snap["x_C"]],
+                [snap["phi_dot"], kin.rate("rod"), snap["psi_dot"], snap["x_C_dot"]])
+
+    def state_messages(self) -> list[tuple[str, dict]]:
+        """The messages of the present step: (topic key, message dict), in publishing order."""
+        out: list[tuple[str, dict]] = []
+        o = self.outputs
+        snap = self.sim.snapshot()
+        t = snap["t"]
+        st = stamp(t)
+        if "clock" in o:
+            out.append(("/clock", {"clock": st}))
+        rx = self.reactions()
+        if "joint_states" in o:
+            pos, vel = self.joint_values(snap)
+            effort = ([rx["M_motor"], math.nan, rx["M_latch"], rx["F_stop"]]
+                      if rx is not None else [])
+            out.append(("joint_states", {
+                "header": {"stamp": st, "frame_id": FRAME_ID}, "name": list(JOINT_NAMES),
+                "position": [float(v) for v in pos], "velocity": [float(v) for v in vel],
+                "effort": [float(v) for v in effort]}))
+        if rx is not None:
+            wrenches = WRENCHES if "reactions" in o else ()
+            if "foundation" in o:
+                wrenches = (*wrenches, FOUNDATION)
+            for w in wrenches:
+                fx, fy = (0.0 if c is None else float(rx[c]) for c in w.force)
+                mz = 0.0 if w.torque is None else float(rx[w.torque])
+                out.append((w.key, {
+                    "header": {"stamp": st, "frame_id": w.frame_id},
+                    "wrench": {"force": {"x": fx, "y": fy, "z": 0.0},
+                               "torque": {"x": 0.0, "y": 0.0, "z": mz}}}))
+        if "structure" in o:
+            out.append(("~/structure", {"data": snap["structure"]}))
+        return out
+
+    def new_events(self) -> list[dict]:
+        ev = self.sim.events[self._events_seen:]
+        self._events_seen = len(self.sim.events)
+        return list(ev)
+
+    def describe(self) -> dict:
+        s = self.scene
+        return {"scene": s.name, "origin": s.origin, "t0": self.t0, "t_end": self.t_end,
+                "dt": self.dt, "steps": self.n, "structure": s.structure,
+                "solver": s.solver.name, "derivatives": s.solver.scheme,
+                "outputs": list(self.outputs), "scene_commands": self.scene_commands,
+                "commands": [list(c) for c in s.commands]}
+
+
+# -- commands in ----------------------------------------------------------------------------
+@dataclass
+class Command:
+    """A command as received: the word, where from (topic, service), an optional reply."""
+
+    word: str
+    source: str = "topic"
+    reply: Callable[[dict], None] | None = None
+    wall: float = field(default_factory=time.monotonic)
+
+
+class Inbox:
+    """Commands handed over from the ROS callbacks' thread to the run loop."""
+
+    def __init__(self):
+        self._q: collections.deque[Command] = collections.deque()
+
+    def put(self, cmd: Command) -> None:
+        self._q.append(cmd)
+
+    def drain(self) -> list[Command]:
+        out = []
+        while True:
+            try:
+                out.append(self._q.popleft())
+            except IndexError:
+                return out
+
+
+class Gate:
+    """What a command must pass before the machine sees it: not empty, not too long, not part
+    of a flood (a token bucket over wall time: ``burst`` at once, ``rate`` a second after)."""
+
+    MAX_LEN = 64
+
+    def __init__(self, burst: int = 10, rate: float = 20.0, clock=time.monotonic):
+        self.burst = max(1, int(burst))
+        self.rate = float(rate)
+        self.clock = clock
+        self.tokens = float(self.burst)
+        self.last = clock()
+
+    def check(self, word: str) -> str | None:
+        now = self.clock()
+        self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
+        self.last = now
+        if self.tokens < 1.0:
+            return (f"flood: more than {self.burst} commands at once or {self.rate:g} a second; "
+                    "this one is dropped")
+        self.tokens -= 1.0
+        if not word.strip():
+            return f"empty command: {EXPECTED}"
+        if len(word) > self.MAX_LEN:
+            return f"a {len(word)}-character command: {EXPECTED}"
+        return None
+
+
+def shown(word: str, n: int = 40) -> str:
+    return word if len(word) <= n else word[:n] + f"...({len(word)} characters)"
+
+
+# -- the run --------------------------------------------------------------------------------
+class Runner:
+    """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
+    message to every sink: ``sink.emit(key, msg, data, t_ns)`` with the message dict, its CDR
+    bytes (encoded once, :func:`mps_ros.recording.encoder`) and its simulated time in ns; a
+    recorder also gets the commands received, ``sink.received(...)``; ``sink.tick()`` once a
+    step."""
+
+    def __init__(self, twin: Twin, *, sinks=(), pacing: str = "as_fast_as_possible",
+                 real_time_factor: float = 1.0, publish_every: int = 1,
+                 diagnostics_period: float = 1.0, inbox: Inbox | None = None,
+                 gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
+                 name: str = "press_twin"):
+        if pacing not in PACINGS:
+            raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
+        if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
+            raise ValueError(f"real_time_factor {real_time_factor!r}: expected a positive number")
+        if int(publish_every) < 1:
+            raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
+        self.twin = twin
+        self.sinks = list(sinks)
+        self.pacing = pacing
+        self.rtf = float(real_time_factor)
+        self.every = int(publish_every)
+        self.period = float(diagnostics_period)
+        self.inbox = inbox or Inbox()
+        self.gate = gate or Gate()
+        self.log = log or (lambda level, text: None)
+        self.name = name
+        self.stop_reason: str | None = None
+        self._stop = threading.Event()
+        # measurements
+        self.step_times: list[float] = []       # compute: advance + messages (s)
+        self.latencies: list[float] = []        # realtime: publish done - deadline (s)
+        self.publish_times: list[float] = []    # emitting a step's messages to the sinks (s)
+        self.misses = 0
+        self.messages = 0
+        self.commands_accepted = 0
+        self.commands_refused = 0
+        self.events = 0
+        self.wall_start = 0.0
+        self.wall_end = 0.0
+        self.cpu_start = 0.0
+        self.error: str | None = None
+        self._encoders: dict = {}
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the loop to end after the step in progress (from a signal handler or thread)."""
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        self._stop.set()
+
+    # -- emitting -------------------------------------------------------------------------
+    def _encode(self, key: str):
+        enc = self._encoders.get(key)
+        if enc is None:
+            from .recording import encoder
+
+            enc = self._encoders[key] = encoder(BY_KEY[key].msgtype)
+        return enc
+
+    def _emit(self, key: str, msg: dict, t_ns: int) -> None:
+        data = self._encode(key)(msg)
+        self.messages += 1
+        for s in self.sinks:
+            s.emit(key, msg, data, t_ns)
+
+    def _emit_events(self, events, t_ns):
+        if "events" not in self.twin.outputs:
+            self.events += len(events)
+            return
+        for ev in events:
+            self.events += 1
+            self._emit("~/events", {"data": to_json(ev)}, t_ns)
+
+    def _publish_step(self, msgs, t_ns):
+        for key, msg in msgs:
+            self._emit(key, msg, t_ns)
+        self._emit_events(self.twin.new_events(), t_ns)
+
+    def _take_commands(self) -> None:
+        cmds = self.inbox.drain()
+        if not cmds:
+            return
+        twin = self.twin
+        t = twin.t
+        t_ns = to_ns(t)
+        for c in cmds:
+            word = c.word if isinstance(c.word, str) else str(c.word)
+            received = {"data": word}
+            data = self._encode("~/mode")(received)
+            for s in self.sinks:
+                if hasattr(s, "received"):
+                    s.received("~/mode", received, data, t_ns)
+            reason = self.gate.check(word)
+            if reason is None:
+                ok, reason = twin.command(word.strip())
+            else:
+                ok = False
+            ack = {"t": t, "command": shown(word, 64), "accepted": ok, "reason": reason,
+                   "source": c.source, "structure": twin.sim.structure}
+            if ok:
+                self.commands_accepted += 1
+                self.log("info", f"command {word.strip()!r} ({c.source}) applied at "
+                                 f"t = {t:.6f} s")
+            else:
+                self.commands_refused += 1
+                self.log("warn", f"refused command {shown(word)!r} ({c.source}) at "
+                                 f"t = {t:.6f} s: {reason}")
+            self._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
+            if c.reply is not None:
+                try:
+                    c.reply(ack)
+                except Exception:       # a reply must never take the run down
+                    pass
+        # a command's event (and what it set off) goes out at once
+        self._emit_events(twin.new_events(), t_ns)
+
+    def refuse_pending(self, reason: str) -> None:
+        """Answer commands still waiting (the run is over): refused, never silently lost."""
+        for c in self.inbox.drain():
+            ack = {"t": self.twin.t, "command": shown(str(c.word), 64), "accepted": False,
+                   "reason": reason, "source": c.source, "structure": self.twin.sim.structure}
+            self.commands_refused += 1
+            self.log("warn", f"refused command {shown(str(c.word))!r} ({c.source}): {reason}")
+            if c.reply is not None:
+                try:
+                    c.reply(ack)
+                except Exception:
+                    pass
+
+    # -- diagnostics ----------------------------------------------------------------------
+    def stats(self) -> dict:
+        wall = (self.wall_end or time.perf_counter()) - self.wall_start
+        sim = self.twin.t - self.twin.t0
+        st = np.array(self.step_times) if self.step_times else np.zeros(1)
+        pt = np.array(self.publish_times) if self.publish_times else np.zeros(1)
+        out = {
+            "pacing": self.pacing,
+            "real_time_factor_target": self.rtf if self.pacing == "realtime" else math.inf,
+            "real_time_factor": sim / wall if wall > 0 else math.nan,
+            "sim_time": sim, "wall_time": wall, "steps": self.twin.k,
+            "step_time_p50_ms": float(np.percentile(st, 50) * 1e3),
+            "step_time_p99_ms": float(np.percentile(st, 99) * 1e3),
+            "step_time_max_ms": float(st.max() * 1e3),
+            "publish_time_p50_ms": float(np.percentile(pt, 50) * 1e3),
+            "publish_time_p99_ms": float(np.percentile(pt, 99) * 1e3),
+            "deadline_misses": self.misses,
+            "messages": self.messages,
+            "events": self.events,
+            "commands_accepted": self.commands_accepted,
+            "commands_refused": self.commands_refused,
+            "cpu_time": time.process_time() - self.cpu_start,
+        }
+        if self.latencies:
+            lat = np.array(self.latencies)
+            out["latency_p50_ms"] = float(np.percentile(lat, 50) * 1e3)
+            out["latency_p99_ms"] = float(np.percentile(lat, 99) * 1e3)
+        return out
+
+    def _diagnostics(self, t_ns: int) -> None:
+        if "diagnostics" not in self.twin.outputs:
+            return
+        s = self.stats()
+        late = self.pacing == "realtime" and s["deadline_misses"] > 0
+        values = [{"key": k, "value": (f"{v:.6g}" if isinstance(v, float) else str(v))}
+                  for k, v in s.items()]
+        msg = (f"rtf {s['real_time_factor']:.3g}, step p50 {s['step_time_p50_ms']:.3g} ms "
+               f"p99 {s['step_time_p99_ms']:.3g} ms, {s['deadline_misses']} deadline misses")
+        self._emit("/diagnostics", {
+            "header": {"stamp": stamp(self.twin.t), "frame_id": ""},
+            "status": [{"level": 1 if late else 0, "name": f"{self.name}: pacing",
+                        "message": msg, "hardware_id": "mps", "values": values}]}, t_ns)
+
+    # -- the loop -------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Everything slow done once before the clock starts: encoders, the sinks' channels."""
+        keys = [t.key for t in BY_KEY.values()
+                if not t.output or t.output in self.twin.outputs]
+        for k in keys:
+            self._encode(k)
+        for s in self.sinks:
+            if hasattr(s, "prepare"):
+                s.prepare(keys)
+
+    def run(self) -> dict:
+        twin = self.twin
+        realtime = self.pacing == "realtime"
+        clock = time.perf_counter
+        self.prepare()
+        self.wall_start = clock()
+        self.cpu_start = time.process_time()
+        next_diag = self.wall_start + self.period
+        try:
+            t_ns = to_ns(twin.t)
+            self._emit_events([{"t": twin.t, "kind": "run-start", **twin.describe(),
+                                "pacing": self.pacing, "real_time_factor": self.rtf,
+                                "publish_every": self.every}], t_ns)
+            self._publish_step(twin.state_messages(), t_ns)
+            self._take_commands()
+            # the schedule starts once t0 is out (its first messages carried one-off costs)
+            self.wall_start = clock()
+            while not twin.done and not self._stop.is_set():
+                c0 = clock()
+                twin.step()
+                k = twin.k
+                msgs = twin.state_messages() if (k % self.every == 0 or twin.done) else None
+                c1 = clock()
+                self.step_times.append(c1 - c0)
+                t = twin.t
+                t_ns = to_ns(t)
+                if realtime:
+                    deadline = self.wall_start + (t - twin.t0) / self.rtf
+                    if c1 > deadline:
+                        self.misses += 1
+                    else:
+                        while True:
+                            left = deadline - clock()
+                            if left <= 0 or self._stop.is_set():
+                                break
+                            time.sleep(left if left < 0.05 else 0.05)
+                p0 = clock()
+                if msgs is not None:
+                    self._publish_step(msgs, t_ns)
+                else:
+                    self._emit_events(twin.new_events(), t_ns)
+                p1 = clock()
+                self.publish_times.append(p1 - p0)
+                if realtime:
+                    self.latencies.append(p1 - deadline)
+                self._take_commands()
+                for s in self.sinks:
+                    s.tick()
+                now = clock()
+                if now >= next_diag:
+                    next_diag = now + self.period
+                    self._diagnostics(t_ns)
+        except Exception as exc:
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.stop_reason = "error"
+            self.log("error", f"the run stopped at t = {twin.t:.6f} s: {self.error}")
+            raise
+        finally:
+            self.wall_end = clock()
+            reason = self.stop_reason or "end"
+            t_ns = to_ns(twin.t)
+            try:
+                self.refuse_pending("the run has ended" if reason == "end"
+                                    else f"the run is stopping ({reason})")
+                self._emit_events(twin.new_events(), t_ns)
+                self._diagnostics(t_ns)
+                end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
+                if self.error:
+                    end["error"] = self.error
+                self._emit_events([end], t_ns)
+            except Exception as exc:     # never lose the recording's end over a late message
+                self.log("error", f"could not emit the run's last messages: {exc}")
+        return self.stats()
+
+
+__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "stamp", "to_ns",
+           "to_json", "check_outputs", "BY_KEY"]

@@ -1,0 +1,426 @@
+"""The node press_twin against a subscriber in another process (this one): every step, in
+order, stamped with the simulated time, equal to what mps_core computes; mode commands taking
+effect when received; refused commands; its recording read back by rosbags, also after SIGKILL
+and recovery; loopback only; nothing left running."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("rosbags")
+
+from mps_core import __version__, build, load_scene  # noqa: E402
+from mps_core.reactions import compute_reactions  # noqa: E402
+from mps_ros.recording import read_metadata  # noqa: E402
+from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES  # noqa: E402
+from twin_probe import Listener, NodeProcess, mps_cmd, ns  # noqa: E402
+
+DT = 1e-3
+T_END = 0.12
+N = round(T_END / DT)
+TIMES = [T_END if k == N else k * T_END / N for k in range(N + 1)]
+STAMPS = [int(round(t * 1e9)) for t in TIMES]
+STEP_TOPICS = ["joint_states", "/clock", "~/structure", FOUNDATION.key,
+               *(w.key for w in WRENCHES)]
+
+
+def read_mcap(path):
+    from rosbags.highlevel import AnyReader
+
+    out = {}
+    with AnyReader([Path(path)]) as r:
+        conns = {c.topic: c for c in r.connections}
+        for c in r.connections:
+            out.setdefault(c.topic, [])
+        for conn, t, raw in r.messages(connections=r.connections):
+            out[conn.topic].append((t, r.deserialize(raw, conn.msgtype)))
+    return conns, out
+
+
+# -- one commanded run, shared by several tests -------------------------------------------------
+@pytest.fixture(scope="module")
+def commanded(ros, tmp_path_factory):
+    """press-cycle to 0.12 s at 1 kHz, realtime x0.2, the scene's commands off; this process
+    subscribes to everything and sends engage when it sees t >= 0.008 s on /clock and
+    disengage at t >= 0.06 s."""
+    tmp = tmp_path_factory.mktemp("commanded")
+    rec = tmp / "run.mcap"
+    params = dict(pacing="realtime", real_time_factor=0.2, dt=DT, t_end=T_END,
+                  scene_commands=False, recording=str(rec), wait_for_subscribers=1,
+                  wait_for_commanders=1, wait_timeout=30.0, start_delay=0.3)
+    lis = Listener()
+    try:
+        with NodeProcess(tmp, params) as node:
+            lis.wait_for(lambda: lis.mode.get_subscription_count() > 0, 30,
+                         "the node's ~/mode subscription")
+            sent = []
+            for t_cmd, word in ((0.008, "engage"), (0.06, "disengage")):
+                lis.wait_for(lambda: (lis.clock() or -1.0) >= t_cmd, 30, f"/clock >= {t_cmd}")
+                sent.append((lis.clock(), word))
+                lis.send(word)
+            lis.wait_for(lis.ended, 30, "the run's end")
+            rc = node.wait(30)
+            log = node.log()
+        got = {key: lis.get(key) for key in lis.topics}
+        acks = lis.acks()
+        events = lis.events()
+    finally:
+        lis.close()
+    return dict(rec=rec, rc=rc, log=log, got=got, acks=acks, events=events, sent=sent,
+                names=lis.topics)
+
+
+def test_node_ends_cleanly(commanded):
+    assert commanded["rc"] == 0, commanded["log"]
+    assert "run ended at t = 0.12 s" in commanded["log"]
+
+
+def test_every_step_in_order_stamped_with_simulated_time(commanded):
+    got = commanded["got"]
+    for key in STEP_TOPICS:
+        msgs = got[key]
+        if key == "/clock":
+            stamps = [ns(m.clock) for m in msgs]
+        elif key == "~/structure":
+            assert len(msgs) == N + 1
+            continue
+        else:
+            stamps = [ns(m.header.stamp) for m in msgs]
+        assert stamps == STAMPS, f"{key}: {len(stamps)} messages, expected {N + 1} in order"
+    js = got["joint_states"][0]
+    assert list(js.name) == list(JOINT_NAMES) and js.header.frame_id == "press"
+    frames = {w.key: w.frame_id for w in (*WRENCHES, FOUNDATION)}
+    for key, frame in frames.items():
+        assert {m.header.frame_id for m in got[key]} == {frame}
+
+
+def test_commands_take_effect_when_received(commanded):
+    acks, sent = commanded["acks"], commanded["sent"]
+    assert [(a["command"], a["accepted"], a["source"]) for a in acks] == [
+        ("engage", True, "topic"), ("disengage", True, "topic")]
+    for (t_seen, word), ack in zip(sent, acks):
+        # applied at a step boundary after the clock the sender saw, some steps later at most
+        # (how many: the sender's lag behind /clock on a busy machine, x 0.2)
+        assert t_seen < ack["t"] <= t_seen + 0.03, (word, t_seen, ack["t"])
+        assert min(abs(ack["t"] - t) for t in TIMES) < 1e-12
+    ev = commanded["events"]
+    kinds = [(e["kind"], e.get("command")) for e in ev]
+    assert kinds[0] == ("run-start", None) and kinds[-1] == ("run-end", None)
+    t_engage, t_disengage = acks[0]["t"], acks[1]["t"]
+    cmd_ev = [e for e in ev if e["kind"] == "command"]
+    assert [(e["command"], e["t"]) for e in cmd_ev] == [("engage", t_engage),
+                                                        ("disengage", t_disengage)]
+    latch = [e for e in ev if e["kind"] == "latch-closes"]
+    assert len(latch) == 1 and t_engage < latch[0]["t"] < t_disengage
+    assert any(e["kind"] == "latch-opens" and e["t"] == t_disengage for e in ev)
+    # engaged, the slider makes its working stroke (down from 25.5 mm) until disengaged
+    x = np.array([m.position[3] for m in commanded["got"]["joint_states"]])
+    t = np.array(TIMES)
+    assert x[t < 0.008].min() > 0.0254
+    assert x[(t > latch[0]["t"]) & (t < t_disengage)].min() < 0.020
+
+
+def test_values_equal_mps_core(commanded):
+    """The same scene stepped by mps_core here, with the commands at the times the node
+    applied them: every published value is what mps_core computes."""
+    acks = commanded["acks"]
+    scene = load_scene("press-cycle").with_overrides(dt=DT, t_end=T_END)
+    scene = replace(scene, commands=tuple((a["t"], a["command"]) for a in acks))
+    sim = build(scene)
+    got = commanded["got"]
+    for k, t in enumerate(TIMES):
+        if k:
+            sim.advance_to(t)
+        s = sim.snapshot()
+        e = sim.solver.current
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
+                               kin=e.kin).values
+        js = got["joint_states"][k]
+        np.testing.assert_allclose([js.position[i] for i in (0, 2, 3)],
+                                   [s["phi"], s["psi"], s["x_C"]], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose([js.velocity[i] for i in (0, 2, 3)],
+                                   [s["phi_dot"], s["psi_dot"], s["x_C_dot"]], rtol=1e-12,
+                                   atol=1e-12)
+        np.testing.assert_allclose([js.effort[0], js.effort[2], js.effort[3]],
+                                   [rx["M_motor"], rx["M_latch"], rx["F_stop"]], rtol=1e-12,
+                                   atol=1e-9)
+        assert math.isnan(js.effort[1])
+        for w in (*WRENCHES, FOUNDATION):
+            m = got[w.key][k].wrench
+            want = [0.0 if c is None else rx[c] for c in w.force] + [
+                0.0 if w.torque is None else rx[w.torque]]
+            np.testing.assert_allclose([m.force.x, m.force.y, m.torque.z], want, rtol=1e-12,
+                                       atol=1e-9, err_msg=f"{w.key} at t = {t}")
+            assert m.force.z == m.torque.x == m.torque.y == 0.0
+        assert got["~/structure"][k].data == s["structure"]
+
+
+def test_recording_read_back_by_rosbags(commanded):
+    conns, rec = read_mcap(commanded["rec"])
+    names = commanded["names"]
+    published = {names[t.key] for t in TOPICS}
+    assert set(conns) == published | {"/press_twin/mode"}
+    got = commanded["got"]
+    for key, name in names.items():
+        assert conns[name].msgtype == next(t.msgtype for t in TOPICS if t.key == key)
+        assert len(rec[name]) == len(got[key]), name
+    for key in ("joint_states", *(w.key for w in (*WRENCHES, FOUNDATION))):
+        for (t_log, a), b in zip(rec[names[key]], got[key]):
+            assert t_log == ns(a.header.stamp) == ns(b.header.stamp)
+            if key == "joint_states":
+                for f in ("position", "velocity", "effort"):
+                    np.testing.assert_array_equal(np.asarray(getattr(a, f)),
+                                                  np.asarray(getattr(b, f)))
+                assert list(a.name) == list(b.name)
+            else:
+                assert (a.wrench.force.x, a.wrench.force.y, a.wrench.torque.z) == (
+                    b.wrench.force.x, b.wrench.force.y, b.wrench.torque.z)
+    assert [ns(a.clock) for _, a in rec["/clock"]] == STAMPS
+    for key in ("~/events", "~/mode/status", "~/structure"):
+        assert [a.data for _, a in rec[names[key]]] == [b.data for b in got[key]]
+    # the commands it received, at the simulated times it applied them
+    acks = commanded["acks"]
+    assert [(t, m.data) for t, m in rec["/press_twin/mode"]] == [
+        (int(round(a["t"] * 1e9)), a["command"]) for a in acks]
+    # self-describing: the scene's TOML and the software version
+    meta = read_metadata(commanded["rec"])
+    assert meta["scene"]["toml"] == load_scene("press-cycle").text
+    assert meta["mps"]["version"] == __version__ and meta["mps"]["source"] == "mps node"
+    assert meta["mps"]["scene_commands"] == "false" and meta["mps"]["dt_s"] == repr(DT)
+    # QoS offered, as rosbag2 writes it
+    q = conns["/joint_states"].ext.offered_qos_profiles[0]
+    assert (q.history.name, q.depth, q.reliability.name) == ("KEEP_LAST", 1000, "RELIABLE")
+
+
+def test_recording_format(commanded):
+    from mcap.reader import make_reader
+
+    with open(commanded["rec"], "rb") as fh:
+        r = make_reader(fh)
+        header = r.get_header()
+        summary = r.get_summary()
+    assert header.profile == "ros2"
+    assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+    js = next(s for s in summary.schemas.values() if s.name == "sensor_msgs/msg/JointState")
+    assert b"MSG: std_msgs/Header" in js.data and b"MSG: builtin_interfaces/Time" in js.data
+    assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+    assert all("offered_qos_profiles" in c.metadata for c in summary.channels.values())
+    assert {ci.compression for ci in summary.chunk_indexes} == {"zstd"}
+
+
+# -- SIGKILL and recovery ------------------------------------------------------------------------
+def test_sigkill_then_recover(ros, tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    rec = tmp_path / "killed.mcap"
+    params = dict(pacing="realtime", dt=DT, t_end=20.0, recording=str(rec),
+                  recording_flush_period=0.2, wait_for_subscribers=1, wait_timeout=30.0,
+                  outputs="[joint_states, foundation, clock, events]")
+    lis = Listener()
+    try:
+        with NodeProcess(tmp_path, params) as node:
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 1.0, 40, "/clock >= 1 s")
+            node.signal(signal.SIGKILL)
+            assert node.wait(10) == -signal.SIGKILL
+        got = {k: lis.get(k) for k in ("joint_states", "/clock", FOUNDATION.key)}
+        names = dict(lis.topics)
+    finally:
+        lis.close()
+    with pytest.raises(Exception):
+        with AnyReader([rec]):
+            pass
+    out = tmp_path / "recovered.mcap"
+    res = subprocess.run(mps_cmd("recover", str(rec), str(out)), capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "cut short" in res.stdout
+    conns, back = read_mcap(out)
+    js = back["/joint_states"]
+    assert len(js) >= 300, f"only {len(js)} steps recovered"
+    for key in ("joint_states", FOUNDATION.key):
+        b = back[names[key]]
+        g = got[key]
+        n = min(len(b), len(g))
+        assert n >= 300
+        for (t_log, x), y in zip(b[:n], g[:n]):
+            assert t_log == ns(x.header.stamp) == ns(y.header.stamp)
+            if key == "joint_states":
+                np.testing.assert_array_equal(np.asarray(x.position), np.asarray(y.position))
+            else:
+                assert x.wrench.force.x == y.wrench.force.x
+    assert [ns(m.clock) for _, m in back["/clock"]] == [int(round(k * DT * 1e9))
+                                                        for k in range(len(back["/clock"]))]
+    meta = read_metadata(out)
+    assert meta["scene"]["toml"] == load_scene("press-cycle").text
+    assert meta["mps"]["version"] == __version__
+
+
+# -- refused commands; services; the run goes on; loopback only ------------------------------------
+REFUSALS = [
+    ("", "empty command"),
+    ("   ", "empty command"),
+    ("launch", "expected one of engage, disengage, stop, start"),
+    ("ENGAGE", "expected one of"),
+    ("engage now", "expected one of"),
+    ("x" * 5000, "5000-character command"),
+    ("disengage", "the press is not engaged"),
+    ("start", "the motor is already on"),
+]
+
+
+def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
+    from twin_probe import RtpsSniffer
+
+    rec = tmp_path / "refusals.mcap"
+    params = dict(pacing="realtime", dt=DT, t_end=30.0, scene_commands=False,
+                  recording=str(rec), wait_for_subscribers=1, wait_timeout=30.0,
+                  command_burst=5, command_rate=50.0)
+    sniffer = RtpsSniffer()
+    lis = Listener()
+    sent = []
+    try:
+        with NodeProcess(tmp_path, params) as node:
+            lis.wait_for(lambda: lis.mode.get_subscription_count() > 0 and lis.clock(), 40,
+                         "the node running")
+            env = dict(kv.split("=", 1) for kv in
+                       Path(f"/proc/{node.pid}/environ").read_bytes().decode().split("\0") if kv)
+            assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+            assert env["ROS_DOMAIN_ID"] == str(ros_domain)
+
+            def ask(word, expect_ok, reason=None):
+                n0 = len(lis.acks())
+                lis.send(word)
+                sent.append(word)
+                ack = lis.wait_for(lambda: lis.acks()[n0:], 10, f"an answer to {word[:20]!r}")[0]
+                assert ack["accepted"] is expect_ok, (word[:20], ack)
+                if reason:
+                    assert reason in ack["reason"], (word[:20], ack)
+                time.sleep(0.06)       # 3 tokens back in the flood gate (50 a second)
+                return ack
+
+            for word, reason in REFUSALS:
+                ask(word, False, reason)
+            # two at once: the second comes while the first is still engaging
+            n0 = len(lis.acks())
+            lis.send("engage")
+            lis.send("engage")
+            sent += ["engage", "engage"]
+            both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 10,
+                                "two answers")
+            assert both[0]["accepted"] and not both[1]["accepted"]
+            assert "already engaging" in both[1]["reason"]
+            lis.wait_for(lambda: lis.get("~/structure")[-1].data == "locked", 10,
+                         "the latch to close")
+            ask("engage", False, "the latch is already closed (working)")
+            # the service form: std_srvs/Trigger
+            r = lis.call("stop")
+            assert r.success and r.message.startswith("stop applied at t = ")
+            r = lis.call("stop")
+            assert not r.success and "the motor is already off" in r.message
+            assert lis.call("start").success
+            # a flood: 40 at once; a few pass the gate (and are refused on their merits)
+            n0 = len(lis.acks())
+            for _ in range(40):
+                lis.send("launch")
+                sent.append("launch")
+            flood = lis.wait_for(lambda: len(lis.acks()) >= n0 + 40 and lis.acks()[n0:], 10,
+                                 "40 answers")
+            assert all(not a["accepted"] for a in flood)
+            assert sum(a["reason"].startswith("flood") for a in flood) >= 30
+            # the run goes on
+            t1 = lis.clock()
+            lis.wait_for(lambda: lis.clock() > t1 + 0.05, 10, "the clock to go on")
+            assert node.alive()
+            node.signal(signal.SIGTERM)
+            assert node.wait(15) == 0
+            log = node.log()
+        acks = lis.acks()
+    finally:
+        lis.close()
+        packets = sniffer.stop()
+    # refusals are logged, one line each, and never crash the node
+    assert log.count("refused command") == sum(not a["accepted"] for a in acks)
+    assert "refused command '' (topic)" in log and "Traceback" not in log
+    assert "stopped (SIGTERM)" in log
+    # a SIGTERM finishes the recording properly: rosbags reads it as it is
+    conns, back = read_mcap(rec)
+    assert len(back["/press_twin/mode"]) == len(sent) + 3          # + 3 service calls
+    assert [m.data for _, m in back["/press_twin/mode"] if m.data != "x" * 5000][:3] == [
+        "", "   ", "launch"]
+    assert [json.loads(m.data)["accepted"] for _, m in back["/press_twin/mode/status"]] == [
+        a["accepted"] for a in acks]
+    if packets is not None:
+        assert sniffer.on_loopback > 0          # it does see the DDS traffic ...
+        assert packets == [], f"DDS traffic off loopback: {packets[:5]}"     # ... all on lo
+
+
+def test_bad_parameters_are_refused_not_crashed(tmp_path):
+    cases = [({"pacing": "warp"}, "parameter pacing: 'warp'"),
+             ({"outputs": "[joint_states, torque]"}, "unknown output 'torque'")]
+    for params, message in cases:
+        with NodeProcess(tmp_path, params, name="bad") as node:
+            rc = node.wait(60)
+            log = node.log()
+        assert rc == 2 and message in log and "Traceback" not in log, log
+
+
+def test_no_process_left(tmp_path):
+    """A node stopped by its fixture leaves nothing: its whole process group is gone."""
+    with NodeProcess(tmp_path, dict(t_end=50.0, recording="none")) as node:
+        time.sleep(0.5)
+        pgid = node.pid
+    with pytest.raises(ProcessLookupError):
+        os.killpg(pgid, 0)
+
+
+def test_node_and_mps_record_write_the_same_messages(tmp_path):
+    """One recording module: a node run and ``mps record`` of the same scene hold the same
+    messages, byte for byte (the pacing diagnostics aside)."""
+    from mps_ros.recording import record
+
+    a = tmp_path / "node.mcap"
+    with NodeProcess(tmp_path, dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05,
+                                    recording=str(a))) as node:
+        assert node.wait(60) == 0, node.log()
+    b = tmp_path / "record.mcap"
+    record("press-cycle", b, dt=DT, t_end=0.05, stop_on_signals=False)
+
+    def raw(path):
+        from rosbags.highlevel import AnyReader
+
+        out = {}
+        with AnyReader([path]) as r:
+            for c in r.connections:
+                out.setdefault(c.topic, [])
+            for conn, t, data in r.messages(connections=r.connections):
+                if conn.topic != "/diagnostics":
+                    out[conn.topic].append((t, bytes(data)))
+        return out
+
+    ra, rb = raw(a), raw(b)
+    assert ra.keys() == rb.keys()
+    assert ra == rb
+    assert len(ra["/joint_states"]) == 51
+
+
+def test_parameters_yaml_of_the_package(tmp_path):
+    """config/press_twin.yaml is a valid parameters file for the node (-p overrides it)."""
+    cfg = Path(__file__).resolve().parents[2] / "config" / "press_twin.yaml"
+    node = NodeProcess(tmp_path, {}, name="yaml")
+    node.cmd += ["--params-file", str(cfg), "-p", "pacing:=as_fast_as_possible",
+                 "-p", "t_end:=0.02", "-p", "recording:=none"]
+    with node:
+        assert node.wait(60) == 0, node.log()
+        log = node.log()
+    assert "20 steps of 0.001 s" in log and "outputs joint_states, reactions, foundation" in log

@@ -1,0 +1,271 @@
+"""Recordings without ROS: ``mps record``, the CDR encoders, recovery of a file cut short, the
+outputs asked for and nothing else, the flood gate. rosbags (an independent implementation)
+reads everything back."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mcap")
+pytest.importorskip("mcap_ros2")
+pytest.importorskip("rosbags")
+
+from mps_core import __version__, build, load_scene  # noqa: E402
+from mps_core.cli import main as mps_main  # noqa: E402
+from mps_ros import twin as twin_mod  # noqa: E402
+from mps_ros.cdr import ENCODERS  # noqa: E402
+from mps_ros.recording import (Recorder, generic_encoder, read_metadata, record,  # noqa: E402
+                               recover)
+from mps_ros.topics import FOUNDATION, WRENCHES  # noqa: E402
+from mps_ros.twin import Gate, Twin  # noqa: E402
+from twin_probe import mps_cmd  # noqa: E402
+
+
+def read_all(path):
+    from rosbags.highlevel import AnyReader
+
+    out = {}
+    with AnyReader([Path(path)]) as r:
+        for c in r.connections:
+            out.setdefault(c.topic, [])
+        for conn, t, raw in r.messages(connections=r.connections):
+            out[conn.topic].append((t, r.deserialize(raw, conn.msgtype), bytes(raw)))
+    return out
+
+
+def _random_messages(rng):
+    def s():
+        return "".join(rng.choice("abc_xyzé") for _ in range(rng.randint(0, 11)))
+
+    st = {"sec": rng.randint(0, 2**31 - 1), "nanosec": rng.randint(0, 999_999_999)}
+    return {
+        "sensor_msgs/msg/JointState": {
+            "header": {"stamp": st, "frame_id": s()}, "name": [s() for _ in range(rng.randint(0, 5))],
+            "position": [rng.uniform(-9, 9) for _ in range(rng.randint(0, 4))],
+            "velocity": [rng.uniform(-9, 9) for _ in range(rng.randint(0, 4))],
+            "effort": [math.nan, rng.random()][:rng.randint(0, 2)]},
+        "geometry_msgs/msg/WrenchStamped": {
+            "header": {"stamp": st, "frame_id": s()},
+            "wrench": {"force": {"x": rng.random(), "y": -rng.random(), "z": 0.0},
+                       "torque": {"x": 0.0, "y": 1e-300, "z": rng.random()}}},
+        "rosgraph_msgs/msg/Clock": {"clock": st},
+        "std_msgs/msg/String": {"data": s()},
+    }
+
+
+def test_cdr_encoders_give_the_generic_encoders_bytes():
+    rng = random.Random(5)
+    for _ in range(200):
+        for msgtype, d in _random_messages(rng).items():
+            assert ENCODERS[msgtype](d) == bytes(generic_encoder(msgtype)(d)), (msgtype, d)
+
+
+def test_cdr_bytes_are_what_ros_deserializes():
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+    from geometry_msgs.msg import WrenchStamped
+
+    rng = random.Random(7)
+    for _ in range(50):
+        m = _random_messages(rng)
+        d = m["sensor_msgs/msg/JointState"]
+        js = deserialize_message(ENCODERS["sensor_msgs/msg/JointState"](d), JointState)
+        assert js.header.frame_id == d["header"]["frame_id"] and list(js.name) == d["name"]
+        np.testing.assert_array_equal(js.position, d["position"])
+        np.testing.assert_array_equal(js.effort, d["effort"])
+        d = m["geometry_msgs/msg/WrenchStamped"]
+        w = deserialize_message(ENCODERS["geometry_msgs/msg/WrenchStamped"](d), WrenchStamped)
+        assert (w.wrench.force.x, w.wrench.torque.z) == (d["wrench"]["force"]["x"],
+                                                         d["wrench"]["torque"]["z"])
+
+
+def test_mps_record_writes_the_nodes_messages(tmp_path, capsys):
+    out = tmp_path / "rec.mcap"
+    assert mps_main(["record", "press-cycle", "--out", str(out), "--dt", "0.001",
+                     "--t-end", "0.05"]) == 0
+    assert str(out) in capsys.readouterr().out
+    back = read_all(out)
+    n = 50
+    for topic in ("/joint_states", "/clock", "/press_twin/structure", "/press_twin/foundation",
+                  *(f"/press_twin/reactions/{w.name}" for w in WRENCHES)):
+        assert len(back[topic]) == n + 1, topic
+    assert [t for t, _, _ in back["/joint_states"]] == [round(k * 1e6) for k in range(n + 1)]
+    events = [json.loads(m.data) for _, m, _ in back["/press_twin/events"]]
+    assert events[0]["kind"] == "run-start" and events[-1]["kind"] == "run-end"
+    assert any(e["kind"] == "command" and e["command"] == "engage" and e["t"] == 0.008
+               for e in events)             # the scene's own schedule, at its exact time
+    # the values are mps_core's
+    scene = load_scene("press-cycle").with_overrides(dt=0.001, t_end=0.05)
+    sim = build(scene)
+    for k in range(n + 1):
+        if k:
+            sim.advance_to(k * 0.05 / n if k < n else 0.05)
+        s = sim.snapshot()
+        js = back["/joint_states"][k][1]
+        assert (js.position[0], js.position[2], js.position[3]) == (s["phi"], s["psi"], s["x_C"])
+    meta = read_metadata(out)
+    assert meta["mps"]["version"] == __version__ and meta["mps"]["source"] == "mps record"
+    assert meta["scene"]["toml"] == load_scene("press-cycle").text
+
+
+def test_only_the_outputs_asked_for(tmp_path, monkeypatch):
+    import mps_core.reactions as R
+
+    def no(*a, **k):
+        raise AssertionError("reactions solved though nobody asked")
+
+    monkeypatch.setattr(R, "compute_reactions", no)
+    out = tmp_path / "js.mcap"
+    path, stats, counts = record("press-cycle", out, dt=0.001, t_end=0.05,
+                                 outputs=("joint_states", "clock"), publish_every=10,
+                                 stop_on_signals=False)
+    back = read_all(out)
+    assert {t for t, v in back.items() if v} == {"/joint_states", "/clock"}
+    assert [t for t, _, _ in back["/clock"]] == [k * 10_000_000 for k in range(6)]
+    assert list(back["/joint_states"][0][1].effort) == []      # no reactions, no efforts
+
+
+def test_recover_a_file_cut_short(tmp_path):
+    full = tmp_path / "full.mcap"
+    twin = Twin("press-cycle", dt=0.001, t_end=0.2)
+    rec = Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text,
+                   chunk_size=16 * 1024)
+    from mps_ros.recording import RecordingSink
+
+    twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
+    rec.finish()
+    whole = read_all(full)
+    data = full.read_bytes()
+    # a complete file recovers to the same messages
+    same = recover(full, tmp_path / "same.mcap")
+    assert same.complete and same.messages == sum(len(v) for v in whole.values())
+    for cut in (len(data) // 3, len(data) // 2, len(data) - 100):
+        cut_path = tmp_path / f"cut{cut}.mcap"
+        cut_path.write_bytes(data[:cut])
+        out = tmp_path / f"rec{cut}.mcap"
+        rep = recover(cut_path, out)
+        assert not rep.complete and rep.chunks >= 1
+        back = read_all(out)
+        assert sum(len(v) for v in back.values()) == rep.messages > 0
+        for topic, msgs in back.items():
+            assert [raw for _, _, raw in msgs] == [raw for _, _, raw in whole[topic][:len(msgs)]]
+        assert read_metadata(out)["scene"]["toml"] == twin.scene.text
+    # nothing but the header and metadata: an empty, valid recording
+    head = tmp_path / "head.mcap"
+    head.write_bytes(data[:200])
+    rep = recover(head, tmp_path / "head-rec.mcap")
+    assert rep.messages == 0
+    read_all(tmp_path / "head-rec.mcap")
+
+
+def test_mps_record_finishes_the_file_on_sigint(tmp_path):
+    out = tmp_path / "int.mcap"
+    proc = subprocess.Popen(mps_cmd("record", "press-cycle", "--out", str(out), "--pacing",
+                                    "realtime", "--dt", "0.001", "--t-end", "60"),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    try:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and (not out.exists() or out.stat().st_size < 1000):
+            time.sleep(0.05)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        proc.stdout.close()
+    back = read_all(out)                 # complete: rosbags reads it as it is
+    end_ev = json.loads(back["/press_twin/events"][-1][1].data)
+    assert end_ev["kind"] == "run-end" and end_ev["reason"] == "SIGINT"
+    assert len(back["/joint_states"]) > 10
+
+
+def test_gate_refuses_empty_long_and_floods():
+    now = [0.0]
+    g = Gate(burst=3, rate=2.0, clock=lambda: now[0])
+    assert g.check("") .startswith("empty command")
+    assert g.check("y" * 65).startswith("a 65-character command")
+    assert g.check("engage") is None
+    assert g.check("engage").startswith("flood")
+    now[0] += 0.5                        # one token back
+    assert g.check("stop") is None
+    assert g.check("stop").startswith("flood")
+
+
+def test_foundation_wrench_is_the_reactions_resultant():
+    """The foundation topic carries F_found and M_found_O about O in the press frame."""
+    twin = Twin("working", dt=1e-3, t_end=0.01)
+    twin.step()
+    msgs = dict(twin.state_messages())
+    f = msgs[FOUNDATION.key]
+    rx = twin.reactions()
+    assert f["header"]["frame_id"] == "press"
+    assert (f["wrench"]["force"]["x"], f["wrench"]["force"]["y"],
+            f["wrench"]["torque"]["z"]) == (rx["F_found_x"], rx["F_found_y"], rx["M_found_O"])
+
+
+def test_rod_angle_and_rate():
+    """The rod's joint state: its angle from A to B and a rate consistent with it."""
+    twin = Twin("paper", dt=1e-4, t_end=0.002)
+    angles, rates = [], []
+    for _ in range(10):
+        twin.step()
+        js = dict(twin.state_messages())["joint_states"]
+        angles.append(js["position"][1])
+        rates.append(js["velocity"][1])
+    fd = np.gradient(np.array(angles), 1e-4)
+    np.testing.assert_allclose(fd[2:-2], np.array(rates)[2:-2], rtol=2e-3, atol=1e-3)
+
+
+def test_rerun_reads_the_recording(tmp_path):
+    """Rerun (its own MCAP reader) checks and converts a recording, where it is installed."""
+    import shutil
+    import sys
+
+    rerun = Path(sys.executable).with_name("rerun")
+    if not rerun.exists():
+        rerun = shutil.which("rerun")
+        if rerun is None:
+            pytest.skip("no rerun command here (pip install rerun-sdk)")
+    out = tmp_path / "r.mcap"
+    record("press-cycle", out, dt=0.001, t_end=0.05, stop_on_signals=False)
+    chk = subprocess.run([str(rerun), "mcap", "check", str(out)], capture_output=True, text=True,
+                         timeout=120)
+    assert chk.returncode == 0 and "/joint_states" in chk.stdout, chk.stdout + chk.stderr
+    lines = [ln for ln in chk.stdout.splitlines() if "/press_twin/" in ln or "/joint_states" in ln]
+    assert lines and all(ln.split()[0] == "ok" for ln in lines), chk.stdout
+    rrd = tmp_path / "r.rrd"
+    conv = subprocess.run([str(rerun), "mcap", "convert", str(out), "-o", str(rrd)],
+                          capture_output=True, text=True, timeout=120)
+    assert conv.returncode == 0 and rrd.stat().st_size > 10_000, conv.stderr
+
+
+def test_record_needs_no_rclpy(tmp_path):
+    """`mps record` and `mps recover` run where rclpy is missing; `mps node` says what to
+    install."""
+    import sys
+
+    out = tmp_path / "noros.mcap"
+    code = ("import sys; sys.modules['rclpy'] = None\n"
+            "from mps_core.cli import main\n"
+            f"rc = main(['record', 'press-cycle', '--out', {str(out)!r}, '--dt', '0.001',"
+            " '--t-end', '0.01'])\n"
+            "assert 'rclpy' not in [m for m in sys.modules if sys.modules[m] is not None]\n"
+            "sys.exit(rc or main(['node']))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert "this command needs ROS 2 Jazzy's rclpy: install the ros extra" in res.stderr
+    assert len(read_all(out)["/joint_states"]) == 11
