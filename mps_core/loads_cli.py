@@ -5,13 +5,16 @@
 
 SCENE is a preset name or a scene file: it is run with reactions. RECORDING is a CSV written by
 ``mps run SCENE --reactions --csv FILE`` (one row a step, the reaction columns included), with
-its event log (``--events FILE``, JSON lines from ``mps run --events``) for the transients. The
-report (see :mod:`mps_core.loads`) is printed as a table; ``--json``/``--csv`` write it for tools
-and ``--png`` draws the figure.
+its event log (``--events FILE``, JSON lines from ``mps run --events``) for the transients; or an
+MCAP recording (``mps record``, the node), which holds its own event log and scene: it is read by
+:mod:`mps_ros.replay`, imported only then (``mps_core`` never imports mcap), with no
+re-simulation. The report (see :mod:`mps_core.loads`) is printed as a table; ``--json``/``--csv``
+write it for tools and ``--png`` draws the figure.
 """
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -23,7 +26,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "loads", help="load report over a steady working cycle: peaks, RMS, harmonics, impulses")
     p.add_argument("source", metavar="SCENE|RECORDING",
-                   help="preset name, scene file (TOML), or a CSV from mps run --reactions --csv")
+                   help="preset name, scene file (TOML), a CSV from mps run --reactions --csv, "
+                        "or an MCAP recording (mps record, the node)")
     p.add_argument("--json", metavar="FILE", help="write the report as JSON")
     p.add_argument("--csv", metavar="FILE", help="write one row a quantity as CSV")
     p.add_argument("--png", metavar="FILE", help="draw the figure (time series + harmonics)")
@@ -39,8 +43,42 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def is_mcap(src: str) -> bool:
+    """An MCAP recording: named .mcap, or a file that starts with MCAP's magic."""
+    if src.lower().endswith(".mcap"):
+        return True
+    p = Path(src)
+    try:
+        with p.open("rb") as fh:
+            return fh.read(8) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
+def _mcap_columns(args):
+    src = args.source
+    if args.t_end is not None or args.dt is not None:
+        raise loads.LoadReportError("--t-end and --dt apply to scenes, not to a recording")
+    if args.events is not None:
+        raise loads.LoadReportError("--events applies to a CSV recording; an MCAP recording "
+                                    "holds its own event log")
+    try:
+        replay = importlib.import_module("mps_ros.replay")
+    except ModuleNotFoundError as exc:
+        raise loads.LoadReportError(
+            f"reading the MCAP recording {src!r} needs the package {exc.name!r}, which is not "
+            f"installed: install the viewer extra (pip install -e '.[view]') or convert "
+            f"the run to CSV (mps run SCENE --reactions --csv FILE)") from None
+    return replay.load_columns(src)
+
+
 def _columns(args):
     src = args.source
+    if is_mcap(src):
+        return _mcap_columns(args)
     if src.lower().endswith(".csv"):
         if args.t_end is not None or args.dt is not None:
             raise loads.LoadReportError("--t-end and --dt apply to scenes, not to a recording")

@@ -1,0 +1,59 @@
+"""The README's replay examples run as written; ``mps view`` opens its viewer on loopback."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _section_blocks(title: str) -> list[str]:
+    text = README.read_text()
+    start = text.index(f"## {title}")
+    nxt = text.find("\n## ", start + 3)
+    sec = text[start:nxt if nxt >= 0 else None]
+    return re.findall(r"```python\n(.*?)```", sec, flags=re.S)
+
+
+def test_python_examples_run(cycle_mcap, tmp_path):
+    blocks = _section_blocks("Replay: Rerun and Python")
+    assert len(blocks) == 2
+    (tmp_path / "recordings").mkdir()
+    shutil.copy(cycle_mcap, tmp_path / "recordings" / "press-cycle.mcap")
+    env = dict(os.environ, MPLBACKEND="Agg")
+    for i, code in enumerate(blocks):
+        r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, (i, r.stderr)
+    assert (tmp_path / "foundation.png").stat().st_size > 10_000
+    assert r.stdout.startswith("press-cycle 601 steps,")
+
+
+def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rerun")
+    from mps_core.cli import main
+    from mps_ros import view
+
+    started = []
+
+    class FakePopen:
+        def __init__(self, cmd, **kw):
+            started.append(cmd)
+
+    monkeypatch.setattr(view.subprocess, "Popen", FakePopen)
+    monkeypatch.setattr(view.tempfile, "mkdtemp", lambda prefix="": str(tmp_path))
+    assert main(["view", str(cycle_mcap)]) == 0
+    (cmd,) = started
+    assert cmd[1:3] == ["--bind", "127.0.0.1"]
+    assert cmd[-1] == str(tmp_path / "press-cycle.rrd")
+    assert (tmp_path / "press-cycle.rrd").stat().st_size > 0
+    assert "listening on 127.0.0.1 only" in capsys.readouterr().out
+    assert main(["view", str(cycle_mcap), "--no-spawn"]) == 2
+    assert "--no-spawn without --save" in capsys.readouterr().err
