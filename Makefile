@@ -15,11 +15,11 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test,bench,ros,view]'
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/mps run paper
+	$(VENV)/bin/mps demo press-cycle
 
 test: $(STAMP)
 	$(PY) -m pytest -q
