@@ -79,7 +79,9 @@ class Scene:
                 raise SceneError("solver.steps", steps, "a positive integer")
             dt = t_end / steps
         elif dt is None:
-            dt = s.dt if t_end == s.t_end else t_end / max(1, round(s.t_end / s.dt))
+            dt = s.dt                     # a new end time keeps the step
+            if dt > t_end:
+                dt = t_end
         _check_dt("solver.dt_s", dt, t_end)
         st = s.solver
         if solver is not None:

@@ -181,11 +181,13 @@ class Simulation:
     def _new_solver(self, t, q, qd):
         s = self.settings
         old = getattr(self, "solver", None)
+        first = None
         if old is not None:
             self.solver_nfev += old.nfev
             self.solver_steps += old.nsteps
+            first = getattr(old, "step_size", None)   # an adaptive solver carries on its step
         return make_solver(s.name, self._fun(self.view), t, q, qd, iterations=s.iterations,
-                           rtol=s.rtol, atol=s.atol, scales=self.view.scales)
+                           rtol=s.rtol, atol=s.atol, scales=self.view.scales, first_step=first)
 
     def _restart(self, view, t, q, qd):
         self.view = view

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import DOP853, Radau
 
-from ..errors import NumericalError
+from ..errors import ChartDomainError, NumericalError
 from .base import Solver
 
 _METHODS = {"dop853": DOP853, "radau": Radau}
@@ -73,7 +73,7 @@ class AdaptiveSolver(Solver):
         while s.t < t_target:
             if s.status != "running":
                 raise NumericalError(f"{self.name} stopped: {s.status}", s.t)
-            msg = s.step()
+            msg = self._step_within_domain()
             if s.status == "failed":
                 raise NumericalError(f"{self.name} failed: {msg}", s.t)
             self.nsteps += 1
@@ -87,6 +87,20 @@ class AdaptiveSolver(Solver):
         self._dense = self._wrap(sol)
         self.t, self.q, self.qd = t_target, y[:n].copy(), y[n:].copy()
         self.current = self._call(self.t, self.q, self.qd)
+
+    def _step_within_domain(self, tries: int = 12):
+        """One internal step; a stage outside the chart's domain rejects it like a too large
+        error estimate: the step is shrunk by 4 and tried again (scipy's solver keeps its state
+        when its right-hand side raises). After ``tries`` the domain error goes to the caller."""
+        s = self._scipy
+        for k in range(tries):
+            try:
+                return s.step()
+            except ChartDomainError:
+                if k + 1 == tries or s.h_abs is None:
+                    raise
+                s.h_abs *= 0.25
+        return None
 
     def _wrap(self, sol):
         n = self._n

@@ -144,6 +144,7 @@ def test_unknown_preset_or_path():
 def test_overrides_are_validated():
     s = load_scene("paper")
     assert s.with_overrides(t_end=0.1, dt=1e-4).steps == 1000
+    assert s.with_overrides(t_end=0.1).dt == s.dt          # a new end time keeps the step
     with pytest.raises(SceneError, match="solver.dt_s"):
         s.with_overrides(dt=-1.0)
     with pytest.raises(SceneError, match="solver.method"):

@@ -80,6 +80,14 @@ def test_adaptive_reference_solvers(paper_reference):
     assert max_err(radau, r, "phi") < 1e-5
 
 
+def test_adaptive_solvers_carry_on_through_changes_of_chart(paper_reference):
+    """With central differences a stage of a new chart's first step can leave its domain: the
+    solver shrinks that step (as for a rejected error) instead of giving up."""
+    traj = simulate(PAPER, solver="dop853", t_end=0.1, dt=1e-3, rtol=1e-6)
+    assert len([e for e in traj.events if e["kind"] == "chart"]) >= 3
+    assert max_err(traj, paper_reference, "phi") < 1e-4
+
+
 # -- the chart's branch point ------------------------------------------------------------------
 def test_passes_the_branch_point_of_the_seeds_chart(paper_reference):
     """`mps run paper --t-end 0.1 --dt 1e-4`: the (phi, psi) chart breaks down at t ≈ 0.0568 s;
