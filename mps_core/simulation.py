@@ -585,7 +585,15 @@ class Simulation:
             return dt
         # ω²_max of K v = ω² A v is at most trace(A⁻¹K) (A SPD, K PSD): a bound on the safe side
         # (at most n times too large) that needs no eigensolver
-        w2 = float(np.trace(np.linalg.solve(e.A, K)))
+        A = e.A
+        if A.shape == (1, 1):
+            w2 = float(K[0, 0] / A[0, 0])
+        elif A.shape == (2, 2):
+            det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+            w2 = float((A[1, 1] * K[0, 0] - A[0, 1] * K[1, 0] - A[1, 0] * K[0, 1]
+                        + A[0, 0] * K[1, 1]) / det)
+        else:
+            w2 = float(np.trace(np.linalg.solve(A, K)))
         if w2 <= 0.0:
             return dt
         t_min = 2.0 * math.pi / math.sqrt(w2)

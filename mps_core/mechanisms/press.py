@@ -88,7 +88,8 @@ _FRAMES = {
 
 def _domain(chart: str, arg, what: str):
     v = value_of(arg)
-    if np.any(~(np.asarray(v) > 0.0)):
+    ok = v > 0.0 if isinstance(v, float) else bool((np.asarray(v) > 0.0).all())
+    if not ok:
         raise ChartDomainError(chart, f"{what} has no real solution here")
 
 
