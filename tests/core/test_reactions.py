@@ -256,3 +256,47 @@ def test_the_residual_is_the_equation_of_motion_left_over():
     lhs, rhs = Jb.T @ rx.residual, exact.A @ (e.qdd - exact.qdd)
     assert np.abs(rhs).max() > 1e-4                # central differences: O(delta^2), not zero
     assert np.allclose(lhs, rhs, rtol=1e-7, atol=1e-12)
+
+
+def test_press_cycle_balance_at_round_off_in_every_structure():
+    """held (F_stop), free, locked (M_latch): the moving system's balance holds to round-off,
+    the stop pushes only while held, the latch carries moment only while locked."""
+    from dataclasses import replace
+
+    from mps_core import load_scene, simulate
+
+    traj = simulate(replace(load_scene("press-cycle"), reactions=True), t_end=0.6)
+    s = traj.structure
+    assert {"held", "free", "locked"} <= set(s)
+    assert traj.balance_residual_N.max() < 1e-9 and traj.balance_residual_Nm.max() < 1e-9
+    held, locked = s == "held", s == "locked"
+    assert np.all(traj.F_stop[held] >= -1e-9) and np.all(traj.F_stop[~held] == 0.0)
+    assert np.any(traj.F_stop[held] > 100.0)
+    assert np.all(traj.M_latch[~locked] == 0.0) and np.any(np.abs(traj.M_latch[locked]) > 1.0)
+
+
+def test_stop_force_from_newton_euler_equals_the_constraint_force_of_the_lagrange_equations():
+    """Two formulations of the held slider's top-stop force: Newton–Euler per body (least
+    squares) and the multiplier of x_C = x_top from the unfrozen chart's Lagrange equations."""
+    from mps_core import build, load_scene
+    from mps_core.reactions import compute_reactions
+
+    sim = build(load_scene("idle").with_overrides(t_end=0.02, scheme="autodiff"))
+    pairs = []
+
+    class Both:
+        def observe(self, s, e):
+            if s.structure != "held":
+                return
+            lam = s._stop_force(e.t, e.q, e.qd, e.view)
+            r = compute_reactions(s.mechanism, s.effects, e.view, e.t, e.q, e.qd, e.qdd)
+            pairs.append((r.values["F_stop"], -lam))
+
+        def columns(self):
+            return {}
+
+    sim.observers.append(Both())
+    sim.run(0.02, 1e-4)
+    assert len(pairs) > 50
+    a = np.array(pairs)
+    assert np.allclose(a[:, 0], a[:, 1], rtol=1e-9, atol=1e-6 * np.abs(a).max())
