@@ -80,7 +80,8 @@ def _run(args) -> int:
     if args.reactions:
         from .reactions import ReactionObserver
 
-        sim.observers.append(ReactionObserver())
+        observer = ReactionObserver()
+        sim.observers.append(observer)
     c0 = time.process_time()
     traj = sim.run(scene.t_end, scene.dt)
     cpu = time.process_time() - c0
@@ -120,6 +121,9 @@ def _run(args) -> int:
               f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
               f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
               f"N*m, balance {traj['balance_residual_N'].max():.3g} N")
+        if observer.max_rank_deficiency:
+            print(f"reactions: not unique at some steps (rank short by "
+                  f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
     if args.csv:
         if args.reactions:
             from .reactions import write_csv

@@ -539,12 +539,23 @@ class ReactionObserver:
         self.rows: dict[str, list] = {k: [] for k in REACTION_COLUMNS}
         self.impacts: list[dict] = []
         self.max_rank_deficiency = 0
+        self._deficient_since = None
 
     def observe(self, simulation, evaluation) -> None:
         e = evaluation
         rx = compute_reactions(simulation.mechanism, simulation.engine.effects, e.view, e.t, e.q,
                                e.qd, e.qdd, kin=e.kin, drive=self.drive)
-        self.max_rank_deficiency = max(self.max_rank_deficiency, len(rx.unknowns) - rx.rank)
+        deficiency = len(rx.unknowns) - rx.rank
+        if deficiency > 0 and self._deficient_since is None:
+            # the reactions are not unique here (a singular position): the least-squares values
+            # are one choice among many; say so in the event log, once a stretch
+            self._deficient_since = e.t
+            simulation.events.append({"t": e.t, "kind": "reactions-not-unique",
+                                      "rank_deficiency": deficiency,
+                                      "unknowns": list(rx.unknowns)})
+        elif deficiency == 0:
+            self._deficient_since = None
+        self.max_rank_deficiency = max(self.max_rank_deficiency, deficiency)
         for k, v in rx.values.items():
             self.rows[k].append(v)
 
@@ -554,8 +565,7 @@ class ReactionObserver:
         imp = impulses(simulation.mechanism, view, q, qd_minus, qd_plus, closing=closing, t=t)
         ev = imp.as_event(kind, closing=list(closing), **extra)
         self.impacts.append(ev)
-        if simulation is not None and hasattr(simulation, "events"):
-            simulation.events.append(ev)
+        simulation.events.append(ev)
         return imp
 
     def columns(self) -> dict[str, np.ndarray]:

@@ -374,8 +374,12 @@ def main(argv=None) -> int:
         def spin():
             try:
                 executor.spin()
-            except (ExternalShutdownException, Exception):
+            except ExternalShutdownException:
                 pass
+            except Exception as exc:  # a callback failed: the run must not go on deaf
+                if node.runner.stop_reason is None:
+                    node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
+                    node.runner.request_stop("error")
         thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
         thread.start()
         rec = node.open_recording()

@@ -97,6 +97,12 @@ class Twin:
         self.outputs = check_outputs(outputs)
         self.solve_reactions = "reactions" in self.outputs or "foundation" in self.outputs
         self.sim = build(scene)
+        if self.solve_reactions and not any(hasattr(o, "impact") for o in self.sim.observers):
+            # impulses per joint at each plastic impact, logged as "impulse" events (only the
+            # impact hook is used: the twin solves the per-step reactions itself)
+            from mps_core.reactions import ReactionObserver
+
+            self.sim.observers.append(ReactionObserver())
         self.t0 = self.sim.t
         self.t_end = scene.t_end
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))

@@ -79,3 +79,21 @@ def test_core_imports_no_mcap_rerun_or_ros():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]"
+
+
+def test_recording_holds_the_impulses_of_the_live_run(recordings, tmp_path, capsys):
+    """press-cycle has plastic impacts (latch, stop): the recording carries their impulses and
+    its report lists the same transients as the live run of the same scene and step."""
+    from mps_ros.recording import record
+
+    path, _, _ = record("press-cycle", recordings / "press-cycle-impulses.mcap", dt=1e-3,
+                        t_end=0.6)
+    rec, _ = _report([str(path)], tmp_path, "rec", capsys)
+    live, _ = _report(["press-cycle", "--t-end", "0.6", "--dt", "1e-3"], tmp_path, "live", capsys)
+    assert len(live["transients"]) >= 2
+    assert len(rec["transients"]) == len(live["transients"])
+    for a, b in zip(rec["transients"], live["transients"]):
+        assert a["t"] == pytest.approx(b["t"], abs=1e-12)
+        assert a["energy_loss_J"] == pytest.approx(b["energy_loss_J"], rel=1e-9)
+        for k in ("F_O_x", "F_found_x", "M_found_O"):
+            assert a["impulses_Ns"][k] == pytest.approx(b["impulses_Ns"][k], rel=1e-9, abs=1e-9)
