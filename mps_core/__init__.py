@@ -30,7 +30,7 @@ def build(scene: Scene | str) -> Simulation:
         observers.append(ReactionObserver())
     return Simulation(mech, scene.structure, scene.build_effects(mech), scene.initial_state(mech),
                       solver=scene.solver, charts=scene.charts, commands=scene.commands,
-                      observers=observers)
+                      observers=observers, change_point=scene.change_point)
 
 
 def simulate(scene: Scene | str, **overrides) -> Trajectory:

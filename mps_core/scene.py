@@ -59,6 +59,8 @@ class Scene:
     commands: tuple = ()
     #: outputs the scene asks for (only those are computed): reactions and foundation load
     reactions: bool = False
+    #: at the held four-bar's change point: "continue" (smooth) or "keep-side" (plastic impact)
+    change_point: str = "continue"
     text: str = ""
     origin: str = ""
 
@@ -471,6 +473,8 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     structure = stt.get("initial", "free")
     _choice("structure.initial", structure, STRUCTURES)
     psi_lock = math.radians(_num("structure.psi_lock_deg", stt.get("psi_lock_deg", 0.0)))
+    change_point = stt.get("change_point", "continue")
+    _choice("structure.change_point", change_point, ("continue", "keep-side"))
     stt.done()
 
     it = _Table(top.get("initial", {}), "initial", _UNIT_HINTS["initial"])
@@ -561,7 +565,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
                   effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff),
                   t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
-                  reactions, text, origin)
+                  reactions, change_point, text, origin)
+    if change_point == "keep-side" and scheme != "central":
+        raise SceneError("structure.change_point", change_point,
+                         "'continue' with solver.derivatives = 'autodiff' (keep-side restarts "
+                         "exactly at the change point: it needs central differences)")
     for i, (ts, name) in enumerate(commands):
         if ts > t_end:
             raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {t_end:g}")

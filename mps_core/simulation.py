@@ -17,6 +17,10 @@ interpolated state at the root, and the event's action applied. Each event is lo
 velocities before and after, kinetic energy lost, impulse). **Commands** (``engage``,
 ``disengage``, ``stop``, ``start``) are applied at their exact time by cutting the step there.
 
+**Change point** (held four-bar at x_top = l1 + l2 − l3): by default the smooth continuation
+(the continuation chart passes it, each passage logged); ``change_point="keep-side"`` keeps the
+rocker on its side with a plastic impact onto that branch.
+
 **Charts** (see :mod:`mps_core.mechanism`): after every step the current chart's regularity is
 read; below ``switch_below`` the driver moves to the most regular chart of the structure that
 owns the configuration, mapping q and q̇ exactly through jets. A step that leaves its chart's
@@ -113,8 +117,20 @@ class Simulation:
 
     def __init__(self, mechanism, structure: str, effects, initial, *,
                  solver: SolverSettings = SolverSettings(), charts: ChartPolicy = ChartPolicy(),
-                 t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None):
+                 t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None,
+                 change_point: str = "continue"):
+        if change_point not in ("continue", "keep-side"):
+            raise ValueError(f"change_point = {change_point!r}: expected 'continue' or 'keep-side'")
+        if change_point == "keep-side" and solver.scheme != "central":
+            # the run restarts exactly at the change point, where √h² has no derivative: jets
+            # are undefined there, central stencils straddle it on the smooth chart
+            raise ValueError("change_point = 'keep-side' needs central differences "
+                             "(solver.derivatives = 'central')")
         self.mechanism = mechanism
+        #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
+        #: or the rocker kept on its side with a plastic impact
+        self.change_point = change_point
+        self._exact_engine = None
         self.settings = solver
         self.policy = charts
         self.effects = list(effects)
@@ -416,6 +432,10 @@ class Simulation:
             if a == 0.0:
                 root = t_a
             else:
+                ga = g(t_a)
+                if ga * b > 0.0:
+                    # the recorded sign was set at an event's root: no bracket in this step
+                    continue
                 root = brentq(g, t_a, s.t, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
             if first is None or root < first[0]:
                 first = (root, e, b)
@@ -484,12 +504,57 @@ class Simulation:
                                                                          "x_C_dot")},
                             "energy_lost": 0.0, "impulse": 0.0})
 
-    def _record_change_point(self, t):
+    def _record_change_point(self, t, q=None, qd=None):
+        """Log a passage through the change point (at the step's cut, or at (q, q̇) when the
+        step stands); with ``keep-side`` apply that choice's impact."""
         e = self.solver.current
-        rates = self._physical_rates(self.view, e.q, e.qd)
-        self.events.append({"t": t, "kind": "change-point", "choice": "smooth continuation",
-                            "phi": rates["phi"], "psi": rates["psi"],
-                            "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")}})
+        q = e.q if q is None else q
+        qd = e.qd if qd is None else qd
+        rates = self._physical_rates(self.view, q, qd)
+        rec = {"t": t, "kind": "change-point", "choice": "smooth continuation",
+               "phi": rates["phi"], "psi": rates["psi"],
+               "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")}, "energy_lost": 0.0}
+        if self.change_point == "keep-side":
+            rec.update(self._keep_side(t))
+        self.events.append(rec)
+
+    def _branch_analogs(self, view, phi: float, eps: float = 1e-4):
+        """Analogs (centres of mass, body rates) of a continuation chart at the change point φ*,
+        as the mean of those at φ* ± ε (the chart is smooth there; error O(ε²))."""
+        ks = [self._exact_engine.kinematics(view, self.solver.t, [phi + s * eps], [0.0])
+              for s in (1.0, -1.0)]
+        rows = [ks[0].names[f"G_{b.name}"] for b in self.mechanism.bodies]
+        JG = 0.5 * sum(k.J[rows, :, 0] for k in ks)          # (bodies, 2)
+        W = 0.5 * sum(k.W[:, 0] for k in ks)                 # (bodies,)
+        return JG, W
+
+    def _keep_side(self, t) -> dict:
+        """The rocker kept on its side at the change point: the motion leaves on the other
+        branch (the other continuation chart) after a perfectly plastic impact. The admissible
+        directions are forward along that branch or back along the incoming one; the velocity
+        after is the projection (in the mass metric) onto them: φ̇⁺ = max(0, J_oᵀMJ_s / J_oᵀMJ_o)·φ̇⁻.
+        Where the new branch turns back more than a right angle (J_oᵀMJ_s < 0) the mechanism
+        stops dead at the change point, and the forces take it on from rest."""
+        if self._exact_engine is None:
+            self._exact_engine = PartialSystems(self.mechanism, (), "autodiff")
+        e = self.solver.current
+        phi = float(e.q[0])
+        other = next(v for v in self.views(self.structure)
+                     if v.chart.name.startswith("phi-xc~") and v.chart is not self.view.chart)
+        m = np.array([b.mass for b in self.mechanism.bodies])
+        inertia = np.array([b.inertia for b in self.mechanism.bodies])
+        Js, Ws = self._branch_analogs(self.view, phi)
+        Jo, Wo = self._branch_analogs(other, phi)
+        A_s = float(np.sum(m * np.sum(Js * Js, axis=1)) + inertia @ (Ws * Ws))
+        A_o = float(np.sum(m * np.sum(Jo * Jo, axis=1)) + inertia @ (Wo * Wo))
+        C = float(np.sum(m * np.sum(Jo * Js, axis=1)) + inertia @ (Wo * Ws))
+        w_minus = float(e.qd[0])
+        w_plus = max(0.0, C / A_o) * w_minus
+        lost = 0.5 * A_s * w_minus ** 2 - 0.5 * A_o * w_plus ** 2
+        self.impact_loss += lost
+        self._restart(other, t, np.array([phi]), np.array([w_plus]))
+        return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost,
+                "to_chart": other.name}
 
     def _stop_force(self, t, q, qd, view=None) -> float:
         """λ: the force along x the top stop must give the slider to keep it at x_top (< 0:
@@ -685,13 +750,19 @@ class Simulation:
                 continue
             failures = 0
             hit, vals = self._locate_event()
+            if hit is not None and hit[1].name == "change-point" and \
+                    self.change_point != "keep-side":
+                # the continuation chart is smooth through the change point: the step stands,
+                # the passage is logged at its root
+                q_e, qd_e = self.solver.dense_output()(hit[0])
+                self._record_change_point(hit[0], np.array(q_e, float), np.array(qd_e, float))
+                hit = None
             if hit is not None:
                 t_e, ev, after_value = hit
                 self._cut_at(t_e)
                 self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
                 ev.action(t_e)
                 if ev.name == "change-point":
-                    self._restart(self.view, t_e, self.solver.q, self.solver.qd)
                     self._ev_prev[ev.name] = after_value
                 self._update_phys(self.solver.current)
                 continue

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from mps_core import build, load_scene, scene_from_text, simulate
+from mps_core import SceneError, build, load_scene, scene_from_text, simulate
 from mps_core.effects import Controls, Gravity, Latch
 from mps_core.mechanisms import PressMechanism
 from mps_core.simulation import (CommandRefused, Simulation, SolverSettings, StabilityError)
@@ -340,3 +340,22 @@ viscous_n_s_m = 50.0
     # friction never does positive work, and it takes energy: the crank runs behind
     assert max(powers) <= 0.0 and min(powers) < -1.0
     assert with_friction.phi[-1] < without.phi[-1]
+
+
+def test_change_point_with_the_rocker_kept_on_its_side():
+    """The other documented choice: a plastic impact onto the branch that keeps the rocker at
+    ψ ≤ 0. Here that branch turns back more than a right angle (in the mass metric), so the
+    mechanism stops dead at each passage and the motor takes it on: logged, energy lost, the
+    balance closed, nothing NaN."""
+    text = CHANGE.replace('initial = "held"', 'initial = "held"\nchange_point = "keep-side"')
+    traj = held_idle(text, 6, dt=2e-4)
+    cps = [e for e in traj.events if e["kind"] == "change-point"]
+    assert len(cps) >= 2 and all(e["choice"] == "keep side" for e in cps)
+    assert np.degrees(traj.psi).max() < 1e-6
+    for e in cps:
+        assert e["energy_lost"] > 0.0 and e["phi_dot_after"] >= 0.0
+    assert traj.E_impact[-1] == pytest.approx(sum(e["energy_lost"] for e in cps), rel=1e-12)
+    assert np.abs(energy_residual(traj)).max() < 0.1
+    assert np.all(np.isfinite(traj.phi_ddot))
+    with pytest.raises(SceneError, match="central differences"):
+        scene_from_text(text.replace('derivatives = "central"', 'derivatives = "autodiff"'))
