@@ -15,7 +15,7 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,bench,ros,view]'
+	$(PY) -m pip install -q -e '.[test,bench,ros,view,batch]'
 	touch $(STAMP)
 
 run: $(STAMP)

@@ -44,6 +44,13 @@ def register(subparsers) -> None:
     s.add_argument("--out", metavar="DIR", help="also write speed.csv there")
     s.set_defaults(func=_speed)
 
+    b = sub.add_parser("batch", help="batch mode: mechanism-steps per second against the "
+                                     "number of scenes stepped together")
+    b.add_argument("--sizes", default="1,10,100,1000", help="numbers of scenes (default: "
+                                                              "1,10,100,1000)")
+    b.add_argument("--steps", type=int, default=200, help="steps of each run (default 200)")
+    b.set_defaults(func=_batch)
+
 
 def _accuracy(args) -> int:
     from . import accuracy
@@ -74,4 +81,18 @@ def _speed(args) -> int:
         for r in rows:
             cols += [k for k in r if k not in cols]
         print(f"\nwrote {write_csv(rows, Path(args.out) / 'speed.csv', tuple(cols))}")
+    return 0
+
+
+def _batch(args) -> int:
+    from ..batch import throughput
+
+    sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
+    print("batch mode: working (locked), slider mass swept, linear acceleration, central "
+          "differences, dt = 1e-4 s; CPU of the stepping (scenes built beforehand)")
+    print(f"{'scenes':>7} {'mechanism-steps/s':>18} {'CPU s':>8}")
+    for row in throughput(sizes, steps=args.steps):
+        label = "1 alone" if row["scenes"] == 0 else str(row["scenes"])
+        print(f"{label:>7} {row['steps_per_s']:>18,.0f} {row['cpu_s']:>8.3f}")
+    print("(1 alone: simulate, the one-scene path)")
     return 0
