@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -66,25 +65,11 @@ class NodeProcess:
 
 
 def stop_group(proc, grace: float = 5.0) -> None:
-    if proc is None:
-        return
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        try:
-            proc.wait(grace)
-        except subprocess.TimeoutExpired:
-            pass
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    try:
-        proc.wait(grace)
-    except subprocess.TimeoutExpired:
-        pass
+    """End a test's process group (None: nothing started)."""
+    if proc is not None:
+        from mps_ros.demo import stop_group as _stop_group
+
+        _stop_group(proc, grace)
 
 
 def ns(stamp) -> int:
