@@ -22,9 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import build
 from ..engine import PartialSystems
-from .common import (DT_LADDER, Case, Reference, Setting, available_cases, reference_for,
+from .common import (DT_LADDER, evaluations_along, Case, Reference, Setting, available_cases, reference_for,
                      resolve_case, run_setting)
 
 FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "dop853", "radau", "peer")
@@ -153,17 +152,7 @@ def delta_study(case: Case, ref: Reference | None, deltas=DELTA_STUDY_DEG,
     Per run (``trajectory``): RK4 at ``dt`` with central differences against the reference."""
     scene = case.scene.with_overrides(t_end=min(case.t_end, 0.1), dt=DT_LADDER[3],
                                       solver="rk4", scheme="autodiff")
-    sim = build(scene)
-    states = []
-    original = sim.engine.evaluate
-
-    def spy(view, t, q, qd):
-        e = original(view, t, q, qd)
-        states.append(e)
-        return e
-
-    sim.engine.evaluate = spy
-    sim.run(scene.t_end, scene.dt)
+    sim, states = evaluations_along(scene, scene.t_end)
     states = states[::4]
     rows = []
     sub = Case(case.name, case.scene, min(case.t_end, 0.1))

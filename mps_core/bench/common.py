@@ -142,6 +142,23 @@ class OverBudget(RuntimeError):
     """A run that needed more right-hand sides than the benchmark allows it."""
 
 
+def evaluations_along(scene: Scene, t_end: float):
+    """(simulation, [every evaluation of the engine]) along a run of ``scene`` to ``t_end``:
+    the states a study re-evaluates with other derivative schemes."""
+    sim = build(scene)
+    seen = []
+    original = sim.engine.evaluate
+
+    def spy(view, t, q, qd):
+        e = original(view, t, q, qd)
+        seen.append(e)
+        return e
+
+    sim.engine.evaluate = spy
+    sim.run(t_end, scene.dt)
+    return sim, seen
+
+
 def _cap(engine, limit: int):
     evaluate = engine.evaluate
 

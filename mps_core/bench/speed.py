@@ -23,7 +23,7 @@ import numpy as np
 from .. import build
 from ..engine import PartialSystems
 from ..solvers import make_solver
-from .common import (Case, Setting, available_cases, cpu_median, reference_for, resolve_case,
+from .common import (Case, evaluations_along, Setting, available_cases, cpu_median, reference_for, resolve_case,
                      run_setting, scene_for, with_effects)
 
 DT = 1e-3                          # 1 kHz
@@ -145,17 +145,7 @@ def evaluation_costs(case: Case, number: int = 2000):
 
 def _states(case: Case, scene, every: int = 5, limit: int = 200):
     """(engine, [evaluations]) along a run of the scene: every ``every``-th right-hand side."""
-    sim = build(scene)
-    seen = []
-    original = sim.engine.evaluate
-
-    def spy(view, t, q, qd):
-        e = original(view, t, q, qd)
-        seen.append(e)
-        return e
-
-    sim.engine.evaluate = spy
-    sim.run(min(case.t_end, 0.1), scene.dt)
+    sim, seen = evaluations_along(scene, min(case.t_end, 0.1))
     return sim, seen[::every][:limit]
 
 
