@@ -782,8 +782,7 @@ class Simulation:
         self._record(rows, self.solver.current)
         for k in range(1, n + 1):
             tk = t_end if k == n else t0 + k * (t_end - t0) / n
-            self.advance_to(tk)
-            self._update_phys(self.solver.current)
+            self.advance_to(tk)                 # keeps the unwrap references current
             self._record(rows, self.solver.current)
         return self._trajectory(rows)
 
