@@ -43,13 +43,13 @@ numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
+from .kernels import as_matrix, central_kernel, solve_small
 from .mechanism import ChartView, Mechanism
 
 SCHEMES = ("central", "autodiff")
@@ -87,23 +87,127 @@ def stencil(n: int):
 class Kinematics:
     """Positions, velocity analogs and velocities at one configuration, by name.
 
-    Points are the mechanism's points and the centres of mass ``G_<body>``. ``pose`` (the
-    positions as ``{point: (x, y)}``) is built on first use and kept.
+    Points are the mechanism's points and the centres of mass ``G_<body>``. Two views of the same
+    numbers, each built from the other on first use:
+
+    * arrays, for vector code: ``X`` (NP, 2) positions, ``J`` (NP, 2, n) velocity analogs, ``W``
+      (nbody, n) angular analogs (zero rows: translating bodies);
+    * floats, for the effects' scalar code (numpy's per-call cost would exceed the arithmetic):
+      :meth:`xy`, :meth:`jac`, :meth:`vxy`, :meth:`omega`, :meth:`rate`.
+
+    ``pose`` (the positions as ``{point: (x, y)}``) is built on first use and kept.
     """
 
-    __slots__ = ("t", "q", "qd", "names", "X", "J", "W", "bodies", "_pose")
+    __slots__ = ("t", "q", "qd", "names", "bodies", "n", "_X", "_J", "_W", "_xl", "_jl", "_wl",
+                 "_vl", "_pose", "_side")
 
-    def __init__(self, t, q, qd, names, X, J, W, bodies):
+    def __init__(self, t, q, qd, names, X=None, J=None, W=None, bodies=None, *, lists=None,
+                 side=None):
         self.t = t
+        self._side = side           # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
         self.q = q
         self.qd = qd
         self.names = names          # {point name: row}
-        self.X = X                  # (NP, 2) positions
-        self.J = J                  # (NP, 2, n) velocity analogs
-        self.W = W                  # (nbody, n) angular analogs (zero rows: translating bodies)
         self.bodies = bodies        # {body name: row}
+        self._X, self._J, self._W = X, J, W
         self._pose = None
+        self._vl = None
+        if lists is not None:
+            # xl: 2·NP floats (x, y by row); jl: per row, x then y, n floats each; wl: per body
+            self._xl, self._jl, self._wl = lists
+            self.n = len(self._wl) // len(bodies)
+        else:
+            self._xl = self._jl = self._wl = None
+            self.n = J.shape[-1]
 
+    # -- arrays ---------------------------------------------------------------------------
+    @property
+    def X(self) -> np.ndarray:
+        if self._X is None:
+            self._X = np.array(self._xl).reshape(-1, 2)
+        return self._X
+
+    @property
+    def J(self) -> np.ndarray:
+        if self._J is None:
+            self._J = np.array(self._jl).reshape(-1, 2, self.n)
+        return self._J
+
+    @property
+    def W(self) -> np.ndarray:
+        if self._W is None:
+            self._W = np.array(self._wl).reshape(-1, self.n)
+        return self._W
+
+    # -- floats ---------------------------------------------------------------------------
+    def _lists(self):
+        if self._xl is None:
+            self._xl = self._X.reshape(-1).tolist()
+            self._jl = self._J.reshape(-1).tolist()
+            self._wl = self._W.reshape(-1).tolist()
+        return self._xl, self._jl, self._wl
+
+    def _v(self):
+        v = self._vl
+        if v is None:
+            v = self._vl = [float(x) for x in self.qd]
+        return v
+
+    def xy(self, point: str) -> tuple[float, float]:
+        """Position (x, y) of a point, floats."""
+        xl = self._xl if self._xl is not None else self._lists()[0]
+        r = 2 * self.names[point]
+        return xl[r], xl[r + 1]
+
+    def jac(self, point: str) -> tuple[list, list]:
+        """Velocity analogs of a point: (∂x/∂q, ∂y/∂q), n floats each."""
+        jl = self._jl if self._jl is not None else self._lists()[1]
+        n = self.n
+        r = 2 * n * self.names[point]
+        return jl[r:r + n], jl[r + n:r + 2 * n]
+
+    def vxy(self, point: str) -> tuple[float, float]:
+        """Velocity (ẋ, ẏ) of a point, floats."""
+        jx, jy = self.jac(point)
+        v = self._v()
+        if self.n == 1:
+            return jx[0] * v[0], jy[0] * v[0]
+        return sum(a * b for a, b in zip(jx, v)), sum(a * b for a, b in zip(jy, v))
+
+    def omega(self, body: str) -> list:
+        """Angular analog ∂θ/∂q of a body, n floats (zeros for a translating body)."""
+        wl = self._wl if self._wl is not None else self._lists()[2]
+        n = self.n
+        r = n * self.bodies[body]
+        return wl[r:r + n]
+
+    def rate(self, body: str) -> float:
+        """Angular velocity of a body, float."""
+        w = self.omega(body)
+        v = self._v()
+        if self.n == 1:
+            return w[0] * v[0]
+        return sum(a * b for a, b in zip(w, v))
+
+    def angular_convective(self, body: str) -> float | None:
+        """θ̈ of a body at q̈ = 0, Σ_jk ∂²θ/∂q_j∂q_k q̇_j q̇_k, by central differences of its
+        angular analogs (the scheme's own); None where this state has no such data."""
+        if self._side is None:
+            return None
+        wb, inv2d = self._side
+        n = self.n
+        r = n * self.bodies[body]
+        v = self._v()
+        out = 0.0
+        for k in range(n):
+            wp, wm = wb[2 * k], wb[2 * k + 1]
+            s = 0.0
+            for i in range(n):
+                s += (wp[r + i] - wm[r + i]) * v[i]
+            out += s * inv2d[k] * v[k]
+        return out
+
+    # -- arrays by name (vector code) -------------------------------------------------------
     def position(self, point: str) -> np.ndarray:
         return self.X[self.names[point]]
 
@@ -116,41 +220,67 @@ class Kinematics:
     def angular_analog(self, body: str) -> np.ndarray:
         return self.W[self.bodies[body]]
 
-    def rate(self, body: str) -> float:
-        return float(self.W[self.bodies[body]] @ self.qd)
-
     @property
     def pose(self) -> dict:
         p = self._pose
         if p is None:
-            xy = self.X.tolist()
-            p = self._pose = {k: (xy[i][0], xy[i][1]) for k, i in self.names.items()}
+            xl = self._xl if self._xl is not None else self._lists()[0]
+            p = self._pose = {k: (xl[2 * i], xl[2 * i + 1]) for k, i in self.names.items()}
         return p
 
 
-@dataclass
 class Evaluation:
-    """One evaluation of the equations of motion at (t, q, q̇) in a chart view."""
+    """One evaluation of the equations of motion at (t, q, q̇) in a chart view.
 
-    view: ChartView
-    t: float
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    A: np.ndarray
-    h: np.ndarray
-    Q: np.ndarray
-    kin: Kinematics
+    ``A``, ``h`` and ``Q`` are arrays; an evaluation from a scalar kernel keeps them as floats
+    and makes the arrays on first use."""
+
+    __slots__ = ("view", "t", "q", "qd", "qdd", "kin", "_A", "_h", "_Q", "Q_nc")
+
+    def __init__(self, view: ChartView, t: float, q, qd, qdd, A, h, Q, kin: Kinematics,
+                 Q_nc=None):
+        self.view, self.t, self.q, self.qd, self.qdd, self.kin = view, t, q, qd, qdd, kin
+        self._A, self._h, self._Q = A, h, Q
+        #: the non-conservative effects' share of Q (n floats; None where not kept): their
+        #: power is Q_nc·q̇
+        self.Q_nc = Q_nc
+
+    @property
+    def A(self) -> np.ndarray:
+        A = self._A
+        if not isinstance(A, np.ndarray):
+            A = self._A = as_matrix(A, self.view.n)
+        return A
+
+    @property
+    def h(self) -> np.ndarray:
+        if not isinstance(self._h, np.ndarray):
+            self._h = np.array(self._h, dtype=float)
+        return self._h
+
+    @property
+    def Q(self) -> np.ndarray:
+        if not isinstance(self._Q, np.ndarray):
+            self._Q = np.array(self._Q, dtype=float)
+        return self._Q
 
     @property
     def kinetic_energy(self) -> float:
-        return 0.5 * float(self.qd @ self.A @ self.qd)
+        A, v = self._A, self.qd
+        if isinstance(A, np.ndarray):
+            return 0.5 * float(v @ A @ v)
+        if self.view.n == 1:
+            v0 = float(v[0])
+            return 0.5 * A * v0 * v0
+        a00, a01, a11 = A
+        v0, v1 = float(v[0]), float(v[1])
+        return 0.5 * (a00 * v0 * v0 + 2.0 * a01 * v0 * v1 + a11 * v1 * v1)
 
 
 class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
-    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale")
+    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel")
 
     def __init__(self, view: ChartView, delta: float):
         n = view.n
@@ -173,6 +303,24 @@ class _Plan:
         K[:, -1] = 1.0
         self.K = K
         self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
+        self.kernel = None
+
+
+def virtual_work(ld, kin) -> list | None:
+    """Σ F·v*_P + Σ M·ω*_b of an effect's loads, n floats (None for no loads)."""
+    if not ld.forces and not ld.torques:
+        return None
+    n = kin.n
+    Q = [0.0] * n
+    for _body, point, fx, fy in ld.forces:
+        jx, jy = kin.jac(point)
+        for i in range(n):
+            Q[i] += fx * jx[i] + fy * jy[i]
+    for body, m in ld.torques:
+        w = kin.omega(body)
+        for i in range(n):
+            Q[i] += m * w[i]
+    return Q
 
 
 def _owner(cls, name):
@@ -201,7 +349,7 @@ class PartialSystems:
     """
 
     def __init__(self, mechanism: Mechanism, effects=(), scheme: str = "central",
-                 delta: float = math.radians(0.1)):
+                 delta: float = math.radians(0.1), kernels: bool = True):
         if scheme not in SCHEMES:
             raise ValueError(f"derivative scheme {scheme!r}: expected one of {', '.join(SCHEMES)}")
         if not (delta > 0.0 and math.isfinite(delta)):
@@ -213,6 +361,9 @@ class PartialSystems:
         self._effect_paths = [(_fast_path(e), e) for e in self.effects]
         self.scheme = scheme
         self.delta = float(delta)
+        #: central differences on charts with ``flat`` positions and n <= 2 run as scalar
+        #: kernels (:mod:`mps_core.kernels`); False keeps the array code everywhere
+        self.kernels = bool(kernels)
         self.counts = {"evaluations": 0, "position_calls": 0, "position_points": 0}
         bodies = mechanism.bodies
         self._point_names = list(mechanism.points)
@@ -294,6 +445,8 @@ class PartialSystems:
             if len(self._plans) > 256:
                 self._plans.clear()
             plan = self._plans[view] = _Plan(view, self.delta)
+            if self.scheme == "central" and self.kernels:
+                plan.kernel = central_kernel(self, view, plan)
         return plan
 
     # -- public ---------------------------------------------------------------------------
@@ -305,30 +458,35 @@ class PartialSystems:
         return e
 
     def generalized_forces(self, t: float, kin: Kinematics) -> np.ndarray:
-        """Q = Σ over the effects of the virtual work of their loads. An effect may give its
-        generalized force directly (``generalized_force(t, kin)``, the same number in fewer
-        operations, as gravity and the motor do); it is used where the effect's class defines it
-        together with its ``loads``."""
+        """Q = Σ over the effects of the virtual work of their loads (an array)."""
+        return np.array(self.force_list(t, kin), dtype=float)
+
+    def force_list(self, t: float, kin: Kinematics) -> list:
+        """Q as n floats. An effect may give its generalized force directly
+        (``generalized_force(t, kin)``, the same number in fewer operations); it is used where
+        the effect's class defines it together with its ``loads``."""
+        return self._forces(t, kin)[0]
+
+    def _forces(self, t: float, kin: Kinematics) -> tuple[list, list]:
+        """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share."""
         if len(self._effect_paths) != len(self.effects):
             self._effect_paths = [(_fast_path(e), e) for e in self.effects]
-        Q = None
+        n = kin.n
+        Q = [0.0] * n
+        Qc = [0.0] * n
         for fast, e in self._effect_paths:
-            if fast is not None:
-                Qe = fast(t, kin)
-            else:
-                Qe = self._virtual_work(e.loads(t, kin), kin)
-            Q = Qe if Q is None else Q + Qe
-        return np.zeros(kin.J.shape[-1]) if Q is None else Q
-
-    @staticmethod
-    def _virtual_work(ld, kin) -> np.ndarray:
-        Q = np.zeros(kin.J.shape[-1])
-        for _body, point, fx, fy in ld.forces:
-            J = kin.J[kin.names[point]]
-            Q += fx * J[0] + fy * J[1]
-        for body, m in ld.torques:
-            Q += m * kin.W[kin.bodies[body]]
-        return Q
+            Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
+            if Qe is not None:
+                if e.conservative:
+                    for i in range(n):
+                        Qc[i] += Qe[i]
+                else:
+                    for i in range(n):
+                        Q[i] += Qe[i]
+        Qnc = list(Q)
+        for i in range(n):
+            Q[i] += Qc[i]
+        return Q, Qnc
 
     def potential_energy(self, kin: Kinematics) -> float:
         return float(sum(e.potential(kin) for e in self.effects if e.conservative))
@@ -382,6 +540,9 @@ class PartialSystems:
         return kin, Zt, Wr, plan
 
     def _central_evaluate(self, view, t, q, qd):
+        plan = self._plans.get(view) or self._plan(view)
+        if plan.kernel is not None:
+            return self._kernel_evaluate(view, t, q, qd, plan)
         kin, Zt, Wr, plan = self._central(view, t, q, qd)
         n, B = plan.n, plan.B
         Ut = Zt[B:B + B * n, 2 * self._npts:2 * self._np].reshape(B, n, -1)   # v*_G: (B, n, ·)
@@ -395,6 +556,33 @@ class PartialSystems:
         dA = (Ab[1::2] - Ab[2::2]) * (1.0 / (2.0 * plan.d))[:, None, None]   # dA[k, i, j]
         h = (np.tensordot(qd, dA, 1) @ qd) - 0.5 * ((dA @ qd) @ qd)
         return self._finish(view, t, q, qd, A, h, Q, kin)
+
+    def _kernel_evaluate(self, view, t, q, qd, plan):
+        """The same evaluation on floats, by the view's scalar kernel."""
+        counts = self.counts
+        counts["position_calls"] += 1
+        counts["position_points"] += plan.S
+        try:
+            xl, jl, wl, Ab, wb = plan.kernel(*q.tolist())
+        except (ValueError, ZeroDivisionError, OverflowError):
+            raise ChartDomainError(view.name, "a stencil point has no real configuration") \
+                from None
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
+                         side=(wb, plan.inv2d))
+        Q, Qnc = self._forces(t, kin)
+        c = plan.inv2d
+        if plan.n == 1:
+            A = Ab[0]
+            dA = (Ab[1] - Ab[2]) * c[0]
+        else:
+            A = Ab[0]
+            dA = [tuple([(p - m) * ck for p, m in zip(Ab[1 + 2 * k], Ab[2 + 2 * k])])
+                  for k, ck in enumerate(c)]
+        qdd, h = solve_small(A, dA, kin._v(), Q)
+        for x in qdd:
+            if not math.isfinite(x):
+                self._no_solution(view, t, q, as_matrix(A, plan.n))
+        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
 
     def _solve_small(self, view, t, q, qd, Ab, Q, kin, plan):
         """n = 1 or 2: velocity terms by central differences of A, and the solve, on floats."""

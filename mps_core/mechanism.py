@@ -88,7 +88,7 @@ class Observable:
     def value(self, pose) -> float:
         if self.kind == "angle":
             (px, py), (qx, qy) = pose[self.points[0]], pose[self.points[1]]
-            return float(np.arctan2(qy - py, qx - px))
+            return math.atan2(float(qy) - float(py), float(qx) - float(px))
         x, y = pose[self.points[0]]
         return float(x if self.kind == "x" else y)
 
@@ -124,6 +124,10 @@ class Chart:
     scales: tuple[float, ...]
     #: structures that may use this chart (None: every structure whose frozen coordinates it has)
     only_in: tuple[str, ...] | None = None
+    #: optional: the same positions on floats, one argument per coordinate, returned flat
+    #: ``(x, y)`` per point in the mechanism's ``points`` order; the engine's scalar kernels
+    #: use it (math's functions on one number cost a fraction of numpy's)
+    flat: Callable[..., tuple] | None = None
 
     @property
     def size(self) -> int:
@@ -177,6 +181,7 @@ class ChartView:
         fz = "".join(f",{k}={v:g}" for k, v in frozen.items())
         self.name = chart.name + (f"[{fz[1:]}]" if fz else "")
         self._identity = all(i == k for k, i in enumerate(self.free)) and not frozen
+        self._index = {c.name: k for k, c in enumerate(self.coordinates)}
 
     def full(self, q: Sequence) -> list:
         if self._identity:
@@ -196,10 +201,7 @@ class ChartView:
         return bool(self.chart.owns(pose))
 
     def coordinate_index(self, name: str) -> int | None:
-        for k, c in enumerate(self.coordinates):
-            if c.name == name:
-                return k
-        return None
+        return self._index.get(name)
 
     # -- exact state transfer -------------------------------------------------------------
     def pose_jets(self, q, qd) -> dict:

@@ -162,6 +162,10 @@ class Simulation:
         self.work = 0.0
         self.impact_loss = 0.0
         self._report = getattr(mechanism, "report", {"phi": 2, "psi": 2, "x_C": 0})
+        #: the body whose angle an angle observable is (its rates come from the body's analogs)
+        self._angle_body = {
+            o.name: b.name for o in mechanism.observables.values() if o.is_angle
+            for b in mechanism.bodies if (b.origin, b.toward) == tuple(o.points)}
         self.phys: dict[str, float] = {}
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
@@ -230,6 +234,18 @@ class Simulation:
                 out[name] = (float(view.frozen[name]), 0.0, 0.0)
             elif order == 0:
                 out[name] = (obs.value(e.kin.pose), math.nan, math.nan)
+            elif (body := self._angle_body.get(name)) is not None and \
+                    (conv := e.kin.angular_convective(body)) is not None:
+                # the body's angle: rate ω*·q̇, acceleration ω*·q̈ + Σ ∂ω*/∂q q̇ q̇ by the
+                # evaluation's own central differences (the scheme's accuracy, no jets)
+                v = obs.value(e.kin.pose)
+                if name in self.phys:
+                    v = unwrap_to(v, self.phys[name])
+                w = e.kin.omega(body)
+                acc = conv
+                for wi, ai in zip(w, e.qdd.tolist()):
+                    acc += wi * ai
+                out[name] = (v, e.kin.rate(body), acc)
             else:
                 if jets is None:
                     jets = view.pose_jets(e.q, e.qd)
@@ -344,15 +360,19 @@ class Simulation:
         return q2, qd2
 
     # -- events ---------------------------------------------------------------------------
-    def _observable(self, name, view, q) -> float:
+    def _observable(self, name, view, q, kin=None) -> float:
+        """An observable's value at q in a view (``kin``: that state's kinematics, if known)."""
         k = view.coordinate_index(name)
         if k is not None:
             return float(q[k])
         if name in view.frozen:
             return float(view.frozen[name])
-        pose = view.positions(list(q))
-        v = self.mechanism.observables[name].value(
-            {p: (float(x), float(y)) for p, (x, y) in pose.items()})
+        if kin is not None:
+            pose = kin.pose
+        else:
+            pose = view.positions(list(q))
+            pose = {p: (float(x), float(y)) for p, (x, y) in pose.items()}
+        v = self.mechanism.observables[name].value(pose)
         if self.mechanism.observables[name].is_angle and name in self.phys:
             v = unwrap_to(v, self.phys[name])
         return v
@@ -364,24 +384,28 @@ class Simulation:
             if self.latch is not None and self.controls.latch_armed:
                 lock = self.latch.psi_lock
                 ev.append(_Event("latch-closes",
-                                 lambda t, v, q, qd: self._observable("psi", v, q) - lock, 0,
+                                 lambda t, v, q, qd, kin=None:
+                                 self._observable("psi", v, q, kin) - lock, 0,
                                  self._close_latch))
             if self.stop is not None:
                 top = self.stop.x_top
                 ev.append(_Event("stop-contact",
-                                 lambda t, v, q, qd: self._observable("x_C", v, q) - top, +1,
+                                 lambda t, v, q, qd, kin=None:
+                                 self._observable("x_C", v, q, kin) - top, +1,
                                  self._hit_stop))
         elif s == "held" and self.stop is not None and self.stop.model != "clamp":
-            ev.append(_Event("stop-release", lambda t, v, q, qd: self._stop_force(t, q, qd, v),
+            ev.append(_Event("stop-release",
+                             lambda t, v, q, qd, kin=None: self._stop_force(t, q, qd, v),
                              +1, self._release_stop))
         if self.view.chart.name.startswith("phi-xc~"):
             ev.append(_Event("change-point",
-                             lambda t, v, q, qd: math.sin(0.5 * self._observable("phi", v, q)),
+                             lambda t, v, q, qd, kin=None:
+                             math.sin(0.5 * self._observable("phi", v, q, kin)),
                              0, self._record_change_point))
         return ev
 
-    def _event_values(self, t, q, qd) -> dict:
-        return {e.name: e.fn(t, self.view, q, qd) for e in self._event_list()}
+    def _event_values(self, t, q, qd, kin=None) -> dict:
+        return {e.name: e.fn(t, self.view, q, qd, kin) for e in self._event_list()}
 
     @staticmethod
     def _crossed(a: float, b: float, direction: int) -> bool:
@@ -416,7 +440,7 @@ class Simulation:
         events = self._event_list()
         if not events:
             return None, {}
-        vals = self._event_values(s.t, s.q, s.qd)
+        vals = self._event_values(s.t, s.q, s.qd, s.current.kin)
         dense = s.dense_output()
         t_a = self._seg_start
         first = None
@@ -571,6 +595,12 @@ class Simulation:
         e = self.engine.evaluate(full, t, qf, qdf)
         c = full.coordinate_index("x_C")
         f = list(view.free)
+        if full.n == 2 and len(f) == 1:
+            # one free coordinate: the same formula on floats
+            A, h, Q = e.A.tolist(), e.h.tolist(), e.Q.tolist()
+            i = f[0]
+            qdd = (Q[i] - h[i]) / A[i][i]
+            return A[c][i] * qdd + h[c] - Q[c]
         A, h, Q = e.A, e.h, e.Q
         qdd_f = np.linalg.solve(A[np.ix_(f, f)], Q[f] - h[f])
         return float(A[c, f] @ qdd_f + h[c] - Q[c])
@@ -645,20 +675,24 @@ class Simulation:
         if not self._stiff or name not in ("linear-acceleration", "rk4"):
             return dt
         e = self.solver.current
-        K = sum(s.stiffness(e.kin) for s in self._stiff)
-        if not np.any(K):
+        K = None
+        for s in self._stiff:
+            k = s.stiffness(e.kin)
+            if k is not None:
+                K = k if K is None else [[a + b for a, b in zip(r, s_)] for r, s_ in zip(K, k)]
+        if K is None or not any(any(r) for r in K):
             return dt
         # ω²_max of K v = ω² A v is at most trace(A⁻¹K) (A SPD, K PSD): a bound on the safe side
         # (at most n times too large) that needs no eigensolver
-        A = e.A
-        if A.shape == (1, 1):
-            w2 = float(K[0, 0] / A[0, 0])
-        elif A.shape == (2, 2):
-            det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-            w2 = float((A[1, 1] * K[0, 0] - A[0, 1] * K[1, 0] - A[1, 0] * K[0, 1]
-                        + A[0, 0] * K[1, 1]) / det)
+        n = len(K)
+        if n == 1:
+            w2 = K[0][0] / float(e.A[0, 0] if isinstance(e._A, np.ndarray) else e._A)
+        elif n == 2:
+            (a00, a01), (a10, a11) = e.A.tolist()
+            det = a00 * a11 - a01 * a10
+            w2 = (a11 * K[0][0] - a01 * K[1][0] - a10 * K[0][1] + a00 * K[1][1]) / det
         else:
-            w2 = float(np.trace(np.linalg.solve(A, K)))
+            w2 = float(np.trace(np.linalg.solve(e.A, np.array(K))))
         if w2 <= 0.0:
             return dt
         t_min = 2.0 * math.pi / math.sqrt(w2)
@@ -677,6 +711,12 @@ class Simulation:
 
     # -- work and energy ------------------------------------------------------------------
     def _power(self, e) -> float:
+        if e.Q_nc is not None:
+            # Σ F·v + M·ω of the non-conservative loads is their virtual work along q̇
+            p = 0.0
+            for a, b in zip(e.Q_nc, e.kin._v()):
+                p += a * b
+            return p
         p = 0.0
         for eff in self._nc:
             p += eff.power(e.t, e.kin)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from .base import Effect, Loads
+from .base import Effect, Loads, along_x
 from .controls import ControlledEffect
 
 
@@ -35,7 +35,13 @@ class Blanking(ControlledEffect, Effect):
     def loads(self, t, kin) -> Loads:
         if self.controls.structure != "locked":
             return Loads()
-        f = self.force(kin.position("C")[0], kin.velocity("C")[0])
+        f = self.force(kin.xy("C")[0], kin.vxy("C")[0])
         if f == 0.0:
             return Loads()
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def generalized_force(self, t, kin):
+        if self.controls.structure != "locked":
+            return None
+        f = self.force(kin.xy("C")[0], kin.vxy("C")[0])
+        return None if f == 0.0 else along_x(f, kin, "C")

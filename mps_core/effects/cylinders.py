@@ -3,7 +3,7 @@ the latch)."""
 
 from __future__ import annotations
 
-from .base import Effect, Loads
+from .base import Effect, Loads, along_x
 from .controls import ControlledEffect
 
 
@@ -26,15 +26,23 @@ class EngageCylinder(ControlledEffect, Effect):
         self.acts_on = ("slider",)
 
     def loads(self, t, kin) -> Loads:
-        if not self.controls.engage_on:
+        f = self.force(kin)
+        if f == 0.0:
             return Loads()
-        x_end = self.x_top - self.stroke
-        r = (kin.position("C")[0] - x_end) / self.ramp
-        r = 0.0 if r <= 0.0 else (1.0 if r >= 1.0 else r)
-        if r == 0.0:
-            return Loads()
-        f = -self.f * r
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def force(self, kin) -> float:
+        """The force on the slider along x (0 when not pressurised or past the stroke)."""
+        if not self.controls.engage_on:
+            return 0.0
+        x_end = self.x_top - self.stroke
+        r = (kin.xy("C")[0] - x_end) / self.ramp
+        r = 0.0 if r <= 0.0 else (1.0 if r >= 1.0 else r)
+        return -self.f * r if r != 0.0 else 0.0
+
+    def generalized_force(self, t, kin):
+        f = self.force(kin)
+        return None if f == 0.0 else along_x(f, kin, "C")
 
 
 class DisengageCylinder(ControlledEffect, Effect):
@@ -59,6 +67,12 @@ class DisengageCylinder(ControlledEffect, Effect):
             return Loads()
         return Loads(torques=[("rocker", -self.m), ("slider", self.m)])
 
+    def generalized_force(self, t, kin):
+        if not self.active(t):
+            return None
+        wr, ws = kin.omega("rocker"), kin.omega("slider")
+        return [self.m * (b - a) for a, b in zip(wr, ws)]
+
 
 class Latch(ControlledEffect, Effect):
     """The latch that locks the rocker to the slider at ψ = ψ_lock when armed (by engage).
@@ -75,3 +89,6 @@ class Latch(ControlledEffect, Effect):
 
     def loads(self, t, kin) -> Loads:
         return Loads()
+
+    def generalized_force(self, t, kin):
+        return None

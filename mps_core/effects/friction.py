@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .base import Effect, Loads
+from .base import Effect, Loads, along_x
 
 #: joint: (body on one side or "frame", body on the other side)
 JOINTS = {"O": ("frame", "crank"), "A": ("crank", "rod"), "B": ("rod", "rocker"),
@@ -54,6 +54,11 @@ class GuideFriction(Effect):
         self.acts_on = ("slider",)
 
     def loads(self, t, kin) -> Loads:
-        v = kin.velocity("C")[0]
-        f = -(self.fc * math.tanh(v / self.vs) + self.c * v)
+        f = self.force(kin.vxy("C")[0])
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def force(self, v: float) -> float:
+        return -(self.fc * math.tanh(v / self.vs) + self.c * v)
+
+    def generalized_force(self, t, kin) -> list:
+        return along_x(self.force(kin.vxy("C")[0]), kin, "C")

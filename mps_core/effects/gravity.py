@@ -24,30 +24,28 @@ class Gravity(Effect):
             raise ValueError(f"gravity g: expected two finite numbers (m/s²), got {g!r}")
 
     def bind(self, mechanism) -> None:
-        self._weights = [(b.name, f"G_{b.name}", b.mass * self.g[0], b.mass * self.g[1], b.mass)
+        self._weights = [(b.name, f"G_{b.name}", b.mass * float(self.g[0]),
+                          b.mass * float(self.g[1]), b.mass)
                          for b in mechanism.bodies]
         self._forces = [w[:4] for w in self._weights]
         self.acts_on = tuple(w[0] for w in self._weights)
-        self._rows_of = None
+        self._com = [(p, fx, fy) for _, p, fx, fy, _m in self._weights]
 
     def loads(self, t, kin) -> Loads:
         return Loads(forces=self._forces)
 
-    def _row_weights(self, kin) -> np.ndarray:
-        """(m_b g_x, m_b g_y) at the rows of the centres of mass in ``kin``'s layout, flattened
-        like ``kin.X`` (x0, y0, x1, y1, …); built once per layout."""
-        if self._rows_of is not kin.names:
-            w = np.zeros(2 * len(kin.names))
-            for _, p, fx, fy, _m in self._weights:
-                r = kin.names[p]
-                w[2 * r] += fx
-                w[2 * r + 1] += fy
-            self._w, self._rows_of = w, kin.names
-        return self._w
-
-    def generalized_force(self, t, kin) -> np.ndarray:
-        """Q = Σ_b m_b g·v*_Gb: the virtual work of :meth:`loads`, as one product."""
-        return self._row_weights(kin) @ kin.J.reshape(-1, kin.J.shape[-1])
+    def generalized_force(self, t, kin) -> list:
+        """Q = Σ_b m_b g·v*_Gb: the virtual work of :meth:`loads`."""
+        Q = [0.0] * kin.n
+        for p, fx, fy in self._com:
+            jx, jy = kin.jac(p)
+            for i in range(len(Q)):
+                Q[i] += fx * jx[i] + fy * jy[i]
+        return Q
 
     def potential(self, kin) -> float:
-        return -float(self._row_weights(kin) @ kin.X.reshape(-1))
+        v = 0.0
+        for p, fx, fy in self._com:
+            x, y = kin.xy(p)
+            v -= fx * x + fy * y
+        return v

@@ -5,8 +5,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from .base import Effect, Loads
 
 
@@ -105,10 +103,10 @@ class Motor(Effect):
         m = self.torque(kin.rate(self.body))
         return Loads(torques=[(self.body, m)], frame=[("frame", -m)])
 
-    def generalized_force(self, t, kin) -> np.ndarray:
+    def generalized_force(self, t, kin) -> list:
         """Q = M·ω*_body: the virtual work of :meth:`loads`."""
-        w = kin.W[kin.bodies[self.body]]
-        return self.torque(float(w @ kin.qd)) * w
+        m = self.torque(kin.rate(self.body))
+        return [m * w for w in kin.omega(self.body)]
 
     def power(self, t, kin) -> float:
         rate = kin.rate(self.body)

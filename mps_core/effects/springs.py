@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import numpy as np
-
-from .base import Effect, Loads
+from .base import Effect, Loads, along_x, stiffness_x
 
 
 class RetentionSprings(Effect):
@@ -30,16 +28,18 @@ class RetentionSprings(Effect):
         return self.f0 + self.k * (self.x_top - x)
 
     def loads(self, t, kin) -> Loads:
-        f = self.force(kin.position("C")[0])
+        f = self.force(kin.xy("C")[0])
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
 
+    def generalized_force(self, t, kin) -> list:
+        return along_x(self.force(kin.xy("C")[0]), kin, "C")
+
     def potential(self, kin) -> float:
-        s = self.x_top - kin.position("C")[0]
+        s = self.x_top - kin.xy("C")[0]
         return self.f0 * s + 0.5 * self.k * s * s
 
-    def stiffness(self, kin) -> np.ndarray:
-        j = kin.analog("C")[0]
-        return self.k * np.outer(j, j)
+    def stiffness(self, kin) -> list:
+        return stiffness_x(self.k, kin, "C")
 
 
 class SliderDamper(Effect):
@@ -53,5 +53,8 @@ class SliderDamper(Effect):
         self.acts_on = ("slider",)
 
     def loads(self, t, kin) -> Loads:
-        f = -self.c * kin.velocity("C")[0]
+        f = -self.c * kin.vxy("C")[0]
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def generalized_force(self, t, kin) -> list:
+        return along_x(-self.c * kin.vxy("C")[0], kin, "C")

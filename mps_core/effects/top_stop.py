@@ -14,9 +14,7 @@ one-sided stop cannot hold (the reaction grows without bound as the transmission
 
 from __future__ import annotations
 
-import numpy as np
-
-from .base import Effect, Loads
+from .base import Effect, Loads, along_x, stiffness_x
 
 
 class TopStop(Effect):
@@ -40,22 +38,31 @@ class TopStop(Effect):
     def loads(self, t, kin) -> Loads:
         if self.rigid:
             return Loads()
-        pen = kin.position("C")[0] - self.x_top
-        if pen <= 0.0:
+        f = self.force(kin)
+        if f == 0.0:
             return Loads()
-        f = -self.k * pen - self.c * kin.velocity("C")[0]
-        f = min(f, 0.0)
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
+
+    def force(self, kin) -> float:
+        """The force on the slider along x (0 when rigid or out of contact)."""
+        if self.rigid:
+            return 0.0
+        pen = kin.xy("C")[0] - self.x_top
+        if pen <= 0.0:
+            return 0.0
+        return min(-self.k * pen - self.c * kin.vxy("C")[0], 0.0)
+
+    def generalized_force(self, t, kin):
+        f = self.force(kin)
+        return None if f == 0.0 else along_x(f, kin, "C")
 
     def potential(self, kin) -> float:
         if self.rigid:
             return 0.0
-        pen = kin.position("C")[0] - self.x_top
+        pen = kin.xy("C")[0] - self.x_top
         return 0.5 * self.k * pen * pen if pen > 0.0 else 0.0
 
-    def stiffness(self, kin) -> np.ndarray:
-        n = kin.J.shape[-1]
-        if self.rigid or kin.position("C")[0] <= self.x_top:
-            return np.zeros((n, n))
-        j = kin.analog("C")[0]
-        return self.k * np.outer(j, j)
+    def stiffness(self, kin) -> list:
+        if self.rigid or kin.xy("C")[0] <= self.x_top:
+            return None
+        return stiffness_x(self.k, kin, "C")

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -91,6 +92,25 @@ def _domain(chart: str, arg, what: str):
     ok = v > 0.0 if isinstance(v, float) else bool((np.asarray(v) > 0.0).all())
     if not ok:
         raise ChartDomainError(chart, f"{what} has no real solution here")
+
+
+def _positive(chart: str, arg: float, what: str):
+    if not arg > 0.0:
+        raise ChartDomainError(chart, f"{what} has no real solution here")
+
+
+def _sign(x: float) -> float:
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+#: the operations a chart's formulas use: on arrays and jets (``positions``), or on floats
+#: (``flat``, the engine's scalar kernels: math's functions cost a fraction of numpy's on one
+#: number); the same formulas either way
+_ARRAYS = SimpleNamespace(cos=np.cos, sin=np.sin, sqrt=np.sqrt, domain=_domain,
+                          sign=lambda x: np.sign(np.asarray(value_of(x))),
+                          sqrt_touching=lambda x: _sqrt_touching(x))
+_FLOATS = SimpleNamespace(cos=math.cos, sin=math.sin, sqrt=math.sqrt, domain=_positive,
+                          sign=_sign, sqrt_touching=lambda x: math.sqrt(x) if x > 0.0 else 0.0)
 
 
 def _cross(ax, ay, bx, by):
@@ -176,15 +196,22 @@ class PressMechanism(Mechanism):
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
         name = "phi-psi" + ("+" if sigma > 0 else "-")
 
-        def positions(q):
-            phi, psi = q
-            ax, ay = l1 * np.cos(phi), l1 * np.sin(phi)
-            by = l3 * np.sin(psi)
+        def core(m, phi, psi):
+            ax, ay = l1 * m.cos(phi), l1 * m.sin(phi)
+            by = l3 * m.sin(psi)
             dy = by - ay
             arg = l2 * l2 - dy * dy
-            _domain(name, arg, "x_B (rod across the guide)")
-            bx = ax + sigma * np.sqrt(arg)
-            return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (bx - l3 * np.cos(psi), 0.0)}
+            m.domain(name, arg, "x_B (rod across the guide)")
+            bx = ax + sigma * m.sqrt(arg)
+            return ax, ay, bx, by, bx - l3 * m.cos(psi)
+
+        def positions(q):
+            ax, ay, bx, by, cx = core(_ARRAYS, *q)
+            return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (cx, 0.0)}
+
+        def flat(phi, psi):
+            ax, ay, bx, by, cx = core(_FLOATS, phi, psi)
+            return (0.0, 0.0, ax, ay, bx, by, cx, 0.0)
 
         def regularity(pose):
             return abs(pose["B"][0] - pose["A"][0]) / l2
@@ -192,37 +219,37 @@ class PressMechanism(Mechanism):
         def owns(pose):
             return sigma * (pose["B"][0] - pose["A"][0]) > 0.0
 
-        return Chart(name, (PHI, PSI), positions, regularity, owns, (1.0, 1.0))
+        return Chart(name, (PHI, PSI), positions, regularity, owns, (1.0, 1.0), flat=flat)
 
     def _phi_xc(self, kappa: int, continuation: bool = False) -> Chart:
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
         name = ("phi-xc~" if continuation else "phi-xc") + ("+" if kappa > 0 else "-")
 
-        def side(phi):
-            if not continuation:
-                return kappa
-            return kappa * np.sign(np.sin(0.5 * np.asarray(value_of(phi))))
-
-        def positions(q):
-            phi, xc = q
-            k = side(phi)
-            ax, ay = l1 * np.cos(phi), l1 * np.sin(phi)
+        def core(m, phi, xc):
+            k = kappa * m.sign(m.sin(0.5 * phi)) if continuation else kappa
+            ax, ay = l1 * m.cos(phi), l1 * m.sin(phi)
             dx, dy = xc - ax, -ay
             d2 = dx * dx + dy * dy
-            _domain(name, d2, "the distance AC")
-            d = np.sqrt(d2)
+            m.domain(name, d2, "the distance AC")
+            d = m.sqrt(d2)
             a = (l2 * l2 - l3 * l3 + d2) / (2.0 * d)
             h2 = l2 * l2 - a * a
             if continuation:
                 # h² touches zero at the change point: rounding below zero is no domain error
-                h = _sqrt_touching(h2)
+                h = m.sqrt_touching(h2)
             else:
-                _domain(name, h2, "B (rod and rocker in line)")
-                h = np.sqrt(h2)
+                m.domain(name, h2, "B (rod and rocker in line)")
+                h = m.sqrt(h2)
             ux, uy = dx / d, dy / d
-            return {"O": (0.0, 0.0), "A": (ax, ay),
-                    "B": (ax + a * ux - k * h * uy, ay + a * uy + k * h * ux),
-                    "C": (xc, 0.0)}
+            return ax, ay, ax + a * ux - k * h * uy, ay + a * uy + k * h * ux
+
+        def positions(q):
+            ax, ay, bx, by = core(_ARRAYS, *q)
+            return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (q[1], 0.0)}
+
+        def flat(phi, xc):
+            ax, ay, bx, by = core(_FLOATS, phi, xc)
+            return (0.0, 0.0, ax, ay, bx, by, xc, 0.0)
 
         def regularity(pose):
             if continuation:
@@ -234,30 +261,35 @@ class PressMechanism(Mechanism):
             (ax, ay), (bx, by), (cx, cy) = pose["A"], pose["B"], pose["C"]
             c = _cross(cx - ax, cy - ay, bx - ax, by - ay)
             if continuation:
-                phi = math.atan2(ay, ax)
-                return side(phi) * c >= 0.0
+                return kappa * _sign(math.sin(0.5 * math.atan2(ay, ax))) * c >= 0.0
             return kappa * c > 0.0
 
         return Chart(name, (PHI, X_C), positions, regularity, owns, (1.0, l1),
-                     only_in=("held",) if continuation else None)
+                     only_in=("held",) if continuation else None, flat=flat)
 
     def _psi_xc(self, kappa: int) -> Chart:
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
         name = "psi-xc" + ("+" if kappa > 0 else "-")
 
-        def positions(q):
-            psi, xc = q
-            bx, by = xc + l3 * np.cos(psi), l3 * np.sin(psi)
+        def core(m, psi, xc):
+            bx, by = xc + l3 * m.cos(psi), l3 * m.sin(psi)
             d2 = bx * bx + by * by
-            _domain(name, d2, "the distance OB")
-            d = np.sqrt(d2)
+            m.domain(name, d2, "the distance OB")
+            d = m.sqrt(d2)
             a = (l1 * l1 - l2 * l2 + d2) / (2.0 * d)
             h2 = l1 * l1 - a * a
-            _domain(name, h2, "A (crank and rod in line)")
-            h = np.sqrt(h2)
+            m.domain(name, h2, "A (crank and rod in line)")
+            h = m.sqrt(h2)
             ux, uy = bx / d, by / d
-            return {"O": (0.0, 0.0), "A": (a * ux - kappa * h * uy, a * uy + kappa * h * ux),
-                    "B": (bx, by), "C": (xc, 0.0)}
+            return a * ux - kappa * h * uy, a * uy + kappa * h * ux, bx, by
+
+        def positions(q):
+            ax, ay, bx, by = core(_ARRAYS, *q)
+            return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (q[1], 0.0)}
+
+        def flat(psi, xc):
+            ax, ay, bx, by = core(_FLOATS, psi, xc)
+            return (0.0, 0.0, ax, ay, bx, by, xc, 0.0)
 
         def regularity(pose):
             (ax, ay), (bx, by) = pose["A"], pose["B"]
@@ -267,7 +299,7 @@ class PressMechanism(Mechanism):
             (ax, ay), (bx, by) = pose["A"], pose["B"]
             return kappa * _cross(bx, by, ax, ay) > 0.0
 
-        return Chart(name, (PSI, X_C), positions, regularity, owns, (1.0, l1))
+        return Chart(name, (PSI, X_C), positions, regularity, owns, (1.0, l1), flat=flat)
 
     def chart(self, name: str) -> Chart:
         for c in self.charts:

@@ -1,0 +1,263 @@
+"""Scalar kernels: the central-difference evaluation of one chart view as generated Python code.
+
+For the small charts a linkage integrates (one or two free coordinates) the arithmetic of an
+evaluation is a few hundred floating-point operations; numpy's per-call cost, not the
+arithmetic, is what the array code of :mod:`mps_core.engine` pays. A kernel does the same
+computation on Python floats, in straight-line code written once per (mechanism, chart view,
+Δ) from the engine's own tables, so nothing in it is specific to a mechanism:
+
+* the chart's ``flat`` position function at each point of the stencil (the same stencil, with
+  the same displacements);
+* the analogs at the stencil's base points as differences ``(r(q + Δe_i) − r(q − Δe_i))/2Δ_i``
+  of the points' coordinates, mapped to the centres of mass and the rotating bodies' link
+  vectors by the nonzero entries of the engine's linear map (terms with a zero coefficient, and
+  the fixed points' coordinates, are left out of the code);
+* the angular analogs ω* = (r × v*)/|r|² of the rotating bodies;
+* the mass matrix at every base point: A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j.
+
+It returns the positions, analogs and angular analogs at q (flat lists, the layout of
+:class:`~mps_core.engine.Kinematics`), the mass matrices at the base points and the angular
+analogs at the other base points (for the bodies' convective angular accelerations by the same
+central differences, which reports use); the engine adds
+the generalized forces, the velocity terms by central differences of A, and the solve. The
+numbers are those of the array code up to the order of floating-point operations (a test
+compares them to round-off).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: charts with at most this many free coordinates get a kernel (the stencil grows as 2n²)
+MAX_N = 2
+
+
+class _Writer:
+    """Straight-line code with one local per distinct expression."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+        self.names: dict = {}
+
+    def let(self, expr: str) -> str:
+        if expr in self.names:
+            return self.names[expr]
+        if _is_name(expr):
+            return expr
+        name = f"v{len(self.names)}"
+        self.lines.append(f"    {name} = {expr}")
+        self.names[expr] = name
+        return name
+
+
+def _is_name(expr: str) -> bool:
+    return expr.replace("_", "a").isalnum() and not expr[0].isdigit()
+
+
+def _lin(coefs, var) -> str | None:
+    """Σ coef·var(k) over the nonzero coefficients, as code (None when all are zero)."""
+    terms = []
+    for k, c in enumerate(coefs):
+        if c == 0.0:
+            continue
+        v = var(k)
+        if v is None:
+            continue
+        if c == 1.0:
+            terms.append(("+", v))
+        elif c == -1.0:
+            terms.append(("-", v))
+        else:
+            terms.append(("+", f"{float(c)!r} * {v}"))
+    if not terms:
+        return None
+    out = terms[0][1] if terms[0][0] == "+" else f"-{terms[0][1]}"
+    for sign, v in terms[1:]:
+        out += f" {sign} {v}"
+    return out
+
+
+def central_kernel(engine, view, plan):
+    """The kernel of a chart view for ``engine`` (central differences), or None where the chart
+    has no ``flat`` positions or too many free coordinates."""
+    flat = getattr(view.chart, "flat", None)
+    n = view.n
+    if flat is None or n > MAX_N:
+        return None
+    key = _key(engine, view, plan)
+    code = _CODE.get(key)
+    if code is None:
+        src = _source(engine, view, plan)
+        if len(_CODE) > 1024:
+            _CODE.clear()
+        code = _CODE[key] = (compile(src, f"<kernel {view.name}>", "exec"), src)
+    namespace = {"F": flat}
+    exec(code[0], namespace)
+    kernel = namespace["kernel"]
+    kernel.source = code[1]
+    return kernel
+
+
+#: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
+#: an equal mechanism, view and Δ is the same)
+_CODE: dict = {}
+
+
+def _key(engine, view, plan) -> tuple:
+    mech = engine.mechanism
+    off = None if engine._offset is None else engine._offset.tobytes()
+    return (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
+            engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
+            tuple(getattr(mech, "fixed_points", ())), view.chart.name, view.chart.size,
+            tuple(view.free), tuple(view._template), plan.d.tobytes())
+
+
+def _source(engine, view, plan) -> str:
+    """The kernel's Python source (see the module's docstring).
+
+    The differences are left unscaled inside: ω̃ = (r × Δr)/|r|² and A_ij = Σ m ΔG_i·ΔG_j +
+    J ω̃_i ω̃_j are scaled once by 1/2Δ_i (1/(4Δ_iΔ_j) for A); equal products (centres of mass
+    at the same point) are summed with their masses added."""
+    n = view.n
+    from .engine import stencil
+
+    offsets, plus, minus = stencil(n)
+    d = plan.d.tolist()
+    inv2d = plan.inv2d
+    M = engine._MT.T                        # rows: pairs (x, y) of names, links, check
+    npts, NP = engine._npts, engine._np
+    mech = engine.mechanism
+    fixed = {engine._names[p] for p in getattr(mech, "fixed_points", ())}
+    moving = {k for k in range(2 * npts) if k // 2 not in fixed}
+    w = _Writer()
+    qs = [f"q{k}" for k in range(n)]
+    # the stencil's position calls
+    args_free = {i: k for k, i in enumerate(view.free)}
+    for s, off in enumerate(offsets.tolist()):
+        args = []
+        for ci in range(view.chart.size):
+            if ci in args_free:
+                k = args_free[ci]
+                o = off[k] * d[k]
+                args.append(qs[k] if o == 0.0 else f"{qs[k]} + {o!r}")
+            else:
+                args.append(repr(float(view._template[ci])))
+        names = ", ".join(f"p{s}_{k}" for k in range(2 * npts))
+        w.lines.append(f"    {names}, = F({', '.join(args)})")
+
+    def diff(b, i, row):
+        """Unscaled analog 2Δ_i·∂r/∂q_i of M's row at base b (a local's name, or None)."""
+        def var(k):
+            if k not in moving:
+                return None
+            return w.let(f"p{plus[b, i]}_{k} - p{minus[b, i]}_{k}")
+        e = _lin(M[row], var)
+        return None if e is None else w.let(e)
+
+    def value(b, row):
+        e = _lin(M[row], lambda k: f"p{b}_{k}")
+        return None if e is None else w.let(e)
+
+    def scaled(x, i):
+        return "0.0" if x is None else w.let(f"{x} * {inv2d[i]!r}")
+
+    B = 1 + 2 * n
+    rot = engine._rot
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    com_rows = [engine._names[f"G_{b.name}"] for b in mech.bodies]
+    out_A = []
+    omegas = []
+    for b in range(B):
+        om = {}                                 # (body, i): ω̃ (unscaled)
+        for j, k in enumerate(rot):
+            r = 2 * NP + 2 * j
+            rx, ry = value(b, r) or "0.0", value(b, r + 1) or "0.0"
+            irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
+            for i in range(n):
+                jx, jy = diff(b, i, r), diff(b, i, r + 1)
+                parts = ([f"{rx} * {jy}"] if jy is not None else []) + \
+                    ([f"{ry} * {jx}"] if jx is not None else [])
+                if not parts:
+                    continue
+                cross = parts[0] if len(parts) == 1 or jy is None else f"{parts[0]} - {parts[1]}"
+                if jy is None:
+                    cross = f"-{parts[0]}"
+                om[k, i] = w.let(f"({cross}) * {irr}")
+        omegas.append(om)
+        entries = []
+        for i in range(n):
+            for jj in range(i, n):
+                terms: dict = {}
+                for k in range(len(mech.bodies)):
+                    r = 2 * com_rows[k]
+                    if mass[k] != 0.0:
+                        for c in (0, 1):
+                            a1, a2 = diff(b, i, r + c), diff(b, jj, r + c)
+                            if a1 is not None and a2 is not None:
+                                key = (a1, a2)
+                                terms[key] = terms.get(key, 0.0) + mass[k]
+                    if k in rot and inertia[k] != 0.0:
+                        w1, w2 = om.get((k, i)), om.get((k, jj))
+                        if w1 is not None and w2 is not None:
+                            terms[w1, w2] = terms.get((w1, w2), 0.0) + inertia[k]
+                body = " + ".join(f"{c!r} * {x} * {y}" for (x, y), c in terms.items())
+                entries.append(w.let(f"({body or '0.0'}) * {inv2d[i] * inv2d[jj]!r}"))
+        out_A.append(entries)
+    # positions, analogs and angular analogs at q
+    xl = []
+    offset = engine._offset.tolist() if engine._offset is not None else None
+    for r in range(2 * NP):
+        e = value(0, r) or "0.0"
+        if offset is not None and offset[r] != 0.0:
+            e = f"{e} + {offset[r]!r}"
+        xl.append(e)
+    jl = [scaled(diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1) for i in range(n)]
+
+    def omega_list(om):
+        return "[" + ", ".join(scaled(om.get((k, i)), i) if k in rot else "0.0"
+                               for k in range(len(mech.bodies)) for i in range(n)) + "]"
+
+    wls = [omega_list(om) for om in omegas]
+    if n == 1:
+        A_out = "[" + ", ".join(e[0] for e in out_A) + "]"
+    else:
+        A_out = "[" + ", ".join(f"({', '.join(e)})" for e in out_A) + "]"
+    return (f"def kernel({', '.join(qs)}):\n" + "\n".join(w.lines) +
+            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, "
+            f"[{', '.join(wls[1:])}]\n")
+
+
+def solve_small(A, dA, v, Q):
+    """(q̈, h) for n = 1 or 2 from A (n = 1: a; n = 2: (a00, a01, a11)), the derivatives of A
+    (n = 1: dA/dq; n = 2: ∂A/∂q0, ∂A/∂q1 as triples), q̇ and Q, with
+    h_i = Σ_jk ∂_k A_ij q̇_j q̇_k − ½ Σ_jk ∂_i A_jk q̇_j q̇_k; q̈ is NaN where A is singular."""
+    if len(v) == 1:
+        h0 = 0.5 * dA * v[0] * v[0]
+        try:
+            return [(Q[0] - h0) / A], [h0]
+        except ZeroDivisionError:
+            return [math.nan], [h0]
+    a00, a01, a11 = A
+    (d000, d001, d011), (d100, d101, d111) = dA
+    v0, v1 = v
+    r00 = d000 * v0 + d001 * v1          # Σ_j ∂_0 A_0j q̇_j
+    r01 = d001 * v0 + d011 * v1          # Σ_j ∂_0 A_1j q̇_j
+    r10 = d100 * v0 + d101 * v1
+    r11 = d101 * v0 + d111 * v1
+    h0 = r00 * v0 + r10 * v1 - 0.5 * (r00 * v0 + r01 * v1)
+    h1 = r01 * v0 + r11 * v1 - 0.5 * (r10 * v0 + r11 * v1)
+    r0, r1 = Q[0] - h0, Q[1] - h1
+    det = a00 * a11 - a01 * a01
+    try:
+        return [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a01 * r0) / det], [h0, h1]
+    except ZeroDivisionError:
+        return [math.nan, math.nan], [h0, h1]
+
+
+def as_matrix(A, n: int) -> np.ndarray:
+    if n == 1:
+        return np.array([[A]])
+    a00, a01, a11 = A
+    return np.array([[a00, a01], [a01, a11]])
