@@ -189,6 +189,24 @@ class Kinematics:
             return w[0] * v[0]
         return sum(a * b for a, b in zip(w, v))
 
+    def weighted_analogs(self, forces) -> list:
+        """Σ (f_x ∂x_P/∂q + f_y ∂y_P/∂q) over ``forces``, a sequence of (point, f_x, f_y): the
+        generalized force of constant forces at points, n floats."""
+        jl = self._jl if self._jl is not None else self._lists()[1]
+        n, names = self.n, self.names
+        if n == 1:
+            s = 0.0
+            for p, fx, fy in forces:
+                r = 2 * names[p]
+                s += fx * jl[r] + fy * jl[r + 1]
+            return [s]
+        Q = [0.0] * n
+        for p, fx, fy in forces:
+            r = 2 * n * names[p]
+            for i in range(n):
+                Q[i] += fx * jl[r + i] + fy * jl[r + n + i]
+        return Q
+
     def angular_convective(self, body: str) -> float | None:
         """θ̈ of a body at q̈ = 0, Σ_jk ∂²θ/∂q_j∂q_k q̇_j q̇_k, by central differences of its
         angular analogs (the scheme's own); None where this state has no such data."""
@@ -358,7 +376,7 @@ class PartialSystems:
         self.effects = list(effects)
         for e in self.effects:
             e.bind(mechanism)
-        self._effect_paths = [(_fast_path(e), e) for e in self.effects]
+        self._effect_paths = self._paths()
         self.scheme = scheme
         self.delta = float(delta)
         #: central differences on charts with ``flat`` positions and n <= 2 run as scalar
@@ -469,15 +487,25 @@ class PartialSystems:
 
     def _forces(self, t: float, kin: Kinematics) -> tuple[list, list]:
         """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share."""
-        if len(self._effect_paths) != len(self.effects):
-            self._effect_paths = [(_fast_path(e), e) for e in self.effects]
+        if self._effect_paths[0] != len(self.effects):
+            self._effect_paths = self._paths()
         n = kin.n
+        if n == 1:
+            q, qc = 0.0, 0.0
+            for fast, e, conservative in self._effect_paths[1]:
+                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
+                if Qe is not None:
+                    if conservative:
+                        qc += Qe[0]
+                    else:
+                        q += Qe[0]
+            return [q + qc], [q]
         Q = [0.0] * n
         Qc = [0.0] * n
-        for fast, e in self._effect_paths:
+        for fast, e, conservative in self._effect_paths[1]:
             Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
             if Qe is not None:
-                if e.conservative:
+                if conservative:
                     for i in range(n):
                         Qc[i] += Qe[i]
                 else:
@@ -487,6 +515,12 @@ class PartialSystems:
         for i in range(n):
             Q[i] += Qc[i]
         return Q, Qnc
+
+    def _paths(self):
+        """(number of effects, [(fast path or None, effect, conservative)]) without the effects
+        that apply no force of their own (``applies_forces`` False: a rigid stop, the latch)."""
+        return len(self.effects), [(_fast_path(e), e, bool(e.conservative)) for e in self.effects
+                                   if getattr(e, "applies_forces", True)]
 
     def potential_energy(self, kin: Kinematics) -> float:
         return float(sum(e.potential(kin) for e in self.effects if e.conservative))

@@ -378,6 +378,16 @@ class Simulation:
         return v
 
     def _event_list(self) -> list[_Event]:
+        """The events that can happen now (they depend on the structure, the latch's arming and
+        the chart only; kept by those)."""
+        key = (self.controls.structure, self.controls.latch_armed, self.view.chart.name)
+        cache = self.__dict__.setdefault("_events_by_state", {})
+        ev = cache.get(key)
+        if ev is None:
+            ev = cache[key] = self._make_event_list()
+        return ev
+
+    def _make_event_list(self) -> list[_Event]:
         ev = []
         s = self.structure
         if s == "free":

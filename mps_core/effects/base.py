@@ -34,6 +34,9 @@ class Effect:
 
     kind: str = "effect"
     conservative: bool = False
+    #: False for an effect that never applies a force of its own (a rigid stop, the latch: the
+    #: structure does their work); the engine leaves it out of Q
+    applies_forces: bool = True
 
     def __init__(self, name: str | None = None):
         self.name = name or self.kind

@@ -81,6 +81,7 @@ class Latch(ControlledEffect, Effect):
     handled by the driver; its moment in ``locked`` is a reaction (mps_core.reactions)."""
 
     kind = "latch"
+    applies_forces = False
 
     def __init__(self, psi_lock: float = 0.0, name=None):
         super().__init__(name)

@@ -36,12 +36,7 @@ class Gravity(Effect):
 
     def generalized_force(self, t, kin) -> list:
         """Q = Σ_b m_b g·v*_Gb: the virtual work of :meth:`loads`."""
-        Q = [0.0] * kin.n
-        for p, fx, fy in self._com:
-            jx, jy = kin.jac(p)
-            for i in range(len(Q)):
-                Q[i] += fx * jx[i] + fy * jy[i]
-        return Q
+        return kin.weighted_analogs(self._com)
 
     def potential(self, kin) -> float:
         v = 0.0

@@ -31,6 +31,10 @@ class TopStop(Effect):
         self.conservative = model == "elastic" and self.c == 0.0
 
     @property
+    def applies_forces(self) -> bool:
+        return not self.rigid
+
+    @property
     def rigid(self) -> bool:
         """No force law: the structure ``held`` does the holding (rigid or clamp)."""
         return self.model in ("rigid", "clamp")

@@ -209,9 +209,16 @@ class PressMechanism(Mechanism):
             ax, ay, bx, by, cx = core(_ARRAYS, *q)
             return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (cx, 0.0)}
 
-        def flat(phi, psi):
-            ax, ay, bx, by, cx = core(_FLOATS, phi, psi)
-            return (0.0, 0.0, ax, ay, bx, by, cx, 0.0)
+        def flat(phi, psi, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+            # core's formulas written out on floats (a test holds them equal)
+            ax, ay = l1 * cos(phi), l1 * sin(phi)
+            by = l3 * sin(psi)
+            dy = by - ay
+            arg = l2 * l2 - dy * dy
+            if not arg > 0.0:
+                _positive(name, arg, "x_B (rod across the guide)")
+            bx = ax + sigma * sqrt(arg)
+            return (0.0, 0.0, ax, ay, bx, by, bx - l3 * cos(psi), 0.0)
 
         def regularity(pose):
             return abs(pose["B"][0] - pose["A"][0]) / l2
@@ -247,9 +254,23 @@ class PressMechanism(Mechanism):
             ax, ay, bx, by = core(_ARRAYS, *q)
             return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (q[1], 0.0)}
 
-        def flat(phi, xc):
-            ax, ay, bx, by = core(_FLOATS, phi, xc)
-            return (0.0, 0.0, ax, ay, bx, by, xc, 0.0)
+        def flat(phi, xc, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+            # core's formulas written out on floats (a test holds them equal)
+            if continuation:
+                return (0.0, 0.0, *core(_FLOATS, phi, xc), xc, 0.0)
+            ax, ay = l1 * cos(phi), l1 * sin(phi)
+            dx, dy = xc - ax, -ay
+            d2 = dx * dx + dy * dy
+            if not d2 > 0.0:
+                _positive(name, d2, "the distance AC")
+            d = sqrt(d2)
+            a = (l2 * l2 - l3 * l3 + d2) / (2.0 * d)
+            h2 = l2 * l2 - a * a
+            if not h2 > 0.0:
+                _positive(name, h2, "B (rod and rocker in line)")
+            h = kappa * sqrt(h2)
+            ux, uy = dx / d, dy / d
+            return (0.0, 0.0, ax, ay, ax + a * ux - h * uy, ay + a * uy + h * ux, xc, 0.0)
 
         def regularity(pose):
             if continuation:
@@ -287,9 +308,20 @@ class PressMechanism(Mechanism):
             ax, ay, bx, by = core(_ARRAYS, *q)
             return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (q[1], 0.0)}
 
-        def flat(psi, xc):
-            ax, ay, bx, by = core(_FLOATS, psi, xc)
-            return (0.0, 0.0, ax, ay, bx, by, xc, 0.0)
+        def flat(psi, xc, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+            # core's formulas written out on floats (a test holds them equal)
+            bx, by = xc + l3 * cos(psi), l3 * sin(psi)
+            d2 = bx * bx + by * by
+            if not d2 > 0.0:
+                _positive(name, d2, "the distance OB")
+            d = sqrt(d2)
+            a = (l1 * l1 - l2 * l2 + d2) / (2.0 * d)
+            h2 = l1 * l1 - a * a
+            if not h2 > 0.0:
+                _positive(name, h2, "A (crank and rod in line)")
+            h = kappa * sqrt(h2)
+            ux, uy = bx / d, by / d
+            return (0.0, 0.0, a * ux - h * uy, a * uy + h * ux, bx, by, xc, 0.0)
 
         def regularity(pose):
             (ax, ay), (bx, by) = pose["A"], pose["B"]
