@@ -102,6 +102,9 @@ class SolverSettings:
     atol: float = 1e-12
     #: what to do with a fixed step beyond the stability limit of a stiff effect
     stiff: str = "subdivide"
+    #: central differences on small charts as scalar kernels (mps_core.kernels); False: the
+    #: engine's array code (the same numbers to round-off, slower; for comparisons)
+    kernels: bool = True
 
 
 @dataclass
@@ -139,7 +142,8 @@ class Simulation:
         for e in self.effects:
             if isinstance(e, ControlledEffect):
                 e.use(self.controls)
-        self.engine = PartialSystems(mechanism, self.effects, solver.scheme, solver.delta)
+        self.engine = PartialSystems(mechanism, self.effects, solver.scheme, solver.delta,
+                                     kernels=solver.kernels)
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
