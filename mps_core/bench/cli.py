@@ -28,7 +28,8 @@ def register(subparsers) -> None:
     a.add_argument("--quick", action="store_true",
                    help="three step sizes, two derivative schemes, fewer tolerances, one repeat")
     a.add_argument("--rungs", type=int, metavar="N",
-                   help="step sizes: the first N of 1.25 ms, 0.625 ms, … (8 reach 1e-5 s)")
+                   help="step sizes: 5 ms, 2.5 ms and the first N of 1.25 ms, 0.625 ms, … "
+                        "(8 reach 1e-5 s)")
     a.add_argument("--repeats", type=int, default=3, metavar="N",
                    help="CPU time: median of up to N runs (fewer for runs over 1 s)")
     a.add_argument("--out", metavar="DIR", default="bench-out",
