@@ -55,7 +55,7 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
     long = case.t_end > 0.2
     if rungs is None:
         rungs = 3 if quick else (5 if long else len(DT_LADDER))
-    ladder = COARSE_STEPS + (DT_LADDER[:rungs] if not quick else DT_LADDER[:2 * rungs - 1:2])
+    ladder = DT_LADDER[:2 * rungs - 1:2] if quick else COARSE_STEPS + DT_LADDER[:rungs]
     schemes = _schemes(full=not quick and not long)
     out = []
     for fam in families:
