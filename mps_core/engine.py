@@ -38,6 +38,12 @@ numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost)
   link vectors, the mass matrices at the base points as one batched product, and, for n ≤ 2,
   the velocity terms and the solve in closed form on floats. The numbers are the seed's
   formulas; only the order of floating-point operations differs from a literal transcription.
+
+For a chart that also gives its positions on floats (``Chart.flat``) and has at most two free
+coordinates, ``central`` runs the same computation as a scalar kernel (:mod:`mps_core.kernels`):
+straight-line float code generated from these tables once per view, two to four times faster
+than the arrays at this size. ``kernels=False`` keeps the array code (the same numbers to
+round-off; a test compares them).
 """
 
 from __future__ import annotations
