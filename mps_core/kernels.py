@@ -177,13 +177,14 @@ def _source(engine, view, plan) -> str:
             irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
             for i in range(n):
                 jx, jy = diff(b, i, r), diff(b, i, r + 1)
-                parts = ([f"{rx} * {jy}"] if jy is not None else []) + \
-                    ([f"{ry} * {jx}"] if jx is not None else [])
-                if not parts:
+                if jx is None and jy is None:
                     continue
-                cross = parts[0] if len(parts) == 1 or jy is None else f"{parts[0]} - {parts[1]}"
-                if jy is None:
-                    cross = f"-{parts[0]}"
+                if jx is None:
+                    cross = f"{rx} * {jy}"
+                elif jy is None:
+                    cross = f"-{ry} * {jx}"
+                else:
+                    cross = f"{rx} * {jy} - {ry} * {jx}"
                 om[k, i] = w.let(f"({cross}) * {irr}")
         omegas.append(om)
         entries = []
