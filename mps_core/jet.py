@@ -321,9 +321,6 @@ class ScalarJet(Jet):
             return self * _div(1.0, float(o))
         return Jet.__truediv__(self, other)
 
-    def __rtruediv__(self, other):
-        return self.reciprocal() * other
-
     def __pow__(self, p):
         if p == 2:
             return self * self
