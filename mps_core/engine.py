@@ -42,8 +42,10 @@ numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost)
 For a chart that also gives its positions on floats (``Chart.flat``) and has at most two free
 coordinates, ``central`` runs the same computation as a scalar kernel (:mod:`mps_core.kernels`):
 straight-line float code generated from these tables once per view, two to four times faster
-than the arrays at this size. ``kernels=False`` keeps the array code (the same numbers to
-round-off; a test compares them).
+than the arrays at this size; ``autodiff`` runs as an exact kernel (:mod:`mps_core.exact_kernels`):
+the ``flat`` function traced once (:mod:`mps_core.tracing`) and differentiated in forward mode
+into float code, about ten times faster than the jets. ``kernels=False`` keeps the array code and
+the jets (the same numbers to round-off; tests compare them).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import numpy as np
 
 from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
+from .exact_kernels import BranchChanged, exact_kernel, solve_given_h
 from .kernels import as_matrix, central_kernel, solve_small
 from .mechanism import ChartView, Mechanism
 
@@ -105,12 +108,13 @@ class Kinematics:
     """
 
     __slots__ = ("t", "q", "qd", "names", "bodies", "n", "_X", "_J", "_W", "_xl", "_jl", "_wl",
-                 "_vl", "_pose", "_side")
+                 "_vl", "_pose", "_side", "_conv")
 
     def __init__(self, t, q, qd, names, X=None, J=None, W=None, bodies=None, *, lists=None,
-                 side=None):
+                 side=None, conv=None):
         self.t = t
         self._side = side           # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
+        self._conv = conv           # θ̈ at q̈ = 0 of every body, from an exact kernel
         self.q = q
         self.qd = qd
         self.names = names          # {point name: row}
@@ -214,8 +218,11 @@ class Kinematics:
         return Q
 
     def angular_convective(self, body: str) -> float | None:
-        """θ̈ of a body at q̈ = 0, Σ_jk ∂²θ/∂q_j∂q_k q̇_j q̇_k, by central differences of its
-        angular analogs (the scheme's own); None where this state has no such data."""
+        """θ̈ of a body at q̈ = 0, Σ_jk ∂²θ/∂q_j∂q_k q̇_j q̇_k, in the scheme's own accuracy:
+        exact from an exact kernel, by central differences of the angular analogs from a
+        central one; None where this state has no such data."""
+        if self._conv is not None:
+            return self._conv[self.bodies[body]]
         if self._side is None:
             return None
         wb, inv2d = self._side
@@ -304,7 +311,7 @@ class Evaluation:
 class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
-    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel")
+    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced")
 
     def __init__(self, view: ChartView, delta: float):
         n = view.n
@@ -328,6 +335,7 @@ class _Plan:
         self.K = K
         self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
         self.kernel = None
+        self.traced = False         # autodiff: the exact kernel was built (or found impossible)
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -728,6 +736,19 @@ class PartialSystems:
         return kin, Zt, Wr, theta2
 
     def _autodiff_evaluate(self, view, t, q, qd):
+        if self.kernels:
+            plan = self._plans.get(view) or self._plan(view)
+            if not plan.traced:
+                try:
+                    plan.kernel = exact_kernel(self, view, q)
+                    plan.traced = True
+                except (ChartDomainError, ArithmeticError, ValueError):
+                    pass            # q is outside the chart: the jets say so; built next time
+            if plan.kernel is not None:
+                try:
+                    return self._exact_kernel_evaluate(view, t, q, qd, plan)
+                except BranchChanged:
+                    pass            # the position function takes another branch here
         kin, Zt, Wr, theta2 = self._autodiff(view, t, q, qd)
         n = view.n
         G = Zt[:, 2 * self._npts:2 * self._np]          # (n + 3, 2·nbody)
@@ -753,6 +774,26 @@ class PartialSystems:
                     self._no_solution(view, t, q, A)
             return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin)
         return self._finish(view, t, q, qd, A, h, Q, kin)
+
+    def _exact_kernel_evaluate(self, view, t, q, qd, plan):
+        """The autodiff evaluation on floats, by the view's exact kernel."""
+        counts = self.counts
+        counts["position_calls"] += 1
+        counts["position_points"] += 1
+        try:
+            xl, jl, wl, A, h, conv = plan.kernel(*q.tolist(), *qd.tolist())
+        except (ValueError, ZeroDivisionError, OverflowError):
+            raise ChartDomainError(view.name, "no real configuration at this point") from None
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
+                         conv=conv)
+        Q, Qnc = self._forces(t, kin)
+        qdd = solve_given_h(A, h, Q)
+        for x in qdd:
+            if not math.isfinite(x):
+                if not all(math.isfinite(x) for x in xl):
+                    raise ChartDomainError(view.name, "no real configuration at this point")
+                self._no_solution(view, t, q, as_matrix(A, plan.n))
+        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
 
     def _config(self, view, q):
         return config_in_degrees({c.name: float(v) for c, v in zip(view.coordinates, q)})

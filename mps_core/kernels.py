@@ -105,13 +105,15 @@ def central_kernel(engine, view, plan):
 _CODE: dict = {}
 
 
-def _key(engine, view, plan) -> tuple:
+def _key(engine, view, plan=None) -> tuple:
+    """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
     mech = engine.mechanism
     off = None if engine._offset is None else engine._offset.tobytes()
     return (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
             engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
             tuple(getattr(mech, "fixed_points", ())), view.chart.name, view.chart.size,
-            tuple(view.free), tuple(view._template), plan.d.tobytes())
+            tuple(view.free), tuple(view._template),
+            None if plan is None else plan.d.tobytes())
 
 
 def _source(engine, view, plan) -> str:

@@ -1,0 +1,166 @@
+"""Exact kernels (mps_core.exact_kernels): the jets' numbers, on floats."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mps_core import build, load_scene
+from mps_core.effects.controls import Controls
+from mps_core.engine import PartialSystems
+from mps_core.errors import ChartDomainError
+from mps_core.mechanism import ChartView
+
+
+def _scene_engines(name="press-cycle"):
+    sc = load_scene(name)
+    mech = sc.mechanism()
+    effects = sc.build_effects(mech)
+    controls = Controls(structure="free", engage_on=True)
+    for e in effects:
+        if hasattr(e, "use"):
+            e.use(controls)
+    return (mech, controls, PartialSystems(mech, effects, "autodiff"),
+            PartialSystems(mech, effects, "autodiff", kernels=False))
+
+
+MECH, CONTROLS, KERNEL, JETS = _scene_engines()
+VIEWS = [(s, v) for s in ("free", "locked", "held") for v in MECH.views(s)]
+
+
+def _close(a, b, scale):
+    return np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-10 * scale
+
+
+def _state(view, u, w, v0, v1):
+    names = [c.name for c in view.coordinates]
+    q = [u if n != "x_C" else 0.01 + 0.04 * (w + 0.5) for n in names]
+    if view.n == 2 and names[1] == "psi":
+        q[1] = w
+    return np.array(q), np.array([v0, v1][:view.n])
+
+
+@settings(max_examples=80, deadline=None)
+@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi),
+       w=st.floats(-0.5, 0.5), v0=st.floats(-20, 20), v1=st.floats(-5, 5))
+def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
+    structure, view = VIEWS[k]
+    CONTROLS.structure = structure
+    q, qd = _state(view, u, w, v0, v1)
+    try:
+        a = JETS.evaluate(view, 0.0, q, qd)
+    except ChartDomainError:
+        with pytest.raises(ChartDomainError):
+            KERNEL.evaluate(view, 0.0, q, qd)
+        return
+    if view.regularity(a.kin.pose) < 0.05:
+        return                     # near a chart's singularity both lose digits differently
+    e = KERNEL.evaluate(view, 0.0, q, qd)
+    plan = KERNEL._plans[view]
+    assert plan.traced
+    if "~" in view.name:
+        # the continuation chart's positions call math's functions directly: not traceable
+        assert plan.kernel is None
+    else:
+        assert plan.kernel is not None
+        assert e.kin._conv is not None
+    assert _close(e.A, a.A, np.abs(a.A).max())
+    assert _close(e.h, a.h, np.abs(a.h).max() + np.abs(a.Q).max())
+    assert _close(e.Q, a.Q, np.abs(a.Q).max() + 1.0)
+    assert _close(e.qdd, a.qdd, np.abs(a.qdd).max() + 1.0)
+    assert _close(e.kin.X, a.kin.X, 0.1)
+    assert _close(e.kin.J, a.kin.J, np.abs(a.kin.J).max())
+    assert _close(e.kin.W, a.kin.W, np.abs(a.kin.W).max())
+    if plan.kernel is not None:
+        # the bodies' angular accelerations at q̈ = 0 against the jets'
+        _, _, _, theta2 = JETS._autodiff(view, 0.0, q, qd)
+        conv = [e.kin._conv[k] for k in KERNEL._rot]
+        assert _close(conv, theta2, np.abs(theta2).max() + 1.0)
+
+
+def test_exact_kernels_count_the_same_work():
+    q, qd = np.array([0.3, -0.1]), np.array([10.0, 1.0])
+    view = MECH.views("free")[0]
+    CONTROLS.structure = "free"
+    for eng in (KERNEL, JETS):
+        before = dict(eng.counts)
+        eng.evaluate(view, 0.0, q, qd)
+        assert eng.counts["evaluations"] - before["evaluations"] == 1
+        assert eng.counts["position_points"] - before["position_points"] == 1
+        assert eng.counts["position_calls"] - before["position_calls"] == 1
+    assert KERNEL._plans[view].kernel is not None
+
+
+def test_a_domain_error_at_the_first_point_builds_nothing_yet():
+    mech, controls, eng, _ = _scene_engines("paper")
+    view = mech.views("free")[0]
+    with pytest.raises(ChartDomainError):
+        eng.evaluate(view, 0.0, np.array([-1.5708, 1.5708]), np.array([1.0, 0.0]))  # rod across
+    assert not eng._plans[view].traced
+    eng.evaluate(view, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
+    assert eng._plans[view].kernel is not None
+    # outside the domain later: the position function's own error, from the kernel's guard
+    with pytest.raises(ChartDomainError, match="rod across the guide"):
+        eng.evaluate(view, 0.0, np.array([-1.5708, 1.5708]), np.array([1.0, 0.0]))
+
+
+def test_another_branch_goes_back_to_the_jets():
+    """A position function that branches: where the traced comparison comes out otherwise the
+    kernel hands the point to the jets (same numbers either way here)."""
+    mech, controls, eng, jets = _scene_engines("paper")
+    view = mech.views("free")[0]
+    flat = view.chart.flat
+    calls = []
+
+    def branching(phi, psi, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+        calls.append(phi)
+        if phi > 0.5:
+            return flat(phi, psi, cos, sin, sqrt)
+        return flat(phi, psi, cos=cos, sin=sin, sqrt=sqrt)
+
+    v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
+    qd = np.array([10.0, 1.0])
+    e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)       # traced with phi <= 0.5
+    assert eng._plans[v2].kernel is not None
+    n = len(calls)
+    for phi in (0.2, 0.9, 0.4):
+        e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
+        a = jets.evaluate(view, 0.0, np.array([phi, -0.1]), qd)
+        assert _close(e.qdd, a.qdd, np.abs(a.qdd).max() + 1.0)
+    # only the point on the other branch called the position function (to check its domain)
+    assert len(calls) == n + 1
+
+
+def test_an_untraceable_chart_keeps_the_jets():
+    mech, controls, eng, _ = _scene_engines("paper")
+    view = mech.views("free")[0]
+    flat = view.chart.flat
+
+    def opaque(phi, psi, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+        return flat(phi, psi, math.cos, math.sin, math.sqrt)   # math's own: no trace
+
+    v2 = ChartView(dataclasses.replace(view.chart, flat=opaque))
+    e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
+    assert eng._plans[v2].traced and eng._plans[v2].kernel is None
+    assert np.all(np.isfinite(e.qdd))
+
+
+def test_a_run_with_exact_kernels_follows_the_jets():
+    sc = load_scene("press-cycle").with_overrides(scheme="autodiff", t_end=0.5)
+    a = build(sc).run(0.5, 1e-3)
+    slow = build(dataclasses.replace(sc, solver=dataclasses.replace(sc.solver, kernels=False)))
+    b = slow.run(0.5, 1e-3)
+    assert [e["kind"] for e in a.events] == [e["kind"] for e in b.events]
+    assert max(abs(x["t"] - y["t"]) for x, y in zip(a.events, b.events)) < 1e-12
+    for name in ("phi", "psi", "phi_dot", "psi_dot"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.abs(x - y).max() < 1e-9 * (1.0 + np.abs(y).max()), name
+    for name in ("phi_ddot", "psi_ddot"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.abs(x - y).max() < 1e-9 * np.abs(y).max(), name
+    assert a.counts == b.counts
