@@ -211,6 +211,13 @@ class Kinematics:
                 r = 2 * names[p]
                 s += fx * jl[r] + fy * jl[r + 1]
             return [s]
+        if n == 2:
+            s0 = s1 = 0.0
+            for p, fx, fy in forces:
+                r = 4 * names[p]
+                s0 += fx * jl[r] + fy * jl[r + 2]
+                s1 += fx * jl[r + 1] + fy * jl[r + 3]
+            return [s0, s1]
         Q = [0.0] * n
         for p, fx, fy in forces:
             r = 2 * n * names[p]
@@ -515,6 +522,18 @@ class PartialSystems:
                     else:
                         q += Qe[0]
             return [q + qc], [q]
+        if n == 2:
+            q0 = q1 = c0 = c1 = 0.0
+            for fast, e, conservative in self._effect_paths[1]:
+                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
+                if Qe is not None:
+                    if conservative:
+                        c0 += Qe[0]
+                        c1 += Qe[1]
+                    else:
+                        q0 += Qe[0]
+                        q1 += Qe[1]
+            return [q0 + c0, q1 + c1], [q0, q1]
         Q = [0.0] * n
         Qc = [0.0] * n
         for fast, e, conservative in self._effect_paths[1]:
