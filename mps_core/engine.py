@@ -319,7 +319,8 @@ class Evaluation:
 class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
-    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced")
+    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
+                 "inline")
 
     def __init__(self, view: ChartView, delta: float):
         n = view.n
@@ -343,7 +344,10 @@ class _Plan:
         self.K = K
         self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
         self.kernel = None
-        self.traced = False         # autodiff: the exact kernel was built (or found impossible)
+        #: the kernel from the traced position function (central: ``inline``, with ``kernel``
+        #: the calling one as its fallback; autodiff: ``kernel``) was built, or found impossible
+        self.traced = False
+        self.inline = None
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -610,6 +614,12 @@ class PartialSystems:
     def _central_evaluate(self, view, t, q, qd):
         plan = self._plans.get(view) or self._plan(view)
         if plan.kernel is not None:
+            if not plan.traced:
+                try:
+                    plan.inline = central_kernel(self, view, plan, q)
+                    plan.traced = True
+                except (ChartDomainError, ArithmeticError, ValueError):
+                    pass            # q is outside the chart: the kernel says so; traced later
             return self._kernel_evaluate(view, t, q, qd, plan)
         kin, Zt, Wr, plan = self._central(view, t, q, qd)
         n, B = plan.n, plan.B
@@ -630,8 +640,15 @@ class PartialSystems:
         counts = self.counts
         counts["position_calls"] += 1
         counts["position_points"] += plan.S
+        ql = q.tolist()
         try:
-            xl, jl, wl, Ab, wb = plan.kernel(*q.tolist())
+            if plan.inline is not None:
+                try:
+                    xl, jl, wl, Ab, wb = plan.inline(*ql)
+                except BranchChanged:
+                    xl, jl, wl, Ab, wb = plan.kernel(*ql)
+            else:
+                xl, jl, wl, Ab, wb = plan.kernel(*ql)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "a stencil point has no real configuration") \
                 from None

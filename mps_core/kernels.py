@@ -15,6 +15,10 @@ computation on Python floats, in straight-line code written once per (mechanism,
 * the angular analogs ω* = (r × v*)/|r|² of the rotating bodies;
 * the mass matrix at every base point: A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j.
 
+Written from a trace of ``flat`` (:mod:`mps_core.tracing`) the kernel also has the position
+function's program inline at each stencil point, with its constant outputs folded in, instead
+of calling it; the calling kernel remains for points where the trace does not hold.
+
 It returns the positions, analogs and angular analogs at q (flat lists, the layout of
 :class:`~mps_core.engine.Kinematics`), the mass matrices at the base points and the angular
 analogs at the other base points (for the bodies' convective angular accelerations by the same
@@ -79,25 +83,85 @@ def _lin(coefs, var) -> str | None:
     return out
 
 
-def central_kernel(engine, view, plan):
+def central_kernel(engine, view, plan, q=None):
     """The kernel of a chart view for ``engine`` (central differences), or None where the chart
-    has no ``flat`` positions or too many free coordinates."""
+    has no ``flat`` positions or too many free coordinates.
+
+    Without ``q`` the kernel calls ``flat`` at each stencil point. With ``q`` (a point of the
+    chart's domain) ``flat`` is traced there (:mod:`mps_core.tracing`) and its program written
+    out at each stencil point instead: the same operations without the calls, the constant
+    outputs (fixed points) folded in. Where a stencil point fails one of the trace's guards,
+    that kernel calls ``flat`` there (its own domain error) or raises
+    :class:`~mps_core.exact_kernels.BranchChanged` (the caller then uses the calling kernel).
+    None where ``flat`` cannot be traced."""
     flat = getattr(view.chart, "flat", None)
     n = view.n
     if flat is None or n > MAX_N:
         return None
-    key = _key(engine, view, plan)
+    traced = None
+    if q is not None:
+        from .exact_kernels import _arguments
+        from .tracing import TracingError, trace_at
+        args, free = _arguments(view, q)
+        try:
+            traced = trace_at(flat, args, free)
+        except TracingError:
+            return None
+        key = (_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
+    else:
+        key = _key(engine, view, plan)
     code = _CODE.get(key)
     if code is None:
-        src = _source(engine, view, plan)
+        src = _source(engine, view, plan, traced)
         if len(_CODE) > 1024:
             _CODE.clear()
         code = _CODE[key] = (compile(src, f"<kernel {view.name}>", "exec"), src)
-    namespace = {"F": flat}
+
+    def miss(*a):
+        from .exact_kernels import BranchChanged
+        flat(*a)                    # raises where the point is outside the chart's domain
+        raise BranchChanged(view.name)
+
+    namespace = {"F": flat, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
     exec(code[0], namespace)
     kernel = namespace["kernel"]
     kernel.source = code[1]
     return kernel
+
+
+_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+_CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+
+
+def _inline(w: "_Writer", tape, outputs, inputs: list, call: list) -> list:
+    """Code for one call of a traced function: ``inputs`` the traced arguments as code (by input
+    number), ``call`` the whole argument list as code (for a failed guard's call). Returns the
+    outputs, each a local's name or a float."""
+    vals: list = []
+    pending: dict = {}
+    for g in tape.guards:
+        last = max([x for x in (g[0], g[2]) if isinstance(x, int)], default=-1)
+        pending.setdefault(last, []).append(g)
+
+    def code(x):
+        v = vals[x] if isinstance(x, int) else x
+        return repr(v) if isinstance(v, float) else v
+
+    for i, node in enumerate(tape.nodes):
+        op = node[0]
+        if op == "input":
+            vals.append(inputs[node[1]])
+        elif op in _INFIX:
+            vals.append(w.let(f"{code(node[1])} {_INFIX[op]} {code(node[2])}"))
+        elif op == "neg":
+            vals.append(w.let(f"-{code(node[1])}"))
+        else:
+            vals.append(w.let(f"{op}({code(node[1])})"))
+        for a, cmp, b, outcome in pending.get(i, ()):
+            test = f"{code(a)} {_CMP[cmp]} {code(b)}"
+            # "not (a > b)" also catches NaN
+            w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
+    return [vals[o] if isinstance(o, int) else o for o in outputs]
 
 
 #: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
@@ -116,7 +180,7 @@ def _key(engine, view, plan=None) -> tuple:
             None if plan is None else plan.d.tobytes())
 
 
-def _source(engine, view, plan) -> str:
+def _source(engine, view, plan, traced=None) -> str:
     """The kernel's Python source (see the module's docstring).
 
     The differences are left unscaled inside: ω̃ = (r × Δr)/|r|² and A_ij = Σ m ΔG_i·ΔG_j +
@@ -135,31 +199,50 @@ def _source(engine, view, plan) -> str:
     moving = {k for k in range(2 * npts) if k // 2 not in fixed}
     w = _Writer()
     qs = [f"q{k}" for k in range(n)]
-    # the stencil's position calls
+    # the stencil's positions: P[s][k] the point coordinate k at stencil point s (a local's
+    # name, or a float where the position function gives a constant)
     args_free = {i: k for k, i in enumerate(view.free)}
+    P = []
     for s, off in enumerate(offsets.tolist()):
-        args = []
+        args, inputs = [], []
         for ci in range(view.chart.size):
             if ci in args_free:
                 k = args_free[ci]
                 o = off[k] * d[k]
-                args.append(qs[k] if o == 0.0 else f"{qs[k]} + {o!r}")
+                a = qs[k] if o == 0.0 else f"{qs[k]} + {o!r}"
+                if traced is not None:
+                    a = w.let(a)
+                    inputs.append(a)
+                args.append(a)
             else:
                 args.append(repr(float(view._template[ci])))
-        names = ", ".join(f"p{s}_{k}" for k in range(2 * npts))
-        w.lines.append(f"    {names}, = F({', '.join(args)})")
+        if traced is None:
+            names = [f"p{s}_{k}" for k in range(2 * npts)]
+            w.lines.append(f"    {', '.join(names)}, = F({', '.join(args)})")
+            P.append(names)
+        else:
+            P.append(_inline(w, traced[0], traced[1], inputs, args))
 
     def diff(b, i, row):
         """Unscaled analog 2Δ_i·∂r/∂q_i of M's row at base b (a local's name, or None)."""
         def var(k):
+            a, c = P[plus[b, i]][k], P[minus[b, i]][k]
             if k not in moving:
                 return None
-            return w.let(f"p{plus[b, i]}_{k} - p{minus[b, i]}_{k}")
+            if isinstance(a, float) and isinstance(c, float):
+                return None if a == c else repr(a - c)
+            return w.let(f"{a!r} - {c}" if isinstance(a, float) else
+                         f"{a} - {c!r}" if isinstance(c, float) else f"{a} - {c}")
         e = _lin(M[row], var)
         return None if e is None else w.let(e)
 
     def value(b, row):
-        e = _lin(M[row], lambda k: f"p{b}_{k}")
+        def var(k):
+            a = P[b][k]
+            if isinstance(a, float):
+                return None if a == 0.0 else repr(a)
+            return a
+        e = _lin(M[row], var)
         return None if e is None else w.let(e)
 
     def scaled(x, i):

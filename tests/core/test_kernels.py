@@ -126,3 +126,56 @@ def test_no_flat_positions_means_the_array_code():
     e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
     assert eng._plans[v2].kernel is None
     assert np.all(np.isfinite(e.qdd))
+
+
+@settings(max_examples=40, deadline=None)
+@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi),
+       w=st.floats(-0.5, 0.5))
+def test_the_inlined_kernel_equals_the_calling_kernel(k, u, w):
+    """The traced position function written out at each stencil point gives the numbers of the
+    kernel that calls it there."""
+    structure, view = VIEWS[k]
+    CONTROLS.structure = structure
+    names = [c.name for c in view.coordinates]
+    q = [u if n != "x_C" else 0.01 + 0.04 * (w + 0.5) for n in names]
+    if view.n == 2 and names[1] == "psi":
+        q[1] = w
+    plan = KERNEL._plan(view)
+    from mps_core.kernels import central_kernel
+    from mps_core.exact_kernels import BranchChanged
+    try:
+        calling = plan.kernel(*q)
+    except (ChartDomainError, ValueError, ZeroDivisionError):
+        return
+    try:
+        inline = central_kernel(KERNEL, view, plan, q)
+    except ChartDomainError:
+        return                      # the stencil reaches outside the domain at the traced q
+    if "~" in view.name:
+        assert inline is None       # the continuation chart's math functions: not traced
+        return
+    out = inline(*q)
+    for a, b in zip(out, calling):
+        assert np.allclose(np.asarray(a, float), np.asarray(b, float), rtol=1e-14, atol=1e-300)
+
+
+def test_an_inlined_kernel_on_another_branch_hands_over_to_the_calling_one():
+    mech, controls, eng, arr = _scene_engines("paper")
+    view = mech.views("free")[0]
+    flat = view.chart.flat
+
+    def branching(phi, psi, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
+        if phi > 0.5:
+            return flat(phi, psi, cos, sin, sqrt)
+        return flat(phi, psi, cos=cos, sin=sin, sqrt=sqrt)
+
+    from mps_core.mechanism import ChartView
+
+    v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
+    qd = np.array([10.0, 1.0])
+    eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)
+    assert eng._plans[v2].inline is not None
+    for phi in (0.2, 0.9, 0.499):            # 0.499: only some stencil points cross
+        e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
+        a = arr.evaluate(view, 0.0, np.array([phi, -0.1]), qd)
+        assert _close(e.qdd, a.qdd, np.abs(a.qdd).max() + 1.0)
