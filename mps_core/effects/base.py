@@ -58,6 +58,12 @@ class Effect:
     #: ``generalized_force(t, kin)``, the virtual work of the loads as n floats (None for
     #: none), the same number as the engine's sum over the loads in fewer operations
 
+    #: optional, in a subclass with a ``stiffness(kin)`` (its generalized stiffness, n × n, or
+    #: None): ``stiffness_bound(mechanism)``, an upper bound on the largest ω² of
+    #: K v = ω² A v for this effect's K alone, valid in every configuration and chart (None: no
+    #: bound known). The driver's stability check skips its per-step work for steps safely
+    #: within the bounds' limit (:meth:`mps_core.simulation.Simulation._stable_step`)
+
     def power(self, t: float, kin) -> float:
         """Mechanical power (W) this effect delivers to the moving bodies."""
         ld = self.loads(t, kin)
@@ -80,6 +86,21 @@ def stiffness_x(k: float, kin, point: str):
     """The generalized stiffness k·(∂x/∂q)ᵀ(∂x/∂q) of a spring along x at a point (n × n)."""
     jx = kin.jac(point)[0]
     return [[k * a * b for b in jx] for a in jx]
+
+
+def stiffness_x_bound(k: float, mechanism, point: str) -> float | None:
+    """An upper bound on ω² of K v = ω² A v for K = k·(∂x/∂q)ᵀ(∂x/∂q), a spring along x at a
+    point (:func:`stiffness_x`), in every configuration and chart: k/M, with M the mass of the
+    bodies whose centre of mass is that point. The mass matrix is a sum of Gram matrices, so
+    A ≥ M·J_Pᵀ J_P ≥ M·(∂x/∂q)ᵀ(∂x/∂q), hence (∂x/∂q)·A⁻¹·(∂x/∂q) ≤ 1/M and
+    ω²_max ≤ trace(A⁻¹K) ≤ k/M. None where no body has its centre of mass at the point."""
+    m = 0.0
+    for b in mechanism.bodies:
+        a, c = b.com
+        if (b.origin == point and a == 0.0 and c == 0.0) or (
+                b.toward == point and b.length > 0.0 and a == b.length and c == 0.0):
+            m += b.mass
+    return k / m if m > 0.0 else None
 
 
 def vector2(value, field_name: str) -> np.ndarray:

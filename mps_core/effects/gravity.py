@@ -39,8 +39,9 @@ class Gravity(Effect):
         return kin.weighted_analogs(self._com)
 
     def potential(self, kin) -> float:
+        pose = kin.pose                 # built once per state (the driver reads it every step)
         v = 0.0
         for p, fx, fy in self._com:
-            x, y = kin.xy(p)
+            x, y = pose[p]
             v -= fx * x + fy * y
         return v

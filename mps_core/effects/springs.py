@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .base import Effect, Loads, along_x, stiffness_x
+from .base import Effect, Loads, along_x, stiffness_x, stiffness_x_bound
 
 
 class RetentionSprings(Effect):
@@ -40,6 +40,9 @@ class RetentionSprings(Effect):
 
     def stiffness(self, kin) -> list:
         return stiffness_x(self.k, kin, "C")
+
+    def stiffness_bound(self, mechanism) -> float | None:
+        return stiffness_x_bound(self.k, mechanism, "C")
 
 
 class SliderDamper(Effect):

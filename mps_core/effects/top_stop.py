@@ -14,7 +14,7 @@ one-sided stop cannot hold (the reaction grows without bound as the transmission
 
 from __future__ import annotations
 
-from .base import Effect, Loads, along_x, stiffness_x
+from .base import Effect, Loads, along_x, stiffness_x, stiffness_x_bound
 
 
 class TopStop(Effect):
@@ -70,3 +70,9 @@ class TopStop(Effect):
         if self.rigid or kin.xy("C")[0] <= self.x_top:
             return None
         return stiffness_x(self.k, kin, "C")
+
+    def stiffness_bound(self, mechanism) -> float | None:
+        """0 for a rigid stop (no stiffness of its own), else the spring's bound at C."""
+        if self.rigid:
+            return 0.0
+        return stiffness_x_bound(self.k, mechanism, "C")
