@@ -31,33 +31,74 @@ class LinearAcceleration(Solver):
             raise ValueError(f"corrector iterations = {iterations!r}: expected an integer >= 1")
         self.iterations = int(iterations)
         self.evaluations_per_step = 1 + self.iterations
+        self._step = None       # (t0, Δt, q0, q̇0, q̈0, q̈1) of the last step, for its cubic
         super().__init__(fun, t0, q0, qd0, current)
 
     def step_to(self, t_target, interrupt=None):
-        # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate); the same
-        # operations in the same order as the vector formulas above
+        # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate), written out
+        # for n = 1 and 2; the same operations in the same order as the vector formulas above.
+        # ``fun`` is called directly there (``nfev`` counted as by ``_call``)
         t0, q0, qd0 = self.t, self.q, self.qd
         dt = t_target - t0
         a0 = self.current.qdd
         ql, vl, al = q0.tolist(), qd0.tolist(), a0.tolist()
         h2, h6, hh = 0.5 * dt * dt, dt * dt / 6.0, 0.5 * dt
-        qdp = np.array([v + a * dt for v, a in zip(vl, al)])
-        qp = np.array([q + v * dt + a * h2 for q, v, a in zip(ql, vl, al)])
-        a1 = self._call(t_target, qp, qdp).qdd
-        for k in range(self.iterations):
-            a1l = a1.tolist()
-            qd1 = np.array([v + (a + b) * hh for v, a, b in zip(vl, al, a1l)])
-            q1 = np.array([q + v * dt + (2.0 * a + b) * h6 for q, v, a, b in zip(ql, vl, al, a1l)])
-            e = self._call(t_target, q1, qd1)
-            if k + 1 < self.iterations:
-                a1 = e.qdd
-        self._dense = _LinearAccelerationCubic(t0, dt, q0, qd0, a0, a1)
+        fun = self.fun
+        n = len(ql)
+        if n == 1:
+            (x,), (v,), (a,) = ql, vl, al
+            self.nfev += 1
+            a1 = fun(t_target, np.array([x + v * dt + a * h2]), np.array([v + a * dt])).qdd
+            for k in range(self.iterations):
+                (b,) = a1.tolist()
+                qd1 = np.array([v + (a + b) * hh])
+                q1 = np.array([x + v * dt + (2.0 * a + b) * h6])
+                self.nfev += 1
+                e = fun(t_target, q1, qd1)
+                if k + 1 < self.iterations:
+                    a1 = e.qdd
+        elif n == 2:
+            (x, y), (v, w), (a, c) = ql, vl, al
+            self.nfev += 1
+            a1 = fun(t_target, np.array([x + v * dt + a * h2, y + w * dt + c * h2]),
+                     np.array([v + a * dt, w + c * dt])).qdd
+            for k in range(self.iterations):
+                b, d = a1.tolist()
+                qd1 = np.array([v + (a + b) * hh, w + (c + d) * hh])
+                q1 = np.array([x + v * dt + (2.0 * a + b) * h6, y + w * dt + (2.0 * c + d) * h6])
+                self.nfev += 1
+                e = fun(t_target, q1, qd1)
+                if k + 1 < self.iterations:
+                    a1 = e.qdd
+        else:
+            qdp = np.array([v + a * dt for v, a in zip(vl, al)])
+            qp = np.array([x + v * dt + a * h2 for x, v, a in zip(ql, vl, al)])
+            a1 = self._call(t_target, qp, qdp).qdd
+            for k in range(self.iterations):
+                a1l = a1.tolist()
+                qd1 = np.array([v + (a + b) * hh for v, a, b in zip(vl, al, a1l)])
+                q1 = np.array([x + v * dt + (2.0 * a + b) * h6
+                               for x, v, a, b in zip(ql, vl, al, a1l)])
+                e = self._call(t_target, q1, qd1)
+                if k + 1 < self.iterations:
+                    a1 = e.qdd
+        # the step's cubic is made when asked for (at events only): keep what it needs
+        self._dense = None
+        self._step = (t0, dt, q0, qd0, a0, a1)
         self.t, self.q, self.qd, self.current = t_target, q1, qd1, e
         self.nsteps += 1
+
+    def dense_output(self):
+        """The last step's cubic (43), made on the first call after the step."""
+        if self._dense is None and self._step is not None:
+            self._dense = _LinearAccelerationCubic(*self._step)
+        return super().dense_output()
 
 
 class _LinearAccelerationCubic:
     """The step's cubic (43) and its derivative (42)."""
+
+    __slots__ = ("t0", "dt", "q0", "qd0", "a0", "_a1", "_j")
 
     def __init__(self, t0, dt, q0, qd0, a0, a1):
         self.t0, self.dt = t0, dt
