@@ -34,7 +34,15 @@ implicit method's √3/π·T_min ≈ 0.551·T_min is not this explicit scheme's)
 (≈ 0.450·T_min). Policy ``subdivide`` cuts the step into stable substeps; ``error`` raises
 :class:`StabilityError` saying why. (With an even number of corrections the predictor-corrector
 is weakly unstable at any step: its amplification exceeds 1 by about (ω·Δt)⁶/10⁴ per step for
-2 corrections; one or three corrections are stable and slightly dissipative.)
+2 corrections; one or three corrections are stable and slightly dissipative.) Where every stiff
+effect bounds its ω² over all states (``stiffness_bound``, e.g. k/M for a spring at a centre of
+mass M), steps well inside the limit of those bounds skip the per-step estimate: it would keep
+them whole.
+
+**Per step** the driver does only what the step needs: what depends on a chart view alone (where
+each reported observable comes from, the event functions) is worked out once per view, the
+recorded rows are tuples made into columns at the end, and the reported angles read for unwrapping
+after a step are reused by its record.
 
 **Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
 their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
@@ -61,6 +69,9 @@ from .solvers import make_solver
 from .trajectory import Trajectory
 
 COMMANDS = ("engage", "disengage", "stop", "start")
+#: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
+_ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", "T", "V", "W",
+        "E_impact", "structure", "chart")
 #: stability limits as fractions of the shortest period T_min, from the amplification matrix of
 #: each method on q̈ = −ω²q. The seed's explicit predictor-corrector (one correction) is stable
 #: for ω·Δt ≤ 2, i.e. Δt ≤ T_min/π ≈ 0.318 T_min (the implicit linear acceleration method's
@@ -110,9 +121,54 @@ class SolverSettings:
 @dataclass
 class _Event:
     name: str
-    fn: Callable
+    fn: Callable            # fn(t, q, q̇, kin=None): the event function in its list's view
     direction: int          # +1 rising through zero, -1 falling, 0 either
     action: Callable
+
+
+#: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
+_COORD, _FROZEN, _POSE, _BODY, _JETS = range(5)
+
+
+class _ViewPlan:
+    """What the driver reads of one chart view at every step, worked out once per view.
+
+    ``report``: for each reported observable (the mechanism's ``report``, in order)
+    ``(name, how, observable, arg)``: ``_COORD`` (a free coordinate, arg its index), ``_FROZEN``
+    (arg its value), ``_POSE`` (position only, from the evaluation's pose), ``_BODY`` (a body's
+    angle: rates from the body's analogs, arg the body's name), ``_JETS`` (exact, through jets).
+    """
+
+    __slots__ = ("report",)
+
+    def __init__(self, sim: "Simulation", view: ChartView):
+        report = []
+        for name, order in sim._report.items():
+            obs = sim.mechanism.observables[name]
+            k = view.coordinate_index(name)
+            if k is not None:
+                report.append((name, _COORD, obs, k))
+            elif name in view.frozen:
+                report.append((name, _FROZEN, obs, float(view.frozen[name])))
+            elif order == 0:
+                report.append((name, _POSE, obs, None))
+            elif name in sim._angle_body:
+                report.append((name, _BODY, obs, sim._angle_body[name]))
+            else:
+                report.append((name, _JETS, obs, None))
+        self.report = tuple(report)
+
+
+def _floats2(e) -> tuple[list, list, list]:
+    """A (as rows), h and Q of an evaluation with two coordinates, as floats. An evaluation
+    from a scalar kernel keeps them as floats (A packed as (a00, a01, a11), h and Q lists) and
+    makes its arrays from them on first use: read there, they are the numbers the arrays would
+    hold, without making the arrays; any other evaluation gives its arrays'."""
+    A, h, Q = getattr(e, "_A", None), getattr(e, "_h", None), getattr(e, "_Q", None)
+    if type(A) is tuple and len(A) == 3 and type(h) is list and type(Q) is list:
+        a00, a01, a11 = A
+        return [[a00, a01], [a01, a11]], h, Q
+    return e.A.tolist(), e.h.tolist(), e.Q.tolist()
 
 
 class Simulation:
@@ -154,9 +210,14 @@ class Simulation:
             self.controls.motor_on = self.motor.enabled
         self.engage = next((e for e in self.effects if e.kind == "engage_cylinder"), None)
         self._nc = [e for e in self.effects if not e.conservative]
+        self._potentials = [e.potential for e in self.effects if e.conservative]
         self._stiff = [e for e in self.effects if hasattr(e, "stiffness")]
+        self._dt_stable = self._always_stable()
         self._views: dict[str, list[ChartView]] = {}
+        self._events_by_state: dict[tuple, list[_Event]] = {}
         self._full: dict[str, ChartView] = {}
+        #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates)
+        self._held: dict[ChartView, tuple] = {}
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
@@ -166,11 +227,14 @@ class Simulation:
         self.work = 0.0
         self.impact_loss = 0.0
         self._report = getattr(mechanism, "report", {"phi": 2, "psi": 2, "x_C": 0})
+        self._report_at = {name: k for k, name in enumerate(self._report)}
         #: the body whose angle an angle observable is (its rates come from the body's analogs)
         self._angle_body = {
             o.name: b.name for o in mechanism.observables.values() if o.is_angle
             for b in mechanism.bodies if (b.origin, b.toward) == tuple(o.points)}
         self.phys: dict[str, float] = {}
+        self._phys_of = None            # the evaluation phys was last read from
+        self._plans: dict[ChartView, _ViewPlan] = {}
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
@@ -224,57 +288,83 @@ class Simulation:
             self._release_stop(t)
 
     # -- physical observables -------------------------------------------------------------
+    def _plan(self, view) -> "_ViewPlan":
+        """The view's :class:`_ViewPlan` (built on first use, kept by the view object)."""
+        plan = self._plans.get(view)
+        if plan is None:
+            plan = self._plans[view] = _ViewPlan(self, view)
+        return plan
+
     def _observe(self, e):
         """Reported observables (value, rate, acceleration) from an evaluation, any chart."""
+        return dict(zip(self._report, self._observations(e)))
+
+    def _observations(self, e) -> list:
+        """(value, rate, acceleration) of each reported observable, in the report's order."""
         view = e.view
-        out = {}
-        jets = None
-        for name, order in self._report.items():
-            obs = self.mechanism.observables[name]
-            k = view.coordinate_index(name)
-            if k is not None:
-                out[name] = (float(e.q[k]), float(e.qd[k]), float(e.qdd[k]))
-            elif name in view.frozen:
-                out[name] = (float(view.frozen[name]), 0.0, 0.0)
-            elif order == 0:
-                out[name] = (obs.value(e.kin.pose), math.nan, math.nan)
-            elif (body := self._angle_body.get(name)) is not None and \
-                    (conv := e.kin.angular_convective(body)) is not None:
+        out = []
+        jets = q = qdd = None           # floats of q, q̇ (q̈) and the jets, made on first use
+        phys = self.phys
+        # right after _update_phys(e) an observable read from the pose is already in phys (an
+        # angle unwrapped to its reference): the same number as reading it again
+        same = self._phys_of is e
+        for name, how, obs, arg in self._plan(view).report:
+            if how == _COORD:
+                if q is None:
+                    q, qd = e.q.tolist(), e.qd.tolist()
+                    if qdd is None:
+                        qdd = e.qdd.tolist()
+                out.append((q[arg], qd[arg], qdd[arg]))
+                continue
+            if how == _FROZEN:
+                out.append((arg, 0.0, 0.0))
+                continue
+            if how == _POSE:
+                out.append((phys[name] if same and not obs.is_angle else obs.value(e.kin.pose),
+                            math.nan, math.nan))
+                continue
+            kin = e.kin
+            if how == _BODY and (conv := kin.angular_convective(arg)) is not None:
                 # the body's angle: rate ω*·q̇, acceleration ω*·q̈ + Σ ∂ω*/∂q q̇ q̇ by the
                 # evaluation's own central differences (the scheme's accuracy, no jets)
-                v = obs.value(e.kin.pose)
-                if name in self.phys:
-                    v = unwrap_to(v, self.phys[name])
-                w = e.kin.omega(body)
+                if same:
+                    v = phys[name]
+                else:
+                    v = obs.value(kin.pose)
+                    if name in phys:
+                        v = unwrap_to(v, phys[name])
+                if qdd is None:
+                    qdd = e.qdd.tolist()
                 acc = conv
-                for wi, ai in zip(w, e.qdd.tolist()):
+                for wi, ai in zip(kin.omega(arg), qdd):
                     acc += wi * ai
-                out[name] = (v, e.kin.rate(body), acc)
-            else:
-                if jets is None:
-                    jets = view.pose_jets(e.q, e.qd)
-                j = obs.jet(jets, view.n)
-                v = float(j.val)
-                if obs.is_angle and name in self.phys:
-                    v = unwrap_to(v, self.phys[name])
-                out[name] = (v, float(j.d1), float(j.grad @ e.qdd + j.d2))
+                out.append((v, kin.rate(arg), acc))
+                continue
+            if jets is None:
+                jets = view.pose_jets(e.q, e.qd)
+            j = obs.jet(jets, view.n)
+            v = float(j.val)
+            if obs.is_angle and name in phys:
+                v = unwrap_to(v, phys[name])
+            out.append((v, float(j.d1), float(j.grad @ e.qdd + j.d2)))
         return out
 
     def _update_phys(self, e):
         """The current values of the reported angles: references for unwrapping (positions only)."""
-        pose = None
-        for name in self._report:
-            k = e.view.coordinate_index(name)
-            if k is not None:
-                self.phys[name] = float(e.q[k])
-            elif name in e.view.frozen:
-                self.phys[name] = float(e.view.frozen[name])
+        phys = self.phys
+        q = None
+        for name, how, obs, arg in self._plan(e.view).report:
+            if how == _COORD:
+                if q is None:
+                    q = e.q.tolist()
+                phys[name] = q[arg]
+            elif how == _FROZEN:
+                phys[name] = arg
             else:
-                obs = self.mechanism.observables[name]
-                pose = pose or e.kin.pose
-                v = obs.value(pose)
-                self.phys[name] = unwrap_to(v, self.phys[name]) if (
-                    obs.is_angle and name in self.phys) else v
+                v = obs.value(e.kin.pose)
+                phys[name] = unwrap_to(v, phys[name]) if (
+                    obs.is_angle and name in phys) else v
+        self._phys_of = e
 
     def _physical_rates(self, view, q, qd) -> dict:
         """Physical φ, ψ, x_C and their rates at a chart state (exact, through jets)."""
@@ -381,45 +471,68 @@ class Simulation:
             v = unwrap_to(v, self.phys[name])
         return v
 
+    def _reader(self, name, view):
+        """``read(q, kin=None)``: the observable's value at q in ``view``, as :meth:`_observable`
+        gives it, with the lookups that depend on the view alone done once."""
+        k = view.coordinate_index(name)
+        if k is not None:
+            return lambda q, kin=None: float(q[k])
+        if name in view.frozen:
+            value = float(view.frozen[name])
+            return lambda q, kin=None: value
+        obs = self.mechanism.observables[name]
+        angle = obs.is_angle
+
+        def read(q, kin=None):
+            if kin is None:
+                return self._observable(name, view, q)
+            v = obs.value(kin.pose)
+            if angle and name in self.phys:
+                v = unwrap_to(v, self.phys[name])
+            return v
+        return read
+
     def _event_list(self) -> list[_Event]:
         """The events that can happen now (they depend on the structure, the latch's arming and
-        the chart only; kept by those)."""
-        key = (self.controls.structure, self.controls.latch_armed, self.view.chart.name)
-        cache = self.__dict__.setdefault("_events_by_state", {})
-        ev = cache.get(key)
+        the chart view only; kept by those)."""
+        key = (self.controls.structure, self.controls.latch_armed, self.view)
+        ev = self._events_by_state.get(key)
         if ev is None:
-            ev = cache[key] = self._make_event_list()
+            ev = self._events_by_state[key] = self._make_event_list()
         return ev
 
     def _make_event_list(self) -> list[_Event]:
+        """The events of the present structure and arming in the present view: each ``fn(t, q,
+        q̇, kin=None)`` reads that view's state."""
         ev = []
         s = self.structure
+        view = self.view
         if s == "free":
             if self.latch is not None and self.controls.latch_armed:
                 lock = self.latch.psi_lock
+                psi = self._reader("psi", view)
                 ev.append(_Event("latch-closes",
-                                 lambda t, v, q, qd, kin=None:
-                                 self._observable("psi", v, q, kin) - lock, 0,
+                                 lambda t, q, qd, kin=None: psi(q, kin) - lock, 0,
                                  self._close_latch))
             if self.stop is not None:
                 top = self.stop.x_top
+                x_C = self._reader("x_C", view)
                 ev.append(_Event("stop-contact",
-                                 lambda t, v, q, qd, kin=None:
-                                 self._observable("x_C", v, q, kin) - top, +1,
+                                 lambda t, q, qd, kin=None: x_C(q, kin) - top, +1,
                                  self._hit_stop))
         elif s == "held" and self.stop is not None and self.stop.model != "clamp":
             ev.append(_Event("stop-release",
-                             lambda t, v, q, qd, kin=None: self._stop_force(t, q, qd, v),
+                             lambda t, q, qd, kin=None: self._stop_force(t, q, qd, view),
                              +1, self._release_stop))
-        if self.view.chart.name.startswith("phi-xc~"):
+        if view.chart.name.startswith("phi-xc~"):
+            phi = self._reader("phi", view)
             ev.append(_Event("change-point",
-                             lambda t, v, q, qd, kin=None:
-                             math.sin(0.5 * self._observable("phi", v, q, kin)),
+                             lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
                              0, self._record_change_point))
         return ev
 
     def _event_values(self, t, q, qd, kin=None) -> dict:
-        return {e.name: e.fn(t, self.view, q, qd, kin) for e in self._event_list()}
+        return {e.name: e.fn(t, q, qd, kin) for e in self._event_list()}
 
     @staticmethod
     def _crossed(a: float, b: float, direction: int) -> bool:
@@ -450,22 +563,24 @@ class Simulation:
 
     def _locate_event(self):
         """(earliest event root inside the last step or None, event values at the step's end)."""
-        s = self.solver
         events = self._event_list()
         if not events:
             return None, {}
-        vals = self._event_values(s.t, s.q, s.qd, s.current.kin)
-        dense = s.dense_output()
-        t_a = self._seg_start
+        s = self.solver
+        t1, q1, qd1, kin = s.t, s.q, s.qd, s.current.kin
+        vals = {e.name: e.fn(t1, q1, qd1, kin) for e in events}
+        prev = self._ev_prev
         first = None
         for e in events:
-            a, b = self._ev_prev.get(e.name), vals[e.name]
+            a, b = prev.get(e.name), vals[e.name]
             if a is None or not self._crossed(a, b, e.direction):
                 continue
+            dense = s.dense_output()
+            t_a = self._seg_start
 
             def g(t, fn=e.fn):
                 q, qd = dense(t)
-                return fn(t, self.view, q, qd)
+                return fn(t, q, qd)
 
             if a == 0.0:
                 root = t_a
@@ -474,7 +589,7 @@ class Simulation:
                 if ga * b > 0.0:
                     # the recorded sign was set at an event's root: no bracket in this step
                     continue
-                root = brentq(g, t_a, s.t, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+                root = brentq(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
             if first is None or root < first[0]:
                 first = (root, e, b)
         return first, vals
@@ -599,19 +714,23 @@ class Simulation:
         pushing it down, compressive; > 0 would be a pull). From the unfrozen chart's equations:
         λ = (A q̈ + h − Q) along x_C, with q̈ the held structure's accelerations."""
         view = view or self.view
-        chart = view.chart
-        full = self._full.get(chart.name)
-        if full is None:
-            full = self._full[chart.name] = ChartView(chart)
-        qf = np.array(view.full(list(q)), float)
-        qdf = np.zeros(full.n)
-        qdf[list(view.free)] = qd
-        e = self.engine.evaluate(full, t, qf, qdf)
-        c = full.coordinate_index("x_C")
-        f = list(view.free)
+        held = self._held.get(view)
+        if held is None:
+            chart = view.chart
+            full = self._full.get(chart.name)
+            if full is None:
+                full = self._full[chart.name] = ChartView(chart)
+            held = self._held[view] = (full, full.coordinate_index("x_C"), list(view.free))
+        full, c, f = held
+        ql = q.tolist() if isinstance(q, np.ndarray) else [float(x) for x in q]
+        qdl = qd.tolist() if isinstance(qd, np.ndarray) else [float(x) for x in qd]
+        qdf = [0.0] * full.n
+        for k, i in enumerate(f):
+            qdf[i] = qdl[k]
+        e = self.engine.evaluate(full, t, np.array(view.full(ql), float), np.array(qdf))
         if full.n == 2 and len(f) == 1:
             # one free coordinate: the same formula on floats
-            A, h, Q = e.A.tolist(), e.h.tolist(), e.Q.tolist()
+            A, h, Q = _floats2(e)
             i = f[0]
             qdd = (Q[i] - h[i]) / A[i][i]
             return A[c][i] * qdd + h[c] - Q[c]
@@ -683,31 +802,61 @@ class Simulation:
         self._restart(self.view, t, e.q, e.qd)
 
     # -- stability ------------------------------------------------------------------------
-    def _stable_step(self, dt: float) -> float:
-        """The largest step not beyond the solver's stability limit for the stiff effects."""
+    def _always_stable(self) -> float:
+        """A step up to which :meth:`_stable_step` keeps every step whole, in any state: half of
+        0.9 × the stability limit for ω² = the sum of the stiff effects' bounds
+        (``stiffness_bound``: ω²_max of their summed K is at most the sum of theirs); 0 where one
+        has no bound. Half, so that the round-off of the per-step estimate (a few ulps, more
+        on a badly conditioned A) can never reach the bound's factor of 4 in ω²."""
         name = self.settings.name
         if not self._stiff or name not in ("linear-acceleration", "rk4"):
-            return dt
-        e = self.solver.current
+            return math.inf
+        w2 = 0.0
+        for s in self._stiff:
+            bound = getattr(s, "stiffness_bound", None)
+            b = bound(self.mechanism) if bound is not None else None
+            if b is None or not (b >= 0.0) or math.isinf(b):
+                return 0.0
+            w2 += b
+        if w2 == 0.0:
+            return math.inf
+        limit = (LA_LIMIT if name == "linear-acceleration" else RK4_LIMIT) * (
+            2.0 * math.pi / math.sqrt(w2))
+        return 0.5 * 0.9 * limit
+
+    def _omega2(self, e) -> float | None:
+        """The stiff effects' ω²_max at evaluation ``e``, estimated from above by trace(A⁻¹K)
+        (A SPD, K PSD: at most n times too large, and no eigensolver); None where their K is
+        zero."""
         K = None
         for s in self._stiff:
             k = s.stiffness(e.kin)
             if k is not None:
                 K = k if K is None else [[a + b for a, b in zip(r, s_)] for r, s_ in zip(K, k)]
         if K is None or not any(any(r) for r in K):
-            return dt
-        # ω²_max of K v = ω² A v is at most trace(A⁻¹K) (A SPD, K PSD): a bound on the safe side
-        # (at most n times too large) that needs no eigensolver
+            return None
         n = len(K)
         if n == 1:
-            w2 = K[0][0] / float(e.A[0, 0] if isinstance(e._A, np.ndarray) else e._A)
-        elif n == 2:
+            return K[0][0] / float(e.A[0, 0] if isinstance(e._A, np.ndarray) else e._A)
+        if n == 2:
             (a00, a01), (a10, a11) = e.A.tolist()
             det = a00 * a11 - a01 * a10
-            w2 = (a11 * K[0][0] - a01 * K[1][0] - a10 * K[0][1] + a00 * K[1][1]) / det
-        else:
-            w2 = float(np.trace(np.linalg.solve(e.A, np.array(K))))
-        if w2 <= 0.0:
+            return (a11 * K[0][0] - a01 * K[1][0] - a10 * K[0][1] + a00 * K[1][1]) / det
+        return float(np.trace(np.linalg.solve(e.A, np.array(K))))
+
+    def _stable_step(self, dt: float) -> float:
+        """The largest step not beyond the solver's stability limit for the stiff effects.
+
+        Steps up to :meth:`_always_stable`'s bound (computed once) are returned at once: the
+        per-step estimate below would keep them whole too."""
+        if dt <= self._dt_stable:
+            return dt
+        name = self.settings.name
+        if not self._stiff or name not in ("linear-acceleration", "rk4"):
+            return dt
+        e = self.solver.current
+        w2 = self._omega2(e)
+        if w2 is None or w2 <= 0.0:
             return dt
         t_min = 2.0 * math.pi / math.sqrt(w2)
         limit = (LA_LIMIT if name == "linear-acceleration" else RK4_LIMIT) * t_min
@@ -736,10 +885,13 @@ class Simulation:
             p += eff.power(e.t, e.kin)
         return p
 
-    def _account(self, t_a, p_a):
-        p_b = self._power(self.solver.current)
-        self.work += 0.5 * (p_a + p_b) * (self.solver.t - t_a)
-        return p_b
+    def _potential(self, kin) -> float:
+        """V: the engine's ``potential_energy`` (the conservative effects' sum, in their order)
+        over the list of those effects kept by the driver (a test holds the two equal)."""
+        v = 0
+        for potential in self._potentials:
+            v += potential(kin)
+        return float(v)
 
     # -- the state, for sinks ---------------------------------------------------------------
     def snapshot(self) -> dict:
@@ -784,7 +936,10 @@ class Simulation:
             t_next = t_target
             if self.pending and self.pending[0][0] < t_next:
                 t_next = self.pending[0][0]
-            t_next = t0 + self._stable_step(t_next - t0)
+            dt = t_next - t0
+            if dt > self._dt_stable:         # else stable in any state: no estimate needed
+                dt = self._stable_step(dt)
+            t_next = t0 + dt
             p_a = self._power_now
             self._seg_start = t0
             try:
@@ -820,9 +975,15 @@ class Simulation:
                     self._ev_prev[ev.name] = after_value
                 self._update_phys(self.solver.current)
                 continue
-            self._power_now = self._account(t0, p_a)
+            # the step stands: its work (trapezoid on the power at its ends), the event values
+            # and unwrap references at its end, and the chart's regularity there
+            solver = self.solver
+            e = solver.current
+            p_b = self._power(e)
+            self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
+            self._power_now = p_b
             self._ev_prev = vals
-            self._update_phys(self.solver.current)
+            self._update_phys(e)
             self._check_chart()
 
     def run(self, t_end: float, dt: float) -> Trajectory:
@@ -832,7 +993,7 @@ class Simulation:
         if not (dt > 0):
             raise ValueError(f"dt = {dt!r}: expected a positive step")
         n = max(1, int(round((t_end - t0) / dt)))
-        rows = {k: [] for k in COLUMNS}
+        rows: list[tuple] = []
         self._record(rows, self.solver.current)
         for k in range(1, n + 1):
             tk = t_end if k == n else t0 + k * (t_end - t0) / n
@@ -841,26 +1002,22 @@ class Simulation:
         return self._trajectory(rows)
 
     def _record(self, rows, e):
-        obs = self._observe(e)
-        rows["t"].append(e.t)
-        for name in ("phi", "psi"):
-            v, vd, vdd = obs[name]
-            rows[name].append(v)
-            rows[name + "_dot"].append(vd)
-            rows[name + "_ddot"].append(vdd)
-        rows["x_C"].append(obs["x_C"][0])
-        rows["T"].append(e.kinetic_energy)
-        rows["V"].append(self.engine.potential_energy(e.kin))
-        rows["W"].append(self.work)
-        rows["E_impact"].append(self.impact_loss)
-        rows["structure"].append(self.structure)
-        rows["chart"].append(e.view.name)
+        """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
+        made once, at the end) and call the observers."""
+        obs = self._observations(e)
+        at = self._report_at
+        phi, psi = obs[at["phi"]], obs[at["psi"]]
+        rows.append((e.t, phi[0], psi[0], phi[1], psi[1], phi[2], psi[2], obs[at["x_C"]][0],
+                     e.kinetic_energy, self._potential(e.kin), self.work,
+                     self.impact_loss, self.controls.structure, e.view.name))
         for ob in self.observers:
             ob.observe(self, e)
 
     def _trajectory(self, rows) -> Trajectory:
-        cols = {k: (np.array(v, dtype=float) if k not in ("structure", "chart") else np.array(v))
-                for k, v in rows.items()}
+        data = dict(zip(_ROW, zip(*rows)))
+        cols = {k: (np.array(data.get(k, ()), dtype=float) if k not in ("structure", "chart")
+                    else np.array(data.get(k, ())))
+                for k in COLUMNS}
         for ob in self.observers:
             cols.update(ob.columns())
         counts = dict(self.engine.counts)
