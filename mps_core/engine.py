@@ -320,7 +320,7 @@ class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
     __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
-                 "inline")
+                 "inline", "exact", "exact_traced")
 
     def __init__(self, view: ChartView, delta: float):
         n = view.n
@@ -343,11 +343,14 @@ class _Plan:
         K[:, -1] = 1.0
         self.K = K
         self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
-        self.kernel = None
-        #: the kernel from the traced position function (central: ``inline``, with ``kernel``
-        #: the calling one as its fallback; autodiff: ``kernel``) was built, or found impossible
+        self.kernel = None          # central differences, calling the position function
+        #: central differences from the traced position function (``kernel`` its fallback);
+        #: ``traced``: built, or found impossible
         self.traced = False
         self.inline = None
+        #: exact derivatives (:mod:`mps_core.exact_kernels`); ``exact_traced`` as ``traced``
+        self.exact = None
+        self.exact_traced = False
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -775,13 +778,13 @@ class PartialSystems:
     def _autodiff_evaluate(self, view, t, q, qd):
         if self.kernels:
             plan = self._plans.get(view) or self._plan(view)
-            if not plan.traced:
+            if not plan.exact_traced:
                 try:
-                    plan.kernel = exact_kernel(self, view, q)
-                    plan.traced = True
+                    plan.exact = exact_kernel(self, view, q)
+                    plan.exact_traced = True
                 except (ChartDomainError, ArithmeticError, ValueError):
                     pass            # q is outside the chart: the jets say so; built next time
-            if plan.kernel is not None:
+            if plan.exact is not None:
                 try:
                     return self._exact_kernel_evaluate(view, t, q, qd, plan)
                 except BranchChanged:
@@ -818,7 +821,7 @@ class PartialSystems:
         counts["position_calls"] += 1
         counts["position_points"] += 1
         try:
-            xl, jl, wl, A, h, conv = plan.kernel(*q.tolist(), *qd.tolist())
+            xl, jl, wl, A, h, conv = plan.exact(*q.tolist(), *qd.tolist())
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),

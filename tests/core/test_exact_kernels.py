@@ -62,12 +62,12 @@ def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
         return                     # near a chart's singularity both lose digits differently
     e = KERNEL.evaluate(view, 0.0, q, qd)
     plan = KERNEL._plans[view]
-    assert plan.traced
+    assert plan.exact_traced
     if "~" in view.name:
         # the continuation chart's positions call math's functions directly: not traceable
-        assert plan.kernel is None
+        assert plan.exact is None
     else:
-        assert plan.kernel is not None
+        assert plan.exact is not None
         assert e.kin._conv is not None
     assert _close(e.A, a.A, np.abs(a.A).max())
     assert _close(e.h, a.h, np.abs(a.h).max() + np.abs(a.Q).max())
@@ -76,7 +76,7 @@ def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
     assert _close(e.kin.X, a.kin.X, 0.1)
     assert _close(e.kin.J, a.kin.J, np.abs(a.kin.J).max())
     assert _close(e.kin.W, a.kin.W, np.abs(a.kin.W).max())
-    if plan.kernel is not None:
+    if plan.exact is not None:
         # the bodies' angular accelerations at q̈ = 0 against the jets'
         _, _, _, theta2 = JETS._autodiff(view, 0.0, q, qd)
         conv = [e.kin._conv[k] for k in KERNEL._rot]
@@ -93,7 +93,7 @@ def test_exact_kernels_count_the_same_work():
         assert eng.counts["evaluations"] - before["evaluations"] == 1
         assert eng.counts["position_points"] - before["position_points"] == 1
         assert eng.counts["position_calls"] - before["position_calls"] == 1
-    assert KERNEL._plans[view].kernel is not None
+    assert KERNEL._plans[view].exact is not None
 
 
 def test_a_domain_error_at_the_first_point_builds_nothing_yet():
@@ -101,9 +101,9 @@ def test_a_domain_error_at_the_first_point_builds_nothing_yet():
     view = mech.views("free")[0]
     with pytest.raises(ChartDomainError):
         eng.evaluate(view, 0.0, np.array([-1.5708, 1.5708]), np.array([1.0, 0.0]))  # rod across
-    assert not eng._plans[view].traced
+    assert not eng._plans[view].exact_traced
     eng.evaluate(view, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
-    assert eng._plans[view].kernel is not None
+    assert eng._plans[view].exact is not None
     # outside the domain later: the position function's own error, from the kernel's guard
     with pytest.raises(ChartDomainError, match="rod across the guide"):
         eng.evaluate(view, 0.0, np.array([-1.5708, 1.5708]), np.array([1.0, 0.0]))
@@ -126,7 +126,7 @@ def test_another_branch_goes_back_to_the_jets():
     v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
     qd = np.array([10.0, 1.0])
     e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)       # traced with phi <= 0.5
-    assert eng._plans[v2].kernel is not None
+    assert eng._plans[v2].exact is not None
     n = len(calls)
     for phi in (0.2, 0.9, 0.4):
         e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
@@ -146,7 +146,7 @@ def test_an_untraceable_chart_keeps_the_jets():
 
     v2 = ChartView(dataclasses.replace(view.chart, flat=opaque))
     e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
-    assert eng._plans[v2].traced and eng._plans[v2].kernel is None
+    assert eng._plans[v2].exact_traced and eng._plans[v2].exact is None
     assert np.all(np.isfinite(e.qdd))
 
 
