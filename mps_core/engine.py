@@ -59,7 +59,7 @@ import numpy as np
 from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
 from .exact_kernels import BranchChanged, exact_kernel, solve_given_h
-from .kernels import as_matrix, central_kernel, solve_small
+from .kernels import as_matrix, central_kernel
 from .mechanism import ChartView, Mechanism
 
 SCHEMES = ("central", "autodiff")
@@ -112,7 +112,7 @@ class Kinematics:
                  "_vl", "_pose", "_side", "_conv")
 
     def __init__(self, t, q, qd, names, X=None, J=None, W=None, bodies=None, *, lists=None,
-                 side=None, conv=None):
+                 side=None, conv=None, v=None):
         self.t = t
         self._side = side           # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
         self._conv = conv           # θ̈ at q̈ = 0 of every body, from an exact kernel
@@ -122,7 +122,7 @@ class Kinematics:
         self.bodies = bodies        # {body name: row}
         self._X, self._J, self._W = X, J, W
         self._pose = None
-        self._vl = None
+        self._vl = v                # q̇ as floats, where the caller has them
         if lists is not None:
             # xl: 2·NP floats (x, y by row); jl: per row, x then y, n floats each; wl: per body
             self._xl, self._jl, self._wl = lists
@@ -644,29 +644,22 @@ class PartialSystems:
         counts["position_calls"] += 1
         counts["position_points"] += plan.S
         ql = q.tolist()
+        vl = qd.tolist()
         try:
             if plan.inline is not None:
                 try:
-                    xl, jl, wl, Ab, wb = plan.inline(*ql)
+                    xl, jl, wl, A, h, wb = plan.inline(*ql, *vl)
                 except BranchChanged:
-                    xl, jl, wl, Ab, wb = plan.kernel(*ql)
+                    xl, jl, wl, A, h, wb = plan.kernel(*ql, *vl)
             else:
-                xl, jl, wl, Ab, wb = plan.kernel(*ql)
+                xl, jl, wl, A, h, wb = plan.kernel(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "a stencil point has no real configuration") \
                 from None
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         side=(wb, plan.inv2d))
+                         side=(wb, plan.inv2d), v=vl)
         Q, Qnc = self._forces(t, kin)
-        c = plan.inv2d
-        if plan.n == 1:
-            A = Ab[0]
-            dA = (Ab[1] - Ab[2]) * c[0]
-        else:
-            A = Ab[0]
-            dA = [tuple([(p - m) * ck for p, m in zip(Ab[1 + 2 * k], Ab[2 + 2 * k])])
-                  for k, ck in enumerate(c)]
-        qdd, h = solve_small(A, dA, kin._v(), Q)
+        qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):
                 self._no_solution(view, t, q, as_matrix(A, plan.n))
@@ -821,11 +814,12 @@ class PartialSystems:
         counts["position_calls"] += 1
         counts["position_points"] += 1
         try:
-            xl, jl, wl, A, h, conv = plan.exact(*q.tolist(), *qd.tolist())
+            vl = qd.tolist()
+            xl, jl, wl, A, h, conv = plan.exact(*q.tolist(), *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         conv=conv)
+                         conv=conv, v=vl)
         Q, Qnc = self._forces(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:

@@ -19,11 +19,12 @@ Written from a trace of ``flat`` (:mod:`mps_core.tracing`) the kernel also has t
 function's program inline at each stencil point, with its constant outputs folded in, instead
 of calling it; the calling kernel remains for points where the trace does not hold.
 
-It returns the positions, analogs and angular analogs at q (flat lists, the layout of
-:class:`~mps_core.engine.Kinematics`), the mass matrices at the base points and the angular
-analogs at the other base points (for the bodies' convective angular accelerations by the same
-central differences, which reports use); the engine adds
-the generalized forces, the velocity terms by central differences of A, and the solve. The
+``kernel(q…, q̇…)`` returns the positions, analogs and angular analogs at q (flat lists, the
+layout of :class:`~mps_core.engine.Kinematics`), A at q (n = 1: a; n = 2: (a00, a01, a11)),
+the velocity terms h by central differences of A (the array code's formulas, written out) and
+the angular analogs at the other base points (for the bodies' convective angular
+accelerations by the same central differences, which reports use); the engine adds the
+generalized forces and the solve. The
 numbers are those of the array code up to the order of floating-point operations (a test
 compares them to round-off).
 """
@@ -306,40 +307,30 @@ def _source(engine, view, plan, traced=None) -> str:
                                for k in range(len(mech.bodies)) for i in range(n)) + "]"
 
     wls = [omega_list(om) for om in omegas]
+    # the velocity terms from A's central differences: h_i = Σ_jk ∂_k A_ij q̇_j q̇_k −
+    # ½ Σ_jk ∂_i A_jk q̇_j q̇_k, r_kj = Σ_l ∂_k A_jl q̇_l
+    c = [repr(x) for x in inv2d]
+    L = w.lines
     if n == 1:
-        A_out = "[" + ", ".join(e[0] for e in out_A) + "]"
+        A_out = out_A[0][0]
+        L.append(f"    _d = ({out_A[1][0]} - {out_A[2][0]}) * {c[0]}")
+        L.append("    _h = [0.5 * _d * vd0 * vd0]")
     else:
-        A_out = "[" + ", ".join(f"({', '.join(e)})" for e in out_A) + "]"
-    return (f"def kernel({', '.join(qs)}):\n" + "\n".join(w.lines) +
-            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, "
+        A_out = f"({', '.join(out_A[0])})"
+        for k in range(2):
+            p, m = out_A[1 + 2 * k], out_A[2 + 2 * k]
+            L.append(f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
+                     f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}")
+        L += ["    _r00 = _d000 * vd0 + _d001 * vd1",
+              "    _r01 = _d001 * vd0 + _d011 * vd1",
+              "    _r10 = _d100 * vd0 + _d101 * vd1",
+              "    _r11 = _d101 * vd0 + _d111 * vd1",
+              "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1),",
+              "          _r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
+    vds = [f"vd{k}" for k in range(n)]
+    return (f"def kernel({', '.join(qs + vds)}):\n" + "\n".join(L) +
+            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
             f"[{', '.join(wls[1:])}]\n")
-
-
-def solve_small(A, dA, v, Q):
-    """(q̈, h) for n = 1 or 2 from A (n = 1: a; n = 2: (a00, a01, a11)), the derivatives of A
-    (n = 1: dA/dq; n = 2: ∂A/∂q0, ∂A/∂q1 as triples), q̇ and Q, with
-    h_i = Σ_jk ∂_k A_ij q̇_j q̇_k − ½ Σ_jk ∂_i A_jk q̇_j q̇_k; q̈ is NaN where A is singular."""
-    if len(v) == 1:
-        h0 = 0.5 * dA * v[0] * v[0]
-        try:
-            return [(Q[0] - h0) / A], [h0]
-        except ZeroDivisionError:
-            return [math.nan], [h0]
-    a00, a01, a11 = A
-    (d000, d001, d011), (d100, d101, d111) = dA
-    v0, v1 = v
-    r00 = d000 * v0 + d001 * v1          # Σ_j ∂_0 A_0j q̇_j
-    r01 = d001 * v0 + d011 * v1          # Σ_j ∂_0 A_1j q̇_j
-    r10 = d100 * v0 + d101 * v1
-    r11 = d101 * v0 + d111 * v1
-    h0 = r00 * v0 + r10 * v1 - 0.5 * (r00 * v0 + r01 * v1)
-    h1 = r01 * v0 + r11 * v1 - 0.5 * (r10 * v0 + r11 * v1)
-    r0, r1 = Q[0] - h0, Q[1] - h1
-    det = a00 * a11 - a01 * a01
-    try:
-        return [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a01 * r0) / det], [h0, h1]
-    except ZeroDivisionError:
-        return [math.nan, math.nan], [h0, h1]
 
 
 def as_matrix(A, n: int) -> np.ndarray:
