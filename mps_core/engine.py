@@ -180,9 +180,11 @@ class Kinematics:
     def vxy(self, point: str) -> tuple[float, float]:
         """Velocity (ẋ, ẏ) of a point, floats."""
         jx, jy = self.jac(point)
-        v = self._v()
+        v = self._vl if self._vl is not None else self._v()
         if self.n == 1:
             return jx[0] * v[0], jy[0] * v[0]
+        if self.n == 2:
+            return jx[0] * v[0] + jx[1] * v[1], jy[0] * v[0] + jy[1] * v[1]
         return sum(a * b for a, b in zip(jx, v)), sum(a * b for a, b in zip(jy, v))
 
     def omega(self, body: str) -> list:
@@ -194,10 +196,15 @@ class Kinematics:
 
     def rate(self, body: str) -> float:
         """Angular velocity of a body, float."""
-        w = self.omega(body)
-        v = self._v()
-        if self.n == 1:
-            return w[0] * v[0]
+        wl = self._wl if self._wl is not None else self._lists()[2]
+        v = self._vl if self._vl is not None else self._v()
+        n = self.n
+        r = n * self.bodies[body]
+        if n == 1:
+            return wl[r] * v[0]
+        if n == 2:
+            return wl[r] * v[0] + wl[r + 1] * v[1]
+        w = wl[r:r + n]
         return sum(a * b for a, b in zip(w, v))
 
     def weighted_analogs(self, forces) -> list:
@@ -500,7 +507,11 @@ class PartialSystems:
     def evaluate(self, view: ChartView, t: float, q, qd) -> Evaluation:
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
-        e = self._evaluate(view, t, q, qd)
+        plan = self._plans.get(view)
+        if plan is not None and plan.inline is not None:
+            e = self._kernel_evaluate(view, t, q, qd, plan)     # a traced central kernel
+        else:
+            e = self._evaluate(view, t, q, qd)
         self.counts["evaluations"] += 1
         return e
 
