@@ -22,23 +22,16 @@ The kernel ``kernel(q…, q̇…)`` returns the positions, analogs and angular a
 layout of :class:`~mps_core.engine.Kinematics`), A (n = 1: a; n = 2: (a00, a01, a11)), h, and
 θ̈|q̈=0 of every body. Where one of the trace's guards fails (the position function would take
 another branch, or raise) it calls the position function at the point, which raises its own
-error there, and otherwise raises :class:`BranchChanged` (the caller evaluates on jets).
+error there, and otherwise raises :class:`~mps_core.tracing.BranchChanged` (the caller
+evaluates on jets).
 """
 
 from __future__ import annotations
 
 import math
 
-from .kernels import MAX_N, _key, _Writer
+from .kernels import MAX_N, _key, _Writer, load, view_arguments
 from .tracing import TracingError, trace_at
-
-
-class BranchChanged(Exception):
-    """The traced program does not hold at this point (a comparison came out otherwise)."""
-
-
-#: compiled kernels by traced program and engine tables
-_CODE: dict = {}
 
 
 def exact_kernel(engine, view, q):
@@ -50,44 +43,14 @@ def exact_kernel(engine, view, q):
     n = view.n
     if flat is None or n > MAX_N:
         return None
-    args, free = _arguments(view, q)
+    args, free = view_arguments(view, q)
     try:
         tape, outputs = trace_at(flat, args, free)
     except TracingError:
         return None
-    key = (_key(engine, view), tape.key(), tuple(outputs))
-    code = _CODE.get(key)
-    if code is None:
-        src = _source(engine, view, tape, outputs)
-        if len(_CODE) > 1024:
-            _CODE.clear()
-        code = _CODE[key] = (compile(src, f"<exact kernel {view.name}>", "exec"), src)
-
-    def miss(*qs):
-        a = list(args)
-        for pos, k in free.items():
-            a[pos] = qs[k]
-        flat(*a)                    # raises where the point is outside the chart's domain
-        raise BranchChanged(view.name)
-
-    namespace = {"cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
-    exec(code[0], namespace)
-    kernel = namespace["kernel"]
-    kernel.source = code[1]
-    return kernel
-
-
-def _arguments(view, q):
-    """(the position function's arguments at q: template values and q, {position: input})."""
-    args, free = [], {}
-    k_of = {ci: k for k, ci in enumerate(view.free)}
-    for ci in range(view.chart.size):
-        if ci in k_of:
-            free[ci] = k_of[ci]
-            args.append(float(q[k_of[ci]]))
-        else:
-            args.append(float(view._template[ci]))
-    return args, free
+    key = ("exact", _key(engine, view), tape.key(), tuple(outputs))
+    return load(key, lambda: _source(engine, view, tape, outputs, args, free),
+                f"<exact kernel {view.name}>", flat, view.name)
 
 
 class _Forward:
@@ -162,7 +125,6 @@ class _Forward:
         return (c, [None] * self.n, None, None)
 
     def node(self, op: str, x, y=None):
-        n = self.n
         add, sub, mul, neg = self.add, self.sub, self.mul, self.neg
         va, ga, d1a, d2a = x
         if op in ("add", "sub"):
@@ -215,12 +177,14 @@ class _Forward:
 _HOLD = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
 
 
-def _source(engine, view, tape, outputs) -> str:
+def _source(engine, view, tape, outputs, args, free) -> str:
     n = view.n
     w = _Writer()
     fw = _Forward(w, n)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]      # q̇ (v0, v1, … are the writer's locals)
+    # the position function's arguments as code, for a failed guard's call
+    call = [qs[free[pos]] if pos in free else repr(a) for pos, a in enumerate(args)]
     # guards are written as soon as their operands exist
     pending = {}
     for g in tape.guards:
@@ -244,7 +208,7 @@ def _source(engine, view, tape, outputs) -> str:
                 continue
             test = f"{fw._s(va)} {_HOLD[op]} {fw._s(vb)}"
             # "not (a > b)" also catches NaN
-            w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(qs)})")
+            w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
     outs = [operand(x) for x in outputs]
 
     M = engine._MT.T                        # rows: pairs (x, y) of names, links, check

@@ -35,6 +35,8 @@ import math
 
 import numpy as np
 
+from .tracing import BranchChanged, TracingError, trace_at
+
 #: charts with at most this many free coordinates get a kernel (the stencil grows as 2n²)
 MAX_N = 2
 
@@ -93,7 +95,7 @@ def central_kernel(engine, view, plan, q=None):
     out at each stencil point instead: the same operations without the calls, the constant
     outputs (fixed points) folded in. Where a stencil point fails one of the trace's guards,
     that kernel calls ``flat`` there (its own domain error) or raises
-    :class:`~mps_core.exact_kernels.BranchChanged` (the caller then uses the calling kernel).
+    :class:`~mps_core.tracing.BranchChanged` (the caller then uses the calling kernel).
     None where ``flat`` cannot be traced."""
     flat = getattr(view.chart, "flat", None)
     n = view.n
@@ -101,9 +103,7 @@ def central_kernel(engine, view, plan, q=None):
         return None
     traced = None
     if q is not None:
-        from .exact_kernels import _arguments
-        from .tracing import TracingError, trace_at
-        args, free = _arguments(view, q)
+        args, free = view_arguments(view, q)
         try:
             traced = trace_at(flat, args, free)
         except TracingError:
@@ -111,23 +111,51 @@ def central_kernel(engine, view, plan, q=None):
         key = (_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
     else:
         key = _key(engine, view, plan)
+    return load(key, lambda: _source(engine, view, plan, traced), f"<kernel {view.name}>",
+                flat, view.name)
+
+
+#: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
+#: an equal mechanism, view and Δ, or traced program, is the same)
+_CODE: dict = {}
+
+
+def load(key, source, label: str, flat, chart: str):
+    """The function ``kernel`` of generated code, compiled once per ``key`` (``source()`` gives
+    the code). Its namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``,
+    and ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
+    raises its own error where the point is outside its domain; otherwise
+    :class:`~mps_core.tracing.BranchChanged`."""
     code = _CODE.get(key)
     if code is None:
-        src = _source(engine, view, plan, traced)
+        src = source()
         if len(_CODE) > 1024:
             _CODE.clear()
-        code = _CODE[key] = (compile(src, f"<kernel {view.name}>", "exec"), src)
+        code = _CODE[key] = (compile(src, label, "exec"), src)
 
     def miss(*a):
-        from .exact_kernels import BranchChanged
-        flat(*a)                    # raises where the point is outside the chart's domain
-        raise BranchChanged(view.name)
+        flat(*a)
+        raise BranchChanged(chart)
 
     namespace = {"F": flat, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
     exec(code[0], namespace)
     kernel = namespace["kernel"]
     kernel.source = code[1]
     return kernel
+
+
+def view_arguments(view, q):
+    """(the position function's arguments at q: the view's template values and q,
+    {argument position: traced input number})."""
+    args, free = [], {}
+    k_of = {ci: k for k, ci in enumerate(view.free)}
+    for ci in range(view.chart.size):
+        if ci in k_of:
+            free[ci] = k_of[ci]
+            args.append(float(q[k_of[ci]]))
+        else:
+            args.append(float(view._template[ci]))
+    return args, free
 
 
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
@@ -165,9 +193,6 @@ def _inline(w: "_Writer", tape, outputs, inputs: list, call: list) -> list:
     return [vals[o] if isinstance(o, int) else o for o in outputs]
 
 
-#: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
-#: an equal mechanism, view and Δ is the same)
-_CODE: dict = {}
 
 
 def _key(engine, view, plan=None) -> tuple:

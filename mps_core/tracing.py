@@ -38,6 +38,10 @@ class TracingError(TypeError):
     """The function does something a tape cannot hold."""
 
 
+class BranchChanged(Exception):
+    """A traced program does not hold at this point (a comparison came out otherwise)."""
+
+
 class Tape:
     """Nodes in the order they were computed: ``("input", k)`` for the k-th traced argument, or
     ``(op, a)`` / ``(op, a, b)`` with each operand a node index (int) or a constant (float).

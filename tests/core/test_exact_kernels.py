@@ -10,23 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from kernel_cases import close, scene_engines, state
 from mps_core import build, load_scene
-from mps_core.effects.controls import Controls
-from mps_core.engine import PartialSystems
 from mps_core.errors import ChartDomainError
 from mps_core.mechanism import ChartView
 
 
 def _scene_engines(name="press-cycle"):
-    sc = load_scene(name)
-    mech = sc.mechanism()
-    effects = sc.build_effects(mech)
-    controls = Controls(structure="free", engage_on=True)
-    for e in effects:
-        if hasattr(e, "use"):
-            e.use(controls)
-    return (mech, controls, PartialSystems(mech, effects, "autodiff"),
-            PartialSystems(mech, effects, "autodiff", kernels=False))
+    return scene_engines(name, "autodiff")
 
 
 MECH, CONTROLS, KERNEL, JETS = _scene_engines()
@@ -34,15 +25,11 @@ VIEWS = [(s, v) for s in ("free", "locked", "held") for v in MECH.views(s)]
 
 
 def _close(a, b, scale):
-    return np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-10 * scale
+    return close(a, b, scale, 1e-10)
 
 
 def _state(view, u, w, v0, v1):
-    names = [c.name for c in view.coordinates]
-    q = [u if n != "x_C" else 0.01 + 0.04 * (w + 0.5) for n in names]
-    if view.n == 2 and names[1] == "psi":
-        q[1] = w
-    return np.array(q), np.array([v0, v1][:view.n])
+    return np.array(state(view, u, w)), np.array([v0, v1][:view.n])
 
 
 @settings(max_examples=80, deadline=None)

@@ -10,23 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from kernel_cases import close, scene_engines, state
 from mps_core import build, load_scene
-from mps_core.effects.controls import Controls
-from mps_core.engine import PartialSystems
 from mps_core.errors import ChartDomainError
 from mps_core.mechanisms.press import PressMechanism
 
 
 def _scene_engines(name="press-cycle"):
-    sc = load_scene(name)
-    mech = sc.mechanism()
-    effects = sc.build_effects(mech)
-    controls = Controls(structure="free", engage_on=True)
-    for e in effects:
-        if hasattr(e, "use"):
-            e.use(controls)
-    return (mech, controls, PartialSystems(mech, effects, "central"),
-            PartialSystems(mech, effects, "central", kernels=False))
+    return scene_engines(name, "central")
 
 
 MECH, CONTROLS, KERNEL, ARRAY = _scene_engines()
@@ -34,7 +25,7 @@ VIEWS = [(s, v) for s in ("free", "locked", "held") for v in MECH.views(s)]
 
 
 def _close(a, b, scale):
-    return np.abs(np.asarray(a) - np.asarray(b)).max() <= 1e-9 * scale
+    return close(a, b, scale, 1e-9)
 
 
 @settings(max_examples=60, deadline=None)
@@ -43,11 +34,7 @@ def _close(a, b, scale):
 def test_kernel_evaluation_equals_the_array_code(k, u, w, v0, v1):
     structure, view = VIEWS[k]
     CONTROLS.structure = structure
-    names = [c.name for c in view.coordinates]
-    q = [u if n != "x_C" else 0.01 + 0.04 * (w + 0.5) for n in names]
-    if view.n == 2 and names[1] == "psi":
-        q[1] = w
-    q, qd = np.array(q), np.array([v0, v1][:view.n])
+    q, qd = np.array(state(view, u, w)), np.array([v0, v1][:view.n])
     try:
         a = ARRAY.evaluate(view, 0.0, q, qd)
     except ChartDomainError:
@@ -136,13 +123,9 @@ def test_the_inlined_kernel_equals_the_calling_kernel(k, u, w):
     kernel that calls it there."""
     structure, view = VIEWS[k]
     CONTROLS.structure = structure
-    names = [c.name for c in view.coordinates]
-    q = [u if n != "x_C" else 0.01 + 0.04 * (w + 0.5) for n in names]
-    if view.n == 2 and names[1] == "psi":
-        q[1] = w
+    q = state(view, u, w)
     plan = KERNEL._plan(view)
     from mps_core.kernels import central_kernel
-    from mps_core.exact_kernels import BranchChanged
     try:
         calling = plan.kernel(*q, *[3.0, -1.0][:view.n])
     except (ChartDomainError, ValueError, ZeroDivisionError):
