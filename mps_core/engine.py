@@ -58,8 +58,8 @@ import numpy as np
 
 from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
-from .exact_kernels import exact_kernel, solve_given_h
-from .kernels import as_matrix, central_kernel
+from .exact_kernels import exact_kernel
+from .kernels import as_matrix, central_kernel, solve_given_h
 from .tracing import BranchChanged
 from .mechanism import ChartView, Mechanism
 

@@ -294,19 +294,3 @@ def _source(engine, view, tape, outputs, args, free) -> str:
             f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
             f"[{', '.join(code(x) for x in h)}], [{', '.join(conv)}]\n")
 
-
-def solve_given_h(A, h, Q) -> list:
-    """q̈ from A (n = 1: a; n = 2: (a00, a01, a11)), h and Q, on floats; NaN where A is
-    singular."""
-    if len(h) == 1:
-        try:
-            return [(Q[0] - h[0]) / A]
-        except ZeroDivisionError:
-            return [math.nan]
-    a00, a01, a11 = A
-    r0, r1 = Q[0] - h[0], Q[1] - h[1]
-    det = a00 * a11 - a01 * a01
-    try:
-        return [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a01 * r0) / det]
-    except ZeroDivisionError:
-        return [math.nan, math.nan]
