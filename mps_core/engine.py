@@ -516,6 +516,25 @@ class PartialSystems:
         self.counts["evaluations"] += 1
         return e
 
+    def accelerations(self, view: ChartView, t: float, ql: list, vl: list) -> list:
+        """q̈ alone, n floats, at (t, q, q̇) given as lists of floats: the ``qdd`` that
+        :meth:`evaluate` gives there, by the same operations, without making the evaluation
+        (a solver's inner stages, whose evaluations are not kept). Counted as an evaluation."""
+        plan = self._plans.get(view)
+        if plan is not None:
+            if plan.inline is not None:
+                self.counts["evaluations"] += 1
+                return self._kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
+            if plan.exact is not None:
+                try:
+                    qdd = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
+                except BranchChanged:       # another branch here: the jets
+                    qdd = self._jets_evaluate(view, t, np.array(ql, float),
+                                              np.array(vl, float)).qdd.tolist()
+                self.counts["evaluations"] += 1
+                return qdd
+        return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
+
     def generalized_forces(self, t: float, kin: Kinematics) -> np.ndarray:
         """Q = Σ over the effects of the virtual work of their loads (an array)."""
         return np.array(self.force_list(t, kin), dtype=float)
@@ -652,11 +671,16 @@ class PartialSystems:
 
     def _kernel_evaluate(self, view, t, q, qd, plan):
         """The same evaluation on floats, by the view's scalar kernel."""
+        vl = qd.tolist()
+        kin, A, h, Q, Qnc, qdd = self._kernel_solve(view, t, q, qd, q.tolist(), vl, plan)
+        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
+
+    def _kernel_solve(self, view, t, q, qd, ql, vl, plan):
+        """(kin, A, h, Q, Q_nc, q̈) by the view's central kernel, all on floats; q, q̇ as given
+        (arrays, or the float lists themselves where no evaluation is made)."""
         counts = self.counts
         counts["position_calls"] += 1
         counts["position_points"] += plan.S
-        ql = q.tolist()
-        vl = qd.tolist()
         try:
             if plan.inline is not None:
                 try:
@@ -674,8 +698,8 @@ class PartialSystems:
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):
-                self._no_solution(view, t, q, as_matrix(A, plan.n))
-        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
+                self._no_solution(view, t, np.array(ql, float), as_matrix(A, plan.n))
+        return kin, A, h, Q, Qnc, qdd
 
     def _solve_small(self, view, t, q, qd, Ab, Q, kin, plan):
         """n = 1 or 2: velocity terms by central differences of A, and the solve, on floats."""
@@ -794,6 +818,10 @@ class PartialSystems:
                     return self._exact_kernel_evaluate(view, t, q, qd, plan)
                 except BranchChanged:
                     pass            # the position function takes another branch here
+        return self._jets_evaluate(view, t, q, qd)
+
+    def _jets_evaluate(self, view, t, q, qd):
+        """The autodiff evaluation by the jets (no kernel, or the kernel's branch changed)."""
         kin, Zt, Wr, theta2 = self._autodiff(view, t, q, qd)
         n = view.n
         G = Zt[:, 2 * self._npts:2 * self._np]          # (n + 3, 2·nbody)
@@ -822,12 +850,18 @@ class PartialSystems:
 
     def _exact_kernel_evaluate(self, view, t, q, qd, plan):
         """The autodiff evaluation on floats, by the view's exact kernel."""
+        vl = qd.tolist()
+        kin, A, h, Q, Qnc, qdd = self._exact_kernel_solve(view, t, q, qd, q.tolist(), vl, plan)
+        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
+
+    def _exact_kernel_solve(self, view, t, q, qd, ql, vl, plan):
+        """(kin, A, h, Q, Q_nc, q̈) by the view's exact kernel, all on floats (as
+        :meth:`_kernel_solve`)."""
         counts = self.counts
         counts["position_calls"] += 1
         counts["position_points"] += 1
         try:
-            vl = qd.tolist()
-            xl, jl, wl, A, h, conv = plan.exact(*q.tolist(), *vl)
+            xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
@@ -838,8 +872,8 @@ class PartialSystems:
             if not math.isfinite(x):
                 if not all(math.isfinite(x) for x in xl):
                     raise ChartDomainError(view.name, "no real configuration at this point")
-                self._no_solution(view, t, q, as_matrix(A, plan.n))
-        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
+                self._no_solution(view, t, np.array(ql, float), as_matrix(A, plan.n))
+        return kin, A, h, Q, Qnc, qdd
 
     def _config(self, view, q):
         return config_in_degrees({c.name: float(v) for c, v in zip(view.coordinates, q)})

@@ -274,8 +274,14 @@ class Simulation:
             self.solver_nfev += old.nfev
             self.solver_steps += old.nsteps
             first = getattr(old, "step_size", None)   # an adaptive solver carries on its step
-        return make_solver(s.name, self._fun(self.view), t, q, qd, iterations=s.iterations,
-                           rtol=s.rtol, atol=s.atol, scales=self.view.scales, first_step=first)
+        view = self.view
+        engine = self.engine
+
+        def accel(t, ql, vl):
+            return engine.accelerations(view, t, ql, vl)
+        return make_solver(s.name, self._fun(view), t, q, qd, iterations=s.iterations,
+                           rtol=s.rtol, atol=s.atol, scales=view.scales, first_step=first,
+                           accel=accel)
 
     def _restart(self, view, t, q, qd):
         self.view = view

@@ -9,13 +9,15 @@ SOLVERS = ("linear-acceleration", "rk4", "dop853", "radau")
 
 
 def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol=1e-9,
-                atol=1e-12, scales=None, first_step=None):
+                atol=1e-12, scales=None, first_step=None, accel=None):
     """A solver by its scene/CLI name. ``first_step`` (adaptive solvers): the first internal
-    step to try, e.g. the ``step_size`` of the solver this one carries on from."""
+    step to try, e.g. the ``step_size`` of the solver this one carries on from. ``accel``: q̈
+    alone on floats (see :class:`~mps_core.solvers.base.Solver`)."""
     if name == "linear-acceleration":
-        return LinearAcceleration(fun, t0, q0, qd0, current, iterations=iterations)
+        return LinearAcceleration(fun, t0, q0, qd0, current, iterations=iterations,
+                                  accel=accel)
     if name == "rk4":
-        return RK4(fun, t0, q0, qd0, current)
+        return RK4(fun, t0, q0, qd0, current, accel=accel)
     if name in ("dop853", "radau"):
         return AdaptiveSolver(fun, t0, q0, qd0, current, method=name, rtol=rtol, atol=atol,
                               scales=scales, first_step=first_step)

@@ -11,7 +11,9 @@ A solver advances a second-order system ``q̈ = f(t, q, q̇)``:
   ``current`` are those of the step's start;
 * after a step ``current`` is the evaluation at the new state (the next step's start and the
   accelerations reported for it), and :meth:`dense_output` interpolates (q, q̇) inside the step;
-* ``nfev`` counts the calls of ``fun``, ``nsteps`` the steps.
+* ``nfev`` counts the calls of ``fun`` and ``accel``, ``nsteps`` the steps;
+* ``accel(t, q, q̇) -> q̈``, on lists of floats, may be given beside ``fun``: the same q̈ as
+  ``fun(t, q, q̇).qdd`` without the evaluation, for the stages whose evaluation is not kept.
 """
 
 from __future__ import annotations
@@ -28,8 +30,10 @@ class Solver:
     #: calls of ``fun`` per fixed step (None for adaptive solvers)
     evaluations_per_step: int | None = None
 
-    def __init__(self, fun: Callable, t0: float, q0, qd0, current=None):
+    def __init__(self, fun: Callable, t0: float, q0, qd0, current=None,
+                 accel: Callable | None = None):
         self.fun = fun
+        self.accel = accel if accel is not None else self._accel_by_fun
         self.t = float(t0)
         self.q = np.array(q0, dtype=float)
         self.qd = np.array(qd0, dtype=float)
@@ -41,6 +45,13 @@ class Solver:
     def _call(self, t, q, qd):
         self.nfev += 1
         return self.fun(t, q, qd)
+
+    def _accel_counted(self, t, ql, vl) -> list:
+        self.nfev += 1
+        return self.accel(t, ql, vl)
+
+    def _accel_by_fun(self, t, ql, vl) -> list:
+        return self.fun(t, np.array(ql, dtype=float), np.array(vl, dtype=float)).qdd.tolist()
 
     def step_to(self, t_target: float, interrupt: Callable | None = None) -> None:
         raise NotImplementedError

@@ -26,62 +26,56 @@ class LinearAcceleration(Solver):
     name = "linear-acceleration"
     order = 2
 
-    def __init__(self, fun, t0, q0, qd0, current=None, iterations: int = 1):
+    def __init__(self, fun, t0, q0, qd0, current=None, iterations: int = 1, accel=None):
         if int(iterations) != iterations or iterations < 1:
             raise ValueError(f"corrector iterations = {iterations!r}: expected an integer >= 1")
         self.iterations = int(iterations)
         self.evaluations_per_step = 1 + self.iterations
         self._step = None       # (t0, Δt, q0, q̇0, q̈0, q̈1) of the last step, for its cubic
-        super().__init__(fun, t0, q0, qd0, current)
+        super().__init__(fun, t0, q0, qd0, current, accel)
 
     def step_to(self, t_target, interrupt=None):
         # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate), written out
         # for n = 1 and 2; the same operations in the same order as the vector formulas above.
-        # ``fun`` is called directly there (``nfev`` counted as by ``_call``)
+        # The predicted and all but the last corrected states need q̈ alone (``accel``); the
+        # accepted state is evaluated (``fun``)
         t0, q0, qd0 = self.t, self.q, self.qd
         dt = t_target - t0
         a0 = self.current.qdd
         ql, vl, al = q0.tolist(), qd0.tolist(), a0.tolist()
         h2, h6, hh = 0.5 * dt * dt, dt * dt / 6.0, 0.5 * dt
-        fun = self.fun
+        accel = self._accel_counted
+        last = self.iterations - 1
         n = len(ql)
         if n == 1:
             (x,), (v,), (a,) = ql, vl, al
-            self.nfev += 1
-            a1 = fun(t_target, np.array([x + v * dt + a * h2]), np.array([v + a * dt])).qdd
+            a1 = accel(t_target, [x + v * dt + a * h2], [v + a * dt])
             for k in range(self.iterations):
-                (b,) = a1.tolist()
-                qd1 = np.array([v + (a + b) * hh])
-                q1 = np.array([x + v * dt + (2.0 * a + b) * h6])
-                self.nfev += 1
-                e = fun(t_target, q1, qd1)
-                if k + 1 < self.iterations:
-                    a1 = e.qdd
+                (b,) = a1
+                qd1 = [v + (a + b) * hh]
+                q1 = [x + v * dt + (2.0 * a + b) * h6]
+                if k < last:
+                    a1 = accel(t_target, q1, qd1)
         elif n == 2:
             (x, y), (v, w), (a, c) = ql, vl, al
-            self.nfev += 1
-            a1 = fun(t_target, np.array([x + v * dt + a * h2, y + w * dt + c * h2]),
-                     np.array([v + a * dt, w + c * dt])).qdd
+            a1 = accel(t_target, [x + v * dt + a * h2, y + w * dt + c * h2],
+                       [v + a * dt, w + c * dt])
             for k in range(self.iterations):
-                b, d = a1.tolist()
-                qd1 = np.array([v + (a + b) * hh, w + (c + d) * hh])
-                q1 = np.array([x + v * dt + (2.0 * a + b) * h6, y + w * dt + (2.0 * c + d) * h6])
-                self.nfev += 1
-                e = fun(t_target, q1, qd1)
-                if k + 1 < self.iterations:
-                    a1 = e.qdd
+                b, d = a1
+                qd1 = [v + (a + b) * hh, w + (c + d) * hh]
+                q1 = [x + v * dt + (2.0 * a + b) * h6, y + w * dt + (2.0 * c + d) * h6]
+                if k < last:
+                    a1 = accel(t_target, q1, qd1)
         else:
-            qdp = np.array([v + a * dt for v, a in zip(vl, al)])
-            qp = np.array([x + v * dt + a * h2 for x, v, a in zip(ql, vl, al)])
-            a1 = self._call(t_target, qp, qdp).qdd
+            a1 = accel(t_target, [x + v * dt + a * h2 for x, v, a in zip(ql, vl, al)],
+                       [v + a * dt for v, a in zip(vl, al)])
             for k in range(self.iterations):
-                a1l = a1.tolist()
-                qd1 = np.array([v + (a + b) * hh for v, a, b in zip(vl, al, a1l)])
-                q1 = np.array([x + v * dt + (2.0 * a + b) * h6
-                               for x, v, a, b in zip(ql, vl, al, a1l)])
-                e = self._call(t_target, q1, qd1)
-                if k + 1 < self.iterations:
-                    a1 = e.qdd
+                qd1 = [v + (a + b) * hh for v, a, b in zip(vl, al, a1)]
+                q1 = [x + v * dt + (2.0 * a + b) * h6 for x, v, a, b in zip(ql, vl, al, a1)]
+                if k < last:
+                    a1 = accel(t_target, q1, qd1)
+        q1, qd1 = np.array(q1), np.array(qd1)
+        e = self._call(t_target, q1, qd1)
         # the step's cubic is made when asked for (at events only): keep what it needs
         self._dense = None
         self._step = (t0, dt, q0, qd0, a0, a1)
@@ -109,7 +103,7 @@ class _LinearAccelerationCubic:
     def j(self):
         """The step's constant jerk (q̈₁ − q̈₀)/Δt."""
         if self._j is None:
-            self._j = (self._a1 - self.a0) / self.dt
+            self._j = (np.array(self._a1) - self.a0) / self.dt
         return self._j
 
     def __call__(self, t):

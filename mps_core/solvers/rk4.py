@@ -1,7 +1,8 @@
 """The classic fourth-order Runge–Kutta method on y = (q, q̇).
 
-Stages k1 (the evaluation at the step's start, carried over from the previous step), k2, k3, k4;
-then an evaluation at the accepted state (the next k1): 4 evaluations a step. Global error O(Δt⁴).
+Stages k1 (the evaluation at the step's start, carried over from the previous step), k2, k3, k4
+(q̈ alone: ``accel``); then an evaluation at the accepted state (the next k1): 4 evaluations a
+step. Global error O(Δt⁴).
 Dense output: cubic Hermite of (q, q̇) and of (q̇, q̈) at the step's ends.
 """
 
@@ -26,14 +27,12 @@ class RK4(Solver):
         ql, v0l = q0.tolist(), v0.tolist()
         a1 = self.current.qdd.tolist()
         v2 = [v + hh * a for v, a in zip(v0l, a1)]
-        a2 = self._call(t0 + hh, np.array([q + hh * v for q, v in zip(ql, v0l)]),
-                        np.array(v2)).qdd.tolist()
+        accel = self._accel_counted
+        a2 = accel(t0 + hh, [q + hh * v for q, v in zip(ql, v0l)], v2)
         v3 = [v + hh * a for v, a in zip(v0l, a2)]
-        a3 = self._call(t0 + hh, np.array([q + hh * v for q, v in zip(ql, v2)]),
-                        np.array(v3)).qdd.tolist()
+        a3 = accel(t0 + hh, [q + hh * v for q, v in zip(ql, v2)], v3)
         v4 = [v + h * a for v, a in zip(v0l, a3)]
-        a4 = self._call(t_target, np.array([q + h * v for q, v in zip(ql, v3)]),
-                        np.array(v4)).qdd.tolist()
+        a4 = accel(t_target, [q + h * v for q, v in zip(ql, v3)], v4)
         q1 = np.array([q + h6 * (a + 2.0 * b + 2.0 * c + d)
                        for q, a, b, c, d in zip(ql, v0l, v2, v3, v4)])
         v1 = np.array([v + h6 * (a + 2.0 * b + 2.0 * c + d)
