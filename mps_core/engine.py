@@ -525,7 +525,7 @@ class PartialSystems:
             if plan.inline is not None:
                 self.counts["evaluations"] += 1
                 return self._kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
-            if plan.exact is not None:
+            if plan.exact is not None and self.kernels:
                 try:
                     qdd = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
                 except BranchChanged:       # another branch here: the jets
@@ -534,6 +534,30 @@ class PartialSystems:
                 self.counts["evaluations"] += 1
                 return qdd
         return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
+
+    def equations(self, view: ChartView, t: float, ql: list, vl: list) -> tuple:
+        """(A as rows, h, Q), lists of floats, at (t, q, q̇) given as lists of floats: the
+        numbers :meth:`evaluate` gives there (its arrays' ``tolist()``), without making the
+        evaluation where a kernel computes them. Counted as an evaluation."""
+        plan = self._plans.get(view)
+        out = None
+        if plan is not None:
+            if plan.inline is not None:
+                out = self._kernel_solve(view, t, ql, vl, ql, vl, plan)
+            elif plan.exact is not None and self.kernels:
+                try:
+                    out = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)
+                except BranchChanged:
+                    pass
+        if out is None:
+            e = self.evaluate(view, t, np.array(ql, float), np.array(vl, float))
+            return e.A.tolist(), e.h.tolist(), e.Q.tolist()
+        self.counts["evaluations"] += 1
+        _kin, A, h, Q, _Qnc, _qdd = out
+        if view.n == 1:
+            return [[A]], h, Q
+        a00, a01, a11 = A
+        return [[a00, a01], [a01, a11]], h, Q
 
     def generalized_forces(self, t: float, kin: Kinematics) -> np.ndarray:
         """Q = Σ over the effects of the virtual work of their loads (an array)."""

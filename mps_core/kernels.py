@@ -162,6 +162,11 @@ _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 _CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
 
 
+def _unit(x) -> bool:
+    """x is the constant 1.0 (an operand: a node's index, int, or a constant, float)."""
+    return isinstance(x, float) and x == 1.0
+
+
 def _inline(w: "_Writer", tape, outputs, inputs: list, call: list) -> list:
     """Code for one call of a traced function: ``inputs`` the traced arguments as code (by input
     number), ``call`` the whole argument list as code (for a failed guard's call). Returns the
@@ -180,6 +185,10 @@ def _inline(w: "_Writer", tape, outputs, inputs: list, call: list) -> list:
         op = node[0]
         if op == "input":
             vals.append(inputs[node[1]])
+        elif op == "mul" and _unit(node[1]) and isinstance(node[2], int):
+            vals.append(vals[node[2]])          # 1.0·x is x, bit for bit (NaN, ±inf too)
+        elif op == "mul" and _unit(node[2]) and isinstance(node[1], int):
+            vals.append(vals[node[1]])
         elif op in _INFIX:
             vals.append(w.let(f"{code(node[1])} {_INFIX[op]} {code(node[2])}"))
         elif op == "neg":

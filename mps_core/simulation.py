@@ -159,18 +159,6 @@ class _ViewPlan:
         self.report = tuple(report)
 
 
-def _floats2(e) -> tuple[list, list, list]:
-    """A (as rows), h and Q of an evaluation with two coordinates, as floats. An evaluation
-    from a scalar kernel keeps them as floats (A packed as (a00, a01, a11), h and Q lists) and
-    makes its arrays from them on first use: read there, they are the numbers the arrays would
-    hold, without making the arrays; any other evaluation gives its arrays'."""
-    A, h, Q = getattr(e, "_A", None), getattr(e, "_h", None), getattr(e, "_Q", None)
-    if type(A) is tuple and len(A) == 3 and type(h) is list and type(Q) is list:
-        a00, a01, a11 = A
-        return [[a00, a01], [a01, a11]], h, Q
-    return e.A.tolist(), e.h.tolist(), e.Q.tolist()
-
-
 class Simulation:
     """One run of a mechanism: structures, events, commands, charts."""
 
@@ -733,14 +721,13 @@ class Simulation:
         qdf = [0.0] * full.n
         for k, i in enumerate(f):
             qdf[i] = qdl[k]
-        e = self.engine.evaluate(full, t, np.array(view.full(ql), float), np.array(qdf))
-        if full.n == 2 and len(f) == 1:
-            # one free coordinate: the same formula on floats
-            A, h, Q = _floats2(e)
+        A, h, Q = self.engine.equations(full, t, [float(x) for x in view.full(ql)], qdf)
+        if len(f) == 1:
+            # one free coordinate: on floats
             i = f[0]
             qdd = (Q[i] - h[i]) / A[i][i]
             return A[c][i] * qdd + h[c] - Q[c]
-        A, h, Q = e.A, e.h, e.Q
+        A, h, Q = np.array(A), np.array(h), np.array(Q)
         qdd_f = np.linalg.solve(A[np.ix_(f, f)], Q[f] - h[f])
         return float(A[c, f] @ qdd_f + h[c] - Q[c])
 

@@ -7,7 +7,6 @@ from mps_core import build, load_scene, scene_from_text
 from mps_core.effects import RetentionSprings, TopStop
 from mps_core.effects.base import stiffness_x_bound
 from mps_core.mechanisms import PressMechanism
-from mps_core.simulation import _floats2
 from mps_core.solvers import LinearAcceleration
 
 
@@ -77,15 +76,22 @@ def test_the_trajectory_has_every_column_once_a_step():
 
 
 # -- the stop's reaction -------------------------------------------------------------------------
+@pytest.mark.parametrize("scheme", ["central", "autodiff"])
 @pytest.mark.parametrize("kernels", [True, False])
-def test_the_floats_of_an_evaluation_are_its_arrays(kernels):
-    scene = load_scene("paper")
+def test_the_equations_on_floats_are_those_of_the_evaluation(kernels, scheme):
+    """``equations`` (A, h, Q as floats) and ``accelerations`` (q̈ as floats) give the numbers
+    of ``evaluate``, bit for bit, with and without kernels, and count one evaluation each."""
+    scene = load_scene("paper").with_overrides(scheme=scheme)
     sim = build(scene)
     eng = sim.engine
     eng.kernels = kernels
-    e = eng.evaluate(sim.view, 0.0, sim.solver.q, sim.solver.qd)
-    A, h, Q = _floats2(e)
+    q, qd = sim.solver.q + 0.01, sim.solver.qd + 0.5
+    e = eng.evaluate(sim.view, 0.0, q, qd)
+    before = eng.counts["evaluations"]
+    A, h, Q = eng.equations(sim.view, 0.0, q.tolist(), qd.tolist())
     assert A == e.A.tolist() and h == e.h.tolist() and Q == e.Q.tolist()
+    assert eng.accelerations(sim.view, 0.0, q.tolist(), qd.tolist()) == e.qdd.tolist()
+    assert eng.counts["evaluations"] == before + 2
 
 
 def test_the_stop_force_is_evaluated_once_a_held_step():
