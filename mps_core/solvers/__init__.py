@@ -2,6 +2,7 @@
 
 from .adaptive import AdaptiveSolver
 from .base import Solver
+from .dop853 import DOP853
 from .linear_acceleration import LinearAcceleration
 from .rk4 import RK4
 
@@ -18,10 +19,13 @@ def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol
                                   accel=accel)
     if name == "rk4":
         return RK4(fun, t0, q0, qd0, current, accel=accel)
-    if name in ("dop853", "radau"):
+    if name == "dop853":
+        return DOP853(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales,
+                      first_step=first_step, accel=accel)
+    if name == "radau":
         return AdaptiveSolver(fun, t0, q0, qd0, current, method=name, rtol=rtol, atol=atol,
                               scales=scales, first_step=first_step)
     raise ValueError(f"solver {name!r}: expected one of {', '.join(SOLVERS)}")
 
 
-__all__ = ["Solver", "LinearAcceleration", "RK4", "AdaptiveSolver", "SOLVERS", "make_solver"]
+__all__ = ["Solver", "LinearAcceleration", "RK4", "DOP853", "AdaptiveSolver", "SOLVERS", "make_solver"]

@@ -5,7 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from mps_core.solvers import RK4, AdaptiveSolver, LinearAcceleration, make_solver
+from scipy.integrate import DOP853 as ScipyDOP853
+
+from mps_core.errors import ChartDomainError
+from mps_core.solvers import DOP853, RK4, AdaptiveSolver, LinearAcceleration, make_solver
 
 
 class E:
@@ -67,7 +70,7 @@ def test_iterated_corrector_converges_to_the_implicit_method():
     assert s.nfev == 1 + 1 + 30
 
 
-@pytest.mark.parametrize("cls", [LinearAcceleration, RK4])
+@pytest.mark.parametrize("cls", [LinearAcceleration, RK4, DOP853])
 def test_a_step_is_all_or_nothing(cls):
     calls = {"n": 0}
 
@@ -105,3 +108,106 @@ def test_adaptive_interrupt_stops_at_an_internal_step():
 def test_unknown_solver_name():
     with pytest.raises(ValueError, match="solver 'euler'"):
         make_solver("euler", oscillator(1.0), 0.0, [1.0], [0.0])
+
+
+# -- DOP853 on floats against scipy's ----------------------------------------------------------
+def coupled_pendulums(t, q, qd):
+    """Two pendulums coupled by a spring, with damping and a forcing: no symmetry to hide an
+    indexing slip."""
+    a, b = q
+    va, vb = qd
+    return E([-9.81 * math.sin(a) - 2.0 * (a - b) - 0.1 * va + 0.5 * math.cos(3.0 * t),
+              -4.0 * math.sin(b) + 2.0 * (a - b) - 0.3 * vb])
+
+
+def _scipy_dop853(rtol, q0, v0):
+    def f(t, y):
+        return np.concatenate((y[2:], coupled_pendulums(t, y[:2], y[2:]).qdd))
+
+    return ScipyDOP853(f, 0.0, np.array(q0 + v0), np.inf, rtol=rtol, atol=rtol * 1e-3)
+
+
+@pytest.mark.parametrize("rtol", [1e-4, 1e-6])
+def test_float_dop853_takes_scipys_steps(rtol):
+    """Step by internal step (an interrupt that always stops), the same steps as scipy's DOP853
+    on y = (q, q̇), the same states and the same dense output. (The step sizes agree to
+    round-off in the error estimate, a difference of nearly equal sums: at loose tolerances to
+    about 1e-9, at tight ones less; see the next test.)"""
+    q0, v0 = [1.2, -0.4], [0.0, 0.7]
+    mine = DOP853(coupled_pendulums, 0.0, q0, v0, rtol=rtol, atol=rtol * 1e-3)
+    ref = _scipy_dop853(rtol, q0, v0)
+    t_prev = 0.0
+    for _ in range(40):
+        ref.step()
+        mine.step_to(1e9, interrupt=lambda t, q, qd: True)
+        assert mine.t == pytest.approx(ref.t, rel=1e-8)
+        assert np.allclose(np.concatenate((mine.q, mine.qd)), ref.y, rtol=1e-7, atol=1e-8)
+        t_mid = 0.5 * (t_prev + mine.t)
+        q, qd = mine.dense_output()(t_mid)
+        assert np.allclose(np.concatenate((q, qd)), ref.dense_output()(t_mid), rtol=1e-7,
+                           atol=1e-8)
+        t_prev = mine.t
+    assert mine.nsteps == 40
+    # 12 stages an attempt (11 for a rejected one), 3 for each dense output, 1 each report
+    assert mine.nfev <= ref.nfev + 40 * 3 + 40 + 1
+
+
+@pytest.mark.parametrize("rtol", [1e-8, 1e-11])
+def test_float_dop853_matches_scipy_at_tight_tolerances(rtol):
+    """Over 5 s: as many steps as scipy's (±2 %) and the same end state to the tolerance."""
+    q0, v0 = [1.2, -0.4], [0.0, 0.7]
+    mine = DOP853(coupled_pendulums, 0.0, q0, v0, rtol=rtol, atol=rtol * 1e-3)
+    mine.step_to(5.0)
+    ref = _scipy_dop853(rtol, q0, v0)
+    steps = 0
+    while ref.t < 5.0:
+        ref.step()
+        steps += 1
+    y_ref = ref.dense_output()(5.0)
+    assert abs(mine.nsteps - steps) <= max(1, 0.02 * steps)
+    assert np.allclose(np.concatenate((mine.q, mine.qd)), y_ref, rtol=100 * rtol, atol=0.0)
+
+
+def test_float_dop853_converges_on_the_oscillator():
+    w = 2 * math.pi
+    s = DOP853(oscillator(w), 0.0, [1.0], [0.0], rtol=1e-10, atol=1e-12)
+    for k in range(1, 11):
+        s.step_to(0.1 * k)
+        assert s.q[0] == pytest.approx(math.cos(w * 0.1 * k), abs=1e-8)
+        assert s.current.qdd[0] == pytest.approx(-w ** 2 * s.q[0])
+
+
+def test_float_dop853_accel_gives_the_stages():
+    """Given ``accel``, the stages use it and the reported states ``fun``: the same numbers."""
+    w = 3.0
+    calls = {"fun": 0, "accel": 0}
+
+    def fun(t, q, qd):
+        calls["fun"] += 1
+        return E(-w ** 2 * np.asarray(q))
+
+    def accel(t, ql, vl):
+        calls["accel"] += 1
+        return [-w ** 2 * ql[0]]
+
+    a = DOP853(fun, 0.0, [1.0], [0.5], rtol=1e-9, atol=1e-12, accel=accel)
+    b = DOP853(oscillator(w), 0.0, [1.0], [0.5], rtol=1e-9, atol=1e-12)
+    for k in range(1, 6):
+        a.step_to(0.2 * k)
+        b.step_to(0.2 * k)
+        assert a.q[0] == b.q[0] and a.qd[0] == b.qd[0]
+    assert calls["fun"] == 1 + 5 and calls["accel"] == a.nfev - calls["fun"]
+
+
+def test_float_dop853_shrinks_a_step_that_leaves_the_domain():
+    """A stage outside the chart's domain shrinks the step, as a rejection does."""
+    def fun(t, q, qd):
+        if q[0] > 1.5:
+            raise ChartDomainError("test", "outside")
+        return E([1.0])
+
+    s = DOP853(fun, 0.0, [0.0], [0.0], rtol=1e-6, atol=1e-9)
+    s.step_to(1.6)                       # q = t²/2 reaches 1.28 at t = 1.6
+    assert s.q[0] == pytest.approx(0.5 * 1.6 ** 2, rel=1e-9)
+    with pytest.raises(ChartDomainError):
+        s.step_to(2.0)                   # q = 2 lies outside: the error reaches the caller
