@@ -511,6 +511,11 @@ class PartialSystems:
         plan = self._plans.get(view)
         if plan is not None and plan.inline is not None:
             e = self._kernel_evaluate(view, t, q, qd, plan)     # a traced central kernel
+        elif plan is not None and plan.exact is not None and self.kernels:
+            try:
+                e = self._exact_kernel_evaluate(view, t, q, qd, plan)   # an exact kernel
+            except BranchChanged:
+                e = self._jets_evaluate(view, t, q, qd)
         else:
             e = self._evaluate(view, t, q, qd)
         self.counts["evaluations"] += 1
