@@ -1,10 +1,13 @@
-"""Adaptive reference solvers: scipy's DOP853 and Radau over the same right-hand side.
+"""scipy's adaptive solvers over the same right-hand side: Radau (the scenes' ``radau``), and
+DOP853 (the scenes' ``dop853`` is the float version in :mod:`mps_core.solvers.dop853`, which
+takes scipy's steps without its per-stage numpy calls; this one stays for comparison).
 
 The scipy solver runs on y = (q, q̇) with its own step-size control (``rtol``, ``atol``).
 :meth:`AdaptiveSolver.step_to` takes internal steps until ``t_target`` is passed, then reports the
 state at ``t_target`` from scipy's dense output and evaluates the equations there (counted in
-``nfev`` like every other call). After each internal step ``interrupt(t, q, q̇)`` may stop the
-solver at that step's end (a change of chart is due). ``atol`` applies to q and q̇ component by
+``nfev`` like every other call). Each internal step's end before ``t_target`` goes to
+``interrupt(t, q, q̇)`` before the next step is taken, which may stop the solver there (an event
+or a change of chart is due). ``atol`` applies to q and q̇ component by
 component, scaled by the chart's coordinate scales where given.
 """
 
@@ -71,17 +74,19 @@ class AdaptiveSolver(Solver):
     def step_to(self, t_target, interrupt=None):
         s, n = self._scipy, self._n
         while s.t < t_target:
+            # each internal step's end before t_target goes to ``interrupt`` before the next
+            # step (also the end of a step that began before this call)
+            if interrupt is not None and s.t > self.t and interrupt(s.t, s.y[:n], s.y[n:]):
+                self._dense = self._wrap(self._interpolant())
+                self.t, self.q, self.qd = s.t, s.y[:n].copy(), s.y[n:].copy()
+                self.current = self._call(self.t, self.q, self.qd)
+                return
             if s.status != "running":
                 raise NumericalError(f"{self.name} stopped: {s.status}", s.t)
             msg = self._step_within_domain()
             if s.status == "failed":
                 raise NumericalError(f"{self.name} failed: {msg}", s.t)
             self.nsteps += 1
-            if s.t < t_target and interrupt is not None and interrupt(s.t, s.y[:n], s.y[n:]):
-                self._dense = self._wrap(self._interpolant())
-                self.t, self.q, self.qd = s.t, s.y[:n].copy(), s.y[n:].copy()
-                self.current = self._call(self.t, self.q, self.qd)
-                return
         sol = self._interpolant()
         y = sol(t_target)
         self._dense = self._wrap(sol)

@@ -13,9 +13,10 @@ arithmetic. Here a step's twelve stages are one generated straight-line function
 
 Two differences from scipy, both in the work and neither in the accepted steps:
 
-* the last stage's right-hand side (first same as last) is evaluated once a step is accepted,
-  not for every attempt: the error estimate does not use it, so a rejected attempt costs
-  eleven evaluations, not twelve;
+* the last stage's right-hand side (first same as last) is evaluated once an attempt's error
+  is accepted, not for every attempt: the error estimate does not use it, so a rejected attempt
+  costs eleven evaluations, not twelve (where it lies outside the chart's domain it rejects the
+  attempt, as in scipy's solver);
 * a stage outside the chart's domain (:class:`~mps_core.errors.ChartDomainError`) rejects the
   attempt like a too large error: the step is shrunk by 4 and tried again, up to 12 times,
   as :class:`~mps_core.solvers.adaptive.AdaptiveSolver` does around scipy's solver.
@@ -197,9 +198,21 @@ class DOP853(Solver):
     def _attempt(self, t, h):
         return self._attempt_fn(self._accel_counted, t, h, *self._y, *self._f)
 
+    def _error_norm(self, y, y_new, e5, e3, h_abs) -> float:
+        """scipy's DOP853 error norm: the fifth-order estimate, damped by the third-order one."""
+        rtol = self.rtol
+        s5 = s3 = 0.0
+        for a, b, c, d, e in zip(self._atol, y, y_new, e5, e3):
+            sc = a + max(abs(b), abs(c)) * rtol
+            s5 += (d / sc) ** 2
+            s3 += (e / sc) ** 2
+        if s5 == 0.0 and s3 == 0.0:
+            return 0.0
+        return h_abs * s5 / math.sqrt((s5 + 0.01 * s3) * len(y))
+
     def _advance(self) -> None:
         """One accepted internal step (scipy's ``_step_impl``)."""
-        t, y, rtol, atol = self._t, self._y, self.rtol, self._atol
+        t, y, n = self._t, self._y, self._n
         min_step = 10.0 * abs(math.nextafter(t, math.inf) - t)
         h_abs = min(self.h_abs, self.max_step)
         if h_abs < min_step:
@@ -215,6 +228,11 @@ class DOP853(Solver):
             h_abs = abs(h)
             try:
                 y_new, e5, e3, K = self._attempt(t, h)
+                err = self._error_norm(y, y_new, e5, e3, h_abs)
+                if err < 1.0:
+                    # the last stage (the next step's first): outside the domain, it rejects
+                    # the step as scipy's solver, which evaluates it in every attempt, does
+                    a_new = self._accel_counted(t_new, y_new[:n], y_new[n:])
             except ChartDomainError:
                 domain_failures += 1
                 if domain_failures == DOMAIN_TRIES:
@@ -224,15 +242,6 @@ class DOP853(Solver):
                 h_abs = max(min(self.h_abs, self.max_step), min_step)
                 rejected = False
                 continue
-            s5 = s3 = 0.0
-            for a, b, c, d, e in zip(atol, y, y_new, e5, e3):
-                sc = a + max(abs(b), abs(c)) * rtol
-                s5 += (d / sc) ** 2
-                s3 += (e / sc) ** 2
-            if s5 == 0.0 and s3 == 0.0:
-                err = 0.0
-            else:
-                err = h_abs * s5 / math.sqrt((s5 + 0.01 * s3) * len(y))
             if err < 1.0:
                 factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
                                                             SAFETY * err ** ERROR_EXPONENT)
@@ -242,8 +251,6 @@ class DOP853(Solver):
                 break
             h_abs *= max(MIN_FACTOR, SAFETY * err ** ERROR_EXPONENT)
             rejected = True
-        n = self._n
-        a_new = self._accel_counted(t_new, y_new[:n], y_new[n:])
         self._last = (t, y, self._f, K, h)
         self._t, self._y, self._f = t_new, y_new, y_new[n:] + a_new
         self.h_abs = h_abs
@@ -261,15 +268,19 @@ class DOP853(Solver):
     def step_to(self, t_target, interrupt=None):
         n = self._n
         while self._t < t_target:
-            self._advance()
-            self.nsteps += 1
-            if self._t < t_target and interrupt is not None:
+            # every internal step's end before t_target is offered to ``interrupt`` before the
+            # next step is taken: also the end of a step that began before this call (the
+            # last report lay inside it), so that what happens between the last report and
+            # that end is found on that step's interpolant, not on the next one's
+            if interrupt is not None and self._t > self.t:
                 q, qd = np.array(self._y[:n]), np.array(self._y[n:])
                 if interrupt(self._t, q, qd):
                     self._dense = self._interpolant()
                     self.t, self.q, self.qd = self._t, q, qd
                     self.current = self._call(self.t, q, qd)
                     return
+            self._advance()
+            self.nsteps += 1
         sol = self._interpolant()
         q, qd = sol(t_target)
         self._dense = sol
