@@ -59,6 +59,19 @@ def _terms(coefs, k_name, i) -> str:
     return " + ".join(out) if out else "0.0"
 
 
+def _stage_lines(s: int, n: int, k) -> list:
+    """Code for stage s: its state y + h·Σ a_sj·k_j, and its derivative (q̇ of that state, and
+    q̈ there from ``accel``) as k_s."""
+    N = 2 * n
+    lines = [f"    z{i} = y{i} + ({_terms(_A[s, :s], k, i)}) * h" for i in range(N)]
+    qs = ", ".join(f"z{i}" for i in range(n))
+    vs = ", ".join(f"z{i}" for i in range(n, N))
+    acc = ", ".join(k(s, n + i) for i in range(n))
+    lines.append(f"    {acc}, = accel(t + {float(_C[s])!r} * h, [{qs}], [{vs}])")
+    lines += [f"    {k(s, i)} = z{n + i}" for i in range(n)]
+    return lines
+
+
 def _step_source(n: int) -> str:
     """``attempt(accel, t, h, y…, f…)``: one attempted step from y with derivative f (2n floats
     each): ``(y_new, err5, err3, K)`` with K the stages' derivatives (12 lists)."""
@@ -72,13 +85,7 @@ def _step_source(n: int) -> str:
     lines = [f"def attempt(accel, t, h, {', '.join(ys)}, {', '.join(fs)}):"]
     lines += [f"    {k(0, i)} = f{i}" for i in range(N)]
     for s in range(1, STAGES):
-        for i in range(N):
-            lines.append(f"    z{i} = y{i} + ({_terms(_A[s, :s], k, i)}) * h")
-        qs = ", ".join(f"z{i}" for i in range(n))
-        vs = ", ".join(f"z{i}" for i in range(n, N))
-        acc = ", ".join(k(s, n + i) for i in range(n))
-        lines.append(f"    {acc}, = accel(t + {float(_C[s])!r} * h, [{qs}], [{vs}])")
-        lines += [f"    {k(s, i)} = z{n + i}" for i in range(n)]
+        lines += _stage_lines(s, n, k)
     ynew = ", ".join(f"y{i} + h * ({_terms(_B, k, i)})" for i in range(N))
     e5 = ", ".join(f"{_terms(_E5[:STAGES], k, i)}" for i in range(N))
     e3 = ", ".join(f"{_terms(_E3[:STAGES], k, i)}" for i in range(N))
@@ -104,13 +111,7 @@ def _dense_source(n: int) -> str:
         lines.append(f"    {', '.join(k(j, i) for i in range(N))} = K[{j}]")
     lines += [f"    {k(STAGES, i)} = g{i}" for i in range(N)]
     for s in range(STAGES + 1, E):
-        for i in range(N):
-            lines.append(f"    z{i} = y{i} + ({_terms(_A[s, :s], k, i)}) * h")
-        qs = ", ".join(f"z{i}" for i in range(n))
-        vs = ", ".join(f"z{i}" for i in range(n, N))
-        acc = ", ".join(k(s, n + i) for i in range(n))
-        lines.append(f"    {acc}, = accel(t + {float(_C[s])!r} * h, [{qs}], [{vs}])")
-        lines += [f"    {k(s, i)} = z{n + i}" for i in range(n)]
+        lines += _stage_lines(s, n, k)
     lines += [f"    d{i} = u{i} - y{i}" for i in range(N)]
     rows = ["[" + ", ".join(f"d{i}" for i in range(N)) + "]",
             "[" + ", ".join(f"h * f{i} - d{i}" for i in range(N)) + "]",
