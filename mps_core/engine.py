@@ -525,44 +525,47 @@ class PartialSystems:
         """q̈ alone, n floats, at (t, q, q̇) given as lists of floats: the ``qdd`` that
         :meth:`evaluate` gives there, by the same operations, without making the evaluation
         (a solver's inner stages, whose evaluations are not kept). Counted as an evaluation."""
-        plan = self._plans.get(view)
-        if plan is not None:
-            if plan.inline is not None:
-                self.counts["evaluations"] += 1
-                return self._kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
-            if plan.exact is not None and self.kernels:
-                try:
-                    qdd = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)[5]
-                except BranchChanged:       # another branch here: the jets
-                    qdd = self._jets_evaluate(view, t, np.array(ql, float),
-                                              np.array(vl, float)).qdd.tolist()
-                self.counts["evaluations"] += 1
-                return qdd
-        return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
+        out = self._solve_on_floats(view, t, ql, vl)
+        if out is None:
+            return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
+        return out[3]
 
     def equations(self, view: ChartView, t: float, ql: list, vl: list) -> tuple:
         """(A as rows, h, Q), lists of floats, at (t, q, q̇) given as lists of floats: the
         numbers :meth:`evaluate` gives there (its arrays' ``tolist()``), without making the
         evaluation where a kernel computes them. Counted as an evaluation."""
-        plan = self._plans.get(view)
-        out = None
-        if plan is not None:
-            if plan.inline is not None:
-                out = self._kernel_solve(view, t, ql, vl, ql, vl, plan)
-            elif plan.exact is not None and self.kernels:
-                try:
-                    out = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)
-                except BranchChanged:
-                    pass
+        out = self._solve_on_floats(view, t, ql, vl)
         if out is None:
             e = self.evaluate(view, t, np.array(ql, float), np.array(vl, float))
             return e.A.tolist(), e.h.tolist(), e.Q.tolist()
-        self.counts["evaluations"] += 1
-        _kin, A, h, Q, _Qnc, _qdd = out
+        A, h, Q, _qdd = out
+        if isinstance(A, list):             # rows already (the jets)
+            return A, h, Q
         if view.n == 1:
             return [[A]], h, Q
         a00, a01, a11 = A
         return [[a00, a01], [a01, a11]], h, Q
+
+    def _solve_on_floats(self, view, t, ql, vl):
+        """(A, h, Q, q̈) at (t, q, q̇) given as floats, by the view's kernel (A packed as the
+        kernels give it), or by the jets where an exact kernel's branch changed (A as rows);
+        None where the view has no kernel (yet). Counts the evaluation it makes."""
+        plan = self._plans.get(view)
+        if plan is None:
+            return None
+        if plan.inline is not None:
+            out = self._kernel_solve(view, t, ql, vl, ql, vl, plan)
+        elif plan.exact is not None and self.kernels:
+            try:
+                out = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)
+            except BranchChanged:           # another branch here: the jets
+                e = self._jets_evaluate(view, t, np.array(ql, float), np.array(vl, float))
+                self.counts["evaluations"] += 1
+                return e.A.tolist(), e.h.tolist(), e.Q.tolist(), e.qdd.tolist()
+        else:
+            return None
+        self.counts["evaluations"] += 1
+        return out[1], out[2], out[3], out[5]
 
     def generalized_forces(self, t: float, kin: Kinematics) -> np.ndarray:
         """Q = Σ over the effects of the virtual work of their loads (an array)."""
