@@ -637,6 +637,36 @@ class PartialSystems:
             return self._central(view, t, q, qd)[0]
         return self._autodiff(view, t, q, qd)[0]
 
+    def state_kinematics(self, view: ChartView, t: float, ql: list, vl: list) -> Kinematics:
+        """Positions and analogs at (t, q, q̇) given as floats, by the view's kernel where it
+        has one (one kernel call, no forces, no solve; the numbers :meth:`evaluate` reads
+        there), else by :meth:`kinematics`. For functions of the state read between
+        evaluations (the driver's switching functions); not counted as an evaluation."""
+        plan = self._plans.get(view)
+        if plan is not None and self.kernels:
+            counts = self.counts
+            try:
+                if plan.inline is not None:
+                    counts["position_calls"] += 1
+                    counts["position_points"] += plan.S
+                    xl, jl, wl, _A, _h, wb = plan.inline(*ql, *vl)
+                    return Kinematics(t, np.array(ql, float), np.array(vl, float), self._names,
+                                      bodies=self._body_index, lists=(xl, jl, wl),
+                                      side=(wb, plan.inv2d), v=list(vl))
+                if plan.exact is not None:
+                    counts["position_calls"] += 1
+                    counts["position_points"] += 1
+                    xl, jl, wl, _A, _h, conv = plan.exact(*ql, *vl)
+                    return Kinematics(t, np.array(ql, float), np.array(vl, float), self._names,
+                                      bodies=self._body_index, lists=(xl, jl, wl), conv=conv,
+                                      v=list(vl))
+            except BranchChanged:
+                pass                        # another branch here: the general path
+            except (ValueError, ZeroDivisionError, OverflowError):
+                raise ChartDomainError(view.name, "no real configuration at this point") \
+                    from None
+        return self.kinematics(view, t, ql, vl)
+
     # -- the schemes ----------------------------------------------------------------------
     def _points_matrix(self, pose, cols):
         P = np.empty((2 * self._npts, cols))

@@ -25,7 +25,7 @@ from .effects import (MOTOR_PRESETS, Blanking, DisengageCylinder, EngageCylinder
 from .engine import SCHEMES
 from .errors import SceneError
 from .mechanisms.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
-from .simulation import COMMANDS, ChartPolicy, SolverSettings
+from .simulation import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
 from .solvers import SOLVERS
 
 BODY_NAMES = ("crank", "rod", "rocker", "slider")
@@ -70,7 +70,7 @@ class Scene:
 
     def with_overrides(self, *, t_end=None, steps=None, dt=None, solver=None, delta=None,
                        scheme=None, iterations=None, rtol=None, atol=None,
-                       chart_switching=None) -> "Scene":
+                       chart_switching=None, switch_points=None) -> "Scene":
         """The same scene with run settings changed (the CLI's options), validated again."""
         s = self
         if steps is not None and dt is not None:
@@ -102,6 +102,9 @@ class Scene:
             st = replace(st, rtol=_tol("solver.rtol", rtol))
         if atol is not None:
             st = replace(st, atol=_tol("solver.atol", atol))
+        if switch_points is not None:
+            _choice("solver.switch_points", switch_points, SWITCH_POINTS)
+            st = replace(st, switch_points=switch_points)
         ch = s.charts if chart_switching is None else replace(s.charts, switching=chart_switching)
         return replace(s, t_end=t_end, dt=dt, solver=st, charts=ch)
 
@@ -530,6 +533,8 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     atol = _tol("solver.atol", sv.get("atol", 1e-12))
     stiff = sv.get("stiff", "subdivide")
     _choice("solver.stiff", stiff, ("subdivide", "error"))
+    switch_points = sv.get("switch_points", "auto")
+    _choice("solver.switch_points", switch_points, SWITCH_POINTS)
     t_end = _positive("solver.t_end_s", sv.get("t_end_s", required=True), upper=1e5, unit=" (s)")
     steps = sv.get("steps")
     dt = sv.get("dt_s")
@@ -563,7 +568,8 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     top.done()
 
     scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
-                  effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff),
+                  effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff,
+                                                   switch_points=switch_points),
                   t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
                   reactions, change_point, text, origin)
     if change_point == "keep-side" and scheme != "central":

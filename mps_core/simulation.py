@@ -116,6 +116,27 @@ class SolverSettings:
     #: central differences on small charts as scalar kernels (mps_core.kernels); False: the
     #: engine's array code (the same numbers to round-off, slower; for comparisons)
     kernels: bool = True
+    #: where an effect's force law is not smooth (its ``switches``): "locate" ends a step at
+    #: every crossing and starts the solver afresh there; "step-over" lets steps straddle them;
+    #: "auto": locate with the adaptive solvers (whose error control would otherwise shrink the
+    #: step to nothing at a kink, and whose order assumes a smooth right-hand side), step over
+    #: with the fixed-step ones (an isolated kink or jump stays within their O(Δt²) error: the
+    #: linear acceleration method's order holds; RK4's falls to 2 near one)
+    switch_points: str = "auto"
+
+    def locates_switch_points(self) -> bool:
+        if self.switch_points not in SWITCH_POINTS:
+            raise ValueError(f"switch_points = {self.switch_points!r}: expected one of "
+                             + ", ".join(SWITCH_POINTS))
+        if self.switch_points == "auto":
+            return self.name in ADAPTIVE_SOLVERS
+        return self.switch_points == "locate"
+
+
+#: the choices of :attr:`SolverSettings.switch_points`
+SWITCH_POINTS = ("auto", "locate", "step-over")
+#: the solvers with error control (the others take the steps they are given)
+ADAPTIVE_SOLVERS = ("dop853", "radau")
 
 
 @dataclass
@@ -124,6 +145,9 @@ class _Event:
     fn: Callable            # fn(t, q, q̇, kin=None): the event function in its list's view
     direction: int          # +1 rising through zero, -1 falling, 0 either
     action: Callable
+    #: a switching point of a force law: the step ends there and the solver starts afresh,
+    #: nothing else happens
+    restart: bool = False
 
 
 #: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
@@ -197,6 +221,7 @@ class Simulation:
         if self.motor is not None:
             self.controls.motor_on = self.motor.enabled
         self.engage = next((e for e in self.effects if e.kind == "engage_cylinder"), None)
+        self.disengage = next((e for e in self.effects if e.kind == "disengage_cylinder"), None)
         self._nc = [e for e in self.effects if not e.conservative]
         self._potentials = [e.potential for e in self.effects if e.conservative]
         self._stiff = [e for e in self.effects if hasattr(e, "stiffness")]
@@ -210,6 +235,16 @@ class Simulation:
         self.view: ChartView = view
         self.events: list[dict] = []
         self.pending: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
+        #: the driver's own control changes due at a known time, (t, name), sorted: step
+        #: boundaries like commands (the disengage cylinder's end)
+        self._timers: list[tuple[float, str]] = []
+        #: switching points of the effects' force laws crossed (a step ended at each)
+        self.switch_points = 0
+        self._kin_last = None
+        self._switch_last: dict = {}
+        #: the effects whose switching points are located (none where steps step over them)
+        self._switching = [e for e in self.effects if e.switches] \
+            if solver.locates_switch_points() else []
         self.solver_nfev = 0
         self.solver_steps = 0
         self.work = 0.0
@@ -523,7 +558,40 @@ class Simulation:
             ev.append(_Event("change-point",
                              lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
                              0, self._record_change_point))
+        for effect in self._switching:
+            for i, name in enumerate(effect.switches):
+                ev.append(_Event(f"{effect.name}:{name}", self._switch_fn(effect, i, view), 0,
+                                 self._count_switch, restart=True))
         return ev
+
+    def _switch_fn(self, effect, i, view):
+        """``fn(t, q, q̇, kin=None)``: the effect's i-th switching function in ``view``."""
+        state_kin = self._state_kin
+        last = self._switch_last          # the effect's values at the last state asked for
+
+        def fn(t, q, qd, kin=None):
+            if kin is None:
+                kin = state_kin(view, t, q, qd)
+            hit = last.get(effect)
+            if hit is None or hit[0] is not kin:
+                hit = last[effect] = (kin, effect.switch_values(t, kin))
+            return hit[1][i]
+        return fn
+
+    def _state_kin(self, view, t, q, qd):
+        """The kinematics of a state between evaluations (event location), the last one kept:
+        the switching functions of one state share it."""
+        ql, vl = [float(x) for x in q], [float(x) for x in qd]
+        key = (view, t, *ql, *vl)
+        last = self._kin_last
+        if last is not None and last[0] == key:
+            return last[1]
+        kin = self.engine.state_kinematics(view, t, ql, vl)
+        self._kin_last = (key, kin)
+        return kin
+
+    def _count_switch(self, t):
+        self.switch_points += 1
 
     def _event_values(self, t, q, qd, kin=None) -> dict:
         return {e.name: e.fn(t, q, qd, kin) for e in self._event_list()}
@@ -776,6 +844,11 @@ class Simulation:
             c.engage_on = False
             c.latch_armed = False
             c.disengage_at = t
+            if self.disengage is not None:
+                c.disengage_on = True
+                self._timers = sorted([(a, b) for a, b in self._timers
+                                       if b != "disengage-ends"]
+                                      + [(t + self.disengage.duration, "disengage-ends")])
             if self.structure == "locked":
                 e = self.solver.current
                 self.events.append(rec)
@@ -791,6 +864,16 @@ class Simulation:
             self.motor.enabled = True
         self.events.append(rec)
         # the forces changed: the state carries on, its accelerations are new
+        e = self.solver.current
+        self._restart(self.view, t, e.q, e.qd)
+
+    def _apply_timer(self, name, t):
+        """A control change the driver scheduled, due at t (a step ends there)."""
+        if name == "disengage-ends":
+            self.controls.disengage_on = False
+            self.events.append({"t": t, "kind": "cylinder-off", "effect": "disengage_cylinder"})
+        else:                                               # pragma: no cover - internal
+            raise AssertionError(f"unknown timer {name!r}")
         e = self.solver.current
         self._restart(self.view, t, e.q, e.qd)
 
@@ -926,9 +1009,14 @@ class Simulation:
                     continue
                 self._apply_command(name, t0)
                 continue
+            if self._timers and self._timers[0][0] <= t0 + tol:
+                self._apply_timer(self._timers.pop(0)[1], t0)
+                continue
             t_next = t_target
             if self.pending and self.pending[0][0] < t_next:
                 t_next = self.pending[0][0]
+            if self._timers and self._timers[0][0] < t_next:
+                t_next = self._timers[0][0]
             dt = t_next - t0
             if dt > self._dt_stable:         # else stable in any state: no estimate needed
                 dt = self._stable_step(dt)
@@ -964,7 +1052,7 @@ class Simulation:
                 self._cut_at(t_e)
                 self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
                 ev.action(t_e)
-                if ev.name == "change-point":
+                if ev.restart or ev.name == "change-point":
                     self._ev_prev[ev.name] = after_value
                 self._update_phys(self.solver.current)
                 continue
@@ -1016,6 +1104,7 @@ class Simulation:
         counts = dict(self.engine.counts)
         counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
         counts["steps"] = self.solver_steps + self.solver.nsteps
+        counts["switch_points"] = self.switch_points
         s = self.settings
         settings = {"solver": s.name, "scheme": s.scheme, "delta": s.delta,
                     "iterations": s.iterations, "rtol": s.rtol, "atol": s.atol,

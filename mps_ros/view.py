@@ -111,7 +111,7 @@ _SERIES_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
 LEVELS = {"command": "INFO", "command-refused": "WARN", "latch-closes": "WARN",
           "latch-opens": "INFO", "stop-contact": "WARN", "stop-release": "INFO",
           "change-point": "INFO", "impulse": "WARN", "chart": "DEBUG", "run-start": "INFO",
-          "run-end": "INFO"}
+          "run-end": "INFO", "cylinder-off": "INFO"}
 
 
 def _rr():
@@ -379,6 +379,8 @@ def describe_event(ev: dict) -> str:
         return s
     if k == "chart":
         return f"chart {ev.get('from')} -> {ev.get('to')}"
+    if k == "cylinder-off":
+        return f"{str(ev.get('effect', 'cylinder')).replace('_', ' ')} stops acting"
     if k == "change-point":
         return f"change point passed ({ev.get('choice', '')})"
     if k == "impulse":

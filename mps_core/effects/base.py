@@ -54,6 +54,20 @@ class Effect:
         """Potential energy (J) for conservative effects; 0 for the others."""
         return 0.0
 
+    #: the names of the switching functions of this effect's force law: where one of them
+    #: crosses zero the law is not smooth in the state (a kink or a jump, e.g. contact begins).
+    #: The driver ends a step at every crossing (located on the step's interpolant) and starts
+    #: the solver afresh there, so that no step straddles the point: a solver's error estimate
+    #: and order assume a smooth right-hand side
+    switches: tuple[str, ...] = ()
+
+    def switch_values(self, t: float, kin) -> list:
+        """The switching functions' values at a state, in the order of :attr:`switches`:
+        continuous in the state while the controls stay as they are (a constant where the law
+        has no such point now). A crossing where the law is smooth after all costs a restart,
+        nothing else."""
+        return []
+
     #: optional, in a subclass that defines it together with :meth:`loads`:
     #: ``generalized_force(t, kin)``, the virtual work of the loads as n floats (None for
     #: none), the same number as the engine's sum over the loads in fewer operations

@@ -40,6 +40,16 @@ class Blanking(ControlledEffect, Effect):
             return Loads()
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
 
+    #: the punch touches the part (p = 0), breaks through (p = p_b), the slider turns (v = 0:
+    #: the force drops to nothing if it turns inside the part)
+    switches = ("contact", "breakthrough", "turn")
+
+    def switch_values(self, t, kin) -> list:
+        if self.controls.structure != "locked":
+            return [1.0, 1.0, 1.0]
+        p = self.x_contact - kin.xy("C")[0]
+        return [p, p - self.pb, kin.vxy("C")[0]]
+
     def generalized_force(self, t, kin):
         if self.controls.structure != "locked":
             return None

@@ -19,6 +19,9 @@ class Controls:
     latch_armed: bool = False
     #: time of the last disengage command (the disengage cylinder acts from then)
     disengage_at: float | None = None
+    #: the disengage cylinder is acting (from a disengage command for its duration: the driver
+    #: switches it off at a step boundary, so that no step straddles the jump in its torque)
+    disengage_on: bool = False
 
 
 class ControlledEffect:

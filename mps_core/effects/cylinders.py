@@ -44,11 +44,26 @@ class EngageCylinder(ControlledEffect, Effect):
         f = self.force(kin)
         return None if f == 0.0 else along_x(f, kin, "C")
 
+    #: the ramp's ends: full force above, none past the stroke
+    switches = ("ramp-top", "stroke-end")
+
+    def switch_values(self, t, kin) -> list:
+        if not self.controls.engage_on:
+            return [1.0, 1.0]
+        r = (kin.xy("C")[0] - (self.x_top - self.stroke)) / self.ramp
+        return [r - 1.0, r]
+
 
 class DisengageCylinder(ControlledEffect, Effect):
     """Turns the rocker off the latch: torque −M on the rocker (away from ψ_lock, toward the idle
     swing at ψ < 0) for ``duration`` seconds after a disengage command. It is mounted on the slider,
-    which receives +M (taken by the guide)."""
+    which receives +M (taken by the guide).
+
+    Whether it acts is a control (``controls.disengage_on``), not a function of time: the driver
+    sets it at the command and clears it ``duration`` later, both at step boundaries, so the
+    torque's jumps fall between steps (a step across a jump would see a force that is not smooth
+    in t: a fixed-step solver loses its order there, an adaptive one shrinks its step to
+    nothing)."""
 
     kind = "disengage_cylinder"
 
@@ -59,8 +74,8 @@ class DisengageCylinder(ControlledEffect, Effect):
         self.acts_on = ("rocker", "slider")
 
     def active(self, t: float) -> bool:
-        t0 = self.controls.disengage_at
-        return t0 is not None and t0 <= t < t0 + self.duration
+        """Acting now (``t`` is not read: the driver switches the control at its times)."""
+        return self.controls.disengage_on
 
     def loads(self, t, kin) -> Loads:
         if not self.active(t):

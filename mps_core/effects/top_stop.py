@@ -60,6 +60,15 @@ class TopStop(Effect):
         f = self.force(kin)
         return None if f == 0.0 else along_x(f, kin, "C")
 
+    #: a compliant stop: contact begins (penetration 0), the damper would pull (k·pen + c·v = 0)
+    switches = ("contact", "pull")
+
+    def switch_values(self, t, kin) -> list:
+        if self.rigid:
+            return [1.0, 1.0]
+        pen = kin.xy("C")[0] - self.x_top
+        return [pen, self.k * pen + self.c * kin.vxy("C")[0]]
+
     def potential(self, kin) -> float:
         if self.rigid:
             return 0.0
