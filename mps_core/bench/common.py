@@ -79,6 +79,8 @@ class Setting:
     delta_deg: float = 0.1
     iterations: int = 1
     rtol: float | None = None
+    #: the scene's ``solver.switch_points`` ("auto": located by the adaptive solvers)
+    switch_points: str = "auto"
 
     @property
     def family(self) -> str:
@@ -100,7 +102,8 @@ class Setting:
         f = self.family
         if f == "la-iterated":
             f = f"linear-acceleration ×{self.iterations}"
-        return f"{f}, {self.scheme_label}"
+        tail = "" if self.switch_points == "auto" else f", switch points: {self.switch_points}"
+        return f"{f}, {self.scheme_label}{tail}"
 
     @property
     def adaptive(self) -> bool:
@@ -110,7 +113,7 @@ class Setting:
 def scene_for(case: Case, s: Setting, dt: float) -> Scene:
     """The case's scene with a setting's run parameters."""
     kw = dict(t_end=case.t_end, dt=dt, solver=s.solver, scheme=s.scheme,
-              iterations=s.iterations)
+              iterations=s.iterations, switch_points=s.switch_points)
     if s.scheme == "central":
         kw["delta"] = math.radians(s.delta_deg)
     if s.rtol is not None:

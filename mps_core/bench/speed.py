@@ -37,6 +37,9 @@ SOLVERS = (
     Setting("rk4", "autodiff"),
     Setting("dop853", "autodiff", rtol=1e-6),
     Setting("dop853", "autodiff", rtol=1e-9),
+    # the price of locating the force laws' switching points (scenes that have them)
+    Setting("dop853", "autodiff", rtol=1e-6, switch_points="step-over"),
+    Setting("dop853", "autodiff", rtol=1e-9, switch_points="step-over"),
     Setting("radau", "autodiff", rtol=1e-6),
     Setting("peer", "exact", rtol=1e-6),
     Setting("peer", "exact", rtol=1e-9),
@@ -51,7 +54,10 @@ def _max_err_phi(t, phi, ref) -> float:
 
 def solver_costs(case: Case, ref, settings=SOLVERS, repeats: int = 5, budget: float = 2.0):
     rows = []
+    switching = any(e.switches for e in build(case.scene).effects)
     for s in settings:
+        if s.switch_points != "auto" and not switching:
+            continue                    # no switching points: the same run as "auto"
         label = s.label + (f", rtol {s.rtol:.0e}" if s.rtol else "")
         if s.solver == "peer":
             from .peers import run_peer, supports
@@ -83,8 +89,8 @@ def core_costs(case: Case, settings=SOLVERS, steps: int = 40, repeats: int = 5):
     """Engine + solver alone, in the initial chart: CPU per step, and per evaluation."""
     rows = []
     for s in settings:
-        if s.solver == "peer":
-            continue
+        if s.solver == "peer" or s.switch_points != "auto":
+            continue                    # the driver's business: the same steps here
         scene = scene_for(case, s, DT)
         sim = build(scene)
         view = sim.view
