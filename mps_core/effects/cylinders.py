@@ -62,8 +62,8 @@ class DisengageCylinder(ControlledEffect, Effect):
     Whether it acts is a control (``controls.disengage_on``), not a function of time: the driver
     sets it at the command and clears it ``duration`` later, both at step boundaries, so the
     torque's jumps fall between steps (a step across a jump would see a force that is not smooth
-    in t: a fixed-step solver loses its order there, an adaptive one shrinks its step to
-    nothing)."""
+    in t: a fixed-step solver loses its order there, an adaptive one shrinks its step by orders
+    of magnitude to get past it)."""
 
     kind = "disengage_cylinder"
 

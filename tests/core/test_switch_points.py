@@ -21,15 +21,20 @@ def press_cycle(method="linear-acceleration", t_end=None, **solver):
     return scene
 
 
+def advance_on_grid(sim, t_end, dt=1e-3):
+    """Advance on the dt grid, then to t_end (advance_to itself takes one fixed step)."""
+    while sim.t < t_end - 1e-12:
+        sim.advance_to(min(t_end, (round(sim.t / dt) + 1) * dt))
+
+
 # -- the disengage cylinder acts for its duration, ending at a step boundary --------------------
 def test_the_disengage_cylinder_stops_acting_at_a_step_boundary():
     scene = press_cycle(t_end=0.5)
     sim = build(scene)
     cyl = sim.disengage
 
-    def go(t_end):                            # on the 1 ms grid, then to t_end
-        while sim.t < t_end - 1e-12:
-            sim.advance_to(min(t_end, (round(sim.t * 1e3) + 1) * 1e-3))
+    def go(t_end):
+        advance_on_grid(sim, t_end)
     go(0.4351)
     assert not sim.controls.disengage_on
     go(0.436)                                 # the disengage command at 0.4351 has been taken
@@ -54,8 +59,7 @@ def test_a_second_disengage_moves_the_cylinder_end():
     sim = build(press_cycle(t_end=0.5))
 
     def go(t_end):
-        while sim.t < t_end - 1e-12:
-            sim.advance_to(min(t_end, (round(sim.t * 1e3) + 1) * 1e-3))
+        advance_on_grid(sim, t_end)
     go(0.1)                                   # engaged and locked by now
     assert sim.structure == "locked"
     sim.command("disengage")
