@@ -177,10 +177,12 @@ class _Forward:
 _HOLD = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
 
 
-def _source(engine, view, tape, outputs, args, free) -> str:
-    n = view.n
-    w = _Writer()
-    fw = _Forward(w, n)
+def forward(w: _Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
+    """(fw, outs): code of the traced program run forward on (value, gradient, d1, d2), the
+    guards written as soon as their operands exist; ``outs`` are the traced outputs' tuples.
+    The generated function's arguments are ``q0…`` and ``vd0…`` (q̇). ``cls``: the
+    :class:`_Forward` (sub)class that writes the code."""
+    fw = (cls or _Forward)(w, n)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]      # q̇ (v0, v1, … are the writer's locals)
     # the position function's arguments as code, for a failed guard's call
@@ -209,11 +211,13 @@ def _source(engine, view, tape, outputs, args, free) -> str:
             test = f"{fw._s(va)} {_HOLD[op]} {fw._s(vb)}"
             # "not (a > b)" also catches NaN
             w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
-    outs = [operand(x) for x in outputs]
+    return fw, [operand(x) for x in outputs]
 
-    M = engine._MT.T                        # rows: pairs (x, y) of names, links, check
-    NP = engine._np
-    mech = engine.mechanism
+
+def linear_parts(engine, fw: _Forward, outs):
+    """(val, grad, d1, d2): functions of a row of the engine's linear map (pairs of names,
+    links, check) giving the code of that row's value, i-th gradient, d1 and d2."""
+    M = engine._MT.T
 
     def lin(row, part):
         """Σ M[row, k] · part of output k."""
@@ -223,28 +227,21 @@ def _source(engine, view, tape, outputs, args, free) -> str:
                 acc = fw.add(acc, fw.mul(float(c), part(outs[k])))
         return acc
 
-    def val(row):
-        return lin(row, lambda o: o[0])
+    return (lambda row: lin(row, lambda o: o[0]),
+            lambda row, i: lin(row, lambda o: o[1][i]),
+            lambda row: lin(row, lambda o: o[2]),
+            lambda row: lin(row, lambda o: o[3]))
 
-    def grad(row, i):
-        return lin(row, lambda o: o[1][i])
 
-    def d1(row):
-        return lin(row, lambda o: o[2])
-
-    def d2(row):
-        return lin(row, lambda o: o[3])
-
-    def code(x):
-        return "0.0" if x is None else fw._s(x)
-
+def angular(engine, fw: _Forward, n: int, parts) -> tuple[dict, dict]:
+    """({(body, i): ω*_i}, {body: θ̈ at q̈ = 0}) of the rotating bodies, as code, from their
+    link vectors' rows (``parts``: :func:`linear_parts`)."""
+    val, grad, d1, d2 = parts
     add, sub, mul = fw.add, fw.sub, fw.mul
-    rot = engine._rot
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
-    nb = len(mech.bodies)
-    omega = {}                                  # (body, i): ω*
-    theta2 = {}                                 # body: θ̈ at q̈ = 0
-    for j, k in enumerate(rot):
+    NP = engine._np
+    omega = {}
+    theta2 = {}
+    for j, k in enumerate(engine._rot):
         r = 2 * NP + 2 * j
         rx, ry = val(r), val(r + 1)
         irr = fw.recip(add(mul(rx, rx), mul(ry, ry)))
@@ -256,6 +253,28 @@ def _source(engine, view, tape, outputs, args, free) -> str:
         dot1 = mul(add(mul(rx, ax), mul(ry, ay)), irr)
         bx, by = d2(r), d2(r + 1)
         theta2[k] = sub(mul(sub(mul(rx, by), mul(ry, bx)), irr), mul(2.0, mul(w1, dot1)))
+    return omega, theta2
+
+
+def _source(engine, view, tape, outputs, args, free) -> str:
+    n = view.n
+    w = _Writer()
+    fw, outs = forward(w, n, tape, outputs, args, free)
+    qs = [f"q{k}" for k in range(n)]
+    vs = [f"vd{k}" for k in range(n)]
+    val, grad, d1, d2 = linear_parts(engine, fw, outs)
+
+    NP = engine._np
+    mech = engine.mechanism
+
+    def code(x):
+        return "0.0" if x is None else fw._s(x)
+
+    add, sub, mul = fw.add, fw.sub, fw.mul
+    rot = engine._rot
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    nb = len(mech.bodies)
+    omega, theta2 = angular(engine, fw, n, (val, grad, d1, d2))
     com = [2 * engine._names[f"G_{b.name}"] for b in mech.bodies]
     def weighted(pairs):
         """Σ c·x·y over (c, x, y), equal products once with their weights added."""

@@ -120,12 +120,12 @@ def central_kernel(engine, view, plan, q=None):
 _CODE: dict = {}
 
 
-def load(key, source, label: str, flat, chart: str):
+def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     """The function ``kernel`` of generated code, compiled once per ``key`` (``source()`` gives
     the code). Its namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``,
     and ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
     raises its own error where the point is outside its domain; otherwise
-    :class:`~mps_core.tracing.BranchChanged`."""
+    :class:`~mps_core.tracing.BranchChanged`; and what ``extra`` adds."""
     code = _CODE.get(key)
     if code is None:
         src = source()
@@ -138,6 +138,7 @@ def load(key, source, label: str, flat, chart: str):
         raise BranchChanged(chart)
 
     namespace = {"F": flat, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
+    namespace.update(extra or {})
     exec(code[0], namespace)
     kernel = namespace["kernel"]
     kernel.source = code[1]

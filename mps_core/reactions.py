@@ -389,9 +389,85 @@ def _frame_share(sysm, u, motion, values) -> tuple[np.ndarray, float, float]:
     return R_F, R_M, drive
 
 
+class _Kernels:
+    """A mechanism's reaction kernels by (chart view, length scale), and the maps they are
+    written from."""
+
+    def __init__(self, mechanism: Mechanism):
+        from .engine import PartialSystems
+
+        self.engine = PartialSystems(mechanism, (), scheme="autodiff")
+        self.mechanism = mechanism
+        self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
+        self.nb = len(mechanism.bodies)
+        self.scale = length_scale(mechanism)
+        self.views: dict = {}
+        self._loads = None              # (the effects' list and its length, LoadSums)
+
+    def loads(self, effects):
+        """The :class:`~mps_core.reaction_kernels.LoadSums` of a list of effects (made
+        again when another list, or a changed one, is given)."""
+        cached = self._loads
+        if cached is None or cached[0] is not effects or cached[1] != len(effects):
+            from .reaction_kernels import LoadSums
+
+            cached = self._loads = (effects, len(effects), LoadSums(effects, self.mechanism))
+        return cached[2]
+
+    def get(self, mechanism, view, ql, scale):
+        """(kernel, unknowns) of a view, built at ``ql`` on first use; None where the view
+        has none."""
+        key = (view, scale)
+        entry = self.views.get(key, False)
+        if entry is False:
+            from .reaction_kernels import reaction_kernel
+
+            joints = active_joints(mechanism, view.frozen)
+            try:
+                k = reaction_kernel(self.engine, view, np.array(ql, float), joints,
+                                    tuple(REACTION_COLUMNS), scale)
+            except (ArithmeticError, ValueError):
+                return None         # outside the chart here: built at a later state
+            unknowns = tuple(c for j in joints for c in j.columns)
+            entry = self.views[key] = None if k is None else (k, unknowns)
+        return entry
+
+
+def kernels_of(mechanism: Mechanism) -> _Kernels:
+    """The mechanism's reaction kernels (kept with it)."""
+    ks = mechanism.__dict__.get("_reaction_kernels")
+    if ks is None:
+        ks = _Kernels(mechanism)
+        object.__setattr__(mechanism, "_reaction_kernels", ks)
+    return ks
+
+
+def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql, vl, al,
+                    kin: Kinematics, scale: float | None = None):
+    """The reactions at (t, q, q̇, q̈) by the view's reaction kernel
+    (:mod:`mps_core.reaction_kernels`), all on floats: ``(values, residual, unknowns)`` with
+    ``values`` in :data:`REACTION_COLUMNS` order; None where the general path must answer (no
+    kernel for this view, or a singular position). ``kin`` gives the effects' loads, as in
+    :func:`compute_reactions`."""
+    from .reaction_kernels import Fallback
+    from .tracing import BranchChanged
+
+    ks = kernels_of(mechanism)
+    entry = ks.get(mechanism, view, ql, ks.scale if scale is None else float(scale))
+    if entry is None:
+        return None
+    kernel, unknowns = entry
+    loads = ks.loads(effects)(t, kin)
+    try:
+        values, residual = kernel(*ql, *vl, *al, loads)
+    except (Fallback, BranchChanged, ArithmeticError, ValueError):
+        return None
+    return values, residual, unknowns
+
+
 def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, q, qd, qdd, *,
                       kin: Kinematics | None = None, drive: str | None = None,
-                      scale: float | None = None) -> Reactions:
+                      scale: float | None = None, kernel: bool = True) -> Reactions:
     """Joint reactions, motor torque, foundation load and checks at (t, q, q̇, q̈) in ``view``.
 
     ``effects`` are the scene's effects, already bound to ``mechanism``; their loads are taken
@@ -399,7 +475,18 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     used; by default exact kinematics from jets). ``drive``: a body that receives an unknown
     driving torque from the frame (kinetostatics of a prescribed motion: give q̈ and get the
     torque that makes it); it is added to ``M_motor``. Unknown joints follow ``view.frozen``.
+
+    With ``kin`` given and no ``drive``, the view's reaction kernel answers where it holds
+    (:func:`reaction_values`; ``kernel=False``: never); the general path below is the
+    reference, and answers everywhere else.
     """
+    if kernel and kin is not None and drive is None:
+        fast = reaction_values(mechanism, effects, view, t, [float(x) for x in q],
+                               [float(x) for x in qd], [float(x) for x in qdd], kin, scale)
+        if fast is not None:
+            values, residual, unknowns = fast
+            return Reactions(float(t), dict(zip(REACTION_COLUMNS, values)),
+                             np.array(residual), unknowns, len(unknowns))
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     qdd = np.asarray(qdd, dtype=float)

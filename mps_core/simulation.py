@@ -971,6 +971,14 @@ class Simulation:
         return float(v)
 
     # -- the state, for sinks ---------------------------------------------------------------
+    def joint_state(self) -> tuple:
+        """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
+        gives under those names, without the energies."""
+        e = self.solver.current
+        obs = self._observe(e)
+        phi, psi, x = obs["phi"], obs["psi"], obs["x_C"]
+        return (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
+
     def snapshot(self) -> dict:
         """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,
         energies, structure, chart), plus ``x_C_dot`` and the controls."""

@@ -24,11 +24,14 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
                             foundation, clock, structure, events, diagnostics (default: all); the
                             reactions are solved only if reactions or foundation is asked for
 ``recording``               MCAP path; ``auto`` (default): recordings/SCENE-DATE-TIME.mcap;
-                            ``none`` or empty: no recording
+                            ``none`` or empty: no recording. Written by a process of its own
+                            (:class:`~mps_ros.recording.BackgroundRecorder`), off the steps' time
 ``recording_flush_period``  wall seconds after which a chunk is written even if not full (1.0)
 ``scene_commands``          apply the scene's own [[commands]] (default true); false: an operator
                             sends them on ``~/mode``
-``qos_depth``               history depth of every publisher (keep last, reliable; 1000)
+``qos_depth``               history depth of every publisher (keep last, reliable; 1000) but
+                            ``~/structure``, which is latched (transient local, depth 1) and
+                            published when the structure changes
 ``wait_for_subscribers``    start stepping when every published topic has this many subscribers
 ``wait_for_commanders``     ... and ``~/mode`` has this many publishers (default 0, 0)
 ``wait_timeout``            start anyway after this many seconds (10.0)
@@ -74,7 +77,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from .topics import BY_KEY, MODE, NODE_NAME, OUTPUTS, TOPICS, qos_yaml  # noqa: E402
+from .topics import LATCHED, MODE, NODE_NAME, OUTPUTS, TOPICS, offered_qos, qos_yaml  # noqa: E402
 from .twin import PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs  # noqa: E402
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
@@ -91,7 +94,7 @@ class RosSink:
     def __init__(self, publishers: dict):
         self.pubs = publishers     # key -> publisher
 
-    def emit(self, key, msg, data, t_ns):
+    def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
         if p is not None:
             p.publish(data)
@@ -126,10 +129,14 @@ class PressTwin(Node):
         outputs = set(self.twin.outputs)
         self.pubs: dict[str, object] = {}
         self.names: dict[str, str] = {}
+        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         for t in TOPICS:
             if t.output and t.output not in outputs:
                 continue
-            pub = self.create_publisher(MSG_CLASSES[t.msgtype], t.key, qos)
+            pub = self.create_publisher(MSG_CLASSES[t.msgtype], t.key,
+                                        latched if t.key in LATCHED else qos)
             self.pubs[t.key] = pub
             self.names[t.key] = pub.topic_name
         self.inbox = Inbox()
@@ -275,7 +282,7 @@ class PressTwin(Node):
             time.sleep(0.01)
 
     def open_recording(self):
-        from .recording import Recorder, RecordingSink, _run_metadata, default_path
+        from .recording import BackgroundRecorder, RecordingSink, _run_metadata, default_path
 
         path = self.p["recording"]
         if path.lower() in ("", "none", "off", "false"):
@@ -287,12 +294,11 @@ class PressTwin(Node):
         meta["node"] = self.get_fully_qualified_name()
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
-        self.recorder = Recorder(path, scene_name=self.twin.scene.name,
-                                 scene_text=self.twin.scene.text, metadata=meta,
-                                 flush_period=self.p["recording_flush_period"])
-        qos = {k: self.qos_text for k in BY_KEY}
-        qos[MODE.key] = qos_yaml(depth=100)
-        self.runner.sinks.append(RecordingSink(self.recorder, names=dict(self.names), qos=qos))
+        self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
+                                           scene_text=self.twin.scene.text, metadata=meta,
+                                           flush_period=self.p["recording_flush_period"])
+        self.runner.sinks.append(RecordingSink(self.recorder, names=dict(self.names),
+                                               qos=offered_qos(self.p["qos_depth"])))
         return self.recorder
 
     def run(self, stop: threading.Event) -> dict:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from .topics import BY_KEY, DEPTH, NODE_NAME, qos_yaml, resolve
+from .topics import BY_KEY, DEPTH, NODE_NAME, offered_qos, qos_yaml, resolve
 
 PROFILE = "ros2"
 MAGIC = b"\x89MCAP0\r\n"
@@ -174,6 +174,231 @@ class Recorder:
             self._stream.close()
 
 
+class BackgroundRecorder:
+    """A :class:`Recorder` that writes in a process of its own (the machine's second core),
+    off the stepping loop's time: the loop hands it each message's CDR bytes, which it sends
+    down a pipe in batches (every ``batch_period`` wall seconds, at :meth:`tick`); the other
+    process (``python -m mps_ros.recording``) writes them with the ``mcap`` library in the
+    order they were given. Same methods as :class:`Recorder`; ``messages`` and :meth:`counts`
+    count what was handed over, ``written`` what the other process wrote (after
+    :meth:`finish`).
+
+    The writing process ignores SIGINT and SIGTERM (the stepping process stops on them and
+    calls :meth:`finish`); it finishes the file when told, or when the pipe closes because the
+    stepping process is gone, so a crashed run still leaves a complete file. Killed with its
+    process group (SIGKILL), it leaves a file that :func:`recover` completes.
+
+    The pipe's frames: one byte (``I`` the recorder's settings as JSON, ``C`` a channel as
+    JSON, ``B`` a batch of messages, ``F`` flush, ``E`` finish), the payload's length (u32),
+    the payload; a batch is records of (channel u16, time ns i64, length u32, CDR bytes). The
+    writing process answers on its standard output, one JSON line each: ``{"ready": true}``
+    (or ``{"error": …}``) after the settings, ``{"done": N}`` (or ``{"error": …}``) at the end.
+    """
+
+    def __init__(self, path, *, batch_period: float = 0.02, scene_name: str = "",
+                 scene_text: str = "", metadata: dict | None = None,
+                 chunk_size: int = 512 * 1024, flush_period: float = 1.0,
+                 compression: str = "zstd"):
+        import json
+        import subprocess
+        import sys
+
+        self.path = Path(path)
+        self.batch_period = float(batch_period)
+        self._proc = subprocess.Popen([sys.executable, "-m", "mps_ros.recording"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      bufsize=0)
+        self._out = self._proc.stdin
+        settings = {"path": str(path), "scene_name": scene_name, "scene_text": scene_text,
+                    "metadata": {k: str(v) for k, v in (metadata or {}).items()},
+                    "chunk_size": int(chunk_size), "flush_period": float(flush_period),
+                    "compression": compression}
+        self._frame(b"I", json.dumps(settings).encode())
+        reply = self._reply()
+        if not reply.get("ready"):
+            self._proc.wait(10)
+            raise OSError(f"{self.path}: {reply.get('error', 'the recording process failed')}")
+        self._ids: dict[str, int] = {}
+        self._counts: list[int] = []
+        self._batch: list = []
+        self._last = time.monotonic()
+        self.messages = 0
+        self.finished = False
+        self.written: int | None = None
+
+    def _frame(self, kind: bytes, payload: bytes) -> None:
+        data = kind + _FRAME_LEN(len(payload)) + payload
+        view = memoryview(data)
+        while view:
+            view = view[self._out.write(view):]
+
+    def _reply(self) -> dict:
+        import json
+
+        line = self._proc.stdout.readline()
+        if not line:
+            return {"error": "the recording process ended"}
+        return json.loads(line)
+
+    def channel(self, topic: str, msgtype: str, qos: str | None = None) -> int:
+        import json
+
+        cid = self._ids.get(topic)
+        if cid is None:
+            cid = self._ids[topic] = len(self._ids)
+            self._counts.append(0)
+            self._frame(b"C", json.dumps([cid, topic, msgtype, qos]).encode())
+        return cid
+
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+        cid = self._ids.get(topic)
+        if cid is None:
+            cid = self.channel(topic, msgtype, qos)
+        self._counts[cid] += 1
+        self.messages += 1
+        self._batch.append(_RECORD(cid, t_ns, len(data)))
+        self._batch.append(data)
+
+    def tick(self) -> None:
+        if self._batch and time.monotonic() - self._last >= self.batch_period:
+            self._send()
+
+    def _send(self) -> None:
+        self._frame(b"B", b"".join(self._batch))
+        self._batch = []
+        self._last = time.monotonic()
+
+    def flush(self) -> None:
+        self._send()
+        self._frame(b"F", b"")
+
+    def counts(self) -> dict[str, int]:
+        return {t: self._counts[c] for t, c in self._ids.items()}
+
+    def finish(self, timeout: float = 60.0) -> None:
+        """Hand over what is left, have the file finished, wait for the writing process."""
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            if self._batch:
+                self._send()
+            self._frame(b"E", b"")
+            self._out.close()
+            reply = self._reply()
+        except (BrokenPipeError, ConnectionResetError):
+            reply = {"error": "the recording process ended early"}
+        finally:
+            try:
+                self._proc.wait(timeout)
+            finally:
+                self._proc.stdout.close()
+        if "done" not in reply:
+            raise OSError(f"{self.path}: {reply.get('error')}")
+        self.written = int(reply["done"])
+
+
+_FRAME_LEN = struct.Struct("<I").pack
+_RECORD = struct.Struct("<HqI").pack
+_RECORD_HEAD = struct.Struct("<HqI")
+
+
+def _write_from_pipe() -> int:
+    """The writing process of :class:`BackgroundRecorder` (``python -m mps_ros.recording``)."""
+    import json
+    import select
+    import signal
+    import sys
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    fd = sys.stdin.fileno()
+    out = sys.stdout
+
+    def answer(obj) -> None:
+        try:
+            out.write(json.dumps(obj) + "\n")
+            out.flush()
+        except (BrokenPipeError, OSError):
+            pass
+
+    buf = bytearray()
+    eof = False
+
+    def frames(timeout):
+        """Whole frames read so far (waiting up to ``timeout`` for more)."""
+        nonlocal eof
+        if not eof and select.select([fd], [], [], timeout)[0]:
+            chunk = os.read(fd, 1 << 20)
+            if chunk:
+                buf.extend(chunk)
+            else:
+                eof = True
+        got = []
+        pos = 0
+        while len(buf) - pos >= 5:
+            (n,) = struct.unpack_from("<I", buf, pos + 1)
+            if len(buf) - pos - 5 < n:
+                break
+            got.append((bytes(buf[pos:pos + 1]), bytes(buf[pos + 5:pos + 5 + n])))
+            pos += 5 + n
+        del buf[:pos]
+        return got
+
+    rec = None
+    while rec is None:
+        for kind, payload in frames(None):
+            if kind != b"I":
+                answer({"error": f"expected the settings first, got {kind!r}"})
+                return 2
+            settings = json.loads(payload)
+            try:
+                rec = Recorder(settings.pop("path"), **settings)
+            except Exception as exc:
+                answer({"error": f"{type(exc).__name__}: {exc}"})
+                return 2
+        if eof and rec is None:
+            return 2
+    answer({"ready": True})
+    channels: dict[int, tuple] = {}
+    error = None
+    done = False
+    try:
+        while not done:
+            got = frames(rec.flush_period)
+            if not got:
+                rec.tick()
+                if eof:                 # the stepping process is gone: finish the file
+                    break
+                continue
+            for kind, payload in got:
+                if kind == b"B":
+                    write = rec.write
+                    pos, end = 0, len(payload)
+                    while pos < end:
+                        cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
+                        pos += 14
+                        topic, msgtype, qos = channels[cid]
+                        write(topic, msgtype, payload[pos:pos + n], t_ns, qos)
+                        pos += n
+                    rec.tick()
+                elif kind == b"C":
+                    cid, topic, msgtype, qos = json.loads(payload)
+                    channels[cid] = (topic, msgtype, qos)
+                    rec.channel(topic, msgtype, qos)
+                elif kind == b"F":
+                    rec.flush()
+                elif kind == b"E":
+                    done = True
+                    break
+    except Exception as exc:
+        error = f"{type(exc).__name__}: {exc}"
+    finally:
+        rec.finish()
+    answer({"done": rec.messages} if error is None else {"error": error})
+    return 0 if error is None else 1
+
+
 class RecordingSink:
     """A :class:`~mps_ros.twin.Runner` sink that records every message under its full topic
     name (``names``: key -> topic, e.g. from the node's publishers; default: the node's default
@@ -197,7 +422,7 @@ class RecordingSink:
         for key in keys:
             self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
 
-    def emit(self, key, msg, data, t_ns):
+    def emit(self, key, data, t_ns):
         self.rec.write(self._topic(key), BY_KEY[key].msgtype, data, t_ns, self.qos.get(key))
 
     received = emit
@@ -328,9 +553,11 @@ def recover(src, dst) -> Recovered:
 def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
            pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
            scene_commands: bool = True, flush_period: float = 1.0, log=None,
-           stop_on_signals: bool = True) -> tuple[Path, dict, dict]:
+           stop_on_signals: bool = True, background: bool = True) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
-    write every message the node would publish to ``out``. Returns (path, stats, counts)."""
+    write every message the node would publish to ``out``; ``background``: written by a
+    :class:`BackgroundRecorder` (another process), else in this one. Returns (path, stats,
+    counts)."""
     import signal
 
     from .topics import OUTPUTS
@@ -338,10 +565,11 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
 
     twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS,
                 scene_commands=scene_commands)
-    rec = Recorder(out, scene_name=twin.scene.name, scene_text=twin.scene.text,
-                   metadata=_run_metadata(twin, "mps record", pacing, real_time_factor,
-                                          publish_every), flush_period=flush_period)
-    sink = RecordingSink(rec, qos={k: qos_yaml(depth=DEPTH) for k in BY_KEY})
+    rec = (BackgroundRecorder if background else Recorder)(
+        out, scene_name=twin.scene.name, scene_text=twin.scene.text,
+        metadata=_run_metadata(twin, "mps record", pacing, real_time_factor, publish_every),
+        flush_period=flush_period)
+    sink = RecordingSink(rec, qos=offered_qos(DEPTH))
     runner = Runner(twin, sinks=[sink], pacing=pacing, real_time_factor=real_time_factor,
                     publish_every=publish_every, log=log)
     old = {}
@@ -369,5 +597,11 @@ def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:
             "publish_every": str(int(publish_every)), "time": "simulated, ns from t = 0"}
 
 
-__all__ = ["Recorder", "RecordingSink", "recover", "record", "read_metadata", "msgdef",
+__all__ = ["Recorder", "BackgroundRecorder", "RecordingSink", "recover", "record", "read_metadata", "msgdef",
            "encoder", "generic_encoder", "default_path", "Recovered"]
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_write_from_pipe())

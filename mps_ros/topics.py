@@ -149,6 +149,22 @@ def qos_yaml(*, depth: int = DEPTH, reliable: bool = True, transient_local: bool
             "  avoid_ros_namespace_conventions: false")
 
 
+#: the latched topics: offered transient-local, depth 1 (a subscriber that joins late still
+#: gets the last message), published when their value changes
+LATCHED = ("~/structure",)
+
+
+def offered_qos(depth: int = DEPTH) -> dict[str, str]:
+    """Every topic key's offered QoS as rosbag2's YAML: reliable, keep last ``depth``, volatile;
+    the latched topics transient-local with depth 1; the mode commands' subscription depth
+    100."""
+    out = {k: qos_yaml(depth=depth) for k in BY_KEY}
+    for k in LATCHED:
+        out[k] = qos_yaml(depth=1, transient_local=True)
+    out[MODE.key] = qos_yaml(depth=100)
+    return out
+
+
 __all__ = ["NODE_NAME", "FRAME_ID", "JOINTS", "JOINT_NAMES", "Wrench", "WRENCHES", "FOUNDATION",
            "Topic", "TOPICS", "MODE", "BY_KEY", "MSGTYPES", "OUTPUTS", "DEPTH", "resolve",
-           "qos_yaml"]
+           "qos_yaml", "LATCHED", "offered_qos"]

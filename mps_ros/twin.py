@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import json
 import math
+import struct
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -30,7 +31,13 @@ import numpy as np
 
 from mps_core.simulation import COMMANDS
 
+from mps_core.reactions import REACTION_COLUMNS
+
 from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
+
+_RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
+_CLOCK_HEAD = b"\x00\x01\x00\x00"      # CDR, little endian
+_time = struct.Struct("<iI").pack
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
 
@@ -109,6 +116,8 @@ class Twin:
         self.dt = (self.t_end - self.t0) / self.n
         self.k = 0
         self._events_seen = 0
+        self._structure_sent: str | None = None
+        self._js = None                 # the per-step messages' kept buffers (state_payloads)
 
     # -- stepping -------------------------------------------------------------------------
     @property
@@ -140,62 +149,146 @@ class Twin:
         return True, None
 
     # -- messages -------------------------------------------------------------------------
-    def reactions(self) -> dict | None:
+    def reaction_list(self) -> list | None:
+        """The reactions of the present state, in :data:`~mps_core.reactions.REACTION_COLUMNS`
+        order (None unless asked for): the view's reaction kernel where it holds, the general
+        Newton–Euler solution elsewhere (the same numbers to round-off)."""
         if not self.solve_reactions:
             return None
-        from mps_core.reactions import compute_reactions
+        from mps_core.reactions import compute_reactions, reaction_values
 
-        e = self.sim.solver.current
-        rx = compute_reactions(self.sim.mechanism, self.sim.engine.effects, e.view, e.t, e.q,
-                               e.qd, e.qdd, kin=e.kin)
-        return rx.values
+        sim = self.sim
+        e = sim.solver.current
+        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
+                               e.qd.tolist(), e.qdd.tolist(), e.kin)
+        if fast is not None:
+            return fast[0]
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd,
+                               e.qdd, kin=e.kin, kernel=False)
+        return [rx.values[c] for c in REACTION_COLUMNS]
 
-    def joint_values(self, snap: dict) -> tuple[list, list]:
+    def reactions(self) -> dict | None:
+        """:meth:`reaction_list` by column name."""
+        rx = self.reaction_list()
+        return None if rx is None else dict(zip(REACTION_COLUMNS, rx))
+
+    def joint_values(self) -> tuple[list, list]:
         """Positions and velocities of :data:`~mps_ros.topics.JOINT_NAMES`."""
-        kin = self.sim.solver.current.kin
-        xa, ya = kin.position("A")
-        xb, yb = kin.position("B")
-        rod = math.atan2(float(yb - ya), float(xb - xa))
-        return ([snap["phi"], rod, snap["psi"], snap["x_C"]],
-                [snap["phi_dot"], kin.rate("rod"), snap["psi_dot"], snap["x_C_dot"]])
+        sim = self.sim
+        phi, phi_dot, psi, psi_dot, x, x_dot = sim.joint_state()
+        kin = sim.solver.current.kin
+        xa, ya = kin.xy("A")
+        xb, yb = kin.xy("B")
+        return ([phi, math.atan2(yb - ya, xb - xa), psi, x],
+                [phi_dot, kin.rate("rod"), psi_dot, x_dot])
+
+    def _effort(self, rx) -> list:
+        return [rx[_RX["M_motor"]], math.nan, rx[_RX["M_latch"]], rx[_RX["F_stop"]]]
+
+    def _wrenches(self) -> tuple:
+        o = self.outputs
+        if not self.solve_reactions:
+            return ()
+        wrenches = WRENCHES if "reactions" in o else ()
+        if "foundation" in o:
+            wrenches = (*wrenches, FOUNDATION)
+        return wrenches
 
     def state_messages(self) -> list[tuple[str, dict]]:
-        """The messages of the present step: (topic key, message dict), in publishing order."""
+        """The messages of the present step as dicts (topic key, message), in publishing order:
+        what :meth:`state_payloads` encodes, for readers and tests. ``~/structure`` is among
+        them where the structure differs from the last one :meth:`state_payloads` sent."""
         out: list[tuple[str, dict]] = []
         o = self.outputs
-        snap = self.sim.snapshot()
-        t = snap["t"]
+        sim = self.sim
+        t = sim.t
         st = stamp(t)
         if "clock" in o:
             out.append(("/clock", {"clock": st}))
-        rx = self.reactions()
+        rx = self.reaction_list()
         if "joint_states" in o:
-            pos, vel = self.joint_values(snap)
-            effort = ([rx["M_motor"], math.nan, rx["M_latch"], rx["F_stop"]]
-                      if rx is not None else [])
+            pos, vel = self.joint_values()
+            effort = self._effort(rx) if rx is not None else []
             out.append(("joint_states", {
                 "header": {"stamp": st, "frame_id": FRAME_ID}, "name": list(JOINT_NAMES),
                 "position": [float(v) for v in pos], "velocity": [float(v) for v in vel],
                 "effort": [float(v) for v in effort]}))
-        if rx is not None:
-            wrenches = WRENCHES if "reactions" in o else ()
-            if "foundation" in o:
-                wrenches = (*wrenches, FOUNDATION)
-            for w in wrenches:
-                fx, fy = (0.0 if c is None else float(rx[c]) for c in w.force)
-                mz = 0.0 if w.torque is None else float(rx[w.torque])
-                out.append((w.key, {
-                    "header": {"stamp": st, "frame_id": w.frame_id},
-                    "wrench": {"force": {"x": fx, "y": fy, "z": 0.0},
-                               "torque": {"x": 0.0, "y": 0.0, "z": mz}}}))
+        for w in self._wrenches():
+            fx, fy = (0.0 if c is None else float(rx[_RX[c]]) for c in w.force)
+            mz = 0.0 if w.torque is None else float(rx[_RX[w.torque]])
+            out.append((w.key, {
+                "header": {"stamp": st, "frame_id": w.frame_id},
+                "wrench": {"force": {"x": fx, "y": fy, "z": 0.0},
+                           "torque": {"x": 0.0, "y": 0.0, "z": mz}}}))
+        if "structure" in o and sim.structure != self._structure_sent:
+            out.append(("~/structure", {"data": sim.structure}))
+        return out
+
+    def _make_presets(self) -> None:
+        from .cdr import Preset, joint_state, wrench_stamped
+
+        effort = 4 if self.solve_reactions else 0
+
+        def js(st, f):
+            return {"header": {"stamp": st, "frame_id": FRAME_ID}, "name": list(JOINT_NAMES),
+                    "position": f[0:4], "velocity": f[4:8], "effort": f[8:8 + effort]}
+
+        def wrench(frame_id):
+            def make(st, f):
+                return {"header": {"stamp": st, "frame_id": frame_id},
+                        "wrench": {"force": {"x": f[0], "y": f[1], "z": 0.0},
+                                   "torque": {"x": 0.0, "y": 0.0, "z": f[2]}}}
+            return make
+
+        self._js = Preset(joint_state, js, 8 + effort)
+        self._wr = [(w.key, Preset(wrench_stamped, wrench(w.frame_id), 3),
+                     [None if c is None else _RX[c] for c in (*w.force, w.torque)])
+                    for w in self._wrenches()]
+
+    def state_payloads(self) -> list[tuple[str, bytes]]:
+        """The messages of the present step, encoded (CDR): (topic key, bytes), in publishing
+        order, exactly the bytes of :meth:`state_messages` encoded. Each message's bytes are a
+        kept buffer with this step's values packed in; ``~/structure`` goes out when the
+        structure changes (and at the first step): the node offers it latched."""
+        if self._js is None:
+            self._make_presets()
+        o = self.outputs
+        sim = self.sim
+        ns = int(round(sim.t * 1e9))
+        sec, nsec = ns // 1_000_000_000, ns % 1_000_000_000
+        out = []
+        if "clock" in o:
+            out.append(("/clock", _CLOCK_HEAD + _time(sec, nsec)))
+        rx = self.reaction_list()
+        if "joint_states" in o:
+            pos, vel = self.joint_values()
+            vals = pos + vel
+            if rx is not None:
+                vals += self._effort(rx)
+            out.append(("joint_states", self._js.pack(sec, nsec, vals)))
+        for key, preset, cols in self._wr:
+            out.append((key, preset.pack(sec, nsec, [0.0 if c is None else rx[c]
+                                                     for c in cols])))
         if "structure" in o:
-            out.append(("~/structure", {"data": snap["structure"]}))
+            s = sim.structure
+            if s != self._structure_sent:
+                from .cdr import string
+
+                self._structure_sent = s
+                out.append(("~/structure", string({"data": s})))
         return out
 
     def new_events(self) -> list[dict]:
-        ev = self.sim.events[self._events_seen:]
-        self._events_seen = len(self.sim.events)
-        return list(ev)
+        """The events logged since the last call. They are handed over, not kept: the
+        simulation's log is emptied of them (a long run's memory stays flat)."""
+        events = self.sim.events
+        ev = events[self._events_seen:]
+        del events[:]
+        self._events_seen = 0
+        for ob in self.sim.observers:
+            if hasattr(ob, "impacts"):
+                ob.impacts.clear()
+        return ev
 
     def describe(self) -> dict:
         s = self.scene
@@ -268,12 +361,48 @@ def shown(word: str, n: int = 40) -> str:
 
 
 # -- the run --------------------------------------------------------------------------------
+class Timings:
+    """Durations (s) kept as a histogram of 1 % wide bins from 1 µs to 100 s: percentiles to
+    1 % and the maximum, in memory that does not grow with the run's length."""
+
+    _LO = 1e-6
+    _PER = 1.0 / math.log(1.01)
+    _BINS = int(math.log(1e8) * _PER) + 2
+
+    def __init__(self):
+        self.counts = [0] * self._BINS
+        self.n = 0
+        self.max = 0.0
+
+    def add(self, x: float) -> None:
+        self.n += 1
+        if x > self.max:
+            self.max = x
+        i = int(math.log(x / self._LO) * self._PER) + 1 if x > self._LO else 0
+        self.counts[i if i < self._BINS else self._BINS - 1] += 1
+
+    def percentile(self, p: float) -> float:
+        """The p-th percentile (the upper edge of its bin; 0 for no samples)."""
+        if not self.n:
+            return 0.0
+        want = p / 100.0 * self.n
+        acc = 0
+        for i, c in enumerate(self.counts):
+            acc += c
+            if acc >= want and c:
+                return min(self.max, self._LO * math.exp(i / self._PER))
+        return self.max
+
+
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
-    message to every sink: ``sink.emit(key, msg, data, t_ns)`` with the message dict, its CDR
-    bytes (encoded once, :func:`mps_ros.recording.encoder`) and its simulated time in ns; a
-    recorder also gets the commands received, ``sink.received(...)``; ``sink.tick()`` once a
-    step."""
+    message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
+    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.recording.encoder`
+    for the others) and its simulated time in ns; a recorder also gets the commands received,
+    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step.
+
+    Step and publish times, and in realtime pacing the latency after each step's deadline, are
+    kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
 
     def __init__(self, twin: Twin, *, sinks=(), pacing: str = "as_fast_as_possible",
                  real_time_factor: float = 1.0, publish_every: int = 1,
@@ -299,9 +428,10 @@ class Runner:
         self.stop_reason: str | None = None
         self._stop = threading.Event()
         # measurements
-        self.step_times: list[float] = []       # compute: advance + messages (s)
-        self.latencies: list[float] = []        # realtime: publish done - deadline (s)
-        self.publish_times: list[float] = []    # emitting a step's messages to the sinks (s)
+        self.step_times = Timings()             # compute: advance + messages (s)
+        self.latencies = Timings()              # realtime: publish done - deadline (s)
+        self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
+        self.late_steps = 0                     # realtime: steps published after deadline
         self.misses = 0
         self.messages = 0
         self.commands_accepted = 0
@@ -332,7 +462,7 @@ class Runner:
         data = self._encode(key)(msg)
         self.messages += 1
         for s in self.sinks:
-            s.emit(key, msg, data, t_ns)
+            s.emit(key, data, t_ns)
 
     def _emit_events(self, events, t_ns):
         if "events" not in self.twin.outputs:
@@ -342,10 +472,15 @@ class Runner:
             self.events += 1
             self._emit("~/events", {"data": to_json(ev)}, t_ns)
 
-    def _publish_step(self, msgs, t_ns):
-        for key, msg in msgs:
-            self._emit(key, msg, t_ns)
-        self._emit_events(self.twin.new_events(), t_ns)
+    def _publish_step(self, payloads, t_ns):
+        self.messages += len(payloads)
+        for s in self.sinks:
+            emit = s.emit
+            for key, data in payloads:
+                emit(key, data, t_ns)
+        events = self.twin.new_events()
+        if events:
+            self._emit_events(events, t_ns)
 
     def _take_commands(self) -> None:
         cmds = self.inbox.drain()
@@ -360,7 +495,7 @@ class Runner:
             data = self._encode("~/mode")(received)
             for s in self.sinks:
                 if hasattr(s, "received"):
-                    s.received("~/mode", received, data, t_ns)
+                    s.received("~/mode", data, t_ns)
             reason = self.gate.check(word)
             if reason is None:
                 ok, reason = twin.command(word.strip())
@@ -402,18 +537,17 @@ class Runner:
     def stats(self) -> dict:
         wall = (self.wall_end or time.perf_counter()) - self.wall_start
         sim = self.twin.t - self.twin.t0
-        st = np.array(self.step_times) if self.step_times else np.zeros(1)
-        pt = np.array(self.publish_times) if self.publish_times else np.zeros(1)
+        st, pt = self.step_times, self.publish_times
         out = {
             "pacing": self.pacing,
             "real_time_factor_target": self.rtf if self.pacing == "realtime" else math.inf,
             "real_time_factor": sim / wall if wall > 0 else math.nan,
             "sim_time": sim, "wall_time": wall, "steps": self.twin.k,
-            "step_time_p50_ms": float(np.percentile(st, 50) * 1e3),
-            "step_time_p99_ms": float(np.percentile(st, 99) * 1e3),
-            "step_time_max_ms": float(st.max() * 1e3),
-            "publish_time_p50_ms": float(np.percentile(pt, 50) * 1e3),
-            "publish_time_p99_ms": float(np.percentile(pt, 99) * 1e3),
+            "step_time_p50_ms": st.percentile(50) * 1e3,
+            "step_time_p99_ms": st.percentile(99) * 1e3,
+            "step_time_max_ms": st.max * 1e3,
+            "publish_time_p50_ms": pt.percentile(50) * 1e3,
+            "publish_time_p99_ms": pt.percentile(99) * 1e3,
             "deadline_misses": self.misses,
             "messages": self.messages,
             "events": self.events,
@@ -421,10 +555,10 @@ class Runner:
             "commands_refused": self.commands_refused,
             "cpu_time": time.process_time() - self.cpu_start,
         }
-        if self.latencies:
-            lat = np.array(self.latencies)
-            out["latency_p50_ms"] = float(np.percentile(lat, 50) * 1e3)
-            out["latency_p99_ms"] = float(np.percentile(lat, 99) * 1e3)
+        if self.latencies.n:
+            lat = self.latencies
+            out["latency_p50_ms"] = lat.percentile(50) * 1e3
+            out["latency_p99_ms"] = lat.percentile(99) * 1e3
         return out
 
     def _diagnostics(self, t_ns: int) -> None:
@@ -465,7 +599,7 @@ class Runner:
             self._emit_events([{"t": twin.t, "kind": "run-start", **twin.describe(),
                                 "pacing": self.pacing, "real_time_factor": self.rtf,
                                 "publish_every": self.every}], t_ns)
-            self._publish_step(twin.state_messages(), t_ns)
+            self._publish_step(twin.state_payloads(), t_ns)
             self._take_commands()
             # the schedule starts once t0 is out (its first messages carried one-off costs)
             self.wall_start = clock()
@@ -473,9 +607,9 @@ class Runner:
                 c0 = clock()
                 twin.step()
                 k = twin.k
-                msgs = twin.state_messages() if (k % self.every == 0 or twin.done) else None
+                msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
                 c1 = clock()
-                self.step_times.append(c1 - c0)
+                self.step_times.add(c1 - c0)
                 t = twin.t
                 t_ns = to_ns(t)
                 if realtime:
@@ -492,11 +626,14 @@ class Runner:
                 if msgs is not None:
                     self._publish_step(msgs, t_ns)
                 else:
-                    self._emit_events(twin.new_events(), t_ns)
+                    events = twin.new_events()
+                    if events:
+                        self._emit_events(events, t_ns)
                 p1 = clock()
-                self.publish_times.append(p1 - p0)
+                self.publish_times.add(p1 - p0)
                 if realtime:
-                    self.latencies.append(p1 - deadline)
+                    late = p1 - deadline
+                    self.latencies.add(late if late > 0.0 else 0.0)
                 self._take_commands()
                 for s in self.sinks:
                     s.tick()

@@ -37,6 +37,9 @@ class Effect:
     #: False for an effect that never applies a force of its own (a rigid stop, the latch: the
     #: structure does their work); the engine leaves it out of Q
     applies_forces: bool = True
+    #: True for an effect whose loads do not depend on the state, time or controls (gravity):
+    #: a caller may read them once, ``loads(0.0, None)``
+    constant_loads: bool = False
 
     def __init__(self, name: str | None = None):
         self.name = name or self.kind

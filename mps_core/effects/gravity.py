@@ -16,6 +16,7 @@ class Gravity(Effect):
 
     kind = "gravity"
     conservative = True
+    constant_loads = True
 
     def __init__(self, g=(-9.81, 0.0), name: str | None = None):
         super().__init__(name)

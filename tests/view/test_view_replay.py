@@ -48,7 +48,10 @@ def test_columns_equal_every_message(cycle_mcap):
             if col is not None:
                 assert np.array_equal(rep.columns[col], np.array([get(m) for m in msgs])), col
     ts, st = ref[resolve("~/structure")]
-    assert list(rep.columns["structure"]) == [m.data for m in st]
+    # latched: a message where the structure changes, held on the steps between
+    at = np.searchsorted(ts, t_ns, side="right") - 1
+    assert at.min() == 0 and len(st) < len(js)
+    assert list(rep.columns["structure"]) == [st[i].data for i in at]
     assert {"held", "free", "locked"} <= set(rep.columns["structure"])
     _, evs = ref[resolve("~/events")]
     assert len(rep.events) == len(evs)

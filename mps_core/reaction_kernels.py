@@ -1,0 +1,424 @@
+"""Reaction kernels: the joint reactions of one chart view as generated float code.
+
+:func:`mps_core.reactions.compute_reactions` builds, at every state, the exact kinematics on
+jets, a Newton–Euler system ``E u = b`` (3 rows a body) in numpy and solves it by a constrained
+least squares (an SVD and ``lstsq``). Everything in that system but the numbers is fixed by the
+chart view and the structure: which joints carry load, where every entry of ``E`` sits, which
+entries are ±1 and which are moment arms. A reaction kernel is that computation written out
+once per (mechanism, chart view, traced program, length scale) as straight-line code on floats,
+with known zeros and constants folded away:
+
+1. the exact kinematics of the traced position function (the forward pass of
+   :mod:`mps_core.exact_kernels`): the centres of mass, their analogs J_G and convective
+   accelerations, the angular analogs ω* and θ̈ at q̈ = 0, the joints' points;
+2. ``b`` per body from ``m a_G``, ``J α`` and the known loads (summed per body by
+   :func:`load_sums`);
+3. the least squares' leftover in closed form. Reactions do no work on admissible motions, so
+   the columns of ``E`` span exactly the vectors r with ``J_bᵀ r = 0`` when E has full column
+   rank and as many columns as rows less the degrees of freedom (J_b: the bodies' exact analogs,
+   3 rows a body). The general path minimises ``|S r|`` (S: moment rows divided by the length
+   scale) over r = b − E u under the whole-system balance ``C r = 0``; that is ``min |S r|``
+   under ``J_bᵀ r = J_bᵀ b`` and ``C r = 0``, whose solution is ``r = S⁻² Mᵀ λ`` with
+   ``(M S⁻² Mᵀ) λ = (0, J_bᵀ b)``, M = (C; J_bᵀ): a symmetric positive definite system of
+   n + 3 unknowns, eliminated without pivoting;
+4. u from ``E u = b − r`` (consistent by construction) by Gaussian elimination on the rows and
+   in the pivot order that partial pivoting picks at the state the kernel is built at, with the
+   sparsity of E folded in;
+5. the frame's share, the foundation load, the residual norms and the balance check, as the
+   general path computes them.
+
+A kernel is built only where its premises hold at the building state (every unknown a joint
+force or moment, no drive torque, columns + degrees of freedom = rows, ``J_bᵀ E = 0`` to
+round-off, full column rank). At run time every pivot is guarded: one that falls below 10⁻⁶ of
+its size at the building state (a singular position: the reactions are not unique there) raises
+:class:`Fallback`, and so does a failed guard of the trace; the caller then takes the general
+path, which reports the rank.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .exact_kernels import _Forward, angular, forward, linear_parts
+from .kernels import MAX_N, _key, _Writer, load, view_arguments
+from .mechanism import FRAME
+from .tracing import TracingError, trace_at
+
+
+class Fallback(ArithmeticError):
+    """The kernel does not hold at this state: take the general path."""
+
+
+def _fallback(*_):
+    raise Fallback("reaction kernel: a pivot fell below its guard")
+
+
+class _Folding(_Forward):
+    """:class:`~mps_core.exact_kernels._Forward` that also folds x − x to zero: every value
+    a reaction kernel subtracts from itself is finite where the kernel holds (a position)."""
+
+    def sub(self, a, b):
+        if isinstance(a, str) and a == b:
+            return None
+        return super().sub(a, b)
+
+
+#: relative size below which a pivot sends the state to the general path
+PIVOT_GUARD = 1e-6
+
+
+def reaction_kernel(engine, view, q, joints, columns, scale: float):
+    """The reaction kernel of ``view`` (traced at ``q``) for ``joints`` (the active joints,
+    with ``columns`` the output columns in order), or None where its premises do not hold.
+    ``engine``: a :class:`~mps_core.engine.PartialSystems` of the mechanism (its maps)."""
+    flat = getattr(view.chart, "flat", None)
+    n = view.n
+    if flat is None or n > MAX_N:
+        return None
+    args, free = view_arguments(view, q)
+    try:
+        tape, outputs = trace_at(flat, args, free)
+    except TracingError:
+        return None
+    from .reactions import _System, body_motion
+
+    mech = engine.mechanism
+    motion = body_motion(mech, view, q, np.zeros(n))
+    sysm = _System(mech, motion, joints, None)
+    E = sysm.E
+    nb = len(mech.bodies)
+    m = E.shape[1]
+    if m + n != 3 * nb:
+        return None
+    rows = motion.com_rows(mech)
+    Jb = np.zeros((3 * nb, n))
+    Jb[0::3] = motion.J[rows, 0]
+    Jb[1::3] = motion.J[rows, 1]
+    Jb[2::3] = motion.W
+    s = np.ones(3 * nb)
+    s[2::3] = 1.0 / scale
+    if np.linalg.norm(Jb.T @ E) > 1e-9 * np.linalg.norm(Jb) * np.linalg.norm(E):
+        return None                 # a joint that does work: not this kernel's system
+    sv = np.linalg.svd(s[:, None] * E, compute_uv=False)
+    if sv[-1] <= 1e-9 * sv[0]:
+        return None                 # not unique at the building state
+    order, pivots = _pivot_order(s[:, None] * E)
+    key = ("reactions", _key(engine, view), tape.key(), tuple(outputs),
+           tuple((j.name, j.point, j.receiver, j.giver, j.components) for j in joints),
+           tuple(columns), float(scale), tuple(order))
+    return load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
+                                     scale, order, [float(abs(p) / s[r]) for p, r in zip(pivots, order)]),
+                f"<reaction kernel {view.name}>", flat, view.name, {"_fallback": _fallback})
+
+
+def _pivot_order(A: np.ndarray) -> tuple[list, list]:
+    """Rows picked by partial pivoting, column by column, and the pivots (of A as given)."""
+    A = A.copy()
+    left = list(range(A.shape[0]))
+    order, pivots = [], []
+    for j in range(A.shape[1]):
+        p = max(left, key=lambda i: abs(A[i, j]))
+        order.append(p)
+        pivots.append(A[p, j])
+        left.remove(p)
+        for i in left:
+            if A[i, j] != 0.0:
+                A[i] -= (A[i, j] / A[p, j]) * A[p]
+    return order, pivots
+
+
+def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order,
+            pivot_sizes) -> str:
+    n = view.n
+    w = _Writer()
+    fw, outs = forward(w, n, tape, outputs, args, free, _Folding)
+    parts = linear_parts(engine, fw, outs)
+    val, grad, _d1, d2 = parts
+    add, sub, mul, neg = fw.add, fw.sub, fw.mul, fw.neg
+    mech = engine.mechanism
+    names = engine._names
+    nb = len(mech.bodies)
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    omega, theta2 = angular(engine, fw, n, parts)
+    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
+
+    def pos(name):
+        r = 2 * names[name]
+        return add(val(r), offset[r] or None), add(val(r + 1), offset[r + 1] or None)
+
+    def guard(p, size):
+        w.lines.append(f"    if not abs({fw._s(p)}) > {PIVOT_GUARD * size!r}: _fallback()")
+
+    def div(a, p):
+        return mul(a, fw.recip(p))
+
+    def code(x):
+        return "0.0" if x is None else fw._s(x)
+
+    qs = [f"q{k}" for k in range(n)]
+    vs = [f"vd{k}" for k in range(n)]
+    accs = [f"a{k}" for k in range(n)]
+    ox, oy = pos("O") if "O" in names else (None, None)
+    load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + [
+        "ffx", "ffy", "fmo", "mmot"]
+    w.lines.insert(0, f"    {', '.join(load_names)} = loads")
+    # -- the bodies' motion and b -------------------------------------------------------------
+    G, g, JG, aG, alpha, W = [], [], [], [], [], []
+    b = []
+    for k, body in enumerate(mech.bodies):
+        r = 2 * names[f"G_{body.name}"]
+        Gx, Gy = pos(f"G_{body.name}")
+        G.append((Gx, Gy))
+        g.append((sub(Gx, ox), sub(Gy, oy)))
+        jg = [[grad(r + c, i) for i in range(n)] for c in (0, 1)]
+        JG.append(jg)
+        a = []
+        for c in (0, 1):
+            acc = d2(r + c)
+            for i in range(n):
+                acc = add(acc, mul(jg[c][i], accs[i]))
+            a.append(acc)
+        aG.append(a)
+        wk = [omega.get((k, i)) for i in range(n)]
+        W.append(wk)
+        al = theta2.get(k)
+        for i in range(n):
+            al = add(al, mul(wk[i], accs[i]))
+        alpha.append(al)
+        lx, ly, lm = f"lx{k}", f"ly{k}", f"lm{k}"
+        # the loads' moment about G from theirs about O: M_G = M_O − (G − O) × F
+        mG = sub(lm, sub(mul(g[k][0], ly), mul(g[k][1], lx)))
+        b += [sub(mul(mass[k], a[0]), lx), sub(mul(mass[k], a[1]), ly),
+              sub(mul(inertia[k], al), mG)]
+    # -- E, column by column (the general path's _System, written as code) -------------------
+    nrow = 3 * nb
+    body_row = {bd.name: 3 * k for k, bd in enumerate(mech.bodies)}
+    cols = sysm.cols
+    m = len(cols)
+    E = [[None] * m for _ in range(nrow)]
+    for c, (j, comp, _col) in enumerate(cols):
+        for body, sign in ((j.receiver, 1.0), (j.giver, -1.0)):
+            if body == FRAME:
+                continue
+            r0 = body_row[body]
+            if comp == "m":
+                E[r0 + 2][c] = add(E[r0 + 2][c], sign)
+                continue
+            px, py = pos(j.point)
+            Gx, Gy = G[r0 // 3]
+            dx, dy = sub(px, Gx), sub(py, Gy)
+            if comp == "x":
+                E[r0][c] = add(E[r0][c], sign)
+                E[r0 + 2][c] = add(E[r0 + 2][c], mul(-sign, dy))
+            else:
+                E[r0 + 1][c] = add(E[r0 + 1][c], sign)
+                E[r0 + 2][c] = add(E[r0 + 2][c], mul(sign, dx))
+    # -- the leftover r = S⁻² Mᵀ λ, (M S⁻² Mᵀ) λ = (0, 0, 0, J_bᵀ b) ---------------------------
+    wt = [1.0, 1.0, scale * scale] * nb
+    Mrows = []
+    Mrows.append([1.0 if r % 3 == 0 else None for r in range(nrow)])
+    Mrows.append([1.0 if r % 3 == 1 else None for r in range(nrow)])
+    Mrows.append([x for k in range(nb) for x in (neg(g[k][1]), g[k][0], 1.0)])
+    for i in range(n):
+        Mrows.append([x for k in range(nb) for x in (JG[k][0][i], JG[k][1][i], W[k][i])])
+    K = len(Mrows)
+
+    def dot(u, v, weights=None):
+        acc = None
+        for r in range(nrow):
+            x = mul(u[r], v[r])
+            if weights is not None:
+                x = mul(weights[r], x)
+            acc = add(acc, x)
+        return acc
+
+    Gm = [[dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)]
+          for i in range(K)]
+    rhs = [None, None, None] + [dot(Mrows[3 + i], b) for i in range(n)]
+    diag = [Gm[i][i] for i in range(K)]
+    for k in range(K):
+        p = Gm[k][k]
+        w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
+        ip = fw.recip(p)
+        for i in range(k + 1, K):
+            f = mul(Gm[k][i], ip)               # symmetric: G[i][k] = G[k][i]
+            if f is None:
+                continue
+            for jj in range(i, K):
+                Gm[i][jj] = sub(Gm[i][jj], mul(f, Gm[k][jj]))
+            rhs[i] = sub(rhs[i], mul(f, rhs[k]))
+    lam = [None] * K
+    for k in reversed(range(K)):
+        acc = rhs[k]
+        for jj in range(k + 1, K):
+            acc = sub(acc, mul(Gm[k][jj], lam[jj]))
+        lam[k] = div(acc, Gm[k][k]) if acc is not None else None
+    res = []
+    for r in range(nrow):
+        acc = None
+        for a in range(K):
+            acc = add(acc, mul(Mrows[a][r], lam[a]))
+        res.append(mul(wt[r], acc))
+    # -- u from E u = b − r: the pivot rows, in the building state's order --------------------
+    Ew = [list(row) for row in E]
+    y = [sub(b[r], res[r]) for r in range(nrow)]
+    later = list(order)
+    for jcol, p in enumerate(order):
+        later.remove(p)
+        piv = Ew[p][jcol]
+        guard(piv, pivot_sizes[jcol])
+        ip = fw.recip(piv)
+        for i in later:
+            f = mul(Ew[i][jcol], ip)
+            if f is None:
+                continue
+            for l in range(jcol + 1, m):
+                Ew[i][l] = sub(Ew[i][l], mul(f, Ew[p][l]))
+            y[i] = sub(y[i], mul(f, y[p]))
+    u = [None] * m
+    for jcol in reversed(range(m)):
+        p = order[jcol]
+        acc = y[p]
+        for l in range(jcol + 1, m):
+            acc = sub(acc, mul(Ew[p][l], u[l]))
+        u[jcol] = div(acc, Ew[p][jcol]) if acc is not None else None
+    # -- what the frame receives, the foundation load, the checks -----------------------------
+    out = dict.fromkeys(columns, None)
+    RFx = RFy = RM = None
+    for (j, comp, col), val_u in zip(cols, u):
+        out[col] = val_u
+        sign = 1.0 if j.receiver == FRAME else (-1.0 if j.giver == FRAME else 0.0)
+        if sign == 0.0:
+            continue
+        if comp == "m":
+            RM = add(RM, mul(sign, val_u))
+            continue
+        px, py = pos(j.point)
+        px, py = sub(px, ox), sub(py, oy)
+        f = mul(sign, val_u)
+        if comp == "x":
+            RFx = add(RFx, f)
+            RM = sub(RM, mul(py, f))
+        else:
+            RFy = add(RFy, f)
+            RM = add(RM, mul(px, f))
+    out["M_motor"] = "mmot"
+    out["F_found_x"] = add(RFx, "ffx")
+    out["F_found_y"] = add(RFy, "ffy")
+    out["M_found_O"] = add(RM, "fmo")
+
+    def norm(xs):
+        acc = None
+        for x in xs:
+            acc = add(acc, mul(x, x))
+        return None if acc is None else fw.call("sqrt", acc)
+
+    out["residual_force_N"] = norm([res[r] for r in range(nrow) if r % 3 != 2])
+    out["residual_moment_Nm"] = norm([res[r] for r in range(2, nrow, 3)])
+    pdx = pdy = hdot = None
+    ex = ey = emo = None
+    for k in range(nb):
+        mx, my = mul(mass[k], aG[k][0]), mul(mass[k], aG[k][1])
+        pdx, pdy = add(pdx, mx), add(pdy, my)
+        hdot = add(hdot, sub(mul(g[k][0], my), mul(g[k][1], mx)))
+        hdot = add(hdot, mul(inertia[k], alpha[k]))
+        ex, ey, emo = add(ex, f"lx{k}"), add(ey, f"ly{k}"), add(emo, f"lm{k}")
+    bx, by = sub(pdx, sub(ex, RFx)), sub(pdy, sub(ey, RFy))
+    out["balance_residual_N"] = norm([bx, by])
+    bm = sub(hdot, sub(emo, RM))
+    out["balance_residual_Nm"] = (None if bm is None else abs(bm) if isinstance(bm, float)
+                                  else w.let(f"abs({bm})"))
+    return (f"def kernel({', '.join(qs + vs + accs)}, loads):\n" + "\n".join(w.lines) +
+            f"\n    return [{', '.join(code(out[c]) for c in columns)}], "
+            f"[{', '.join(code(x) for x in res)}]\n")
+
+
+class LoadSums:
+    """The known loads a reaction kernel takes, as floats: per body (in the mechanism's order)
+    the force (x, y) and the moment about O of every effect's forces and torques on it; then
+    the frame's own entries (force x, y, moment about O) and the motor's torque. The general
+    path's sums, taken with the step's kinematics (``kin``'s positions).
+
+    Made once per list of effects: effects that apply no force of their own (a rigid stop, the
+    latch) are left out, and the loads of effects whose loads do not depend on the state
+    (``constant_loads``, e.g. gravity) are read once."""
+
+    def __init__(self, effects, mechanism):
+        self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
+        self.nb = nb = len(self.bodies)
+        self.size = 3 * nb + 4
+        self.effects = []
+        self.constant = []              # (row of x, body row, fx, fy) of constant forces
+        base = [0.0] * self.size
+        names = None
+        for e in effects:
+            if not getattr(e, "applies_forces", True):
+                continue
+            if getattr(e, "constant_loads", False):
+                ld = e.loads(0.0, None)
+                for body, point, fx, fy in ld.forces:
+                    if not isinstance(point, str):
+                        raise ValueError(f"effect {e.name!r}: constant loads at named points only")
+                    self.constant.append((point, 3 * self.bodies[body], float(fx), float(fy)))
+                for body, mz in ld.torques:
+                    base[3 * self.bodies[body] + 2] += mz
+                if ld.frame:
+                    raise ValueError(f"effect {e.name!r}: constant loads on the frame")
+                continue
+            self.effects.append((e, e.kind == "motor"))
+        for _p, k, fx, fy in self.constant:
+            base[k] += fx
+            base[k + 1] += fy
+        self.base = base
+        self._names = names
+        self._rows = None
+
+    def __call__(self, t: float, kin) -> list:
+        out = list(self.base)
+        names = kin.names
+        if self._rows is None or self._names is not names:
+            self._names = names
+            self._rows = [(2 * names[p], k, fx, fy) for p, k, fx, fy in self.constant]
+            self._o = 2 * names["O"] if "O" in names else None
+        xl = kin._xl if kin._xl is not None else kin._lists()[0]
+        r = self._o
+        ox, oy = (xl[r], xl[r + 1]) if r is not None else (0.0, 0.0)
+        for r, k, fx, fy in self._rows:
+            out[k + 2] += (xl[r] - ox) * fy - (xl[r + 1] - oy) * fx
+        fr = 3 * self.nb
+        bodies = self.bodies
+        for e, motor in self.effects:
+            ld = e.loads(t, kin)
+            for body, point, fx, fy in ld.forces:
+                k = 3 * bodies[body]
+                if point.__class__ is str:
+                    r = 2 * names[point]
+                    px, py = xl[r] - ox, xl[r + 1] - oy
+                else:
+                    px, py = float(point[0]) - ox, float(point[1]) - oy
+                out[k] += fx
+                out[k + 1] += fy
+                out[k + 2] += px * fy - py * fx
+            for body, mz in ld.torques:
+                out[3 * bodies[body] + 2] += mz
+                if motor:
+                    out[fr + 3] += mz
+            for entry in ld.frame:
+                if len(entry) == 4:
+                    point, fx, fy = entry[1], entry[2], entry[3]
+                    if point.__class__ is str:
+                        r = 2 * names[point]
+                        px, py = xl[r] - ox, xl[r + 1] - oy
+                    else:
+                        px, py = float(point[0]) - ox, float(point[1]) - oy
+                    out[fr] += fx
+                    out[fr + 1] += fy
+                    out[fr + 2] += px * fy - py * fx
+                else:
+                    out[fr + 2] += entry[1]
+        return out
+
+
+__all__ = ["Fallback", "reaction_kernel", "LoadSums", "PIVOT_GUARD"]
