@@ -36,6 +36,23 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / tick      # utime + stime
 
 
+def _children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out += [int(c) for c in (task / "children").read_text().split()]
+        except (FileNotFoundError, ProcessLookupError, ValueError):
+            pass
+    return out
+
+
+def _rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
 def _final_stats(log: str) -> dict:
     m = re.search(r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
                   r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, (?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
@@ -81,11 +98,18 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
             time.sleep(0.01)
         # the node steps once the subscriber is there (+ start_delay); measure from then
         time.sleep(0.4)
+        kids = _children(node.pid)          # the recording process
         cpu0, wall0 = _cpu_seconds(node.pid), time.monotonic()
-        cpu1 = wall1 = None
+        kid0 = sum(_cpu_seconds(k) for k in kids)
+        cpu1 = wall1 = kid1 = None
+        rss0 = rss1 = None
         while node.poll() is None:
             try:
                 cpu1, wall1 = _cpu_seconds(node.pid), time.monotonic()
+                kid1 = sum(_cpu_seconds(k) for k in kids)
+                rss1 = _rss_mb(node.pid)
+                if rss0 is None and wall1 - wall0 >= 5.0:
+                    rss0 = rss1
             except (FileNotFoundError, ProcessLookupError):
                 break
             time.sleep(0.05)
@@ -94,8 +118,13 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         got = json.loads(out.strip().splitlines()[-1])
         st = _final_stats(log.read_text())
         st["cpu_share"] = (cpu1 - cpu0) / (wall1 - wall0) if wall1 else float("nan")
+        st["recorder_cpu_share"] = ((kid1 - kid0) / (wall1 - wall0) if wall1 and kids
+                                    else float("nan"))
+        st["cpu_per_step_us"] = st["cpu_share"] * 1e3       # at 1 kHz, realtime x1
+        st["rss_start_mb"], st["rss_end_mb"] = rss0, rss1
         st["subscriber_msgs_per_s"] = got["rate"]
         st["subscriber_received"] = got["received"]
+        st["drift_ms"] = got.get("drift_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
         return st
     finally:
@@ -137,7 +166,8 @@ def probe() -> int:
 
     rclpy.init()
     node = Node("press_twin_probe")
-    state = {"n": 0, "first": None, "last": None, "ended": False}
+    state = {"n": 0, "first": None, "last": None, "ended": False, "clock0": None,
+             "clock1": None}
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
     def count(msg):
@@ -151,9 +181,17 @@ def probe() -> int:
         if '"kind":"run-end"' in msg.data:
             state["ended"] = True
 
+    def clock(msg):
+        count(msg)
+        at = (msg.clock.sec + msg.clock.nanosec * 1e-9, time.monotonic())
+        state["clock0"] = state["clock0"] or at
+        state["clock1"] = at
+
     raw = "--deserialize" not in sys.argv
     for t in TOPICS:
-        if t.key == "~/events":
+        if t.key == "/clock":       # deserialized: simulated against wall time (the drift)
+            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), clock, qos)
+        elif t.key == "~/events":
             node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), events, qos)
         else:       # counted as delivered, serialized (raw) unless --deserialize
             node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), count, qos,
@@ -167,8 +205,11 @@ def probe() -> int:
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
-    print(json.dumps({"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0}),
-          flush=True)
+    out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0}
+    if state["clock0"] and state["clock1"]:
+        (s0, w0), (s1, w1) = state["clock0"], state["clock1"]
+        out["drift_ms"] = ((w1 - w0) - (s1 - s0)) * 1e3     # wall behind simulated (> 0)
+    print(json.dumps(out), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
@@ -177,7 +218,11 @@ def probe() -> int:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", nargs="?", default="all", choices=("all", "realtime", "afap", "probe"))
+    p.add_argument("what", nargs="?", default="all",
+                   choices=("all", "realtime", "afap", "soak", "probe"))
+    p.add_argument("--minutes", type=float, default=10.0,
+                   help="length of the soak run (default 10): realtime, every output, a "
+                        "subscriber; RSS at 5 s and at the end, drift, messages lost")
     p.add_argument("--steps", type=int, default=10_000, help="steps of the realtime run")
     p.add_argument("--afap-steps", type=int, default=5_000, help="steps of each AFAP run")
     p.add_argument("--json", help="write the figures to this file")
@@ -216,8 +261,29 @@ def main(argv=None) -> int:
                   f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
                   f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
-                  f"  node CPU share              {100 * r['cpu_share']:.0f} % of one core",
+                  f"  node CPU share              {100 * r['cpu_share']:.0f} % of one core "
+                  f"({r['cpu_per_step_us']:.0f} us a step; the recording process: "
+                  f"{100 * r['recorder_cpu_share']:.0f} % of the other)",
                   flush=True)
+        if a.what == "soak":
+            steps = int(round(a.minutes * 60_000))
+            r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every)
+            res["soak"] = r
+            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
+                  f"every output, one external subscriber:\n"
+                  f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
+                  f"{r['rss_end_mb']:.1f} MB at the end "
+                  f"({r['rss_end_mb'] - r['rss_start_mb']:+.1f} MB)\n"
+                  f"  simulated vs wall drift     {r['drift_ms']:.2f} ms (wall behind simulated, "
+                  f"over the subscriber's /clock)\n"
+                  f"  messages                    {r['messages']} published, "
+                  f"{r['subscriber_received']} received "
+                  f"({r['messages'] - r['subscriber_received']} lost)\n"
+                  f"  real-time factor            {r['rtf']:.4f}, deadline misses "
+                  f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
+                  f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
+                  f"  node CPU share              {100 * r['cpu_share']:.0f} % of one core, "
+                  f"recording process {100 * r['recorder_cpu_share']:.0f} %", flush=True)
         if a.what in ("all", "afap"):
             on = afap(True, env, tmp, a.afap_steps)
             off = afap(False, env, tmp, a.afap_steps)
