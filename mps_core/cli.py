@@ -152,6 +152,10 @@ def main(argv=None) -> int:
     except MpsError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:              # a file named on the command line (an output's folder)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"mps: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     return 1
 
 

@@ -45,6 +45,8 @@ def register(subparsers) -> None:
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
+from .input_files import check_file, read_text  # noqa: E402
+
 
 def is_mcap(src: str) -> bool:
     """An MCAP recording: named .mcap, or a file that starts with MCAP's magic."""
@@ -72,6 +74,7 @@ def _mcap_columns(args):
             f"reading the MCAP recording {src!r} needs the package {exc.name!r}, which is not "
             f"installed: install the viewer extra (pip install -e '.[view]') or convert "
             f"the run to CSV (mps run SCENE --reactions --csv FILE)") from None
+    check_file(src, "recording", MCAP_MAGIC, "an MCAP file")
     return replay.load_columns(src)
 
 
@@ -82,8 +85,7 @@ def _columns(args):
     if src.lower().endswith(".csv"):
         if args.t_end is not None or args.dt is not None:
             raise loads.LoadReportError("--t-end and --dt apply to scenes, not to a recording")
-        if not Path(src).exists():
-            raise loads.LoadReportError(f"recording {src!r}: no such file")
+        read_text(src, "recording", "a CSV file")
         return read_csv(src), _events(args.events), Path(src).name
     if args.events is not None:
         raise loads.LoadReportError("--events applies to a recording; a scene's run keeps its own")
@@ -101,11 +103,8 @@ def _columns(args):
 def _events(path) -> list[dict]:
     if path is None:
         return []
-    p = Path(path)
-    if not p.exists():
-        raise loads.LoadReportError(f"--events {path!r}: no such file")
     out = []
-    for i, line in enumerate(p.read_text().splitlines(), 1):
+    for i, line in enumerate(read_text(path, "--events", "JSON lines").splitlines(), 1):
         if line.strip():
             try:
                 out.append(json.loads(line))

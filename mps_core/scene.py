@@ -610,7 +610,9 @@ def load_scene(spec: str | Path) -> Scene:
         if not path.exists():
             raise SceneError("scene", spec, "a preset name (" + ", ".join(preset_names())
                              + ") or the path of a scene file")
-        text = path.read_text()
+        from .input_files import read_text
+
+        text = read_text(path, "scene file", "a TOML scene")
         origin = str(path)
     return scene_from_text(text, name=Path(spec).stem, origin=origin)
 

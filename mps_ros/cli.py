@@ -93,7 +93,10 @@ def _recover(args) -> int:
 
     from .recording import recover
 
-    src = Path(args.input)
+    from mps_core.input_files import check_file
+    from mps_core.loads_cli import MCAP_MAGIC
+
+    src = check_file(args.input, "recording", MCAP_MAGIC, "an MCAP file")
     dst = Path(args.output) if args.output else src.with_name(src.stem + "-recovered.mcap")
     try:
         rep = recover(src, dst)

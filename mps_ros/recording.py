@@ -217,7 +217,8 @@ class BackgroundRecorder:
         reply = self._reply()
         if not reply.get("ready"):
             self._proc.wait(10)
-            raise OSError(f"{self.path}: {reply.get('error', 'the recording process failed')}")
+            raise OSError(f"recording {str(self.path)!r}: "
+                          f"{reply.get('error', 'the recording process failed')}")
         self._ids: dict[str, int] = {}
         self._counts: list[int] = []
         self._batch: list = []
@@ -354,6 +355,9 @@ def _write_from_pipe() -> int:
             settings = json.loads(payload)
             try:
                 rec = Recorder(settings.pop("path"), **settings)
+            except OSError as exc:
+                answer({"error": exc.strerror or str(exc)})
+                return 2
             except Exception as exc:
                 answer({"error": f"{type(exc).__name__}: {exc}"})
                 return 2

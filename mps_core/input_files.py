@@ -1,0 +1,81 @@
+"""Reading the files a user names (scenes, CSV, event logs, recordings): every way a path can
+be wrong becomes one :class:`InputFileError` that names the file, what it was meant to be and
+what is wrong with it, instead of an exception from deep inside a reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import MpsError
+
+
+class InputFileError(MpsError, ValueError):
+    """A named file cannot be used: missing, a directory, unreadable, empty, or not the kind of
+    file expected."""
+
+    def __init__(self, path, what: str, problem: str):
+        self.path = Path(path)
+        self.what = what
+        self.problem = problem
+        super().__init__(f"{what} {str(path)!r}: {problem}")
+
+
+def read_bytes(path, what: str) -> bytes:
+    """The file's bytes, or :class:`InputFileError` for a path that is not a readable,
+    non-empty file."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(p, what, "no such file")
+    if p.is_dir():
+        raise InputFileError(p, what, "a directory, expected a file")
+    try:
+        data = p.read_bytes()
+    except PermissionError:
+        raise InputFileError(p, what, "not readable (permission denied)") from None
+    except OSError as exc:
+        raise InputFileError(p, what, f"cannot be read ({exc.strerror or exc})") from None
+    if not data:
+        raise InputFileError(p, what, "the file is empty")
+    return data
+
+
+def read_text(path, what: str, kind: str = "text") -> str:
+    """The file's text (UTF-8), or :class:`InputFileError`: also for a file of only blanks, a
+    binary file and one that is not UTF-8. ``kind`` says what text was expected."""
+    p = Path(path)
+    data = read_bytes(p, what)
+    if not data.strip():
+        raise InputFileError(p, what, "the file is empty (only blanks)")
+    if b"\x00" in data:
+        raise InputFileError(p, what, f"a binary file, expected {kind} (UTF-8)")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(p, what, f"not UTF-8 text: byte 0x{data[exc.start]:02x} at "
+                                      f"offset {exc.start}, expected {kind}") from None
+
+
+def check_file(path, what: str, magic: bytes | None = None, kind: str = "") -> Path:
+    """``path`` as a readable, non-empty file (that starts with ``magic``, where given), or
+    :class:`InputFileError`. Reads at most the magic's length."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(p, what, "no such file")
+    if p.is_dir():
+        raise InputFileError(p, what, "a directory, expected a file")
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(max(1, len(magic or b"")))
+    except PermissionError:
+        raise InputFileError(p, what, "not readable (permission denied)") from None
+    except OSError as exc:
+        raise InputFileError(p, what, f"cannot be read ({exc.strerror or exc})") from None
+    if not head:
+        raise InputFileError(p, what, "the file is empty")
+    if magic is not None and head != magic:
+        raise InputFileError(p, what, f"not {kind or 'the expected kind of file'} (it starts "
+                                      f"with {head[:8]!r})")
+    return p
+
+
+__all__ = ["InputFileError", "read_bytes", "read_text", "check_file"]
