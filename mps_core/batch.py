@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
-from .engine import stencil
+from .stencil import stencil
 from .names import COLUMNS
 from .scene import Scene, load_scene
 from .simulation import LA_LIMIT, RK4_LIMIT

@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from .stencil import stencil
 from .tracing import BranchChanged, TracingError, trace_at
 
 #: charts with at most this many free coordinates get a kernel (the stencil grows as 2n²)
@@ -223,8 +224,6 @@ def _source(engine, view, plan, traced=None) -> str:
     J ω̃_i ω̃_j are scaled once by 1/2Δ_i (1/(4Δ_iΔ_j) for A); equal products (centres of mass
     at the same point) are summed with their masses added."""
     n = view.n
-    from .engine import stencil
-
     offsets, plus, minus = stencil(n)
     d = plan.d.tolist()
     inv2d = plan.inv2d

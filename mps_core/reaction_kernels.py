@@ -69,10 +69,12 @@ class _Folding(_Forward):
 PIVOT_GUARD = 1e-6
 
 
-def reaction_kernel(engine, view, q, joints, columns, scale: float):
-    """The reaction kernel of ``view`` (traced at ``q``) for ``joints`` (the active joints,
-    with ``columns`` the output columns in order), or None where its premises do not hold.
-    ``engine``: a :class:`~mps_core.engine.PartialSystems` of the mechanism (its maps)."""
+def reaction_kernel(engine, view, q, system, motion, columns, scale: float):
+    """The reaction kernel of ``view`` (traced at ``q``), or None where its premises do not
+    hold. ``engine``: a :class:`~mps_core.engine.PartialSystems` of the mechanism (its maps);
+    ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
+    joints and the numbers the pivot order is chosen from) and the bodies' motion there;
+    ``columns``: the output columns in order."""
     flat = getattr(view.chart, "flat", None)
     n = view.n
     if flat is None or n > MAX_N:
@@ -82,11 +84,8 @@ def reaction_kernel(engine, view, q, joints, columns, scale: float):
         tape, outputs = trace_at(flat, args, free)
     except TracingError:
         return None
-    from .reactions import _System, body_motion
-
     mech = engine.mechanism
-    motion = body_motion(mech, view, q, np.zeros(n))
-    sysm = _System(mech, motion, joints, None)
+    sysm = system
     E = sysm.E
     nb = len(mech.bodies)
     m = E.shape[1]
@@ -106,7 +105,7 @@ def reaction_kernel(engine, view, q, joints, columns, scale: float):
         return None                 # not unique at the building state
     order, pivots = _pivot_order(s[:, None] * E)
     key = ("reactions", _key(engine, view), tape.key(), tuple(outputs),
-           tuple((j.name, j.point, j.receiver, j.giver, j.components) for j in joints),
+           tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
            tuple(columns), float(scale), tuple(order))
     return load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
                                      scale, order, [float(abs(p) / s[r]) for p, r in zip(pivots, order)]),

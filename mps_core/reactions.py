@@ -423,8 +423,11 @@ class _Kernels:
             from .reaction_kernels import reaction_kernel
 
             joints = active_joints(mechanism, view.frozen)
+            q = np.array(ql, float)
             try:
-                k = reaction_kernel(self.engine, view, np.array(ql, float), joints,
+                motion = body_motion(mechanism, view, q, np.zeros_like(q))
+                system = _System(mechanism, motion, joints, None)
+                k = reaction_kernel(self.engine, view, q, system, motion,
                                     tuple(REACTION_COLUMNS), scale)
             except (ArithmeticError, ValueError):
                 return None         # outside the chart here: built at a later state

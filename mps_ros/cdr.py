@@ -5,7 +5,10 @@ The node publishes these bytes (``Publisher.publish`` of a serialized message) a
 writes the same bytes into the MCAP file, so what goes on the wire and what is recorded are one
 thing. Padding is always zero. They give exactly the bytes of mcap-ros2-support's generic encoder
 (``tests/ros/test_recording.py`` checks that, and rclpy's deserialization of them), at a fraction
-of its cost: the per-step types only; anything else goes through the generic encoder.
+of its cost: the per-step types only; anything else goes through the generic encoder
+(:func:`encoder` picks), mcap-ros2-support's, built from rosbags' Jazzy definitions
+(:func:`msgdef`, the definitions a recording's schemas carry). :class:`Preset` keeps a
+per-step message encoded and packs each step's values into it.
 """
 
 from __future__ import annotations
@@ -132,3 +135,33 @@ class Preset:
 
 
 _time_into = struct.Struct("<iI").pack_into
+
+
+# -- every other type: mcap-ros2-support's encoder, from rosbags' definitions ---------------
+_msgdefs: dict[str, str] = {}
+_encoders: dict[str, object] = {}
+
+
+def msgdef(msgtype: str) -> str:
+    """The ros2msg definition of ``msgtype`` with every definition it depends on."""
+    if msgtype not in _msgdefs:
+        from rosbags.typesys import Stores, get_typestore
+
+        ts = get_typestore(Stores.ROS2_JAZZY)
+        _msgdefs[msgtype], _ = ts.generate_msgdef(msgtype, ros_version=2)
+    return _msgdefs[msgtype]
+
+
+def generic_encoder(msgtype: str):
+    """A function message dict -> CDR bytes: mcap-ros2-support's encoder for ``msgtype``."""
+    if msgtype not in _encoders:
+        from mcap_ros2._dynamic import serialize_dynamic
+
+        _encoders[msgtype] = serialize_dynamic(msgtype, msgdef(msgtype))[msgtype]
+    return _encoders[msgtype]
+
+
+def encoder(msgtype: str):
+    """A function message dict -> CDR bytes: :mod:`mps_ros.cdr`'s for the per-step types (the
+    same bytes, faster), mcap-ros2-support's for the others."""
+    return ENCODERS.get(msgtype) or generic_encoder(msgtype)

@@ -30,41 +30,11 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+from .cdr import encoder, generic_encoder, msgdef
 from .topics import BY_KEY, DEPTH, NODE_NAME, offered_qos, qos_yaml, resolve
 
 PROFILE = "ros2"
 MAGIC = b"\x89MCAP0\r\n"
-
-_msgdefs: dict[str, str] = {}
-_encoders: dict[str, object] = {}
-
-
-def msgdef(msgtype: str) -> str:
-    """The ros2msg definition of ``msgtype`` with every definition it depends on."""
-    if msgtype not in _msgdefs:
-        from rosbags.typesys import Stores, get_typestore
-
-        ts = get_typestore(Stores.ROS2_JAZZY)
-        _msgdefs[msgtype], _ = ts.generate_msgdef(msgtype, ros_version=2)
-    return _msgdefs[msgtype]
-
-
-def generic_encoder(msgtype: str):
-    """A function message dict -> CDR bytes: mcap-ros2-support's encoder for ``msgtype``."""
-    if msgtype not in _encoders:
-        from mcap_ros2._dynamic import serialize_dynamic
-
-        _encoders[msgtype] = serialize_dynamic(msgtype, msgdef(msgtype))[msgtype]
-    return _encoders[msgtype]
-
-
-def encoder(msgtype: str):
-    """A function message dict -> CDR bytes: :mod:`mps_ros.cdr`'s for the per-step types (the
-    same bytes, faster), mcap-ros2-support's for the others."""
-    from .cdr import ENCODERS
-
-    return ENCODERS.get(msgtype) or generic_encoder(msgtype)
-
 
 def default_path(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")

@@ -397,7 +397,7 @@ class Timings:
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
-    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.recording.encoder`
+    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.cdr.encoder`
     for the others) and its simulated time in ns; a recorder also gets the commands received,
     ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step.
 
@@ -453,7 +453,7 @@ class Runner:
     def _encode(self, key: str):
         enc = self._encoders.get(key)
         if enc is None:
-            from .recording import encoder
+            from .cdr import encoder
 
             enc = self._encoders[key] = encoder(BY_KEY[key].msgtype)
         return enc

@@ -30,9 +30,5 @@ def run(args) -> int:
         from mps_core.scene import load_scene
 
         scene = load_scene(args.scene)
-    from mps_core.input_files import check_file
-    from mps_core.loads_cli import MCAP_MAGIC
-
-    check_file(args.recording, "recording", MCAP_MAGIC, "an MCAP file")
     view(args.recording, save=args.save, spawn=not args.no_spawn, scene=scene)
     return 0

@@ -1,0 +1,85 @@
+"""Data flows one way: no module of mps_core or mps_ros imports, directly or through others
+(imports inside functions included), a module that imports it; mps_core never imports ROS,
+mcap or rerun."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ("mps_core", "mps_ros")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for f in (ROOT / pkg).rglob("*.py"):
+            rel = f.relative_to(ROOT).with_suffix("")
+            parts = list(rel.parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = f
+    return out
+
+
+def _imports(name: str, path: Path, modules) -> set[str]:
+    tree = ast.parse(path.read_text())
+    is_pkg = path.name == "__init__.py"
+    base = name.split(".") if is_pkg else name.split(".")[:-1]
+    found = set()
+    for node in ast.walk(tree):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                root = base[:len(base) - node.level + 1]
+                mod = ".".join(root + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+        for t in targets:
+            while t and t not in modules:
+                t = t.rpartition(".")[0]
+            if t and t != name and not name.startswith(t + "."):
+                found.add(t)
+    return found
+
+
+def test_no_import_circle():
+    modules = _modules()
+    graph = {m: _imports(m, p, modules) for m, p in modules.items()}
+    # packages' __init__ re-export their modules: leave them out of the circles
+    graph = {m: {t for t in ts if Path(modules[t]).name != "__init__.py"}
+             for m, ts in graph.items() if Path(modules[m]).name != "__init__.py"}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+    circles = []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for t in sorted(graph.get(m, ())):
+            if state.get(t) == 1:
+                circles.append(stack[stack.index(t):] + [t])
+            elif t not in state:
+                visit(t)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not circles, "import circles: " + "; ".join(" -> ".join(c) for c in circles)
+
+
+def test_the_core_imports_no_ros():
+    for m, p in _modules().items():
+        if not m.startswith("mps_core"):
+            continue
+        text = p.read_text()
+        for word in ("rclpy", "import mcap", "from mcap", "rerun", "rosbags", "mps_ros"):
+            lines = [ln for ln in text.splitlines()
+                     if ln.strip().startswith(("import", "from")) and word in ln]
+            assert not lines, (m, lines)
