@@ -624,12 +624,17 @@ class ReactionObserver:
     simulation's event log), so the time series never carries a step-dependent spike.
     """
 
-    def __init__(self, *, drive: str | None = None):
+    def __init__(self, *, drive: str | None = None, defer_impacts: bool = False):
         self.drive = drive
         self.rows: dict[str, list] = {k: [] for k in REACTION_COLUMNS}
         self.impacts: list[dict] = []
         self.max_rank_deficiency = 0
         self._deficient_since = None
+        #: True: an impact's event is logged at once with its time, kind and closing, and its
+        #: impulses are filled in by :meth:`resolve` (a live run calls it after the step's
+        #: state is out, off the step's critical time)
+        self.defer_impacts = bool(defer_impacts)
+        self._pending: list = []
 
     def observe(self, simulation, evaluation) -> None:
         e = evaluation
@@ -651,12 +656,29 @@ class ReactionObserver:
 
     def impact(self, simulation, t: float, view: ChartView, q, qd_minus, qd_plus, *,
                closing: Iterable[str] = (), kind: str = "impulse", **extra) -> Impulses:
-        """Record a plastic impact's impulses at time t (call it where the impact is located)."""
+        """Record a plastic impact's impulses at time t (call it where the impact is located).
+        Deferred (``defer_impacts``): the event is logged now and completed by
+        :meth:`resolve`; returns None."""
+        if self.defer_impacts:
+            ev = {"t": float(t), "kind": kind}
+            self._pending.append((ev, simulation.mechanism, view, np.array(q, float),
+                                  np.array(qd_minus, float), np.array(qd_plus, float),
+                                  tuple(closing), extra))
+            self.impacts.append(ev)
+            simulation.events.append(ev)
+            return None
         imp = impulses(simulation.mechanism, view, q, qd_minus, qd_plus, closing=closing, t=t)
         ev = imp.as_event(kind, closing=list(closing), **extra)
         self.impacts.append(ev)
         simulation.events.append(ev)
         return imp
+
+    def resolve(self) -> None:
+        """Fill in the impulses of the deferred impacts' events (in place)."""
+        pending, self._pending = self._pending, []
+        for ev, mechanism, view, q, qd_minus, qd_plus, closing, extra in pending:
+            imp = impulses(mechanism, view, q, qd_minus, qd_plus, closing=closing, t=ev["t"])
+            ev.update(imp.as_event(ev["kind"], closing=list(closing), **extra))
 
     def columns(self) -> dict[str, np.ndarray]:
         return {k: np.array(v, dtype=float) for k, v in self.rows.items()}

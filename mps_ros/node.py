@@ -68,6 +68,7 @@ env_defaults()
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: E402
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -89,18 +90,60 @@ MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": J
 
 class RosSink:
     """A :class:`~mps_ros.twin.Runner` sink that publishes each message's CDR bytes on its
-    topic: the very bytes the recorder writes."""
+    topic: the very bytes the recorder writes.
+
+    Publishing runs in a thread of its own (rclpy lets go of the interpreter while the
+    middleware sends, so it runs on the second core beside the steps): :meth:`emit` collects a
+    step's messages, :meth:`tick` hands them over at the step's end, in order, with the step's
+    deadline; the thread publishes them and keeps ``latencies``, the publication's lateness
+    after the deadline (realtime pacing). :meth:`close` publishes what is left and ends the
+    thread."""
 
     def __init__(self, publishers: dict):
+        import queue
+
+        from .twin import Timings
+
         self.pubs = publishers     # key -> publisher
+        self.latencies = Timings()
+        self.published = 0
+        self._batch: list = []
+        self._queue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._publish, name="press_twin-publisher",
+                                        daemon=True)
+        self._thread.start()
 
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
         if p is not None:
-            p.publish(data)
+            self._batch.append((p, data))
 
-    def tick(self):
-        pass
+    def tick(self, deadline: float | None = None):
+        if self._batch:
+            self._queue.put((self._batch, deadline))
+            self._batch = []
+
+    def _publish(self):
+        clock = time.perf_counter
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            batch, deadline = item
+            for p, data in batch:
+                try:
+                    p.publish(data)
+                except Exception:       # a publisher destroyed at shutdown: nothing to send to
+                    continue
+                self.published += 1
+            if deadline is not None:
+                late = clock() - deadline
+                self.latencies.add(late if late > 0.0 else 0.0)
+
+    def close(self, timeout: float = 10.0) -> None:
+        self.tick()
+        self._queue.put(None)
+        self._thread.join(timeout)
 
 
 class ParameterError(ValueError):
@@ -141,14 +184,19 @@ class PressTwin(Node):
             self.names[t.key] = pub.topic_name
         self.inbox = Inbox()
         self.closed = False
-        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+        # every command is kept until the run loop answers it (a flood is refused, one answer
+        # each); what a sender's middleware loses on the way is counted (message-lost events)
+        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL,
                               reliability=ReliabilityPolicy.RELIABLE)
-        self.mode_sub = self.create_subscription(String, MODE.key, self._on_mode, mode_qos)
+        self.mode_sub = self.create_subscription(
+            String, MODE.key, self._on_mode, mode_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
         self.names[MODE.key] = self.mode_sub.topic_name
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
         self.recorder = None
-        self.runner = Runner(self.twin, sinks=[RosSink(self.pubs)], pacing=p["pacing"],
+        self.ros_sink = RosSink(self.pubs)
+        self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"],
                              publish_every=p["publish_every"],
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
@@ -233,6 +281,12 @@ class PressTwin(Node):
             lg.error(text)
         else:
             lg.info(text)
+
+    def _on_lost(self, info) -> None:
+        n = int(info.total_count_change)
+        self.runner.commands_lost += n
+        self.get_logger().warning(f"{n} command(s) lost on the way to {self.names[MODE.key]} "
+                                  f"({info.total_count} in all)")
 
     def _on_mode(self, msg: String):
         if self.closed:
@@ -347,6 +401,9 @@ def _split_argv(argv):
 def main(argv=None) -> int:
     """``mps node [SCENE] [--ros-args ...]`` (argv without the program name)."""
     env_defaults()
+    # the stepping, publishing and executor threads share the interpreter: a thread that wants
+    # it waits at most this long for another to let go (the default 5 ms is five steps)
+    sys.setswitchinterval(float(os.environ.get("MPS_SWITCH_INTERVAL", "0.0002")))
     if argv is None:
         argv = sys.argv[1:]
     scene, ros = _split_argv(argv)
@@ -401,9 +458,14 @@ def main(argv=None) -> int:
             code = 2
         finally:
             node.closed = True
+            node.ros_sink.close()
             if node.recorder is not None:
                 node.recorder.finish()
         node.drain()
+        lat = node.ros_sink.latencies
+        if lat.n:           # when subscribers got them: the publishing thread's lateness
+            stats["latency_p50_ms"] = lat.percentile(50) * 1e3
+            stats["latency_p99_ms"] = lat.percentile(99) * 1e3
         why = node.runner.stop_reason or "end"
         node.get_logger().info(
             f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
@@ -414,7 +476,9 @@ def main(argv=None) -> int:
             + (f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 "
                f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
             + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
-            f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused")
+            f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
+            f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
+            f"{stats['commands_lost']} lost")
         if node.recorder is not None:
             node.get_logger().info(f"recording finished: {node.recorder.path} "
                                    f"({node.recorder.messages} messages)")

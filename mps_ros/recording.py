@@ -401,7 +401,7 @@ class RecordingSink:
 
     received = emit
 
-    def tick(self):
+    def tick(self, deadline: float | None = None):
         self.rec.tick()
 
 

@@ -136,10 +136,11 @@ DEPTH = 1000
 _INFINITE = "    sec: 9223372036\n    nsec: 854775807\n"
 
 
-def qos_yaml(*, depth: int = DEPTH, reliable: bool = True, transient_local: bool = False) -> str:
+def qos_yaml(*, depth: int = DEPTH, reliable: bool = True, transient_local: bool = False,
+             keep_all: bool = False) -> str:
     """``offered_qos_profiles`` of a channel: the YAML rosbag2 writes (policies as words)."""
-    return ("- history: keep_last\n"
-            f"  depth: {int(depth)}\n"
+    return (f"- history: {'keep_all' if keep_all else 'keep_last'}\n"
+            f"  depth: {0 if keep_all else int(depth)}\n"
             f"  reliability: {'reliable' if reliable else 'best_effort'}\n"
             f"  durability: {'transient_local' if transient_local else 'volatile'}\n"
             "  deadline:\n" + _INFINITE +
@@ -156,12 +157,12 @@ LATCHED = ("~/structure",)
 
 def offered_qos(depth: int = DEPTH) -> dict[str, str]:
     """Every topic key's offered QoS as rosbag2's YAML: reliable, keep last ``depth``, volatile;
-    the latched topics transient-local with depth 1; the mode commands' subscription depth
-    100."""
+    the latched topics transient-local with depth 1; the mode commands' subscription keeps
+    all (a flood is answered, never dropped unseen)."""
     out = {k: qos_yaml(depth=depth) for k in BY_KEY}
     for k in LATCHED:
         out[k] = qos_yaml(depth=1, transient_local=True)
-    out[MODE.key] = qos_yaml(depth=100)
+    out[MODE.key] = qos_yaml(keep_all=True)
     return out
 
 

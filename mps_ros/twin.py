@@ -97,6 +97,7 @@ class Twin:
             scene = load_scene(scene)
         # the scene's step unless told (a new t_end alone keeps the step, not the step count)
         scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None)
+        self._scene_with_commands = scene
         if not scene_commands:
             scene = replace(scene, commands=())
         self.scene = scene
@@ -109,7 +110,7 @@ class Twin:
             # impact hook is used: the twin solves the per-step reactions itself)
             from mps_core.reactions import ReactionObserver
 
-            self.sim.observers.append(ReactionObserver())
+            self.sim.observers.append(ReactionObserver(defer_impacts=True))
         self.t0 = self.sim.t
         self.t_end = scene.t_end
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
@@ -117,7 +118,27 @@ class Twin:
         self.k = 0
         self._events_seen = 0
         self._structure_sent: str | None = None
+        self._held_at: int | None = None        # the step whose events new_events() held
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
+
+    def warm_up(self, seconds: float = 1.0) -> None:
+        """Do once, before a paced run's clock starts, what its first steps would otherwise do
+        on the clock: generate and compile the chart views' kernels and reaction kernels (the
+        compiled code is kept by what it depends on, so this twin's first use of a view finds
+        it). A copy of the scene, with its own commands, runs ``seconds`` of simulated time;
+        what it meets (an error included) stays with the copy."""
+        t_end = min(self.t_end, self.t0 + seconds)
+        if t_end <= self.t0:
+            return
+        try:
+            copy = Twin(self._scene_with_commands, dt=self.dt, t_end=t_end,
+                        outputs=self.outputs)
+            while not copy.done:
+                copy.step()
+                copy.state_payloads()
+                copy.new_events()
+        except Exception:
+            pass                        # the run itself will meet it, and say so
 
     # -- stepping -------------------------------------------------------------------------
     @property
@@ -278,16 +299,31 @@ class Twin:
                 out.append(("~/structure", string({"data": s})))
         return out
 
-    def new_events(self) -> list[dict]:
+    def new_events(self, hold: bool = False) -> list[dict]:
         """The events logged since the last call. They are handed over, not kept: the
-        simulation's log is emptied of them (a long run's memory stays flat)."""
+        simulation's log is emptied of them (a long run's memory stays flat).
+
+        An impact's event gets its joint impulses here (they are worked out after the step's
+        state is out). ``hold``: where this step logged an impact, hand over nothing now and
+        everything at the next call, so that the impulses' work falls in the next step's
+        spare time instead of this one's (a paced run: an impact's step is already the
+        longest). Events keep their order and their own times."""
         events = self.sim.events
+        if not events:
+            return []
+        observers = [ob for ob in self.sim.observers if getattr(ob, "_pending", None)]
+        if hold and observers and self._held_at is None:
+            self._held_at = self.k
+            return []
+        self._held_at = None
+        for ob in self.sim.observers:
+            if hasattr(ob, "resolve"):
+                ob.resolve()            # a deferred impact's impulses
+            if hasattr(ob, "impacts"):
+                ob.impacts.clear()
         ev = events[self._events_seen:]
         del events[:]
         self._events_seen = 0
-        for ob in self.sim.observers:
-            if hasattr(ob, "impacts"):
-                ob.impacts.clear()
         return ev
 
     def describe(self) -> dict:
@@ -408,7 +444,7 @@ class Runner:
                  real_time_factor: float = 1.0, publish_every: int = 1,
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
-                 name: str = "press_twin"):
+                 name: str = "press_twin", warm_up: float = 1.0):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -416,6 +452,7 @@ class Runner:
         if int(publish_every) < 1:
             raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
         self.twin = twin
+        self.warm_up = float(warm_up)           # simulated seconds run ahead in prepare()
         self.sinks = list(sinks)
         self.pacing = pacing
         self.rtf = float(real_time_factor)
@@ -436,12 +473,15 @@ class Runner:
         self.messages = 0
         self.commands_accepted = 0
         self.commands_refused = 0
+        self.commands_lost = 0                  # told by the transport (the node's QoS events)
         self.events = 0
         self.wall_start = 0.0
         self.wall_end = 0.0
         self.cpu_start = 0.0
         self.error: str | None = None
         self._encoders: dict = {}
+        self.thread_cpu_start = time.thread_time()
+        self.thread_cpu: float | None = None
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to end after the step in progress (from a signal handler or thread)."""
@@ -472,13 +512,16 @@ class Runner:
             self.events += 1
             self._emit("~/events", {"data": to_json(ev)}, t_ns)
 
-    def _publish_step(self, payloads, t_ns):
+    def _publish_step(self, payloads, t_ns, deadline=None):
+        """The step's state to every sink, handed over at once (``tick``); then its events,
+        whose impulses are worked out now, after the state is out."""
         self.messages += len(payloads)
         for s in self.sinks:
             emit = s.emit
             for key, data in payloads:
                 emit(key, data, t_ns)
-        events = self.twin.new_events()
+            s.tick(deadline)
+        events = self.twin.new_events(hold=self.pacing == "realtime")
         if events:
             self._emit_events(events, t_ns)
 
@@ -553,7 +596,13 @@ class Runner:
             "events": self.events,
             "commands_accepted": self.commands_accepted,
             "commands_refused": self.commands_refused,
+            "commands_lost": self.commands_lost,
             "cpu_time": time.process_time() - self.cpu_start,
+            # the stepping thread's own CPU (steps, messages, commands; not the publishing
+            # thread, the middleware's threads or the recording process)
+            "step_thread_cpu_per_step_us": (
+                (self.thread_cpu if self.thread_cpu is not None
+                 else time.thread_time() - self.thread_cpu_start) / max(1, self.twin.k) * 1e6),
         }
         if self.latencies.n:
             lat = self.latencies
@@ -577,7 +626,10 @@ class Runner:
 
     # -- the loop -------------------------------------------------------------------------
     def prepare(self) -> None:
-        """Everything slow done once before the clock starts: encoders, the sinks' channels."""
+        """Everything slow done once before the clock starts: the kernels the first steps
+        would build (:meth:`Twin.warm_up`, paced runs), encoders, the sinks' channels."""
+        if self.pacing == "realtime" and self.warm_up > 0:
+            self.twin.warm_up(self.warm_up)
         keys = [t.key for t in BY_KEY.values()
                 if not t.output or t.output in self.twin.outputs]
         for k in keys:
@@ -593,6 +645,7 @@ class Runner:
         self.prepare()
         self.wall_start = clock()
         self.cpu_start = time.process_time()
+        self.thread_cpu_start = time.thread_time()
         next_diag = self.wall_start + self.period
         try:
             t_ns = to_ns(twin.t)
@@ -624,9 +677,9 @@ class Runner:
                             time.sleep(left if left < 0.05 else 0.05)
                 p0 = clock()
                 if msgs is not None:
-                    self._publish_step(msgs, t_ns)
+                    self._publish_step(msgs, t_ns, deadline if realtime else None)
                 else:
-                    events = twin.new_events()
+                    events = twin.new_events(hold=realtime)
                     if events:
                         self._emit_events(events, t_ns)
                 p1 = clock()
@@ -636,7 +689,7 @@ class Runner:
                     self.latencies.add(late if late > 0.0 else 0.0)
                 self._take_commands()
                 for s in self.sinks:
-                    s.tick()
+                    s.tick(deadline if realtime else None)
                 now = clock()
                 if now >= next_diag:
                     next_diag = now + self.period
@@ -648,6 +701,7 @@ class Runner:
             raise
         finally:
             self.wall_end = clock()
+            self.thread_cpu = time.thread_time() - self.thread_cpu_start
             reason = self.stop_reason or "end"
             t_ns = to_ns(twin.t)
             try:

@@ -250,6 +250,34 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
         lis.close()
 
 
+def test_a_flood_of_commands_is_answered_one_by_one(ros, tmp_path):
+    """1000 commands sent as fast as a publisher can: none vanishes in the node's queue; each
+    gets its answer on ~/mode/status (most of them: refused, a flood), and the run's end line
+    counts the commands lost on the way (none here)."""
+    params = dict(pacing="realtime", dt=DT, t_end=4.0, recording="none",
+                  scene_commands=False, wait_for_subscribers=1, wait_for_commanders=1,
+                  wait_timeout=30.0)
+    lis = Listener()
+    try:
+        with NodeProcess(tmp_path, params) as node:
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.05, 60, "/clock >= 0.05 s")
+            words = ["stop", "start"] * 500
+            for w in words:
+                lis.send(w)
+            lis.wait_for(lambda: len(lis.acks()) >= len(words), 60,
+                         f"{len(words)} answers on ~/mode/status")
+            lis.wait_for(lis.ended, 60, "the run's end")
+            assert node.wait(30) == 0
+            log = node.log()
+        acks = lis.acks()
+    finally:
+        lis.close()
+    assert [a["command"] for a in acks] == words
+    flood = [a for a in acks if not a["accepted"] and a["reason"].startswith("flood")]
+    assert len(flood) >= 900
+    assert ", 0 lost" in log, log[-2000:]
+
+
 def test_recording_format(commanded):
     from mcap.reader import make_reader
 
