@@ -38,6 +38,7 @@ path, which reports the rank.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -148,7 +149,11 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
         return add(val(r), offset[r] or None), add(val(r + 1), offset[r + 1] or None)
 
     def guard(p, size):
-        w.lines.append(f"    if not abs({fw._s(p)}) > {PIVOT_GUARD * size!r}: _fallback()")
+        if isinstance(p, float):
+            if not abs(p) > PIVOT_GUARD * size:
+                raise ValueError("reaction kernel: a constant pivot below its guard")
+            return
+        w.lines.append(f"    if not abs({p}) > {PIVOT_GUARD * size!r}: _fallback()")
 
     def div(a, p):
         return mul(a, fw.recip(p))
@@ -239,7 +244,10 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     diag = [Gm[i][i] for i in range(K)]
     for k in range(K):
         p = Gm[k][k]
-        w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
+        if not (isinstance(p, float) and isinstance(diag[k], float)):
+            w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
+        elif not p > 1e-12 * diag[k]:
+            raise ValueError("reaction kernel: a constant pivot below its guard")
         ip = fw.recip(p)
         for i in range(k + 1, K):
             f = mul(Gm[k][i], ip)               # symmetric: G[i][k] = G[k][i]
@@ -329,9 +337,32 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     bm = sub(hdot, sub(emo, RM))
     out["balance_residual_Nm"] = (None if bm is None else abs(bm) if isinstance(bm, float)
                                   else w.let(f"abs({bm})"))
-    return (f"def kernel({', '.join(qs + vs + accs)}, loads):\n" + "\n".join(w.lines) +
-            f"\n    return [{', '.join(code(out[c]) for c in columns)}], "
-            f"[{', '.join(code(x) for x in res)}]\n")
+    ret = (f"    return [{', '.join(code(out[c]) for c in columns)}], "
+           f"[{', '.join(code(x) for x in res)}]")
+    return (f"def kernel({', '.join(qs + vs + accs)}, loads):\n"
+            + "\n".join(live_lines(w.lines, ret)) + "\n" + ret + "\n")
+
+
+_NAME = re.compile(r"\b[A-Za-z_][A-Za-z_0-9]*\b")
+
+
+def live_lines(lines: list[str], ret: str) -> list[str]:
+    """The lines of straight-line code that the return line and the guards need: an
+    assignment whose local nothing later reads is left out (the forward pass computes every
+    derivative of every node; the reactions read a part of them)."""
+    needed = set(_NAME.findall(ret))
+    keep = []
+    for line in reversed(lines):
+        body = line.strip()
+        target, eq, expr = body.partition(" = ")
+        if eq and not body.startswith("if ") and "," not in target:
+            if target not in needed:
+                continue
+            needed.update(_NAME.findall(expr))
+        else:                           # a guard or an unpacking: always kept
+            needed.update(_NAME.findall(body))
+        keep.append(line)
+    return keep[::-1]
 
 
 class LoadSums:

@@ -149,6 +149,48 @@ def evaluation_costs(case: Case, number: int = 2000):
     return rows
 
 
+def reaction_costs(case: Case, number: int = 200, limit: int = 40):
+    """What the reactions cost beside an exact evaluation, side by side at the same states
+    (every step's state along the first 0.1 s of a run, the seed's scheme): µs of one exact
+    evaluation, of the reactions by the view's reaction kernel (with the effects' loads), and
+    by the general Newton–Euler least squares; medians over the states."""
+    from ..reactions import compute_reactions, reaction_values
+
+    scene = scene_for(case, Setting("linear-acceleration", "central", 0.1), DT)
+    sim = build(scene)
+    exact = build(scene_for(case, Setting("linear-acceleration", "autodiff", 0.0), DT)).engine
+    states = []
+    t_end = min(case.t_end, 0.1)
+    n = max(1, round(t_end / DT))
+    for k in range(1, n + 1):
+        sim.advance_to(k * t_end / n)
+        states.append(sim.solver.current)
+    states = states[::max(1, len(states) // limit)][:limit]
+    mech, effects = sim.mechanism, sim.engine.effects
+    ev, fast, general = [], [], []
+    for e in states:
+        ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
+        try:
+            exact.evaluate(e.view, e.t, e.q, e.qd)
+        except Exception:
+            continue
+        if reaction_values(mech, effects, e.view, e.t, ql, vl, al, e.kin) is None:
+            continue
+        ev.append(_per_call(lambda: exact.evaluate(e.view, e.t, e.q, e.qd), number, 3))
+        fast.append(_per_call(lambda: reaction_values(mech, effects, e.view, e.t, ql, vl, al,
+                                                      e.kin), number, 3))
+        general.append(_per_call(lambda: compute_reactions(
+            mech, effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False),
+            max(1, number // 20), 3))
+    if not ev:
+        return []
+    med = statistics.median
+    return [{"states": len(ev), "us_exact_evaluation": med(ev), "us_reactions_kernel": med(fast),
+             "us_reactions_general": med(general),
+             "kernel_over_evaluation": med([f / x for f, x in zip(fast, ev)]),
+             "general_over_kernel": med([g / f for g, f in zip(general, fast)])}]
+
+
 def _states(case: Case, scene, every: int = 5, limit: int = 200):
     """(engine, [evaluations]) along a run of the scene: every ``every``-th right-hand side."""
     sim, seen = evaluations_along(scene, min(case.t_end, 0.1))
@@ -223,7 +265,8 @@ def study(case_names=None, quick: bool = False, log=print):
         res = {"case": case, "reference": ref,
                "solvers": solver_costs(case, ref, settings, repeats),
                "core": core_costs(case, settings, repeats=3 if quick else 5),
-               "evaluation": evaluation_costs(case, 500 if quick else 2000)}
+               "evaluation": evaluation_costs(case, 500 if quick else 2000),
+               "reactions": reaction_costs(case, 100 if quick else 300)}
         res["effects"], res["effect_evals"], res["effect_runs"] = effect_costs(case, repeats)
         out[name] = res
     return out
@@ -258,6 +301,12 @@ def report(results, log=print) -> None:
         for r in res["evaluation"]:
             log(f"one evaluation, {r['scheme']:14s} chart {r['chart']:10s} n = {r['n']}: "
                 f"{r['us_per_evaluation']:6.1f} us ({r['position_points']} position points)")
+        for r in res.get("reactions", ()):
+            log(f"reactions beside one exact evaluation (median of {r['states']} states, side "
+                f"by side): exact evaluation {r['us_exact_evaluation']:.1f} us, reaction kernel "
+                f"with the loads {r['us_reactions_kernel']:.1f} us "
+                f"({r['kernel_over_evaluation']:.2f}× the evaluation), general least squares "
+                f"{r['us_reactions_general']:.1f} us ({r['general_over_kernel']:.0f}× the kernel)")
         log(f"\n-- {name}: effects --")
         for r in res["effects"]:
             log(f"generalized force of {r['effect']:18s} {r['us_per_evaluation']:6.2f} us per "
@@ -277,11 +326,13 @@ def as_rows(results):
     """Flat rows for a CSV."""
     out = []
     for name, res in results.items():
-        for part in ("solvers", "core", "evaluation", "effects", "effect_evals", "effect_runs"):
-            for r in res[part]:
+        for part in ("solvers", "core", "evaluation", "reactions", "effects", "effect_evals",
+                     "effect_runs"):
+            for r in res.get(part, ()):
                 out.append(dict(r, case=name, part=part))
     return out
 
 
 __all__ = ["study", "report", "as_rows", "solver_costs", "core_costs", "evaluation_costs",
+           "reaction_costs",
            "effect_costs"]

@@ -138,8 +138,9 @@ def test_a_failed_guard_falls_back_to_the_general_path(exact_cycle, monkeypatch)
     b = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
                           kin=e.kin, kernel=False)
     assert a.values == b.values
-    # the guard itself: every pivot of the elimination is checked against its size
-    assert kernel.source.count("_fallback()") >= len(unknowns)
+    # the guard itself: the pivots that vary with the state are checked against their size
+    # (the constant ones, ±1 of a force balance, once when the kernel is written)
+    assert kernel.source.count("_fallback()") >= 3
     assert 0.0 < PIVOT_GUARD < 1e-3
 
 
