@@ -270,7 +270,7 @@ def _source(engine, view, tape, outputs, args, free) -> str:
     def code(x):
         return "0.0" if x is None else fw._s(x)
 
-    add, sub, mul = fw.add, fw.sub, fw.mul
+    add, mul = fw.add, fw.mul
     rot = engine._rot
     mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
     nb = len(mech.bodies)

@@ -37,7 +37,6 @@ path, which reports the rank.
 
 from __future__ import annotations
 
-import math
 import re
 
 import numpy as np

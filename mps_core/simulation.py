@@ -1,5 +1,10 @@
 """The run driver: steps a solver on the engine through structures, events, commands and charts.
 
+The loop and its bookkeeping live here (steps, event location in the step, charts, stiffness,
+energy, records); the switches between structures, their impacts and the commands are the
+structure layer's (:mod:`mps_core.structure_layer`), which the loop calls at located events and
+at the commands' times.
+
 **Structures** (contract §5): ``free`` (φ, ψ), ``locked`` (ψ frozen at ψ_lock: the latch closed),
 ``held`` (x_C frozen at x_top: the slider on its top stop). Switches:
 
@@ -53,7 +58,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
@@ -61,14 +65,14 @@ from scipy.optimize import brentq
 from .effects import Controls, Latch, Motor, TopStop
 from .effects.controls import ControlledEffect
 from .engine import PartialSystems
-from .errors import (ChartBreakdown, ChartDomainError, MpsError, NumericalError,
+from .errors import (ChartBreakdown, ChartDomainError, NumericalError,
                      SimulationError, SingularConfiguration, config_in_degrees)
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
 from .solvers import make_solver
+from .structure_layer import COMMANDS, CommandRefused, StructureLayer, _Event  # noqa: F401
 from .trajectory import Trajectory
 
-COMMANDS = ("engage", "disengage", "stop", "start")
 #: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
 _ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", "T", "V", "W",
         "E_impact", "structure", "chart")
@@ -82,15 +86,6 @@ RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)
 
 class StabilityError(SimulationError):
     """A fixed step exceeds the solver's stability limit for a stiff effect."""
-
-
-class CommandRefused(MpsError):
-    """A command that makes no sense in the machine's present state (or an unknown word)."""
-
-    def __init__(self, command, reason: str):
-        self.command = command
-        self.reason = reason
-        super().__init__(f"command {command!r} refused: {reason}")
 
 
 @dataclass(frozen=True)
@@ -138,17 +133,6 @@ class SolverSettings:
 SWITCH_POINTS = ("auto", "locate", "step-over")
 #: the solvers with error control (the others take the steps they are given)
 ADAPTIVE_SOLVERS = ("dop853", "radau")
-
-
-@dataclass
-class _Event:
-    name: str
-    fn: Callable            # fn(t, q, q̇, kin=None): the event function in its list's view
-    direction: int          # +1 rising through zero, -1 falling, 0 either
-    action: Callable
-    #: a switching point of a force law: the step ends there and the solver starts afresh,
-    #: nothing else happens
-    restart: bool = False
 
 
 #: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
@@ -216,6 +200,8 @@ class Simulation:
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
+        #: the switches between structures, the impacts and the commands
+        self.structures = StructureLayer(self)
         self.latch = next((e for e in self.effects if isinstance(e, Latch)), None)
         self.stop = next((e for e in self.effects if isinstance(e, TopStop) and e.rigid), None)
         self.motor = next((e for e in self.effects if isinstance(e, Motor)), None)
@@ -266,7 +252,7 @@ class Simulation:
         self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
-            self._release_stop(self.solver.t)
+            self.structures._release_stop(self.solver.t)
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -315,7 +301,7 @@ class Simulation:
         self._seg_start = t
         # the forces may have changed (a command, an impact): a stop that would now pull lets go
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
-            self._release_stop(t)
+            self.structures._release_stop(t)
 
     # -- physical observables -------------------------------------------------------------
     def _plan(self, view) -> "_ViewPlan":
@@ -528,41 +514,7 @@ class Simulation:
         key = (self.controls.structure, self.controls.latch_armed, self.view)
         ev = self._events_by_state.get(key)
         if ev is None:
-            ev = self._events_by_state[key] = self._make_event_list()
-        return ev
-
-    def _make_event_list(self) -> list[_Event]:
-        """The events of the present structure and arming in the present view: each ``fn(t, q,
-        q̇, kin=None)`` reads that view's state."""
-        ev = []
-        s = self.structure
-        view = self.view
-        if s == "free":
-            if self.latch is not None and self.controls.latch_armed:
-                lock = self.latch.psi_lock
-                psi = self._reader("psi", view)
-                ev.append(_Event("latch-closes",
-                                 lambda t, q, qd, kin=None: psi(q, kin) - lock, 0,
-                                 self._close_latch))
-            if self.stop is not None:
-                top = self.stop.x_top
-                x_C = self._reader("x_C", view)
-                ev.append(_Event("stop-contact",
-                                 lambda t, q, qd, kin=None: x_C(q, kin) - top, +1,
-                                 self._hit_stop))
-        elif s == "held" and self.stop is not None and self.stop.model != "clamp":
-            ev.append(_Event("stop-release",
-                             lambda t, q, qd, kin=None: self._stop_force(t, q, qd, view),
-                             +1, self._release_stop))
-        if view.chart.name.startswith("phi-xc~"):
-            phi = self._reader("phi", view)
-            ev.append(_Event("change-point",
-                             lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
-                             0, self._record_change_point))
-        for effect in self._switching:
-            for i, name in enumerate(effect.switches):
-                ev.append(_Event(f"{effect.name}:{name}", self._switch_fn(effect, i, view), 0,
-                                 self._count_switch, restart=True))
+            ev = self._events_by_state[key] = self.structures._make_event_list()
         return ev
 
     def _switch_fn(self, effect, i, view):
@@ -663,220 +615,17 @@ class Simulation:
         self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
 
     # -- actions --------------------------------------------------------------------------
-    def _impact(self, obs_name: str, kind: str, new_structure: str, t: float) -> dict:
-        """Perfectly plastic impact on the constraint ∇(observable) · q̇ = 0."""
-        view, e = self.view, self.solver.current
-        q, qd = e.q, e.qd
-        jets = view.pose_jets(q, qd)
-        g = np.asarray(self.mechanism.observables[obs_name].jet(jets, view.n).grad, float)
-        Ainv_g = np.linalg.solve(e.A, g)
-        gAg = float(g @ Ainv_g)
-        s = float(g @ qd)
-        qd_plus = qd - Ainv_g * (s / gAg)
-        lost = 0.5 * s * s / gAg
-        before = self._physical_rates(view, q, qd)
-        after = self._physical_rates(view, q, qd_plus)
-        self.impact_loss += lost
-        for ob in self.observers:
-            if hasattr(ob, "impact"):
-                ob.impact(self, t, view, q, qd, qd_plus, closing=(obs_name,))
-        rec = {"t": t, "kind": kind, "from": self.structure, "to": new_structure,
-               "velocities_before": {k: before[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
-               "velocities_after": {k: after[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
-               "energy_lost": lost,
-               "impulse": -s / gAg,
-               "impulse_unit": "N*m*s" if obs_name == "psi" else "N*s",
-               "state": {k: before[k] for k in ("phi", "psi", "x_C")}}
-        self._enter(new_structure, q, qd_plus, t)
-        return rec
-
-    def _enter(self, structure: str, q, qd, t):
-        """Change structure at t from the current view's state (q, q̇) (already consistent)."""
-        jets = self.view.pose_jets(q, qd)
-        pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
-                    float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
-        cands = [c for c in self._candidates(structure, pose) if c[0] >= self.policy.fail_below]
-        best, q2, qd2, _ = self._map_first(cands, q, qd)
-        if best is None:
-            raise SingularConfiguration(f"no chart of structure {structure!r} is regular here",
-                                        t, self.config())
-        self.controls.structure = structure
-        self._restart(best, t, q2, qd2)
-
-    def _close_latch(self, t):
-        rec = self._impact("psi", "latch-closes", "locked", t)
-        self.events.append(rec)
-
-    def _hit_stop(self, t):
-        rec = self._impact("x_C", "stop-contact", "held", t)
-        self.events.append(rec)
-
-    def _release_stop(self, t):
-        e = self.solver.current
-        rates = self._physical_rates(self.view, e.q, e.qd)
-        self._enter("free", e.q, e.qd, t)
-        self.events.append({"t": t, "kind": "stop-release", "from": "held", "to": "free",
-                            "velocities_before": {k: rates[k] for k in ("phi_dot", "psi_dot",
-                                                                         "x_C_dot")},
-                            "energy_lost": 0.0, "impulse": 0.0})
-
-    def _record_change_point(self, t, q=None, qd=None):
-        """Log a passage through the change point (at the step's cut, or at (q, q̇) when the
-        step stands); with ``keep-side`` apply that choice's impact."""
-        e = self.solver.current
-        q = e.q if q is None else q
-        qd = e.qd if qd is None else qd
-        rates = self._physical_rates(self.view, q, qd)
-        rec = {"t": t, "kind": "change-point", "choice": "smooth continuation",
-               "phi": rates["phi"], "psi": rates["psi"],
-               "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")}, "energy_lost": 0.0}
-        if self.change_point == "keep-side":
-            rec.update(self._keep_side(t))
-        self.events.append(rec)
-
-    def _branch_analogs(self, view, phi: float, eps: float = 1e-4):
-        """Analogs (centres of mass, body rates) of a continuation chart at the change point φ*,
-        as the mean of those at φ* ± ε (the chart is smooth there; error O(ε²))."""
-        ks = [self._exact_engine.kinematics(view, self.solver.t, [phi + s * eps], [0.0])
-              for s in (1.0, -1.0)]
-        rows = [ks[0].names[f"G_{b.name}"] for b in self.mechanism.bodies]
-        JG = 0.5 * sum(k.J[rows, :, 0] for k in ks)          # (bodies, 2)
-        W = 0.5 * sum(k.W[:, 0] for k in ks)                 # (bodies,)
-        return JG, W
-
-    def _keep_side(self, t) -> dict:
-        """The rocker kept on its side at the change point: the motion leaves on the other
-        branch (the other continuation chart) after a perfectly plastic impact. The admissible
-        directions are forward along that branch or back along the incoming one; the velocity
-        after is the projection (in the mass metric) onto them: φ̇⁺ = max(0, J_oᵀMJ_s / J_oᵀMJ_o)·φ̇⁻.
-        Where the new branch turns back more than a right angle (J_oᵀMJ_s < 0) the mechanism
-        stops dead at the change point, and the forces take it on from rest."""
-        if self._exact_engine is None:
-            self._exact_engine = PartialSystems(self.mechanism, (), "autodiff")
-        e = self.solver.current
-        phi = float(e.q[0])
-        other = next(v for v in self.views(self.structure)
-                     if v.chart.name.startswith("phi-xc~") and v.chart is not self.view.chart)
-        m = np.array([b.mass for b in self.mechanism.bodies])
-        inertia = np.array([b.inertia for b in self.mechanism.bodies])
-        Js, Ws = self._branch_analogs(self.view, phi)
-        Jo, Wo = self._branch_analogs(other, phi)
-        A_s = float(np.sum(m * np.sum(Js * Js, axis=1)) + inertia @ (Ws * Ws))
-        A_o = float(np.sum(m * np.sum(Jo * Jo, axis=1)) + inertia @ (Wo * Wo))
-        C = float(np.sum(m * np.sum(Jo * Js, axis=1)) + inertia @ (Wo * Ws))
-        w_minus = float(e.qd[0])
-        w_plus = max(0.0, C / A_o) * w_minus
-        lost = 0.5 * A_s * w_minus ** 2 - 0.5 * A_o * w_plus ** 2
-        self.impact_loss += lost
-        self._restart(other, t, np.array([phi]), np.array([w_plus]))
-        return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost,
-                "to_chart": other.name}
-
-    def _stop_force(self, t, q, qd, view=None) -> float:
-        """λ: the force along x the top stop must give the slider to keep it at x_top (< 0:
-        pushing it down, compressive; > 0 would be a pull). From the unfrozen chart's equations:
-        λ = (A q̈ + h − Q) along x_C, with q̈ the held structure's accelerations."""
-        view = view or self.view
-        held = self._held.get(view)
-        if held is None:
-            chart = view.chart
-            full = self._full.get(chart.name)
-            if full is None:
-                full = self._full[chart.name] = ChartView(chart)
-            held = self._held[view] = (full, full.coordinate_index("x_C"), list(view.free))
-        full, c, f = held
-        ql = q.tolist() if isinstance(q, np.ndarray) else [float(x) for x in q]
-        qdl = qd.tolist() if isinstance(qd, np.ndarray) else [float(x) for x in qd]
-        qdf = [0.0] * full.n
-        for k, i in enumerate(f):
-            qdf[i] = qdl[k]
-        A, h, Q = self.engine.equations(full, t, [float(x) for x in view.full(ql)], qdf)
-        if len(f) == 1:
-            # one free coordinate: on floats
-            i = f[0]
-            qdd = (Q[i] - h[i]) / A[i][i]
-            return A[c][i] * qdd + h[c] - Q[c]
-        A, h, Q = np.array(A), np.array(h), np.array(Q)
-        qdd_f = np.linalg.solve(A[np.ix_(f, f)], Q[f] - h[f])
-        return float(A[c, f] @ qdd_f + h[c] - Q[c])
 
     # -- commands -------------------------------------------------------------------------
+
+    # -- commands (the structure layer's) -------------------------------------------------
     def check_command(self, name) -> None:
         """Raise :class:`CommandRefused` if ``name`` makes no sense now."""
-        if not isinstance(name, str) or name not in COMMANDS:
-            raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
-        c = self.controls
-        if name == "engage":
-            if self.latch is None or self.engage is None:
-                raise CommandRefused(name, "this scene has no latch and engage cylinder")
-            if self.structure == "locked":
-                raise CommandRefused(name, "the latch is already closed (working)")
-            if c.engage_on:
-                raise CommandRefused(name, "already engaging")
-        elif name == "disengage":
-            if self.structure != "locked" and not c.engage_on:
-                raise CommandRefused(name, "the press is not engaged")
-        elif name in ("stop", "start"):
-            if self.motor is None:
-                raise CommandRefused(name, "this scene has no motor")
-            if name == "stop" and not c.motor_on:
-                raise CommandRefused(name, "the motor is already off")
-            if name == "start" and c.motor_on:
-                raise CommandRefused(name, "the motor is already on")
+        self.structures.check_command(name)
 
     def command(self, name: str, t: float | None = None) -> None:
         """Take a command now (t None) or at a later simulated time; refused ones raise."""
-        if t is None or t <= self.solver.t:
-            self.check_command(name)
-            self._apply_command(name, self.solver.t)
-        else:
-            if not isinstance(name, str) or name not in COMMANDS:
-                raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
-            self.pending.append((float(t), name))
-            self.pending.sort()
-
-    def _apply_command(self, name, t):
-        c = self.controls
-        rec = {"t": t, "kind": "command", "command": name, "structure": self.structure}
-        if name == "engage":
-            c.engage_on = True
-            c.latch_armed = True
-        elif name == "disengage":
-            c.engage_on = False
-            c.latch_armed = False
-            c.disengage_at = t
-            if self.disengage is not None:
-                c.disengage_on = True
-                self._timers = sorted([(a, b) for a, b in self._timers
-                                       if b != "disengage-ends"]
-                                      + [(t + self.disengage.duration, "disengage-ends")])
-            if self.structure == "locked":
-                e = self.solver.current
-                self.events.append(rec)
-                self._enter("free", e.q, e.qd, t)
-                self.events.append({"t": t, "kind": "latch-opens", "from": "locked",
-                                    "to": "free", "energy_lost": 0.0, "impulse": 0.0})
-                return
-        elif name == "stop":
-            c.motor_on = False
-            self.motor.enabled = False
-        elif name == "start":
-            c.motor_on = True
-            self.motor.enabled = True
-        self.events.append(rec)
-        # the forces changed: the state carries on, its accelerations are new
-        e = self.solver.current
-        self._restart(self.view, t, e.q, e.qd)
-
-    def _apply_timer(self, name, t):
-        """A control change the driver scheduled, due at t (a step ends there)."""
-        if name == "disengage-ends":
-            self.controls.disengage_on = False
-            self.events.append({"t": t, "kind": "cylinder-off", "effect": "disengage_cylinder"})
-        else:                                               # pragma: no cover - internal
-            raise AssertionError(f"unknown timer {name!r}")
-        e = self.solver.current
-        self._restart(self.view, t, e.q, e.qd)
+        self.structures.command(name, t)
 
     # -- stability ------------------------------------------------------------------------
     def _always_stable(self) -> float:
@@ -1011,15 +760,15 @@ class Simulation:
             if self.pending and self.pending[0][0] <= t0 + tol:
                 t_cmd, name = self.pending.pop(0)
                 try:
-                    self.check_command(name)
+                    self.structures.check_command(name)
                 except CommandRefused as exc:
                     self.events.append({"t": t0, "kind": "command-refused", "command": name,
                                         "reason": exc.reason})
                     continue
-                self._apply_command(name, t0)
+                self.structures._apply_command(name, t0)
                 continue
             if self._timers and self._timers[0][0] <= t0 + tol:
-                self._apply_timer(self._timers.pop(0)[1], t0)
+                self.structures._apply_timer(self._timers.pop(0)[1], t0)
                 continue
             t_next = t_target
             if self.pending and self.pending[0][0] < t_next:
@@ -1054,7 +803,7 @@ class Simulation:
                 # the continuation chart is smooth through the change point: the step stands,
                 # the passage is logged at its root
                 q_e, qd_e = self.solver.dense_output()(hit[0])
-                self._record_change_point(hit[0], np.array(q_e, float), np.array(qd_e, float))
+                self.structures._record_change_point(hit[0], np.array(q_e, float), np.array(qd_e, float))
                 hit = None
             if hit is not None:
                 t_e, ev, after_value = hit
