@@ -132,10 +132,12 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         stop_group(probe)
 
 
-def afap(recording: bool, env, tmp: Path, steps: int) -> dict:
-    node = _node(dict(pacing="as_fast_as_possible", dt=0.001, t_end=steps * 1e-3,
-                      recording=(tmp / "afap.mcap") if recording else "none"),
-                 env, tmp / "afap.log")
+def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None) -> dict:
+    params = dict(pacing="as_fast_as_possible", dt=0.001, t_end=steps * 1e-3,
+                  recording=(tmp / "afap.mcap") if recording else "none")
+    if outputs:
+        params["outputs"] = "[" + outputs + "]"
+    node = _node(params, env, tmp / "afap.log")
     try:
         node.wait(600)
         return _final_stats((tmp / "afap.log").read_text())
@@ -218,7 +220,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("what", nargs="?", default="all",
-                   choices=("all", "realtime", "afap", "soak", "probe"))
+                   choices=("all", "realtime", "afap", "table", "soak", "probe"))
     p.add_argument("--minutes", type=float, default=10.0,
                    help="length of the soak run (default 10): realtime, every output, a "
                         "subscriber; RSS at 5 s and at the end, drift, messages lost")
@@ -266,6 +268,21 @@ def main(argv=None) -> int:
                   f"({100 * r['cpu_share']:.0f} % of one core: steps, publishing thread, "
                   f"middleware); the recording process {100 * r['recorder_cpu_share']:.0f} %",
                   flush=True)
+        if a.what == "table":
+            rows = []
+            for label, outs, rec in (("joint_states, clock", "joint_states,clock", False),
+                                     ("every output, no recording", None, False),
+                                     ("every output, recording", None, True)):
+                r = afap(rec, env, tmp, a.afap_steps, outs)
+                rows.append(dict(r, outputs=label))
+            res["table"] = rows
+            print(f"the node as fast as possible, no subscriber, {a.afap_steps} steps of "
+                  f"press-cycle at 1 kHz:\n"
+                  f"  | outputs | step p50 | publish p50 | real-time factor |\n"
+                  f"  |---|---|---|---|")
+            for r in rows:
+                print(f"  | {r['outputs']} | {r['step_p50_ms']:.3f} ms | "
+                      f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |", flush=True)
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
             r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every)

@@ -92,14 +92,15 @@ class RosSink:
     """A :class:`~mps_ros.twin.Runner` sink that publishes each message's CDR bytes on its
     topic: the very bytes the recorder writes.
 
-    Publishing runs in a thread of its own (rclpy lets go of the interpreter while the
-    middleware sends, so it runs on the second core beside the steps): :meth:`emit` collects a
+    In realtime pacing (``threaded``) publishing runs in a thread of its own (rclpy lets go of
+    the interpreter while the middleware sends, so it runs on the second core beside the
+    steps): :meth:`emit` collects a
     step's messages, :meth:`tick` hands them over at the step's end, in order, with the step's
     deadline; the thread publishes them and keeps ``latencies``, the publication's lateness
     after the deadline (realtime pacing). :meth:`close` publishes what is left and ends the
     thread."""
 
-    def __init__(self, publishers: dict):
+    def __init__(self, publishers: dict, threaded: bool = True):
         import queue
 
         from .twin import Timings
@@ -107,16 +108,24 @@ class RosSink:
         self.pubs = publishers     # key -> publisher
         self.latencies = Timings()
         self.published = 0
+        self.threaded = threaded
         self._batch: list = []
         self._queue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._publish, name="press_twin-publisher",
-                                        daemon=True)
-        self._thread.start()
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._publish, name="press_twin-publisher",
+                                            daemon=True)
+            self._thread.start()
 
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
-        if p is not None:
+        if p is None:
+            return
+        if self.threaded:
             self._batch.append((p, data))
+        else:                       # as fast as possible: no one waits, no thread to feed
+            p.publish(data)
+            self.published += 1
 
     def tick(self, deadline: float | None = None):
         if self._batch:
@@ -141,6 +150,8 @@ class RosSink:
                 self.latencies.add(late if late > 0.0 else 0.0)
 
     def close(self, timeout: float = 10.0) -> None:
+        if self._thread is None:
+            return
         self.tick()
         self._queue.put(None)
         self._thread.join(timeout)
@@ -195,7 +206,8 @@ class PressTwin(Node):
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
         self.recorder = None
-        self.ros_sink = RosSink(self.pubs)
+        # realtime: publishing beside the steps; as fast as possible: in line
+        self.ros_sink = RosSink(self.pubs, threaded=p["pacing"] == "realtime")
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"],
                              publish_every=p["publish_every"],
