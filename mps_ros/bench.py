@@ -78,11 +78,11 @@ def _node(params: dict, env, log_path: Path) -> subprocess.Popen:
 
 
 def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
-             outputs: str | None = None, publish_every: int = 1) -> dict:
+             outputs: str | None = None, publish_every: int = 1, priority: int = 0) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
-                  publish_every=publish_every)
+                  publish_every=publish_every, realtime_priority=priority)
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
@@ -231,6 +231,9 @@ def main(argv=None) -> int:
                    help="the realtime run's outputs, comma-separated (default: all)")
     p.add_argument("--publish-every", type=int, default=1, metavar="N",
                    help="the realtime run publishes every N-th step (default 1)")
+    p.add_argument("--priority", type=int, default=0, metavar="P",
+                   help="the node's realtime_priority (0: normal scheduling; 1-99: its "
+                        "stepping thread under SCHED_FIFO, where allowed)")
     p.add_argument("--deserialize", action="store_true",
                    help="the subscriber deserializes every message into a Python object "
                         "(default: it takes them serialized, as delivered)")
@@ -245,12 +248,13 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="mps-bench-") as d:
         tmp = Path(d)
         if a.what in ("all", "realtime"):
-            r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every)
+            r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
+                         a.priority)
             res["realtime_1kHz"] = r
             how = "deserializing" if a.deserialize else "taking them serialized"
             print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
                   f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
-                  f"subscriber ({how}):\n"
+                  f"subscriber ({how}), realtime_priority {a.priority}:\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
                   f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
                   f"{r['step_p99_ms']:.3f} ms\n"
@@ -285,7 +289,8 @@ def main(argv=None) -> int:
                       f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |", flush=True)
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
-            r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every)
+            r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
+                         a.priority)
             res["soak"] = r
             print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
                   f"every output, one external subscriber:\n"

@@ -40,6 +40,8 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
 ``command_burst``,          flood limit: at most ``command_burst`` commands at once, then
 ``command_rate``            ``command_rate`` a second (10, 20.0); the rest are refused
 ``diagnostics_period``      wall seconds between /diagnostics messages (1.0)
+``realtime_priority``       0 (default): normal scheduling; 1-99: the stepping thread under
+                            SCHED_FIFO at that priority, where the system allows it
 ==========================  ==========================================================================
 """
 
@@ -223,6 +225,7 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
+        "realtime_priority": 0,
     }
 
     def _declare(self, scene: str):
@@ -281,6 +284,10 @@ class PressTwin(Node):
         out["command_burst"] = integer("command_burst", 1)
         out["command_rate"] = number("command_rate", strict=True)
         out["diagnostics_period"] = number("diagnostics_period", strict=True)
+        out["realtime_priority"] = integer("realtime_priority", 0)
+        if out["realtime_priority"] > 99:
+            raise ParameterError(f"parameter realtime_priority: {out['realtime_priority']!r} "
+                                 "must be an integer from 0 (off) to 99")
         return out
 
     # -- callbacks (executor thread): queue only ------------------------------------------
@@ -380,7 +387,24 @@ class PressTwin(Node):
         stop.wait(self.p["start_delay"])
         if stop.is_set():
             self.runner.request_stop("signal")
+        self._set_priority()
         return self.runner.run()
+
+    def _set_priority(self) -> None:
+        """``realtime_priority`` > 0: the stepping thread runs under SCHED_FIFO at that priority
+        (it sleeps between steps; the machine's real-time throttling still bounds it), so a
+        step is not kept waiting by ordinary processes. Where the system does not allow it (no
+        CAP_SYS_NICE, no such policy) the run goes on at normal priority, with a warning."""
+        prio = self.p["realtime_priority"]
+        if not prio:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+        except (AttributeError, OSError) as exc:
+            self.get_logger().warning(f"realtime_priority {prio}: not allowed here ({exc}); "
+                                      "stepping at normal priority")
+            return
+        self.get_logger().info(f"stepping thread: SCHED_FIFO, priority {prio}")
 
     def drain(self, timeout: float = 1.0) -> None:
         """Give the subscribers a bounded time to acknowledge what was published (the writers
