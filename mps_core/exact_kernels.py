@@ -34,20 +34,30 @@ from .kernels import MAX_N, _key, _Writer, load, view_arguments
 from .tracing import TracingError, trace_at
 
 
-def exact_kernel(engine, view, q):
-    """The exact kernel of a chart view, traced at ``q`` (the point of the first evaluation),
-    or None where the chart has no ``flat`` positions, too many free coordinates, or a position
-    function that cannot be traced. A domain error of the position function at ``q`` goes to
-    the caller (nothing is built; the next evaluation tries again)."""
+def trace_view(view, q):
+    """(flat, tape, outputs, args, free): the chart's ``flat`` position function traced at
+    ``q`` in ``view`` (:func:`~mps_core.tracing.trace_at`); None where the chart has no
+    ``flat`` positions, too many free coordinates, or a function that cannot be traced."""
     flat = getattr(view.chart, "flat", None)
-    n = view.n
-    if flat is None or n > MAX_N:
+    if flat is None or view.n > MAX_N:
         return None
     args, free = view_arguments(view, q)
     try:
         tape, outputs = trace_at(flat, args, free)
     except TracingError:
         return None
+    return flat, tape, outputs, args, free
+
+
+def exact_kernel(engine, view, q):
+    """The exact kernel of a chart view, traced at ``q`` (the point of the first evaluation),
+    or None where the chart has no ``flat`` positions, too many free coordinates, or a position
+    function that cannot be traced. A domain error of the position function at ``q`` goes to
+    the caller (nothing is built; the next evaluation tries again)."""
+    traced = trace_view(view, q)
+    if traced is None:
+        return None
+    flat, tape, outputs, args, free = traced
     key = ("exact", _key(engine, view), tape.key(), tuple(outputs))
     return load(key, lambda: _source(engine, view, tape, outputs, args, free),
                 f"<exact kernel {view.name}>", flat, view.name)

@@ -20,16 +20,16 @@ class InputFileError(MpsError, ValueError):
         super().__init__(f"{what} {str(path)!r}: {problem}")
 
 
-def read_bytes(path, what: str) -> bytes:
-    """The file's bytes, or :class:`InputFileError` for a path that is not a readable,
-    non-empty file."""
+def _read(path, what: str, size: int = -1) -> bytes:
+    """Up to ``size`` bytes (all: -1) of a path that must be a readable, non-empty file."""
     p = Path(path)
     if not p.exists():
         raise InputFileError(p, what, "no such file")
     if p.is_dir():
         raise InputFileError(p, what, "a directory, expected a file")
     try:
-        data = p.read_bytes()
+        with p.open("rb") as fh:
+            data = fh.read(size)
     except PermissionError:
         raise InputFileError(p, what, "not readable (permission denied)") from None
     except OSError as exc:
@@ -37,6 +37,12 @@ def read_bytes(path, what: str) -> bytes:
     if not data:
         raise InputFileError(p, what, "the file is empty")
     return data
+
+
+def read_bytes(path, what: str) -> bytes:
+    """The file's bytes, or :class:`InputFileError` for a path that is not a readable,
+    non-empty file."""
+    return _read(path, what)
 
 
 def read_text(path, what: str, kind: str = "text") -> str:
@@ -59,19 +65,7 @@ def check_file(path, what: str, magic: bytes | None = None, kind: str = "") -> P
     """``path`` as a readable, non-empty file (that starts with ``magic``, where given), or
     :class:`InputFileError`. Reads at most the magic's length."""
     p = Path(path)
-    if not p.exists():
-        raise InputFileError(p, what, "no such file")
-    if p.is_dir():
-        raise InputFileError(p, what, "a directory, expected a file")
-    try:
-        with p.open("rb") as fh:
-            head = fh.read(max(1, len(magic or b"")))
-    except PermissionError:
-        raise InputFileError(p, what, "not readable (permission denied)") from None
-    except OSError as exc:
-        raise InputFileError(p, what, f"cannot be read ({exc.strerror or exc})") from None
-    if not head:
-        raise InputFileError(p, what, "the file is empty")
+    head = _read(p, what, max(1, len(magic or b"")))
     if magic is not None and head != magic:
         raise InputFileError(p, what, f"not {kind or 'the expected kind of file'} (it starts "
                                       f"with {head[:8]!r})")

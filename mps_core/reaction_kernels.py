@@ -41,10 +41,9 @@ import re
 
 import numpy as np
 
-from .exact_kernels import _Forward, angular, forward, linear_parts
-from .kernels import MAX_N, _key, _Writer, load, view_arguments
+from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
+from .kernels import _key, _Writer, load
 from .mechanism import FRAME
-from .tracing import TracingError, trace_at
 
 
 class Fallback(ArithmeticError):
@@ -75,15 +74,11 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float):
     ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
     joints and the numbers the pivot order is chosen from) and the bodies' motion there;
     ``columns``: the output columns in order."""
-    flat = getattr(view.chart, "flat", None)
+    traced = trace_view(view, q)
+    if traced is None:
+        return None
+    flat, tape, outputs, args, free = traced
     n = view.n
-    if flat is None or n > MAX_N:
-        return None
-    args, free = view_arguments(view, q)
-    try:
-        tape, outputs = trace_at(flat, args, free)
-    except TracingError:
-        return None
     mech = engine.mechanism
     sysm = system
     E = sysm.E
@@ -418,33 +413,28 @@ class LoadSums:
             out[k + 2] += (xl[r] - ox) * fy - (xl[r + 1] - oy) * fx
         fr = 3 * self.nb
         bodies = self.bodies
+        def add_force(k, point, fx, fy):
+            """A force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)."""
+            if point.__class__ is str:
+                r = 2 * names[point]
+                px, py = xl[r] - ox, xl[r + 1] - oy
+            else:
+                px, py = float(point[0]) - ox, float(point[1]) - oy
+            out[k] += fx
+            out[k + 1] += fy
+            out[k + 2] += px * fy - py * fx
+
         for e, motor in self.effects:
             ld = e.loads(t, kin)
             for body, point, fx, fy in ld.forces:
-                k = 3 * bodies[body]
-                if point.__class__ is str:
-                    r = 2 * names[point]
-                    px, py = xl[r] - ox, xl[r + 1] - oy
-                else:
-                    px, py = float(point[0]) - ox, float(point[1]) - oy
-                out[k] += fx
-                out[k + 1] += fy
-                out[k + 2] += px * fy - py * fx
+                add_force(3 * bodies[body], point, fx, fy)
             for body, mz in ld.torques:
                 out[3 * bodies[body] + 2] += mz
                 if motor:
                     out[fr + 3] += mz
             for entry in ld.frame:
                 if len(entry) == 4:
-                    point, fx, fy = entry[1], entry[2], entry[3]
-                    if point.__class__ is str:
-                        r = 2 * names[point]
-                        px, py = xl[r] - ox, xl[r + 1] - oy
-                    else:
-                        px, py = float(point[0]) - ox, float(point[1]) - oy
-                    out[fr] += fx
-                    out[fr + 1] += fy
-                    out[fr + 2] += px * fy - py * fx
+                    add_force(fr, entry[1], entry[2], entry[3])
                 else:
                     out[fr + 2] += entry[1]
         return out
