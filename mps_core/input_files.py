@@ -20,8 +20,9 @@ class InputFileError(MpsError, ValueError):
         super().__init__(f"{what} {str(path)!r}: {problem}")
 
 
-def _read(path, what: str, size: int = -1) -> bytes:
-    """Up to ``size`` bytes (all: -1) of a path that must be a readable, non-empty file."""
+def _read(path, what: str, size: int = -1, allow_empty: bool = False) -> bytes:
+    """Up to ``size`` bytes (all: -1) of a path that must be a readable, non-empty file (an
+    empty one too, with ``allow_empty``)."""
     p = Path(path)
     if not p.exists():
         raise InputFileError(p, what, "no such file")
@@ -34,7 +35,7 @@ def _read(path, what: str, size: int = -1) -> bytes:
         raise InputFileError(p, what, "not readable (permission denied)") from None
     except OSError as exc:
         raise InputFileError(p, what, f"cannot be read ({exc.strerror or exc})") from None
-    if not data:
+    if not data and not allow_empty:
         raise InputFileError(p, what, "the file is empty")
     return data
 
@@ -45,12 +46,13 @@ def read_bytes(path, what: str) -> bytes:
     return _read(path, what)
 
 
-def read_text(path, what: str, kind: str = "text") -> str:
-    """The file's text (UTF-8), or :class:`InputFileError`: also for a file of only blanks, a
-    binary file and one that is not UTF-8. ``kind`` says what text was expected."""
+def read_text(path, what: str, kind: str = "text", allow_empty: bool = False) -> str:
+    """The file's text (UTF-8), or :class:`InputFileError`: also for a file of only blanks
+    (unless ``allow_empty``: a log with nothing in it), a binary file and one that is not
+    UTF-8. ``kind`` says what text was expected."""
     p = Path(path)
-    data = read_bytes(p, what)
-    if not data.strip():
+    data = _read(p, what, allow_empty=allow_empty)
+    if not data.strip() and not allow_empty:
         raise InputFileError(p, what, "the file is empty (only blanks)")
     if b"\x00" in data:
         raise InputFileError(p, what, f"a binary file, expected {kind} (UTF-8)")

@@ -103,7 +103,8 @@ def _events(path) -> list[dict]:
     if path is None:
         return []
     out = []
-    for i, line in enumerate(read_text(path, "--events", "JSON lines").splitlines(), 1):
+    text = read_text(path, "--events", "JSON lines", allow_empty=True)   # a run without events
+    for i, line in enumerate(text.splitlines(), 1):
         if line.strip():
             try:
                 out.append(json.loads(line))
