@@ -20,7 +20,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -102,33 +101,17 @@ def python_marked(block: Block) -> bool:
 
 
 # -- the environment of the commands ------------------------------------------------------------
-def _udp_port_free(port: int) -> bool:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        s.bind(("", port))
-        return True
-    except OSError:
-        return False
-    finally:
-        s.close()
-
-
 def pick_domain_id() -> int:
     """A ROS domain for these commands: MPS_DOCS_ROS_DOMAIN_ID, else one in 1..101 from the pid,
     not 42 (make's), 43 (the tests' default) or the session's own, whose first participant
     ports are free here."""
+    from ros_domains import free_domain
+
     given = os.environ.get("MPS_DOCS_ROS_DOMAIN_ID")
     if given:
         return int(given)
     taken = {42, 43, int(os.environ.get("ROS_DOMAIN_ID", "43") or 43)}
-    base = (os.getpid() + 50) % 101
-    for i in range(101):
-        d = 1 + (base + i) % 101
-        if d in taken:
-            continue
-        if all(_udp_port_free(7400 + 250 * d + off) for off in (10, 11, 12)):
-            return d
-    return 1 + base
+    return free_domain((os.getpid() + 50) % 101, taken)
 
 
 DOMAIN_ID = pick_domain_id()

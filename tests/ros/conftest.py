@@ -5,7 +5,6 @@ before the test returns, and the session checks that none is left."""
 from __future__ import annotations
 
 import os
-import socket
 import sys
 import tempfile
 from pathlib import Path
@@ -13,30 +12,13 @@ from pathlib import Path
 import pytest
 
 
-def _udp_port_free(port: int) -> bool:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        s.bind(("", port))
-        return True
-    except OSError:
-        return False
-    finally:
-        s.close()
-
-
 def pick_domain_id(pid: int) -> int:
     """A ROS domain in 1..101 for this session, from the pid, skipping 42 and 43 (make's and the
     default test domain) and any domain whose first participant port is taken here (a
     session or a node already on it)."""
-    base = pid % 101
-    for i in range(101):
-        d = 1 + (base + i) % 101
-        if d in (42, 43):
-            continue
-        # Fast DDS: unicast metatraffic port of participant 0 = 7400 + 250 d + 10
-        if all(_udp_port_free(7400 + 250 * d + off) for off in (10, 11, 12)):
-            return d
-    return 1 + base
+    from ros_domains import free_domain
+
+    return free_domain(pid % 101)
 
 
 DOMAIN_ID = pick_domain_id(os.getpid())

@@ -243,8 +243,10 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
             data, t_seen = got[0]
             assert data == "locked" and t_seen < 0.4351, got
     finally:
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
+        if executor is not None:            # as Listener.close: the spinning thread ends first
+            executor.shutdown(timeout_sec=2.0)
+        if thread is not None:
+            thread.join(timeout=3.0)
         if late_node is not None:
             late_node.destroy_node()
         lis.close()
