@@ -205,8 +205,21 @@ class ChartView:
 
     # -- exact state transfer -------------------------------------------------------------
     def pose_jets(self, q, qd) -> dict:
-        """Positions as jets at q along q̇: exact analogs, velocities, convective accelerations."""
-        return self.positions(seed(np.asarray(q, float), np.asarray(qd, float)))
+        """Positions as jets at q along q̇: exact analogs, velocities, convective accelerations.
+
+        The last few states' jets are kept: an impact or a change of structure asks for the
+        same state several times (jets are values: nothing changes them; each call gets a dict
+        of its own)."""
+        q = np.asarray(q, float)
+        qd = np.asarray(qd, float)
+        key = (q.tobytes(), qd.tobytes())
+        cache = self.__dict__.setdefault("_jets_cache", {})
+        hit = cache.get(key)
+        if hit is None:
+            if len(cache) >= 4:
+                del cache[next(iter(cache))]
+            hit = cache[key] = self.positions(seed(q, qd))
+        return dict(hit)
 
     def state_from(self, pose_jets, reference: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """This view's (q, q̇) for a configuration given as jets (from any chart).
