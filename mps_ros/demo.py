@@ -75,8 +75,7 @@ def view_help(path: Path) -> str:
   Python:  .venv/bin/python -c "from pathlib import Path; from rosbags.highlevel import AnyReader; \\
 r = AnyReader([Path('{p}')]); r.open(); [print(c.topic, c.msgtype, c.msgcount) for c in r.connections]"
   ROS 2 Jazzy:  ros2 bag info {p}   |   ros2 bag play {p}
-  metadata (the scene's TOML, the software version) and a file cut short: see the README,
-  "The ROS 2 node and recordings"."""
+  metadata (the scene's TOML, the software version) and a file cut short: docs/recordings.md."""
 
 
 def main(args) -> int:
