@@ -12,7 +12,7 @@ with known zeros and constants folded away:
    :mod:`mps_core.exact_kernels`): the centres of mass, their analogs J_G and convective
    accelerations, the angular analogs ω* and θ̈ at q̈ = 0, the joints' points;
 2. ``b`` per body from ``m a_G``, ``J α`` and the known loads (summed per body by
-   :func:`load_sums`);
+   :class:`LoadSums`);
 3. the least squares' leftover in closed form. Reactions do no work on admissible motions, so
    the columns of ``E`` span exactly the vectors r with ``J_bᵀ r = 0`` when E has full column
    rank and as many columns as rows less the degrees of freedom (J_b: the bodies' exact analogs,
@@ -372,11 +372,9 @@ class LoadSums:
     def __init__(self, effects, mechanism):
         self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
         self.nb = nb = len(self.bodies)
-        self.size = 3 * nb + 4
         self.effects = []
-        self.constant = []              # (row of x, body row, fx, fy) of constant forces
-        base = [0.0] * self.size
-        names = None
+        self.constant = []              # (point, body row, fx, fy) of constant forces
+        base = [0.0] * (3 * nb + 4)
         for e in effects:
             if not getattr(e, "applies_forces", True):
                 continue
@@ -396,7 +394,7 @@ class LoadSums:
             base[k] += fx
             base[k + 1] += fy
         self.base = base
-        self._names = names
+        self._names = None              # the kinematics' names the rows below are read from
         self._rows = None
 
     def __call__(self, t: float, kin) -> list:

@@ -398,8 +398,6 @@ class _Kernels:
 
         self.engine = PartialSystems(mechanism, (), scheme="autodiff")
         self.mechanism = mechanism
-        self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
-        self.nb = len(mechanism.bodies)
         self.scale = length_scale(mechanism)
         self.views: dict = {}
         self._loads = None              # (the effects' list and its length, LoadSums)
@@ -414,9 +412,10 @@ class _Kernels:
             cached = self._loads = (effects, len(effects), LoadSums(effects, self.mechanism))
         return cached[2]
 
-    def get(self, mechanism, view, ql, scale):
+    def get(self, view, ql, scale):
         """(kernel, unknowns) of a view, built at ``ql`` on first use; None where the view
         has none."""
+        mechanism = self.mechanism
         key = (view, scale)
         entry = self.views.get(key, False)
         if entry is False:
@@ -456,7 +455,7 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     from .tracing import BranchChanged
 
     ks = kernels_of(mechanism)
-    entry = ks.get(mechanism, view, ql, ks.scale if scale is None else float(scale))
+    entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
     if entry is None:
         return None
     kernel, unknowns = entry

@@ -252,7 +252,7 @@ class Simulation:
         self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
-            self.structures._release_stop(self.solver.t)
+            self.structures.release_stop(self.solver.t)
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -301,7 +301,7 @@ class Simulation:
         self._seg_start = t
         # the forces may have changed (a command, an impact): a stop that would now pull lets go
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
-            self.structures._release_stop(t)
+            self.structures.release_stop(t)
 
     # -- physical observables -------------------------------------------------------------
     def _plan(self, view) -> "_ViewPlan":
@@ -514,7 +514,7 @@ class Simulation:
         key = (self.controls.structure, self.controls.latch_armed, self.view)
         ev = self._events_by_state.get(key)
         if ev is None:
-            ev = self._events_by_state[key] = self.structures._make_event_list()
+            ev = self._events_by_state[key] = self.structures.make_event_list()
         return ev
 
     def _switch_fn(self, effect, i, view):
@@ -765,10 +765,10 @@ class Simulation:
                     self.events.append({"t": t0, "kind": "command-refused", "command": name,
                                         "reason": exc.reason})
                     continue
-                self.structures._apply_command(name, t0)
+                self.structures.apply_command(name, t0)
                 continue
             if self._timers and self._timers[0][0] <= t0 + tol:
-                self.structures._apply_timer(self._timers.pop(0)[1], t0)
+                self.structures.apply_timer(self._timers.pop(0)[1], t0)
                 continue
             t_next = t_target
             if self.pending and self.pending[0][0] < t_next:
@@ -803,7 +803,8 @@ class Simulation:
                 # the continuation chart is smooth through the change point: the step stands,
                 # the passage is logged at its root
                 q_e, qd_e = self.solver.dense_output()(hit[0])
-                self.structures._record_change_point(hit[0], np.array(q_e, float), np.array(qd_e, float))
+                self.structures.record_change_point(hit[0], np.array(q_e, float),
+                                                    np.array(qd_e, float))
                 hit = None
             if hit is not None:
                 t_e, ev, after_value = hit

@@ -3,14 +3,14 @@ its commands (contract §5), between the solver and the run loop.
 
 :class:`~mps_core.simulation.Simulation` is the loop and its bookkeeping (steps, event location,
 charts, energy, records); it asks this layer which events can switch the structure now
-(:meth:`StructureLayer._make_event_list`) and calls their actions at the located root, and it
+(:meth:`StructureLayer.make_event_list`) and calls their actions at the located root, and it
 hands it the commands at their times:
 
 * ``free`` → ``locked``: the latch closes (armed, ψ reaches ψ_lock), a perfectly plastic impact
   ``q̇⁺ = q̇⁻ − A⁻¹g (gᵀq̇⁻)/(gᵀA⁻¹g)`` with g = ∇ψ (:meth:`StructureLayer._impact`);
 * ``free`` → ``held``: the slider reaches its top stop moving up, the same impact with g = ∇x_C;
 * ``held`` → ``free``: the stop's reaction λ (from the unfrozen chart's equations,
-  :meth:`StructureLayer._stop_force`) would turn tensile;
+  :meth:`StructureLayer.stop_force`) would turn tensile;
 * ``locked`` → ``free``: the latch opens at a ``disengage`` command, ψ̇ = 0, no jump;
 * the change point of the held four-bar: logged on the smooth continuation, or the rocker kept
   on its side with a plastic impact (``change_point="keep-side"``);
@@ -63,7 +63,7 @@ class StructureLayer:
     def __init__(self, sim):
         self.sim = sim
 
-    def _make_event_list(self) -> list[_Event]:
+    def make_event_list(self) -> list[_Event]:
         """The events of the present structure and arming in the present view: each ``fn(t, q,
         q̇, kin=None)`` reads that view's state."""
         sim = self.sim
@@ -85,13 +85,13 @@ class StructureLayer:
                                  self._hit_stop))
         elif s == "held" and sim.stop is not None and sim.stop.model != "clamp":
             ev.append(_Event("stop-release",
-                             lambda t, q, qd, kin=None: self._stop_force(t, q, qd, view),
-                             +1, self._release_stop))
+                             lambda t, q, qd, kin=None: self.stop_force(t, q, qd, view),
+                             +1, self.release_stop))
         if view.chart.name.startswith("phi-xc~"):
             phi = sim._reader("phi", view)
             ev.append(_Event("change-point",
                              lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
-                             0, self._record_change_point))
+                             0, self.record_change_point))
         for effect in sim._switching:
             for i, name in enumerate(effect.switches):
                 ev.append(_Event(f"{effect.name}:{name}", sim._switch_fn(effect, i, view), 0,
@@ -150,7 +150,7 @@ class StructureLayer:
         rec = self._impact("x_C", "stop-contact", "held", t)
         sim.events.append(rec)
 
-    def _release_stop(self, t):
+    def release_stop(self, t):
         sim = self.sim
         e = sim.solver.current
         rates = sim._physical_rates(sim.view, e.q, e.qd)
@@ -160,7 +160,7 @@ class StructureLayer:
                                                                          "x_C_dot")},
                             "energy_lost": 0.0, "impulse": 0.0})
 
-    def _record_change_point(self, t, q=None, qd=None):
+    def record_change_point(self, t, q=None, qd=None):
         """Log a passage through the change point (at the step's cut, or at (q, q̇) when the
         step stands); with ``keep-side`` apply that choice's impact."""
         sim = self.sim
@@ -215,7 +215,7 @@ class StructureLayer:
         return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost,
                 "to_chart": other.name}
 
-    def _stop_force(self, t, q, qd, view=None) -> float:
+    def stop_force(self, t, q, qd, view=None) -> float:
         """λ: the force along x the top stop must give the slider to keep it at x_top (< 0:
         pushing it down, compressive; > 0 would be a pull). From the unfrozen chart's equations:
         λ = (A q̈ + h − Q) along x_C, with q̈ the held structure's accelerations."""
@@ -273,14 +273,14 @@ class StructureLayer:
         sim = self.sim
         if t is None or t <= sim.solver.t:
             self.check_command(name)
-            self._apply_command(name, sim.solver.t)
+            self.apply_command(name, sim.solver.t)
         else:
             if not isinstance(name, str) or name not in COMMANDS:
                 raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
             sim.pending.append((float(t), name))
             sim.pending.sort()
 
-    def _apply_command(self, name, t):
+    def apply_command(self, name, t):
         sim = self.sim
         c = sim.controls
         rec = {"t": t, "kind": "command", "command": name, "structure": sim.structure}
@@ -314,7 +314,7 @@ class StructureLayer:
         e = sim.solver.current
         sim._restart(sim.view, t, e.q, e.qd)
 
-    def _apply_timer(self, name, t):
+    def apply_timer(self, name, t):
         """A control change the driver scheduled, due at t (a step ends there)."""
         sim = self.sim
         if name == "disengage-ends":

@@ -96,11 +96,10 @@ class RosSink:
 
     In realtime pacing (``threaded``) publishing runs in a thread of its own (rclpy lets go of
     the interpreter while the middleware sends, so it runs on the second core beside the
-    steps): :meth:`emit` collects a
-    step's messages, :meth:`tick` hands them over at the step's end, in order, with the step's
-    deadline; the thread publishes them and keeps ``latencies``, the publication's lateness
-    after the deadline (realtime pacing). :meth:`close` publishes what is left and ends the
-    thread."""
+    steps): :meth:`emit` collects a step's messages, :meth:`tick` hands them over, in order,
+    with the step's deadline; the thread publishes them and keeps ``latencies``, the
+    publication's lateness after the deadline. :meth:`close` publishes what is left and ends
+    the thread."""
 
     def __init__(self, publishers: dict, threaded: bool = True):
         import queue
@@ -109,7 +108,6 @@ class RosSink:
 
         self.pubs = publishers     # key -> publisher
         self.latencies = Timings()
-        self.published = 0
         self.threaded = threaded
         self._batch: list = []
         self._queue = queue.SimpleQueue()
@@ -127,7 +125,6 @@ class RosSink:
             self._batch.append((p, data))
         else:                       # as fast as possible: no one waits, no thread to feed
             p.publish(data)
-            self.published += 1
 
     def tick(self, deadline: float | None = None):
         if self._batch:
@@ -145,8 +142,7 @@ class RosSink:
                 try:
                     p.publish(data)
                 except Exception:       # a publisher destroyed at shutdown: nothing to send to
-                    continue
-                self.published += 1
+                    pass
             if deadline is not None:
                 late = clock() - deadline
                 self.latencies.add(late if late > 0.0 else 0.0)
@@ -181,7 +177,6 @@ class PressTwin(Node):
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
-        self.qos_text = qos_yaml(depth=p["qos_depth"])
         outputs = set(self.twin.outputs)
         self.pubs: dict[str, object] = {}
         self.names: dict[str, str] = {}
@@ -439,7 +434,7 @@ def main(argv=None) -> int:
     env_defaults()
     # the stepping, publishing and executor threads share the interpreter: a thread that wants
     # it waits at most this long for another to let go (the default 5 ms is five steps)
-    sys.setswitchinterval(float(os.environ.get("MPS_SWITCH_INTERVAL", "0.0002")))
+    sys.setswitchinterval(0.0002)
     if argv is None:
         argv = sys.argv[1:]
     scene, ros = _split_argv(argv)

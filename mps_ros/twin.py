@@ -29,9 +29,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from mps_core.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.simulation import COMMANDS
-
-from mps_core.reactions import REACTION_COLUMNS
 
 from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
 
@@ -116,9 +115,8 @@ class Twin:
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
         self.dt = (self.t_end - self.t0) / self.n
         self.k = 0
-        self._events_seen = 0
         self._structure_sent: str | None = None
-        self._held_at: int | None = None        # the step whose events new_events() held
+        self._holding = False                   # new_events() holds this step's events
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
 
     def warm_up(self, seconds: float = 1.0) -> None:
@@ -176,8 +174,6 @@ class Twin:
         Newton–Euler solution elsewhere (the same numbers to round-off)."""
         if not self.solve_reactions:
             return None
-        from mps_core.reactions import compute_reactions, reaction_values
-
         sim = self.sim
         e = sim.solver.current
         fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
@@ -311,19 +307,18 @@ class Twin:
         events = self.sim.events
         if not events:
             return []
-        observers = [ob for ob in self.sim.observers if getattr(ob, "_pending", None)]
-        if hold and observers and self._held_at is None:
-            self._held_at = self.k
+        impacts = any(getattr(ob, "_pending", None) for ob in self.sim.observers)
+        if hold and impacts and not self._holding:
+            self._holding = True
             return []
-        self._held_at = None
+        self._holding = False
         for ob in self.sim.observers:
             if hasattr(ob, "resolve"):
                 ob.resolve()            # a deferred impact's impulses
             if hasattr(ob, "impacts"):
                 ob.impacts.clear()
-        ev = events[self._events_seen:]
+        ev = list(events)
         del events[:]
-        self._events_seen = 0
         return ev
 
     def describe(self) -> dict:
@@ -468,7 +463,6 @@ class Runner:
         self.step_times = Timings()             # compute: advance + messages (s)
         self.latencies = Timings()              # realtime: publish done - deadline (s)
         self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
-        self.late_steps = 0                     # realtime: steps published after deadline
         self.misses = 0
         self.messages = 0
         self.commands_accepted = 0

@@ -288,7 +288,7 @@ def test_stop_force_from_newton_euler_equals_the_constraint_force_of_the_lagrang
         def observe(self, s, e):
             if s.structure != "held":
                 return
-            lam = s.structures._stop_force(e.t, e.q, e.qd, e.view)
+            lam = s.structures.stop_force(e.t, e.q, e.qd, e.view)
             r = compute_reactions(s.mechanism, s.effects, e.view, e.t, e.q, e.qd, e.qdd)
             pairs.append((r.values["F_stop"], -lam))
 
