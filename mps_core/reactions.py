@@ -672,6 +672,18 @@ class ReactionObserver:
         simulation.events.append(ev)
         return imp
 
+    def checkpoint(self) -> tuple:
+        """What the run changes here (see :meth:`Simulation.checkpoint`)."""
+        return ({k: len(v) for k, v in self.rows.items()}, list(self.impacts),
+                list(self._pending), self.max_rank_deficiency, self._deficient_since)
+
+    def restore(self, cp: tuple) -> None:
+        rows, impacts, pending, self.max_rank_deficiency, self._deficient_since = cp
+        for k, n in rows.items():
+            del self.rows[k][n:]
+        self.impacts[:] = impacts
+        self._pending = list(pending)
+
     def resolve(self) -> None:
         """Fill in the impulses of the deferred impacts' events (in place)."""
         pending, self._pending = self._pending, []

@@ -24,6 +24,8 @@ _METHODS = {"dop853": DOP853, "radau": Radau}
 
 class AdaptiveSolver(Solver):
     order = None
+    #: scipy's solver object changes in place as it steps: no state to come back to
+    rewindable = False
 
     def __init__(self, fun, t0, q0, qd0, current=None, method="dop853", rtol=1e-9, atol=1e-12,
                  scales=None, t_bound=np.inf, max_step=np.inf, first_step=None):
@@ -70,6 +72,9 @@ class AdaptiveSolver(Solver):
             # DOP853's dense output costs three more evaluations: once per internal step
             self._sol = (s.t, s.dense_output())
         return self._sol[1]
+
+    def state(self) -> dict:
+        raise NotImplementedError(f"the {self.name} solver cannot be rewound")
 
     def step_to(self, t_target, interrupt=None):
         s, n = self._scipy, self._n

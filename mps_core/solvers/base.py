@@ -12,6 +12,9 @@ A solver advances a second-order system ``q̈ = f(t, q, q̇)``:
 * after a step ``current`` is the evaluation at the new state (the next step's start and the
   accelerations reported for it), and :meth:`dense_output` interpolates (q, q̇) inside the step;
 * ``nfev`` counts the calls of ``fun`` and ``accel``, ``nsteps`` the steps;
+* :meth:`state` and :meth:`set_state` keep and bring back everything a step changes, so that
+  a driver can take steps ahead and come back (a solver that cannot says so with
+  ``rewindable = False``);
 * ``accel(t, q, q̇) -> q̈``, on lists of floats, may be given beside ``fun``: the same q̈ as
   ``fun(t, q, q̇).qdd`` without the evaluation, for the stages whose evaluation is not kept.
 """
@@ -29,6 +32,8 @@ class Solver:
     order = 0
     #: calls of ``fun`` per fixed step (None for adaptive solvers)
     evaluations_per_step: int | None = None
+    #: :meth:`state` and :meth:`set_state` bring a step's state back
+    rewindable = True
 
     def __init__(self, fun: Callable, t0: float, q0, qd0, current=None,
                  accel: Callable | None = None):
@@ -55,6 +60,16 @@ class Solver:
 
     def step_to(self, t_target: float, interrupt: Callable | None = None) -> None:
         raise NotImplementedError
+
+    def state(self) -> dict:
+        """What a step changes, to come back to with :meth:`set_state`. A step gives its
+        attributes new objects (it never changes an array or list in place), so their
+        references are the state."""
+        return dict(self.__dict__)
+
+    def set_state(self, state: dict) -> None:
+        self.__dict__.clear()
+        self.__dict__.update(state)
 
     def dense_output(self) -> Callable[[float], tuple[np.ndarray, np.ndarray]]:
         """(q, q̇) at a time inside the last step."""
