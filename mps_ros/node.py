@@ -92,67 +92,25 @@ MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": J
 
 class RosSink:
     """A :class:`~mps_ros.twin.Runner` sink that publishes each message's CDR bytes on its
-    topic: the very bytes the recorder writes.
+    topic: the very bytes the recorder writes. In realtime pacing the runner calls it from its
+    releasing thread, at each step's deadline, beside the steps computed ahead."""
 
-    In realtime pacing (``threaded``) publishing runs in a thread of its own (rclpy lets go of
-    the interpreter while the middleware sends, so it runs on the second core beside the
-    steps): :meth:`emit` collects a step's messages, :meth:`tick` hands them over, in order,
-    with the step's deadline; the thread publishes them and keeps ``latencies``, the
-    publication's lateness after the deadline. :meth:`close` publishes what is left and ends
-    the thread."""
+    #: released at the steps' deadlines (the recorder is fed after, off that path)
+    live = True
 
-    def __init__(self, publishers: dict, threaded: bool = True):
-        import queue
-
-        from .twin import Timings
-
+    def __init__(self, publishers: dict):
         self.pubs = publishers     # key -> publisher
-        self.latencies = Timings()
-        self.threaded = threaded
-        self._batch: list = []
-        self._queue = queue.SimpleQueue()
-        self._thread = None
-        if threaded:
-            self._thread = threading.Thread(target=self._publish, name="press_twin-publisher",
-                                            daemon=True)
-            self._thread.start()
 
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
-        if p is None:
-            return
-        if self.threaded:
-            self._batch.append((p, data))
-        else:                       # as fast as possible: no one waits, no thread to feed
-            p.publish(data)
+        if p is not None:
+            try:
+                p.publish(data)
+            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+                pass
 
     def tick(self, deadline: float | None = None):
-        if self._batch:
-            self._queue.put((self._batch, deadline))
-            self._batch = []
-
-    def _publish(self):
-        clock = time.perf_counter
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            batch, deadline = item
-            for p, data in batch:
-                try:
-                    p.publish(data)
-                except Exception:       # a publisher destroyed at shutdown: nothing to send to
-                    pass
-            if deadline is not None:
-                late = clock() - deadline
-                self.latencies.add(late if late > 0.0 else 0.0)
-
-    def close(self, timeout: float = 10.0) -> None:
-        if self._thread is None:
-            return
-        self.tick()
-        self._queue.put(None)
-        self._thread.join(timeout)
+        pass
 
 
 class ParameterError(ValueError):
@@ -203,10 +161,9 @@ class PressTwin(Node):
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
         self.recorder = None
-        # realtime: publishing beside the steps; as fast as possible: in line
-        self.ros_sink = RosSink(self.pubs, threaded=p["pacing"] == "realtime")
+        self.ros_sink = RosSink(self.pubs)
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
-                             real_time_factor=p["real_time_factor"],
+                             real_time_factor=p["real_time_factor"], lead=p["lead"],
                              publish_every=p["publish_every"],
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
                              gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
@@ -220,7 +177,7 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 0,
+        "realtime_priority": 0, "lead": 0.05,
     }
 
     def _declare(self, scene: str):
@@ -280,6 +237,9 @@ class PressTwin(Node):
         out["command_rate"] = number("command_rate", strict=True)
         out["diagnostics_period"] = number("diagnostics_period", strict=True)
         out["realtime_priority"] = integer("realtime_priority", 0)
+        out["lead"] = number("lead")
+        if out["lead"] > 1.0:
+            raise ParameterError(f"parameter lead: {out['lead']!r} must be from 0 to 1 s")
         if out["realtime_priority"] > 99:
             raise ParameterError(f"parameter realtime_priority: {out['realtime_priority']!r} "
                                  "must be an integer from 0 (off) to 99")
@@ -489,14 +449,9 @@ def main(argv=None) -> int:
             code = 2
         finally:
             node.closed = True
-            node.ros_sink.close()
             if node.recorder is not None:
                 node.recorder.finish()
         node.drain()
-        lat = node.ros_sink.latencies
-        if lat.n:           # when subscribers got them: the publishing thread's lateness
-            stats["latency_p50_ms"] = lat.percentile(50) * 1e3
-            stats["latency_p99_ms"] = lat.percentile(99) * 1e3
         why = node.runner.stop_reason or "end"
         node.get_logger().info(
             f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "

@@ -179,6 +179,7 @@ class BackgroundRecorder:
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       bufsize=0)
         self._out = self._proc.stdin
+        _widen_pipe(self._out)
         settings = {"path": str(path), "scene_name": scene_name, "scene_text": scene_text,
                     "metadata": {k: str(v) for k, v in (metadata or {}).items()},
                     "chunk_size": int(chunk_size), "flush_period": float(flush_period),
@@ -267,6 +268,18 @@ class BackgroundRecorder:
         if "done" not in reply:
             raise OSError(f"{self.path}: {reply.get('error')}")
         self.written = int(reply["done"])
+
+
+def _widen_pipe(f, size: int = 1 << 20) -> None:
+    """Give the pipe to the writing process room for about a second of a 1 kHz run's
+    messages (Linux; elsewhere the default stays), so that handing a batch over never waits
+    for the other process to read: a paced run hands them over between its deadlines."""
+    import fcntl
+
+    try:
+        fcntl.fcntl(f.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), size)
+    except OSError:
+        pass
 
 
 _FRAME_LEN = struct.Struct("<I").pack

@@ -154,6 +154,21 @@ class Twin:
         self.k += 1
         self.sim.advance_to(self.time_of(self.k))
 
+    # -- steps ahead ----------------------------------------------------------------------
+    @property
+    def rewindable(self) -> bool:
+        """Whether :meth:`checkpoint` works (the simulation's solver and observers allow it)."""
+        return self.sim.rewindable
+
+    def checkpoint(self) -> tuple:
+        """The twin's state at this step boundary (see :meth:`Simulation.checkpoint`)."""
+        return self.k, self._structure_sent, self._holding, self.sim.checkpoint()
+
+    def restore(self, cp: tuple) -> None:
+        """Back to a :meth:`checkpoint`: the steps computed since are forgotten."""
+        self.k, self._structure_sent, self._holding, sim = cp
+        self.sim.restore(sim)
+
     # -- commands -------------------------------------------------------------------------
     def command(self, word: str) -> tuple[bool, str | None]:
         """Apply a command now (at the present step's time) or say why not."""
@@ -338,17 +353,33 @@ class Command:
     word: str
     source: str = "topic"
     reply: Callable[[dict], None] | None = None
-    wall: float = field(default_factory=time.monotonic)
+    #: when it arrived, on the run's clock (``time.perf_counter``)
+    wall: float = field(default_factory=time.perf_counter)
 
 
 class Inbox:
-    """Commands handed over from the ROS callbacks' thread to the run loop."""
+    """Commands handed over from the ROS callbacks' thread to the run loop, which can wait
+    for one (:meth:`wait`)."""
 
     def __init__(self):
         self._q: collections.deque[Command] = collections.deque()
+        self._ready = threading.Event()
 
     def put(self, cmd: Command) -> None:
         self._q.append(cmd)
+        self._ready.set()
+
+    def wake(self) -> None:
+        """End a :meth:`wait` now (a stop request)."""
+        self._ready.set()
+
+    def wait(self, timeout: float) -> None:
+        """Until a command arrives, :meth:`wake` is called, or ``timeout`` (s) passes."""
+        if self._ready.wait(timeout):
+            self._ready.clear()
+
+    def __bool__(self) -> bool:
+        return bool(self._q)
 
     def drain(self) -> list[Command]:
         out = []
@@ -392,6 +423,18 @@ def shown(word: str, n: int = 40) -> str:
 
 
 # -- the run --------------------------------------------------------------------------------
+class _Release:
+    """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
+    (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
+    twin's checkpoint after the step (to come back to for a command)."""
+
+    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp")
+
+    def __init__(self, k, t_ns, deadline, msgs, state, cp):
+        self.k, self.t_ns, self.deadline = k, t_ns, deadline
+        self.msgs, self.state, self.cp = msgs, state, cp
+
+
 class Timings:
     """Durations (s) kept as a histogram of 1 % wide bins from 1 µs to 100 s: percentiles to
     1 % and the maximum, in memory that does not grow with the run's length."""
@@ -439,21 +482,26 @@ class Runner:
                  real_time_factor: float = 1.0, publish_every: int = 1,
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
-                 name: str = "press_twin", warm_up: float = 1.0):
+                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
             raise ValueError(f"real_time_factor {real_time_factor!r}: expected a positive number")
         if int(publish_every) < 1:
             raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
+        if not (lead >= 0 and math.isfinite(lead)):
+            raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
         self.twin = twin
+        #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
+        #: step's period; only that where the twin cannot come back to a checkpoint)
+        self.lead = float(lead)
         self.warm_up = float(warm_up)           # simulated seconds run ahead in prepare()
         self.sinks = list(sinks)
         self.pacing = pacing
         self.rtf = float(real_time_factor)
         self.every = int(publish_every)
         self.period = float(diagnostics_period)
-        self.inbox = inbox or Inbox()
+        self.inbox = inbox if inbox is not None else Inbox()
         self.gate = gate or Gate()
         self.log = log or (lambda level, text: None)
         self.name = name
@@ -465,6 +513,7 @@ class Runner:
         self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
         self.misses = 0
         self.messages = 0
+        self.steps_recomputed = 0               # realtime: computed ahead, dropped for a command
         self.commands_accepted = 0
         self.commands_refused = 0
         self.commands_lost = 0                  # told by the transport (the node's QoS events)
@@ -474,6 +523,7 @@ class Runner:
         self.cpu_start = 0.0
         self.error: str | None = None
         self._encoders: dict = {}
+        self._staging: list | None = None       # the release being filled (realtime)
         self.thread_cpu_start = time.thread_time()
         self.thread_cpu: float | None = None
 
@@ -482,6 +532,7 @@ class Runner:
         if self.stop_reason is None:
             self.stop_reason = reason
         self._stop.set()
+        self.inbox.wake()
 
     # -- emitting -------------------------------------------------------------------------
     def _encode(self, key: str):
@@ -493,7 +544,19 @@ class Runner:
         return enc
 
     def _emit(self, key: str, msg: dict, t_ns: int) -> None:
-        data = self._encode(key)(msg)
+        self._send(key, self._encode(key)(msg), t_ns)
+
+    def _send(self, key: str, data: bytes, t_ns: int, received: bool = False) -> None:
+        """One message to every sink (``received``: a command as it came in, to the sinks
+        that keep those); while a step is being queued (realtime), to its release instead."""
+        if self._staging is not None:
+            self._staging.append((key, data, t_ns, received))
+            return
+        if received:
+            for s in self.sinks:
+                if hasattr(s, "received"):
+                    s.received(key, data, t_ns)
+            return
         self.messages += 1
         for s in self.sinks:
             s.emit(key, data, t_ns)
@@ -506,7 +569,7 @@ class Runner:
             self.events += 1
             self._emit("~/events", {"data": to_json(ev)}, t_ns)
 
-    def _publish_step(self, payloads, t_ns, deadline=None):
+    def _publish_step(self, payloads, t_ns):
         """The step's state to every sink, handed over at once (``tick``); then its events,
         whose impulses are worked out now, after the state is out."""
         self.messages += len(payloads)
@@ -514,13 +577,16 @@ class Runner:
             emit = s.emit
             for key, data in payloads:
                 emit(key, data, t_ns)
-            s.tick(deadline)
-        events = self.twin.new_events(hold=self.pacing == "realtime")
+            s.tick(None)
+        events = self.twin.new_events()
         if events:
             self._emit_events(events, t_ns)
 
-    def _take_commands(self) -> None:
-        cmds = self.inbox.drain()
+    def _take_commands(self, cmds=None) -> None:
+        """Apply the commands given (None: those waiting in the inbox) at the present step
+        boundary, each answered on ``~/mode/status`` and by its reply."""
+        if cmds is None:
+            cmds = self.inbox.drain()
         if not cmds:
             return
         twin = self.twin
@@ -528,11 +594,7 @@ class Runner:
         t_ns = to_ns(t)
         for c in cmds:
             word = c.word if isinstance(c.word, str) else str(c.word)
-            received = {"data": word}
-            data = self._encode("~/mode")(received)
-            for s in self.sinks:
-                if hasattr(s, "received"):
-                    s.received("~/mode", data, t_ns)
+            self._send("~/mode", self._encode("~/mode")({"data": word}), t_ns, received=True)
             reason = self.gate.check(word)
             if reason is None:
                 ok, reason = twin.command(word.strip())
@@ -586,6 +648,7 @@ class Runner:
             "publish_time_p50_ms": pt.percentile(50) * 1e3,
             "publish_time_p99_ms": pt.percentile(99) * 1e3,
             "deadline_misses": self.misses,
+            "steps_recomputed": self.steps_recomputed,
             "messages": self.messages,
             "events": self.events,
             "commands_accepted": self.commands_accepted,
@@ -632,84 +695,273 @@ class Runner:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
 
-    def run(self) -> dict:
-        twin = self.twin
-        realtime = self.pacing == "realtime"
-        clock = time.perf_counter
-        self.prepare()
-        self.wall_start = clock()
+    #: realtime, steps queued ahead: no step is begun closer than this (wall s) to the next
+    #: release's deadline (at most half a step's period)
+    RELEASE_GUARD = 3e-4
+
+    def _start_clocks(self) -> None:
+        self.wall_start = time.perf_counter()
         self.cpu_start = time.process_time()
         self.thread_cpu_start = time.thread_time()
+
+    def _begin(self) -> None:
+        """The run's start event and the first state, then the commands already waiting."""
+        twin = self.twin
+        t_ns = to_ns(twin.t)
+        self._emit_events([{"t": twin.t, "kind": "run-start", **twin.describe(),
+                            "pacing": self.pacing, "real_time_factor": self.rtf,
+                            "publish_every": self.every}], t_ns)
+        self._publish_step(twin.state_payloads(), t_ns)
+        self._take_commands()
+
+    def _failed(self, exc: Exception) -> None:
+        self.error = f"{type(exc).__name__}: {exc}"
+        self.stop_reason = "error"
+        self.log("error", f"the run stopped at t = {self.twin.t:.6f} s: {self.error}")
+
+    def _end(self) -> None:
+        """The run's last messages: commands still waiting refused, the last events, the
+        diagnostics and the end event (never lost over a late error)."""
+        twin = self.twin
+        self.wall_end = time.perf_counter()
+        self.thread_cpu = time.thread_time() - self.thread_cpu_start
+        reason = self.stop_reason or "end"
+        t_ns = to_ns(twin.t)
+        try:
+            self.refuse_pending("the run has ended" if reason == "end"
+                                else f"the run is stopping ({reason})")
+            self._emit_events(twin.new_events(), t_ns)
+            self._diagnostics(t_ns)
+            end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
+            if self.error:
+                end["error"] = self.error
+            self._emit_events([end], t_ns)
+        except Exception as exc:     # never lose the recording's end over a late message
+            self.log("error", f"could not emit the run's last messages: {exc}")
+
+    def run(self) -> dict:
+        if self.pacing == "realtime":
+            return self._run_paced()
+        twin = self.twin
+        clock = time.perf_counter
+        self.prepare()
+        self._start_clocks()
         next_diag = self.wall_start + self.period
         try:
-            t_ns = to_ns(twin.t)
-            self._emit_events([{"t": twin.t, "kind": "run-start", **twin.describe(),
-                                "pacing": self.pacing, "real_time_factor": self.rtf,
-                                "publish_every": self.every}], t_ns)
-            self._publish_step(twin.state_payloads(), t_ns)
-            self._take_commands()
-            # the schedule starts once t0 is out (its first messages carried one-off costs)
-            self.wall_start = clock()
+            self._begin()
             while not twin.done and not self._stop.is_set():
+                c0 = clock()
+                twin.step()
+                k = twin.k
+                msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
+                p0 = clock()
+                self.step_times.add(p0 - c0)
+                t_ns = to_ns(twin.t)
+                if msgs is not None:
+                    self._publish_step(msgs, t_ns)
+                else:
+                    self._emit_events(twin.new_events(), t_ns)
+                self.publish_times.add(clock() - p0)
+                self._take_commands()
+                for s in self.sinks:
+                    s.tick(None)
+                now = clock()
+                if now >= next_diag:
+                    next_diag = now + self.period
+                    self._diagnostics(t_ns)
+        except Exception as exc:
+            self._failed(exc)
+            raise
+        finally:
+            self._end()
+        return self.stats()
+
+    # -- the loop: realtime, steps computed ahead -----------------------------------------
+    def _run_paced(self) -> dict:
+        """Realtime pacing. The stepping thread (this one) computes steps up to ``lead``
+        seconds of wall time ahead of their deadlines and queues each step's messages with a
+        checkpoint of the twin; a releasing thread hands each step's messages to the live
+        sinks (``sink.live``: the ROS publishers) at its deadline, and the stepping thread
+        then hands the released steps to the other sinks (the recorder) in its spare time. A
+        step that costs more than the period (an impact, a chart change, the machine busy for
+        a moment) is absorbed by the steps computed ahead instead of coming out late. A
+        command that arrives at wall time w is applied at the first step boundary whose
+        deadline is not before w: the twin comes back to that step's checkpoint (the steps
+        computed beyond it are dropped, never released) and goes on from there with the
+        command. Nothing is released before its deadline, so what the sinks get is what a run
+        that stepped in time would have given them."""
+        twin = self.twin
+        clock = time.perf_counter
+        step = twin.dt / self.rtf               # a step's period on the wall clock
+        ahead = twin.rewindable and self.lead > step
+        lead = self.lead if ahead else step
+        self.prepare()
+        self._start_clocks()
+        queue: collections.deque[_Release] = collections.deque()
+        cond = threading.Condition()
+        self._queue, self._cond, self._released = queue, cond, None
+        self._flush = self._ahead_done = self._releasing = False
+        live = [s for s in self.sinks if getattr(s, "live", False)]
+        later = [s for s in self.sinks if not getattr(s, "live", False)]
+        released = self._released_steps = collections.deque()
+        # the steps and the releases share the interpreter: a step is not begun this close
+        # to a release's deadline, or while one is going out, when steps are queued ahead
+        guard = min(self.RELEASE_GUARD, 0.5 * step)
+        releaser = threading.Thread(target=self._release_loop, args=(live,),
+                                    name=f"{self.name}-release", daemon=True)
+        next_diag = self.wall_start + self.period
+        try:
+            self._begin()
+            # the schedule starts once t0 is out (its first messages carried one-off costs), and
+            # with steps computed ahead, once the first of them are (the schedule's first
+            # steps would otherwise find none banked)
+            self.wall_start = clock() + (lead - step)
+            self._released = _Release(twin.k, to_ns(twin.t), self.wall_start, [], False,
+                                      twin.checkpoint() if ahead else None)
+            releaser.start()
+            t0, rtf, inbox = twin.t0, self.rtf, self.inbox
+            while not twin.done and not self._stop.is_set():
+                if released:
+                    self._hand_over(released, later)
+                if inbox:
+                    self._commands_ahead(ahead)
+                    continue
+                deadline = self.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
+                wait = deadline - lead - clock()
+                if wait > 0.0:
+                    inbox.wait(wait if wait < 0.05 else 0.05)
+                    continue
+                if ahead and queue:
+                    with cond:
+                        while (self._releasing or (queue and queue[0].deadline - clock() < guard)) \
+                                and not self._stop.is_set() and not inbox:
+                            cond.wait(0.002)
                 c0 = clock()
                 twin.step()
                 k = twin.k
                 msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
                 c1 = clock()
                 self.step_times.add(c1 - c0)
-                t = twin.t
-                t_ns = to_ns(t)
-                if realtime:
-                    deadline = self.wall_start + (t - twin.t0) / self.rtf
-                    if c1 > deadline:
-                        self.misses += 1
-                    else:
-                        while True:
-                            left = deadline - clock()
-                            if left <= 0 or self._stop.is_set():
-                                break
-                            time.sleep(left if left < 0.05 else 0.05)
-                p0 = clock()
+                if c1 > deadline:
+                    self.misses += 1
+                t_ns = to_ns(twin.t)
+                entry = _Release(k, t_ns, deadline, [], msgs is not None, None)
+                self._staging = entry.msgs
                 if msgs is not None:
-                    self._publish_step(msgs, t_ns, deadline if realtime else None)
-                else:
-                    events = twin.new_events(hold=realtime)
-                    if events:
-                        self._emit_events(events, t_ns)
-                p1 = clock()
-                self.publish_times.add(p1 - p0)
-                if realtime:
-                    late = p1 - deadline
-                    self.latencies.add(late if late > 0.0 else 0.0)
-                self._take_commands()
-                for s in self.sinks:
-                    s.tick(deadline if realtime else None)
-                now = clock()
-                if now >= next_diag:
-                    next_diag = now + self.period
+                    entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
+                # no time ahead: an impact's impulses wait for the next step's spare time
+                self._emit_events(twin.new_events(hold=not ahead), t_ns)
+                if c1 >= next_diag:
+                    next_diag = c1 + self.period
                     self._diagnostics(t_ns)
+                self._staging = None
+                if ahead:
+                    entry.cp = twin.checkpoint()
+                with cond:
+                    queue.append(entry)
+                    cond.notify_all()
         except Exception as exc:
-            self.error = f"{type(exc).__name__}: {exc}"
-            self.stop_reason = "error"
-            self.log("error", f"the run stopped at t = {twin.t:.6f} s: {self.error}")
+            self._failed(exc)
             raise
         finally:
-            self.wall_end = clock()
-            self.thread_cpu = time.thread_time() - self.thread_cpu_start
-            reason = self.stop_reason or "end"
-            t_ns = to_ns(twin.t)
-            try:
-                self.refuse_pending("the run has ended" if reason == "end"
-                                    else f"the run is stopping ({reason})")
-                self._emit_events(twin.new_events(), t_ns)
-                self._diagnostics(t_ns)
-                end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
-                if self.error:
-                    end["error"] = self.error
-                self._emit_events([end], t_ns)
-            except Exception as exc:     # never lose the recording's end over a late message
-                self.log("error", f"could not emit the run's last messages: {exc}")
+            self._staging = None
+            with cond:
+                self._ahead_done = True
+                self._flush = self._stop.is_set() or self.error is not None
+                cond.notify_all()
+            if releaser.is_alive():
+                releaser.join()
+            self._hand_over(released, later)
+            self._end()
         return self.stats()
+
+    def _release_loop(self, live) -> None:
+        """The releasing thread: each queued step's messages to the live sinks at its
+        deadline; then the step goes to the stepping thread for the other sinks."""
+        clock = time.perf_counter
+        queue, cond, released = self._queue, self._cond, self._released_steps
+        while True:
+            with cond:
+                while True:
+                    if queue:
+                        head = queue[0]
+                        left = head.deadline - clock()
+                        if left <= 0.0 or self._flush:
+                            queue.popleft()
+                            self._released = head
+                            self._releasing = True
+                            break
+                        cond.wait(left)
+                    elif self._ahead_done:
+                        return
+                    else:
+                        cond.wait()
+            p0 = clock()
+            n = 0
+            for key, data, t_ns, received in head.msgs:
+                if not received:
+                    n += 1
+                    for s in live:
+                        s.emit(key, data, t_ns)
+            for s in live:
+                s.tick(head.deadline)
+            p1 = clock()
+            self.messages += n
+            released.append(head)
+            with cond:
+                self._releasing = False
+                cond.notify_all()
+            if head.state:
+                self.publish_times.add(p1 - p0)
+                late = p1 - head.deadline
+                self.latencies.add(late if late > 0.0 else 0.0)
+
+    @staticmethod
+    def _hand_over(released: collections.deque, sinks) -> None:
+        """Released steps to the sinks that are not live (the recorder), in order."""
+        while released:
+            entry = released.popleft()
+            for key, data, t_ns, received in entry.msgs:
+                for s in sinks:
+                    if not received:
+                        s.emit(key, data, t_ns)
+                    elif hasattr(s, "received"):
+                        s.received(key, data, t_ns)
+            for s in sinks:
+                s.tick(entry.deadline)
+
+    def _commands_ahead(self, ahead: bool) -> None:
+        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`):
+        the first step whose deadline is not before the command's arrival, among the last
+        step released (its state is out; the command follows it) and those queued after it;
+        where there is no checkpoint to come back to, the last step computed."""
+        twin, queue, cond = self.twin, self._queue, self._cond
+        for c in self.inbox.drain():
+            with cond:
+                last = queue[-1] if queue else self._released
+                at = last
+                if ahead:
+                    # the boundary's last release: its step's, or a command's applied there
+                    steps = (self._released, *queue)
+                    d = next((e.deadline for e in steps if e.deadline >= c.wall), None)
+                    if d is not None:
+                        at = [e for e in steps if e.deadline <= d][-1]
+                while queue and queue[-1] is not at:
+                    queue.pop()
+            if at is not last:
+                self.steps_recomputed += last.k - at.k
+                twin.restore(at.cp)
+            entry = _Release(twin.k, to_ns(twin.t), at.deadline, [], False, None)
+            self._staging = entry.msgs
+            try:
+                self._take_commands([c])
+            finally:
+                self._staging = None
+            if ahead:
+                entry.cp = twin.checkpoint()
+            with cond:
+                queue.append(entry)
+                cond.notify_all()
 
 
 __all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "stamp", "to_ns",

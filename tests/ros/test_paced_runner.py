@@ -1,0 +1,123 @@
+"""Realtime pacing with steps computed ahead, without ROS: nothing is released before its
+deadline, the live and the recording sinks get the same messages in the same order, and a
+command is applied at the first step boundary whose deadline is not before its arrival, the
+steps computed beyond it dropped: the run is then bit for bit the run that stepped in time."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from mps_ros.twin import Command, Runner, Twin
+
+DT = 1e-3
+T_END = 0.2
+RTF = 0.25          # 4 ms of wall time a step: room to be ahead on a slow machine too
+
+
+class Sink:
+    def __init__(self, live: bool, on_clock=None):
+        self.live = live
+        self.got: list = []             # (key, bytes, t_ns, received)
+        self.walls: list = []           # (wall time of emit, t_ns) of the states
+        self.on_clock = on_clock
+
+    def emit(self, key, data, t_ns):
+        self.got.append((key, data, t_ns, False))
+        if key == "/clock":
+            self.walls.append((time.perf_counter(), t_ns))
+            if self.on_clock is not None:
+                self.on_clock(t_ns)
+
+    def received(self, key, data, t_ns):
+        self.got.append((key, data, t_ns, True))
+
+    def tick(self, deadline=None):
+        pass
+
+
+def _events(sink):
+    return [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in sink.got
+            if k == "~/events"]
+
+
+def _comparable(sink):
+    """The messages sent (not those received) but the diagnostics and the run's start and
+    end (pacing, statistics)."""
+    out = []
+    for key, data, t_ns, received in sink.got:
+        if received or key == "/diagnostics" or (
+                key == "~/events" and (b'"run-start"' in data or b'"run-end"' in data)):
+            continue
+        out.append((key, data, t_ns, received))
+    return out
+
+
+def test_released_at_deadlines_and_the_same_to_every_sink():
+    tw = Twin("press-cycle", dt=DT, t_end=T_END)
+    live, rec = Sink(True), Sink(False)
+    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
+                    lead=0.05, warm_up=0.0)
+    st = runner.run()
+    assert st["steps"] == round(T_END / DT)
+    # never before the deadline (the first state, t0, goes out before the schedule starts)
+    for wall, t_ns in live.walls[1:]:
+        assert wall >= runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF - 1e-6
+    assert [m for m in rec.got if not m[3]] == live.got
+    stamps = [t for _, t in live.walls]
+    assert stamps == sorted(stamps) and len(stamps) == round(T_END / DT) + 1
+
+
+def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_stepped_in_time():
+    K = 60                              # the command is sent as step K's state goes out
+    tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+    sent = {}
+
+    def on_clock(t_ns):
+        if not sent and t_ns >= round(K * DT * 1e9):
+            cmd = Command("engage")
+            sent["wall"] = cmd.wall
+            runner.inbox.put(cmd)
+
+    live, rec = Sink(True, on_clock), Sink(False)
+    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
+                    lead=0.05, warm_up=0.0)
+    st = runner.run()
+    assert st["commands_accepted"] == 1
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
+            if k == "~/mode/status"]
+    # the boundary: the first step whose deadline is not before the command's arrival
+    deadline = [runner.wall_start + k * DT / RTF for k in range(round(T_END / DT) + 1)]
+    j = next(k for k, d in enumerate(deadline) if d >= sent["wall"])
+    assert abs(acks[0]["t"] - tw.time_of(j)) < 1e-12, (acks, j)
+    # it was applied after coming back over steps computed ahead, which nobody got
+    assert st["steps_recomputed"] > 0
+    # the same run as fast as possible, the command applied at that boundary
+    tw2 = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+
+    def at_j(t_ns, box=[]):
+        if not box and t_ns >= round(j * DT * 1e9):
+            box.append(1)
+            afap.inbox.put(Command("engage"))
+
+    same = Sink(True, at_j)
+    afap = Runner(tw2, sinks=[same], pacing="as_fast_as_possible", warm_up=0.0)
+    afap.run()
+    assert _comparable(rec) == _comparable(live)
+    assert ("~/mode", b"\x00\x01\x00\x00\x07\x00\x00\x00engage\x00", round(j * DT * 1e9),
+            True) in rec.got
+    assert _comparable(live) == _comparable(same)
+    kinds = [e["kind"] for e in _events(live)]
+    assert "latch-closes" in kinds
+
+
+def test_commands_already_waiting_are_applied_at_the_start():
+    tw = Twin("press-cycle", dt=DT, t_end=0.02, scene_commands=False)
+    live = Sink(True)
+    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=1.0, lead=0.05,
+                    warm_up=0.0)
+    runner.inbox.put(Command("engage"))
+    runner.run()
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
+            if k == "~/mode/status"]
+    assert [(a["command"], a["t"], a["accepted"]) for a in acks] == [("engage", 0.0, True)]
