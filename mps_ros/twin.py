@@ -807,6 +807,7 @@ class Runner:
         # the steps and the releases share the interpreter: a step is not begun this close
         # to a release's deadline, or while one is going out, when steps are queued ahead
         guard = min(self.RELEASE_GUARD, 0.5 * step)
+        refill = 0.2 * lead if ahead else 0.0
         releaser = threading.Thread(target=self._release_loop, args=(live,),
                                     name=f"{self.name}-release", daemon=True)
         next_diag = self.wall_start + self.period
@@ -829,6 +830,9 @@ class Runner:
                 deadline = self.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
                 wait = deadline - lead - clock()
                 if wait > 0.0:
+                    # a full lead: sleep until a part of it is spent, then refill it in a
+                    # burst of steps (one wake-up for several steps)
+                    wait += refill
                     inbox.wait(wait if wait < 0.05 else 0.05)
                     continue
                 if ahead and queue:
