@@ -398,7 +398,7 @@ class LoadSums:
         self._rows = None
 
     def __call__(self, t: float, kin) -> list:
-        out = list(self.base)
+        out = self.base[:]
         names = kin.names
         if self._rows is None or self._names is not names:
             self._names = names
@@ -411,28 +411,34 @@ class LoadSums:
             out[k + 2] += (xl[r] - ox) * fy - (xl[r + 1] - oy) * fx
         fr = 3 * self.nb
         bodies = self.bodies
-        def add_force(k, point, fx, fy):
-            """A force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)."""
-            if point.__class__ is str:
-                r = 2 * names[point]
-                px, py = xl[r] - ox, xl[r + 1] - oy
-            else:
-                px, py = float(point[0]) - ox, float(point[1]) - oy
-            out[k] += fx
-            out[k + 1] += fy
-            out[k + 2] += px * fy - py * fx
-
         for e, motor in self.effects:
             ld = e.loads(t, kin)
+            # a force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)
             for body, point, fx, fy in ld.forces:
-                add_force(3 * bodies[body], point, fx, fy)
+                k = 3 * bodies[body]
+                if point.__class__ is str:
+                    r = 2 * names[point]
+                    px, py = xl[r] - ox, xl[r + 1] - oy
+                else:
+                    px, py = float(point[0]) - ox, float(point[1]) - oy
+                out[k] += fx
+                out[k + 1] += fy
+                out[k + 2] += px * fy - py * fx
             for body, mz in ld.torques:
                 out[3 * bodies[body] + 2] += mz
                 if motor:
                     out[fr + 3] += mz
             for entry in ld.frame:
                 if len(entry) == 4:
-                    add_force(fr, entry[1], entry[2], entry[3])
+                    _, point, fx, fy = entry
+                    if point.__class__ is str:
+                        r = 2 * names[point]
+                        px, py = xl[r] - ox, xl[r + 1] - oy
+                    else:
+                        px, py = float(point[0]) - ox, float(point[1]) - oy
+                    out[fr] += fx
+                    out[fr + 1] += fy
+                    out[fr + 2] += px * fy - py * fx
                 else:
                     out[fr + 2] += entry[1]
         return out

@@ -75,6 +75,11 @@ from .mechanism import FRAME, ChartView, Joint, Mechanism
 
 
 from .mechanisms.press import PRESS_JOINTS  # noqa: E402  (the contract's §7 joints)
+from .reaction_kernels import Fallback  # noqa: E402
+from .tracing import BranchChanged  # noqa: E402
+
+#: what a reaction kernel raises where the general path must answer
+_FALLBACKS = (Fallback, BranchChanged, ArithmeticError, ValueError)
 
 
 #: reaction columns of a trajectory, in CSV order, with their units (contract §7, then residuals)
@@ -451,18 +456,19 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     ``values`` in :data:`REACTION_COLUMNS` order; None where the general path must answer (no
     kernel for this view, or a singular position). ``kin`` gives the effects' loads, as in
     :func:`compute_reactions`."""
-    from .reaction_kernels import Fallback
-    from .tracing import BranchChanged
-
-    ks = kernels_of(mechanism)
-    entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
+    ks = mechanism.__dict__.get("_reaction_kernels") or kernels_of(mechanism)
+    entry = ks.views.get((view, ks.scale if scale is None else float(scale)), False)
+    if entry is False:
+        entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
     if entry is None:
         return None
     kernel, unknowns = entry
-    loads = ks.loads(effects)(t, kin)
+    cached = ks._loads
+    sums = cached[2] if (cached is not None and cached[0] is effects
+                         and cached[1] == len(effects)) else ks.loads(effects)
     try:
-        values, residual = kernel(*ql, *vl, *al, loads)
-    except (Fallback, BranchChanged, ArithmeticError, ValueError):
+        values, residual = kernel(*ql, *vl, *al, sums(t, kin))
+    except _FALLBACKS:
         return None
     return values, residual, unknowns
 
