@@ -92,8 +92,8 @@ ENCODERS = {
 
 
 class Preset:
-    """A message of fixed layout, kept encoded: only its stamp and floats change from one step
-    to the next (the strings and sequence lengths stay). ``encode``: one of the encoders above;
+    """A message of fixed layout, kept encoded: only its stamp (in every header it has) and
+    floats change from one step to the next (the strings and sequence lengths stay). ``encode``: one of the encoders above;
     ``make(stamp, floats)``: the message dict with those values. The bytes are a preallocated
     buffer with the new values packed in at their offsets (found once, from the encoder's own
     output), so ``pack(sec, nanosec, floats)`` gives exactly ``encode(make(...))``."""
@@ -103,9 +103,13 @@ class Preset:
         marks = [float.fromhex(f"0x1.{k + 1:04x}5a5a5a5a5p-1000") for k in range(nfloats)]
         sec, nsec = 0x5A5A5A5A, 0x3C3C3C3C
         probe = encode(make({"sec": sec, "nanosec": nsec}, marks))
-        where = probe.find(_time(sec, nsec))
-        if where < 0 or probe.find(_time(sec, nsec), where + 1) >= 0:
-            raise ValueError("Preset: the stamp is not found once in the encoded message")
+        stamps = []                     # every header's stamp (a message of several headers)
+        at = probe.find(_time(sec, nsec))
+        while at >= 0:
+            stamps.append(at)
+            at = probe.find(_time(sec, nsec), at + 1)
+        if not stamps:
+            raise ValueError("Preset: the stamp is not found in the encoded message")
         offsets = []
         for m in marks:
             b = struct.pack("<d", m)
@@ -122,13 +126,14 @@ class Preset:
             runs.append((offsets[k], k, j + 1, struct.Struct(f"<{j + 1 - k}d")))
             k = j + 1
         self._buf = bytearray(probe)
-        self._stamp_at = where
+        self._stamps = stamps
         self._runs = runs
         self.nfloats = nfloats
 
     def pack(self, sec: int, nanosec: int, floats) -> bytes:
         buf = self._buf
-        _time_into(buf, self._stamp_at, sec, nanosec)
+        for at in self._stamps:
+            _time_into(buf, at, sec, nanosec)
         for at, a, b, st in self._runs:
             st.pack_into(buf, at, *floats[a:b])
         return bytes(buf)

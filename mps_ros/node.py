@@ -42,6 +42,13 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
 ``diagnostics_period``      wall seconds between /diagnostics messages (1.0)
 ``realtime_priority``       0 (default): normal scheduling; 1-99: the stepping thread under
                             SCHED_FIFO at that priority, where the system allows it
+``markers_hz``              ``~/markers`` (the press drawn for RViz2 and Foxglove) this many times a
+                            simulated second at most, never more often than the steps (30.0)
+``markers_scale``           their arrows: newtons a metre of arrow (2e6; in the arrows' namespace)
+``lead``                    realtime: steps are computed up to this many wall seconds ahead of
+                            their deadlines and released at them (0.05, at most 1); a command
+                            still takes effect at the first step boundary after it arrives (the
+                            twin comes back to it). 0: one step's period, none banked
 ==========================  ==========================================================================
 """
 
@@ -79,13 +86,16 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from .topics import LATCHED, MODE, NODE_NAME, OUTPUTS, TOPICS, offered_qos, qos_yaml  # noqa: E402
-from .twin import PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs  # noqa: E402
+from .twin import (PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
+                   to_json)
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
 
 MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": JointState,
+               "visualization_msgs/msg/MarkerArray": MarkerArray,
                "geometry_msgs/msg/WrenchStamped": WrenchStamped, "std_msgs/msg/String": String,
                "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
 
@@ -129,7 +139,8 @@ class PressTwin(Node):
 
         try:
             self.twin = Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
-                             outputs=p["outputs"], scene_commands=p["scene_commands"])
+                             outputs=p["outputs"], scene_commands=p["scene_commands"],
+                             markers_hz=p["markers_hz"], markers_scale=p["markers_scale"])
         except (MpsError, OSError, ValueError) as exc:
             raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
@@ -164,6 +175,7 @@ class PressTwin(Node):
         self.ros_sink = RosSink(self.pubs)
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"], lead=p["lead"],
+                             freeze_gc=False,
                              publish_every=p["publish_every"],
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
                              gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
@@ -177,7 +189,7 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 0, "lead": 0.05,
+        "realtime_priority": 0, "lead": 0.05, "markers_hz": 30.0, "markers_scale": 2e6,
     }
 
     def _declare(self, scene: str):
@@ -238,6 +250,8 @@ class PressTwin(Node):
         out["diagnostics_period"] = number("diagnostics_period", strict=True)
         out["realtime_priority"] = integer("realtime_priority", 0)
         out["lead"] = number("lead")
+        out["markers_hz"] = number("markers_hz", strict=True)
+        out["markers_scale"] = number("markers_scale", strict=True)
         if out["lead"] > 1.0:
             raise ParameterError(f"parameter lead: {out['lead']!r} must be from 0 to 1 s")
         if out["realtime_priority"] > 99:
@@ -264,7 +278,17 @@ class PressTwin(Node):
 
     def _on_mode(self, msg: String):
         if self.closed:
+            # answered all the same (not recorded: the recording is finished)
             self.get_logger().warning(f"refused command {msg.data[:40]!r}: the run has ended")
+            ack = {"t": self.twin.t, "command": shown(msg.data, 64), "accepted": False,
+                   "reason": "the run has ended", "source": "topic",
+                   "structure": self.twin.sim.structure}
+            pub = self.pubs.get("~/mode/status")
+            if pub is not None:
+                try:
+                    pub.publish(String(data=to_json(ack)))
+                except Exception:       # destroyed at shutdown
+                    pass
             return
         self.inbox.put(Command(msg.data, "topic"))
 

@@ -95,7 +95,7 @@ class Topic:
 
 #: outputs a run can be asked for; reactions are solved only if "reactions" or "foundation" is
 OUTPUTS = ("joint_states", "reactions", "foundation", "clock", "structure", "events",
-           "diagnostics")
+           "diagnostics", "markers")
 
 TOPICS: tuple[Topic, ...] = (
     Topic("joint_states", "sensor_msgs/msg/JointState", "joint_states",
@@ -110,6 +110,9 @@ TOPICS: tuple[Topic, ...] = (
           "run-start and run-end)"),
     Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "diagnostics",
           "pacing: achieved real-time factor, step time and latency p50/p99, deadline misses"),
+    Topic("~/markers", "visualization_msgs/msg/MarkerArray", "markers",
+          "the press drawn for RViz2 and Foxglove's 3D panel (frame press), its reaction forces "
+          "as arrows; at a display rate (markers_hz)"),
     Topic("~/mode/status", "std_msgs/msg/String", "",
           "one JSON object a command received: accepted or refused, why, at which time"),
 )

@@ -89,7 +89,8 @@ class Twin:
     ``reactions`` or ``foundation`` is among them."""
 
     def __init__(self, scene, *, dt: float | None = None, t_end: float | None = None,
-                 outputs: Iterable[str] = OUTPUTS, scene_commands: bool = True):
+                 outputs: Iterable[str] = OUTPUTS, scene_commands: bool = True,
+                 markers_hz: float = 30.0, markers_scale: float | None = None):
         from mps_core import build, load_scene
 
         if not hasattr(scene, "with_overrides"):
@@ -115,6 +116,18 @@ class Twin:
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
         self.dt = (self.t_end - self.t0) / self.n
         self.k = 0
+        # ~/markers at a display rate: every so many steps, never more often than the steps
+        if not (markers_hz > 0 and math.isfinite(markers_hz)):
+            raise ValueError(f"markers_hz {markers_hz!r}: expected a positive number")
+        self.marker_every = max(1, int(round(1.0 / (markers_hz * self.dt))))
+        self.markers = None
+        if "markers" in self.outputs:
+            from .markers import N_PER_M, MarkerLayout
+
+            self.markers = MarkerLayout.of_scene(
+                scene, self._wrenches() or (), N_PER_M if markers_scale is None
+                else markers_scale)
+        self._marker_presets: dict = {}
         self._structure_sent: str | None = None
         self._holding = False                   # new_events() holds this step's events
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
@@ -254,7 +267,15 @@ class Twin:
                            "torque": {"x": 0.0, "y": 0.0, "z": mz}}}))
         if "structure" in o and sim.structure != self._structure_sent:
             out.append(("~/structure", {"data": sim.structure}))
+        if self.markers is not None and self.k % self.marker_every == 0:
+            out.append(("~/markers", self.markers.message(
+                st, self._marker_values(rx), sim.structure)))
         return out
+
+    def _marker_values(self, rx) -> list:
+        sim = self.sim
+        phi, _, psi, _, x_c, _ = sim.joint_state()
+        return self.markers.values(phi, psi, x_c, rx)
 
     def _make_presets(self) -> None:
         from .cdr import Preset, joint_state, wrench_stamped
@@ -308,6 +329,18 @@ class Twin:
 
                 self._structure_sent = s
                 out.append(("~/structure", string({"data": s})))
+        if self.markers is not None and self.k % self.marker_every == 0:
+            s = sim.structure
+            preset = self._marker_presets.get(s)
+            if preset is None:
+                from .cdr import Preset, generic_encoder
+                from .markers import MSGTYPE
+
+                layout = self.markers
+                preset = self._marker_presets[s] = Preset(
+                    generic_encoder(MSGTYPE), lambda st, f: layout.message(st, f, s),
+                    layout.nfloats)
+            out.append(("~/markers", preset.pack(sec, nsec, self._marker_values(rx))))
         return out
 
     def new_events(self, hold: bool = False) -> list[dict]:
@@ -426,13 +459,15 @@ def shown(word: str, n: int = 40) -> str:
 class _Release:
     """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
     (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
-    twin's checkpoint after the step (to come back to for a command)."""
+    twin's checkpoint after the step (to come back to for a command); ``structure``: the
+    twin's after the step."""
 
-    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp")
+    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp", "structure")
 
-    def __init__(self, k, t_ns, deadline, msgs, state, cp):
+    def __init__(self, k, t_ns, deadline, msgs, state, cp, structure=""):
         self.k, self.t_ns, self.deadline = k, t_ns, deadline
         self.msgs, self.state, self.cp = msgs, state, cp
+        self.structure = structure
 
 
 class Timings:
@@ -482,7 +517,8 @@ class Runner:
                  real_time_factor: float = 1.0, publish_every: int = 1,
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
-                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05):
+                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05,
+                 freeze_gc: bool = False):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -495,6 +531,11 @@ class Runner:
         #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
         #: step's period; only that where the twin cannot come back to a checkpoint)
         self.lead = float(lead)
+        #: realtime, once prepared: the objects made so far (scene, kernels, ROS) are frozen
+        #: out of the garbage collector's passes (``gc.freeze``), so that a full collection
+        #: during the run scans only what the run made since (milliseconds, not tens of them,
+        #: holding the interpreter); a process-wide choice, the node's
+        self.freeze_gc = bool(freeze_gc)
         self.warm_up = float(warm_up)           # simulated seconds run ahead in prepare()
         self.sinks = list(sinks)
         self.pacing = pacing
@@ -524,6 +565,8 @@ class Runner:
         self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None       # the release being filled (realtime)
+        self._flood_logged = -math.inf          # when a flood's refusal was last logged
+        self._flood_quiet = 0                   # refused as a flood since, not logged
         self.thread_cpu_start = time.thread_time()
         self.thread_cpu: float | None = None
 
@@ -572,19 +615,23 @@ class Runner:
     def _publish_step(self, payloads, t_ns):
         """The step's state to every sink, handed over at once (``tick``); then its events,
         whose impulses are worked out now, after the state is out."""
-        self.messages += len(payloads)
-        for s in self.sinks:
-            emit = s.emit
-            for key, data in payloads:
-                emit(key, data, t_ns)
-            s.tick(None)
+        if self._staging is not None:          # realtime: into the step's release
+            self._staging.extend((key, data, t_ns, False) for key, data in payloads)
+        else:
+            self.messages += len(payloads)
+            for s in self.sinks:
+                emit = s.emit
+                for key, data in payloads:
+                    emit(key, data, t_ns)
+                s.tick(None)
         events = self.twin.new_events()
         if events:
             self._emit_events(events, t_ns)
 
-    def _take_commands(self, cmds=None) -> None:
+    def _take_commands(self, cmds=None, gated: bool = False) -> None:
         """Apply the commands given (None: those waiting in the inbox) at the present step
-        boundary, each answered on ``~/mode/status`` and by its reply."""
+        boundary, each answered on ``~/mode/status`` and by its reply (``gated``: they passed
+        the gate already)."""
         if cmds is None:
             cmds = self.inbox.drain()
         if not cmds:
@@ -594,30 +641,44 @@ class Runner:
         t_ns = to_ns(t)
         for c in cmds:
             word = c.word if isinstance(c.word, str) else str(c.word)
-            self._send("~/mode", self._encode("~/mode")({"data": word}), t_ns, received=True)
-            reason = self.gate.check(word)
+            reason = None if gated else self.gate.check(word)
             if reason is None:
                 ok, reason = twin.command(word.strip())
             else:
                 ok = False
-            ack = {"t": t, "command": shown(word, 64), "accepted": ok, "reason": reason,
-                   "source": c.source, "structure": twin.sim.structure}
-            if ok:
-                self.commands_accepted += 1
-                self.log("info", f"command {word.strip()!r} ({c.source}) applied at "
-                                 f"t = {t:.6f} s")
-            else:
-                self.commands_refused += 1
-                self.log("warn", f"refused command {shown(word)!r} ({c.source}) at "
-                                 f"t = {t:.6f} s: {reason}")
-            self._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
-            if c.reply is not None:
-                try:
-                    c.reply(ack)
-                except Exception:       # a reply must never take the run down
-                    pass
+            self._answer(c, word, ok, reason, t, twin.sim.structure)
         # a command's event (and what it set off) goes out at once
         self._emit_events(twin.new_events(), t_ns)
+
+    def _answer(self, c: Command, word: str, ok: bool, reason, t: float, structure: str):
+        """A command as received, and its answer (``~/mode/status``, the log, its reply)."""
+        t_ns = to_ns(t)
+        self._send("~/mode", self._encode("~/mode")({"data": word}), t_ns, received=True)
+        ack = {"t": t, "command": shown(word, 64), "accepted": ok, "reason": reason,
+               "source": c.source, "structure": structure}
+        if ok:
+            self.commands_accepted += 1
+            self.log("info", f"command {word.strip()!r} ({c.source}) applied at "
+                             f"t = {t:.6f} s")
+        else:
+            self.commands_refused += 1
+            flood = c.wall - self._flood_logged < 1.0 and str(reason).startswith("flood")
+            if flood:                   # a flood is logged once a second, with its count
+                self._flood_quiet += 1
+            else:
+                more = (f" ({self._flood_quiet} more refused as a flood before this)"
+                        if self._flood_quiet else "")
+                self.log("warn", f"refused command {shown(word)!r} ({c.source}) at "
+                                 f"t = {t:.6f} s: {reason}{more}")
+                self._flood_quiet = 0
+                if str(reason).startswith("flood"):
+                    self._flood_logged = c.wall
+        self._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
+        if c.reply is not None:
+            try:
+                c.reply(ack)
+            except Exception:       # a reply must never take the run down
+                pass
 
     def refuse_pending(self, reason: str) -> None:
         """Answer commands still waiting (the run is over): refused, never silently lost."""
@@ -694,6 +755,11 @@ class Runner:
         for s in self.sinks:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
+        if self.freeze_gc and self.pacing == "realtime":
+            import gc
+
+            gc.collect()
+            gc.freeze()
 
     #: realtime, steps queued ahead: no step is begun closer than this (wall s) to the next
     #: release's deadline (at most half a step's period)
@@ -727,6 +793,10 @@ class Runner:
         self.thread_cpu = time.thread_time() - self.thread_cpu_start
         reason = self.stop_reason or "end"
         t_ns = to_ns(twin.t)
+        if self._flood_quiet:
+            self.log("warn", f"{self._flood_quiet} more refused as a flood, not logged one by "
+                             "one")
+            self._flood_quiet = 0
         try:
             self.refuse_pending("the run has ended" if reason == "end"
                                 else f"the run is stopping ({reason})")
@@ -812,13 +882,18 @@ class Runner:
                                     name=f"{self.name}-release", daemon=True)
         next_diag = self.wall_start + self.period
         try:
+            # the run's start, t0's state and the commands already waiting go out at the
+            # schedule's start; with steps computed ahead, that is once the first of them are
+            # (the schedule's first steps would otherwise find none banked)
+            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure)
+            self._staging = first.msgs
             self._begin()
-            # the schedule starts once t0 is out (its first messages carried one-off costs), and
-            # with steps computed ahead, once the first of them are (the schedule's first
-            # steps would otherwise find none banked)
-            self.wall_start = clock() + (lead - step)
-            self._released = _Release(twin.k, to_ns(twin.t), self.wall_start, [], False,
-                                      twin.checkpoint() if ahead else None)
+            self._staging = None
+            self.wall_start = first.deadline = clock() + (lead - step)
+            if ahead:
+                first.cp = twin.checkpoint()
+            queue.append(first)
+            self._released = first
             releaser.start()
             t0, rtf, inbox = twin.t0, self.rtf, self.inbox
             while not twin.done and not self._stop.is_set():
@@ -849,7 +924,8 @@ class Runner:
                 if c1 > deadline:
                     self.misses += 1
                 t_ns = to_ns(twin.t)
-                entry = _Release(k, t_ns, deadline, [], msgs is not None, None)
+                entry = _Release(k, t_ns, deadline, [], msgs is not None, None,
+                                 twin.sim.structure)
                 self._staging = entry.msgs
                 if msgs is not None:
                     entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
@@ -934,22 +1010,46 @@ class Runner:
             for s in sinks:
                 s.tick(entry.deadline)
 
+    def _boundary(self, wall: float, ahead: bool) -> "_Release":
+        """The release a command that arrived at ``wall`` follows (call with the queue's
+        lock held): the first step whose deadline is not before ``wall`` (its last release:
+        the step's, or a command's applied there), among the last one released and those
+        queued after it; the last one computed where nothing can be rewound."""
+        queue = self._queue
+        last = queue[-1] if queue else self._released
+        if not ahead:
+            return last
+        steps = (self._released, *queue)
+        d = next((e.deadline for e in steps if e.deadline >= wall), None)
+        return last if d is None else [e for e in steps if e.deadline <= d][-1]
+
     def _commands_ahead(self, ahead: bool) -> None:
-        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`):
-        the first step whose deadline is not before the command's arrival, among the last
-        step released (its state is out; the command follows it) and those queued after it;
-        where there is no checkpoint to come back to, the last step computed."""
+        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One
+        the gate refuses (a flood, an empty or overlong word) changes nothing: its answer is
+        queued right after its boundary and the steps computed beyond it stand. Any other comes
+        back to its boundary's checkpoint, drops the steps beyond it, and is applied there."""
         twin, queue, cond = self.twin, self._queue, self._cond
         for c in self.inbox.drain():
+            word = c.word if isinstance(c.word, str) else str(c.word)
+            refusal = self.gate.check(word)
+            if refusal is not None:
+                with cond:
+                    at = self._boundary(c.wall, ahead)
+                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure)
+                self._staging = entry.msgs
+                try:
+                    self._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
+                finally:
+                    self._staging = None
+                with cond:
+                    # right after its boundary (or first, where that went out meanwhile)
+                    i = next((n for n, e in enumerate(queue) if e is at), -1)
+                    queue.insert(i + 1, entry)
+                    cond.notify_all()
+                continue
             with cond:
                 last = queue[-1] if queue else self._released
-                at = last
-                if ahead:
-                    # the boundary's last release: its step's, or a command's applied there
-                    steps = (self._released, *queue)
-                    d = next((e.deadline for e in steps if e.deadline >= c.wall), None)
-                    if d is not None:
-                        at = [e for e in steps if e.deadline <= d][-1]
+                at = self._boundary(c.wall, ahead)
                 while queue and queue[-1] is not at:
                     queue.pop()
             if at is not last:
@@ -958,9 +1058,10 @@ class Runner:
             entry = _Release(twin.k, to_ns(twin.t), at.deadline, [], False, None)
             self._staging = entry.msgs
             try:
-                self._take_commands([c])
+                self._take_commands([c], gated=True)
             finally:
                 self._staging = None
+            entry.structure = twin.sim.structure
             if ahead:
                 entry.cp = twin.checkpoint()
             with cond:

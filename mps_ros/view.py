@@ -51,6 +51,7 @@ import numpy as np
 
 from mps_core.reactions import REACTION_COLUMNS
 
+from .drawing import BEARING, COLORS, SLIDER, arrow_anchor
 from .replay import DERIVED, Replay, ReplayError, read_recording
 from .topics import FOUNDATION, WRENCHES
 
@@ -97,14 +98,6 @@ MARKERS = {
     "other": (("change-point", "impulse"), "cross", (120, 120, 120)),
 }
 
-#: the drawing's slider half width and half height, and the bearing's size, in units of l1
-SLIDER = (0.45, 0.5)
-BEARING = 0.35
-
-COLORS = {"crank": (31, 119, 180), "rod": (255, 127, 14), "rocker": (44, 160, 44),
-          "slider": (140, 140, 150), "frame": (90, 90, 90), "joint": (20, 20, 20),
-          "latch_closed": (20, 170, 60), "latch_open": (170, 170, 170),
-          "force": (214, 39, 40), "foundation": (148, 103, 189)}
 _SERIES_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
                   (148, 103, 189), (140, 86, 75), (227, 119, 194), (127, 127, 127),
                   (188, 189, 34), (23, 190, 207)]
@@ -212,7 +205,7 @@ def convert(rep: Replay, *, scene=None, recording=None, application_id: str = AP
     pts = positions(cols, g.l1, g.l3)
     view = {k: to_view(v) for k, v in pts.items()}
     bounds = _mechanism(rr, log, rep, scene, t, view)
-    out.arrow_scale_n_per_mm = _reactions(rr, log, cols, t, view, scene)
+    out.arrow_scale_n_per_mm = _reactions(rr, log, cols, t, pts, scene)
     _plots(rr, log, cols, t)
     _events(rr, log, rep, t)
     out.blueprint = blueprint(rrb, bounds, out.arrow_scale_n_per_mm, rep)
@@ -292,22 +285,15 @@ def _mechanism(rr, log, rep, scene, t, view) -> tuple:
     return (umin, umax), (vmin, vmax)
 
 
-def _arrow_origin(name, point, view, l1, x_top, n) -> np.ndarray:
-    """Where a wrench's arrow starts (view, mm): at its joint, except where several would
-    overlap: the guide's force on the slider's face against the rail, the stop's on its
-    ledge, the foundation resultant at the bearing's base below O."""
-    if name == "stop" and x_top is not None:
-        p = (x_top + SLIDER[1] * l1, 0.5 * (SLIDER[0] + SLIDER[0] + 0.1 + 0.25) * l1)
-    elif name == "guide":
-        return view["C"] + np.array([SLIDER[0] * l1 * 1e3, 0.0])
-    elif name == "foundation":
-        p = (-BEARING * l1, 0.0)
-    else:
-        return view[point]
-    return np.tile(to_view(np.array(p)), (n, 1))
+def _arrow_origin(name, point, pts, l1, x_top, n) -> np.ndarray:
+    """Where a wrench's arrow starts at every step (view, mm; :func:`drawing.arrow_anchor`),
+    from the press frame's points ``pts`` (n, 2 each)."""
+    base, dx, dy = arrow_anchor(name, point, l1, x_top)
+    p = np.tile([dx, dy], (n, 1)) if base is None else pts[base] + np.array([dx, dy])
+    return to_view(p)
 
 
-def _reactions(rr, log, cols, t, view, scene) -> float:
+def _reactions(rr, log, cols, t, pts, scene) -> float:
     """Arrows of the joint forces and the foundation resultant; returns the scale (N/mm)."""
     n = t.size
     arrows = []
@@ -319,7 +305,7 @@ def _reactions(rr, log, cols, t, view, scene) -> float:
             continue
         F = np.column_stack([np.zeros(n) if fx is None else np.asarray(cols[fx], float),
                              np.zeros(n) if fy is None else np.asarray(cols[fy], float)])
-        at = _arrow_origin(w.name, w.point, view, scene.geometry.l1, scene.x_top, n)
+        at = _arrow_origin(w.name, w.point, pts, scene.geometry.l1, scene.x_top, n)
         arrows.append((w, F, at))
     if not arrows:
         return math.nan
