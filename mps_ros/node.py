@@ -175,7 +175,7 @@ class PressTwin(Node):
         self.ros_sink = RosSink(self.pubs)
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"], lead=p["lead"],
-                             freeze_gc=False,
+                             freeze_gc=True,
                              publish_every=p["publish_every"],
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
                              gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
