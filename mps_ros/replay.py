@@ -377,6 +377,11 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
 
         if sw.get("version") and sw["version"] != __version__:
             rep.warnings.append(f"recorded by mps {sw['version']}, read by mps {__version__}")
+    _read_channels(rep, channels, js)
+    return rep
+
+
+def _read_channels(rep: Replay, channels: dict, js: _Channel) -> None:
     try:
         _joint_columns(rep, js)
         _wrench_columns(rep, channels)
@@ -385,9 +390,28 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
     except (ValueError, KeyError, IndexError, struct.error) as exc:
         if isinstance(exc, ReplayError):
             raise
-        raise ReplayError(f"{path}: a message of the twin's topics cannot be decoded as its "
+        raise ReplayError(f"{rep.path}: a message of the twin's topics cannot be decoded as its "
                           f"type says ({type(exc).__name__}: {exc}): the file is damaged or "
                           "was written by another program") from None
+
+
+def replay_of_messages(name: str, messages: dict, node: str = NODE_NAME) -> Replay | None:
+    """A stretch of a live run as a :class:`Replay`: ``messages`` by full topic name, each a
+    list of (stamp in ns, CDR bytes), as a subscriber took them (the same columns as a
+    recording's; None without joint states)."""
+    channels = {}
+    for i, (topic, msgs) in enumerate(messages.items()):
+        key = next((k for k in BY_KEY if resolve(k, node) == topic), None)
+        if key is None or not msgs:
+            continue
+        ch = channels[i] = _Channel(i, topic, BY_KEY[key].msgtype, "cdr")
+        ch.times = [t for t, _ in msgs]
+        ch.datas = [d for _, d in msgs]
+    js = _match(channels, "joint_states", node)
+    if js is None:
+        return None
+    rep = Replay(path=Path(name), columns={}, metadata={})
+    _read_channels(rep, channels, js)
     return rep
 
 

@@ -130,8 +130,11 @@ class Converted:
 
 
 class _Logger:
-    def __init__(self, rr, rec, out: Converted):
-        self.rr, self.rec, self.out = rr, rec, out
+    """Logs to one stream and counts the work; ``statics`` False: the static parts (styles,
+    the frame) are left out, a later stretch of a live run whose first stretch logged them."""
+
+    def __init__(self, rr, rec, out: Converted, statics: bool = True):
+        self.rr, self.rec, self.out, self.statics = rr, rec, out, statics
 
     def columns(self, path: str, t, columns) -> None:
         """Send columns at times t (s), rounded to the nanosecond (the recording's stamps)."""
@@ -142,8 +145,11 @@ class _Logger:
         self.out.rows += int(t.size)
         self.out.entities[path] = self.out.entities.get(path, 0) + int(t.size)
 
-    def static(self, path: str, archetype) -> None:
-        self.rr.log(path, archetype, static=True, recording=self.rec)
+    def static(self, path: str, make) -> None:
+        """``make()``: the archetype, built only where the static parts are logged."""
+        if not self.statics:
+            return
+        self.rr.log(path, make(), static=True, recording=self.rec)
         self.out.calls["log"] += 1
         self.out.entities.setdefault(path, 0)
 
@@ -181,10 +187,15 @@ def _fmt_force(v: float) -> str:
 
 
 # -- the conversion ---------------------------------------------------------------------------
-def convert(rep: Replay, *, scene=None, recording=None, application_id: str = APPLICATION_ID
-            ) -> Converted:
+def convert(rep: Replay, *, scene=None, recording=None, application_id: str = APPLICATION_ID,
+            arrow_scale: float | None = None, extent: tuple | None = None,
+            statics: bool = True) -> Converted:
     """Log a recording into a Rerun recording stream (a new one unless ``recording`` is given);
-    the scene's geometry comes from ``scene`` or else from the recording's metadata."""
+    the scene's geometry comes from ``scene`` or else from the recording's metadata.
+
+    A live run is logged a stretch at a time into one stream: ``arrow_scale`` (N/mm) and
+    ``extent`` (the drawing's lowest and highest x along the guide, mm) fixed beforehand
+    instead of taken from the data, ``statics`` only for the first stretch."""
     rr = _rr()
     import rerun.blueprint as rrb
 
@@ -200,19 +211,19 @@ def convert(rep: Replay, *, scene=None, recording=None, application_id: str = AP
     n = t.size
     g = scene.geometry
     out = Converted(recording, None, steps=n)
-    log = _Logger(rr, recording, out)
+    log = _Logger(rr, recording, out, statics)
 
     pts = positions(cols, g.l1, g.l3)
     view = {k: to_view(v) for k, v in pts.items()}
-    bounds = _mechanism(rr, log, rep, scene, t, view)
-    out.arrow_scale_n_per_mm = _reactions(rr, log, cols, t, pts, scene)
+    bounds = _mechanism(rr, log, rep, scene, t, view, extent)
+    out.arrow_scale_n_per_mm = _reactions(rr, log, cols, t, pts, scene, arrow_scale)
     _plots(rr, log, cols, t)
     _events(rr, log, rep, t)
     out.blueprint = blueprint(rrb, bounds, out.arrow_scale_n_per_mm, rep)
     return out
 
 
-def _mechanism(rr, log, rep, scene, t, view) -> tuple:
+def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
     cols = rep.columns
     g = scene.geometry
     n = t.size
@@ -221,8 +232,11 @@ def _mechanism(rr, log, rep, scene, t, view) -> tuple:
     h = SLIDER[1] * l1              # slider half height (along), mm
     xc = np.asarray(cols["x_C"], float) * 1e3
     x_top = None if scene.x_top is None else scene.x_top * 1e3
-    lo = min(float(np.nanmin(xc)), -l1) - h - 0.3 * l1
-    hi = max(float(np.nanmax(xc)), x_top if x_top is not None else -math.inf) + h + 0.3 * l1
+    if extent is not None:
+        lo, hi = extent
+    else:
+        lo = min(float(np.nanmin(xc)), -l1) - h - 0.3 * l1
+        hi = max(float(np.nanmax(xc)), x_top if x_top is not None else -math.inf) + h + 0.3 * l1
     rail = w + 0.1 * l1
     # the frame: static
     strips = [np.array([[-rail, -lo], [-rail, -hi]]), np.array([[rail, -lo], [rail, -hi]]),
@@ -241,25 +255,25 @@ def _mechanism(rr, log, rep, scene, t, view) -> tuple:
                    np.array([[w, v], [rail + 0.25 * l1, v]])]
         labels += ["", "top stop"]
         colors += [(60, 60, 60), (60, 60, 60)]
-    log.static("mechanism/frame", rr.LineStrips2D(strips, colors=colors, labels=labels,
+    log.static("mechanism/frame", lambda: rr.LineStrips2D(strips, colors=colors, labels=labels,
                                                   radii=[-1.0] * len(strips)))
     # Static styles never carry a component that is sent in time: a static value would hide
     # the temporal one (Rerun's rule), so they are logged with from_fields.
     # links: crank O-A, rod A-B, rocker B-C at every step
     seg = np.stack([np.stack([view["O"], view["A"]], 1), np.stack([view["A"], view["B"]], 1),
                     np.stack([view["B"], view["C"]], 1)], axis=1)          # (n, 3, 2, 2)
-    log.static("mechanism/links", rr.LineStrips2D.from_fields(
+    log.static("mechanism/links", lambda: rr.LineStrips2D.from_fields(
         colors=[COLORS["crank"], COLORS["rod"], COLORS["rocker"]],
         labels=["crank", "rod", "rocker"], show_labels=False, radii=[-3.0, -3.0, -3.0],
         draw_order=15.0))
     log.columns("mechanism/links", t,
                 rr.LineStrips2D.columns(strips=seg.reshape(-1, 2, 2)).partition(np.full(n, 3)))
     # the slider: a block centred on C
-    log.static("mechanism/slider", rr.Boxes2D.from_fields(
+    log.static("mechanism/slider", lambda: rr.Boxes2D.from_fields(
         half_sizes=[[w, h]], colors=[COLORS["slider"]], radii=[-1.5], draw_order=5.0))
     log.columns("mechanism/slider", t, rr.Boxes2D.columns(centers=view["C"]))
     # joints
-    log.static("mechanism/joints", rr.Points2D.from_fields(
+    log.static("mechanism/joints", lambda: rr.Points2D.from_fields(
         labels=["O", "A", "B", "C"], colors=[COLORS["joint"]] * 4, radii=[-4.0] * 4,
         draw_order=40.0))
     jp = np.stack([view["O"], view["A"], view["B"], view["C"]], axis=1)
@@ -268,7 +282,7 @@ def _mechanism(rr, log, rep, scene, t, view) -> tuple:
     # the latch (rocker to slider), on the slider's side: closed while the structure is
     # locked; its label also names the structure
     st = np.asarray(cols.get("structure", np.full(n, "")), dtype=str)
-    log.static("mechanism/latch", rr.Points2D.from_fields(radii=[-6.0], draw_order=30.0))
+    log.static("mechanism/latch", lambda: rr.Points2D.from_fields(radii=[-6.0], draw_order=30.0))
     log.columns("mechanism/latch", t,
                 rr.Points2D.columns(positions=view["C"] + np.array([-w, 0.0])))
     ch = _changes(st)
@@ -293,8 +307,9 @@ def _arrow_origin(name, point, pts, l1, x_top, n) -> np.ndarray:
     return to_view(p)
 
 
-def _reactions(rr, log, cols, t, pts, scene) -> float:
-    """Arrows of the joint forces and the foundation resultant; returns the scale (N/mm)."""
+def _reactions(rr, log, cols, t, pts, scene, scale=None) -> float:
+    """Arrows of the joint forces and the foundation resultant; returns the scale (N/mm): the
+    one given, or else the 99th percentile force drawn 1.6 l1 long."""
     n = t.size
     arrows = []
     for w in (*WRENCHES, FOUNDATION):
@@ -309,13 +324,15 @@ def _reactions(rr, log, cols, t, pts, scene) -> float:
         arrows.append((w, F, at))
     if not arrows:
         return math.nan
-    mags = np.concatenate([np.hypot(F[:, 0], F[:, 1]) for _, F, _ in arrows])
-    mags = mags[np.isfinite(mags)]
-    ref = float(np.percentile(mags, 99)) if mags.size else 0.0
-    if not ref > 0:
-        ref = 1.0
     length = 1.6 * scene.geometry.l1 * 1e3          # the 99th percentile force: 1.6 l1 long
-    scale = ref / length                             # N per mm
+    if scale is None:
+        mags = np.concatenate([np.hypot(F[:, 0], F[:, 1]) for _, F, _ in arrows])
+        mags = mags[np.isfinite(mags)]
+        ref = float(np.percentile(mags, 99)) if mags.size else 0.0
+        if not ref > 0:
+            ref = 1.0
+        scale = ref / length                         # N per mm
+    ref = scale * length
     for w, F, at in arrows:
         vec = to_view(F) / 1e3 / scale               # to_view multiplies by 1000
         mag = np.hypot(F[:, 0], F[:, 1])
@@ -324,7 +341,7 @@ def _reactions(rr, log, cols, t, pts, scene) -> float:
                           np.array([f"{name} {_fmt_force(m)}" for m in mag], dtype=object), "")
         color = COLORS["foundation"] if w is FOUNDATION else COLORS["force"]
         path = f"mechanism/reactions/{w.name}"
-        log.static(path, rr.Arrows2D.from_fields(colors=[color], radii=[-1.5],
+        log.static(path, lambda: rr.Arrows2D.from_fields(colors=[color], radii=[-1.5],
                                                  draw_order=20.0))
         log.columns(path, t, rr.Arrows2D.columns(origins=at, vectors=vec,
                                                  labels=list(labels)))
@@ -339,7 +356,7 @@ def _plots(rr, log, cols, t) -> None:
                 continue
             y = np.asarray(cols[col], dtype=float)
             path = f"plots/{fam}/{col}"
-            log.static(path, rr.SeriesLines(names=name,
+            log.static(path, lambda: rr.SeriesLines(names=name,
                                             colors=[_SERIES_COLORS[k % len(_SERIES_COLORS)]],
                                             widths=[1.5]))
             log.columns(path, t, rr.Scalars.columns(scalars=y))
@@ -411,7 +428,7 @@ def _events(rr, log, rep: Replay, t) -> None:
         if te.size == 0:
             continue
         path = f"plots/crank_speed/events/{fam}"
-        log.static(path, rr.SeriesPoints(names=f"{fam} events", markers=[marker],
+        log.static(path, lambda: rr.SeriesPoints(names=f"{fam} events", markers=[marker],
                                          colors=[color], marker_sizes=[6.0]))
         log.columns(path, te, rr.Scalars.columns(scalars=np.interp(te, t, w)))
     # state lanes: the structure, the latch

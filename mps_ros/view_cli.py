@@ -1,5 +1,6 @@
 """``mps view RECORDING.mcap [--save FILE.rrd] [--no-spawn] [--scene SCENE]``: a recording in
-the Rerun viewer (:mod:`mps_ros.view`).
+the Rerun viewer (:mod:`mps_ros.view`); ``mps view --live [--save FILE.rrd | --connect URL]``:
+the running node, followed (:mod:`mps_ros.live_view`).
 
 Without ``--save`` the .rrd goes to a temporary folder and the viewer opens on it; with
 ``--no-spawn`` it is only written. A viewer started here listens on 127.0.0.1 only.
@@ -12,8 +13,18 @@ from __future__ import annotations
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "view", help="show a recording (MCAP) in the Rerun viewer, or save it as .rrd")
-    p.add_argument("recording", metavar="RECORDING.mcap",
-                   help="a recording from mps record or the node")
+    p.add_argument("recording", metavar="RECORDING.mcap", nargs="?",
+                   help="a recording from mps record or the node (not with --live)")
+    p.add_argument("--live", action="store_true",
+                   help="follow the running node instead: its topics streamed to the viewer "
+                        "(or --save FILE.rrd, or --connect URL) at the display rate")
+    p.add_argument("--connect", metavar="URL",
+                   help="--live: stream to a running viewer (rerun+http://127.0.0.1:9876/proxy)")
+    p.add_argument("--node", default="press_twin", help="--live: the node's name")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="--live: stop after S wall seconds (default: at the run's end)")
+    p.add_argument("--hz", type=float, default=30.0,
+                   help="--live: frames a wall second (default 30)")
     p.add_argument("--save", metavar="FILE.rrd", help="write the Rerun recording to FILE.rrd")
     p.add_argument("--no-spawn", action="store_true",
                    help="do not open the viewer (with --save: only write the file)")
@@ -23,12 +34,26 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from mps_core.scene import load_scene
+
+    if args.live:
+        if args.recording:
+            raise SystemExit("mps view: --live follows the running node: give no recording")
+        from .live_view import run_live
+
+        st = run_live(scene=load_scene(args.scene or "press-cycle"), node_name=args.node,
+                      save=args.save, connect=args.connect, duration=args.duration,
+                      hz=args.hz)
+        print(f"live view: {st['frames']} frames, {st['steps']} steps logged, to t = "
+              f"{st['last_t'] if st['last_t'] is not None else float('nan'):.4g} s; lag "
+              f"(newest simulated time received - newest logged) at most "
+              f"{st['max_lag_s'] * 1e3:.1f} ms; a frame's work p50 "
+              f"{st['frame_work_p50_s'] * 1e3:.2f} ms, max {st['frame_work_max_s'] * 1e3:.2f} ms")
+        return 0
+    if not args.recording:
+        raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")
     from .view import view
 
-    scene = None
-    if args.scene:
-        from mps_core.scene import load_scene
-
-        scene = load_scene(args.scene)
+    scene = load_scene(args.scene) if args.scene else None
     view(args.recording, save=args.save, spawn=not args.no_spawn, scene=scene)
     return 0

@@ -1,0 +1,242 @@
+"""``mps view --live``: the running node in a Rerun viewer, as it runs.
+
+A process of its own subscribes to the node's topics (serialized: nothing is deserialized
+into Python messages), keeps what arrives, and at the display rate (``hz``, 30 a wall second)
+turns what arrived since the last frame into the same columns a recording gives
+(:func:`mps_ros.replay.replay_of_messages`) and logs them with the offline view's code
+(:func:`mps_ros.view.convert`): the same entities, blueprint and time line (``sim_time``), one
+``send_columns`` an entity a frame. The arrows' scale and the drawing's extent are fixed from
+the scene beforehand (a live run has no percentile to take); the static parts go with the first
+frame. It follows a node started before or after it, and ends at the node's ``run-end`` event,
+after ``duration`` wall seconds, or on Ctrl-C / SIGTERM.
+
+Where it goes: a viewer it starts, listening on 127.0.0.1 only (default); ``save``: an .rrd
+file; ``connect``: a running viewer's gRPC address (``rerun+http://127.0.0.1:9876/proxy``).
+
+Lag: at each frame the newest simulated time received against the newest one logged; its
+maximum over the run is reported (``max_lag_s``), and the frame's own work.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import struct
+import subprocess
+import threading
+import time
+import uuid
+from pathlib import Path
+from types import SimpleNamespace
+
+from .drawing import SLIDER
+from .replay import ReplayError, replay_of_messages
+from .topics import BY_KEY, FOUNDATION, NODE_NAME, WRENCHES, resolve
+
+#: the topics the view reads (the markers are the view's own drawing: not needed)
+KEYS = ("joint_states", *(w.key for w in WRENCHES), FOUNDATION.key, "~/structure", "~/events",
+        "~/mode/status", "/diagnostics")
+_STAMPED = {"sensor_msgs/msg/JointState", "geometry_msgs/msg/WrenchStamped"}
+_STAMP = struct.Struct("<iI")
+
+
+def extent_mm(scene) -> tuple[float, float]:
+    """The drawing's lowest and highest x along the guide (mm), from the geometry: the slider's
+    bottom dead centre to its top stop, the crank's circle, the slider block and a margin."""
+    g = scene.geometry
+    l1 = g.l1 * 1e3
+    h = SLIDER[1] * l1
+    low = (g.l2 - g.l3 - g.l1) * 1e3
+    top = (g.l1 + g.l2 - g.l3) * 1e3 if scene.x_top is None else scene.x_top * 1e3
+    return min(low, -l1) - h - 0.3 * l1, max(top, l1) + h + 0.3 * l1
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Inbox:
+    """What arrived since the last frame, by topic: (stamp ns, CDR bytes)."""
+
+    def __init__(self, node_name: str):
+        self.lock = threading.Lock()
+        self.node = node_name
+        self.topics = {resolve(k, node_name): BY_KEY[k].msgtype for k in KEYS}
+        self.msgs: dict[str, list] = {t: [] for t in self.topics}
+        self.last_ns = None             # the newest simulated time seen
+        self.ended = False
+
+    def callback(self, topic: str):
+        stamped = self.topics[topic] in _STAMPED
+        events = topic == resolve("~/events", self.node)
+
+        def cb(data: bytes):
+            if stamped:
+                sec, nsec = _STAMP.unpack_from(data, 4)
+                t = sec * 1_000_000_000 + nsec
+            else:
+                t = self.last_ns if self.last_ns is not None else 0
+            with self.lock:
+                self.msgs[topic].append((t, bytes(data)))
+                if stamped and (self.last_ns is None or t > self.last_ns):
+                    self.last_ns = t
+                if events and b'"run-end"' in data:
+                    self.ended = True
+        return cb
+
+    def take(self) -> dict:
+        with self.lock:
+            out, self.msgs = self.msgs, {t: [] for t in self.topics}
+        return out
+
+
+def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | None = None,
+             spawn: bool = True, duration: float | None = None, hz: float = 30.0,
+             arrow_scale_n_per_m: float = 2e6, log=print) -> dict:
+    """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
+    frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
+    # the node's module first: loopback-only discovery unless set, before rclpy starts
+    from .node import MSG_CLASSES
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from .view import FAMILIES, _rr, blueprint, convert
+
+    if not (hz > 0):
+        raise ReplayError(f"--hz {hz!r}: expected a positive number of frames a second")
+    rr = _rr()
+    import rerun.blueprint as rrb
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    stop = threading.Event()
+    old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    node = rclpy.create_node(f"mps_view_live_{os.getpid()}")
+    inbox = _Inbox(node_name)
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
+                     reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    for topic, msgtype in inbox.topics.items():
+        node.create_subscription(MSG_CLASSES[msgtype], topic, inbox.callback(topic),
+                                 latched if topic.endswith("/structure") else qos, raw=True)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+
+    scale = arrow_scale_n_per_m / 1e3                       # N per mm
+    extent = extent_mm(scene)
+    _warm_up(rr, scene, node_name, scale, extent)
+    rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
+    viewer = None
+    # the sink and its blueprint before the first frame, so that frame costs what any does
+    every = SimpleNamespace(columns={c: None for _, _, series in FAMILIES for c, _ in series})
+    bp = blueprint(rrb, _bounds(scene, extent), scale, every)
+    if save is not None:
+        rr.save(Path(save), default_blueprint=bp, recording=rec)
+    elif connect is not None:
+        rr.connect_grpc(connect, default_blueprint=bp, recording=rec)
+    else:
+        viewer, url = _spawn()
+        rr.connect_grpc(url, default_blueprint=bp, recording=rec)
+    log(f"following {resolve('joint_states', node_name)}: "
+        + (f"saving to {save}" if save is not None else
+           f"streaming to {connect or 'a viewer on 127.0.0.1'}"))
+    frames = steps = 0
+    last_logged = None
+    max_lag = 0.0
+    work: list[float] = []
+    t_start = time.monotonic()
+    period = 1.0 / hz
+    try:
+        nxt = time.monotonic()
+        while not stop.is_set():
+            nxt += period
+            time.sleep(max(0.0, nxt - time.monotonic()))
+            ended = inbox.ended
+            got = inbox.take()
+            w0 = time.perf_counter()
+            rep = replay_of_messages("live", got, node_name)
+            if rep is not None and len(rep):
+                convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
+                        statics=frames == 0)
+                frames += 1
+                steps += len(rep)
+                last_logged = float(rep.columns["t"][-1])
+                work.append(time.perf_counter() - w0)
+            newest = inbox.last_ns
+            if newest is not None and last_logged is not None:
+                max_lag = max(max_lag, newest * 1e-9 - last_logged)
+            if ended:
+                break
+            if duration is not None and time.monotonic() - t_start >= duration:
+                break
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+        for s, h in old.items():
+            signal.signal(s, h)
+        rec.flush()
+        rr.disconnect(recording=rec)
+    work.sort()
+    return {"frames": frames, "steps": steps, "last_t": last_logged, "max_lag_s": max_lag,
+            "frame_work_p50_s": work[len(work) // 2] if work else math.nan,
+            "frame_work_max_s": work[-1] if work else math.nan,
+            "viewer_pid": viewer.pid if viewer is not None else None}
+
+
+def _warm_up(rr, scene, node_name, scale, extent) -> None:
+    """Do once, before following, what the first frame would otherwise do on the clock (the
+    viewer library's and numpy's first calls): three steps of the scene, converted into a
+    stream that is dropped."""
+    from .twin import Twin
+    from .view import convert
+
+    tw = Twin(scene, t_end=3 * scene.dt)
+    msgs: dict = {}
+    while True:
+        for key, data in tw.state_payloads():
+            msgs.setdefault(resolve(key, node_name), []).append((round(tw.t * 1e9), data))
+        if tw.done:
+            break
+        tw.step()
+    rec = rr.RecordingStream("mps-warm-up")            # no sink: kept in memory, dropped
+    rep = replay_of_messages("warm-up", msgs, node_name)
+    for statics in (True, False):
+        convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
+                statics=statics)
+
+
+def _bounds(scene, extent):
+    """The mechanism panel's bounds (view mm): across, the guide's rails and the crank's
+    circle; along, the drawing's extent."""
+    g = scene.geometry
+    l1 = g.l1 * 1e3
+    across = max(g.l1 + g.l3, (SLIDER[0] + 0.35) * g.l1) * 1e3 + 0.6 * l1
+    lo, hi = extent
+    return (-across, across), (-hi - 0.3 * l1, -lo + 0.3 * l1)
+
+
+def _spawn():
+    """A native viewer listening on 127.0.0.1 only; (process, its gRPC address)."""
+    from .view import rerun_executable
+
+    exe = rerun_executable()
+    if exe is None:
+        raise ReplayError("no rerun viewer found (pip install -e '.[view]'); use --save FILE.rrd")
+    port = _free_port()
+    proc = subprocess.Popen([exe, "--bind", "127.0.0.1", "--port", str(port)],
+                            start_new_session=True)
+    time.sleep(1.0)
+    return proc, f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+__all__ = ["run_live", "extent_mm", "KEYS"]
