@@ -282,7 +282,11 @@ def main(argv=None) -> int:
                   flush=True)
         if a.what == "table":
             rows = []
+            from .topics import OUTPUTS
+
+            no_markers = ",".join(o for o in OUTPUTS if o != "markers")
             for label, outs, rec in (("joint_states, clock", "joint_states,clock", False),
+                                     ("every output but markers, recording", no_markers, True),
                                      ("every output, no recording", None, False),
                                      ("every output, recording", None, True)):
                 r = afap(rec, env, tmp, a.afap_steps, outs)
