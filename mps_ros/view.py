@@ -18,7 +18,8 @@ It reads recordings (:mod:`mps_ros.replay`), never the core's objects, and never
   (on the slider's side: green, "latch closed (locked)" while the structure is ``locked``; grey,
   "latch open (free)" or "latch open (held)" otherwise), ``reactions/<wrench>`` (an arrow for
   each wrench of :data:`~mps_ros.topics.WRENCHES` that carries a force, at its joint, labelled
-  with its magnitude; the guide's on the slider's face, the stop's on its ledge) and
+  with its magnitude, shown on hover; the guide's on the slider's face, the stop's on its
+  ledge) and
   ``reactions/foundation`` (the resultant the frame receives, drawn at the bearing's base below
   O). Arrows share one scale a recording, in the view's title and in
   :attr:`Converted.arrow_scale_n_per_mm`. Positions: A = l1(cos φ, sin φ), C = (x_C, 0),
@@ -341,8 +342,10 @@ def _reactions(rr, log, cols, t, pts, scene, scale=None) -> float:
                           np.array([f"{name} {_fmt_force(m)}" for m in mag], dtype=object), "")
         color = COLORS["foundation"] if w is FOUNDATION else COLORS["force"]
         path = f"mechanism/reactions/{w.name}"
+        # the magnitude is each arrow's label, shown on hover (not drawn: the joints' labels
+        # would lie on top of each other)
         log.static(path, lambda: rr.Arrows2D.from_fields(colors=[color], radii=[-1.5],
-                                                 draw_order=20.0))
+                                                         show_labels=False, draw_order=20.0))
         log.columns(path, t, rr.Arrows2D.columns(origins=at, vectors=vec,
                                                  labels=list(labels)))
     return scale
@@ -450,20 +453,22 @@ def _finite(v) -> bool:
 
 def blueprint(rrb, bounds, scale, rep: Replay):
     (u0, u1), (v0, v1) = bounds
-    title = "mechanism (x up, mm): crank blue, rod orange, rocker green"
+    title = "mechanism (x up, mm)"
     if math.isfinite(scale):
-        title += f"; forces 1 mm = {scale:.3g} N"
+        title += f", forces 1 mm = {scale:.3g} N"
     mech = rrb.Spatial2DView(origin="mechanism", name=title,
                              visual_bounds=rrb.VisualBounds2D(x_range=[u0, u1], y_range=[v0, v1]),
                              background=(255, 255, 255))
     plots = [rrb.TimeSeriesView(origin=f"plots/{fam}", name=title_)
              for fam, title_, series in FAMILIES
              if any(c in rep.columns for c, _ in series)]
-    left = rrb.Vertical(mech, rrb.StateTimelineView(origin="state", name="structure and latch"),
-                        rrb.TextLogView(origin="events", name="events"),
-                        row_shares=[7, 1.6, 2.4])
-    right = rrb.Grid(*plots, grid_columns=2)
-    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[1, 1.3]),
+    # the mechanism alone in a tall column (its swept area is taller than wide), the plots and
+    # under them the structure's lanes and the events
+    below = rrb.Horizontal(rrb.StateTimelineView(origin="state", name="structure and latch"),
+                           rrb.TextLogView(origin="events", name="events"),
+                           column_shares=[1, 1.6])
+    right = rrb.Vertical(rrb.Grid(*plots, grid_columns=2), below, row_shares=[7, 2.2])
+    return rrb.Blueprint(rrb.Horizontal(mech, right, column_shares=[0.75, 2]),
                          rrb.TimePanel(timeline=TIMELINE, state="collapsed",
                                        play_state="paused"),
                          rrb.SelectionPanel(state="collapsed"),
