@@ -416,11 +416,7 @@ class LoadSums:
             # a force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)
             for body, point, fx, fy in ld.forces:
                 k = 3 * bodies[body]
-                if point.__class__ is str:
-                    r = 2 * names[point]
-                    px, py = xl[r] - ox, xl[r + 1] - oy
-                else:
-                    px, py = float(point[0]) - ox, float(point[1]) - oy
+                px, py = _arm(point, names, xl, ox, oy)
                 out[k] += fx
                 out[k + 1] += fy
                 out[k + 2] += px * fy - py * fx
@@ -431,17 +427,21 @@ class LoadSums:
             for entry in ld.frame:
                 if len(entry) == 4:
                     _, point, fx, fy = entry
-                    if point.__class__ is str:
-                        r = 2 * names[point]
-                        px, py = xl[r] - ox, xl[r + 1] - oy
-                    else:
-                        px, py = float(point[0]) - ox, float(point[1]) - oy
+                    px, py = _arm(point, names, xl, ox, oy)
                     out[fr] += fx
                     out[fr + 1] += fy
                     out[fr + 2] += px * fy - py * fx
                 else:
                     out[fr + 2] += entry[1]
         return out
+
+
+def _arm(point, names, xl, ox, oy) -> tuple[float, float]:
+    """A point (a name or (x, y)) relative to O."""
+    if point.__class__ is str:
+        r = 2 * names[point]
+        return xl[r] - ox, xl[r + 1] - oy
+    return float(point[0]) - ox, float(point[1]) - oy
 
 
 __all__ = ["Fallback", "reaction_kernel", "LoadSums", "PIVOT_GUARD"]
