@@ -121,3 +121,41 @@ def test_commands_already_waiting_are_applied_at_the_start():
     acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
             if k == "~/mode/status"]
     assert [(a["command"], a["t"], a["accepted"]) for a in acks] == [("engage", 0.0, True)]
+
+
+def test_publishing_every_nth_step_releases_those_and_every_event():
+    tw = Twin("press-cycle", dt=DT, t_end=0.1)
+    live = Sink(True)
+    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=2.0, lead=0.05,
+                    publish_every=10, warm_up=0.0)
+    runner.run()
+    stamps = [t for _, t in live.walls]
+    assert stamps == [round(k * DT * 1e9) for k in range(0, 101, 10)]
+    kinds = [e["kind"] for e in _events(live)]
+    assert kinds[0] == "run-start" and kinds[-1] == "run-end" and "stop-release" in kinds
+
+
+def test_a_solver_that_cannot_come_back_runs_one_step_ahead_and_commands_apply_at_once():
+    from dataclasses import replace
+
+    from mps_core import load_scene
+
+    scene = load_scene("press-cycle").with_overrides(solver="radau", dt=DT, t_end=0.05)
+    tw = Twin(replace(scene, commands=()), scene_commands=False)
+    assert not tw.rewindable
+    sent = {}
+
+    def on_clock(t_ns):
+        if not sent and t_ns >= round(0.02 * 1e9):
+            sent["t"] = t_ns
+            runner.inbox.put(Command("engage"))
+
+    live = Sink(True, on_clock)
+    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=0.5, lead=0.05,
+                    warm_up=0.0)
+    st = runner.run()
+    assert st["steps_recomputed"] == 0 and st["commands_accepted"] == 1
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
+            if k == "~/mode/status"]
+    # applied at the last step computed: the one whose state was going out, or the next
+    assert sent["t"] * 1e-9 <= acks[0]["t"] <= sent["t"] * 1e-9 + 1.5 * DT
