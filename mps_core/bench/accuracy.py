@@ -27,7 +27,11 @@ from ..engine import PartialSystems
 from .common import (COARSE_STEPS, DT_LADDER, evaluations_along, Case, Reference, Setting, available_cases, reference_for,
                      resolve_case, run_setting)
 
-FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "dop853", "radau", "peer")
+FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "dop853", "radau", "peer", "mujoco")
+#: the peers: what a user would pick instead (not the engine's settings)
+PEERS = ("peer", "mujoco")
+#: MuJoCo's steps: 2.5 ms, then the 1.25 ms ladder halved down to about 10 µs
+MUJOCO_STEPS = (2.5e-3,) + DT_LADDER
 DELTAS_DEG = (1.0, 0.1, 0.01, 0.001)
 LA_ITERATIONS = 3
 GRID = DT_LADDER[0]            # errors are sampled on the paper's 1.25 ms grid
@@ -44,7 +48,8 @@ DELTA_STUDY_DEG = tuple(10.0 ** -k for k in range(0, 7))
 
 COLUMNS = ("case", "solver", "scheme", "delta_deg", "iterations", "dt", "rtol", "steps",
            "evaluations", "position_points", "cpu_s", "cpu_per_sim_s", "repeats", "err_end_phi",
-           "max_err_phi", "max_err_phi_dot", "max_err_phi_ddot", "max_err_event_t", "horizon_s")
+           "max_err_phi", "max_err_phi_dot", "max_err_phi_ddot", "max_err_event_t", "horizon_s",
+           "closure_m")
 
 
 def _schemes(full: bool):
@@ -82,6 +87,14 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
                     if scheme == "central" and r < CENTRAL_MIN_RTOL:
                         continue
                     out.append((Setting(fam, scheme, d, 1, r), GRID))
+        elif fam == "mujoco":
+            from .mujoco_peer import available
+            from .peers import supports
+
+            if not supports(case.scene)[0] or not available()[0]:
+                continue
+            for dt in (MUJOCO_STEPS[:6:2] if quick else MUJOCO_STEPS):
+                out.append((Setting("mujoco", "exact", 0.0), dt))
         elif fam == "peer":
             from .peers import supports
 
@@ -126,6 +139,19 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
            "delta_deg": s.delta_deg if s.scheme == "central" else "",
            "iterations": s.iterations if s.solver == "linear-acceleration" else "",
            "dt": dt if not s.adaptive else "", "rtol": s.rtol if s.adaptive else ""}
+    if s.solver == "mujoco":
+        from .common import cpu_median
+        from .mujoco_peer import run_mujoco
+
+        every = max(dt, GRID)              # outputs on the error grid, at whole steps
+        t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
+        cpu, run, n = cpu_median(
+            lambda: run_mujoco(case.scene, case.t_end, t_grid, dt), repeats, budget)
+        row.update(steps=int(round(case.t_end / dt)), evaluations=run.nfev, position_points="",
+                   cpu_s=cpu, cpu_per_sim_s=cpu / case.t_end, repeats=n,
+                   closure_m=run.closure)
+        row.update(errors(run.t, run.phi, run.phi_dot, run.phi_ddot, ref))
+        return row
     if s.solver == "peer":
         from .common import cpu_median
         from .peers import run_peer
@@ -195,15 +221,31 @@ def delta_study(case: Case, ref: Reference | None, deltas=DELTA_STUDY_DEG,
 # -- picking a setting ----------------------------------------------------------------------
 def recommendations(rows, targets=tuple(10.0 ** -k for k in range(2, 11))):
     """For each target max |φ − φ_ref|: the cheapest measured setting that meets it (the
-    engine's, and the peer's for comparison)."""
+    engine's, and the peers' for comparison: scipy's, MuJoCo's): (target, engine, scipy peer,
+    MuJoCo), None where none meets it."""
     out = []
     for tgt in targets:
         ok = [r for r in rows if r["max_err_phi"] <= tgt]
-        mine = [r for r in ok if r["solver"] != "peer"]
-        peer = [r for r in ok if r["solver"] == "peer"]
-        best = min(mine, key=lambda r: r["cpu_s"]) if mine else None
-        bp = min(peer, key=lambda r: r["cpu_s"]) if peer else None
-        out.append((tgt, best, bp))
+
+        def cheapest(keep):
+            rs = [r for r in ok if keep(r["solver"])]
+            return min(rs, key=lambda r: r["cpu_s"]) if rs else None
+
+        out.append((tgt, cheapest(lambda s: s not in PEERS), cheapest(lambda s: s == "peer"),
+                    cheapest(lambda s: s == "mujoco")))
+    return out
+
+
+def versus(rows, peer: str = "mujoco"):
+    """For each of a peer's measured points (coarsest first): (its row, the cheapest setting
+    of the engine at least as accurate or None, that one's CPU over the peer's)."""
+    mine = [r for r in rows if r["solver"] not in PEERS]
+    out = []
+    for p in sorted((r for r in rows if r["solver"] == peer),
+                    key=lambda r: -r["max_err_phi"]):
+        ok = [r for r in mine if r["max_err_phi"] <= p["max_err_phi"]]
+        best = min(ok, key=lambda r: r["cpu_s"]) if ok else None
+        out.append((p, best, None if best is None else best["cpu_s"] / p["cpu_s"]))
     return out
 
 
@@ -301,11 +343,28 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
                 lab = f"{d['delta_deg']:g}" if d["delta_deg"] else "exact"
                 log(f"   {lab:>7}   {d['max_rel_err_qdd']:>36.2e}   {d['max_err_phi_rk4']:.2e}")
         log(f"\n-- {name}: the cheapest setting for a target accuracy (max |φ − φ_ref|) --")
-        for tgt, best, peer in recommendations(rows):
+        for tgt, best, peer, mj in recommendations(rows):
             b = "-" if best is None else (f"{describe(best)}: {best['cpu_per_sim_s']:.3g} s CPU "
                                           f"per simulated s")
-            p = "-" if peer is None else f"peer {peer['cpu_per_sim_s']:.3g} s"
+            p = "peer -" if peer is None else f"peer {peer['cpu_per_sim_s']:.3g} s"
+            if any(r["solver"] == "mujoco" for r in rows):
+                p += ", MuJoCo " + ("-" if mj is None else f"{mj['cpu_per_sim_s']:.3g} s")
             log(f"   {tgt:.0e} rad: {b}   [{p}]")
+        vs = versus(rows)
+        if vs:
+            log(f"\n-- {name}: against MuJoCo (RK4 from Python, motor torque at every stage; "
+                "CPU s per simulated s) --")
+            log(f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
+                f"  {'ratio mps/MuJoCo':>16}")
+            for p, best, ratio in vs:
+                mj = f"dt {p['dt'] * 1e3:.4g} ms: {p['cpu_per_sim_s']:.3g}"
+                b = "-" if best is None else f"{describe(best)}: {best['cpu_per_sim_s']:.3g}"
+                rt = "-" if ratio is None else f"{ratio:.2f}"
+                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}")
+            closure = max(p.get("closure_m", 0.0) for p, _, _ in vs)
+            log("   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
+                "with solref (2 dt, 1), solimp (0.9999, 0.9999, 0.001): its soft constraint "
+                f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py)")
     if out_dir is None:
         return
     out_dir = Path(out_dir)

@@ -93,6 +93,8 @@ class Setting:
     def scheme_label(self) -> str:
         if self.solver == "peer":
             return "exact (sympy)"
+        if self.solver == "mujoco":
+            return "RK4, soft connect"
         if self.scheme == "autodiff":
             return "autodiff"
         return f"central {self.delta_deg:g}°"

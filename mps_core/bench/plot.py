@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 COLORS = {"linear-acceleration": "tab:blue", "la-iterated": "tab:cyan", "rk4": "tab:green",
-          "dop853": "tab:red", "radau": "tab:purple", "peer": "black"}
+          "dop853": "tab:red", "radau": "tab:purple", "peer": "black",
+          "mujoco": "tab:brown"}
 MARKERS = {"central 1°": "v", "central 0.1°": "o", "central 0.01°": "s", "central 0.001°": "D",
            "autodiff": "*", "exact (sympy)": "x"}
 STYLES = {"central 1°": ":", "central 0.1°": "-", "central 0.01°": "--", "central 0.001°": "-.",
@@ -44,7 +45,7 @@ def plot_accuracy(name: str, res: dict, path: Path):
         x = [r["cpu_per_sim_s"] for r in rs]
         y = [max(r["max_err_phi"], 1e-16) for r in rs]
         ax.loglog(x, y, STYLES.get(scheme, "-"), marker=MARKERS.get(scheme, "o"),
-                  color=COLORS.get(solver, "gray"), lw=2.2 if solver == "peer" else 1.2,
+                  color=COLORS.get(solver, "gray"), lw=2.2 if solver in ("peer", "mujoco") else 1.2,
                   ms=5, label=f"{solver}, {scheme}")
     ax.set_xlabel("CPU seconds per simulated second (one core)")
     case = res.get("case")

@@ -48,8 +48,8 @@ def test_exact_model_covers_only_what_it_knows():
 # -- the work-precision study ----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def quick_study():
-    return accuracy.study(["paper"], ("linear-acceleration", "rk4", "peer"), quick=True,
-                          repeats=1, log=lambda *a: None)["paper"]
+    return accuracy.study(["paper"], ("linear-acceleration", "rk4", "peer", "mujoco"),
+                          quick=True, repeats=1, log=lambda *a: None)["paper"]
 
 
 def _series(rows, solver, scheme):
@@ -93,6 +93,42 @@ def test_peer_rows_and_recommendations(quick_study):
     assert rec[0][1] is not None and rec[0][1]["max_err_phi"] <= 1e-2
     table = accuracy.format_table(quick_study["rows"])
     assert "rk4" in table and "peer" in table and "max|Δφ|" in table
+
+
+def test_mujoco_rows_converge_as_its_soft_constraint_says_and_are_compared(quick_study):
+    """MuJoCo's RK4 on the press closed by a soft connect (solref two steps): its φ error
+    falls as dt² (the constraint's, not RK4's dt⁴), its closure opens by microns at most; each
+    of its points gets the cheapest engine setting at least as accurate and the CPU ratio."""
+    pytest.importorskip("mujoco")
+    dts, errs, rows = _series(quick_study["rows"], "mujoco", "RK4, soft connect")
+    assert len(dts) == 3
+    assert abs(slope(dts, errs) - 2.0) < 0.3, errs
+    assert all(r["closure_m"] < 1e-5 for r in rows)
+    vs = accuracy.versus(quick_study["rows"])
+    assert [p["dt"] for p, _, _ in vs] == sorted(dts, reverse=True)
+    for p, best, ratio in vs:
+        assert best["solver"] not in accuracy.PEERS
+        assert best["max_err_phi"] <= p["max_err_phi"]
+        assert ratio == pytest.approx(best["cpu_s"] / p["cpu_s"])
+
+
+def test_mujoco_model_matches_the_scene():
+    """The MJCF holds the scene's masses and inertias about z, gravity, RK4, and a connect
+    that holds at the initial configuration (the model is written there)."""
+    mujoco = pytest.importorskip("mujoco")
+    from mps_core.bench.mujoco_peer import press_xml
+
+    m = mujoco.MjModel.from_xml_string(press_xml(PAPER, 1e-4))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    assert list(m.opt.gravity[:2]) == [-9.81, 0.0]
+    mech = PAPER.mechanism()
+    for b in mech.bodies:
+        assert m.body(b.name).mass[0] == pytest.approx(b.mass)
+        if b.inertia:
+            assert m.body(b.name).inertia[2] == pytest.approx(b.inertia)
+    assert d.nefc == 3 and np.abs(d.efc_pos[:3]).max() < 1e-12
 
 
 def test_central_differences_are_second_order_until_round_off():
