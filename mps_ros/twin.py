@@ -12,8 +12,11 @@ came in meanwhile are applied at t_k (the first step boundary after their arriva
 twin steps to t_{k+1}. Events (impacts, chart changes, commands) keep their exact times.
 
 **Pacing.** ``as_fast_as_possible``: no waiting. ``realtime``: step k's messages go out at wall
-time ``start + (t_k − t0)/real_time_factor``; a step computed after its deadline is a *deadline
-miss* (it goes out late; the schedule is kept, so the run catches up when it can).
+time ``start + (t_k − t0)/real_time_factor``, its deadline; steps are computed up to ``lead``
+wall seconds ahead and released at their deadlines by a thread of their own, and a command comes
+back to the checkpoint of its boundary (:meth:`Runner._run_paced`); a step computed after its
+deadline is a *deadline miss* (it goes out late; the schedule is kept, so the run catches up
+when it can).
 """
 
 from __future__ import annotations
