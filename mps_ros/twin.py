@@ -598,14 +598,19 @@ class Runner:
         if self._staging is not None:
             self._staging.append((key, data, t_ns, received))
             return
-        if received:
-            for s in self.sinks:
-                if hasattr(s, "received"):
+        err = None
+        if not received:
+            self.messages += 1
+        for s in self.sinks:        # every sink gets it, though another one fails
+            try:
+                if not received:
+                    s.emit(key, data, t_ns)
+                elif hasattr(s, "received"):
                     s.received(key, data, t_ns)
-            return
-        self.messages += 1
-        for s in self.sinks:
-            s.emit(key, data, t_ns)
+            except Exception as exc:
+                err = err or exc
+        if err is not None:
+            raise err
 
     def _emit_events(self, events, t_ns):
         if "events" not in self.twin.outputs:
@@ -800,17 +805,18 @@ class Runner:
             self.log("warn", f"{self._flood_quiet} more refused as a flood, not logged one by "
                              "one")
             self._flood_quiet = 0
-        try:
-            self.refuse_pending("the run has ended" if reason == "end"
-                                else f"the run is stopping ({reason})")
-            self._emit_events(twin.new_events(), t_ns)
-            self._diagnostics(t_ns)
-            end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
-            if self.error:
-                end["error"] = self.error
-            self._emit_events([end], t_ns)
-        except Exception as exc:     # never lose the recording's end over a late message
-            self.log("error", f"could not emit the run's last messages: {exc}")
+        end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
+        if self.error:
+            end["error"] = self.error
+        for part in (lambda: self.refuse_pending("the run has ended" if reason == "end"
+                                                 else f"the run is stopping ({reason})"),
+                     lambda: self._emit_events(twin.new_events(), t_ns),
+                     lambda: self._diagnostics(t_ns),
+                     lambda: self._emit_events([end], t_ns)):
+            try:
+                part()
+            except Exception as exc:    # never lose the recording's end over a late message
+                self.log("error", f"could not emit one of the run's last messages: {exc}")
 
     def run(self) -> dict:
         if self.pacing == "realtime":
@@ -981,13 +987,20 @@ class Runner:
                         cond.wait()
             p0 = clock()
             n = 0
-            for key, data, t_ns, received in head.msgs:
-                if not received:
-                    n += 1
-                    for s in live:
-                        s.emit(key, data, t_ns)
-            for s in live:
-                s.tick(head.deadline)
+            try:
+                for key, data, t_ns, received in head.msgs:
+                    if not received:
+                        n += 1
+                        for s in live:
+                            s.emit(key, data, t_ns)
+                for s in live:
+                    s.tick(head.deadline)
+            except Exception as exc:    # a sink that fails ends the run, never hangs it
+                if self.error is None:
+                    self.error = f"{type(exc).__name__}: {exc}"
+                    self.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: "
+                                      f"{self.error}")
+                self.request_stop("error")
             p1 = clock()
             self.messages += n
             released.append(head)

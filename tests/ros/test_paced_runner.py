@@ -159,3 +159,21 @@ def test_a_solver_that_cannot_come_back_runs_one_step_ahead_and_commands_apply_a
             if k == "~/mode/status"]
     # applied at the last step computed: the one whose state was going out, or the next
     assert sent["t"] * 1e-9 <= acks[0]["t"] <= sent["t"] * 1e-9 + 1.5 * DT
+
+
+def test_a_live_sink_that_fails_ends_the_run_and_the_rest_is_still_handed_over():
+    class Broken(Sink):
+        def emit(self, key, data, t_ns):
+            if t_ns >= round(0.01 * 1e9):
+                raise OSError("the network is gone")
+            super().emit(key, data, t_ns)
+
+    tw = Twin("press-cycle", dt=DT, t_end=0.2)
+    live, rec = Broken(True), Sink(False)
+    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
+                    lead=0.05, warm_up=0.0)
+    st = runner.run()
+    assert runner.stop_reason == "error" and "the network is gone" in runner.error
+    assert st["steps"] < round(0.2 / DT)
+    ends = [e for e in _events(rec) if e["kind"] == "run-end"]
+    assert len(ends) == 1 and ends[0]["reason"] == "error"
