@@ -96,7 +96,7 @@ class _Inbox:
 
 def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | None = None,
              spawn: bool = True, duration: float | None = None, hz: float = 30.0,
-             arrow_scale_n_per_m: float = 2e6, log=print) -> dict:
+             arrow_scale_n_per_m: float = 2e6, log=None) -> dict:
     """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
     # the node's module first: loopback-only discovery unless set, before rclpy starts
@@ -108,6 +108,9 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
 
     from .view import FAMILIES, _rr, blueprint, convert
 
+    if log is None:
+        def log(text):
+            print(text, flush=True)
     if not (hz > 0):
         raise ReplayError(f"--hz {hz!r}: expected a positive number of frames a second")
     rr = _rr()

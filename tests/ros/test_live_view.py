@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +33,14 @@ def test_live_view_saves_what_the_offline_view_draws(ros, tmp_path):
     viewer = subprocess.Popen(mps_cmd("view", "--live", "--save", str(rrd), "--duration", "60"),
                               stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
+        # the follower is ready (subscribed, its sink open) before the node starts
+        end = time.monotonic() + 120
+        while b"following" not in (tmp_path / "live.log").read_bytes():
+            assert viewer.poll() is None and time.monotonic() < end, \
+                (tmp_path / "live.log").read_text()
+            time.sleep(0.05)
         params = dict(pacing="realtime", dt=DT, t_end=T_END, recording="none",
-                      start_delay=3.0)           # the follower joins the graph meanwhile
+                      start_delay=2.0)           # both ends of the graph discover each other
         with NodeProcess(tmp_path, params) as node:
             assert node.wait(60) == 0, node.log()
         assert viewer.wait(60) == 0, (tmp_path / "live.log").read_text()
