@@ -39,8 +39,11 @@ def test_live_view_saves_what_the_offline_view_draws(ros, tmp_path):
             assert viewer.poll() is None and time.monotonic() < end, \
                 (tmp_path / "live.log").read_text()
             time.sleep(0.05)
+        # the topics the follower takes (not /clock, not the markers), so that the node can
+        # wait until it has subscribed to every one of them, however slow discovery is
         params = dict(pacing="realtime", dt=DT, t_end=T_END, recording="none",
-                      start_delay=2.0)           # both ends of the graph discover each other
+                      outputs="[joint_states,reactions,foundation,structure,events,diagnostics]",
+                      wait_for_subscribers=1, wait_timeout=60.0, start_delay=0.5)
         with NodeProcess(tmp_path, params) as node:
             assert node.wait(60) == 0, node.log()
         assert viewer.wait(60) == 0, (tmp_path / "live.log").read_text()
