@@ -116,6 +116,25 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     rr = _rr()
     import rerun.blueprint as rrb
 
+    scale = arrow_scale_n_per_m / 1e3                       # N per mm
+    extent = extent_mm(scene)
+    _warm_up(rr, scene, node_name, scale, extent)
+    rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
+    viewer = None
+    # the sink and its blueprint before the first frame, so that frame costs what any does
+    every = SimpleNamespace(columns={c: None for _, _, series in FAMILIES for c, _ in series})
+    bp = blueprint(rrb, _bounds(scene, extent), scale, every)
+    if save is not None:
+        try:
+            Path(save).parent.mkdir(parents=True, exist_ok=True)
+            rr.save(Path(save), default_blueprint=bp, recording=rec)
+        except (OSError, RuntimeError) as exc:
+            raise ReplayError(f"--save {save}: cannot write it ({exc})") from None
+    elif connect is not None:
+        rr.connect_grpc(connect, default_blueprint=bp, recording=rec)
+    else:
+        viewer, url = _spawn()
+        rr.connect_grpc(url, default_blueprint=bp, recording=rec)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -133,22 +152,6 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-
-    scale = arrow_scale_n_per_m / 1e3                       # N per mm
-    extent = extent_mm(scene)
-    _warm_up(rr, scene, node_name, scale, extent)
-    rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
-    viewer = None
-    # the sink and its blueprint before the first frame, so that frame costs what any does
-    every = SimpleNamespace(columns={c: None for _, _, series in FAMILIES for c, _ in series})
-    bp = blueprint(rrb, _bounds(scene, extent), scale, every)
-    if save is not None:
-        rr.save(Path(save), default_blueprint=bp, recording=rec)
-    elif connect is not None:
-        rr.connect_grpc(connect, default_blueprint=bp, recording=rec)
-    else:
-        viewer, url = _spawn()
-        rr.connect_grpc(url, default_blueprint=bp, recording=rec)
     log(f"following {resolve('joint_states', node_name)}: "
         + (f"saving to {save}" if save is not None else
            f"streaming to {connect or 'a viewer on 127.0.0.1'}"))
