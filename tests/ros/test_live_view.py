@@ -68,3 +68,21 @@ def test_live_view_saves_what_the_offline_view_draws(ros, tmp_path):
         for col, _name in series:
             assert f"/plots/{fam}/{col}" in d, col
     assert "/events" in d
+
+
+def test_live_view_refuses_a_save_it_cannot_write(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    p = subprocess.run(mps_cmd("view", "--live", "--save", str(blocker / "x.rrd"),
+                               "--duration", "1"), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2, p.stderr
+    assert "--save" in p.stderr and "cannot write it" in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_live_view_refuses_a_recording_and_a_bad_rate():
+    for args, words in ((["rec.mcap", "--live"], "give no recording"),
+                        (["--live", "--hz", "0"], "--hz 0.0")):
+        p = subprocess.run(mps_cmd("view", *args), capture_output=True, text=True, timeout=120)
+        assert p.returncode != 0 and words in p.stderr + p.stdout, p.stderr
+        assert "Traceback" not in p.stderr
