@@ -456,18 +456,13 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     ``values`` in :data:`REACTION_COLUMNS` order; None where the general path must answer (no
     kernel for this view, or a singular position). ``kin`` gives the effects' loads, as in
     :func:`compute_reactions`."""
-    ks = mechanism.__dict__.get("_reaction_kernels") or kernels_of(mechanism)
-    entry = ks.views.get((view, ks.scale if scale is None else float(scale)), False)
-    if entry is False:
-        entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
+    ks = kernels_of(mechanism)
+    entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
     if entry is None:
         return None
     kernel, unknowns = entry
-    cached = ks._loads
-    sums = cached[2] if (cached is not None and cached[0] is effects
-                         and cached[1] == len(effects)) else ks.loads(effects)
     try:
-        values, residual = kernel(*ql, *vl, *al, sums(t, kin))
+        values, residual = kernel(*ql, *vl, *al, ks.loads(effects)(t, kin))
     except _FALLBACKS:
         return None
     return values, residual, unknowns
