@@ -57,7 +57,9 @@ import numpy as np
 
 from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
+from .effects.base import STATE_VERSION
 from .exact_kernels import exact_kernel
+from .fused_kernels import fused_kernel
 from .kernels import as_matrix, central_kernel, solve_given_h
 from .stencil import stencil
 from .tracing import BranchChanged
@@ -299,7 +301,7 @@ class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
     __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
-                 "inline", "exact", "exact_traced")
+                 "inline", "exact", "exact_traced", "fused", "fused_at", "fused_tries", "fused_others")
 
     def __init__(self, view: ChartView, delta: float):
         n = view.n
@@ -330,6 +332,14 @@ class _Plan:
         #: exact derivatives (:mod:`mps_core.exact_kernels`); ``exact_traced`` as ``traced``
         self.exact = None
         self.exact_traced = False
+        #: q̈ alone with the effects traced in (:mod:`mps_core.fused_kernels`), made for the
+        #: effects' and controls' state ``fused_at`` (:data:`STATE_VERSION`); ``fused_others``:
+        #: up to six made at other states for the same (other branches of a force law);
+        #: ``fused_tries``: how often a failed guard had one made (a few times a view at most)
+        self.fused = None
+        self.fused_at = -1
+        self.fused_tries = 0
+        self.fused_others = []
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -495,11 +505,68 @@ class PartialSystems:
     def accelerations(self, view: ChartView, t: float, ql: list, vl: list) -> list:
         """q̈ alone, n floats, at (t, q, q̇) given as lists of floats: the ``qdd`` that
         :meth:`evaluate` gives there, by the same operations, without making the evaluation
-        (a solver's inner stages, whose evaluations are not kept). Counted as an evaluation."""
+        (a solver's inner stages, whose evaluations are not kept). Counted as an evaluation.
+
+        With exact derivatives this is one generated function from (t, q, q̇) to q̈ with the
+        scene's effects traced in (:mod:`mps_core.fused_kernels`), where the view has one."""
+        plan = self._plans.get(view)
+        if plan is not None and plan.exact is not None and self.kernels:
+            fused = plan.fused
+            if plan.fused_at != STATE_VERSION[0]:
+                fused = self._fuse(view, plan, t, ql, vl)
+            if fused is not None:
+                try:
+                    out = fused(t, *ql, *vl)
+                except (BranchChanged, ArithmeticError, ValueError):
+                    out = self._fused_miss(view, plan, t, ql, vl)
+                if out is not None:
+                    counts = self.counts
+                    counts["evaluations"] += 1
+                    counts["position_calls"] += 1
+                    counts["position_points"] += 1
+                    return out
         out = self._solve_on_floats(view, t, ql, vl)
         if out is None:
             return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
         return out[3]
+
+    def _fused_miss(self, view, plan, t, ql, vl):
+        """q̈ by another of the view's fused functions where the first one's guards fail here
+        (that one comes first from now on), or by one made here (a few per view at most);
+        None for the general path."""
+        for k, other in enumerate(plan.fused_others):
+            try:
+                out = other(t, *ql, *vl)
+            except (BranchChanged, ArithmeticError, ValueError):
+                continue
+            plan.fused_others[k] = plan.fused
+            plan.fused = other
+            return out
+        if plan.fused_tries >= 32:
+            return None
+        plan.fused_tries += 1
+        first = plan.fused
+        made = self._fuse(view, plan, t, ql, vl)
+        if made is None or (first is not None and made.source == first.source):
+            plan.fused = first
+            return None
+        plan.fused_others = ([first] + plan.fused_others)[:6]
+        try:
+            return made(t, *ql, *vl)
+        except (BranchChanged, ArithmeticError, ValueError):
+            return None
+
+    def _fuse(self, view, plan, t, ql, vl):
+        """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
+        if plan.fused_at != STATE_VERSION[0]:
+            plan.fused_others = []          # made for other parameters or controls
+        try:
+            fused = fused_kernel(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
+        except (ArithmeticError, ValueError):
+            fused = None
+        plan.fused = fused
+        plan.fused_at = STATE_VERSION[0]
+        return fused
 
     def equations(self, view: ChartView, t: float, ql: list, vl: list) -> tuple:
         """(A as rows, h, Q), lists of floats, at (t, q, q̇) given as lists of floats: the

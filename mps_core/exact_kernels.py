@@ -59,8 +59,11 @@ def exact_kernel(engine, view, q):
         return None
     flat, tape, outputs, args, free = traced
     key = ("exact", _key(engine, view), tape.key(), tuple(outputs))
-    return load(key, lambda: _source(engine, view, tape, outputs, args, free),
-                f"<exact kernel {view.name}>", flat, view.name)
+    kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, key),
+                  f"<exact kernel {view.name}>", flat, view.name)
+    kernel.key = key
+    kernel.parts = lambda: kernel_parts(engine, view, tape, outputs, args, free, key)
+    return kernel
 
 
 class _Forward:
@@ -184,7 +187,7 @@ class _Forward:
         raise TracingError(f"operation {op!r}")
 
 
-_HOLD = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+_HOLD = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
 
 
 def forward(w: _Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
@@ -266,7 +269,37 @@ def angular(engine, fw: _Forward, n: int, parts) -> tuple[dict, dict]:
     return omega, theta2
 
 
-def _source(engine, view, tape, outputs, args, free) -> str:
+def _source(engine, view, tape, outputs, args, free, key=None) -> str:
+    lines, xl, jl, wl, A, h, conv = kernel_parts(engine, view, tape, outputs, args, free, key)
+    n = view.n
+    qs = [f"q{k}" for k in range(n)]
+    vs = [f"vd{k}" for k in range(n)]
+    A_out = A[0] if n == 1 else f"({A[0]}, {A[1]}, {A[2]})"
+    return (f"def kernel({', '.join(qs + vs)}):\n" + "\n".join(lines) +
+            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
+            f"[{', '.join(h)}], [{', '.join(conv)}]\n")
+
+
+#: kernel_parts by the exact kernel's key
+_PARTS: dict = {}
+
+
+def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
+    """(lines, xl, jl, wl, A, h, conv): the exact kernel's body (its code lines) and, as code
+    (a local's name or a float literal), each number it returns: the positions, analogs and
+    angular analogs (the layout of :class:`~mps_core.engine.Kinematics`), A's entries
+    (n = 1: a; n = 2: a00, a01, a11), h and θ̈ at q̈ = 0 of every body. Kept by ``key``."""
+    if key is not None and key in _PARTS:
+        return _PARTS[key]
+    parts = _parts(engine, view, tape, outputs, args, free)
+    if key is not None:
+        if len(_PARTS) > 1024:
+            _PARTS.clear()
+        _PARTS[key] = parts
+    return parts
+
+
+def _parts(engine, view, tape, outputs, args, free) -> tuple:
     n = view.n
     w = _Writer()
     fw, outs = forward(w, n, tape, outputs, args, free)
@@ -318,8 +351,6 @@ def _source(engine, view, tape, outputs, args, free) -> str:
     jl = [code(grad(2 * r + c, i)) for r in range(NP) for c in (0, 1) for i in range(n)]
     wl = [code(omega.get((k, i))) for k in range(nb) for i in range(n)]
     conv = [code(theta2.get(k)) for k in range(nb)]
-    A_out = code(A[0, 0]) if n == 1 else f"({code(A[0, 0])}, {code(A[0, 1])}, {code(A[1, 1])})"
-    return (f"def kernel({', '.join(qs + vs)}):\n" + "\n".join(w.lines) +
-            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
-            f"[{', '.join(code(x) for x in h)}], [{', '.join(conv)}]\n")
+    A_out = [code(A[0, 0])] if n == 1 else [code(A[0, 0]), code(A[0, 1]), code(A[1, 1])]
+    return (list(w.lines), xl, jl, wl, A_out, [code(x) for x in h], conv)
 

@@ -161,7 +161,7 @@ def view_arguments(view, q):
 
 
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
-_CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+_CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
 
 
 def _unit(x) -> bool:

@@ -4,7 +4,8 @@ Tracing (:func:`trace_at`) calls ``flat`` once with :class:`Traced` numbers for 
 ``cos``, ``sin`` and ``sqrt`` that record themselves (``flat`` takes these three as arguments
 for this reason). The result is the straight-line program the function runs at that point: a
 :class:`Tape` of operations (``+ - * /``, negation, ``cos``, ``sin``, ``sqrt``) on earlier
-nodes and float constants, the outputs (nodes or constants) and the guards: every comparison
+nodes and float constants (and ``tanh``, for the force laws of effects traced the same way),
+the outputs (nodes or constants) and the guards: every comparison
 the function made, with the outcome it had. Code generated from the tape is the function's own
 only where the guards hold; where one fails, the function must be asked again (a domain check
 that now fails raises there, as it should).
@@ -29,9 +30,11 @@ OPS = {
     "cos": (1, math.cos),
     "sin": (1, math.sin),
     "sqrt": (1, math.sqrt),
+    "tanh": (1, math.tanh),
 }
 
-_COMPARE = {"gt": operator.gt, "ge": operator.ge, "lt": operator.lt, "le": operator.le}
+_COMPARE = {"gt": operator.gt, "ge": operator.ge, "lt": operator.lt, "le": operator.le,
+            "eq": operator.eq, "ne": operator.ne}
 
 
 class TracingError(TypeError):
@@ -145,6 +148,18 @@ class Traced:
     def __le__(self, o):
         return self._compare("le", o)
 
+    def __eq__(self, o):
+        try:
+            return self._compare("eq", o)
+        except TracingError:
+            return NotImplemented
+
+    def __ne__(self, o):
+        try:
+            return self._compare("ne", o)
+        except TracingError:
+            return NotImplemented
+
     def __bool__(self):
         raise TracingError("a traced number's truth value")
 
@@ -160,16 +175,19 @@ class Traced:
 
 
 def _unary(name):
+    fn = OPS[name][1]
+
     def f(x):
-        if isinstance(x, Traced):
-            return x.tape._push((name, x.index), OPS[name][1](x.value))
-        return OPS[name][1](x)
+        if x.__class__ is Traced:
+            return x.tape._push((name, x.index), fn(x.value))
+        return fn(x)
     f.__name__ = name
     return f
 
 
-#: the functions ``flat`` gets while traced
-cos, sin, sqrt = _unary("cos"), _unary("sin"), _unary("sqrt")
+#: the functions ``flat`` gets while traced; also what a force law calls (on floats they are
+#: math's own), so that tracing an effect folds its law in (:mod:`mps_core.fused_kernels`)
+cos, sin, sqrt, tanh = _unary("cos"), _unary("sin"), _unary("sqrt"), _unary("tanh")
 
 
 def trace_at(fn, args, free: dict) -> tuple[Tape, list]:

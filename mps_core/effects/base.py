@@ -29,8 +29,24 @@ class Loads:
     frame: list = field(default_factory=list)
 
 
+#: bumped by every assignment to an attribute of an effect or of the controls
+#: (:class:`~mps_core.effects.controls.Controls`): code generated with their values folded in
+#: (:mod:`mps_core.fused_kernels`) holds while it has not moved
+STATE_VERSION = [0]
+
+
 class Effect:
-    """Base class. Subclasses set ``kind`` and implement :meth:`loads`."""
+    """Base class. Subclasses set ``kind`` and implement :meth:`loads`.
+
+    A force law written in plain arithmetic on what ``kin`` gives (comparisons where it
+    branches; ``sin``, ``cos``, ``sqrt``, ``tanh`` from :mod:`mps_core.tracing`) is traced into
+    the engine's generated code (:mod:`mps_core.fused_kernels`) with its parameters folded in;
+    one that does anything else keeps the general path. Parameters are read when the code is
+    made: set them by assignment (which moves :data:`STATE_VERSION`), not in place."""
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+        STATE_VERSION[0] += 1
 
     kind: str = "effect"
     conservative: bool = False

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+from ..tracing import sin
+
 from .base import Effect, Loads, along_x
 from .controls import ControlledEffect
 
@@ -30,7 +32,7 @@ class Blanking(ControlledEffect, Effect):
         p = self.x_contact - x
         if v >= 0.0 or p <= 0.0 or p >= self.pb:
             return 0.0
-        return self.f * math.sin(math.pi * p / self.pb)
+        return self.f * sin(math.pi * p / self.pb)
 
     def loads(self, t, kin) -> Loads:
         if self.controls.structure != "locked":

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .base import STATE_VERSION
+
 
 @dataclass
 class Controls:
@@ -22,6 +24,10 @@ class Controls:
     #: the disengage cylinder is acting (from a disengage command for its duration: the driver
     #: switches it off at a step boundary, so that no step straddles the jump in its torque)
     disengage_on: bool = False
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+        STATE_VERSION[0] += 1       # code with the controls folded in is made again
 
 
 class ControlledEffect:

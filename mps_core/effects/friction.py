@@ -8,7 +8,7 @@ are load-independent constants (a scene states them), smoothed over ω_s, v_s.
 
 from __future__ import annotations
 
-import math
+from ..tracing import tanh
 
 from .base import Effect, Loads, along_x
 
@@ -34,7 +34,7 @@ class JointFriction(Effect):
         for j in self.joints:
             a, b = JOINTS[j]
             w = kin.rate(b) - (0.0 if a == "frame" else kin.rate(a))
-            m = -(self.mc * math.tanh(w / self.ws) + self.c * w)
+            m = -(self.mc * tanh(w / self.ws) + self.c * w)
             torques.append((b, m))
             if a == "frame":
                 frame.append(("frame", -m))
@@ -58,7 +58,7 @@ class GuideFriction(Effect):
         return Loads(forces=[("slider", "C", f, 0.0)], frame=[("frame", "C", -f, 0.0)])
 
     def force(self, v: float) -> float:
-        return -(self.fc * math.tanh(v / self.vs) + self.c * v)
+        return -(self.fc * tanh(v / self.vs) + self.c * v)
 
     def generalized_force(self, t, kin) -> list:
         return along_x(self.force(kin.vxy("C")[0]), kin, "C")

@@ -1,0 +1,228 @@
+"""One generated function per chart view: q̈ from (t, q, q̇), the scene's effects traced in.
+
+An exact kernel (:mod:`mps_core.exact_kernels`) gives the kinematics, A and h of a chart view
+as straight-line float code; the engine then asks each effect for its generalized force
+through a :class:`~mps_core.engine.Kinematics` and solves A q̈ = Q − h. Here the whole of it is
+one function ``kernel(t, q…, q̇…) -> [q̈…]``:
+
+* the exact kernel's body, as it is;
+* the effects' generalized forces: each effect's ``generalized_force`` (or the virtual work of
+  its ``loads``) is called once on a :class:`~mps_core.engine.Kinematics` whose numbers are
+  :class:`~mps_core.tracing.Traced` (the kernel's positions, analogs, angular analogs, q̇ and
+  t), with the engine's own summation and solve after it, so that the tape holds the same
+  operations on floats in the same order (the result is the general path's q̈ bit for bit,
+  but for the sign of a zero); the effect's parameters and the controls it reads are folded
+  in as constants, and its comparisons become guards;
+* the solve, and a finiteness check.
+
+Only the effects the scene names are in the code, and only the branches of their laws taken
+at the traced point. Where a guard fails (the kinematics' or a force law's) the function
+raises :class:`~mps_core.tracing.BranchChanged`, where the result is not finite it returns
+None: the caller evaluates by the general path, which gives the answer or the error there.
+An effect whose law does something a trace cannot hold (a call of ``math`` on the state, a
+numpy array) leaves the view without a fused function.
+
+The code depends on the effects' parameters and the controls at the time it is made:
+:data:`~mps_core.effects.base.STATE_VERSION` moves at every assignment to them, and the
+engine makes the function again when it has moved.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from .exact_kernels import _HOLD
+from .kernels import load, solve_given_h
+from .tracing import OPS, BranchChanged, Tape, Traced
+
+_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+
+
+def _constant(code: str):
+    try:
+        return float(code)
+    except ValueError:
+        return None
+
+
+def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, virtual_work):
+    """The fused function of ``view`` (whose exact kernel is ``exact``), with the effects
+    traced at (t, q, q̇); None where one of them cannot be traced or the point gives no
+    finite q̈ (the next state tries again). ``kinematics`` and ``virtual_work``: the engine's
+    :class:`~mps_core.engine.Kinematics` and :func:`~mps_core.engine.virtual_work`."""
+    lines, xl, jl, wl, A, h, _conv = exact.parts()
+    n = view.n
+    try:
+        xv, jv, wv, Av, hv, _cv = exact(*ql, *vl)
+    except (BranchChanged, ArithmeticError, ValueError):
+        return None
+    Av = [Av] if n == 1 else list(Av)
+
+    tape = Tape()
+    slots: list[str] = []
+
+    def slot(code: str, value: float):
+        c = _constant(code)
+        if c is not None:
+            return c
+        tape.nodes.append(("input", len(slots)))
+        slots.append(code)
+        return Traced(tape, len(tape.nodes) - 1, float(value))
+
+    tt = slot("t", t)
+    tv = [slot(f"vd{k}", vl[k]) for k in range(n)]
+    txl = [slot(c, v) for c, v in zip(xl, xv)]
+    tjl = [slot(c, v) for c, v in zip(jl, jv)]
+    twl = [slot(c, v) for c, v in zip(wl, wv)]
+    tA = [slot(c, v) for c, v in zip(A, Av)]
+    th = [slot(c, v) for c, v in zip(h, hv)]
+    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index,
+                     lists=(txl, tjl, twl), v=tv)
+    if engine._effect_paths[0] != len(engine.effects):
+        engine._effect_paths = engine._paths()
+    try:
+        # the engine's _forces and solve_given_h, the same operations in the same order
+        Q = [0.0] * n
+        Qc = [0.0] * n
+        for fast, e, conservative in engine._effect_paths[1]:
+            Qe = fast(tt, kin) if fast is not None else virtual_work(e.loads(tt, kin), kin)
+            if Qe is not None:
+                acc = Qc if conservative else Q
+                for i in range(n):
+                    acc[i] += Qe[i]
+        Q = [a + b for a, b in zip(Q, Qc)]
+        qdd = solve_given_h(tA[0] if n == 1 else tuple(tA), th, Q)
+        for x in qdd:
+            v = x.value if isinstance(x, Traced) else x
+            if not math.isfinite(v):
+                return None
+    except Exception:       # noqa: BLE001 - anything a trace cannot hold: the general path
+        return None
+    outputs = [x.index if isinstance(x, Traced) else float(x) for x in qdd]
+    key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs))
+    return load(key, lambda: _source(n, lines, tape, slots, outputs),
+                f"<fused kernel {view.name}>", view.chart.flat, view.name,
+                {"tanh": math.tanh, "_Branch": BranchChanged})
+
+
+def _source(n, lines, tape, slots, outputs) -> str:
+    body = list(lines)
+    names: dict = {}
+    vals: list = []
+
+    def s(x) -> str:
+        return repr(x) if isinstance(x, float) else x
+
+    def let(expr: str) -> str:
+        name = names.get(expr)
+        if name is None:
+            name = names[expr] = f"f{len(names)}"
+            body.append(f"    {name} = {expr}")
+        return name
+
+    def operand(x):
+        return x if isinstance(x, float) else vals[x]
+
+    pending: dict = {}
+    for g in tape.guards:
+        a, op, b, outcome = g
+        last = max([x for x in (a, b) if isinstance(x, int)], default=-1)
+        pending.setdefault(last, []).append(g)
+    for i, node in enumerate(tape.nodes):
+        op = node[0]
+        if op == "input":
+            vals.append(slots[node[1]])
+        else:
+            xs = [operand(x) for x in node[1:]]
+            if all(isinstance(x, float) for x in xs):
+                vals.append(OPS[op][1](*xs))
+            elif op == "add" and any(isinstance(x, float) and x == 0.0 for x in xs):
+                vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 0.0 else xs[0])
+            elif op == "mul" and any(isinstance(x, float) and x == 0.0 for x in xs):
+                vals.append(0.0)        # the kinematics are finite where the guards hold
+            elif op == "mul" and any(isinstance(x, float) and x == 1.0 for x in xs):
+                vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 1.0 else xs[0])
+            elif op in _INFIX:
+                vals.append(let(f"{s(xs[0])} {_INFIX[op]} {s(xs[1])}"))
+            elif op == "neg":
+                vals.append(let(f"-{s(xs[0])}"))
+            else:
+                vals.append(let(f"{op}({s(xs[0])})"))
+        for a, op, b, outcome in pending.get(i, ()):
+            va, vb = operand(a), operand(b)
+            if isinstance(va, float) and isinstance(vb, float):
+                continue
+            test = f"{s(va)} {_HOLD[op]} {s(vb)}"
+            body.append(f"    if {'not ' if outcome else ''}{test}: raise _Branch()")
+    out = [s(operand(x)) for x in outputs]
+    check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
+    if check:
+        body.append(f"    if {check}: return None")
+    body, out = _inline(_live(body, out), out)
+    qs = [f"q{k}" for k in range(n)]
+    vs = [f"vd{k}" for k in range(n)]
+    return (f"def kernel({', '.join(['t'] + qs + vs)}):\n" + "\n".join(body) +
+            f"\n    return [{', '.join(out)}]\n")
+
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
+
+
+def _live(body: list, out: list) -> list:
+    """The lines the outputs and the guards need: an assignment whose name nothing later
+    reads is left out (the kernel's positions and analogs that neither A, h nor a force law
+    uses)."""
+    need = set()
+    for x in out:
+        need.update(_NAME.findall(x))
+    kept = []
+    for line in reversed(body):
+        text = line.strip()
+        if text.startswith("if "):
+            need.update(_NAME.findall(text))
+            kept.append(line)
+            continue
+        name, _, expr = text.partition(" = ")
+        if name in need:
+            need.update(_NAME.findall(expr))
+            kept.append(line)
+    kept.reverse()
+    return kept
+
+
+def _inline(body: list, out: list) -> list:
+    """Each local read once written into the line that reads it (in parentheses: the same
+    operations in the same order, without storing and loading it). Only later lines read a
+    local, so an expression moves only forward, past guards, never before one."""
+    uses: dict = {}
+    for line in body:
+        text = line.strip()
+        expr = text if text.startswith("if ") else text.partition(" = ")[2]
+        for name in _NAME.findall(expr):
+            uses[name] = uses.get(name, 0) + 1
+    for x in out:
+        for name in _NAME.findall(x):
+            uses[name] = uses.get(name, 0) + 1
+    subst: dict = {}
+
+    def put(expr: str) -> str:
+        return _NAME.sub(lambda m: subst.pop(m.group(0), m.group(0)), expr)
+
+    kept = []
+    for line in body:
+        text = line.strip()
+        if text.startswith("if "):
+            kept.append("    " + put(text))
+            continue
+        name, _, expr = text.partition(" = ")
+        expr = put(expr)
+        if uses.get(name, 0) == 1:
+            subst[name] = expr if _NAME.fullmatch(expr) else f"({expr})"
+        else:
+            kept.append(f"    {name} = {expr}")
+    return kept, [put(x) for x in out]
+
+
+def _is_float(code: str) -> bool:
+    return _constant(code) is not None

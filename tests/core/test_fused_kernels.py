@@ -1,0 +1,131 @@
+"""The fused kernels: q̈ from (t, q, q̇) in one generated function, the effects traced in."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from mps_core import build, load_scene, preset_names
+from mps_core.effects import Effect, JointFriction
+from mps_core.effects.base import STATE_VERSION
+
+
+def _spy(eng):
+    """Wrap ``accelerations``: every call's q̈ beside the general path's at the same state,
+    and how many calls the fused functions answered."""
+    seen = []
+    original = eng.accelerations
+    fused_calls = [0]
+
+    def spy(view, t, ql, vl):
+        before = eng.counts["evaluations"]
+        plan = eng._plans.get(view)
+        fused_before = plan.fused if plan is not None else None
+        out = original(view, t, ql, vl)
+        assert eng.counts["evaluations"] == before + 1
+        if plan is not None and plan.fused is not None and fused_before is not None:
+            fused_calls[0] += 1
+        general = eng._solve_on_floats(view, t, ql, vl)
+        ref = general[3] if general is not None else eng.evaluate(view, t, ql, vl).qdd.tolist()
+        seen.append((view.name, t, out, ref))
+        return out
+
+    eng.accelerations = spy
+    return seen, fused_calls
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_every_preset_chart_and_structure_gives_the_general_paths_accelerations(name):
+    """Along a run of each preset with exact derivatives (through its structures, charts,
+    impacts and commands), the fused function's q̈ is the general path's, bit for bit, and
+    the fused functions answer most of the solver's stages."""
+    scene = load_scene(name).with_overrides(scheme="autodiff", solver="rk4")
+    sim = build(scene)
+    seen, fused_calls = _spy(sim.engine)
+    traj = sim.run(min(scene.t_end, 0.6), 1e-3)
+    assert len(seen) > 100
+    bad = [(v, t, a, b) for v, t, a, b in seen if a != b]
+    assert not bad, bad[:3]
+    assert fused_calls[0] > 0.8 * len(seen)
+    asked = {v for v, _t, _a, _b in seen}           # the views the solver's stages ran in
+    fused = {v.name for v, p in sim.engine._plans.items() if p.fused is not None}
+    assert asked <= fused
+    if name == "press-cycle":
+        assert {"free", "locked", "held"} <= set(traj.structure.tolist())
+
+
+def _paper(**kw):
+    return build(load_scene("paper").with_overrides(scheme="autodiff", solver="rk4", **kw))
+
+
+def test_a_parameter_or_control_set_makes_the_function_again():
+    sim = _paper()
+    eng, view = sim.engine, sim.view
+    q, v = sim.solver.q.tolist(), (sim.solver.qd + 0.3).tolist()
+    first = eng.accelerations(view, 0.0, q, v)
+    assert eng._plans[view].fused is not None
+    motor = next(e for e in eng.effects if e.kind == "motor")
+    version = STATE_VERSION[0]
+    motor.ratio = 2.0 * motor.ratio
+    assert STATE_VERSION[0] > version
+    second = eng.accelerations(view, 0.0, q, v)
+    assert second != first
+    assert second == eng._solve_on_floats(view, 0.0, q, v)[3]
+    motor.enabled = False
+    third = eng.accelerations(view, 0.0, q, v)
+    assert third == eng._solve_on_floats(view, 0.0, q, v)[3]
+    assert third not in (first, second)
+    assert "/ 157.0" not in eng._plans[view].fused.source      # the motor's law left out
+
+
+class _Exponential(Effect):
+    """A torque law that calls math on the state: it cannot be traced."""
+
+    kind = "exponential"
+
+    def generalized_force(self, t, kin):
+        m = -math.exp(-abs(kin.rate("crank")))
+        return [m * w for w in kin.omega("crank")]
+
+    def loads(self, t, kin):
+        raise NotImplementedError
+
+
+def test_an_effect_that_cannot_be_traced_keeps_the_general_path():
+    sim = _paper()
+    eng, view = sim.engine, sim.view
+    eng.effects.append(_Exponential())
+    q, v = sim.solver.q.tolist(), sim.solver.qd.tolist()
+    out = eng.accelerations(view, 0.0, q, v)
+    assert eng._plans[view].fused is None
+    assert out == eng._solve_on_floats(view, 0.0, q, v)[3]
+
+
+def test_only_the_effects_the_scene_names_are_in_the_code():
+    sim = _paper()
+    eng, view = sim.engine, sim.view
+    q, v = sim.solver.q.tolist(), sim.solver.qd.tolist()
+    eng.accelerations(view, 0.0, q, v)
+    plain = eng._plans[view].fused.source
+    assert "tanh(" not in plain
+    sim = _paper()
+    eng, view = sim.engine, sim.view
+    friction = JointFriction(coulomb=0.5, viscous=0.01)
+    friction.bind(sim.mechanism)
+    eng.effects.append(friction)
+    out = eng.accelerations(view, 0.0, q, v)
+    source = eng._plans[view].fused.source
+    assert source.count("tanh(") == 4          # one joint each: O, A, B, C
+    assert out == eng._solve_on_floats(view, 0.0, q, v)[3]
+
+
+def test_a_state_outside_the_trace_falls_back_and_gets_its_own_function():
+    """The engage cylinder's ramp: traced inside it, asked beyond its end (another branch of
+    the law) the engine makes a second function and keeps both."""
+    sim = build(load_scene("press-cycle").with_overrides(scheme="autodiff", solver="rk4"))
+    eng = sim.engine
+    seen, _ = _spy(eng)
+    sim.run(0.4, 1e-3)
+    assert all(a == b for _v, _t, a, b in seen)
+    assert any(p.fused_others for p in eng._plans.values())
