@@ -59,7 +59,7 @@ from .errors import ChartDomainError, NumericalError, config_in_degrees
 from .jet import Jet, ScalarJet, seed
 from .effects.base import STATE_VERSION
 from .exact_kernels import exact_kernel
-from .fused_kernels import fused_kernel
+from .fused_kernels import ForceLawBranch, fingerprint, reuse_or_make
 from .kernels import as_matrix, central_kernel, solve_given_h
 from .stencil import stencil
 from .tracing import BranchChanged
@@ -556,12 +556,22 @@ class PartialSystems:
         except (BranchChanged, ArithmeticError, ValueError):
             return None
 
+    def _fingerprint(self):
+        """:func:`~mps_core.fused_kernels.fingerprint` of the effects, made once per state of
+        their parameters and controls."""
+        version = STATE_VERSION[0]
+        kept = self.__dict__.get("_fingerprint_of")
+        if kept is None or kept[0] != version or kept[1] != len(self.effects):
+            kept = self._fingerprint_of = (version, len(self.effects),
+                                           fingerprint(self.effects))
+        return kept[2]
+
     def _fuse(self, view, plan, t, ql, vl):
         """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
         if plan.fused_at != STATE_VERSION[0]:
             plan.fused_others = []          # made for other parameters or controls
         try:
-            fused = fused_kernel(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
+            fused = reuse_or_make(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
         except (ArithmeticError, ValueError):
             fused = None
         plan.fused = fused
@@ -960,6 +970,22 @@ class PartialSystems:
         counts = self.counts
         counts["position_calls"] += 1
         counts["position_points"] += 1
+        fused = plan.fused
+        if plan.fused_at != STATE_VERSION[0]:
+            fused = self._fuse(view, plan, t, ql, vl)
+        if fused is not None:
+            # the whole evaluation in one call (mps_core.fused_kernels), where its guards
+            # hold and q̈ is finite; else the kernel and the effects one by one below
+            try:
+                xl, jl, wl, A, h, conv, Q, Qnc, qdd = fused.full(t, *ql, *vl)
+            except ForceLawBranch:
+                qdd = None                  # the kinematics hold: the kernel below
+            except (ArithmeticError, ValueError):
+                qdd = None                  # the kernel below says what is wrong
+            if qdd is not None:
+                kin = Kinematics(t, q, qd, self._names, bodies=self._body_index,
+                                 lists=(xl, jl, wl), conv=conv, v=vl)
+                return kin, A, h, Q, Qnc, qdd
         try:
             xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):

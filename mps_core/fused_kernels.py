@@ -16,9 +16,10 @@ one function ``kernel(t, q…, q̇…) -> [q̈…]``:
 * the solve, and a finiteness check.
 
 Only the effects the scene names are in the code, and only the branches of their laws taken
-at the traced point. Where a guard fails (the kinematics' or a force law's) the function
-raises :class:`~mps_core.tracing.BranchChanged`, where the result is not finite it returns
-None: the caller evaluates by the general path, which gives the answer or the error there.
+at the traced point. Where a guard fails the function raises
+:class:`~mps_core.tracing.BranchChanged` (a guard of the kinematics) or
+:class:`ForceLawBranch` (one of a force law); where the result is not finite it returns None:
+the caller evaluates by the general path, which gives the answer or the error there.
 An effect whose law does something a trace cannot hold (a call of ``math`` on the state, a
 numpy array) leaves the view without a fused function.
 
@@ -32,6 +33,8 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
+
 from .exact_kernels import _HOLD
 from .kernels import load, solve_given_h
 from .tracing import OPS, BranchChanged, Tape, Traced
@@ -39,11 +42,90 @@ from .tracing import OPS, BranchChanged, Tape, Traced
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
 
 
+class ForceLawBranch(BranchChanged):
+    """A force law's guard failed (its kinematics held): the exact kernel still holds here."""
+
+
+_CONSTANTS: dict = {}
+
+
 def _constant(code: str):
+    """The float a code atom is (a literal), or None (a local's name)."""
     try:
-        return float(code)
+        return _CONSTANTS[code]
+    except KeyError:
+        pass
+    try:
+        c = float(code)
     except ValueError:
+        c = None
+    if len(_CONSTANTS) > 65536:
+        _CONSTANTS.clear()
+    _CONSTANTS[code] = c
+    return c
+
+
+class _Unhashable(Exception):
+    pass
+
+
+def _frozen(x):
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return x
+    if isinstance(x, (tuple, list)):
+        return tuple(_frozen(y) for y in x)
+    if isinstance(x, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
+    if isinstance(x, np.ndarray):
+        return ("array", x.dtype.str, x.shape, x.tobytes())
+    if getattr(type(x), "__dataclass_params__", None) is not None and \
+            type(x).__dataclass_params__.frozen:
+        return x
+    raise _Unhashable(type(x).__name__)
+
+
+def fingerprint(effects):
+    """Everything a trace of ``effects`` can fold in: each effect's class and attributes and
+    the controls it reads, as a hashable value; None where an attribute is something else
+    (a mutable object: the code is not shared between engines then)."""
+    try:
+        out = []
+        for e in effects:
+            attrs = vars(e)
+            c = attrs.get("controls")
+            out.append((type(e), tuple(sorted((k, _frozen(v)) for k, v in attrs.items()
+                                              if k != "controls")),
+                        None if c is None else _frozen(vars(c))))
+        return tuple(out)
+    except _Unhashable:
         return None
+
+
+#: fused functions by (exact kernel's key, effects' fingerprint), for engines made afresh
+#: (a benchmark's repeats, a batch): tried at the state before a trace is made
+_MADE: dict = {}
+
+
+def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
+    """A fused function for ``view`` at (t, q, q̇): one made before for the same kinematics
+    and the same effects whose guards hold here, else a new one (:func:`fused_kernel`)."""
+    fp = engine._fingerprint()
+    key = None if fp is None else (exact.key, fp)
+    for k in _MADE.get(key, ()) if key is not None else ():
+        try:
+            if k(t, *ql, *vl) is not None:
+                return k
+        except (BranchChanged, ArithmeticError, ValueError):
+            continue
+    made = fused_kernel(engine, view, exact, t, ql, vl, kinematics, virtual_work)
+    if made is not None and key is not None:
+        if len(_MADE) > 256:
+            _MADE.clear()
+        known = _MADE.setdefault(key, [])
+        if all(k.source != made.source for k in known):
+            known.insert(0, made)
+            del known[8:]
+    return made
 
 
 def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, virtual_work):
@@ -91,6 +173,7 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
                 acc = Qc if conservative else Q
                 for i in range(n):
                     acc[i] += Qe[i]
+        Qnc = Q
         Q = [a + b for a, b in zip(Q, Qc)]
         qdd = solve_given_h(tA[0] if n == 1 else tuple(tA), th, Q)
         for x in qdd:
@@ -99,14 +182,26 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
                 return None
     except Exception:       # noqa: BLE001 - anything a trace cannot hold: the general path
         return None
-    outputs = [x.index if isinstance(x, Traced) else float(x) for x in qdd]
-    key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs))
-    return load(key, lambda: _source(n, lines, tape, slots, outputs),
-                f"<fused kernel {view.name}>", view.chart.flat, view.name,
-                {"tanh": math.tanh, "_Branch": BranchChanged})
+    def node(x):
+        return x.index if isinstance(x, Traced) else float(x)
+
+    outputs = [node(x) for x in qdd]
+    forces = [node(x) for x in Q + Qnc]
+    key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs), tuple(forces))
+    extra = {"tanh": math.tanh, "_Branch": ForceLawBranch}
+    accel = load(key, lambda: _source(n, lines, tape, slots, outputs),
+                 f"<fused kernel {view.name}>", view.chart.flat, view.name, extra)
+    parts = (xl, jl, wl, A, h, _conv)
+    accel.full = load(key + ("full",),
+                      lambda: _source(n, lines, tape, slots, outputs, forces, parts),
+                      f"<fused evaluation {view.name}>", view.chart.flat, view.name, extra)
+    return accel
 
 
-def _source(n, lines, tape, slots, outputs) -> str:
+def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
+    """The fused function's code: q̈ alone, or with ``forces`` (Q and Q_nc's nodes) and the
+    kernel's ``parts`` the whole evaluation: (positions, analogs, angular analogs, A, h,
+    θ̈ at q̈ = 0, Q, Q_nc, q̈), the lists of :meth:`PartialSystems._exact_kernel_solve`."""
     body = list(lines)
     names: dict = {}
     vals: list = []
@@ -159,11 +254,24 @@ def _source(n, lines, tape, slots, outputs) -> str:
     check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
     if check:
         body.append(f"    if {check}: return None")
-    body, out = _inline(_live(body, out), out)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
-    return (f"def kernel({', '.join(['t'] + qs + vs)}):\n" + "\n".join(body) +
-            f"\n    return [{', '.join(out)}]\n")
+    head = f"def kernel({', '.join(['t'] + qs + vs)}):\n"
+    if forces is None:
+        body, out = _inline(_live(body, out), out)
+        return head + "\n".join(body) + f"\n    return [{', '.join(out)}]\n"
+    xl, jl, wl, A, h, conv = parts
+    fq = [s(operand(x)) for x in forces]
+    lists = [xl, jl, wl, A, h, conv, fq[:n], fq[n:], out]
+    flat = [x for group in lists for x in group]
+    body, flat = _inline(_live(body, flat), flat)
+    groups, k = [], 0
+    for group in lists:
+        groups.append(flat[k:k + len(group)])
+        k += len(group)
+    ret = [f"[{', '.join(g)}]" for g in groups]
+    ret[3] = groups[3][0] if n == 1 else f"({', '.join(groups[3])})"
+    return head + "\n".join(body) + f"\n    return {', '.join(ret)}\n"
 
 
 _NAME = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")

@@ -29,10 +29,30 @@ def _spy(eng):
         general = eng._solve_on_floats(view, t, ql, vl)
         ref = general[3] if general is not None else eng.evaluate(view, t, ql, vl).qdd.tolist()
         seen.append((view.name, t, out, ref))
+        if plan is not None and plan.fused is not None:
+            _check_whole_evaluation(eng, view, plan, t, ql, vl)
         return out
 
     eng.accelerations = spy
     return seen, fused_calls
+
+
+def _check_whole_evaluation(eng, view, plan, t, ql, vl):
+    """The fused evaluation (kinematics, A, h, θ̈, Q, Q_nc, q̈ in one call) against the exact
+    kernel, the effects one by one and the solve: the same numbers."""
+    from mps_core.engine import Kinematics
+    from mps_core.fused_kernels import ForceLawBranch
+    from mps_core.kernels import solve_given_h
+
+    try:
+        got = plan.fused.full(t, *ql, *vl)
+    except ForceLawBranch:
+        return
+    xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
+    kin = Kinematics(t, None, None, eng._names, bodies=eng._body_index, lists=(xl, jl, wl),
+                     conv=conv, v=vl)
+    Q, Qnc = eng._forces(t, kin)
+    assert list(got) == [xl, jl, wl, A, h, conv, Q, Qnc, solve_given_h(A, h, Q)]
 
 
 @pytest.mark.parametrize("name", preset_names())
