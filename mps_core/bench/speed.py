@@ -100,10 +100,14 @@ def core_costs(case: Case, settings=SOLVERS, steps: int = 40, repeats: int = 5):
         def fun(t, q, qd):
             return engine.evaluate(view, t, q, qd)
 
+        def accel(t, ql, vl):
+            return engine.accelerations(view, t, ql, vl)
+
         def stepping():
+            # as a run builds it: q̈ alone for the stages whose evaluation is not kept
             sol = make_solver(s.solver, fun, 0.0, q0, qd0, iterations=s.iterations,
                               rtol=s.rtol or 1e-9, atol=(s.rtol or 1e-9) * 1e-3,
-                              scales=view.scales)
+                              scales=view.scales, accel=accel)
             k = 0
             try:
                 for k in range(1, steps + 1):
@@ -146,6 +150,16 @@ def evaluation_costs(case: Case, number: int = 2000):
                      "chart": e.view.name, "n": e.view.n, "us_per_evaluation": us,
                      "position_points": 1 if scheme == "autodiff" else
                      {1: 5, 2: 13}.get(e.view.n, 0)})
+        if scheme == "autodiff":
+            # q̈ alone, what a solver's inner stage asks (the fused function where it has one)
+            ql, vl = e.q.tolist(), e.qd.tolist()
+            eng.accelerations(e.view, e.t, ql, vl)
+            us = _per_call(lambda: eng.accelerations(e.view, e.t, ql, vl), number)
+            plan = eng._plans.get(e.view)
+            rows.append({"scheme": "autodiff, q̈ alone" + (
+                             " (fused)" if plan is not None and plan.fused is not None else ""),
+                         "chart": e.view.name, "n": e.view.n, "us_per_evaluation": us,
+                         "position_points": 1})
     return rows
 
 
@@ -301,6 +315,15 @@ def report(results, log=print) -> None:
         for r in res["evaluation"]:
             log(f"one evaluation, {r['scheme']:14s} chart {r['chart']:10s} n = {r['n']}: "
                 f"{r['us_per_evaluation']:6.1f} us ({r['position_points']} position points)")
+        lone = {r["scheme"]: r["us_per_evaluation"] for r in res["evaluation"]}
+        for r in res["core"]:
+            if r["setting"] == "rk4, autodiff" and "autodiff" in lone:
+                # RK4's step: three stages asking for q̈ alone, one whole evaluation
+                alone = [v for k, v in lone.items() if k.startswith("autodiff, q̈ alone")]
+                each = (3 * alone[0] + lone["autodiff"]) / 4 if alone else lone["autodiff"]
+                per = r["us_per_step"] / r["evals_per_step"]
+                log(f"inside an RK4 run (autodiff, engine + solver alone): {per:.1f} us per "
+                    f"evaluation, {per / each:.2f}× the same mix measured alone ({each:.1f} us)")
         for r in res.get("reactions", ()):
             log(f"reactions beside one exact evaluation (median of {r['states']} states, side "
                 f"by side): exact evaluation {r['us_exact_evaluation']:.1f} us, reaction kernel "
