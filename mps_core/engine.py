@@ -530,6 +530,31 @@ class PartialSystems:
             return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
         return out[3]
 
+    def accelerator(self, view: ChartView):
+        """``accel(t, q, q̇)``: :meth:`accelerations` in ``view``, the fused function called
+        without the lookups where it holds (a solver's stages)."""
+        accelerations = self.accelerations
+        counts = self.counts
+        plans = self._plans
+        version = STATE_VERSION
+
+        def accel(t, ql, vl):
+            plan = plans.get(view)
+            if plan is not None:
+                fused = plan.fused
+                if fused is not None and plan.fused_at == version[0]:
+                    try:
+                        out = fused(t, *ql, *vl)
+                    except (BranchChanged, ArithmeticError, ValueError):
+                        out = None
+                    if out is not None:
+                        counts["evaluations"] += 1
+                        counts["position_calls"] += 1
+                        counts["position_points"] += 1
+                        return out
+            return accelerations(view, t, ql, vl)
+        return accel
+
     def _fused_miss(self, view, plan, t, ql, vl):
         """q̈ by another of the view's fused functions where the first one's guards fail here
         (that one comes first from now on), or by one made here (a few per view at most);

@@ -329,13 +329,9 @@ class Simulation:
             self.solver_steps += old.nsteps
             first = getattr(old, "step_size", None)   # an adaptive solver carries on its step
         view = self.view
-        engine = self.engine
-
-        def accel(t, ql, vl):
-            return engine.accelerations(view, t, ql, vl)
         return make_solver(s.name, self._fun(view), t, q, qd, iterations=s.iterations,
                            rtol=s.rtol, atol=s.atol, scales=view.scales, first_step=first,
-                           accel=accel)
+                           accel=self.engine.accelerator(view))
 
     def _restart(self, view, t, q, qd):
         self.view = view

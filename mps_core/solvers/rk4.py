@@ -13,30 +13,61 @@ import numpy as np
 from .base import CubicHermite, Solver
 
 
+_STEPS: dict = {}
+
+
+def _step_source(n: int) -> str:
+    """``step(accel, t0, t1, h, q…, v…, a…) -> (q₁, v₁)``: one step of RK4 on floats for n
+    coordinates, the operations of ``y₁ = y₀ + h/6 (k1 + 2k2 + 2k3 + k4)`` in their order."""
+    r = range(n)
+    q = [f"q{i}" for i in r]
+    v = [f"v{i}" for i in r]
+    a = [f"a{i}" for i in r]
+    L = [f"def step(accel, t0, t1, h, {', '.join(q + v + a)}):",
+         "    hh = 0.5 * h",
+         "    h6 = h / 6.0"]
+
+    def stage(k, t, vs, step, qs_from):
+        L.extend(f"    v{k}_{i} = v{i} + {step} * {vs[i]}" for i in r)
+        L.append(f"    {', '.join(f'a{k}_{i}' for i in r)}, = accel({t}, "
+                 f"[{', '.join(f'q{i} + {step} * {qs_from[i]}' for i in r)}], "
+                 f"[{', '.join(f'v{k}_{i}' for i in r)}])")
+
+    stage(2, "t0 + hh", a, "hh", v)
+    stage(3, "t0 + hh", [f"a2_{i}" for i in r], "hh", [f"v2_{i}" for i in r])
+    stage(4, "t1", [f"a3_{i}" for i in r], "h", [f"v3_{i}" for i in r])
+    L.append(f"    return [{', '.join(f'q{i} + h6 * (v{i} + 2.0 * v2_{i} + 2.0 * v3_{i} + v4_{i})' for i in r)}], "
+             f"[{', '.join(f'v{i} + h6 * (a{i} + 2.0 * a2_{i} + 2.0 * a3_{i} + a4_{i})' for i in r)}]")
+    return "\n".join(L) + "\n"
+
+
+def _step(n: int):
+    fn = _STEPS.get(n)
+    if fn is None:
+        namespace: dict = {}
+        exec(compile(_step_source(n), f"<rk4 step, n = {n}>", "exec"), namespace)
+        fn = _STEPS[n] = namespace["step"]
+    return fn
+
+
 class RK4(Solver):
     name = "rk4"
     order = 4
     evaluations_per_step = 4
 
     def step_to(self, t_target, interrupt=None):
-        # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate); the same
-        # operations in the same order as y₁ = y₀ + h/6 (k1 + 2k2 + 2k3 + k4) on arrays
+        # one generated function on floats (n is 1 or 2: numpy's per-call cost would
+        # dominate), the same operations in the same order as y₁ = y₀ + h/6 (k1 + 2k2 + 2k3 +
+        # k4) on arrays; the three inner stages ask for q̈ alone
         t0, q0, v0 = self.t, self.q, self.qd
         h = t_target - t0
-        hh, h6 = 0.5 * h, h / 6.0
-        ql, v0l = q0.tolist(), v0.tolist()
-        a1 = self.current.qdd.tolist()
-        v2 = [v + hh * a for v, a in zip(v0l, a1)]
-        accel = self._accel_counted
-        a2 = accel(t0 + hh, [q + hh * v for q, v in zip(ql, v0l)], v2)
-        v3 = [v + hh * a for v, a in zip(v0l, a2)]
-        a3 = accel(t0 + hh, [q + hh * v for q, v in zip(ql, v2)], v3)
-        v4 = [v + h * a for v, a in zip(v0l, a3)]
-        a4 = accel(t_target, [q + h * v for q, v in zip(ql, v3)], v4)
-        q1 = np.array([q + h6 * (a + 2.0 * b + 2.0 * c + d)
-                       for q, a, b, c, d in zip(ql, v0l, v2, v3, v4)])
-        v1 = np.array([v + h6 * (a + 2.0 * b + 2.0 * c + d)
-                       for v, a, b, c, d in zip(v0l, a1, a2, a3, a4)])
+        step = self.__dict__.get("_step_fn")
+        if step is None:
+            step = self._step_fn = _step(q0.size)
+        ql, vl = step(self.accel, t0, t_target, h, *q0.tolist(), *v0.tolist(),
+                      *self.current.qdd.tolist())
+        self.nfev += 3
+        q1, v1 = np.array(ql), np.array(vl)
         e = self._call(t_target, q1, v1)
         self._dense = CubicHermite(t0, t_target, q0, v0, self.current.qdd, q1, v1, e.qdd)
         self.t, self.q, self.qd, self.current = t_target, q1, v1, e
