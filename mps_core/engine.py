@@ -533,7 +533,8 @@ class PartialSystems:
     def accelerator(self, view: ChartView):
         """``accel(t, q, q̇)``: :meth:`accelerations` in ``view``, the fused function called
         without the lookups where it holds (a solver's stages)."""
-        accelerations = self.accelerations
+        accelerations = PartialSystems.accelerations
+        engine = self
         counts = self.counts
         plans = self._plans
         version = STATE_VERSION
@@ -552,7 +553,7 @@ class PartialSystems:
                         counts["position_calls"] += 1
                         counts["position_points"] += 1
                         return out
-            return accelerations(view, t, ql, vl)
+            return accelerations(engine, view, t, ql, vl)
         return accel
 
     def _fused_miss(self, view, plan, t, ql, vl):

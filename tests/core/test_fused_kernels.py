@@ -11,18 +11,18 @@ from mps_core.effects import Effect, JointFriction
 from mps_core.effects.base import STATE_VERSION
 
 
-def _spy(eng):
-    """Wrap ``accelerations``: every call's q̈ beside the general path's at the same state,
-    and how many calls the fused functions answered."""
+def _spy(eng, sim=None):
+    """Wrap ``accelerations`` and the per-view accelerators the solvers call: every call's q̈
+    beside the general path's at the same state, and how many calls the fused functions
+    answered. ``sim``: its solver is made again with the wrapped accelerator."""
     seen = []
-    original = eng.accelerations
     fused_calls = [0]
 
-    def spy(view, t, ql, vl):
+    def check(view, t, ql, vl, call):
         before = eng.counts["evaluations"]
         plan = eng._plans.get(view)
         fused_before = plan.fused if plan is not None else None
-        out = original(view, t, ql, vl)
+        out = call(t, ql, vl)
         assert eng.counts["evaluations"] == before + 1
         if plan is not None and plan.fused is not None and fused_before is not None:
             fused_calls[0] += 1
@@ -33,7 +33,18 @@ def _spy(eng):
             _check_whole_evaluation(eng, view, plan, t, ql, vl)
         return out
 
-    eng.accelerations = spy
+    accelerations, accelerator = eng.accelerations, eng.accelerator
+    eng.accelerations = lambda view, t, ql, vl: check(
+        view, t, ql, vl, lambda *a: accelerations(view, *a))
+
+    def spied(view):
+        accel = accelerator(view)
+        return lambda t, ql, vl: check(view, t, ql, vl, accel)
+
+    eng.accelerator = spied
+    if sim is not None:
+        s = sim.solver
+        sim._restart(sim.view, s.t, s.q, s.qd)
     return seen, fused_calls
 
 
@@ -62,7 +73,7 @@ def test_every_preset_chart_and_structure_gives_the_general_paths_accelerations(
     the fused functions answer most of the solver's stages."""
     scene = load_scene(name).with_overrides(scheme="autodiff", solver="rk4")
     sim = build(scene)
-    seen, fused_calls = _spy(sim.engine)
+    seen, fused_calls = _spy(sim.engine, sim)
     traj = sim.run(min(scene.t_end, 0.6), 1e-3)
     assert len(seen) > 100
     bad = [(v, t, a, b) for v, t, a, b in seen if a != b]
@@ -145,7 +156,7 @@ def test_a_state_outside_the_trace_falls_back_and_gets_its_own_function():
     the law) the engine makes a second function and keeps both."""
     sim = build(load_scene("press-cycle").with_overrides(scheme="autodiff", solver="rk4"))
     eng = sim.engine
-    seen, _ = _spy(eng)
+    seen, _ = _spy(eng, sim)
     sim.run(0.4, 1e-3)
     assert all(a == b for _v, _t, a, b in seen)
     assert any(p.fused_others for p in eng._plans.values())
