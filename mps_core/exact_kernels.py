@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import math
 
-from .kernels import MAX_N, _key, _Writer, load, view_arguments
-from .tracing import TracingError, trace_at
+from .kernels import MAX_N, _key, _Writer, function_key, load, view_arguments
+from .tracing import BranchChanged, TracingError, trace_at
 
 
 def trace_view(view, q):
@@ -49,11 +49,39 @@ def trace_view(view, q):
     return flat, tape, outputs, args, free
 
 
+#: exact kernels by (the engine's tables and the view, the position function's key), for
+#: engines made afresh (a benchmark's repeats, a batch): tried at q before a trace is made
+_MADE: dict = {}
+
+
 def exact_kernel(engine, view, q):
     """The exact kernel of a chart view, traced at ``q`` (the point of the first evaluation),
     or None where the chart has no ``flat`` positions, too many free coordinates, or a position
     function that cannot be traced. A domain error of the position function at ``q`` goes to
-    the caller (nothing is built; the next evaluation tries again)."""
+    the caller (nothing is built; the next evaluation tries again). A kernel made before for
+    the same tables, view and position function whose guards hold at ``q`` is taken again."""
+    flat = getattr(view.chart, "flat", None)
+    fkey = None if flat is None or view.n > MAX_N else function_key(flat)
+    made_key = None if fkey is None else (_key(engine, view), fkey)
+    if made_key is not None:
+        ql = [float(x) for x in q]
+        for k in _MADE.get(made_key, ()):
+            try:
+                k(*ql, *[0.0] * view.n)
+            except BranchChanged:
+                continue
+            return k
+    kernel = _trace_and_load(engine, view, q)
+    if kernel is not None and made_key is not None:
+        if len(_MADE) > 256:
+            _MADE.clear()
+        known = _MADE.setdefault(made_key, [])
+        known.insert(0, kernel)
+        del known[8:]
+    return kernel
+
+
+def _trace_and_load(engine, view, q):
     traced = trace_view(view, q)
     if traced is None:
         return None

@@ -32,6 +32,7 @@ compares them to round-off).
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 
@@ -144,6 +145,34 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     kernel = namespace["kernel"]
     kernel.source = code[1]
     return kernel
+
+
+def function_key(fn, _depth: int = 0):
+    """What a position function computes, as a hashable value: its code, module, defaults and
+    the values its closure holds (numbers, strings, functions of the same kind); None where
+    the closure holds anything else (its generated code is then not shared between
+    mechanisms)."""
+    def value(x):
+        if x is None or isinstance(x, (bool, int, float, str)):
+            return x
+        if isinstance(x, tuple):
+            return tuple(value(y) for y in x)
+        if isinstance(x, types.FunctionType):
+            if _depth > 4:
+                raise TypeError
+            k = function_key(x, _depth + 1)
+            if k is None:
+                raise TypeError
+            return k
+        if isinstance(x, types.BuiltinFunctionType):
+            return x
+        raise TypeError
+    try:
+        cells = tuple(value(c.cell_contents) for c in fn.__closure__ or ())
+        defaults = tuple(value(d) for d in fn.__defaults__ or ())
+    except (TypeError, ValueError):       # ValueError: an empty cell
+        return None
+    return (fn.__code__, fn.__module__, cells, defaults)
 
 
 def view_arguments(view, q):

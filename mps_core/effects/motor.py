@@ -82,6 +82,7 @@ class Motor(Effect):
 
     def bind(self, mechanism) -> None:
         mechanism.body(self.body)  # raises KeyError for an unknown body
+        self._constants()          # kept from the start: the same attributes at every call
 
     def _constants(self):
         """(ω_sync, M_k, s_k) of ``data``, computed once per data (the same formulas)."""
