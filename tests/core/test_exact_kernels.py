@@ -151,3 +151,28 @@ def test_a_run_with_exact_kernels_follows_the_jets():
         x, y = getattr(a, name), getattr(b, name)
         assert np.abs(x - y).max() < 1e-9 * np.abs(y).max(), name
     assert a.counts == b.counts
+
+
+def test_kernels_are_shared_between_equal_mechanisms_only():
+    """A second engine of the same scene takes the first one's kernel (no trace); a press
+    with another rod length gets its own, whose numbers are its jets'."""
+    from mps_core.kernels import function_key
+
+    scene = load_scene("paper").with_overrides(scheme="autodiff")
+    a, b = build(scene), build(scene)
+    assert a.engine._plans[a.view].exact is b.engine._plans[b.view].exact
+    longer = dataclasses.replace(scene, geometry=dataclasses.replace(
+        scene.geometry, l2=scene.geometry.l2 * 1.1))
+    c = build(longer)
+    assert function_key(c.view.chart.flat) != function_key(a.view.chart.flat)
+    assert function_key(b.view.chart.flat) == function_key(a.view.chart.flat)
+    kc = c.engine._plans[c.view].exact
+    assert kc is not a.engine._plans[a.view].exact
+    q, qd = c.solver.q, c.solver.qd + 0.3
+    e = c.engine.evaluate(c.view, 0.0, q, qd)
+    c.engine.kernels = False
+    ref = c.engine.evaluate(c.view, 0.0, q, qd)
+    assert _close(e.qdd, ref.qdd, np.abs(ref.qdd).max() + 1.0)
+    a.engine.kernels = False
+    other = a.engine.evaluate(a.view, 0.0, a.solver.q, qd)
+    assert not _close(other.qdd, ref.qdd, np.abs(ref.qdd).max() + 1.0)
