@@ -303,8 +303,28 @@ class _Plan:
     __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
                  "inline", "exact", "exact_traced", "fused", "fused_at", "fused_tries", "fused_others")
 
-    def __init__(self, view: ChartView, delta: float):
+    def __init__(self, view: ChartView, delta: float, central: bool = True):
         n = view.n
+        self.n = n
+        self.kernel = None          # central differences, calling the position function
+        #: central differences from the traced position function (``kernel`` its fallback);
+        #: ``traced``: built, or found impossible
+        self.traced = False
+        self.inline = None
+        #: exact derivatives (:mod:`mps_core.exact_kernels`); ``exact_traced`` as ``traced``
+        self.exact = None
+        self.exact_traced = False
+        #: q̈ alone with the effects traced in (:mod:`mps_core.fused_kernels`), made for the
+        #: effects' and controls' state ``fused_at`` (:data:`STATE_VERSION`); ``fused_others``:
+        #: up to six made at other states for the same (other branches of a force law);
+        #: ``fused_tries``: how often a failed guard had one made (a few times a view at most)
+        self.fused = None
+        self.fused_at = -1
+        self.fused_tries = 0
+        self.fused_others = []
+        if not central:             # exact derivatives: no stencil
+            self.S = self.B = self.odT = self.K = self.inv2d = self.d = self.scale = None
+            return
         offsets, plus, minus = stencil(n)
         d = delta * np.asarray(view.scales, dtype=float)
         S, B = len(offsets), plus.shape[0]
@@ -324,22 +344,6 @@ class _Plan:
         K[:, -1] = 1.0
         self.K = K
         self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
-        self.kernel = None          # central differences, calling the position function
-        #: central differences from the traced position function (``kernel`` its fallback);
-        #: ``traced``: built, or found impossible
-        self.traced = False
-        self.inline = None
-        #: exact derivatives (:mod:`mps_core.exact_kernels`); ``exact_traced`` as ``traced``
-        self.exact = None
-        self.exact_traced = False
-        #: q̈ alone with the effects traced in (:mod:`mps_core.fused_kernels`), made for the
-        #: effects' and controls' state ``fused_at`` (:data:`STATE_VERSION`); ``fused_others``:
-        #: up to six made at other states for the same (other branches of a force law);
-        #: ``fused_tries``: how often a failed guard had one made (a few times a view at most)
-        self.fused = None
-        self.fused_at = -1
-        self.fused_tries = 0
-        self.fused_others = []
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -480,7 +484,7 @@ class PartialSystems:
         if plan is None:
             if len(self._plans) > 256:
                 self._plans.clear()
-            plan = self._plans[view] = _Plan(view, self.delta)
+            plan = self._plans[view] = _Plan(view, self.delta, self.scheme == "central")
             if self.scheme == "central" and self.kernels:
                 plan.kernel = central_kernel(self, view, plan)
         return plan
@@ -555,6 +559,40 @@ class PartialSystems:
                         return out
             return accelerations(engine, view, t, ql, vl)
         return accel
+
+    def evaluator(self, view: ChartView):
+        """``fun(t, q, q̇) -> Evaluation``: :meth:`evaluate` in ``view``, the fused evaluation
+        called without the lookups where it holds (a solver's kept evaluations). An
+        ``evaluate`` set on the engine object (a spy, a budget) is called instead."""
+        evaluate = PartialSystems.evaluate
+        engine = self
+        counts, plans, version = self.counts, self._plans, STATE_VERSION
+        names, bodies = self._names, self._body_index
+        ndarray, array = np.ndarray, np.array
+
+        def fun(t, q, qd):
+            patched = engine.__dict__.get("evaluate")
+            if patched is not None:
+                return patched(view, t, q, qd)
+            plan = plans.get(view)
+            if plan is not None and q.__class__ is ndarray and qd.__class__ is ndarray:
+                fused = plan.fused
+                if fused is not None and plan.fused_at == version[0] and engine.kernels:
+                    ql, vl = q.tolist(), qd.tolist()
+                    try:
+                        out = fused.full(t, *ql, *vl)
+                    except (BranchChanged, ArithmeticError, ValueError):
+                        out = None
+                    if out is not None:
+                        xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
+                        counts["evaluations"] += 1
+                        counts["position_calls"] += 1
+                        counts["position_points"] += 1
+                        kin = Kinematics(t, q, qd, names, bodies=bodies, lists=(xl, jl, wl),
+                                         conv=conv, v=vl)
+                        return Evaluation(view, t, q, qd, array(qdd), A, h, Q, kin, Qnc)
+            return evaluate(engine, view, t, q, qd)
+        return fun
 
     def _fused_miss(self, view, plan, t, ql, vl):
         """q̈ by another of the view's fused functions where the first one's guards fail here

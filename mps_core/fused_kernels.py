@@ -84,10 +84,14 @@ def _frozen(x):
     raise _Unhashable(type(x).__name__)
 
 
+_FINGERPRINTS: dict = {}
+
+
 def fingerprint(effects):
     """Everything a trace of ``effects`` can fold in: each effect's class and attributes and
-    the controls it reads, as a hashable value; None where an attribute is something else
-    (a mutable object: the code is not shared between engines then)."""
+    the controls it reads, as a number (the same for equal effects, never given to others);
+    None where an attribute is something else (a mutable object: the code is not shared
+    between engines then)."""
     try:
         out = []
         for e in effects:
@@ -96,9 +100,19 @@ def fingerprint(effects):
             out.append((type(e), tuple(sorted((k, _frozen(v)) for k, v in attrs.items()
                                               if k != "controls")),
                         None if c is None else _frozen(vars(c))))
-        return tuple(out)
     except _Unhashable:
         return None
+    key = tuple(out)
+    number = _FINGERPRINTS.get(key)
+    if number is None:
+        if len(_FINGERPRINTS) > 4096:
+            _FINGERPRINTS.clear()       # numbers already given stay unique: they only grow
+        _FINGERPRINT_SERIAL[0] += 1
+        number = _FINGERPRINTS[key] = _FINGERPRINT_SERIAL[0]
+    return number
+
+
+_FINGERPRINT_SERIAL = [0]
 
 
 #: fused functions by (exact kernel's key, effects' fingerprint), for engines made afresh
@@ -110,7 +124,7 @@ def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
     """A fused function for ``view`` at (t, q, q̇): one made before for the same kinematics
     and the same effects whose guards hold here, else a new one (:func:`fused_kernel`)."""
     fp = engine._fingerprint()
-    key = None if fp is None else (exact.key, fp)
+    key = None if fp is None else (exact.serial, fp)
     for k in _MADE.get(key, ()) if key is not None else ():
         try:
             if k(t, *ql, *vl) is not None:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import types
+import weakref
 
 import numpy as np
 
@@ -120,6 +121,7 @@ def central_kernel(engine, view, plan, q=None):
 #: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
 #: an equal mechanism, view and Δ, or traced program, is the same)
 _CODE: dict = {}
+_SERIAL = [0]
 
 
 def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
@@ -133,7 +135,8 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
         src = source()
         if len(_CODE) > 1024:
             _CODE.clear()
-        code = _CODE[key] = (compile(src, label, "exec"), src)
+        _SERIAL[0] += 1
+        code = _CODE[key] = (compile(src, label, "exec"), src, _SERIAL[0])
 
     def miss(*a):
         flat(*a)
@@ -144,10 +147,32 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     exec(code[0], namespace)
     kernel = namespace["kernel"]
     kernel.source = code[1]
+    #: a number of its own for each code made (never given twice): a short key for tables
+    kernel.serial = code[2]
     return kernel
 
 
+_FUNCTION_KEYS: "weakref.WeakKeyDictionary" = None  # type: ignore[assignment]
+
+
 def function_key(fn, _depth: int = 0):
+    """:func:`_function_key`, kept per function object."""
+    global _FUNCTION_KEYS
+    if _FUNCTION_KEYS is None:
+        _FUNCTION_KEYS = weakref.WeakKeyDictionary()
+    try:
+        return _FUNCTION_KEYS[fn]
+    except (KeyError, TypeError):
+        pass
+    key = _function_key(fn, _depth)
+    try:
+        _FUNCTION_KEYS[fn] = key
+    except TypeError:
+        pass
+    return key
+
+
+def _function_key(fn, _depth: int = 0):
     """What a position function computes, as a hashable value: its code, module, defaults and
     the values its closure holds (numbers, strings, functions of the same kind); None where
     the closure holds anything else (its generated code is then not shared between

@@ -314,11 +314,7 @@ class Simulation:
 
     # -- solver management ----------------------------------------------------------------
     def _fun(self, view):
-        engine = self.engine
-
-        def fun(t, q, qd):
-            return engine.evaluate(view, t, q, qd)
-        return fun
+        return self.engine.evaluator(view)
 
     def _new_solver(self, t, q, qd):
         s = self.settings

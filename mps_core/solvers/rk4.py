@@ -69,6 +69,17 @@ class RK4(Solver):
         self.nfev += 3
         q1, v1 = np.array(ql), np.array(vl)
         e = self._call(t_target, q1, v1)
-        self._dense = CubicHermite(t0, t_target, q0, v0, self.current.qdd, q1, v1, e.qdd)
+        self._dense = None          # made when asked for (an event, a cut)
+        self._last = (t0, q0, v0, self.current.qdd)
         self.t, self.q, self.qd, self.current = t_target, q1, v1, e
         self.nsteps += 1
+
+    def dense_output(self):
+        if self._dense is None:
+            last = self.__dict__.get("_last")
+            if last is None:
+                raise RuntimeError("no step taken yet")
+            t0, q0, v0, a0 = last
+            self._dense = CubicHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
+                                       self.current.qdd)
+        return self._dense
