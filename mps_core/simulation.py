@@ -70,6 +70,7 @@ from .errors import (ChartBreakdown, ChartDomainError, NumericalError,
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
 from .solvers import make_solver
+from .solvers.rk8 import IMAGINARY_LIMIT as RK8_IMAGINARY_LIMIT
 from .structure_layer import COMMANDS, CommandRefused, StructureLayer, _Event  # noqa: F401
 from .trajectory import Trajectory
 
@@ -82,6 +83,11 @@ _ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", 
 #: √3/π ≈ 0.551 T_min does not apply to it); RK4 for ω·Δt ≤ 2√2 (Δt ≤ 0.450 T_min).
 LA_LIMIT = 1.0 / math.pi
 RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)
+RK8_LIMIT = RK8_IMAGINARY_LIMIT / (2.0 * math.pi)
+#: the fixed-step solvers' stability limits as a share of the shortest period, and how the
+#: error message writes them
+FIXED_STEP_LIMITS = {"linear-acceleration": (LA_LIMIT, "1/π"), "rk4": (RK4_LIMIT, "2√2/2π"),
+                     "rk8": (RK8_LIMIT, f"{RK8_IMAGINARY_LIMIT:.4g}/2π")}
 
 
 class StabilityError(SimulationError):
@@ -671,7 +677,7 @@ class Simulation:
         has no bound. Half, so that the round-off of the per-step estimate (a few ulps, more
         on a badly conditioned A) can never reach the bound's factor of 4 in ω²."""
         name = self.settings.name
-        if not self._stiff or name not in ("linear-acceleration", "rk4"):
+        if not self._stiff or name not in FIXED_STEP_LIMITS:
             return math.inf
         w2 = 0.0
         for s in self._stiff:
@@ -682,8 +688,7 @@ class Simulation:
             w2 += b
         if w2 == 0.0:
             return math.inf
-        limit = (LA_LIMIT if name == "linear-acceleration" else RK4_LIMIT) * (
-            2.0 * math.pi / math.sqrt(w2))
+        limit = FIXED_STEP_LIMITS[name][0] * (2.0 * math.pi / math.sqrt(w2))
         return 0.5 * 0.9 * limit
 
     def _omega2(self, e) -> float | None:
@@ -714,21 +719,21 @@ class Simulation:
         if dt <= self._dt_stable:
             return dt
         name = self.settings.name
-        if not self._stiff or name not in ("linear-acceleration", "rk4"):
+        if not self._stiff or name not in FIXED_STEP_LIMITS:
             return dt
         e = self.solver.current
         w2 = self._omega2(e)
         if w2 is None or w2 <= 0.0:
             return dt
         t_min = 2.0 * math.pi / math.sqrt(w2)
-        limit = (LA_LIMIT if name == "linear-acceleration" else RK4_LIMIT) * t_min
+        limit = FIXED_STEP_LIMITS[name][0] * t_min
         if dt <= 0.9 * limit:
             return dt
         if self.settings.stiff == "error":
             which = ", ".join(s.name for s in self._stiff)
             raise StabilityError(
                 f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
-                f"({'1/π' if name == 'linear-acceleration' else '2√2/2π'} of the shortest "
+                f"({FIXED_STEP_LIMITS[name][1]} of the shortest "
                 f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
                 "or solver.stiff = 'subdivide'", e.t, self.config(e))
         m = math.ceil(dt / (0.5 * limit))

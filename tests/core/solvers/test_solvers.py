@@ -8,7 +8,7 @@ import pytest
 from scipy.integrate import DOP853 as ScipyDOP853
 
 from mps_core.errors import ChartDomainError
-from mps_core.solvers import DOP853, RK4, AdaptiveSolver, LinearAcceleration, make_solver
+from mps_core.solvers import DOP853, RK4, RK8, AdaptiveSolver, LinearAcceleration, make_solver
 
 
 class E:
@@ -39,10 +39,12 @@ def test_linear_acceleration_is_exact_for_acceleration_linear_in_time():
     assert q[0] == pytest.approx(1.0 - 0.5 * tt + tt ** 2 + 0.5 * tt ** 3, rel=1e-13)
 
 
-@pytest.mark.parametrize("cls,order", [(LinearAcceleration, 2), (RK4, 4)])
-def test_order_on_the_harmonic_oscillator(cls, order):
+@pytest.mark.parametrize("cls,order,ns", [(LinearAcceleration, 2, (20, 40, 80, 160)),
+                                          (RK4, 4, (20, 40, 80, 160)),
+                                          (RK8, 8, (4, 6, 8, 10))])
+def test_order_on_the_harmonic_oscillator(cls, order, ns):
     w = 2 * math.pi
-    errs, ns = [], (20, 40, 80, 160)
+    errs = []
     for n in ns:
         s = run(cls, oscillator(w), [1.0], [0.0], 0.8, n)
         errs.append(math.hypot(s.q[0] - math.cos(0.8 * w), (s.qd[0] + w * math.sin(0.8 * w)) / w))
@@ -50,7 +52,7 @@ def test_order_on_the_harmonic_oscillator(cls, order):
     assert abs(p - order) < 0.15, (errs, p)
 
 
-@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4)])
+@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4), (RK8, 12)])
 def test_evaluations_per_step(cls, per_step):
     s = run(cls, oscillator(1.0), [1.0], [0.0], 1.0, 10)
     assert s.nfev == 1 + per_step * 10 and s.nsteps == 10
@@ -70,7 +72,7 @@ def test_iterated_corrector_converges_to_the_implicit_method():
     assert s.nfev == 1 + 1 + 30
 
 
-@pytest.mark.parametrize("cls", [LinearAcceleration, RK4, DOP853])
+@pytest.mark.parametrize("cls", [LinearAcceleration, RK4, RK8, DOP853])
 def test_a_step_is_all_or_nothing(cls):
     calls = {"n": 0}
 
@@ -211,3 +213,21 @@ def test_float_dop853_shrinks_a_step_that_leaves_the_domain():
     assert s.q[0] == pytest.approx(0.5 * 1.6 ** 2, rel=1e-9)
     with pytest.raises(ChartDomainError):
         s.step_to(2.0)                   # q = 2 lies outside: the error reaches the caller
+
+
+def test_rk8_stability_limit_from_its_tableau():
+    """The scan of the stability function gives RK4's known 2√2 from RK4's tableau, and the
+    eighth-order method holds an undamped oscillation just inside its own limit, not beyond."""
+    from mps_core.solvers.rk8 import IMAGINARY_LIMIT, imaginary_limit
+
+    A4 = [[0, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 1, 0]]
+    assert imaginary_limit(A4, [1 / 6, 1 / 3, 1 / 3, 1 / 6]) == pytest.approx(2 * 2 ** 0.5,
+                                                                            abs=2e-4)
+    assert 5.5 < IMAGINARY_LIMIT < 6.5
+    for factor, bounded in ((0.98, True), (1.05, False)):
+        w, dt = 1.0, factor * IMAGINARY_LIMIT
+        s = RK8(oscillator(w), 0.0, [1.0], [0.0])
+        for k in range(1, 2001):
+            s.step_to(k * dt)
+        energy = s.q[0] ** 2 + s.qd[0] ** 2
+        assert (energy < 1.01) == bounded, energy
