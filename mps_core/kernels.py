@@ -197,7 +197,19 @@ def _function_key(fn, _depth: int = 0):
         defaults = tuple(value(d) for d in fn.__defaults__ or ())
     except (TypeError, ValueError):       # ValueError: an empty cell
         return None
-    return (fn.__code__, fn.__module__, cells, defaults)
+    return (_code_number(fn.__code__), fn.__module__, cells, defaults)
+
+
+#: code objects by identity -> (the object, kept alive so that its id is not reused; a number)
+_CODES: dict = {}
+
+
+def _code_number(code) -> int:
+    """A number of a code object's own (hashing the object itself walks its bytecode)."""
+    hit = _CODES.get(id(code))
+    if hit is None:                 # kept: its id is not given to another object
+        hit = _CODES[id(code)] = (code, len(_CODES) + 1)
+    return hit[1]
 
 
 def view_arguments(view, q):
@@ -262,13 +274,28 @@ def _inline(w: "_Writer", tape, outputs, inputs: list, call: list) -> list:
 
 def _key(engine, view, plan=None) -> tuple:
     """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
-    mech = engine.mechanism
-    off = None if engine._offset is None else engine._offset.tobytes()
-    return (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
-            engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
-            tuple(getattr(mech, "fixed_points", ())), view.chart.name, view.chart.size,
-            tuple(view.free), tuple(view._template),
-            None if plan is None else plan.d.tobytes())
+    return (_tables_number(engine), view.chart.name, view.chart.size, tuple(view.free),
+            tuple(view._template), None if plan is None else plan.d.tobytes())
+
+
+#: the engines' tables (linear map, masses, inertias, rotating bodies, points) by a number
+_TABLES: dict = {}
+
+
+def _tables_number(engine) -> int:
+    """A number for the engine's tables, equal for equal tables (worked out once an engine)."""
+    number = engine.__dict__.get("_tables_number")
+    if number is None:
+        mech = engine.mechanism
+        off = None if engine._offset is None else engine._offset.tobytes()
+        tables = (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
+                  engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
+                  tuple(getattr(mech, "fixed_points", ())))
+        number = _TABLES.get(tables)
+        if number is None:
+            number = _TABLES[tables] = len(_TABLES) + 1       # never cleared: one per kind
+        engine._tables_number = number
+    return number
 
 
 def _source(engine, view, plan, traced=None) -> str:

@@ -466,15 +466,16 @@ class Simulation:
         out.sort(key=lambda rv: -rv[0])
         return out
 
-    def _map_first(self, candidates, q, qd):
+    def _map_first(self, candidates, q, qd, kin=None):
         """The first candidate view into which the state maps exactly: (view, q, q̇, regularity).
 
         A chart's branch test sees only the configuration; a chart whose branch depends on how
         often the crank has turned (the change-point continuation) is confirmed by the mapping.
+        ``kin``: the state's kinematics where they are exact (see :meth:`_map_state`).
         """
         for reg, v in candidates:
             try:
-                q2, qd2 = self._map_state(self.view, q, qd, v)
+                q2, qd2 = self._map_state(self.view, q, qd, v, kin)
             except (NumericalError, ChartDomainError):
                 continue
             return v, q2, qd2, reg
@@ -484,7 +485,8 @@ class Simulation:
         e = self.solver.current
         cands = [c for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
                  if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)]
-        best, q, qd, best_reg = self._map_first(cands, e.q, e.qd)
+        exact = e.kin if self.settings.scheme == "autodiff" else None
+        best, q, qd, best_reg = self._map_first(cands, e.q, e.qd, exact)
         if best is None:
             if forced or reg_now < self.policy.fail_below:
                 raise SingularConfiguration(
@@ -497,12 +499,19 @@ class Simulation:
                             "forced": forced})
         self._restart(best, e.t, q, qd)
 
-    def _map_state(self, view, q, qd, target):
-        """(q, q̇) of ``target`` for the state (q, q̇) of ``view``: exact, through jets."""
-        jets = view.pose_jets(q, qd)
-        q2, qd2 = target.state_from(jets, self.phys)
-        pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
-                    float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
+    def _map_state(self, view, q, qd, target, kin=None):
+        """(q, q̇) of ``target`` for the state (q, q̇) of ``view``: exact, through jets, or from
+        ``kin``, the state's exact kinematics (positions and velocities of the points, from an
+        exact kernel: the same numbers to round-off, without the jets)."""
+        if kin is not None and kin._xl is not None:
+            q2, qd2 = self._state_from_kinematics(target, kin)
+            pose = {p: kin.xy(p) for p in self.mechanism.points}
+        else:
+            jets = view.pose_jets(q, qd)
+            q2, qd2 = target.state_from(jets, self.phys)
+            pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
+                        float(y.val) if hasattr(y, "val") else float(y))
+                    for k, (x, y) in jets.items()}
         check = target.positions(list(q2))
         for p, (x, y) in pose.items():
             cx, cy = check[p]
@@ -510,6 +519,29 @@ class Simulation:
                 raise NumericalError(f"changing to chart {target.name} does not reproduce point "
                                      f"{p}", self.solver.t, self.config())
         return q2, qd2
+
+    def _state_from_kinematics(self, target, kin) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`~mps_core.mechanism.ChartView.state_from` from exact kinematics: each
+        coordinate's value (angles unwrapped to ``phys``) and rate, the angle of P→Q's as
+        (d × ḋ)/|d|² with d = Q − P."""
+        q = np.empty(target.n)
+        qd = np.empty(target.n)
+        phys = self.phys
+        for k, obs in enumerate(target.coordinates):
+            if obs.kind == "angle":
+                (px, py), (qx, qy) = kin.xy(obs.points[0]), kin.xy(obs.points[1])
+                (pu, pv), (qu, qv) = kin.vxy(obs.points[0]), kin.vxy(obs.points[1])
+                dx, dy, du, dv = qx - px, qy - py, qu - pu, qv - pv
+                v = math.atan2(dy, dx)
+                if obs.name in phys:
+                    v = unwrap_to(v, phys[obs.name])
+                q[k] = v
+                qd[k] = (dx * dv - dy * du) / (dx * dx + dy * dy)
+            else:
+                c = 0 if obs.kind == "x" else 1
+                q[k] = kin.xy(obs.points[0])[c]
+                qd[k] = kin.vxy(obs.points[0])[c]
+        return q, qd
 
     # -- events ---------------------------------------------------------------------------
     def _observable(self, name, view, q, kin=None) -> float:

@@ -35,6 +35,7 @@ SOLVERS = (
     Setting("rk4", "central", 0.1),
     Setting("rk4", "central", 0.01),
     Setting("rk4", "autodiff"),
+    Setting("rk8", "autodiff"),
     Setting("dop853", "autodiff", rtol=1e-6),
     Setting("dop853", "autodiff", rtol=1e-9),
     # the price of locating the force laws' switching points (scenes that have them)
