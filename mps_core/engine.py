@@ -558,6 +558,24 @@ class PartialSystems:
                         counts["position_points"] += 1
                         return out
             return accelerations(engine, view, t, ql, vl)
+
+        def direct():
+            """The fused function itself where it holds now (a generated solver step calls it
+            with the coordinates as arguments, ``accel`` where it raises or gives None), else
+            None."""
+            plan = plans.get(view)
+            if plan is not None and plan.fused is not None and plan.fused_at == version[0] \
+                    and "accelerations" not in engine.__dict__:
+                return plan.fused
+            return None
+
+        def count(k: int) -> None:
+            """Count ``k`` calls of the function :func:`direct` gave."""
+            counts["evaluations"] += k
+            counts["position_calls"] += k
+            counts["position_points"] += k
+
+        accel.direct, accel.count = direct, count
         return accel
 
     def evaluator(self, view: ChartView):

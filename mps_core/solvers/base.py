@@ -96,3 +96,35 @@ class CubicHermite:
         q = h00 * q0 + h10 * h * qd0 + h01 * q1 + h11 * h * qd1
         qd = h00 * qd0 + h10 * h * qdd0 + h01 * qd1 + h11 * h * qdd1
         return q, qd
+
+
+#: what a fused function raises or gives where it does not hold (a generated step then asks
+#: ``accel``, the general path): a failed guard, a domain error, and None (not finite) unpacked
+_MISSES = None
+
+
+def misses() -> tuple:
+    global _MISSES
+    if _MISSES is None:
+        from ..tracing import BranchChanged
+        _MISSES = (BranchChanged, ArithmeticError, ValueError, TypeError)
+    return _MISSES
+
+
+def stage_lines(t: str, qs: list, vs: list, out: list, direct: bool) -> list:
+    """Code of one solver stage asking for q̈ at (t, q, q̇) (expressions, computed in this
+    order) into the names ``out``: by ``accel(t, [q…], [q̇…])``, or, ``direct``, by the fused
+    function ``f(t, q…, q̇…)`` with ``accel`` where it misses (counted in ``m``)."""
+    if not direct:
+        return [f"    {', '.join(out)}, = accel({t}, [{', '.join(qs)}], [{', '.join(vs)}])"]
+    n = len(out)
+    L = [f"    _q{i} = {qs[i]}" for i in range(n)]
+    L.append(f"    _t = {t}")
+    L.append("    try:")
+    L.append(f"        {', '.join(out)}, = f(_t, {', '.join(f'_q{i}' for i in range(n))}, "
+             f"{', '.join(vs)})")
+    L.append("    except _MISSES:")
+    L.append(f"        {', '.join(out)}, = accel(_t, [{', '.join(f'_q{i}' for i in range(n))}], "
+             f"[{', '.join(vs)}])")
+    L.append("        m += 1")
+    return L

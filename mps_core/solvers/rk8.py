@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
-from .base import CubicHermite, Solver
+from .base import CubicHermite, Solver, misses, stage_lines
 
 STAGES = _coef.N_STAGES
 _A = np.asarray(_coef.A[:STAGES, :STAGES], dtype=float)
@@ -64,11 +64,14 @@ def _term(coefs, name) -> str:
     return " + ".join(out) if out else "0.0"
 
 
-def _step_source(n: int) -> str:
-    """``step(accel, t0, h, q…, v…, a…) -> (q₁, v₁)``."""
+def _step_source(n: int, direct: bool = False) -> str:
+    """``step(accel, t0, h, q…, v…, a…) -> (q₁, v₁)``; ``direct``: ``step(f, accel, …) ->
+    (q₁, v₁, misses)``, the stages calling the fused function ``f`` (:func:`stage_lines`)."""
     r = range(n)
     args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
-    L = [f"def step(accel, t0, h, {', '.join(args)}):"]
+    L = [f"def step({'f, ' if direct else ''}accel, t0, h, {', '.join(args)}):"]
+    if direct:
+        L.append("    m = 0")
     # stage 1: V = v0, a = a0
     V = {0: [f"v{i}" for i in r]}
     a = {0: [f"a{i}" for i in r]}
@@ -79,20 +82,19 @@ def _step_source(n: int) -> str:
         V[s] = [f"V{s}_{i}" for i in r]
         a[s] = [f"a{s}_{i}" for i in r]
         L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
-        L.append(f"    {', '.join(a[s])}, = accel(t0 + {float(_C[s])!r} * h, "
-                 f"[{', '.join(qs)}], [{', '.join(V[s])}])")
+        L.extend(stage_lines(f"t0 + {float(_C[s])!r} * h", qs, V[s], a[s], direct))
     q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
     v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
-    L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]")
+    L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
     return "\n".join(L) + "\n"
 
 
-def _step(n: int):
-    fn = _STEPS.get(n)
+def _step(n: int, direct: bool = False):
+    fn = _STEPS.get((n, direct))
     if fn is None:
-        namespace: dict = {}
-        exec(compile(_step_source(n), f"<rk8 step, n = {n}>", "exec"), namespace)
-        fn = _STEPS[n] = namespace["step"]
+        namespace: dict = {"_MISSES": misses()}
+        exec(compile(_step_source(n, direct), f"<rk8 step, n = {n}>", "exec"), namespace)
+        fn = _STEPS[n, direct] = namespace["step"]
     return fn
 
 
@@ -104,11 +106,16 @@ class RK8(Solver):
     def step_to(self, t_target, interrupt=None):
         t0, q0, v0 = self.t, self.q, self.qd
         h = t_target - t0
-        step = self.__dict__.get("_step_fn")
-        if step is None:
-            step = self._step_fn = _step(q0.size)
-        ql, vl = step(self.accel, t0, h, *q0.tolist(), *v0.tolist(),
-                      *self.current.qdd.tolist())
+        accel = self.accel
+        direct = getattr(accel, "direct", None)
+        f = direct() if direct is not None else None
+        if f is not None:
+            ql, vl, m = _step(q0.size, True)(f, accel, t0, h, *q0.tolist(), *v0.tolist(),
+                                             *self.current.qdd.tolist())
+            accel.count(STAGES - 1 - m)
+        else:
+            ql, vl = _step(q0.size)(accel, t0, h, *q0.tolist(), *v0.tolist(),
+                                    *self.current.qdd.tolist())
         self.nfev += STAGES - 1
         q1, v1 = np.array(ql), np.array(vl)
         e = self._call(t_target, q1, v1)
