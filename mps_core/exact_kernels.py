@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import math
 
-from .kernels import MAX_N, _key, _Writer, function_key, load, view_arguments
+from .kernels import (MAX_N, _key, _Writer, function_key, inline_once, live_lines, load,
+                      view_arguments)
 from .tracing import BranchChanged, TracingError, trace_at
 
 
@@ -303,9 +304,10 @@ def _source(engine, view, tape, outputs, args, free, key=None) -> str:
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
     A_out = A[0] if n == 1 else f"({A[0]}, {A[1]}, {A[2]})"
-    return (f"def kernel({', '.join(qs + vs)}):\n" + "\n".join(lines) +
-            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
-            f"[{', '.join(h)}], [{', '.join(conv)}]\n")
+    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
+           f"[{', '.join(h)}], [{', '.join(conv)}]")
+    return (f"def kernel({', '.join(qs + vs)}):\n"
+            + "\n".join(inline_once(live_lines(lines, ret) + [ret])) + "\n")
 
 
 #: kernel_parts by the exact kernel's key

@@ -31,12 +31,11 @@ engine makes the function again when it has moved.
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
 from .exact_kernels import _HOLD
-from .kernels import load, solve_given_h
+from .kernels import inline_once, live_lines, load, solve_given_h
 from .tracing import OPS, BranchChanged, Tape, Traced
 
 _INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
@@ -272,78 +271,15 @@ def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
     vs = [f"vd{k}" for k in range(n)]
     head = f"def kernel({', '.join(['t'] + qs + vs)}):\n"
     if forces is None:
-        body, out = _inline(_live(body, out), out)
-        return head + "\n".join(body) + f"\n    return [{', '.join(out)}]\n"
-    xl, jl, wl, A, h, conv = parts
-    fq = [s(operand(x)) for x in forces]
-    lists = [xl, jl, wl, A, h, conv, fq[:n], fq[n:], out]
-    flat = [x for group in lists for x in group]
-    body, flat = _inline(_live(body, flat), flat)
-    groups, k = [], 0
-    for group in lists:
-        groups.append(flat[k:k + len(group)])
-        k += len(group)
-    ret = [f"[{', '.join(g)}]" for g in groups]
-    ret[3] = groups[3][0] if n == 1 else f"({', '.join(groups[3])})"
-    return head + "\n".join(body) + f"\n    return {', '.join(ret)}\n"
-
-
-_NAME = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
-
-
-def _live(body: list, out: list) -> list:
-    """The lines the outputs and the guards need: an assignment whose name nothing later
-    reads is left out (the kernel's positions and analogs that neither A, h nor a force law
-    uses)."""
-    need = set()
-    for x in out:
-        need.update(_NAME.findall(x))
-    kept = []
-    for line in reversed(body):
-        text = line.strip()
-        if text.startswith("if "):
-            need.update(_NAME.findall(text))
-            kept.append(line)
-            continue
-        name, _, expr = text.partition(" = ")
-        if name in need:
-            need.update(_NAME.findall(expr))
-            kept.append(line)
-    kept.reverse()
-    return kept
-
-
-def _inline(body: list, out: list) -> list:
-    """Each local read once written into the line that reads it (in parentheses: the same
-    operations in the same order, without storing and loading it). Only later lines read a
-    local, so an expression moves only forward, past guards, never before one."""
-    uses: dict = {}
-    for line in body:
-        text = line.strip()
-        expr = text if text.startswith("if ") else text.partition(" = ")[2]
-        for name in _NAME.findall(expr):
-            uses[name] = uses.get(name, 0) + 1
-    for x in out:
-        for name in _NAME.findall(x):
-            uses[name] = uses.get(name, 0) + 1
-    subst: dict = {}
-
-    def put(expr: str) -> str:
-        return _NAME.sub(lambda m: subst.pop(m.group(0), m.group(0)), expr)
-
-    kept = []
-    for line in body:
-        text = line.strip()
-        if text.startswith("if "):
-            kept.append("    " + put(text))
-            continue
-        name, _, expr = text.partition(" = ")
-        expr = put(expr)
-        if uses.get(name, 0) == 1:
-            subst[name] = expr if _NAME.fullmatch(expr) else f"({expr})"
-        else:
-            kept.append(f"    {name} = {expr}")
-    return kept, [put(x) for x in out]
+        ret = f"    return [{', '.join(out)}]"
+    else:
+        xl, jl, wl, A, h, conv = parts
+        fq = [s(operand(x)) for x in forces]
+        groups = [xl, jl, wl, A, h, conv, fq[:n], fq[n:], out]
+        items = [f"[{', '.join(g)}]" for g in groups]
+        items[3] = A[0] if n == 1 else f"({', '.join(A)})"
+        ret = f"    return {', '.join(items)}"
+    return head + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n"
 
 
 def _is_float(code: str) -> bool:

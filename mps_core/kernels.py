@@ -32,6 +32,7 @@ compares them to round-off).
 from __future__ import annotations
 
 import math
+import re
 import types
 import weakref
 
@@ -210,6 +211,65 @@ def _code_number(code) -> int:
     if hit is None:                 # kept: its id is not given to another object
         hit = _CODES[id(code)] = (code, len(_CODES) + 1)
     return hit[1]
+
+
+_LOCAL = re.compile(r"\b[A-Za-z_][A-Za-z_0-9]*\b")
+
+
+def live_lines(lines: list[str], ret: str) -> list[str]:
+    """The lines of straight-line code that the return line and the guards need: an
+    assignment whose local nothing later reads is left out (the forward pass computes every
+    derivative of every node; the reactions read a part of them)."""
+    needed = set(_LOCAL.findall(ret))
+    keep = []
+    for line in reversed(lines):
+        body = line.strip()
+        target, eq, expr = body.partition(" = ")
+        if eq and not body.startswith("if ") and "," not in target:
+            if target not in needed:
+                continue
+            needed.update(_LOCAL.findall(expr))
+        else:                           # a guard or an unpacking: always kept
+            needed.update(_LOCAL.findall(body))
+        keep.append(line)
+    return keep[::-1]
+
+
+def inline_once(lines: list[str]) -> list[str]:
+    """Straight-line code with each local that is read once written into the line that reads
+    it, in parentheses: the same operations in the same order, without storing and loading it.
+    ``lines``: assignments ``    name = expr``, unpackings (``    a, b = x``: their targets
+    stay), guards (``    if …``) and a last ``    return …``. Only later lines read a local,
+    so an expression only moves forward (past guards, never before one)."""
+    uses: dict = {}
+    for line in lines:
+        text = line.strip()
+        target, eq, expr = text.partition(" = ")
+        if not eq or text.startswith(("if ", "return ")) or "," in target:
+            expr = text if not eq or text.startswith(("if ", "return ")) else expr
+        for name in _LOCAL.findall(expr):
+            uses[name] = uses.get(name, 0) + 1
+    subst: dict = {}
+
+    def put(expr: str) -> str:
+        return _LOCAL.sub(lambda m: subst.pop(m.group(0), m.group(0)), expr)
+
+    out = []
+    for line in lines:
+        text = line.strip()
+        target, eq, expr = text.partition(" = ")
+        if not eq or text.startswith(("if ", "return ")) or "," in target:
+            if eq and "," in target and not text.startswith(("if ", "return ")):
+                out.append(f"    {target} = {put(expr)}")
+            else:
+                out.append("    " + put(text))
+            continue
+        expr = put(expr)
+        if uses.get(target, 0) == 1:
+            subst[target] = expr if _LOCAL.fullmatch(expr) else f"({expr})"
+        else:
+            out.append(f"    {target} = {expr}")
+    return out
 
 
 def view_arguments(view, q):
@@ -440,12 +500,13 @@ def _source(engine, view, plan, traced=None) -> str:
               "    _r01 = _d001 * vd0 + _d011 * vd1",
               "    _r10 = _d100 * vd0 + _d101 * vd1",
               "    _r11 = _d101 * vd0 + _d111 * vd1",
-              "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1),",
-              "          _r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
+              "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
+              "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
     vds = [f"vd{k}" for k in range(n)]
-    return (f"def kernel({', '.join(qs + vds)}):\n" + "\n".join(L) +
-            f"\n    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
-            f"[{', '.join(wls[1:])}]\n")
+    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
+           f"[{', '.join(wls[1:])}]")
+    return (f"def kernel({', '.join(qs + vds)}):\n"
+            + "\n".join(inline_once(live_lines(L, ret) + [ret])) + "\n")
 
 
 def solve_given_h(A, h, Q) -> list:

@@ -37,12 +37,10 @@ path, which reports the rank.
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
-from .kernels import _key, _Writer, load
+from .kernels import _key, _Writer, inline_once, live_lines, load
 from .mechanism import FRAME
 
 
@@ -334,29 +332,7 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     ret = (f"    return [{', '.join(code(out[c]) for c in columns)}], "
            f"[{', '.join(code(x) for x in res)}]")
     return (f"def kernel({', '.join(qs + vs + accs)}, loads):\n"
-            + "\n".join(live_lines(w.lines, ret)) + "\n" + ret + "\n")
-
-
-_NAME = re.compile(r"\b[A-Za-z_][A-Za-z_0-9]*\b")
-
-
-def live_lines(lines: list[str], ret: str) -> list[str]:
-    """The lines of straight-line code that the return line and the guards need: an
-    assignment whose local nothing later reads is left out (the forward pass computes every
-    derivative of every node; the reactions read a part of them)."""
-    needed = set(_NAME.findall(ret))
-    keep = []
-    for line in reversed(lines):
-        body = line.strip()
-        target, eq, expr = body.partition(" = ")
-        if eq and not body.startswith("if ") and "," not in target:
-            if target not in needed:
-                continue
-            needed.update(_NAME.findall(expr))
-        else:                           # a guard or an unpacking: always kept
-            needed.update(_NAME.findall(body))
-        keep.append(line)
-    return keep[::-1]
+            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
 
 
 class LoadSums:
