@@ -211,11 +211,11 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     return accel
 
 
-def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
-    """The fused function's code: q̈ alone, or with ``forces`` (Q and Q_nc's nodes) and the
-    kernel's ``parts`` the whole evaluation: (positions, analogs, angular analogs, A, h,
-    θ̈ at q̈ = 0, Q, Q_nc, q̈), the lists of :meth:`PartialSystems._exact_kernel_solve`."""
-    body = list(lines)
+def emit_tape(body: list, tape, slots: list):
+    """Append to ``body`` the float code of a traced tape: each node once (constants folded,
+    x + 0, x·1 and x·0 folded; the inputs are the code of ``slots``), each guard as soon as its
+    operands exist, raising ``_Branch`` where it fails. Returns ``code(x)``: the code (a local,
+    an input's code or a float literal) of a node index or constant."""
     names: dict = {}
     vals: list = []
 
@@ -248,7 +248,7 @@ def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
             elif op == "add" and any(isinstance(x, float) and x == 0.0 for x in xs):
                 vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 0.0 else xs[0])
             elif op == "mul" and any(isinstance(x, float) and x == 0.0 for x in xs):
-                vals.append(0.0)        # the kinematics are finite where the guards hold
+                vals.append(0.0)        # the inputs are finite where the guards hold
             elif op == "mul" and any(isinstance(x, float) and x == 1.0 for x in xs):
                 vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 1.0 else xs[0])
             elif op in _INFIX:
@@ -263,7 +263,16 @@ def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
                 continue
             test = f"{s(va)} {_HOLD[op]} {s(vb)}"
             body.append(f"    if {'not ' if outcome else ''}{test}: raise _Branch()")
-    out = [s(operand(x)) for x in outputs]
+    return lambda x: s(operand(x))
+
+
+def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
+    """The fused function's code: q̈ alone, or with ``forces`` (Q and Q_nc's nodes) and the
+    kernel's ``parts`` the whole evaluation: (positions, analogs, angular analogs, A, h,
+    θ̈ at q̈ = 0, Q, Q_nc, q̈), the lists of :meth:`PartialSystems._exact_kernel_solve`."""
+    body = list(lines)
+    code = emit_tape(body, tape, slots)
+    out = [code(x) for x in outputs]
     check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
     if check:
         body.append(f"    if {check}: return None")
@@ -274,7 +283,7 @@ def _source(n, lines, tape, slots, outputs, forces=None, parts=None) -> str:
         ret = f"    return [{', '.join(out)}]"
     else:
         xl, jl, wl, A, h, conv = parts
-        fq = [s(operand(x)) for x in forces]
+        fq = [code(x) for x in forces]
         groups = [xl, jl, wl, A, h, conv, fq[:n], fq[n:], out]
         items = [f"[{', '.join(g)}]" for g in groups]
         items[3] = A[0] if n == 1 else f"({', '.join(A)})"

@@ -41,7 +41,9 @@ import numpy as np
 
 from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
 from .kernels import _key, _Writer, inline_once, live_lines, load
+from .effects.base import STATE_VERSION
 from .mechanism import FRAME
+from .tracing import BranchChanged
 
 
 class Fallback(ArithmeticError):
@@ -372,8 +374,42 @@ class LoadSums:
         self.base = base
         self._names = None              # the kinematics' names the rows below are read from
         self._rows = None
+        #: the sums as generated code per number of coordinates (:func:`traced_sums`):
+        #: [functions, most recent first], made for the effects' state ``_traced_at``
+        self._traced: dict = {}
+        self._traced_at = -1
+        self._traces = 0
 
     def __call__(self, t: float, kin) -> list:
+        """The sums at a state: by generated code where it holds (the same operations on the
+        same numbers of ``kin``), else :meth:`sums`."""
+        xl, jl, wl = kin._xl, kin._jl, kin._wl
+        if xl is not None and jl is not None and wl is not None:
+            if self._traced_at != STATE_VERSION[0]:
+                self._traced, self._traced_at = {}, STATE_VERSION[0]
+            vl = kin._vl if kin._vl is not None else kin._v()
+            made = self._traced.get(kin.n)
+            if made is None and self._traces < 16:
+                self._traces += 1
+                fn = traced_sums(self, t, kin)
+                made = self._traced[kin.n] = [fn] if fn is not None else []
+            for k, fn in enumerate(made or ()):
+                try:
+                    out = fn(t, xl, jl, wl, vl)
+                except (BranchChanged, ArithmeticError, ValueError):
+                    continue
+                if k:
+                    made.insert(0, made.pop(k))
+                return out
+            if made and len(made) < 6 and self._traces < 16:   # another branch of a law
+                self._traces += 1
+                fn = traced_sums(self, t, kin)
+                if fn is not None:
+                    made.insert(0, fn)
+        return self.sums(t, kin)
+
+    def sums(self, t: float, kin) -> list:
+        """The sums by the effects' ``loads``, one by one (the general path)."""
         out = self.base[:]
         names = kin.names
         if self._rows is None or self._names is not names:
@@ -410,6 +446,47 @@ class LoadSums:
                 else:
                     out[fr + 2] += entry[1]
         return out
+
+
+def traced_sums(sums: LoadSums, t: float, kin):
+    """``fn(t, xl, jl, wl, vl) -> list``: :meth:`LoadSums.sums` traced at (t, ``kin``) into
+    generated code reading the kinematics' lists by index, the effects' parameters and the
+    controls folded in, their comparisons guards (a failed one raises
+    :class:`~mps_core.tracing.BranchChanged`); None where a law cannot be traced."""
+    import math
+
+    from .fused_kernels import emit_tape
+    from .tracing import Tape, Traced
+
+    tape = Tape()
+    slots: list[str] = []
+
+    def slot(code: str, value: float):
+        tape.nodes.append(("input", len(slots)))
+        slots.append(code)
+        return Traced(tape, len(tape.nodes) - 1, float(value))
+
+    vl = kin._vl if kin._vl is not None else kin._v()
+    tl = {name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
+          for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))}
+    tkin = type(kin)(slot("t", t), None, None, kin.names, bodies=kin.bodies,
+                     lists=(tl["xl"], tl["jl"], tl["wl"]), v=tl["vl"])
+    try:
+        out = sums.sums(tkin.t, tkin)
+        values = [x.value if isinstance(x, Traced) else float(x) for x in out]
+        if not all(math.isfinite(v) for v in values):
+            return None
+    except Exception:       # noqa: BLE001 - anything a trace cannot hold: the general path
+        return None
+    body: list = []
+    code = emit_tape(body, tape, slots)
+    items = [code(x.index) if isinstance(x, Traced) else repr(float(x)) for x in out]
+    ret = f"    return [{', '.join(items)}]"
+    src = ("def kernel(t, xl, jl, wl, vl):\n"
+           + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n")
+    key = ("load sums", src)
+    return load(key, lambda: src, "<load sums>", None, "", {
+        "tanh": math.tanh, "_Branch": BranchChanged})
 
 
 def _arm(point, names, xl, ox, oy) -> tuple[float, float]:
