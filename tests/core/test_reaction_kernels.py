@@ -125,6 +125,8 @@ def test_a_failed_guard_falls_back_to_the_general_path(exact_cycle, monkeypatch)
     e, _ = states[500]
     ks = kernels_of(sim.mechanism)
     key = (e.view, ks.scale)
+    assert reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
+                           e.qd.tolist(), e.qdd.tolist(), e.kin) is not None   # made here
     kernel, unknowns = ks.views[key]
 
     def singular(*a):
