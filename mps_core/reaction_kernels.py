@@ -39,9 +39,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
-from .kernels import _key, _Writer, inline_once, live_lines, load
 from .effects.base import STATE_VERSION
+from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
+from .fused_kernels import fingerprint
+from .kernels import _key, _Writer, inline_once, live_lines, load
 from .mechanism import FRAME
 from .tracing import BranchChanged
 
@@ -375,9 +376,11 @@ class LoadSums:
         self._names = None              # the kinematics' names the rows below are read from
         self._rows = None
         #: the sums as generated code per number of coordinates (:func:`traced_sums`):
-        #: [functions, most recent first], made for the effects' state ``_traced_at``
+        #: [functions, most recent first], for the effects' state ``_traced_at``; kept per
+        #: state of their parameters and controls (a command, a change of structure, and back)
         self._traced: dict = {}
         self._traced_at = -1
+        self._by_state: dict = {}
         self._traces = 0
 
     def __call__(self, t: float, kin) -> list:
@@ -386,10 +389,17 @@ class LoadSums:
         xl, jl, wl = kin._xl, kin._jl, kin._wl
         if xl is not None and jl is not None and wl is not None:
             if self._traced_at != STATE_VERSION[0]:
-                self._traced, self._traced_at = {}, STATE_VERSION[0]
+                self._traced_at = STATE_VERSION[0]
+                state = fingerprint([e for e, _motor in self.effects])
+                if state is None:
+                    self._traced = {}
+                else:
+                    if len(self._by_state) > 64:
+                        self._by_state.clear()
+                    self._traced = self._by_state.setdefault(state, {})
             vl = kin._vl if kin._vl is not None else kin._v()
             made = self._traced.get(kin.n)
-            if made is None and self._traces < 16:
+            if made is None and self._traces < 64:
                 self._traces += 1
                 fn = traced_sums(self, t, kin)
                 made = self._traced[kin.n] = [fn] if fn is not None else []
@@ -401,7 +411,7 @@ class LoadSums:
                 if k:
                     made.insert(0, made.pop(k))
                 return out
-            if made and len(made) < 6 and self._traces < 16:   # another branch of a law
+            if made and len(made) < 6 and self._traces < 64:   # another branch of a law
                 self._traces += 1
                 fn = traced_sums(self, t, kin)
                 if fn is not None:
