@@ -78,6 +78,78 @@ class Solver:
         return self._dense
 
 
+_STEPS: dict = {}
+
+
+def _generated(cls, n: int, direct: bool):
+    """A generated step of ``cls`` for n coordinates, compiled once."""
+    fn = _STEPS.get((cls, n, direct))
+    if fn is None:
+        namespace: dict = {"_MISSES": misses()}
+        exec(compile(cls.step_source(n, direct), f"<{cls.name} step, n = {n}>", "exec"),
+             namespace)
+        fn = _STEPS[cls, n, direct] = namespace["step"]
+    return fn
+
+
+class GeneratedStep(Solver):
+    """A fixed-step method whose step is one generated function on floats (RK4, RK8).
+
+    Subclasses give ``_advance(t0, t1, q, v, a) -> (q₁, v₁)`` on lists of floats (the inner
+    stages through ``accel``, counted in ``nfev``); the step then evaluates the new state (the
+    kept evaluation, the next step's first stage). Dense output: cubic Hermite of the step's
+    ends, made when asked for (an event, a cut)."""
+
+    #: the calls of ``accel`` a step makes (the stages but the first)
+    inner_stages = 0
+
+    @staticmethod
+    def step_source(n: int, direct: bool) -> str:
+        """The code of ``step(accel, t0, t1, h, q…, v…, a…) -> (q₁, v₁)`` for n coordinates;
+        ``direct``: ``step(f, accel, …) -> (q₁, v₁, misses)``, the stages calling the fused
+        function ``f`` (:func:`stage_lines`)."""
+        raise NotImplementedError
+
+    def _advance(self, t0, t1, q, v, a):
+        f = self._direct()
+        if f is not None:
+            ql, vl, m = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0,
+                                                               *q, *v, *a)
+            self.accel.count(self.inner_stages - m)
+        else:
+            ql, vl = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0,
+                                                            *q, *v, *a)
+        self.nfev += self.inner_stages
+        return ql, vl
+
+    def step_to(self, t_target, interrupt=None):
+        t0, q0, v0 = self.t, self.q, self.qd
+        ql, vl = self._advance(t0, t_target, q0.tolist(), v0.tolist(),
+                               self.current.qdd.tolist())
+        q1, v1 = np.array(ql), np.array(vl)
+        e = self._call(t_target, q1, v1)
+        self._dense = None
+        self._last = (t0, q0, v0, self.current.qdd)
+        self.t, self.q, self.qd, self.current = t_target, q1, v1, e
+        self.nsteps += 1
+
+    def _direct(self):
+        """The fused function to call from the generated stages, where ``accel`` has one that
+        holds now (:meth:`~mps_core.engine.PartialSystems.accelerator`), else None."""
+        direct = getattr(self.accel, "direct", None)
+        return direct() if direct is not None else None
+
+    def dense_output(self):
+        if self._dense is None:
+            last = self.__dict__.get("_last")
+            if last is None:
+                raise RuntimeError("no step taken yet")
+            t0, q0, v0, a0 = last
+            self._dense = CubicHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
+                                       self.current.qdd)
+        return self._dense
+
+
 class CubicHermite:
     """q by the cubic Hermite polynomial of (q, q̇) at both ends, q̇ by that of (q̇, q̈)."""
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
-from .base import CubicHermite, Solver, misses, stage_lines
+from .base import GeneratedStep, stage_lines
 
 STAGES = _coef.N_STAGES
 _A = np.asarray(_coef.A[:STAGES, :STAGES], dtype=float)
@@ -56,80 +56,37 @@ def imaginary_limit(A, b, growth: float = 1e-12, step: float = 1e-4, top: float 
 
 IMAGINARY_LIMIT = imaginary_limit(_A, _B)
 
-_STEPS: dict = {}
-
-
 def _term(coefs, name) -> str:
     out = [f"{float(c)!r} * {name(j)}" for j, c in enumerate(coefs) if c != 0.0]
     return " + ".join(out) if out else "0.0"
 
 
-def _step_source(n: int, direct: bool = False) -> str:
-    """``step(accel, t0, h, q…, v…, a…) -> (q₁, v₁)``; ``direct``: ``step(f, accel, …) ->
-    (q₁, v₁, misses)``, the stages calling the fused function ``f`` (:func:`stage_lines`)."""
-    r = range(n)
-    args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
-    L = [f"def step({'f, ' if direct else ''}accel, t0, h, {', '.join(args)}):"]
-    if direct:
-        L.append("    m = 0")
-    # stage 1: V = v0, a = a0
-    V = {0: [f"v{i}" for i in r]}
-    a = {0: [f"a{i}" for i in r]}
-    for s in range(1, STAGES):
-        row = _A[s, :s]
-        qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
-        vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
-        V[s] = [f"V{s}_{i}" for i in r]
-        a[s] = [f"a{s}_{i}" for i in r]
-        L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
-        L.extend(stage_lines(f"t0 + {float(_C[s])!r} * h", qs, V[s], a[s], direct))
-    q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
-    v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
-    L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
-    return "\n".join(L) + "\n"
-
-
-def _step(n: int, direct: bool = False):
-    fn = _STEPS.get((n, direct))
-    if fn is None:
-        namespace: dict = {"_MISSES": misses()}
-        exec(compile(_step_source(n, direct), f"<rk8 step, n = {n}>", "exec"), namespace)
-        fn = _STEPS[n, direct] = namespace["step"]
-    return fn
-
-
-class RK8(Solver):
+class RK8(GeneratedStep):
     name = "rk8"
     order = 8
     evaluations_per_step = STAGES
+    inner_stages = STAGES - 1
 
-    def step_to(self, t_target, interrupt=None):
-        t0, q0, v0 = self.t, self.q, self.qd
-        h = t_target - t0
-        accel = self.accel
-        direct = getattr(accel, "direct", None)
-        f = direct() if direct is not None else None
-        if f is not None:
-            ql, vl, m = _step(q0.size, True)(f, accel, t0, h, *q0.tolist(), *v0.tolist(),
-                                             *self.current.qdd.tolist())
-            accel.count(STAGES - 1 - m)
-        else:
-            ql, vl = _step(q0.size)(accel, t0, h, *q0.tolist(), *v0.tolist(),
-                                    *self.current.qdd.tolist())
-        self.nfev += STAGES - 1
-        q1, v1 = np.array(ql), np.array(vl)
-        e = self._call(t_target, q1, v1)
-        self._dense = None
-        self._last = (t0, q0, v0, self.current.qdd)
-        self.t, self.q, self.qd, self.current = t_target, q1, v1, e
-        self.nsteps += 1
-
-    def dense_output(self):
-        if self._dense is None:
-            last = self.__dict__.get("_last")
-            if last is None:
-                raise RuntimeError("no step taken yet")
-            t0, q0, v0, a0 = last
-            self._dense = CubicHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
-                                       self.current.qdd)
-        return self._dense
+    @staticmethod
+    def step_source(n: int, direct: bool = False) -> str:
+        """One step on floats for n coordinates: the tableau's stages (zero coefficients left
+        out) and the eighth-order weights."""
+        r = range(n)
+        args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
+        L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
+        if direct:
+            L.append("    m = 0")
+        V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
+        a = {0: [f"a{i}" for i in r]}
+        for s in range(1, STAGES):
+            row = _A[s, :s]
+            qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
+            vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
+            V[s] = [f"V{s}_{i}" for i in r]
+            a[s] = [f"a{s}_{i}" for i in r]
+            L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
+            L.extend(stage_lines(f"t0 + {float(_C[s])!r} * h", qs, V[s], a[s], direct))
+        q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
+        v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
+        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
+        return "\n".join(L) + "\n"
