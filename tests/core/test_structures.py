@@ -359,3 +359,27 @@ def test_change_point_with_the_rocker_kept_on_its_side():
     assert np.all(np.isfinite(traj.phi_ddot))
     with pytest.raises(SceneError, match="central differences"):
         scene_from_text(text.replace('derivatives = "central"', 'derivatives = "autodiff"'))
+
+
+def test_the_higher_order_methods_subdivide_at_their_own_limit():
+    """RK4 and RK8 take the stiff spring's steps within their own limits on the imaginary
+    axis (2√2 and, from RK8's tableau, about 5.96): bounded where the step given is far beyond
+    them, RK8 in about 5.96/2√2 times fewer steps; with ``stiff = "error"`` both refuse."""
+    from mps_core.solvers.rk8 import IMAGINARY_LIMIT
+
+    steps = {}
+    for solver in ("rk4", "rk8"):
+        coarse = simulate(scene_from_text(STIFF), t_end=0.02, dt=1e-3, solver=solver,
+                          scheme="autodiff")
+        assert np.all(np.isfinite(coarse.x_C)) and np.all(np.isfinite(coarse.phi_ddot))
+        e = coarse.T + coarse.V
+        # no blow-up: the energy never grows (both damp a mode resolved this coarsely: the
+        # stiff mode's share is lost, as with the predictor-corrector above)
+        assert e.max() <= e[0] * (1 + 1e-9) and np.all(np.diff(e) <= 1e-6 * abs(e[0]))
+        steps[solver] = coarse.counts["steps"]
+        with pytest.raises(StabilityError, match="stability limit"):
+            simulate(scene_from_text(STIFF.replace("[solver]", "[solver]\nstiff = \"error\"")),
+                     t_end=0.02, dt=1e-3, solver=solver, scheme="autodiff")
+    assert steps["rk8"] > 20
+    ratio = steps["rk4"] / steps["rk8"]
+    assert 0.75 < ratio / (IMAGINARY_LIMIT / (2 * math.sqrt(2))) < 1.25, steps
