@@ -1,6 +1,6 @@
 """The ``mps`` command line.
 
-    mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--delta-deg D]
+    mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--step S] [--delta-deg D]
                   [--derivatives central|autodiff] [--iterations K] [--rtol R] [--atol A]
                   [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE]
     mps scenes
@@ -35,6 +35,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--dt", type=float, metavar="S",
                    help="step (s); the output grid for the adaptive solvers")
     r.add_argument("--solver", choices=SOLVERS)
+    r.add_argument("--step", type=float, metavar="S",
+                   help="the fixed-step solvers' own step (s), where it is not the output "
+                        "step: shorter, several steps an output; longer, outputs from the "
+                        "step's interpolant")
     r.add_argument("--delta-deg", type=float, metavar="D",
                    help="virtual displacement of the central differences (degrees)")
     r.add_argument("--derivatives", choices=("central", "autodiff"),
@@ -73,7 +77,7 @@ def _run(args) -> int:
         t_end=args.t_end, steps=args.steps, dt=args.dt, solver=args.solver,
         delta=None if args.delta_deg is None else math.radians(args.delta_deg),
         scheme=args.derivatives, iterations=args.iterations, rtol=args.rtol, atol=args.atol,
-        chart_switching=False if args.no_chart_switching else None)
+        chart_switching=False if args.no_chart_switching else None, step=args.step)
     from . import build
 
     sim = build(scene)
@@ -87,7 +91,8 @@ def _run(args) -> int:
     cpu = time.process_time() - c0
     s = scene.solver
     print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
-          f"{scene.steps} steps of {scene.dt:.6g} s")
+          f"{scene.steps} steps of {scene.dt:.6g} s"
+          + (f" (outputs; the solver's steps {s.step:.6g} s)" if s.step is not None else ""))
     detail = f"{s.scheme} derivatives"
     if s.scheme == "central":
         detail += f", delta = {math.degrees(s.delta):g} deg"

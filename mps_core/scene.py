@@ -25,7 +25,7 @@ from .effects import (MOTOR_PRESETS, Blanking, DisengageCylinder, EngageCylinder
 from .engine import SCHEMES
 from .errors import SceneError
 from .mechanisms.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
-from .simulation import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
+from .simulation import ADAPTIVE_SOLVERS, COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
 from .solvers import SOLVERS
 
 BODY_NAMES = ("crank", "rod", "rocker", "slider")
@@ -70,7 +70,7 @@ class Scene:
 
     def with_overrides(self, *, t_end=None, steps=None, dt=None, solver=None, delta=None,
                        scheme=None, iterations=None, rtol=None, atol=None,
-                       chart_switching=None, switch_points=None) -> "Scene":
+                       chart_switching=None, switch_points=None, step=None) -> "Scene":
         """The same scene with run settings changed (the CLI's options), validated again."""
         s = self
         if steps is not None and dt is not None:
@@ -105,6 +105,10 @@ class Scene:
         if switch_points is not None:
             _choice("solver.switch_points", switch_points, SWITCH_POINTS)
             st = replace(st, switch_points=switch_points)
+        if step is not None:
+            st = replace(st, step=_step("solver.step_s", step, t_end))
+        if st.step is not None:
+            _check_step_solver(st)
         ch = s.charts if chart_switching is None else replace(s.charts, switching=chart_switching)
         return replace(s, t_end=t_end, dt=dt, solver=st, charts=ch)
 
@@ -159,6 +163,19 @@ def _tol(fieldname, v) -> float:
     if not (1e-15 <= x <= 1e-2):
         raise SceneError(fieldname, v, "a tolerance between 1e-15 and 1e-2")
     return x
+
+
+def _step(fieldname, step, t_end) -> float:
+    """A fixed-step solver's own step (seconds): as a step of the output grid."""
+    _check_dt(fieldname, step, t_end)
+    return float(step)
+
+
+def _check_step_solver(st) -> None:
+    if st.name in ADAPTIVE_SOLVERS:
+        raise SceneError("solver.step_s", st.step,
+                         "no step for the adaptive solver " + st.name + " (it chooses its own): "
+                         "a fixed-step solver (linear-acceleration, rk4, rk8)")
 
 
 def _check_dt(fieldname, dt, t_end):
@@ -547,6 +564,9 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     elif dt is None:
         dt = 1e-3
     _check_dt("solver.dt_s", dt, t_end)
+    step = sv.get("step_s")
+    if step is not None:
+        step = _step("solver.step_s", step, t_end)
     sv.done()
 
     ot = _Table(top.get("outputs", {}), "outputs")
@@ -569,9 +589,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
 
     scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
                   effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff,
-                                                   switch_points=switch_points),
+                                          switch_points=switch_points, step=step),
                   t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
                   reactions, change_point, text, origin)
+    if step is not None:
+        _check_step_solver(scene.solver)
     if change_point == "keep-side" and scheme != "central":
         raise SceneError("structure.change_point", change_point,
                          "'continue' with solver.derivatives = 'autodiff' (keep-side restarts "

@@ -125,6 +125,10 @@ class SolverSettings:
     #: fixed-step ones (an isolated kink or jump stays within their O(Δt²) error: the linear
     #: acceleration method's order holds; RK4's falls to 2 near one)
     switch_points: str = "auto"
+    #: the fixed-step solvers' step where it is not the output interval (None: the same):
+    #: shorter, several steps an output; longer, the outputs inside a step from its
+    #: interpolant, each evaluated there (event location, commands and charts as ever)
+    step: float | None = None
 
     def locates_switch_points(self) -> bool:
         if self.switch_points not in SWITCH_POINTS:
@@ -251,6 +255,15 @@ class Simulation:
         self.phys: dict[str, float] = {}
         self._phys_of = None            # the evaluation phys was last read from
         self._plans: dict[ChartView, _ViewPlan] = {}
+        #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
+        self._spans = None
+        if solver.step is not None:
+            if not (solver.step > 0.0 and math.isfinite(solver.step)):
+                raise ValueError(f"step = {solver.step!r}: expected a positive number of seconds")
+            if solver.name in ADAPTIVE_SOLVERS:
+                raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
+                                 "chooses its own steps (a step is for linear-acceleration, "
+                                 "rk4, rk8)")
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
@@ -849,6 +862,9 @@ class Simulation:
             if self._timers and self._timers[0][0] < t_next:
                 t_next = self._timers[0][0]
             dt = t_next - t0
+            step = self.settings.step
+            if step is not None and dt > step * (1.0 + 1e-9):
+                dt = step
             if dt > self._dt_stable:         # else stable in any state: no estimate needed
                 dt = self._stable_step(dt)
             t_next = t0 + dt
@@ -870,6 +886,10 @@ class Simulation:
                 self._switch(self.view.regularity(e.kin.pose), forced=True)
                 continue
             failures = 0
+            spans = self._spans
+            if spans is not None:           # outputs inside the step: its interpolant
+                spans.append([t0, self.solver.t, self.solver.dense_output(), self.view,
+                              self.controls.structure, self.work, p_a, self.impact_loss])
             hit, vals = self._locate_event()
             if hit is not None and hit[1].name == "change-point" and \
                     self.change_point != "keep-side":
@@ -881,6 +901,8 @@ class Simulation:
                 hit = None
             if hit is not None:
                 t_e, ev, after_value = hit
+                if spans is not None:
+                    spans[-1][1] = t_e
                 self._cut_at(t_e)
                 self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
                 ev.action(t_e)
@@ -900,6 +922,9 @@ class Simulation:
             self._check_chart()
 
     def run(self, t_end: float, dt: float) -> Trajectory:
+        """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
+        ``dt``, or by the settings' ``step`` where given: shorter, several steps an output;
+        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`)."""
         t0 = self.solver.t
         if not (t_end > t0):
             raise ValueError(f"t_end = {t_end!r}: expected a time after the start {t0!r}")
@@ -908,21 +933,71 @@ class Simulation:
         n = max(1, int(round((t_end - t0) / dt)))
         rows: list[tuple] = []
         self._record(rows, self.solver.current)
+        step = self.settings.step
+        if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
+                self.settings.name not in ADAPTIVE_SOLVERS:
+            return self._run_long_steps(rows, t0, t_end, n, step)
         for k in range(1, n + 1):
             tk = t_end if k == n else t0 + k * (t_end - t0) / n
             self.advance_to(tk)                 # keeps the unwrap references current
             self._record(rows, self.solver.current)
         return self._trajectory(rows)
 
-    def _record(self, rows, e):
+    def _run_long_steps(self, rows, t0, t_end, n, step) -> Trajectory:
+        """Steps longer than the output interval. Each output inside a step is the step's
+        interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
+        structure, work (trapezoid from the step's start) and impact loss of that step; an
+        output at a step's end is that step's own evaluation. The steps keep the grid
+        t0 + m·step; events still end steps at their roots, and commands and charts change
+        between steps, as with any step."""
+        times = [t_end if k == n else t0 + k * (t_end - t0) / n for k in range(1, n + 1)]
+        tol = 1e-12 * max(1.0, abs(t_end))
+        k = 0
+        self._spans = spans = []
+        try:
+            while k < n:
+                spans.clear()
+                # the steps keep their grid t0 + m·step: after an event's cut the next step
+                # ends where it would have
+                m = math.floor((self.solver.t - t0) / step + 1e-9) + 1
+                self.advance_to(min(t0 + m * step, t_end))
+                t_now = self.solver.t
+                while k < n and times[k] <= t_now + tol:
+                    tk = times[k]
+                    if abs(tk - t_now) <= tol:
+                        self._record(rows, self.solver.current)
+                    else:
+                        self._record_inside(rows, tk, spans, tol)
+                    k += 1
+        finally:
+            self._spans = None
+        return self._trajectory(rows)
+
+    def _record_inside(self, rows, tk, spans, tol):
+        """Record the output at ``tk`` from the last step that holds it (see
+        :meth:`_run_long_steps`)."""
+        for t_a, t_b, dense, view, structure, work, p_a, loss in reversed(spans):
+            if t_a - tol <= tk <= t_b + tol:
+                break
+        else:
+            raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
+        q, qd = dense(tk)
+        e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
+        self._record(rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a),
+                     loss=loss, structure=structure)
+
+    def _record(self, rows, e, work=None, loss=None, structure=None):
         """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
-        made once, at the end) and call the observers."""
+        made once, at the end) and call the observers. ``work``, ``loss``, ``structure``: the
+        run's at ``e`` where they are not the present ones (an output inside a step)."""
         obs = self._observations(e)
         at = self._report_at
         phi, psi = obs[at["phi"]], obs[at["psi"]]
         rows.append((e.t, phi[0], psi[0], phi[1], psi[1], phi[2], psi[2], obs[at["x_C"]][0],
-                     e.kinetic_energy, self._potential(e.kin), self.work,
-                     self.impact_loss, self.controls.structure, e.view.name))
+                     e.kinetic_energy, self._potential(e.kin),
+                     self.work if work is None else work,
+                     self.impact_loss if loss is None else loss,
+                     self.controls.structure if structure is None else structure, e.view.name))
         for ob in self.observers:
             ob.observe(self, e)
 

@@ -98,29 +98,34 @@ class GeneratedStep(Solver):
     Subclasses give ``_advance(t0, t1, q, v, a) -> (q₁, v₁)`` on lists of floats (the inner
     stages through ``accel``, counted in ``nfev``); the step then evaluates the new state (the
     kept evaluation, the next step's first stage). Dense output: cubic Hermite of the step's
-    ends, made when asked for (an event, a cut)."""
+    ends unless a subclass has a better one, made when asked for (an event, a cut, an output
+    inside the step)."""
 
     #: the calls of ``accel`` a step makes (the stages but the first)
     inner_stages = 0
+    #: the generated step also gives its stages' derivatives (kept for the interpolant)
+    returns_stages = False
 
     @staticmethod
     def step_source(n: int, direct: bool) -> str:
-        """The code of ``step(accel, t0, t1, h, q…, v…, a…) -> (q₁, v₁)`` for n coordinates;
-        ``direct``: ``step(f, accel, …) -> (q₁, v₁, misses)``, the stages calling the fused
-        function ``f`` (:func:`stage_lines`)."""
+        """The code of ``step(accel, t0, t1, h, q…, v…, a…) -> (q₁, v₁)`` for n coordinates
+        (``(q₁, v₁, K)`` with :attr:`returns_stages`); ``direct``: ``step(f, accel, …)``, the
+        stages calling the fused function ``f`` (:func:`stage_lines`), the misses last."""
         raise NotImplementedError
 
     def _advance(self, t0, t1, q, v, a):
         f = self._direct()
         if f is not None:
-            ql, vl, m = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0,
-                                                               *q, *v, *a)
-            self.accel.count(self.inner_stages - m)
+            out = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0,
+                                                         *q, *v, *a)
+            self.accel.count(self.inner_stages - out[-1])
         else:
-            ql, vl = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0,
-                                                            *q, *v, *a)
+            out = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0,
+                                                          *q, *v, *a)
         self.nfev += self.inner_stages
-        return ql, vl
+        if self.returns_stages:
+            self._stages = out[2]
+        return out[0], out[1]
 
     def step_to(self, t_target, interrupt=None):
         t0, q0, v0 = self.t, self.q, self.qd

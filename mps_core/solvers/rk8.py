@@ -8,9 +8,10 @@ Dormand and Prince's eighth-order solution (the ``B`` weights of
   for the chart's n coordinates (zero coefficients left out);
 * the evaluation at the new state is the next step's first stage: 12 evaluations a step.
 
-Global error O(Δt⁸): where a fixed step with outputs on its grid is wanted (a live twin, a
-recording at a fixed rate) it reaches in one step what RK4 needs several for. Dense output:
-cubic Hermite of the step's ends, as RK4's (event location to O(Δt⁴) inside a step).
+Global error O(Δt⁸): where a fixed step is wanted (a live twin, a recording at a fixed rate)
+it reaches in one step what RK4 needs several for. Dense output: DOP853's seventh-order
+interpolant, three more evaluations a step where it is asked for (event location, and outputs
+inside a step longer than their interval: ``[solver] step_s``).
 
 Stability: on the imaginary axis (an undamped oscillation of angular frequency ω) the method is
 stable for ω·Δt up to :data:`IMAGINARY_LIMIT`, computed from the tableau
@@ -23,6 +24,7 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from .base import GeneratedStep, stage_lines
+from .dop853 import _DenseOutput, _generated as _dop853_code
 
 STAGES = _coef.N_STAGES
 _A = np.asarray(_coef.A[:STAGES, :STAGES], dtype=float)
@@ -66,6 +68,7 @@ class RK8(GeneratedStep):
     order = 8
     evaluations_per_step = STAGES
     inner_stages = STAGES - 1
+    returns_stages = True
 
     @staticmethod
     def step_source(n: int, direct: bool = False) -> str:
@@ -88,5 +91,27 @@ class RK8(GeneratedStep):
             L.extend(stage_lines(f"t0 + {float(_C[s])!r} * h", qs, V[s], a[s], direct))
         q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
         v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
-        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
+        K = ", ".join("[" + ", ".join(V[s] + a[s]) + "]" for s in range(STAGES))
+        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}], [{K}]"
+                 f"{', m' if direct else ''}")
         return "\n".join(L) + "\n"
+
+    def dense_output(self):
+        """DOP853's seventh-order interpolant of the last step, from its stages and three more
+        (scipy's ``Dop853DenseOutput``), made when asked for: outputs inside a step keep the
+        method's accuracy."""
+        if self._dense is None:
+            last = self.__dict__.get("_last")
+            if last is None:
+                raise RuntimeError("no step taken yet")
+            t0, q0, v0, a0 = last
+            n = q0.size
+            y_old = q0.tolist() + v0.tolist()
+            f_old = v0.tolist() + a0.tolist()
+            y_new = self.q.tolist() + self.qd.tolist()
+            f_new = self.qd.tolist() + self.current.qdd.tolist()
+            h = self.t - t0
+            F = _dop853_code("dense", n)(self._accel_counted, t0, h, self._stages, *y_old,
+                                         *f_old, *y_new, *f_new)
+            self._dense = _DenseOutput(t0, h, y_old, F, n)
+        return self._dense
