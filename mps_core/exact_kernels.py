@@ -101,6 +101,9 @@ class _Forward:
 
     def __init__(self, w: _Writer, n: int):
         self.w, self.n = w, n
+        #: locals that are the negation of another: folded where IEEE arithmetic makes it
+        #: exact (−(−x) = x, a + (−x) = a − x, a − (−x) = a + x, c·(−x) = (−c)·x)
+        self.negs: dict = {}
 
     # -- components ------------------------------------------------------------------------
     @staticmethod
@@ -114,6 +117,11 @@ class _Forward:
             return a
         if isinstance(a, float) and isinstance(b, float):
             return a + b
+        negs = self.negs
+        if isinstance(b, str) and b in negs:
+            return self.sub(a, negs[b])
+        if isinstance(a, str) and a in negs:
+            return self.sub(b, negs[a])
         a, b = sorted((self._s(a), self._s(b)))       # a + b == b + a exactly
         return self.w.let(f"{a} + {b}")
 
@@ -124,6 +132,8 @@ class _Forward:
             return self.neg(b)
         if isinstance(a, float) and isinstance(b, float):
             return a - b
+        if isinstance(b, str) and b in self.negs:
+            return self.add(a, self.negs[b])
         return self.w.let(f"{self._s(a)} - {self._s(b)}")
 
     def neg(self, a):
@@ -131,7 +141,12 @@ class _Forward:
             return None
         if isinstance(a, float):
             return -a
-        return self.w.let(f"-{a}")
+        if a in self.negs:
+            return self.negs[a]
+        name = self.w.let(f"-{a}")
+        if name != a:
+            self.negs[name] = a
+        return name
 
     def mul(self, a, b):
         if a is None or b is None or a == 0.0 or b == 0.0:
@@ -150,6 +165,12 @@ class _Forward:
             a, b = b, a
         elif not isinstance(a, float) and b < a:
             a, b = b, a                                 # a·b == b·a exactly
+        negs = self.negs
+        if b in negs:
+            if isinstance(a, float):
+                return self.mul(-a, negs[b])            # c·(−x) == (−c)·x exactly
+            if a in negs:
+                return self.mul(negs[a], negs[b])       # (−x)·(−y) == x·y exactly
         return self.w.let(f"{self._s(a)} * {self._s(b)}")
 
     def call(self, fn: str, a):
