@@ -161,6 +161,17 @@ def evaluation_costs(case: Case, number: int = 2000):
                              " (fused)" if plan is not None and plan.fused is not None else ""),
                          "chart": e.view.name, "n": e.view.n, "us_per_evaluation": us,
                          "position_points": 1})
+            if plan is not None and plan.fused is not None:
+                # the same evaluation without the fused function: the exact kernel, the
+                # effects one by one and the solve (what the fused function replaces)
+                from ..effects.base import STATE_VERSION
+
+                fused = plan.fused
+                plan.fused, plan.fused_at = None, STATE_VERSION[0]
+                us = _per_call(lambda: eng.evaluate(e.view, e.t, e.q, e.qd), number)
+                plan.fused = fused
+                rows.append({"scheme": "autodiff, effects one by one", "chart": e.view.name,
+                             "n": e.view.n, "us_per_evaluation": us, "position_points": 1})
     return rows
 
 
