@@ -1059,12 +1059,13 @@ class PartialSystems:
             # the whole evaluation in one call (mps_core.fused_kernels), where its guards
             # hold and q̈ is finite; else the kernel and the effects one by one below
             try:
-                xl, jl, wl, A, h, conv, Q, Qnc, qdd = fused.full(t, *ql, *vl)
+                out = fused.full(t, *ql, *vl)
             except ForceLawBranch:
-                qdd = None                  # the kinematics hold: the kernel below
+                out = None                  # the kinematics hold: the kernel below
             except (ArithmeticError, ValueError):
-                qdd = None                  # the kernel below says what is wrong
-            if qdd is not None:
+                out = None                  # the kernel below says what is wrong
+            if out is not None:             # (None: q̈ not finite, the kernel below says so)
+                xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
                 kin = Kinematics(t, q, qd, self._names, bodies=self._body_index,
                                  lists=(xl, jl, wl), conv=conv, v=vl)
                 return kin, A, h, Q, Qnc, qdd

@@ -191,3 +191,26 @@ def test_a_generated_step_calling_the_fused_function_gives_the_same_run():
     assert np.array_equal(a.phi, b.phi) and np.array_equal(a.psi_dot, b.psi_dot)
     assert a.counts["evaluations"] == b.counts["evaluations"]
     assert a.counts["solver_evaluations"] == b.counts["solver_evaluations"]
+
+
+def test_a_fused_evaluation_that_is_not_finite_leaves_the_answer_to_the_kernel():
+    """Where the fused whole evaluation gives None (q̈ not finite) the evaluation is the exact
+    kernel's and the effects', which raise the engine's own error where there is one."""
+    sim = _paper()
+    eng, view = sim.engine, sim.view
+    q, v = sim.solver.q, sim.solver.qd + 0.2
+    ref = eng.evaluate(view, 0.0, q, v).qdd.tolist()
+    fused = eng._plans[view].fused
+    calls = []
+
+    def not_finite(*a):
+        calls.append(a)
+        return None
+
+    full = fused.full
+    fused.full = not_finite
+    try:
+        assert eng.evaluate(view, 0.0, q, v).qdd.tolist() == ref
+    finally:
+        fused.full = full
+    assert calls
