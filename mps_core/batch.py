@@ -62,7 +62,8 @@ class BatchResult:
 def _group_key(scene: Scene):
     """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
     s = scene.solver
-    if s.name not in VECTOR_SOLVERS or s.scheme != "central" or scene.commands:
+    if s.name not in VECTOR_SOLVERS or s.scheme != "central" or scene.commands or \
+            s.step is not None:         # a step apart from the outputs: the scene's own run
         return None
     mech = scene.mechanism()
     effects = scene.build_effects(mech)

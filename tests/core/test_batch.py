@@ -81,3 +81,15 @@ def test_batches_on_a_local_dask_cluster():
     local = simulate_many(scenes)
     for a, b in zip(res, local):
         assert_same(a, b, rtol=0.0)
+
+
+def test_a_scene_with_a_step_apart_from_its_outputs_runs_on_its_own():
+    """A solver step apart from the outputs (``solver.step_s``) is the scene's own run, never
+    the vectorised pass (which steps at the outputs)."""
+    scenes = sweep(2, t_end=0.01)
+    scenes[0] = scenes[0].with_overrides(step=2.5e-5)
+    res = simulate_many(scenes)
+    assert res.vectorised == [False, True]
+    ref = simulate(scenes[0])
+    assert np.array_equal(res[0].phi, ref.phi)
+    assert res[0].counts["steps"] == 4 * res[1].counts["steps"]
