@@ -25,6 +25,8 @@ from typing import Callable
 
 import numpy as np
 
+from ..tracing import BranchChanged
+
 
 class Solver:
     name = "solver"
@@ -95,9 +97,10 @@ def _generated(cls, n: int, direct: bool):
 class GeneratedStep(Solver):
     """A fixed-step method whose step is one generated function on floats (RK4, RK8).
 
-    Subclasses give ``_advance(t0, t1, q, v, a) -> (q₁, v₁)`` on lists of floats (the inner
-    stages through ``accel``, counted in ``nfev``); the step then evaluates the new state (the
-    kept evaluation, the next step's first stage). Dense output: cubic Hermite of the step's
+    Subclasses give :meth:`step_source` (the step on floats for n coordinates) and
+    :attr:`inner_stages`; a step runs it (its stages calling the fused function directly where
+    ``accel`` offers one, :func:`stage_lines`, else ``accel``; counted in ``nfev``), then
+    evaluates the new state (the kept evaluation, the next step's first stage). Dense output: cubic Hermite of the step's
     ends unless a subclass has a better one, made when asked for (an event, a cut, an output
     inside the step)."""
 
@@ -177,14 +180,10 @@ class CubicHermite:
 
 #: what a fused function raises or gives where it does not hold (a generated step then asks
 #: ``accel``, the general path): a failed guard, a domain error, and None (not finite) unpacked
-_MISSES = None
+_MISSES = (BranchChanged, ArithmeticError, ValueError, TypeError)
 
 
 def misses() -> tuple:
-    global _MISSES
-    if _MISSES is None:
-        from ..tracing import BranchChanged
-        _MISSES = (BranchChanged, ArithmeticError, ValueError, TypeError)
     return _MISSES
 
 
