@@ -153,14 +153,11 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     return kernel
 
 
-_FUNCTION_KEYS: "weakref.WeakKeyDictionary" = None  # type: ignore[assignment]
+_FUNCTION_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def function_key(fn, _depth: int = 0):
     """:func:`_function_key`, kept per function object."""
-    global _FUNCTION_KEYS
-    if _FUNCTION_KEYS is None:
-        _FUNCTION_KEYS = weakref.WeakKeyDictionary()
     try:
         return _FUNCTION_KEYS[fn]
     except (KeyError, TypeError):
@@ -175,9 +172,9 @@ def function_key(fn, _depth: int = 0):
 
 def _function_key(fn, _depth: int = 0):
     """What a position function computes, as a hashable value: its code, module, defaults and
-    the values its closure holds (numbers, strings, functions of the same kind); None where
-    the closure holds anything else (its generated code is then not shared between
-    mechanisms)."""
+    the values its closure holds (numbers, strings, functions of the same kind; its module's
+    globals are taken as fixed); None where the closure holds anything else (its generated
+    code is then not shared between mechanisms)."""
     def value(x):
         if x is None or isinstance(x, (bool, int, float, str)):
             return x
