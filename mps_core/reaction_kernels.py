@@ -37,14 +37,16 @@ path, which reports the rank.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .effects.base import STATE_VERSION
 from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
-from .fused_kernels import fingerprint
+from .fused_kernels import emit_tape, fingerprint
 from .kernels import _key, _Writer, inline_once, live_lines, load
 from .mechanism import FRAME
-from .tracing import BranchChanged
+from .tracing import BranchChanged, Tape, Traced
 
 
 class Fallback(ArithmeticError):
@@ -463,11 +465,6 @@ def traced_sums(sums: LoadSums, t: float, kin):
     generated code reading the kinematics' lists by index, the effects' parameters and the
     controls folded in, their comparisons guards (a failed one raises
     :class:`~mps_core.tracing.BranchChanged`); None where a law cannot be traced."""
-    import math
-
-    from .fused_kernels import emit_tape
-    from .tracing import Tape, Traced
-
     tape = Tape()
     slots: list[str] = []
 
