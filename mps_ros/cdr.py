@@ -93,12 +93,15 @@ ENCODERS = {
 
 class Preset:
     """A message of fixed layout, kept encoded: only its stamp (in every header it has) and
-    floats change from one step to the next (the strings and sequence lengths stay). ``encode``: one of the encoders above;
-    ``make(stamp, floats)``: the message dict with those values. The bytes are a preallocated
-    buffer with the new values packed in at their offsets (found once, from the encoder's own
-    output), so ``pack(sec, nanosec, floats)`` gives exactly ``encode(make(...))``."""
+    floats change from one step to the next (the strings and sequence lengths stay).
+    ``encode``: one of the encoders above; ``make(stamp, floats)``: the message dict with those
+    values. The offsets of the stamps and floats are found once, from the encoder's own output;
+    ``pack(sec, nanosec, floats)`` is then one ``struct`` call, with the bytes between them as
+    constants, and gives exactly ``encode(make(...))``. ``take``: float k of the message is
+    ``floats[take[k]]`` (0.0 where None) instead of ``floats[k]``, so that one list of values
+    (a step's reactions) fills several messages without a list for each."""
 
-    def __init__(self, encode, make, nfloats: int):
+    def __init__(self, encode, make, nfloats: int, take=None):
         # sentinels: distinct values whose bytes occur once in the encoded message
         marks = [float.fromhex(f"0x1.{k + 1:04x}5a5a5a5a5p-1000") for k in range(nfloats)]
         sec, nsec = 0x5A5A5A5A, 0x3C3C3C3C
@@ -117,29 +120,35 @@ class Preset:
             if at < 0 or probe.find(b, at + 1) >= 0:
                 raise ValueError("Preset: a float is not found once in the encoded message")
             offsets.append(at)
-        runs = []                       # (offset, struct) of consecutive floats
-        k = 0
-        while k < nfloats:
-            j = k
-            while j + 1 < nfloats and offsets[j + 1] == offsets[j] + 8:
-                j += 1
-            runs.append((offsets[k], k, j + 1, struct.Struct(f"<{j + 1 - k}d")))
-            k = j + 1
-        self._buf = bytearray(probe)
-        self._stamps = stamps
-        self._runs = runs
+        # one struct for the whole message: the probe's bytes between the fields as constants
+        fields = sorted([(at, None) for at in stamps] + [(at, k) for k, at in enumerate(offsets)])
+        fmt, args, consts, pos = "<", [], {}, 0
+        for at, k in fields:
+            if at < pos:
+                raise ValueError("Preset: two fields overlap in the encoded message")
+            if at > pos:
+                name = f"_c{len(consts)}"
+                consts[name] = bytes(probe[pos:at])
+                fmt += f"{at - pos}s"
+                args.append(name)
+            fmt += "iI" if k is None else "d"
+            if k is None:
+                args += ["sec", "nanosec"]
+            elif take is None:
+                args.append(f"floats[{k}]")
+            else:
+                args.append("0.0" if take[k] is None else f"floats[{int(take[k])}]")
+            pos = at + 8
+        if pos < len(probe):
+            consts["_tail"] = bytes(probe[pos:])
+            fmt += f"{len(probe) - pos}s"
+            args.append("_tail")
+        namespace = {"_pack": struct.Struct(fmt).pack, **consts}
+        exec(f"def pack(sec, nanosec, floats):\n    return _pack({', '.join(args)})\n",
+             namespace)
+        #: ``pack(sec, nanosec, floats)``: the message's bytes with these values
+        self.pack = namespace["pack"]
         self.nfloats = nfloats
-
-    def pack(self, sec: int, nanosec: int, floats) -> bytes:
-        buf = self._buf
-        for at in self._stamps:
-            _time_into(buf, at, sec, nanosec)
-        for at, a, b, st in self._runs:
-            st.pack_into(buf, at, *floats[a:b])
-        return bytes(buf)
-
-
-_time_into = struct.Struct("<iI").pack_into
 
 
 # -- every other type: mcap-ros2-support's encoder, from rosbags' definitions ---------------

@@ -297,8 +297,9 @@ class Twin:
             return make
 
         self._js = Preset(joint_state, js, 8 + effort)
-        self._wr = [(w.key, Preset(wrench_stamped, wrench(w.frame_id), 3),
-                     [None if c is None else _RX[c] for c in (*w.force, w.torque)])
+        self._wr = [(w.key, Preset(wrench_stamped, wrench(w.frame_id), 3,
+                                   take=[None if c is None else _RX[c]
+                                         for c in (*w.force, w.torque)]).pack)
                     for w in self._wrenches()]
 
     def state_payloads(self) -> list[tuple[str, bytes]]:
@@ -322,9 +323,8 @@ class Twin:
             if rx is not None:
                 vals += self._effort(rx)
             out.append(("joint_states", self._js.pack(sec, nsec, vals)))
-        for key, preset, cols in self._wr:
-            out.append((key, preset.pack(sec, nsec, [0.0 if c is None else rx[c]
-                                                     for c in cols])))
+        for key, pack in self._wr:
+            out.append((key, pack(sec, nsec, rx)))
         if "structure" in o:
             s = sim.structure
             if s != self._structure_sent:
@@ -511,7 +511,9 @@ class Runner:
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
     :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.cdr.encoder`
     for the others) and its simulated time in ns; a recorder also gets the commands received,
-    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step.
+    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. In realtime pacing a
+    sink that is not live and has ``emit_all(msgs)`` gets each released step in one call
+    (``(key, data, t_ns, received)`` each, in order) instead.
 
     Step and publish times, and in realtime pacing the latency after each step's deadline, are
     kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
@@ -967,8 +969,13 @@ class Runner:
                 if ahead:
                     entry.cp = twin.checkpoint()
                 with cond:
-                    queue.append(entry)
-                    cond.notify_all()
+                    # the releasing thread waits for its head's deadline, which a step
+                    # queued behind it does not move: it is woken only where it has none
+                    if not queue:
+                        queue.append(entry)
+                        cond.notify_all()
+                    else:
+                        queue.append(entry)
         except Exception as exc:
             self._failed(exc)
             raise
@@ -1039,8 +1046,12 @@ class Runner:
         """Released steps to the sinks that are not live (the recorder), in order."""
         while released:
             entry = released.popleft()
-            for key, data, t_ns, received in entry.msgs:
-                for s in sinks:
+            for s in sinks:
+                emit_all = getattr(s, "emit_all", None)
+                if emit_all is not None:        # the whole step in one call
+                    emit_all(entry.msgs)
+                    continue
+                for key, data, t_ns, received in entry.msgs:
                     if not received:
                         s.emit(key, data, t_ns)
                     elif hasattr(s, "received"):
