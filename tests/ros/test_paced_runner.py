@@ -1,5 +1,6 @@
 """Realtime pacing with steps computed ahead, without ROS: nothing is released before its
-deadline, the live and the recording sinks get the same messages in the same order, and a
+deadline, the live and the recording sinks (the recording process included) get the same messages in
+the same order, and a
 command is applied at the first step boundary whose deadline is not before its arrival, the
 steps computed beyond it dropped: the run is then bit for bit the run that stepped in time."""
 
@@ -68,7 +69,13 @@ def test_released_at_deadlines_and_the_same_to_every_sink():
     assert stamps == sorted(stamps) and len(stamps) == round(T_END / DT) + 1
 
 
-def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_stepped_in_time():
+def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_stepped_in_time(
+        tmp_path):
+    from mcap.reader import make_reader
+
+    from mps_ros.recording import BackgroundRecorder, RecordingSink
+    from mps_ros.topics import resolve
+
     K = 60                              # the command is sent as step K's state goes out
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
     sent = {}
@@ -80,9 +87,16 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
             runner.inbox.put(cmd)
 
     live, rec = Sink(True, on_clock), Sink(False)
-    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
-                    lead=0.05, warm_up=0.0)
+    # the recording process, handed each released step in one call (RecordingSink.emit_all)
+    bg = BackgroundRecorder(tmp_path / "paced.mcap")
+    runner = Runner(tw, sinks=[live, rec, RecordingSink(bg)], pacing="realtime",
+                    real_time_factor=RTF, lead=0.05, warm_up=0.0)
     st = runner.run()
+    bg.finish()
+    with open(tmp_path / "paced.mcap", "rb") as f:
+        recorded = [(ch.topic, bytes(m.data), m.log_time)
+                    for _, ch, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert recorded == [(resolve(k), d, t) for k, d, t, _ in rec.got]
     assert st["commands_accepted"] == 1
     acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
             if k == "~/mode/status"]
