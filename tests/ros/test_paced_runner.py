@@ -1,8 +1,8 @@
 """Realtime pacing with steps computed ahead, without ROS: nothing is released before its
-deadline, the live and the recording sinks (the recording process included) get the same messages in
-the same order, and a
-command is applied at the first step boundary whose deadline is not before its arrival, the
-steps computed beyond it dropped: the run is then bit for bit the run that stepped in time."""
+deadline, the live and the recording sinks (the recording process included) get the same
+messages in the same order, and a command is applied at the first step boundary whose deadline
+is not before its arrival, the steps computed beyond it dropped: the run is then bit for bit the
+run that stepped in time."""
 
 from __future__ import annotations
 
