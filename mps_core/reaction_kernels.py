@@ -38,6 +38,7 @@ path, which reports the rank.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -105,9 +106,85 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float):
     key = ("reactions", _key(engine, view), tape.key(), tuple(outputs),
            tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
            tuple(columns), float(scale), tuple(order))
-    return load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
-                                     scale, order, [float(abs(p) / s[r]) for p, r in zip(pivots, order)]),
-                f"<reaction kernel {view.name}>", flat, view.name, {"_fallback": _fallback})
+    kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
+                                       scale, order, [float(abs(p) / s[r])
+                                                      for p, r in zip(pivots, order)]),
+                  f"<reaction kernel {view.name}>", flat, view.name, {"_fallback": _fallback})
+    kernel.flat, kernel.chart = flat, view.name
+    return kernel
+
+
+_ASSIGNED = re.compile(r"^    ([A-Za-z_][A-Za-z_0-9]*) = ")
+
+
+def with_loads(kernel, sums):
+    """One function ``fn(t, q…, q̇…, q̈…, xl, jl, wl, vl)`` that is the traced load sums
+    ``sums`` (:func:`traced_sums`) followed by the reaction kernel ``kernel`` on what they
+    return: the two generated bodies one after the other (the sums' locals renamed), so the
+    same operations on the same numbers, without the call, the list and its unpacking between
+    them. Made once per pair. It raises what either raises."""
+    key = ("reactions with loads", kernel.serial, sums.serial)
+    made = _WITH_LOADS.get(key)
+    if made is not None:
+        return made
+    head, unpack, *body = kernel.source.rstrip("\n").split("\n")
+    targets, eq, rhs = unpack.strip().partition(" = ")
+    if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq
+            and rhs == "loads"):
+        raise ValueError("with_loads: not a reaction kernel's source")
+    s_lines = sums.source.rstrip("\n").split("\n")[1:]
+    ret = s_lines.pop()
+    if not (ret.startswith("    return [") and ret.endswith("]")):
+        raise ValueError("with_loads: not a load sums' source")
+    local = {m.group(1) for line in s_lines if (m := _ASSIGNED.match(line))}
+    rename = re.compile(r"\b(" + "|".join(sorted(local, key=len, reverse=True)) + r")\b") \
+        if local else None
+
+    def renamed(line: str) -> str:
+        return rename.sub(r"s_\1", line) if rename is not None else line
+
+    params = head[len("def kernel("):-len(", loads):")]
+    names = [x.strip() for x in targets.split(",")]
+    items = _top_level_items(renamed(ret[len("    return ["):-1]))
+    if len(names) != len(items):
+        raise ValueError("with_loads: the sums do not give the kernel's loads")
+    ret = body.pop()
+    # a load that is a number (gravity's, a zero) is written where it is read
+    numbers = {a: x for a, x in zip(names, items) if _NUMBER.fullmatch(x)}
+    if numbers:
+        sub = re.compile(r"\b(" + "|".join(numbers) + r")\b")
+        body = [sub.sub(lambda m: f"({numbers[m.group(1)]})", line) for line in body]
+        ret = sub.sub(lambda m: f"({numbers[m.group(1)]})", ret)
+    lines = [*(renamed(line) for line in s_lines),
+             *(f"    {a} = {x}" for a, x in zip(names, items) if a not in numbers), *body]
+    src = "\n".join([f"def kernel(t, {params}, xl, jl, wl, vl):",
+                     *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
+    made = load(key, lambda: src, f"<reaction kernel with loads {kernel.chart}>", kernel.flat,
+                kernel.chart, {"_fallback": _fallback, "tanh": math.tanh,
+                               "_Branch": BranchChanged})
+    if len(_WITH_LOADS) > 256:
+        _WITH_LOADS.clear()
+    _WITH_LOADS[key] = made
+    return made
+
+
+_WITH_LOADS: dict = {}
+_NUMBER = re.compile(r"-?(\d+\.\d*(e-?\d+)?|inf|nan)")
+
+
+def _top_level_items(text: str) -> list[str]:
+    """The comma-separated items of ``text`` outside parentheses and brackets."""
+    items, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        if ch in "([":
+            depth += 1
+        elif ch in ")]":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            items.append(text[start:i].strip())
+            start = i + 1
+    items.append(text[start:].strip())
+    return items
 
 
 def _pivot_order(A: np.ndarray) -> tuple[list, list]:
@@ -385,20 +462,31 @@ class LoadSums:
         self._by_state: dict = {}
         self._traces = 0
 
+    def _refresh(self) -> None:
+        """The traced sums of the effects' present state (parameters and controls)."""
+        if self._traced_at != STATE_VERSION[0]:
+            self._traced_at = STATE_VERSION[0]
+            state = fingerprint([e for e, _motor in self.effects])
+            if state is None:
+                self._traced = {}
+            else:
+                if len(self._by_state) > 64:
+                    self._by_state.clear()
+                self._traced = self._by_state.setdefault(state, {})
+
+    def first(self, n: int):
+        """The traced sums for n coordinates that held last (``fn(t, xl, jl, wl, vl)``), or
+        None where there is none yet."""
+        self._refresh()
+        made = self._traced.get(n)
+        return made[0] if made else None
+
     def __call__(self, t: float, kin) -> list:
         """The sums at a state: by generated code where it holds (the same operations on the
         same numbers of ``kin``), else :meth:`sums`."""
         xl, jl, wl = kin._xl, kin._jl, kin._wl
         if xl is not None and jl is not None and wl is not None:
-            if self._traced_at != STATE_VERSION[0]:
-                self._traced_at = STATE_VERSION[0]
-                state = fingerprint([e for e, _motor in self.effects])
-                if state is None:
-                    self._traced = {}
-                else:
-                    if len(self._by_state) > 64:
-                        self._by_state.clear()
-                    self._traced = self._by_state.setdefault(state, {})
+            self._refresh()
             vl = kin._vl if kin._vl is not None else kin._v()
             made = self._traced.get(kin.n)
             if made is None and self._traces < 64:

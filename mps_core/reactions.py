@@ -406,6 +406,7 @@ class _Kernels:
         self.scale = length_scale(mechanism)
         self.views: dict = {}
         self._loads = None              # (the effects' list and its length, LoadSums)
+        self._with_loads = None         # (kernel, traced sums, the two as one function)
 
     def loads(self, effects):
         """The :class:`~mps_core.reaction_kernels.LoadSums` of a list of effects (made
@@ -416,6 +417,22 @@ class _Kernels:
 
             cached = self._loads = (effects, len(effects), LoadSums(effects, self.mechanism))
         return cached[2]
+
+    def with_loads(self, kernel, traced):
+        """:func:`~mps_core.reaction_kernels.with_loads` of a kernel and traced load sums,
+        kept per pair (the last one asked for first); None for a kernel that is not generated
+        code."""
+        last = self._with_loads
+        if last is not None and last[0] is kernel and last[1] is traced:
+            return last[2]
+        from .reaction_kernels import with_loads
+
+        try:
+            fn = with_loads(kernel, traced)
+        except (AttributeError, ValueError):
+            fn = None
+        self._with_loads = (kernel, traced, fn)
+        return fn
 
     def get(self, view, ql, scale):
         """(kernel, unknowns) of a view, built at ``ql`` on first use; None where the view
@@ -461,8 +478,22 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     if entry is None:
         return None
     kernel, unknowns = entry
+    sums = ks.loads(effects)
+    xl, jl, wl = kin._xl, kin._jl, kin._wl
+    if xl is not None and jl is not None and wl is not None:
+        traced = sums.first(kin.n)
+        both = ks.with_loads(kernel, traced) if traced is not None else None
+        if both is not None:
+            # the load sums and the kernel as one function; where it raises, the two below
+            # say which part failed (a branch of a force law, or the kernel's own fallback)
+            try:
+                values, residual = both(t, *ql, *vl, *al, xl, jl, wl,
+                                        kin._vl if kin._vl is not None else kin._v())
+                return values, residual, unknowns
+            except _FALLBACKS:
+                pass
     try:
-        values, residual = kernel(*ql, *vl, *al, ks.loads(effects)(t, kin))
+        values, residual = kernel(*ql, *vl, *al, sums(t, kin))
     except _FALLBACKS:
         return None
     return values, residual, unknowns

@@ -175,25 +175,26 @@ def evaluation_costs(case: Case, number: int = 2000):
     return rows
 
 
-def reaction_costs(case: Case, number: int = 200, limit: int = 40):
+def reaction_costs(case: Case, number: int = 200, limit: int = 60):
     """What the reactions cost beside an exact evaluation, side by side at the same states
-    (every step's state along the first 0.1 s of a run, the seed's scheme): µs of one exact
+    (``limit`` states spread evenly over the whole run, the seed's scheme): µs of one exact
     evaluation, of the reactions by the view's reaction kernel (with the effects' loads), and
-    by the general Newton–Euler least squares; medians over the states."""
+    by the general Newton–Euler least squares; medians over the states, one row for all of
+    them and one for each number of free coordinates n (a structure's charts: n = 1 held or
+    locked, n = 2 free in the press)."""
     from ..reactions import compute_reactions, reaction_values
 
     scene = scene_for(case, Setting("linear-acceleration", "central", 0.1), DT)
     sim = build(scene)
     exact = build(scene_for(case, Setting("linear-acceleration", "autodiff", 0.0), DT)).engine
     states = []
-    t_end = min(case.t_end, 0.1)
-    n = max(1, round(t_end / DT))
+    n = max(1, round(case.t_end / DT))
     for k in range(1, n + 1):
-        sim.advance_to(k * t_end / n)
+        sim.advance_to(k * case.t_end / n)
         states.append(sim.solver.current)
     states = states[::max(1, len(states) // limit)][:limit]
     mech, effects = sim.mechanism, sim.engine.effects
-    ev, fast, general = [], [], []
+    got = []
     for e in states:
         ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
         try:
@@ -202,19 +203,25 @@ def reaction_costs(case: Case, number: int = 200, limit: int = 40):
             continue
         if reaction_values(mech, effects, e.view, e.t, ql, vl, al, e.kin) is None:
             continue
-        ev.append(_per_call(lambda: exact.evaluate(e.view, e.t, e.q, e.qd), number, 3))
-        fast.append(_per_call(lambda: reaction_values(mech, effects, e.view, e.t, ql, vl, al,
-                                                      e.kin), number, 3))
-        general.append(_per_call(lambda: compute_reactions(
-            mech, effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False),
-            max(1, number // 20), 3))
-    if not ev:
-        return []
+        got.append((e.view.n,
+                    _per_call(lambda: exact.evaluate(e.view, e.t, e.q, e.qd), number, 3),
+                    _per_call(lambda: reaction_values(mech, effects, e.view, e.t, ql, vl, al,
+                                                      e.kin), number, 3),
+                    _per_call(lambda: compute_reactions(
+                        mech, effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False),
+                        max(1, number // 20), 3)))
     med = statistics.median
-    return [{"states": len(ev), "us_exact_evaluation": med(ev), "us_reactions_kernel": med(fast),
-             "us_reactions_general": med(general),
-             "kernel_over_evaluation": med([f / x for f, x in zip(fast, ev)]),
-             "general_over_kernel": med([g / f for g, f in zip(general, fast)])}]
+    rows = []
+    for label, sel in [("all", got)] + [(f"n = {k}", [g for g in got if g[0] == k])
+                                         for k in sorted({g[0] for g in got})]:
+        if not sel or (label != "all" and len(sel) == len(got)):
+            continue
+        _, ev, fast, general = zip(*sel)
+        rows.append({"states": len(sel), "which": label, "us_exact_evaluation": med(ev),
+                     "us_reactions_kernel": med(fast), "us_reactions_general": med(general),
+                     "kernel_over_evaluation": med([f / x for f, x in zip(fast, ev)]),
+                     "general_over_kernel": med([g / f for g, f in zip(general, fast)])})
+    return rows
 
 
 def _states(case: Case, scene, every: int = 5, limit: int = 200):
@@ -337,8 +344,8 @@ def report(results, log=print) -> None:
                 log(f"inside an RK4 run (autodiff, engine + solver alone): {per:.1f} us per "
                     f"evaluation, {per / each:.2f}× the same mix measured alone ({each:.1f} us)")
         for r in res.get("reactions", ()):
-            log(f"reactions beside one exact evaluation (median of {r['states']} states, side "
-                f"by side): exact evaluation {r['us_exact_evaluation']:.1f} us, reaction kernel "
+            log(f"reactions beside one exact evaluation ({r['which']}: median of {r['states']} "
+                f"states over the run, side by side): exact evaluation {r['us_exact_evaluation']:.1f} us, reaction kernel "
                 f"with the loads {r['us_reactions_kernel']:.1f} us "
                 f"({r['kernel_over_evaluation']:.2f}× the evaluation), general least squares "
                 f"{r['us_reactions_general']:.1f} us ({r['general_over_kernel']:.0f}× the kernel)")

@@ -10,6 +10,7 @@ import pytest
 
 from mps_core import build, load_scene
 from mps_core.reaction_kernels import Fallback, PIVOT_GUARD
+from mps_core.tracing import BranchChanged
 from mps_core.reactions import (REACTION_COLUMNS, compute_reactions, kernels_of,
                                 reaction_values)
 
@@ -179,3 +180,35 @@ def test_traced_load_sums_are_the_loads_summed_one_by_one(fixture, request):
     finally:
         del sums.sums
     assert sums._traced and general[0] < 0.1 * len(states)
+
+
+@pytest.mark.parametrize("fixture", ["exact_cycle", "central_cycle"])
+def test_the_kernel_with_its_loads_is_the_two_one_after_the_other(fixture, request):
+    """The traced load sums and the reaction kernel as one function (with_loads): the kernel
+    on the sums, bit for bit, at every step of the cycle; it answers nearly all of them."""
+    from mps_core.reaction_kernels import with_loads
+
+    sim, states = request.getfixturevalue(fixture)
+    ks = kernels_of(sim.mechanism)
+    sums = ks.loads(sim.engine.effects)
+    answered = 0
+    for e, _structure in states:
+        ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
+        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, ql, vl, al,
+                               e.kin)
+        entry = ks.get(e.view, ql, ks.scale)
+        if fast is None or entry is None:
+            continue
+        apart = entry[0](*ql, *vl, *al, sums(e.t, e.kin))
+        assert (fast[0], fast[1]) == apart, e.t
+        traced = sums.first(e.view.n)
+        if traced is None:
+            continue
+        try:
+            joined = with_loads(entry[0], traced)(e.t, *ql, *vl, *al, e.kin._xl, e.kin._jl,
+                                                  e.kin._wl, e.kin._v())
+        except BranchChanged:           # another branch of a force law: the two apart answer
+            continue
+        assert joined == apart, e.t
+        answered += 1
+    assert answered > 0.9 * len(states)
