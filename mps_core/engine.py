@@ -301,7 +301,8 @@ class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
     __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
-                 "inline", "exact", "exact_traced", "fused", "fused_at", "fused_tries", "fused_others")
+                 "inline", "exact", "exact_traced", "fused", "fused_at", "fused_tries", "fused_others",
+                 "tail", "tail_at", "tail_tries", "tail_others")
 
     def __init__(self, view: ChartView, delta: float, central: bool = True):
         n = view.n
@@ -322,6 +323,12 @@ class _Plan:
         self.fused_at = -1
         self.fused_tries = 0
         self.fused_others = []
+        #: central differences: the effects and the solve after the central kernel, traced
+        #: (:func:`~mps_core.fused_kernels.central_tail`), kept as ``fused`` is
+        self.tail = None
+        self.tail_at = -1
+        self.tail_tries = 0
+        self.tail_others = []
         if not central:             # exact derivatives: no stencil
             self.S = self.B = self.odT = self.K = self.inv2d = self.d = self.scale = None
             return
@@ -884,6 +891,21 @@ class PartialSystems:
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "a stencil point has no real configuration") \
                 from None
+        tail = plan.tail
+        if plan.tail_at != STATE_VERSION[0] and self.kernels:
+            tail = self._central_tail(view, plan, t, vl, (xl, jl, wl, A, h, wb))
+        if tail is not None:
+            # the effects and the solve in one generated call where its guards hold and q̈ is
+            # finite; else the effects one by one below
+            try:
+                out = tail(t, *vl, xl, jl, wl, A, h)
+            except (BranchChanged, ArithmeticError, ValueError):
+                out = self._tail_miss(view, plan, t, vl, (xl, jl, wl, A, h, wb))
+            if out is not None:
+                Q, Qnc, qdd = out
+                kin = Kinematics(t, q, qd, self._names, bodies=self._body_index,
+                                 lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl)
+                return kin, A, h, Q, Qnc, qdd
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
                          side=(wb, plan.inv2d), v=vl)
         Q, Qnc = self._forces(t, kin)
@@ -892,6 +914,53 @@ class PartialSystems:
             if not math.isfinite(x):
                 self._no_solution(view, t, np.array(ql, float), as_matrix(A, plan.n))
         return kin, A, h, Q, Qnc, qdd
+
+    def _central_tail(self, view, plan, t, vl, parts):
+        """Make the view's traced effects and solve after its central kernel at this state
+        (None where it cannot be made), for the effects' present state."""
+        from .fused_kernels import reuse_or_make_tail
+
+        if plan.tail_at != STATE_VERSION[0]:
+            plan.tail_others = []           # made for other parameters or controls
+        try:
+            tail = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
+        except (ArithmeticError, ValueError):
+            tail = None
+        plan.tail, plan.tail_at = tail, STATE_VERSION[0]
+        return tail
+
+    def _tail_miss(self, view, plan, t, vl, parts):
+        """(Q, Q_nc, q̈) by another of the view's traced tails where the first one's guards
+        fail here (that one comes first from now on), or by one made here (a few per view at
+        most); None for the effects one by one."""
+        xl, jl, wl, A, h, _wb = parts
+        for k, other in enumerate(plan.tail_others):
+            try:
+                out = other(t, *vl, xl, jl, wl, A, h)
+            except (BranchChanged, ArithmeticError, ValueError):
+                continue
+            plan.tail_others[k] = plan.tail
+            plan.tail = other
+            return out
+        if plan.tail_tries >= 32:
+            return None
+        plan.tail_tries += 1
+        from .fused_kernels import reuse_or_make_tail
+
+        try:
+            made = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
+        except (ArithmeticError, ValueError):
+            made = None
+        if made is None:
+            return None
+        if plan.tail is not None:
+            plan.tail_others.insert(0, plan.tail)
+            del plan.tail_others[6:]
+        plan.tail = made
+        try:
+            return made(t, *vl, xl, jl, wl, A, h)
+        except (BranchChanged, ArithmeticError, ValueError):
+            return None
 
     def _solve_small(self, view, t, q, qd, Ab, Q, kin, plan):
         """n = 1 or 2: velocity terms by central differences of A, and the solve, on floats."""

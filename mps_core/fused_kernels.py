@@ -23,6 +23,12 @@ the caller evaluates by the general path, which gives the answer or the error th
 An effect whose law does something a trace cannot hold (a call of ``math`` on the state, a
 numpy array) leaves the view without a fused function.
 
+With the seed's central differences the kinematics come from a central kernel (a stencil of
+position points, :mod:`mps_core.kernels`), which stays a call of its own; what follows it, the
+effects and the solve, is traced the same way into ``tail(t, q̇…, xl, jl, wl, A, h)`` reading
+the central kernel's lists by index (:func:`central_tail`): the effects' calls one by one
+become one generated call, with the same numbers.
+
 The code depends on the effects' parameters and the controls at the time it is made:
 :data:`~mps_core.effects.base.STATE_VERSION` moves at every assignment to them, and the
 engine makes the function again when it has moved.
@@ -174,10 +180,34 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     th = [slot(c, v) for c, v in zip(h, hv)]
     kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index,
                      lists=(txl, tjl, twl), v=tv)
+    traced = _trace_forces(engine, n, tt, kin, tA, th, virtual_work)
+    if traced is None:
+        return None
+    Q, Qnc, qdd = traced
+    outputs = [_node(x) for x in qdd]
+    forces = [_node(x) for x in Q + Qnc]
+    key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs), tuple(forces))
+    extra = {"tanh": math.tanh, "_Branch": ForceLawBranch}
+    accel = load(key, lambda: _source(n, lines, tape, slots, outputs),
+                 f"<fused kernel {view.name}>", view.chart.flat, view.name, extra)
+    parts = (xl, jl, wl, A, h, _conv)
+    accel.full = load(key + ("full",),
+                      lambda: _source(n, lines, tape, slots, outputs, forces, parts),
+                      f"<fused evaluation {view.name}>", view.chart.flat, view.name, extra)
+    return accel
+
+
+def _node(x):
+    return x.index if isinstance(x, Traced) else float(x)
+
+
+def _trace_forces(engine, n, tt, kin, tA, th, virtual_work):
+    """(Q, Q_nc, q̈) traced: the engine's ``_forces`` and ``solve_given_h`` on ``kin`` (whose
+    numbers are :class:`Traced`), the same operations in the same order; None where a law
+    cannot be traced or q̈ is not finite at the traced point."""
     if engine._effect_paths[0] != len(engine.effects):
         engine._effect_paths = engine._paths()
     try:
-        # the engine's _forces and solve_given_h, the same operations in the same order
         Q = [0.0] * n
         Qc = [0.0] * n
         for fast, e, conservative in engine._effect_paths[1]:
@@ -195,20 +225,88 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
                 return None
     except Exception:       # noqa: BLE001 - anything a trace cannot hold: the general path
         return None
-    def node(x):
-        return x.index if isinstance(x, Traced) else float(x)
+    return Q, Qnc, qdd
 
-    outputs = [node(x) for x in qdd]
-    forces = [node(x) for x in Q + Qnc]
-    key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs), tuple(forces))
-    extra = {"tanh": math.tanh, "_Branch": ForceLawBranch}
-    accel = load(key, lambda: _source(n, lines, tape, slots, outputs),
-                 f"<fused kernel {view.name}>", view.chart.flat, view.name, extra)
-    parts = (xl, jl, wl, A, h, _conv)
-    accel.full = load(key + ("full",),
-                      lambda: _source(n, lines, tape, slots, outputs, forces, parts),
-                      f"<fused evaluation {view.name}>", view.chart.flat, view.name, extra)
-    return accel
+
+#: central tails by (the engine's tables and the view, the effects' fingerprint): the ones
+#: made before, tried at the state before a trace is made (a command and back, an engine
+#: made afresh for the same scene)
+_TAILS: dict = {}
+
+
+def reuse_or_make_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):
+    """A central tail (:func:`central_tail`) for ``view`` whose guards hold at this state:
+    one made before for the same tables, view and effects, else a new one."""
+    from .kernels import _key
+
+    fp = engine._fingerprint()
+    key = None if fp is None else (_key(engine, view), fp)
+    xl, jl, wl, A, h, _wb = parts
+    for k in _TAILS.get(key, ()) if key is not None else ():
+        try:
+            if k(t, *vl, xl, jl, wl, A, h) is not None:
+                return k
+        except (BranchChanged, ArithmeticError, ValueError):
+            continue
+    made = central_tail(engine, view, t, vl, parts, kinematics, virtual_work)
+    if made is not None and key is not None:
+        if len(_TAILS) > 256:
+            _TAILS.clear()
+        known = _TAILS.setdefault(key, [])
+        if all(k.source != made.source for k in known):
+            known.insert(0, made)
+            del known[8:]
+    return made
+
+
+def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):
+    """For central differences: ``tail(t, q̇…, xl, jl, wl, A, h) -> (Q, Q_nc, q̈)``, the
+    effects' generalized forces and the solve traced at the central kernel's output ``parts``
+    (xl, jl, wl, A, h, wb) as :func:`fused_kernel` traces them after an exact kernel (the same
+    operations in the same order as the engine's ``_forces`` and ``solve_given_h``), reading
+    the kernel's lists by index; it returns None where q̈ is not finite and raises
+    :class:`ForceLawBranch` where a law's guard fails. None where it cannot be made (n > 2,
+    a law a trace cannot hold). The central kernel itself stays a call of its own: this
+    function replaces the effects' calls one by one."""
+    n = view.n
+    if n > 2:
+        return None
+    xv, jv, wv, Av, hv, _wb = parts
+    tape = Tape()
+    slots: list[str] = []
+
+    def slot(code: str, value: float):
+        tape.nodes.append(("input", len(slots)))
+        slots.append(code)
+        return Traced(tape, len(tape.nodes) - 1, float(value))
+
+    tt = slot("t", t)
+    tv = [slot(f"vd{k}", vl[k]) for k in range(n)]
+    txl = [slot(f"xl[{i}]", x) for i, x in enumerate(xv)]
+    tjl = [slot(f"jl[{i}]", x) for i, x in enumerate(jv)]
+    twl = [slot(f"wl[{i}]", x) for i, x in enumerate(wv)]
+    tA = [slot("A", Av)] if n == 1 else [slot(f"A[{i}]", x) for i, x in enumerate(Av)]
+    th = [slot(f"h[{i}]", x) for i, x in enumerate(hv)]
+    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index,
+                     lists=(txl, tjl, twl), v=tv)
+    traced = _trace_forces(engine, n, tt, kin, tA, th, virtual_work)
+    if traced is None:
+        return None
+    Q, Qnc, qdd = traced
+    body: list = []
+    code = emit_tape(body, tape, slots)
+    out = [code(_node(x)) for x in qdd]
+    check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
+    if check:
+        body.append(f"    if {check}: return None")
+    fq = [code(_node(x)) for x in Q + Qnc]
+    ret = (f"    return [{', '.join(fq[:n])}], [{', '.join(fq[n:])}], "
+           f"[{', '.join(out)}]")
+    vs = [f"vd{k}" for k in range(n)]
+    src = (f"def kernel(t, {', '.join(vs)}, xl, jl, wl, A, h):\n"
+           + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n")
+    return load(("central tail", src), lambda: src, f"<effects and solve {view.name}>", None,
+                view.name, {"tanh": math.tanh, "_Branch": ForceLawBranch})
 
 
 def emit_tape(body: list, tape, slots: list):

@@ -214,3 +214,40 @@ def test_a_fused_evaluation_that_is_not_finite_leaves_the_answer_to_the_kernel()
     finally:
         fused.full = full
     assert calls
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
+    """With the seed's central differences the effects and the solve after the central
+    kernel are one traced call (fused_kernels.central_tail): along a run of each preset
+    through its structures, charts, impacts and commands, Q, Q_nc and q̈ are those of the
+    effects called one by one and the solve, bit for bit, and the tails answer most calls."""
+    from mps_core.engine import Kinematics
+    from mps_core.kernels import solve_given_h
+    from mps_core.tracing import BranchChanged
+
+    scene = load_scene(name).with_overrides(scheme="central", solver="linear-acceleration")
+    sim = build(scene)
+    eng = sim.engine
+    solve = eng._kernel_solve
+    calls, by_tail = [0], [0]
+
+    def spied(view, t, q, qd, ql, vl, plan):
+        tail_before = plan.tail
+        kin, A, h, Q, Qnc, qdd = solve(view, t, q, qd, ql, vl, plan)
+        try:
+            xl, jl, wl, A2, h2, wb = (plan.inline or plan.kernel)(*ql, *vl)
+        except BranchChanged:
+            xl, jl, wl, A2, h2, wb = plan.kernel(*ql, *vl)
+        one_by_one = Kinematics(t, None, None, eng._names, bodies=eng._body_index,
+                                lists=(xl, jl, wl), side=(wb, plan.inv2d), v=list(vl))
+        Q2, Qnc2 = eng._forces(t, one_by_one)
+        assert (A, h, Q, Qnc, qdd) == (A2, h2, Q2, Qnc2, solve_given_h(A2, h2, Q2)), (view.name, t)
+        calls[0] += 1
+        by_tail[0] += plan.tail is not None and plan.tail is tail_before
+        return kin, A, h, Q, Qnc, qdd
+
+    eng._kernel_solve = spied
+    sim.run(min(scene.t_end, 0.6), 1e-3)
+    assert calls[0] > 100
+    assert by_tail[0] > 0.8 * calls[0], (by_tail[0], calls[0])
