@@ -159,8 +159,10 @@ class BackgroundRecorder:
     process group (SIGKILL), it leaves a file that :func:`recover` completes.
 
     The pipe's frames: one byte (``I`` the recorder's settings as JSON, ``C`` a channel as
-    JSON, ``B`` a batch of messages, ``F`` flush, ``E`` finish), the payload's length (u32),
-    the payload; a batch is records of (channel u16, time ns i64, length u32, CDR bytes). The
+    JSON, ``B`` a batch of messages, ``S`` a batch of steps, ``F`` flush, ``E`` finish), the
+    payload's length (u32), the payload; a batch is records of (channel u16, time ns i64,
+    length u32, CDR bytes); a batch of steps is the pickle of (the keys' channel ids where
+    they grew, else None; the steps' lists of (key, CDR bytes, t_ns, received)). The
     writing process answers on its standard output, one JSON line each: ``{"ready": true}``
     (or ``{"error": …}``) after the settings, ``{"done": N}`` (or ``{"error": …}``) at the end.
     """
@@ -193,6 +195,9 @@ class BackgroundRecorder:
         self._ids: dict[str, int] = {}
         self._counts: list[int] = []
         self._batch: list = []
+        self._steps: list = []          # write_steps(): the steps' message lists, as given
+        self._ids_of_keys: dict | None = None
+        self._ids_sent = 0
         self._last = time.monotonic()
         self.messages = 0
         self.finished = False
@@ -223,6 +228,8 @@ class BackgroundRecorder:
         return cid
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+        if self._steps:
+            self._send()                # what write_steps() was given goes first
         cid = self._ids.get(topic)
         if cid is None:
             cid = self.channel(topic, msgtype, qos)
@@ -231,23 +238,34 @@ class BackgroundRecorder:
         self._batch.append(_RECORD(cid, t_ns, len(data)))
         self._batch.append(data)
 
-    def write_records(self, records) -> None:
-        """Record several messages: ``(channel id, CDR bytes, t_ns)`` each, the ids as
-        :meth:`channel` gave them (what :meth:`write` does per message, without the lookups)."""
-        counts, batch, head = self._counts, self._batch, _RECORD
-        for cid, data, t_ns in records:
-            counts[cid] += 1
-            batch.append(head(cid, t_ns, len(data)))
-            batch.append(data)
-        self.messages += len(records)
+    def write_steps(self, msgs, ids: dict) -> None:
+        """Record a step's messages: ``(key, CDR bytes, t_ns, received)`` each, in order, with
+        ``ids`` the caller's map of keys to the channel ids :meth:`channel` gave. They are kept
+        as they are and go down the pipe pickled with the others of the batch (the work per
+        message is then C code's), the map beside them where it grew."""
+        if self._batch:
+            self._send()                # what write() was given goes first
+        self._steps.append(msgs)
+        self._ids_of_keys = ids
+        self.messages += len(msgs)
 
     def tick(self) -> None:
-        if self._batch and time.monotonic() - self._last >= self.batch_period:
+        if (self._batch or self._steps) and time.monotonic() - self._last >= self.batch_period:
             self._send()
 
     def _send(self) -> None:
-        self._frame(b"B", b"".join(self._batch))
-        self._batch = []
+        if self._steps:
+            import pickle
+
+            ids = self._ids_of_keys
+            grew = ids is not None and len(ids) != self._ids_sent
+            self._ids_sent = len(ids) if ids is not None else 0
+            self._frame(b"S", pickle.dumps((dict(ids) if grew else None, self._steps),
+                                           pickle.HIGHEST_PROTOCOL))
+            self._steps = []
+        if self._batch:
+            self._frame(b"B", b"".join(self._batch))
+            self._batch = []
         self._last = time.monotonic()
 
     def flush(self) -> None:
@@ -263,7 +281,7 @@ class BackgroundRecorder:
             return
         self.finished = True
         try:
-            if self._batch:
+            if self._batch or self._steps:
                 self._send()
             self._frame(b"E", b"")
             self._out.close()
@@ -358,6 +376,7 @@ def _write_from_pipe() -> int:
             return 2
     answer({"ready": True})
     channels: dict[int, tuple] = {}
+    by_key: dict = {}                   # a step's keys -> channel ids (the "S" frames)
     error = None
     done = False
     try:
@@ -378,6 +397,18 @@ def _write_from_pipe() -> int:
                         topic, msgtype, qos = channels[cid]
                         write(topic, msgtype, payload[pos:pos + n], t_ns, qos)
                         pos += n
+                    rec.tick()
+                elif kind == b"S":
+                    import pickle
+
+                    ids, steps = pickle.loads(payload)
+                    if ids is not None:
+                        by_key = ids
+                    write = rec.write
+                    for msgs in steps:
+                        for key, data, t_ns, _received in msgs:
+                            topic, msgtype, qos = channels[by_key[key]]
+                            write(topic, msgtype, data, t_ns, qos)
                     rec.tick()
                 elif kind == b"C":
                     cid, topic, msgtype, qos = json.loads(payload)
@@ -428,21 +459,18 @@ class RecordingSink:
     def emit_all(self, msgs) -> None:
         """A released step's messages, ``(key, data, t_ns, received)`` each, in order: the
         commands as received are recorded like the others (:meth:`received` is :meth:`emit`).
-        A recorder with ``write_records`` gets them in one call."""
-        write_records = getattr(self.rec, "write_records", None)
-        if write_records is None:
+        A recorder with ``write_steps`` takes the list as it is."""
+        write_steps = getattr(self.rec, "write_steps", None)
+        if write_steps is None:
             for key, data, t_ns, _received in msgs:
                 self.emit(key, data, t_ns)
             return
         ids = self._ids
-        try:
-            write_records([(ids[key], data, t_ns) for key, data, t_ns, _received in msgs])
-        except KeyError:            # a key met for the first time: its channel first
-            for key, _data, _t, _r in msgs:
-                if key not in ids:
-                    ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype,
-                                                self.qos.get(key))
-            self.emit_all(msgs)
+        for key, _data, _t, _r in msgs:
+            if key not in ids:          # a key met for the first time: its channel first
+                ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype,
+                                            self.qos.get(key))
+        write_steps(msgs, ids)
 
     def tick(self, deadline: float | None = None):
         self.rec.tick()
