@@ -297,6 +297,19 @@ class Evaluation:
         return 0.5 * (a00 * v0 * v0 + 2.0 * a01 * v0 * v1 + a11 * v1 * v1)
 
 
+def _other_that_holds(others: list, first, call):
+    """(fn, call(fn)) for the first of ``others`` whose guards hold here (it and ``first``
+    change places in the list), or (None, None)."""
+    for k, other in enumerate(others):
+        try:
+            out = call(other)
+        except (BranchChanged, ArithmeticError, ValueError):
+            continue
+        others[k] = first
+        return other, out
+    return None, None
+
+
 class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
@@ -623,12 +636,9 @@ class PartialSystems:
         """q̈ by another of the view's fused functions where the first one's guards fail here
         (that one comes first from now on), or by one made here (a few per view at most);
         None for the general path."""
-        for k, other in enumerate(plan.fused_others):
-            try:
-                out = other(t, *ql, *vl)
-            except (BranchChanged, ArithmeticError, ValueError):
-                continue
-            plan.fused_others[k] = plan.fused
+        other, out = _other_that_holds(plan.fused_others, plan.fused,
+                                       lambda f: f(t, *ql, *vl))
+        if other is not None:
             plan.fused = other
             return out
         if plan.fused_tries >= 32:
@@ -934,12 +944,9 @@ class PartialSystems:
         fail here (that one comes first from now on), or by one made here (a few per view at
         most); None for the effects one by one."""
         xl, jl, wl, A, h, _wb = parts
-        for k, other in enumerate(plan.tail_others):
-            try:
-                out = other(t, *vl, xl, jl, wl, A, h)
-            except (BranchChanged, ArithmeticError, ValueError):
-                continue
-            plan.tail_others[k] = plan.tail
+        other, out = _other_that_holds(plan.tail_others, plan.tail,
+                                       lambda f: f(t, *vl, xl, jl, wl, A, h))
+        if other is not None:
             plan.tail = other
             return out
         if plan.tail_tries >= 32:

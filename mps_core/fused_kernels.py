@@ -129,22 +129,40 @@ def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
     """A fused function for ``view`` at (t, q, q̇): one made before for the same kinematics
     and the same effects whose guards hold here, else a new one (:func:`fused_kernel`)."""
     fp = engine._fingerprint()
-    key = None if fp is None else (exact.serial, fp)
-    for k in _MADE.get(key, ()) if key is not None else ():
+    return _reused(_MADE, None if fp is None else (exact.serial, fp),
+                   lambda k: k(t, *ql, *vl),
+                   lambda: fused_kernel(engine, view, exact, t, ql, vl, kinematics,
+                                        virtual_work))
+
+
+def _reused(cache: dict, key, trial, make):
+    """A function kept in ``cache`` under ``key`` whose ``trial(fn)`` holds here (no failed
+    guard, a result), else ``make()``'s, kept there first (up to eight a key)."""
+    for k in cache.get(key, ()) if key is not None else ():
         try:
-            if k(t, *ql, *vl) is not None:
+            if trial(k) is not None:
                 return k
         except (BranchChanged, ArithmeticError, ValueError):
             continue
-    made = fused_kernel(engine, view, exact, t, ql, vl, kinematics, virtual_work)
+    made = make()
     if made is not None and key is not None:
-        if len(_MADE) > 256:
-            _MADE.clear()
-        known = _MADE.setdefault(key, [])
+        if len(cache) > 256:
+            cache.clear()
+        known = cache.setdefault(key, [])
         if all(k.source != made.source for k in known):
             known.insert(0, made)
             del known[8:]
     return made
+
+
+def input_slot(tape, slots: list):
+    """``slot(code, value)``: a new input of ``tape``, read as ``code`` in the generated
+    function (kept in ``slots``), traced at ``value``."""
+    def slot(code: str, value: float):
+        tape.nodes.append(("input", len(slots)))
+        slots.append(code)
+        return Traced(tape, len(tape.nodes) - 1, float(value))
+    return slot
 
 
 def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, virtual_work):
@@ -178,9 +196,8 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     twl = [slot(c, v) for c, v in zip(wl, wv)]
     tA = [slot(c, v) for c, v in zip(A, Av)]
     th = [slot(c, v) for c, v in zip(h, hv)]
-    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index,
-                     lists=(txl, tjl, twl), v=tv)
-    traced = _trace_forces(engine, n, tt, kin, tA, th, virtual_work)
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics,
+                           virtual_work)
     if traced is None:
         return None
     Q, Qnc, qdd = traced
@@ -201,10 +218,13 @@ def _node(x):
     return x.index if isinstance(x, Traced) else float(x)
 
 
-def _trace_forces(engine, n, tt, kin, tA, th, virtual_work):
-    """(Q, Q_nc, q̈) traced: the engine's ``_forces`` and ``solve_given_h`` on ``kin`` (whose
-    numbers are :class:`Traced`), the same operations in the same order; None where a law
-    cannot be traced or q̈ is not finite at the traced point."""
+def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work):
+    """(Q, Q_nc, q̈) traced: the engine's ``_forces`` and ``solve_given_h`` on kinematics made
+    of traced numbers (t, q̇, the lists of positions, analogs and angular analogs; A and h),
+    the same operations in the same order; None where a law cannot be traced or q̈ is not
+    finite at the traced point."""
+    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index, lists=lists,
+                     v=tv)
     if engine._effect_paths[0] != len(engine.effects):
         engine._effect_paths = engine._paths()
     try:
@@ -240,23 +260,10 @@ def reuse_or_make_tail(engine, view, t: float, vl: list, parts, kinematics, virt
     from .kernels import _key
 
     fp = engine._fingerprint()
-    key = None if fp is None else (_key(engine, view), fp)
     xl, jl, wl, A, h, _wb = parts
-    for k in _TAILS.get(key, ()) if key is not None else ():
-        try:
-            if k(t, *vl, xl, jl, wl, A, h) is not None:
-                return k
-        except (BranchChanged, ArithmeticError, ValueError):
-            continue
-    made = central_tail(engine, view, t, vl, parts, kinematics, virtual_work)
-    if made is not None and key is not None:
-        if len(_TAILS) > 256:
-            _TAILS.clear()
-        known = _TAILS.setdefault(key, [])
-        if all(k.source != made.source for k in known):
-            known.insert(0, made)
-            del known[8:]
-    return made
+    return _reused(_TAILS, None if fp is None else (_key(engine, view), fp),
+                   lambda k: k(t, *vl, xl, jl, wl, A, h),
+                   lambda: central_tail(engine, view, t, vl, parts, kinematics, virtual_work))
 
 
 def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):
@@ -274,12 +281,7 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     xv, jv, wv, Av, hv, _wb = parts
     tape = Tape()
     slots: list[str] = []
-
-    def slot(code: str, value: float):
-        tape.nodes.append(("input", len(slots)))
-        slots.append(code)
-        return Traced(tape, len(tape.nodes) - 1, float(value))
-
+    slot = input_slot(tape, slots)
     tt = slot("t", t)
     tv = [slot(f"vd{k}", vl[k]) for k in range(n)]
     txl = [slot(f"xl[{i}]", x) for i, x in enumerate(xv)]
@@ -287,9 +289,8 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     twl = [slot(f"wl[{i}]", x) for i, x in enumerate(wv)]
     tA = [slot("A", Av)] if n == 1 else [slot(f"A[{i}]", x) for i, x in enumerate(Av)]
     th = [slot(f"h[{i}]", x) for i, x in enumerate(hv)]
-    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index,
-                     lists=(txl, tjl, twl), v=tv)
-    traced = _trace_forces(engine, n, tt, kin, tA, th, virtual_work)
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics,
+                           virtual_work)
     if traced is None:
         return None
     Q, Qnc, qdd = traced

@@ -44,7 +44,7 @@ import numpy as np
 
 from .effects.base import STATE_VERSION
 from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
-from .fused_kernels import emit_tape, fingerprint
+from .fused_kernels import emit_tape, fingerprint, input_slot
 from .kernels import _key, _Writer, inline_once, live_lines, load
 from .mechanism import FRAME
 from .tracing import BranchChanged, Tape, Traced
@@ -555,12 +555,7 @@ def traced_sums(sums: LoadSums, t: float, kin):
     :class:`~mps_core.tracing.BranchChanged`); None where a law cannot be traced."""
     tape = Tape()
     slots: list[str] = []
-
-    def slot(code: str, value: float):
-        tape.nodes.append(("input", len(slots)))
-        slots.append(code)
-        return Traced(tape, len(tape.nodes) - 1, float(value))
-
+    slot = input_slot(tape, slots)
     vl = kin._vl if kin._vl is not None else kin._v()
     tl = {name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
           for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))}
