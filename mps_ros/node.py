@@ -110,12 +110,33 @@ class RosSink:
 
     def __init__(self, publishers: dict):
         self.pubs = publishers     # key -> publisher
+        self._raw: dict = {}       # key -> the publisher's own publish_raw
 
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
         if p is not None:
             try:
                 p.publish(data)
+            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+                pass
+
+    def emit_all(self, msgs) -> None:
+        """A released step's messages, ``(key, data, t_ns, received)`` each, in order (the
+        commands as received are not published again). Each goes straight to its publisher's
+        ``publish_raw`` (what ``Publisher.publish`` calls for bytes, without its checks: the
+        run's publishers live until the releasing thread has ended)."""
+        raw = self._raw
+        for key, data, _t, received in msgs:
+            if received:
+                continue
+            f = raw.get(key)
+            if f is None:
+                p = self.pubs.get(key)
+                if p is None:
+                    continue
+                f = raw[key] = getattr(p.handle, "publish_raw", p.publish)
+            try:
+                f(data)
             except Exception:       # a publisher destroyed at shutdown: nothing to send to
                 pass
 

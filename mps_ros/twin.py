@@ -1017,10 +1017,17 @@ class Runner:
             p0 = clock()
             n = 0
             try:
-                for key, data, t_ns, received in head.msgs:
+                msgs = head.msgs
+                for _key, _data, _t, received in msgs:
                     if not received:
                         n += 1
-                        for s in live:
+                for s in live:
+                    emit_all = getattr(s, "emit_all", None)
+                    if emit_all is not None:
+                        emit_all(msgs)
+                        continue
+                    for key, data, t_ns, received in msgs:
+                        if not received:
                             s.emit(key, data, t_ns)
                 for s in live:
                     s.tick(head.deadline)
