@@ -68,6 +68,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from .effects.base import STATE_VERSION
 from .engine import Kinematics
 from .jet import Jet
 from .mechanism import FRAME, ChartView, Joint, Mechanism
@@ -407,6 +408,9 @@ class _Kernels:
         self.views: dict = {}
         self._loads = None              # (the effects' list and its length, LoadSums)
         self._with_loads = None         # (kernel, traced sums, the two as one function)
+        #: per view, the function that answered last (reaction_values): (STATE_VERSION, the
+        #: effects' list, its length, the kernel with its loads, the unknowns)
+        self.last: dict = {}
 
     def loads(self, effects):
         """The :class:`~mps_core.reaction_kernels.LoadSums` of a list of effects (made
@@ -473,14 +477,27 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     ``values`` in :data:`REACTION_COLUMNS` order; None where the general path must answer (no
     kernel for this view, or a singular position). ``kin`` gives the effects' loads, as in
     :func:`compute_reactions`."""
-    ks = kernels_of(mechanism)
+    ks = mechanism.__dict__.get("_reaction_kernels") or kernels_of(mechanism)
+    xl, jl, wl = kin._xl, kin._jl, kin._wl
+    lists = xl is not None and jl is not None and wl is not None
+    if lists and scale is None:
+        # the view's last function that held, for the same effects in the same state:
+        # straight to it (the lookups below made it)
+        last = ks.last.get(view)
+        if last is not None and last[0] == STATE_VERSION[0] and last[1] is effects \
+                and last[2] == len(effects):
+            try:
+                values, residual = last[3](t, *ql, *vl, *al, xl, jl, wl,
+                                           kin._vl if kin._vl is not None else kin._v())
+                return values, residual, last[4]
+            except _FALLBACKS:
+                pass
     entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
     if entry is None:
         return None
     kernel, unknowns = entry
     sums = ks.loads(effects)
-    xl, jl, wl = kin._xl, kin._jl, kin._wl
-    if xl is not None and jl is not None and wl is not None:
+    if lists:
         traced = sums.first(kin.n)
         both = ks.with_loads(kernel, traced) if traced is not None else None
         if both is not None:
@@ -489,6 +506,8 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
             try:
                 values, residual = both(t, *ql, *vl, *al, xl, jl, wl,
                                         kin._vl if kin._vl is not None else kin._v())
+                if scale is None:
+                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns)
                 return values, residual, unknowns
             except _FALLBACKS:
                 pass
