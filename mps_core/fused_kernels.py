@@ -74,7 +74,15 @@ class _Unhashable(Exception):
     pass
 
 
+_ATOMS = frozenset((type(None), bool, int, float, str))
+
+
 def _frozen(x):
+    t = type(x)
+    if t in _ATOMS:
+        return x
+    if t is tuple or t is list:
+        return tuple([y if type(y) in _ATOMS else _frozen(y) for y in x])
     if x is None or isinstance(x, (bool, int, float, str)):
         return x
     if isinstance(x, (tuple, list)):
