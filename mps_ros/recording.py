@@ -164,7 +164,8 @@ class BackgroundRecorder:
     length u32, CDR bytes); a batch of steps is the pickle of (the keys' channel ids where
     they grew, else None; the steps' lists of (key, CDR bytes, t_ns, received)). The
     writing process answers on its standard output, one JSON line each: ``{"ready": true}``
-    (or ``{"error": …}``) after the settings, ``{"done": N}`` (or ``{"error": …}``) at the end.
+    (or ``{"error": …}``) after the settings, ``{"done": N, "counts": {topic: n}}`` (or
+    ``{"error": …}``) at the end.
     """
 
     def __init__(self, path, *, batch_period: float = 0.02, scene_name: str = "",
@@ -198,6 +199,7 @@ class BackgroundRecorder:
         self._steps: list = []          # write_steps(): the steps' message lists, as given
         self._ids_of_keys: dict | None = None
         self._ids_sent = 0
+        self._written_counts: dict | None = None
         self._last = time.monotonic()
         self.messages = 0
         self.finished = False
@@ -273,6 +275,11 @@ class BackgroundRecorder:
         self._frame(b"F", b"")
 
     def counts(self) -> dict[str, int]:
+        """Messages by topic: those the writing process wrote, once :meth:`finish` has its
+        answer; before, those handed over by :meth:`write` (:meth:`write_steps` counts them
+        in :attr:`messages` only)."""
+        if self._written_counts is not None:
+            return dict(self._written_counts)
         return {t: self._counts[c] for t, c in self._ids.items()}
 
     def finish(self, timeout: float = 60.0) -> None:
@@ -296,6 +303,7 @@ class BackgroundRecorder:
         if "done" not in reply:
             raise OSError(f"{self.path}: {reply.get('error')}")
         self.written = int(reply["done"])
+        self._written_counts = reply.get("counts")
 
 
 def _widen_pipe(f, size: int = 1 << 20) -> None:
@@ -423,7 +431,8 @@ def _write_from_pipe() -> int:
         error = f"{type(exc).__name__}: {exc}"
     finally:
         rec.finish()
-    answer({"done": rec.messages} if error is None else {"error": error})
+    answer({"done": rec.messages, "counts": rec.counts()} if error is None
+           else {"error": error})
     return 0 if error is None else 1
 
 

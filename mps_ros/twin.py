@@ -512,8 +512,8 @@ class Runner:
     :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.cdr.encoder`
     for the others) and its simulated time in ns; a recorder also gets the commands received,
     ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. In realtime pacing a
-    sink that is not live and has ``emit_all(msgs)`` gets each released step in one call
-    (``(key, data, t_ns, received)`` each, in order) instead.
+    sink with ``emit_all(msgs)`` gets each released step in one call instead (``(key, data,
+    t_ns, received)`` each, in order; the sink leaves out what it does not take).
 
     Step and publish times, and in realtime pacing the latency after each step's deadline, are
     kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
@@ -971,11 +971,10 @@ class Runner:
                 with cond:
                     # the releasing thread waits for its head's deadline, which a step
                     # queued behind it does not move: it is woken only where it has none
-                    if not queue:
-                        queue.append(entry)
+                    idle = not queue
+                    queue.append(entry)
+                    if idle:
                         cond.notify_all()
-                    else:
-                        queue.append(entry)
         except Exception as exc:
             self._failed(exc)
             raise

@@ -137,3 +137,15 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
     else:
         raise AssertionError("the recording was not finished")
     assert counts["/joint_states"] == 101
+
+
+def test_a_paced_recording_counts_what_was_written(tmp_path):
+    """``mps record`` paced: the steps go to the recording process as lists (write_steps); its
+    counts by topic are those the process wrote, and the file holds them."""
+    from mps_ros.recording import record
+
+    path, stats, counts = record("press-cycle", tmp_path / "paced.mcap", dt=1e-3, t_end=0.05,
+                                 pacing="realtime", real_time_factor=4.0,
+                                 stop_on_signals=False)
+    assert counts == _read(path)
+    assert counts["/joint_states"] == 51 and sum(counts.values()) == stats["messages"]
