@@ -511,9 +511,9 @@ class Runner:
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
     :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.cdr.encoder`
     for the others) and its simulated time in ns; a recorder also gets the commands received,
-    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. In realtime pacing a
-    sink with ``emit_all(msgs)`` gets each released step in one call instead (``(key, data,
-    t_ns, received)`` each, in order; the sink leaves out what it does not take).
+    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. A sink with
+    ``emit_all(msgs)`` gets each step's state in one call instead (``(key, data, t_ns,
+    received)`` each, in order; the sink leaves out what it does not take).
 
     Step and publish times, and in realtime pacing the latency after each step's deadline, are
     kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
@@ -632,10 +632,17 @@ class Runner:
             self._staging.extend((key, data, t_ns, False) for key, data in payloads)
         else:
             self.messages += len(payloads)
+            msgs = None
             for s in self.sinks:
-                emit = s.emit
-                for key, data in payloads:
-                    emit(key, data, t_ns)
+                emit_all = getattr(s, "emit_all", None)
+                if emit_all is not None:        # the step in one call
+                    if msgs is None:
+                        msgs = [(key, data, t_ns, False) for key, data in payloads]
+                    emit_all(msgs)
+                else:
+                    emit = s.emit
+                    for key, data in payloads:
+                        emit(key, data, t_ns)
                 s.tick(None)
         events = self.twin.new_events()
         if events:
