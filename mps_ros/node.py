@@ -134,7 +134,8 @@ class RosSink:
                 p = self.pubs.get(key)
                 if p is None:
                     continue
-                f = raw[key] = getattr(p.handle, "publish_raw", p.publish)
+                f = raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
+                                       None) or p.publish
             try:
                 f(data)
             except Exception:       # a publisher destroyed at shutdown: nothing to send to
