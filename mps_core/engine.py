@@ -901,6 +901,8 @@ class PartialSystems:
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "a stencil point has no real configuration") \
                 from None
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
+                         side=(wb, plan.inv2d), v=vl)
         tail = plan.tail
         if plan.tail_at != STATE_VERSION[0] and self.kernels:
             tail = self._central_tail(view, plan, t, vl, (xl, jl, wl, A, h, wb))
@@ -913,11 +915,7 @@ class PartialSystems:
                 out = self._tail_miss(view, plan, t, vl, (xl, jl, wl, A, h, wb))
             if out is not None:
                 Q, Qnc, qdd = out
-                kin = Kinematics(t, q, qd, self._names, bodies=self._body_index,
-                                 lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl)
                 return kin, A, h, Q, Qnc, qdd
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         side=(wb, plan.inv2d), v=vl)
         Q, Qnc = self._forces(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
