@@ -175,7 +175,7 @@ def _check_step_solver(st) -> None:
     if st.name in ADAPTIVE_SOLVERS:
         raise SceneError("solver.step_s", st.step,
                          "no step for the adaptive solver " + st.name + " (it chooses its own): "
-                         "a fixed-step solver (linear-acceleration, rk4, rk8)")
+                         "a fixed-step solver (linear-acceleration, rk4, rk6, rk8)")
 
 
 def _check_dt(fieldname, dt, t_end):

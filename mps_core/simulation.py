@@ -70,6 +70,7 @@ from .errors import (ChartBreakdown, ChartDomainError, NumericalError,
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
 from .solvers import make_solver
+from .solvers.rk6 import IMAGINARY_LIMIT as RK6_IMAGINARY_LIMIT
 from .solvers.rk8 import IMAGINARY_LIMIT as RK8_IMAGINARY_LIMIT
 from .structure_layer import COMMANDS, CommandRefused, StructureLayer, _Event  # noqa: F401
 from .trajectory import Trajectory
@@ -83,10 +84,12 @@ _ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", 
 #: √3/π ≈ 0.551 T_min does not apply to it); RK4 for ω·Δt ≤ 2√2 (Δt ≤ 0.450 T_min).
 LA_LIMIT = 1.0 / math.pi
 RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)
+RK6_LIMIT = RK6_IMAGINARY_LIMIT / (2.0 * math.pi)
 RK8_LIMIT = RK8_IMAGINARY_LIMIT / (2.0 * math.pi)
 #: the fixed-step solvers' stability limits as a share of the shortest period, and how the
 #: error message writes them
 FIXED_STEP_LIMITS = {"linear-acceleration": (LA_LIMIT, "1/π"), "rk4": (RK4_LIMIT, "2√2/2π"),
+                     "rk6": (RK6_LIMIT, f"{RK6_IMAGINARY_LIMIT:.3g}/2π"),
                      "rk8": (RK8_LIMIT, f"{RK8_IMAGINARY_LIMIT:.4g}/2π")}
 
 
@@ -263,7 +266,7 @@ class Simulation:
             if solver.name in ADAPTIVE_SOLVERS:
                 raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
                                  "chooses its own steps (a step is for linear-acceleration, "
-                                 "rk4, rk8)")
+                                 "rk4, rk6, rk8)")
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)

@@ -27,7 +27,7 @@ from ..engine import PartialSystems
 from .common import (COARSE_STEPS, DT_LADDER, evaluations_along, Case, Reference, Setting, available_cases, reference_for,
                      resolve_case, run_setting)
 
-FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk8", "dop853", "radau", "peer",
+FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer",
             "mujoco")
 #: the peers: what a user would pick instead (not the engine's settings)
 PEERS = ("peer", "mujoco")
@@ -68,11 +68,12 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
     schemes = _schemes(full=not quick and not long)
     out = []
     for fam in families:
-        if fam in ("linear-acceleration", "la-iterated", "rk4", "rk8"):
-            solver = fam if fam in ("rk4", "rk8") else "linear-acceleration"
+        if fam in ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8"):
+            solver = fam if fam in ("rk4", "rk6", "rk8") else "linear-acceleration"
             it = LA_ITERATIONS if fam == "la-iterated" else 1
-            # eighth order: its error falls below central differences' at once (exact only)
-            for scheme, d in (schemes if fam != "rk8" else [("autodiff", 0.0)]):
+            # sixth and eighth order: their errors fall below central differences' at once
+            # (exact only)
+            for scheme, d in (schemes if fam not in ("rk6", "rk8") else [("autodiff", 0.0)]):
                 for dt in ladder:
                     out.append((Setting(solver, scheme, d, it), dt))
         elif fam in ADAPTIVE_RTOLS:

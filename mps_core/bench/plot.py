@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 COLORS = {"linear-acceleration": "tab:blue", "la-iterated": "tab:cyan", "rk4": "tab:green",
-          "rk8": "tab:olive",
+          "rk6": "tab:pink", "rk8": "tab:olive",
           "dop853": "tab:red", "radau": "tab:purple", "peer": "black",
           "mujoco": "tab:brown"}
 MARKERS = {"central 1°": "v", "central 0.1°": "o", "central 0.01°": "s", "central 0.001°": "D",

@@ -5,9 +5,10 @@ from .base import Solver
 from .dop853 import DOP853
 from .linear_acceleration import LinearAcceleration
 from .rk4 import RK4
+from .rk6 import RK6
 from .rk8 import RK8
 
-SOLVERS = ("linear-acceleration", "rk4", "rk8", "dop853", "radau")
+SOLVERS = ("linear-acceleration", "rk4", "rk6", "rk8", "dop853", "radau")
 
 
 def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol=1e-9,
@@ -20,6 +21,8 @@ def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol
                                   accel=accel)
     if name == "rk4":
         return RK4(fun, t0, q0, qd0, current, accel=accel)
+    if name == "rk6":
+        return RK6(fun, t0, q0, qd0, current, accel=accel)
     if name == "rk8":
         return RK8(fun, t0, q0, qd0, current, accel=accel)
     if name == "dop853":
@@ -31,4 +34,4 @@ def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol
     raise ValueError(f"solver {name!r}: expected one of {', '.join(SOLVERS)}")
 
 
-__all__ = ["Solver", "LinearAcceleration", "RK4", "RK8", "DOP853", "AdaptiveSolver", "SOLVERS", "make_solver"]
+__all__ = ["Solver", "LinearAcceleration", "RK4", "RK6", "RK8", "DOP853", "AdaptiveSolver", "SOLVERS", "make_solver"]

@@ -49,6 +49,7 @@ def test_paper_at_the_seeds_settings(paper_reference_005):
 @pytest.mark.parametrize("solver,steps,order", [
     ("linear-acceleration", (50, 100, 200, 400), 2.0),
     ("rk4", (25, 50, 100, 200), 4.0),
+    ("rk6", (40, 50, 80, 100), 6.0),
     ("rk8", (5, 8, 10, 16), 8.0),
 ])
 def test_convergence_order_on_paper(paper_reference_005, solver, steps, order):
@@ -184,7 +185,7 @@ def test_mass_matrix_stays_symmetric_positive_definite_across_charts():
 
 
 @pytest.mark.parametrize("solver,per_step", [("linear-acceleration", 2), ("rk4", 4),
-                                              ("rk8", 12)])
+                                              ("rk6", 7), ("rk8", 12)])
 @pytest.mark.parametrize("scheme,points", [("central", 13), ("autodiff", 1)])
 def test_work_budget(solver, per_step, scheme, points):
     traj = simulate(PAPER, solver=solver, scheme=scheme, steps=20, t_end=0.02)

@@ -8,7 +8,7 @@ import pytest
 from scipy.integrate import DOP853 as ScipyDOP853
 
 from mps_core.errors import ChartDomainError
-from mps_core.solvers import DOP853, RK4, RK8, AdaptiveSolver, LinearAcceleration, make_solver
+from mps_core.solvers import DOP853, RK4, RK6, RK8, AdaptiveSolver, LinearAcceleration, make_solver
 
 
 class E:
@@ -41,6 +41,7 @@ def test_linear_acceleration_is_exact_for_acceleration_linear_in_time():
 
 @pytest.mark.parametrize("cls,order,ns", [(LinearAcceleration, 2, (20, 40, 80, 160)),
                                           (RK4, 4, (20, 40, 80, 160)),
+                                          (RK6, 6, (6, 8, 12, 16)),
                                           (RK8, 8, (4, 6, 8, 10))])
 def test_order_on_the_harmonic_oscillator(cls, order, ns):
     w = 2 * math.pi
@@ -52,7 +53,8 @@ def test_order_on_the_harmonic_oscillator(cls, order, ns):
     assert abs(p - order) < 0.15, (errs, p)
 
 
-@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4), (RK8, 12)])
+@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4), (RK6, 7),
+                                           (RK8, 12)])
 def test_evaluations_per_step(cls, per_step):
     s = run(cls, oscillator(1.0), [1.0], [0.0], 1.0, 10)
     assert s.nfev == 1 + per_step * 10 and s.nsteps == 10
@@ -72,7 +74,7 @@ def test_iterated_corrector_converges_to_the_implicit_method():
     assert s.nfev == 1 + 1 + 30
 
 
-@pytest.mark.parametrize("cls", [LinearAcceleration, RK4, RK8, DOP853])
+@pytest.mark.parametrize("cls", [LinearAcceleration, RK4, RK6, RK8, DOP853])
 def test_a_step_is_all_or_nothing(cls):
     calls = {"n": 0}
 
@@ -231,3 +233,53 @@ def test_rk8_stability_limit_from_its_tableau():
             s.step_to(k * dt)
         energy = s.q[0] ** 2 + s.qd[0] ** 2
         assert (energy < 1.01) == bounded, energy
+
+
+def test_rk6_tableau_has_order_six_and_its_stability_polynomial():
+    """Butcher's seven stages: the order conditions of the bushy and tall trees up to order six
+    hold exactly (fractions); the stability function is the degree-6 Taylor polynomial of
+    exp(z) plus z⁷/−2160, whose modulus exceeds 1 on the imaginary axis near 0 (growth
+    ≈ 3.5e-4·(ωΔt)⁸ a step): the limit the driver uses is where it passes 1e-12."""
+    from fractions import Fraction as F
+    from mps_core.solvers.rk6 import A_EXACT, B_EXACT, C_EXACT, IMAGINARY_LIMIT
+
+    A, b, c = A_EXACT, B_EXACT, C_EXACT
+    s = len(b)
+    for k in range(1, 7):                               # Σ b c^(k−1) = 1/k
+        assert sum(b[i] * c[i] ** (k - 1) for i in range(s)) == F(1, k)
+    # tall trees: b A^(k−1) 1 = 1/k!, up to k = 6; then the z⁷ coefficient
+    v = [F(1)] * s
+    fact = 1
+    for k in range(1, 8):
+        fact *= k
+        got = sum(b[i] * v[i] for i in range(s))
+        if k <= 6:
+            assert got == F(1, fact)
+        else:
+            assert got == F(-1, 2160)
+        v = [sum(A[i][j] * v[j] for j in range(s)) for i in range(s)]
+    # Σ b c A c (an order-4 tree) and Σ b c³ A c (order 6)
+    Ac = [sum(A[i][j] * c[j] for j in range(s)) for i in range(s)]
+    assert sum(b[i] * c[i] * Ac[i] for i in range(s)) == F(1, 8)
+    assert sum(b[i] * c[i] ** 3 * Ac[i] for i in range(s)) == F(1, 12)
+    assert 0.05 < IMAGINARY_LIMIT < 0.1
+    # an undamped oscillation at ωΔt = 1 gains about 5.4e-4 a step
+    s6 = RK6(oscillator(1.0), 0.0, [1.0], [0.0])
+    for k in range(1, 1001):
+        s6.step_to(float(k))
+    energy = s6.q[0] ** 2 + s6.qd[0] ** 2
+    assert 1.5 < energy < 4.0, energy
+
+
+def test_rk6_dense_output_is_its_quintic_hermite():
+    """Inside a step q follows the quintic Hermite polynomial of the ends' (q, q̇, q̈): a
+    quintic motion comes out exact, q̇ as its derivative."""
+    def fun(t, q, qd):
+        return E([20.0 * t ** 3 - 6.0 * t])         # q = t⁵ − t³ + 2t
+    s = RK6(fun, 0.0, [0.0], [2.0])
+    s.step_to(0.4)
+    for t in (0.05, 0.2, 0.33):
+        q, qd = s.dense_output()(t)
+        # the step is exact for this q̈ (a polynomial of degree 3 in t alone)
+        assert q[0] == pytest.approx(t ** 5 - t ** 3 + 2 * t, rel=1e-13, abs=1e-15)
+        assert qd[0] == pytest.approx(5 * t ** 4 - 3 * t ** 2 + 2, rel=1e-12)

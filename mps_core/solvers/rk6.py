@@ -1,0 +1,123 @@
+"""A sixth-order Runge–Kutta method at fixed steps: Butcher's seven-stage tableau.
+
+Butcher's method of order six in seven stages (the fewest a sixth-order explicit method can
+have; J. C. Butcher, *Numerical Methods for Ordinary Differential Equations*, 3rd ed., §325),
+with rational coefficients and nodes 0, 1/3, 2/3, 1/3, 1/2, 1/2, 1, on y = (q, q̇):
+
+* stage 1 is the evaluation at the step's start (carried over from the previous step);
+* stages 2–7 ask for q̈ alone (``accel``), in one generated straight-line function on floats
+  for the chart's n coordinates (zero coefficients left out);
+* the evaluation at the new state is the next step's first stage: 7 evaluations a step.
+
+Global error O(Δt⁶): between RK4 (4 evaluations, O(Δt⁴)) and RK8 (12, O(Δt⁸)) where a fixed
+step is wanted. Dense output: the quintic Hermite polynomial of (q, q̇, q̈) at the step's ends
+for q, its derivative for q̇ (no evaluation more; O(Δt⁶) and O(Δt⁵) inside the step).
+
+Stability: on the imaginary axis the method is stable for ω·Δt up to :data:`IMAGINARY_LIMIT`,
+computed from the tableau as RK8's is (:func:`~mps_core.solvers.rk8.imaginary_limit`).
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction as _F
+
+import numpy as np
+
+from .base import GeneratedStep, stage_lines
+from .rk8 import _term, imaginary_limit
+
+STAGES = 7
+_ROWS = ([],
+         [_F(1, 3)],
+         [0, _F(2, 3)],
+         [_F(1, 12), _F(1, 3), _F(-1, 12)],
+         [_F(-1, 16), _F(9, 8), _F(-3, 16), _F(-3, 8)],
+         [0, _F(9, 8), _F(-3, 8), _F(-3, 4), _F(1, 2)],
+         [_F(9, 44), _F(-9, 11), _F(63, 44), _F(18, 11), 0, _F(-16, 11)])
+_WEIGHTS = (_F(11, 120), 0, _F(27, 40), _F(27, 40), _F(-4, 15), _F(-4, 15), _F(11, 120))
+
+#: the tableau as exact fractions: A (strictly lower), b, c = row sums of A
+A_EXACT = [[_F(x) for x in row] + [_F(0)] * (STAGES - len(row)) for row in _ROWS]
+B_EXACT = [_F(x) for x in _WEIGHTS]
+C_EXACT = [sum(row, _F(0)) for row in A_EXACT]
+
+_A = np.array([[float(x) for x in row] for row in A_EXACT])
+_B = np.array([float(x) for x in B_EXACT])
+_C = np.array([float(x) for x in C_EXACT])
+
+IMAGINARY_LIMIT = imaginary_limit(_A, _B)
+
+
+class RK6(GeneratedStep):
+    name = "rk6"
+    order = 6
+    evaluations_per_step = STAGES
+    inner_stages = STAGES - 1
+
+    @staticmethod
+    def step_source(n: int, direct: bool = False) -> str:
+        """One step on floats for n coordinates: the tableau's stages (zero coefficients left
+        out) and its weights."""
+        r = range(n)
+        args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
+        L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
+        if direct:
+            L.append("    m = 0")
+        V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
+        a = {0: [f"a{i}" for i in r]}
+        for s in range(1, STAGES):
+            row = _A[s, :s]
+            qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
+            vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
+            V[s] = [f"V{s}_{i}" for i in r]
+            a[s] = [f"a{s}_{i}" for i in r]
+            L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
+            t = "t1" if _C[s] == 1.0 else f"t0 + {float(_C[s])!r} * h"
+            L.extend(stage_lines(t, qs, V[s], a[s], direct))
+        q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
+        v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
+        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
+        return "\n".join(L) + "\n"
+
+    def dense_output(self):
+        if self._dense is None:
+            last = self.__dict__.get("_last")
+            if last is None:
+                raise RuntimeError("no step taken yet")
+            t0, q0, v0, a0 = last
+            self._dense = QuinticHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
+                                         self.current.qdd)
+        return self._dense
+
+
+class QuinticHermite:
+    """q by the quintic Hermite polynomial of (q, q̇, q̈) at both ends of a step, q̇ by its
+    derivative."""
+
+    def __init__(self, t0, t1, q0, qd0, qdd0, q1, qd1, qdd1):
+        self.t0, self.h = t0, t1 - t0
+        self.data = (q0, qd0, qdd0, q1, qd1, qdd1)
+
+    def __call__(self, t):
+        q0, qd0, qdd0, q1, qd1, qdd1 = self.data
+        h = self.h
+        s = (t - self.t0) / h
+        s2 = s * s
+        s3 = s2 * s
+        # the basis on [0, 1] and its derivative in s
+        h0 = 1.0 - 10.0 * s3 + 15.0 * s3 * s - 6.0 * s3 * s2
+        h1 = s - 6.0 * s3 + 8.0 * s3 * s - 3.0 * s3 * s2
+        h2 = 0.5 * s2 - 1.5 * s3 + 1.5 * s3 * s - 0.5 * s3 * s2
+        h3 = 10.0 * s3 - 15.0 * s3 * s + 6.0 * s3 * s2
+        h4 = -4.0 * s3 + 7.0 * s3 * s - 3.0 * s3 * s2
+        h5 = 0.5 * s3 - s3 * s + 0.5 * s3 * s2
+        d0 = -30.0 * s2 + 60.0 * s3 - 30.0 * s2 * s2
+        d1 = 1.0 - 18.0 * s2 + 32.0 * s3 - 15.0 * s2 * s2
+        d2 = s - 4.5 * s2 + 6.0 * s3 - 2.5 * s2 * s2
+        d3 = -d0
+        d4 = -12.0 * s2 + 28.0 * s3 - 15.0 * s2 * s2
+        d5 = 1.5 * s2 - 4.0 * s3 + 2.5 * s2 * s2
+        hh = h * h
+        q = h0 * q0 + h1 * h * qd0 + h2 * hh * qdd0 + h3 * q1 + h4 * h * qd1 + h5 * hh * qdd1
+        qd = (d0 * q0 + d3 * q1) / h + d1 * qd0 + d4 * qd1 + h * (d2 * qdd0 + d5 * qdd1)
+        return q, qd
