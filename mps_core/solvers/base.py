@@ -108,6 +108,8 @@ class GeneratedStep(Solver):
     inner_stages = 0
     #: the generated step also gives its stages' derivatives (kept for the interpolant)
     returns_stages = False
+    #: the dense output's class, made from the step's ends: (t0, t1, q0, q̇0, q̈0, q1, q̇1, q̈1)
+    interpolant = None
 
     @staticmethod
     def step_source(n: int, direct: bool) -> str:
@@ -153,8 +155,8 @@ class GeneratedStep(Solver):
             if last is None:
                 raise RuntimeError("no step taken yet")
             t0, q0, v0, a0 = last
-            self._dense = CubicHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
-                                       self.current.qdd)
+            self._dense = (self.interpolant or CubicHermite)(t0, self.t, q0, v0, a0, self.q,
+                                                             self.qd, self.current.qdd)
         return self._dense
 
 

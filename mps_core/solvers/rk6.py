@@ -23,8 +23,8 @@ from fractions import Fraction as _F
 
 import numpy as np
 
-from .base import GeneratedStep, stage_lines
-from .rk8 import _term, imaginary_limit
+from .base import GeneratedStep
+from .rk8 import imaginary_limit, tableau_step_source
 
 STAGES = 7
 _ROWS = ([],
@@ -46,48 +46,6 @@ _B = np.array([float(x) for x in B_EXACT])
 _C = np.array([float(x) for x in C_EXACT])
 
 IMAGINARY_LIMIT = imaginary_limit(_A, _B)
-
-
-class RK6(GeneratedStep):
-    name = "rk6"
-    order = 6
-    evaluations_per_step = STAGES
-    inner_stages = STAGES - 1
-
-    @staticmethod
-    def step_source(n: int, direct: bool = False) -> str:
-        """One step on floats for n coordinates: the tableau's stages (zero coefficients left
-        out) and its weights."""
-        r = range(n)
-        args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
-        L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
-        if direct:
-            L.append("    m = 0")
-        V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
-        a = {0: [f"a{i}" for i in r]}
-        for s in range(1, STAGES):
-            row = _A[s, :s]
-            qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
-            vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
-            V[s] = [f"V{s}_{i}" for i in r]
-            a[s] = [f"a{s}_{i}" for i in r]
-            L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
-            t = "t1" if _C[s] == 1.0 else f"t0 + {float(_C[s])!r} * h"
-            L.extend(stage_lines(t, qs, V[s], a[s], direct))
-        q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
-        v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
-        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{', m' if direct else ''}")
-        return "\n".join(L) + "\n"
-
-    def dense_output(self):
-        if self._dense is None:
-            last = self.__dict__.get("_last")
-            if last is None:
-                raise RuntimeError("no step taken yet")
-            t0, q0, v0, a0 = last
-            self._dense = QuinticHermite(t0, self.t, q0, v0, a0, self.q, self.qd,
-                                         self.current.qdd)
-        return self._dense
 
 
 class QuinticHermite:
@@ -121,3 +79,18 @@ class QuinticHermite:
         q = h0 * q0 + h1 * h * qd0 + h2 * hh * qdd0 + h3 * q1 + h4 * h * qd1 + h5 * hh * qdd1
         qd = (d0 * q0 + d3 * q1) / h + d1 * qd0 + d4 * qd1 + h * (d2 * qdd0 + d5 * qdd1)
         return q, qd
+
+
+class RK6(GeneratedStep):
+    name = "rk6"
+    order = 6
+    evaluations_per_step = STAGES
+    inner_stages = STAGES - 1
+    #: the dense output: q̈ at the ends is known, so the quintic costs no evaluation
+    interpolant = QuinticHermite
+
+    @staticmethod
+    def step_source(n: int, direct: bool = False) -> str:
+        """One step on floats for n coordinates: the tableau's stages (zero coefficients left
+        out) and its weights."""
+        return tableau_step_source(_A, _B, _C, n, direct, t1_at_one=True)

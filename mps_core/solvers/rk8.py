@@ -63,6 +63,38 @@ def _term(coefs, name) -> str:
     return " + ".join(out) if out else "0.0"
 
 
+def tableau_step_source(A, b, c, n: int, direct: bool = False, stages: bool = False,
+                        t1_at_one: bool = False) -> str:
+    """The code of one step of the explicit tableau (A, b, c) on y = (q, q̇) for n coordinates
+    (see :meth:`~mps_core.solvers.base.GeneratedStep.step_source`): stage 1 the step's start,
+    the others by :func:`~mps_core.solvers.base.stage_lines`, zero coefficients left out;
+    ``stages``: the stages' (q̇, q̈) returned too; ``t1_at_one``: a stage at c = 1 reads ``t1``."""
+    r = range(n)
+    s_count = len(b)
+    args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
+    L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
+    if direct:
+        L.append("    m = 0")
+    V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
+    a = {0: [f"a{i}" for i in r]}
+    for s in range(1, s_count):
+        row = A[s, :s]
+        qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
+        vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
+        V[s] = [f"V{s}_{i}" for i in r]
+        a[s] = [f"a{s}_{i}" for i in r]
+        L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
+        t = "t1" if t1_at_one and c[s] == 1.0 else f"t0 + {float(c[s])!r} * h"
+        L.extend(stage_lines(t, qs, V[s], a[s], direct))
+    q1 = [f"q{i} + h * ({_term(b, lambda j, i=i: V[j][i])})" for i in r]
+    v1 = [f"v{i} + h * ({_term(b, lambda j, i=i: a[j][i])})" for i in r]
+    K = ""
+    if stages:
+        K = ", [" + ", ".join("[" + ", ".join(V[s] + a[s]) + "]" for s in range(s_count)) + "]"
+    L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}]{K}{', m' if direct else ''}")
+    return "\n".join(L) + "\n"
+
+
 class RK8(GeneratedStep):
     name = "rk8"
     order = 8
@@ -74,27 +106,7 @@ class RK8(GeneratedStep):
     def step_source(n: int, direct: bool = False) -> str:
         """One step on floats for n coordinates: the tableau's stages (zero coefficients left
         out) and the eighth-order weights."""
-        r = range(n)
-        args = [f"q{i}" for i in r] + [f"v{i}" for i in r] + [f"a{i}" for i in r]
-        L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
-        if direct:
-            L.append("    m = 0")
-        V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
-        a = {0: [f"a{i}" for i in r]}
-        for s in range(1, STAGES):
-            row = _A[s, :s]
-            qs = [f"q{i} + h * ({_term(row, lambda j, i=i: V[j][i])})" for i in r]
-            vs = [f"v{i} + h * ({_term(row, lambda j, i=i: a[j][i])})" for i in r]
-            V[s] = [f"V{s}_{i}" for i in r]
-            a[s] = [f"a{s}_{i}" for i in r]
-            L.extend(f"    V{s}_{i} = {vs[i]}" for i in r)
-            L.extend(stage_lines(f"t0 + {float(_C[s])!r} * h", qs, V[s], a[s], direct))
-        q1 = [f"q{i} + h * ({_term(_B, lambda j, i=i: V[j][i])})" for i in r]
-        v1 = [f"v{i} + h * ({_term(_B, lambda j, i=i: a[j][i])})" for i in r]
-        K = ", ".join("[" + ", ".join(V[s] + a[s]) + "]" for s in range(STAGES))
-        L.append(f"    return [{', '.join(q1)}], [{', '.join(v1)}], [{K}]"
-                 f"{', m' if direct else ''}")
-        return "\n".join(L) + "\n"
+        return tableau_step_source(_A, _B, _C, n, direct, stages=True)
 
     def dense_output(self):
         """DOP853's seventh-order interpolant of the last step, from its stages and three more
