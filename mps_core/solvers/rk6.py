@@ -23,7 +23,7 @@ from fractions import Fraction as _F
 
 import numpy as np
 
-from .base import GeneratedStep
+from .base import CubicHermite, GeneratedStep
 from .rk8 import imaginary_limit, tableau_step_source
 
 STAGES = 7
@@ -48,13 +48,9 @@ _C = np.array([float(x) for x in C_EXACT])
 IMAGINARY_LIMIT = imaginary_limit(_A, _B)
 
 
-class QuinticHermite:
+class QuinticHermite(CubicHermite):
     """q by the quintic Hermite polynomial of (q, q̇, q̈) at both ends of a step, q̇ by its
-    derivative."""
-
-    def __init__(self, t0, t1, q0, qd0, qdd0, q1, qd1, qdd1):
-        self.t0, self.h = t0, t1 - t0
-        self.data = (q0, qd0, qdd0, q1, qd1, qdd1)
+    derivative (the same data as :class:`~mps_core.solvers.base.CubicHermite`)."""
 
     def __call__(self, t):
         q0, qd0, qdd0, q1, qd1, qdd1 = self.data
