@@ -216,9 +216,10 @@ class ChartView:
         cache = self.__dict__.setdefault("_jets_cache", {})
         hit = cache.get(key)
         if hit is None:
-            if len(cache) >= 4:
-                del cache[next(iter(cache))]
-            hit = cache[key] = self.positions(seed(q, qd))
+            hit = self.positions(seed(q, qd))
+            if len(cache) >= 4:         # the oldest goes (pop: a view may serve two threads)
+                cache.pop(next(iter(cache), None), None)
+            cache[key] = hit
         return dict(hit)
 
     def state_from(self, pose_jets, reference: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -263,16 +264,23 @@ class Mechanism:
     joints: tuple[Joint, ...] = ()
 
     def views(self, structure: str | Structure) -> list[ChartView]:
-        """Every chart usable in a structure, with that structure's coordinates frozen."""
+        """Every chart usable in a structure, with that structure's coordinates frozen. The
+        views are made once a structure and shared by every simulation of this mechanism (a
+        view holds nothing a run changes: its kept jets are values of a state)."""
         s = self.structures[structure] if isinstance(structure, str) else structure
-        out = []
-        for chart in self.charts:
-            names = {c.name for c in chart.coordinates}
-            if chart.only_in is not None and s.name not in chart.only_in:
-                continue
-            if all(k in names for k in s.frozen):
-                out.append(ChartView(chart, s.frozen))
-        return out
+        key = (s.name, tuple(sorted(s.frozen.items())))
+        made = self.__dict__.setdefault("_views", {})
+        out = made.get(key)
+        if out is None:
+            out = []
+            for chart in self.charts:
+                names = {c.name for c in chart.coordinates}
+                if chart.only_in is not None and s.name not in chart.only_in:
+                    continue
+                if all(k in names for k in s.frozen):
+                    out.append(ChartView(chart, s.frozen))
+            out = made[key] = tuple(out)
+        return list(out)
 
     def body(self, name: str) -> Body:
         for b in self.bodies:

@@ -114,7 +114,21 @@ class Scene:
 
     # -- building -------------------------------------------------------------------------
     def mechanism(self) -> PressMechanism:
-        return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock, x_top=self.x_top)
+        """The scene's mechanism: one object for every scene of equal geometry, bodies, lock
+        angle and top stop (a mechanism holds nothing a run changes), so that what is made
+        per chart view (views, kernels' keys) is made once in a process."""
+        key = (self.geometry, tuple(sorted(self.bodies.items())), self.psi_lock, self.x_top)
+        try:
+            mech = _MECHANISMS.get(key)
+        except TypeError:               # a body given by hand with a list for its com
+            return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock,
+                                  x_top=self.x_top)
+        if mech is None:
+            if len(_MECHANISMS) >= 64:
+                _MECHANISMS.clear()
+            mech = _MECHANISMS[key] = PressMechanism(self.geometry, self.bodies,
+                                                     psi_lock=self.psi_lock, x_top=self.x_top)
+        return mech
 
     def build_effects(self, mechanism) -> list:
         """The effects the scene lists, and only those (a spring's damping is its own unit)."""
@@ -128,6 +142,10 @@ class Scene:
         i = self.initial
         return mechanism.initial_state(self.structure, i["phi"], i["phi_dot"], i.get("psi"),
                                        i.get("psi_dot", 0.0), sigma=self.assembly)
+
+
+#: mechanisms by what makes them (:meth:`Scene.mechanism`)
+_MECHANISMS: dict = {}
 
 
 # -- field checks -------------------------------------------------------------------------

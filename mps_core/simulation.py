@@ -270,6 +270,7 @@ class Simulation:
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
+        self._chart_due = False
         self._check_chart()
         self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
@@ -845,6 +846,11 @@ class Simulation:
         tol = 1e-12 * max(1.0, abs(t_target))
         failures = 0
         while self.solver.t < t_target - tol:
+            if self._chart_due:
+                # the chart's regularity at the last step's end, looked at when the next step
+                # is about to start (a run that ends there changes no chart for nothing)
+                self._chart_due = False
+                self._check_chart()
             t0 = self.solver.t
             if self.pending and self.pending[0][0] <= t0 + tol:
                 t_cmd, name = self.pending.pop(0)
@@ -922,7 +928,7 @@ class Simulation:
             self._power_now = p_b
             self._ev_prev = vals
             self._update_phys(e)
-            self._check_chart()
+            self._chart_due = True
 
     def run(self, t_end: float, dt: float) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by

@@ -206,3 +206,40 @@ def test_iterated_corrector_budget_and_accuracy(paper_reference_005):
     assert three.counts["evaluations"] == 1 + 4 * 40 + len(three.events)
     r = paper_reference_005
     assert max_err(three, r, "phi") < max_err(one, r, "phi")
+
+
+# -- what runs share, and what a run's end leaves ---------------------------------------------
+def test_scenes_of_equal_mechanism_share_it_and_its_views_and_runs_do_not_interfere():
+    """Equal geometry and bodies: one mechanism object and one set of views (made once in a
+    process); another geometry gets its own. Two runs of one mechanism stepped in turn give
+    what each gives alone."""
+    a, b = build(PAPER), build(PAPER)
+    assert a.mechanism is b.mechanism
+    assert [v for v in a.views("free")] == [v for v in b.views("free")]
+    other = scene_from_text(PAPER.text.replace("l1_mm = 15.0", "l1_mm = 14.0").replace(
+        "com_mm = [15.0, 0.0]", "com_mm = [14.0, 0.0]"))
+    assert build(other).mechanism is not a.mechanism
+    alone = build(PAPER).run(0.1, 5e-3)
+    for k in range(1, 21):          # a and b in turn, step by step, through three charts
+        a.advance_to(k * 0.1 / 20)  # (the times run() steps to)
+        b.advance_to(k * 0.1 / 20)
+        assert a.solver.q.tolist() == b.solver.q.tolist()
+    assert {e["to"] for e in a.events if e["kind"] == "chart"} >= {"psi-xc+", "phi-xc+"}
+    assert a.joint_state()[::2] == (alone.phi[-1], alone.psi[-1], alone.x_C[-1])
+
+
+def test_a_chart_change_due_at_a_runs_end_waits_for_the_next_step():
+    """The chart's regularity falls below the switching threshold at the run's last step
+    (paper, RK6 at 5 ms, t = 0.1 s): the run ends in that chart; the next step starts in the
+    more regular one, as a run that goes on gives it."""
+    scene = PAPER.with_overrides(solver="rk6", scheme="autodiff", dt=5e-3, t_end=0.1)
+    sim = build(scene)
+    traj = sim.run(0.1, 5e-3)
+    assert traj.chart[-1] == "phi-xc+" and sim.view.name == "phi-xc+"
+    assert sim.view.regularity(sim.solver.current.kin.pose) < sim.policy.switch_below
+    sim.advance_to(0.105)
+    assert sim.events[-1]["kind"] == "chart" and sim.events[-1]["t"] == 0.1
+    assert sim.events[-1]["to"] == "psi-xc-"
+    longer = build(scene.with_overrides(t_end=0.105)).run(0.105, 5e-3)
+    assert longer.events[-1]["to"] == "psi-xc-" and longer.events[-1]["t"] == 0.1
+    assert abs(longer.phi[-1] - sim.joint_state()[0]) < 1e-12
