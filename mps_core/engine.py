@@ -89,7 +89,9 @@ class Kinematics:
                  side=None, conv=None, v=None):
         self.t = t
         self._side = side           # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
-        self._conv = conv           # θ̈ at q̈ = 0 of every body, from an exact kernel
+        # from an exact kernel: θ̈ at q̈ = 0 of every body, then each centre of mass's (ẍ, ÿ)
+        # at q̈ = 0
+        self._conv = conv
         self.q = q
         self.qd = qd
         self.names = names          # {point name: row}

@@ -339,7 +339,8 @@ def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
     """(lines, xl, jl, wl, A, h, conv): the exact kernel's body (its code lines) and, as code
     (a local's name or a float literal), each number it returns: the positions, analogs and
     angular analogs (the layout of :class:`~mps_core.engine.Kinematics`), A's entries
-    (n = 1: a; n = 2: a00, a01, a11), h and θ̈ at q̈ = 0 of every body. Kept by ``key``."""
+    (n = 1: a; n = 2: a00, a01, a11), h, and θ̈ at q̈ = 0 of every body followed by every
+    centre of mass's (ẍ, ÿ) at q̈ = 0. Kept by ``key``."""
     if key is not None and key in _PARTS:
         return _PARTS[key]
     parts = _parts(engine, view, tape, outputs, args, free)
@@ -401,7 +402,10 @@ def _parts(engine, view, tape, outputs, args, free) -> tuple:
     xl = [code(add(val(r), offset[r] or None)) for r in range(2 * NP)]
     jl = [code(grad(2 * r + c, i)) for r in range(NP) for c in (0, 1) for i in range(n)]
     wl = [code(omega.get((k, i))) for k in range(nb) for i in range(n)]
-    conv = [code(theta2.get(k)) for k in range(nb)]
+    # θ̈ at q̈ = 0 of every body, then the centres of mass' accelerations at q̈ = 0 (x, y a
+    # body): the motion a reaction kernel reads from the kinematics (computed for h anyway)
+    conv = [code(theta2.get(k)) for k in range(nb)] + [code(d2(com[k] + c)) for k in range(nb)
+                                                       for c in (0, 1)]
     A_out = [code(A[0, 0])] if n == 1 else [code(A[0, 0]), code(A[0, 1]), code(A[1, 1])]
     return (list(w.lines), xl, jl, wl, A_out, [code(x) for x in h], conv)
 

@@ -72,12 +72,21 @@ class _Folding(_Forward):
 PIVOT_GUARD = 1e-6
 
 
-def reaction_kernel(engine, view, q, system, motion, columns, scale: float):
+def reaction_kernel(engine, view, q, system, motion, columns, scale: float,
+                    from_kinematics: bool = False):
     """The reaction kernel of ``view`` (traced at ``q``), or None where its premises do not
     hold. ``engine``: a :class:`~mps_core.engine.PartialSystems` of the mechanism (its maps);
     ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
     joints and the numbers the pivot order is chosen from) and the bodies' motion there;
-    ``columns``: the output columns in order."""
+    ``columns``: the output columns in order.
+
+    ``from_kinematics``: the kernel reads the motion from an exact evaluation's kinematics
+    (``fn(q…, q̇…, q̈…, xl, jl, wl, cv, loads)``: positions, analogs, angular analogs and
+    ``cv``, θ̈ and the centres of mass' accelerations at q̈ = 0, as
+    :class:`~mps_core.engine.Kinematics` keeps them from an exact kernel) instead of running
+    the traced position function forward itself; what the trace folds (zeros, constants) is
+    folded the same. Only for exact kinematics: from central differences they would carry
+    the scheme's error into every reaction."""
     traced = trace_view(view, q)
     if traced is None:
         return None
@@ -103,13 +112,16 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float):
     if sv[-1] <= 1e-9 * sv[0]:
         return None                 # not unique at the building state
     order, pivots = _pivot_order(s[:, None] * E)
-    key = ("reactions", _key(engine, view), tape.key(), tuple(outputs),
+    key = ("reactions from kinematics" if from_kinematics else "reactions",
+           _key(engine, view), tape.key(), tuple(outputs),
            tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
            tuple(columns), float(scale), tuple(order))
     kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
                                        scale, order, [float(abs(p) / s[r])
-                                                      for p, r in zip(pivots, order)]),
-                  f"<reaction kernel {view.name}>", flat, view.name, {"_fallback": _fallback})
+                                                      for p, r in zip(pivots, order)],
+                                       from_kinematics),
+                  f"<reaction kernel{' from kinematics' if from_kinematics else ''} "
+                  f"{view.name}>", flat, view.name, {"_fallback": _fallback})
     kernel.flat, kernel.chart = flat, view.name
     return kernel
 
@@ -118,7 +130,8 @@ _ASSIGNED = re.compile(r"^    ([A-Za-z_][A-Za-z_0-9]*) = ")
 
 
 def with_loads(kernel, sums):
-    """One function ``fn(t, q…, q̇…, q̈…, xl, jl, wl, vl)`` that is the traced load sums
+    """One function ``fn(t, q…, q̇…, q̈…, xl, jl, wl, vl)`` (a kernel from kinematics:
+    ``fn(t, q…, q̇…, q̈…, xl, jl, wl, cv, vl)``) that is the traced load sums
     ``sums`` (:func:`traced_sums`) followed by the reaction kernel ``kernel`` on what they
     return: the two generated bodies one after the other (the sums' locals renamed), so the
     same operations on the same numbers, without the call, the list and its unpacking between
@@ -157,7 +170,9 @@ def with_loads(kernel, sums):
         ret = sub.sub(lambda m: f"({numbers[m.group(1)]})", ret)
     lines = [*(renamed(line) for line in s_lines),
              *(f"    {a} = {x}" for a, x in zip(names, items) if a not in numbers), *body]
-    src = "\n".join([f"def kernel(t, {params}, xl, jl, wl, vl):",
+    given = {x.strip() for x in params.split(",")}
+    lists = ", ".join(x for x in ("xl", "jl", "wl", "vl") if x not in given)
+    src = "\n".join([f"def kernel(t, {params}, {lists}):",
                      *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
     made = load(key, lambda: src, f"<reaction kernel with loads {kernel.chart}>", kernel.flat,
                 kernel.chart, {"_fallback": _fallback, "tanh": math.tanh,
@@ -204,23 +219,29 @@ def _pivot_order(A: np.ndarray) -> tuple[list, list]:
 
 
 def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order,
-            pivot_sizes) -> str:
+            pivot_sizes, from_kinematics: bool = False) -> str:
     n = view.n
     w = _Writer()
-    fw, outs = forward(w, n, tape, outputs, args, free, _Folding)
-    parts = linear_parts(engine, fw, outs)
-    val, grad, _d1, d2 = parts
-    add, sub, mul, neg = fw.add, fw.sub, fw.mul, fw.neg
     mech = engine.mechanism
     names = engine._names
     nb = len(mech.bodies)
     mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
-    omega, theta2 = angular(engine, fw, n, parts)
     offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
+    if from_kinematics:
+        fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(engine, view, tape, outputs,
+                                                                    args, free, w)
+    else:
+        fw, outs = forward(w, n, tape, outputs, args, free, _Folding)
+        parts = linear_parts(engine, fw, outs)
+        val, grad, _d1, d2 = parts
+        omega, theta2 = angular(engine, fw, n, parts)
+        unpack = None
 
-    def pos(name):
-        r = 2 * names[name]
-        return add(val(r), offset[r] or None), add(val(r + 1), offset[r + 1] or None)
+        def pos(name):
+            r = 2 * names[name]
+            return (fw.add(val(r), offset[r] or None),
+                    fw.add(val(r + 1), offset[r + 1] or None))
+    add, sub, mul, neg = fw.add, fw.sub, fw.mul, fw.neg
 
     def guard(p, size):
         if isinstance(p, float):
@@ -413,8 +434,67 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
                                   else w.let(f"abs({bm})"))
     ret = (f"    return [{', '.join(code(out[c]) for c in columns)}], "
            f"[{', '.join(code(x) for x in res)}]")
-    return (f"def kernel({', '.join(qs + vs + accs)}, loads):\n"
+    if unpack is not None:              # the lists' numbers the code above reads
+        w.lines[1:1] = unpack()
+    lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
+    return (f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
             + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+
+
+def _from_kinematics(engine, view, tape, outputs, args, free, w):
+    """What :func:`_source` reads of the bodies' motion, as code reading an exact evaluation's
+    kinematics lists (unpacked into locals ``kx…``, ``kj…``, ``kw…``, ``kc…``): (fw, pos,
+    grad, d2, omega, theta2, ``unpack()``: the unpacking lines of the numbers read so far).
+    The trace runs forward once, here, into code that is thrown away: where it gives a zero or a constant, so does this; elsewhere
+    the list's number, the same to round-off."""
+    n = view.n
+    mech = engine.mechanism
+    names = engine._names
+    nb = len(mech.bodies)
+    NP = engine._np
+    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * NP)
+    fw0, outs = forward(_Writer(), n, tape, outputs, args, free, _Folding)
+    parts0 = linear_parts(engine, fw0, outs)
+    val0, grad0, _d10, d20 = parts0
+    omega0, theta20 = angular(engine, fw0, n, parts0)
+    com = {2 * names[f"G_{b.name}"]: k for k, b in enumerate(mech.bodies)}
+    used: dict = {"kx": set(), "kj": set(), "kw": set(), "kc": set()}
+
+    def read(traced, prefix, i):
+        if traced is None or isinstance(traced, float):
+            return traced                   # a zero or a constant of the trace
+        used[prefix].add(i)
+        return f"{prefix}{i}"
+
+    def pos(name):
+        r = 2 * names[name]
+        return tuple(read(fw0.add(val0(r + c), offset[r + c] or None), "kx", r + c)
+                     for c in (0, 1))
+
+    def grad(row, i):
+        return read(grad0(row, i), "kj", row * n + i)
+
+    def d2(row):
+        k = com.get(row - row % 2)
+        if k is None:
+            raise ValueError("reaction kernel from kinematics: a convective acceleration "
+                             "other than a centre of mass's")
+        return read(d20(row), "kc", nb + 2 * k + row % 2)
+
+    omega = {key: read(x, "kw", key[0] * n + key[1]) for key, x in omega0.items()}
+    theta2 = {k: read(x, "kc", k) for k, x in theta20.items()}
+
+    def unpack():
+        """The lists into locals (one statement each: the unused ones are ``_``)."""
+        sizes = {"kx": ("xl", 2 * NP), "kj": ("jl", 2 * NP * n), "kw": ("wl", nb * n),
+                 "kc": ("cv", 3 * nb)}
+        out = []
+        for prefix, (arg, size) in sizes.items():
+            if used[prefix]:
+                targets = [f"{prefix}{i}" if i in used[prefix] else "_" for i in range(size)]
+                out.append(f"    {', '.join(targets)} = {arg}")
+        return out
+    return _Folding(w, n), pos, grad, d2, omega, theta2, unpack
 
 
 class LoadSums:

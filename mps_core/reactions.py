@@ -409,7 +409,8 @@ class _Kernels:
         self._loads = None              # (the effects' list and its length, LoadSums)
         self._with_loads = None         # (kernel, traced sums, the two as one function)
         #: per view, the function that answered last (reaction_values): (STATE_VERSION, the
-        #: effects' list, its length, the kernel with its loads, the unknowns)
+        #: effects' list, its length, the kernel with its loads, the unknowns, whether it
+        #: reads the kinematics' motion)
         self.last: dict = {}
 
     def loads(self, effects):
@@ -438,11 +439,12 @@ class _Kernels:
         self._with_loads = (kernel, traced, fn)
         return fn
 
-    def get(self, view, ql, scale):
+    def get(self, view, ql, scale, from_kinematics: bool = False):
         """(kernel, unknowns) of a view, built at ``ql`` on first use; None where the view
-        has none."""
+        has none. ``from_kinematics``: the kernel that reads an exact evaluation's kinematics
+        (:func:`~mps_core.reaction_kernels.reaction_kernel`)."""
         mechanism = self.mechanism
-        key = (view, scale)
+        key = (view, scale, True) if from_kinematics else (view, scale)
         entry = self.views.get(key, False)
         if entry is False:
             from .reaction_kernels import reaction_kernel
@@ -453,7 +455,7 @@ class _Kernels:
                 motion = body_motion(mechanism, view, q, np.zeros_like(q))
                 system = _System(mechanism, motion, joints, None)
                 k = reaction_kernel(self.engine, view, q, system, motion,
-                                    tuple(REACTION_COLUMNS), scale)
+                                    tuple(REACTION_COLUMNS), scale, from_kinematics)
             except (ArithmeticError, ValueError):
                 return None         # outside the chart here: built at a later state
             unknowns = tuple(c for j in joints for c in j.columns)
@@ -480,19 +482,24 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
     ks = mechanism.__dict__.get("_reaction_kernels") or kernels_of(mechanism)
     xl, jl, wl = kin._xl, kin._jl, kin._wl
     lists = xl is not None and jl is not None and wl is not None
+    # an exact kernel's kinematics carry the bodies' motion at q̈ = 0 (cv): the kernel that
+    # reads it, instead of running the position function forward again
+    cv = kin._conv
+    moving = lists and cv is not None and len(cv) == 3 * len(mechanism.bodies)
     if lists and scale is None:
         # the view's last function that held, for the same effects in the same state:
         # straight to it (the lookups below made it)
         last = ks.last.get(view)
         if last is not None and last[0] == STATE_VERSION[0] and last[1] is effects \
-                and last[2] == len(effects):
+                and last[2] == len(effects) and last[5] is moving:
             try:
-                values, residual = last[3](t, *ql, *vl, *al, xl, jl, wl,
-                                           kin._vl if kin._vl is not None else kin._v())
+                v = kin._vl if kin._vl is not None else kin._v()
+                values, residual = (last[3](t, *ql, *vl, *al, xl, jl, wl, cv, v) if moving
+                                    else last[3](t, *ql, *vl, *al, xl, jl, wl, v))
                 return values, residual, last[4]
             except _FALLBACKS:
                 pass
-    entry = ks.get(view, ql, ks.scale if scale is None else float(scale))
+    entry = ks.get(view, ql, ks.scale if scale is None else float(scale), moving)
     if entry is None:
         return None
     kernel, unknowns = entry
@@ -504,15 +511,18 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
             # the load sums and the kernel as one function; where it raises, the two below
             # say which part failed (a branch of a force law, or the kernel's own fallback)
             try:
-                values, residual = both(t, *ql, *vl, *al, xl, jl, wl,
-                                        kin._vl if kin._vl is not None else kin._v())
+                v = kin._vl if kin._vl is not None else kin._v()
+                values, residual = (both(t, *ql, *vl, *al, xl, jl, wl, cv, v) if moving
+                                    else both(t, *ql, *vl, *al, xl, jl, wl, v))
                 if scale is None:
-                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns)
+                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns,
+                                     moving)
                 return values, residual, unknowns
             except _FALLBACKS:
                 pass
     try:
-        values, residual = kernel(*ql, *vl, *al, sums(t, kin))
+        values, residual = (kernel(*ql, *vl, *al, xl, jl, wl, cv, sums(t, kin)) if moving
+                            else kernel(*ql, *vl, *al, sums(t, kin)))
     except _FALLBACKS:
         return None
     return values, residual, unknowns

@@ -175,16 +175,19 @@ def evaluation_costs(case: Case, number: int = 2000):
     return rows
 
 
-def reaction_costs(case: Case, number: int = 200, limit: int = 60):
+def reaction_costs(case: Case, number: int = 200, limit: int = 60, scheme: str = "central"):
     """What the reactions cost beside an exact evaluation, side by side at the same states
-    (``limit`` states spread evenly over the whole run, the seed's scheme): µs of one exact
-    evaluation, of the reactions by the view's reaction kernel (with the effects' loads), and
-    by the general Newton–Euler least squares; medians over the states, one row for all of
-    them and one for each number of free coordinates n (a structure's charts: n = 1 held or
-    locked, n = 2 free in the press)."""
+    (``limit`` states spread evenly over the whole run, linear acceleration in ``scheme``: the
+    seed's central differences, or exact derivatives, whose evaluations carry the bodies'
+    motion that the reaction kernel then reads): µs of one exact evaluation, of the reactions
+    by the view's reaction kernel (with the effects' loads), and by the general Newton–Euler
+    least squares; medians over the states, one row for all of them and one for each number
+    of free coordinates n (a structure's charts: n = 1 held or locked, n = 2 free in the
+    press)."""
     from ..reactions import compute_reactions, reaction_values
 
-    scene = scene_for(case, Setting("linear-acceleration", "central", 0.1), DT)
+    scene = scene_for(case, Setting("linear-acceleration", scheme,
+                                    0.1 if scheme == "central" else 0.0), DT)
     sim = build(scene)
     exact = build(scene_for(case, Setting("linear-acceleration", "autodiff", 0.0), DT)).engine
     states = []
@@ -217,7 +220,8 @@ def reaction_costs(case: Case, number: int = 200, limit: int = 60):
         if not sel or (label != "all" and len(sel) == len(got)):
             continue
         _, ev, fast, general = zip(*sel)
-        rows.append({"states": len(sel), "which": label, "us_exact_evaluation": med(ev),
+        rows.append({"states": len(sel), "which": label, "run": scheme,
+                     "us_exact_evaluation": med(ev),
                      "us_reactions_kernel": med(fast), "us_reactions_general": med(general),
                      "kernel_over_evaluation": med([f / x for f, x in zip(fast, ev)]),
                      "general_over_kernel": med([g / f for g, f in zip(general, fast)])})
@@ -299,7 +303,8 @@ def study(case_names=None, quick: bool = False, log=print):
                "solvers": solver_costs(case, ref, settings, repeats),
                "core": core_costs(case, settings, repeats=3 if quick else 5),
                "evaluation": evaluation_costs(case, 500 if quick else 2000),
-               "reactions": reaction_costs(case, 100 if quick else 300)}
+               "reactions": reaction_costs(case, 100 if quick else 300, scheme="autodiff")
+               + reaction_costs(case, 100 if quick else 300)}
         res["effects"], res["effect_evals"], res["effect_runs"] = effect_costs(case, repeats)
         out[name] = res
     return out
@@ -344,8 +349,12 @@ def report(results, log=print) -> None:
                 log(f"inside an RK4 run (autodiff, engine + solver alone): {per:.1f} us per "
                     f"evaluation, {per / each:.2f}× the same mix measured alone ({each:.1f} us)")
         for r in res.get("reactions", ()):
-            log(f"reactions beside one exact evaluation ({r['which']}: median of {r['states']} "
-                f"states over the run, side by side): exact evaluation {r['us_exact_evaluation']:.1f} us, reaction kernel "
+            run = ("an exact run: the kernel reads the evaluation's motion"
+                   if r.get("run") == "autodiff" else "the seed's central run: the kernel "
+                   "traces the motion itself")
+            log(f"reactions beside one exact evaluation ({run}; {r['which']}: median of "
+                f"{r['states']} states over the run, side by side): exact evaluation "
+                f"{r['us_exact_evaluation']:.1f} us, reaction kernel "
                 f"with the loads {r['us_reactions_kernel']:.1f} us "
                 f"({r['kernel_over_evaluation']:.2f}× the evaluation), general least squares "
                 f"{r['us_reactions_general']:.1f} us ({r['general_over_kernel']:.0f}× the kernel)")

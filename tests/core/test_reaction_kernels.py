@@ -31,6 +31,21 @@ def cycle(scheme: str, t_end: float = 1.0):
     return sim, states
 
 
+def from_kinematics(sim, e) -> bool:
+    """Whether the evaluation's kinematics carry the bodies' motion (an exact kernel's): the
+    reaction kernel then reads it instead of running the position function forward."""
+    cv = e.kin._conv
+    return cv is not None and len(cv) == 3 * len(sim.mechanism.bodies)
+
+
+def call(kernel, sim, e, loads):
+    """A reaction kernel (either kind) at an evaluation, on the given load sums."""
+    ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
+    if from_kinematics(sim, e):
+        return kernel(*ql, *vl, *al, e.kin._xl, e.kin._jl, e.kin._wl, e.kin._conv, loads)
+    return kernel(*ql, *vl, *al, loads)
+
+
 def both(sim, e):
     """(kernel's values, general path's Reactions) at an evaluation."""
     fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
@@ -73,6 +88,10 @@ def test_exact_kernel_equals_newton_euler_on_every_structure(exact_cycle):
         times.setdefault(e.view.name, []).append(e.t)
     assert set(seen) == {"free", "held", "locked"}, seen
     assert len(times) >= 4, list(times)          # several charts, not one
+    # exact kinematics: every kernel read the evaluation's motion, none ran the trace again
+    assert all(from_kinematics(sim, e) for e, _ in states)
+    ks = kernels_of(sim.mechanism)
+    assert {k[0].name for k in ks.views if len(k) == 3 and ks.views[k]} >= set(times)
     # the states next to every impact and chart change were among those compared
     marks = [ev["t"] for ev in sim.events if ev["kind"] in ("chart", "latch-closes",
                                                              "stop-reached", "stop-release")]
@@ -125,7 +144,7 @@ def test_a_failed_guard_falls_back_to_the_general_path(exact_cycle, monkeypatch)
     sim, states = exact_cycle
     e, _ = states[500]
     ks = kernels_of(sim.mechanism)
-    key = (e.view, ks.scale)
+    key = (e.view, ks.scale, True)
     assert reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
                            e.qd.tolist(), e.qdd.tolist(), e.kin) is not None   # made here
     kernel, unknowns = ks.views[key]
@@ -197,17 +216,19 @@ def test_the_kernel_with_its_loads_is_the_two_one_after_the_other(fixture, reque
         ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
         fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, ql, vl, al,
                                e.kin)
-        entry = ks.get(e.view, ql, ks.scale)
+        moving = from_kinematics(sim, e)
+        assert moving is (fixture == "exact_cycle")
+        entry = ks.get(e.view, ql, ks.scale, moving)
         if fast is None or entry is None:
             continue
-        apart = entry[0](*ql, *vl, *al, sums(e.t, e.kin))
+        apart = call(entry[0], sim, e, sums(e.t, e.kin))
         assert (fast[0], fast[1]) == apart, e.t
         traced = sums.first(e.view.n)
         if traced is None:
             continue
+        lists = (e.kin._xl, e.kin._jl, e.kin._wl) + ((e.kin._conv,) if moving else ())
         try:
-            joined = with_loads(entry[0], traced)(e.t, *ql, *vl, *al, e.kin._xl, e.kin._jl,
-                                                  e.kin._wl, e.kin._v())
+            joined = with_loads(entry[0], traced)(e.t, *ql, *vl, *al, *lists, e.kin._v())
         except BranchChanged:           # another branch of a force law: the two apart answer
             continue
         assert joined == apart, e.t
