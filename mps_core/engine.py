@@ -60,7 +60,7 @@ from .jet import Jet, ScalarJet, seed
 from .effects.base import STATE_VERSION
 from .exact_kernels import exact_kernel
 from .fused_kernels import ForceLawBranch, fingerprint, reuse_or_make
-from .kernels import as_matrix, central_kernel, solve_given_h
+from .kernels import _tables_number, as_matrix, central_kernel, solve_given_h
 from .stencil import stencil
 from .tracing import BranchChanged
 from .mechanism import ChartView, Mechanism
@@ -400,6 +400,12 @@ def _fast_path(effect):
     if gf is not None and gf is _owner(cls, "loads"):
         return effect.generalized_force
     return None
+
+
+#: per (chart view, the engine's tables, the effects' fingerprint): the (exact kernel, fused
+#: function) an engine last used there, for another engine's first evaluation in that view
+#: (the charts a run changes to, in a fresh simulation of a scene run before)
+_FIRST: dict = {}
 
 
 class PartialSystems:
@@ -1076,6 +1082,9 @@ class PartialSystems:
         if self.kernels:
             plan = self._plans.get(view) or self._plan(view)
             if not plan.exact_traced:
+                e = self._first_evaluate(view, t, q, qd, plan)
+                if e is not None:
+                    return e
                 try:
                     plan.exact = exact_kernel(self, view, q)
                     plan.exact_traced = True
@@ -1083,9 +1092,12 @@ class PartialSystems:
                     pass            # q is outside the chart: the jets say so; built next time
             if plan.exact is not None:
                 try:
-                    return self._exact_kernel_evaluate(view, t, q, qd, plan)
+                    e = self._exact_kernel_evaluate(view, t, q, qd, plan)
                 except BranchChanged:
                     pass            # the position function takes another branch here
+                else:
+                    self._remember_first(view, plan)
+                    return e
         return self._jets_evaluate(view, t, q, qd)
 
     def _jets_evaluate(self, view, t, q, qd):
@@ -1115,6 +1127,47 @@ class PartialSystems:
                     self._no_solution(view, t, q, A)
             return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin)
         return self._finish(view, t, q, qd, A, h, Q, kin)
+
+    def _first_evaluate(self, view, t, q, qd, plan):
+        """A view's first exact evaluation in this engine by the (exact kernel, fused function)
+        pair that an engine of the same tables and effects last used in this view, where the
+        fused function holds here (one call: its guards are the kernel's and the laws'); the
+        plan then has both, as the lookups would have given it. None: the lookups decide."""
+        fp = self._fingerprint()
+        if fp is None:
+            return None
+        key = (view, _tables_number(self), fp)
+        pair = _FIRST.get(key)
+        if pair is None:
+            return None
+        exact, fused = pair
+        ql, vl = q.tolist(), qd.tolist()
+        try:
+            out = fused.full(t, *ql, *vl)
+        except (BranchChanged, ArithmeticError, ValueError):
+            return None
+        if out is None:
+            return None
+        plan.exact, plan.exact_traced = exact, True
+        plan.fused, plan.fused_at = fused, STATE_VERSION[0]
+        plan.fused_others = []
+        counts = self.counts
+        counts["position_calls"] += 1
+        counts["position_points"] += 1
+        xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
+                         conv=conv, v=vl)
+        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
+
+    def _remember_first(self, view, plan):
+        """Keep the view's (exact kernel, fused function) for the next engine's first
+        evaluation there (:meth:`_first_evaluate`)."""
+        fp = self._fingerprint()
+        if fp is None or plan.exact is None or plan.fused is None:
+            return
+        if len(_FIRST) > 512:
+            _FIRST.clear()
+        _FIRST[view, _tables_number(self), fp] = (plan.exact, plan.fused)
 
     def _exact_kernel_evaluate(self, view, t, q, qd, plan):
         """The autodiff evaluation on floats, by the view's exact kernel."""

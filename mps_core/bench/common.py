@@ -167,7 +167,25 @@ def evaluations_along(scene: Scene, t_end: float):
     return sim, seen
 
 
+class _Budget:
+    """An observer that stops a run past ``limit`` evaluations, looked at every output step
+    (a fixed-step run's evaluations between two outputs are a few; the run's own code then
+    runs as it does outside the bench)."""
+
+    def __init__(self, engine, limit: int):
+        self.counts, self.limit = engine.counts, limit
+
+    def observe(self, sim, e) -> None:
+        if self.counts["evaluations"] >= self.limit:
+            raise OverBudget(f"more than {self.limit} evaluations (t = {e.t:.4g} s)")
+
+    def columns(self) -> dict:
+        return {}
+
+
 def _cap(engine, limit: int):
+    """Stop a run past ``limit`` evaluations, looked at every evaluation (an adaptive solver
+    may take any number between two outputs)."""
     evaluate = engine.evaluate
 
     def capped(view, t, q, qd):
@@ -186,8 +204,10 @@ def run_setting(case: Case, s: Setting, dt: float, repeats: int = 3, budget: flo
 
     def once():
         sim = build(scene)
-        if max_evaluations:
+        if max_evaluations and s.adaptive:
             _cap(sim.engine, max_evaluations)
+        elif max_evaluations:
+            sim.observers.append(_Budget(sim.engine, max_evaluations))
         c0 = time.process_time()
         traj = sim.run(scene.t_end, scene.dt)
         return time.process_time() - c0, traj

@@ -268,3 +268,17 @@ def test_cases_resolve():
     assert resolve_case("paper-long").t_end == 1.0
     s = Setting("linear-acceleration", "central", 0.1, iterations=3)
     assert s.family == "la-iterated" and "×3" in s.label
+
+
+@pytest.mark.parametrize("solver", ["rk6", "dop853"])
+def test_a_run_past_its_evaluation_budget_stops(solver):
+    """The study's budget: a fixed-step run is looked at every output step, an adaptive one at
+    every evaluation; either stops with OverBudget, not after the run."""
+    from mps_core.bench.common import OverBudget, Setting, resolve_case, run_setting
+
+    case = resolve_case("paper")
+    s = Setting(solver, "autodiff", 0.0, 1, 1e-8 if solver == "dop853" else None)
+    with pytest.raises(OverBudget):
+        run_setting(case, s, 1.25e-3, repeats=1, max_evaluations=100)
+    _cpu, traj, _n = run_setting(case, s, 1.25e-3, repeats=1, max_evaluations=100_000)
+    assert traj.counts["evaluations"] > 100

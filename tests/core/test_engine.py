@@ -107,3 +107,56 @@ def test_effects_only_those_listed_are_called():
     m, eng = engine("central", effects=[])
     e = eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, STATES[0], [0.0, 0.0])
     assert np.all(e.Q == 0.0) and np.allclose(e.qdd, 0.0)
+
+
+def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before():
+    """A second simulation of the same scene evaluates a chart it changes to with the exact
+    kernel and fused function the first one used there: one call, the same numbers as the
+    lookups give, the same functions in its plan; where that pair does not hold (a failed
+    guard: another branch) the lookups answer, with the same numbers."""
+    import mps_core.engine as engine_module
+    from mps_core import build, load_scene
+    from mps_core.tracing import BranchChanged
+
+    scene = load_scene("paper").with_overrides(solver="rk6", scheme="autodiff", dt=5e-3,
+                                               t_end=0.1)
+    first = build(scene)
+    states = {}
+    evaluate = first.engine.evaluate
+
+    def spy(view, t, q, qd):
+        e = evaluate(view, t, q, qd)
+        states.setdefault(view, e)
+        return e
+
+    first.engine.evaluate = spy
+    first.run(0.1, 5e-3)
+    assert len(states) >= 3                     # the start chart and those it changed to
+    for view, e0 in states.items():
+        plan0 = first.engine._plans[view]
+        for fails in (False, True):
+            sim = build(scene)
+            pair = engine_module._FIRST[view, engine_module._tables_number(sim.engine),
+                                        sim.engine._fingerprint()]
+            assert pair == (plan0.exact, plan0.fused)
+            calls = []
+            full = pair[1].full
+
+            def counted(*a, _full=full, _fails=fails):
+                calls.append(a)
+                if _fails:
+                    raise BranchChanged(view.name)
+                return _full(*a)
+
+            pair[1].full = counted
+            try:
+                e1 = sim.engine.evaluate(view, e0.t, e0.q, e0.qd)
+            finally:
+                pair[1].full = full
+            assert calls and (len(calls) == 1 or fails)
+            if fails:               # (the fused function failing alone: the kernel and the
+                                    # effects one by one, the same numbers to round-off)
+                np.testing.assert_allclose(e1.qdd, e0.qdd, rtol=1e-12, atol=0)
+            else:
+                assert e1.qdd.tolist() == e0.qdd.tolist() and e1.kin._xl == e0.kin._xl
+            assert sim.engine._plans[view].exact is plan0.exact
