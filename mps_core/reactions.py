@@ -735,13 +735,14 @@ class ReactionObserver:
 
     def checkpoint(self) -> tuple:
         """What the run changes here (see :meth:`Simulation.checkpoint`)."""
-        return ({k: len(v) for k, v in self.rows.items()}, list(self.impacts),
+        # every column gets a value at every step (observe): one length holds for all
+        return (len(next(iter(self.rows.values()))), list(self.impacts),
                 list(self._pending), self.max_rank_deficiency, self._deficient_since)
 
     def restore(self, cp: tuple) -> None:
-        rows, impacts, pending, self.max_rank_deficiency, self._deficient_since = cp
-        for k, n in rows.items():
-            del self.rows[k][n:]
+        n, impacts, pending, self.max_rank_deficiency, self._deficient_since = cp
+        for column in self.rows.values():
+            del column[n:]
         self.impacts[:] = impacts
         self._pending = list(pending)
 
