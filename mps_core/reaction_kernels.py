@@ -445,8 +445,8 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
     """What :func:`_source` reads of the bodies' motion, as code reading an exact evaluation's
     kinematics lists (unpacked into locals ``kx…``, ``kj…``, ``kw…``, ``kc…``): (fw, pos,
     grad, d2, omega, theta2, ``unpack()``: the unpacking lines of the numbers read so far).
-    The trace runs forward once, here, into code that is thrown away: where it gives a zero or a constant, so does this; elsewhere
-    the list's number, the same to round-off."""
+    The trace runs forward once, here, into code that is thrown away: where it gives a zero
+    or a constant, so does this; elsewhere the list's number, the same to round-off."""
     n = view.n
     mech = engine.mechanism
     names = engine._names
