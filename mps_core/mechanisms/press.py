@@ -348,13 +348,13 @@ class PressMechanism(Mechanism):
         if structure == "free":
             if psi is None:
                 raise SceneError("initial.psi_deg", None, "an initial rocker angle (free structure)")
-            view = ChartView(chart)
+            view = self._view_of(structure, chart)
             q, qd = np.array([phi, psi], float), np.array([phi_dot, psi_dot], float)
         elif structure == "locked":
             if psi is not None and abs(psi - self.psi_lock) > 1e-12:
                 raise SceneError("initial.psi_deg", math.degrees(psi),
                                  f"ψ = ψ_lock = {math.degrees(self.psi_lock):g}° in the locked structure")
-            view = ChartView(chart, {"psi": self.psi_lock})
+            view = self._view_of(structure, chart)
             q, qd = np.array([phi], float), np.array([phi_dot], float)
         elif structure == "held":
             if self.x_top is None:
@@ -369,6 +369,14 @@ class PressMechanism(Mechanism):
                                          "psi_deg": None if psi is None else math.degrees(psi)},
                              "a configuration where the links assemble (|l3·sin ψ − l1·sin φ| < l2)")
         return view, q, qd
+
+    def _view_of(self, structure: str, chart: Chart) -> ChartView:
+        """The structure's view of ``chart``: the one object :meth:`views` gives for it (its
+        kernels and plans are the ones a run finds when it comes back to that chart)."""
+        for view in self.views(structure):
+            if view.chart is chart:
+                return view
+        raise KeyError(f"no view of chart {chart.name} in structure {structure!r}")
 
     def _held_initial(self, phi: float, phi_dot: float, psi_hint: float | None):
         """Slider at x_top; ψ from the four-bar closure on the assembly nearest ``psi_hint``."""

@@ -216,6 +216,7 @@ def test_scenes_of_equal_mechanism_share_it_and_its_views_and_runs_do_not_interf
     a, b = build(PAPER), build(PAPER)
     assert a.mechanism is b.mechanism
     assert [v for v in a.views("free")] == [v for v in b.views("free")]
+    assert a.view in a.views("free")        # the start chart's view is the structure's own
     other = scene_from_text(PAPER.text.replace("l1_mm = 15.0", "l1_mm = 14.0").replace(
         "com_mm = [15.0, 0.0]", "com_mm = [14.0, 0.0]"))
     assert build(other).mechanism is not a.mechanism
