@@ -64,12 +64,17 @@ import time
 DEFAULT_SCENE = "press-cycle"
 
 
+#: the Fast DDS writer timers (reliable protocol only; the QoS comes from the code)
+FASTDDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
+
+
 def env_defaults() -> None:
-    """Loopback-only discovery and a temporary log folder unless the environment says
-    otherwise (set before rclpy starts)."""
+    """Loopback-only discovery, a temporary log folder and :data:`FASTDDS_PROFILE`'s writer
+    timers unless the environment says otherwise (set before rclpy starts)."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_LOG_DIR", os.path.join(tempfile.gettempdir(), "mps-ros-log"))
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
 
 
 env_defaults()
@@ -368,6 +373,7 @@ class PressTwin(Node):
         meta["node"] = self.get_fully_qualified_name()
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
+        meta["fastdds_profiles_file"] = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
         self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
                                            scene_text=self.twin.scene.text, metadata=meta,
                                            flush_period=self.p["recording_flush_period"])

@@ -11,6 +11,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -23,6 +24,7 @@ pytest.importorskip("rosbags")
 
 from mps_core import __version__, build, load_scene  # noqa: E402
 from mps_core.reactions import compute_reactions  # noqa: E402
+from mps_ros.node import FASTDDS_PROFILE  # noqa: E402
 from mps_ros.recording import read_metadata  # noqa: E402
 from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES  # noqa: E402
 from twin_probe import Listener, NodeProcess, mps_cmd, ns  # noqa: E402
@@ -248,6 +250,10 @@ def test_recording_read_back_by_rosbags(commanded):
     assert meta["scene"]["toml"] == load_scene("press-cycle").text
     assert meta["mps"]["version"] == __version__ and meta["mps"]["source"] == "mps node"
     assert meta["mps"]["scene_commands"] == "false" and meta["mps"]["dt_s"] == repr(DT)
+    # the middleware's writer timers it ran with (the package's profile, unless the
+    # environment named another)
+    assert meta["mps"]["fastdds_profiles_file"] == os.environ.get(
+        "FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
     # QoS offered, as rosbag2 writes it
     q = conns["/joint_states"].ext.offered_qos_profiles[0]
     assert (q.history.name, q.depth, q.reliability.name) == ("KEEP_LAST", 1000, "RELIABLE")
@@ -491,6 +497,41 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
     if packets is not None:
         assert sniffer.on_loopback > 0          # it does see the DDS traffic ...
         assert packets == [], f"DDS traffic off loopback: {packets[:5]}"     # ... all on lo
+
+
+def test_fastdds_profile_changes_the_writer_timers_only():
+    """The package's Fast DDS profile: the default writer profile with the heartbeat period and
+    the NACK suppression period, nothing else (every QoS policy stays the code's)."""
+    import xml.etree.ElementTree as ET
+
+    ns_ = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    root = ET.parse(FASTDDS_PROFILE).getroot()
+    profiles = list(root)
+    assert [e.tag.split("}")[1] for e in profiles] == ["data_writer"]
+    writer = profiles[0]
+    assert writer.get("is_default_profile") == "true"
+    assert [e.tag.split("}")[1] for e in writer] == ["times"]
+
+    def seconds(name):
+        e = writer.find(f"p:times/p:{name}", ns_)
+        return int(e.find("p:sec", ns_).text) + int(e.find("p:nanosec", ns_).text) * 1e-9
+
+    assert seconds("heartbeatPeriod") == pytest.approx(0.1)
+    assert seconds("nackSupressionDuration") == pytest.approx(0.05)
+
+
+def test_a_profile_named_by_the_environment_is_kept(tmp_path):
+    mine = tmp_path / "mine.xml"
+    env = {**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(mine)}
+    code = ("import os, mps_ros.node as n; "
+            "print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], n.FASTDDS_PROFILE)")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == [str(mine), FASTDDS_PROFILE]
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == [FASTDDS_PROFILE, FASTDDS_PROFILE] and Path(out[0]).is_file()
 
 
 def test_bad_parameters_are_refused_not_crashed(tmp_path):
