@@ -49,6 +49,12 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
                             their deadlines and released at them (0.05, at most 1); a command
                             still takes effect at the first step boundary after it arrives (the
                             twin comes back to it). 0: one step's period, none banked
+``release_period``          realtime: the publishing thread wakes about once per this many wall
+                            seconds and sends every step whose deadline has passed: a step goes
+                            out at most this less one step's period after its deadline. 0
+                            (default), or up to one step's period: each step at its deadline, one
+                            wake-up a step; 0.002 at 1 kHz: steps in pairs, each up to 1 ms
+                            late, for less CPU (docs/ros.md has both measured)
 ==========================  ==========================================================================
 """
 
@@ -202,7 +208,7 @@ class PressTwin(Node):
         self.ros_sink = RosSink(self.pubs)
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"], lead=p["lead"],
-                             freeze_gc=True,
+                             release_period=p["release_period"], freeze_gc=True,
                              publish_every=p["publish_every"],
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
                              gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
@@ -216,7 +222,8 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 0, "lead": 0.05, "markers_hz": 30.0, "markers_scale": 2e6,
+        "realtime_priority": 0, "lead": 0.05, "release_period": 0.0, "markers_hz": 30.0,
+        "markers_scale": 2e6,
     }
 
     def _declare(self, scene: str):
@@ -277,10 +284,14 @@ class PressTwin(Node):
         out["diagnostics_period"] = number("diagnostics_period", strict=True)
         out["realtime_priority"] = integer("realtime_priority", 0)
         out["lead"] = number("lead")
+        out["release_period"] = number("release_period")
         out["markers_hz"] = number("markers_hz", strict=True)
         out["markers_scale"] = number("markers_scale", strict=True)
         if out["lead"] > 1.0:
             raise ParameterError(f"parameter lead: {out['lead']!r} must be from 0 to 1 s")
+        if out["release_period"] > 0.1:
+            raise ParameterError(f"parameter release_period: {out['release_period']!r} must be "
+                                 "from 0 to 0.1 s")
         if out["realtime_priority"] > 99:
             raise ParameterError(f"parameter realtime_priority: {out['realtime_priority']!r} "
                                  "must be an integer from 0 (off) to 99")
@@ -515,6 +526,7 @@ def main(argv=None) -> int:
                f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
             + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
             f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
+            f"process CPU {stats['process_cpu_per_step_us']:.0f} us a step, "
             f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
             f"{stats['commands_lost']} lost")
         if node.recorder is not None:

@@ -13,10 +13,12 @@ twin steps to t_{k+1}. Events (impacts, chart changes, commands) keep their exac
 
 **Pacing.** ``as_fast_as_possible``: no waiting. ``realtime``: step k's messages go out at wall
 time ``start + (t_k − t0)/real_time_factor``, its deadline; steps are computed up to ``lead``
-wall seconds ahead and released at their deadlines by a thread of their own, and a command comes
-back to the checkpoint of its boundary (:meth:`Runner._run_paced`); a step computed after its
-deadline is a *deadline miss* (it goes out late; the schedule is kept, so the run catches up
-when it can).
+wall seconds ahead and released by a thread of their own, never before their deadlines and at
+most ``release_period`` less one step's period after them (the thread wakes about once per
+``release_period`` and sends every step that is due: a wake-up costs the machine more than a
+step's publishing), and a command comes back to the checkpoint of its boundary
+(:meth:`Runner._run_paced`); a step computed after its deadline is a *deadline miss* (it goes
+out late; the schedule is kept, so the run catches up when it can).
 """
 
 from __future__ import annotations
@@ -523,7 +525,7 @@ class Runner:
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
                  name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05,
-                 freeze_gc: bool = False):
+                 release_period: float = 0.0, freeze_gc: bool = False):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -532,10 +534,17 @@ class Runner:
             raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
         if not (lead >= 0 and math.isfinite(lead)):
             raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
+        if not (release_period >= 0 and math.isfinite(release_period)):
+            raise ValueError(f"release_period {release_period!r}: expected a number of seconds "
+                             ">= 0")
         self.twin = twin
         #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
         #: step's period; only that where the twin cannot come back to a checkpoint)
         self.lead = float(lead)
+        #: realtime: the releasing thread wakes about once per this many wall seconds and sends
+        #: every step whose deadline has passed, so a step goes out at most this less one step's
+        #: period after its deadline; up to one step's period (0 too): each at its deadline
+        self.release_period = float(release_period)
         #: realtime, once prepared: the objects made so far (scene, kernels, ROS) are frozen
         #: out of the garbage collector's passes (``gc.freeze``), so that a full collection
         #: during the run scans only what the run made since (milliseconds, not tens of them,
@@ -567,6 +576,7 @@ class Runner:
         self.wall_start = 0.0
         self.wall_end = 0.0
         self.cpu_start = 0.0
+        self.cpu_end: float | None = None
         self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None       # the release being filled (realtime)
@@ -747,13 +757,17 @@ class Runner:
             "commands_accepted": self.commands_accepted,
             "commands_refused": self.commands_refused,
             "commands_lost": self.commands_lost,
-            "cpu_time": time.process_time() - self.cpu_start,
+            "cpu_time": (self.cpu_end if self.cpu_end is not None
+                         else time.process_time()) - self.cpu_start,
             # the stepping thread's own CPU (steps, messages, commands; not the publishing
             # thread, the middleware's threads or the recording process)
             "step_thread_cpu_per_step_us": (
                 (self.thread_cpu if self.thread_cpu is not None
                  else time.thread_time() - self.thread_cpu_start) / max(1, self.twin.k) * 1e6),
         }
+        # the whole process's CPU over the run (every thread: stepping, releasing, the
+        # middleware's; not the recording process), from the clocks' start to the run's end
+        out["process_cpu_per_step_us"] = out["cpu_time"] / max(1, self.twin.k) * 1e6
         if self.latencies.n:
             lat = self.latencies
             out["latency_p50_ms"] = lat.percentile(50) * 1e3
@@ -822,6 +836,7 @@ class Runner:
         diagnostics and the end event (never lost over a late error)."""
         twin = self.twin
         self.wall_end = time.perf_counter()
+        self.cpu_end = time.process_time()
         self.thread_cpu = time.thread_time() - self.thread_cpu_start
         reason = self.stop_reason or "end"
         t_ns = to_ns(twin.t)
@@ -884,8 +899,10 @@ class Runner:
         """Realtime pacing. The stepping thread (this one) computes steps up to ``lead``
         seconds of wall time ahead of their deadlines and queues each step's messages with a
         checkpoint of the twin; a releasing thread hands each step's messages to the live
-        sinks (``sink.live``: the ROS publishers) at its deadline, and the stepping thread
-        then hands the released steps to the other sinks (the recorder) in its spare time. A
+        sinks (``sink.live``: the ROS publishers) once its deadline has passed (at most
+        ``release_period`` less one period after it: the steps due at a wake-up go out
+        together), and the stepping thread then hands the released steps to the other sinks
+        (the recorder) in its spare time. A
         step that costs more than the period (an impact, a chart change, the machine busy for
         a moment) is absorbed by the steps computed ahead instead of coming out late. A
         command that arrives at wall time w is applied at the first step boundary whose
@@ -910,6 +927,8 @@ class Runner:
         # the steps and the releases share the interpreter: a step is not begun this close
         # to a release's deadline, or while one is going out, when steps are queued ahead
         guard = min(self.RELEASE_GUARD, 0.5 * step)
+        # a release goes out this long after the deadline of the first step it sends
+        self._release_delay = delay = max(0.0, self.release_period - step)
         refill = 0.2 * lead if ahead else 0.0
         releaser = threading.Thread(target=self._release_loop, args=(live,),
                                     name=f"{self.name}-release", daemon=True)
@@ -950,7 +969,8 @@ class Runner:
                     continue
                 if ahead and queue:
                     with cond:
-                        while (self._releasing or (queue and queue[0].deadline - clock() < guard)) \
+                        while (self._releasing
+                               or (queue and queue[0].deadline + delay - clock() < guard)) \
                                 and not self._stop.is_set() and not inbox:
                             cond.wait(0.002)
                 c0 = clock()
@@ -1000,22 +1020,31 @@ class Runner:
         return self.stats()
 
     def _release_loop(self, live) -> None:
-        """The releasing thread: each queued step's messages to the live sinks at its
-        deadline; then the step goes to the stepping thread for the other sinks."""
+        """The releasing thread: each queued step's messages to the live sinks once its
+        deadline has passed: woken ``_release_delay`` after the first queued step's deadline,
+        it sends that step and every one queued behind it whose deadline has passed by then
+        (one wake-up for them all); then each step goes to the stepping thread for the other
+        sinks."""
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
+        delay = self._release_delay
+        due = -math.inf             # the wake-up's time: the steps due by then go out now
         while True:
             with cond:
                 while True:
                     if queue:
                         head = queue[0]
-                        left = head.deadline - clock()
-                        if left <= 0.0 or self._flush:
-                            queue.popleft()
-                            self._released = head
-                            self._releasing = True
-                            break
-                        cond.wait(left)
+                        if head.deadline > due and not self._flush:
+                            now = clock()
+                            left = head.deadline + delay - now
+                            if left > 0.0:
+                                cond.wait(left)
+                                continue
+                            due = now
+                        queue.popleft()
+                        self._released = head
+                        self._releasing = True
+                        break
                     elif self._ahead_done:
                         return
                     else:

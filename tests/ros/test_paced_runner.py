@@ -7,7 +7,10 @@ run that stepped in time."""
 from __future__ import annotations
 
 import json
+import statistics
 import time
+
+import pytest
 
 from mps_ros.twin import Command, Runner, Twin
 
@@ -69,8 +72,9 @@ def test_released_at_deadlines_and_the_same_to_every_sink():
     assert stamps == sorted(stamps) and len(stamps) == round(T_END / DT) + 1
 
 
+@pytest.mark.parametrize("release_period", [0.0, 4 * DT / RTF])
 def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_stepped_in_time(
-        tmp_path):
+        tmp_path, release_period):
     from mcap.reader import make_reader
 
     from mps_ros.recording import BackgroundRecorder, RecordingSink
@@ -90,7 +94,8 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     # the recording process, handed each released step in one call (RecordingSink.emit_all)
     bg = BackgroundRecorder(tmp_path / "paced.mcap")
     runner = Runner(tw, sinks=[live, rec, RecordingSink(bg)], pacing="realtime",
-                    real_time_factor=RTF, lead=0.05, warm_up=0.0)
+                    real_time_factor=RTF, lead=0.05, warm_up=0.0,
+                    release_period=release_period)
     st = runner.run()
     bg.finish()
     with open(tmp_path / "paced.mcap", "rb") as f:
@@ -123,6 +128,35 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     assert _comparable(live) == _comparable(same)
     kinds = [e["kind"] for e in _events(live)]
     assert "latch-closes" in kinds
+
+
+def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_messages():
+    """release_period = 4 steps' periods: the releasing thread wakes about once per 4 steps
+    and sends those due; none before its deadline, each at most 3 periods after it (and the
+    machine's delay); the messages are those of a run that sends each step at its deadline."""
+    period = DT / RTF
+    runs = {}
+    for rp in (0.0, 4 * period):
+        tw = Twin("press-cycle", dt=DT, t_end=T_END)
+        live = Sink(True)
+        runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF,
+                        lead=0.05, warm_up=0.0, release_period=rp)
+        runner.run()
+        late = [wall - (runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF)
+                for wall, t_ns in live.walls[1:]]
+        # the wake-ups: states sent less than a fifth of a period apart went out together
+        walls = [w for w, _ in live.walls[1:]]
+        wakes = 1 + sum(1 for a, b in zip(walls, walls[1:]) if b - a > 0.2 * period)
+        runs[rp] = (_comparable(live), late, wakes)
+    (plain, late0, wakes0), (grouped, late4, wakes4) = runs.values()
+    n = round(T_END / DT)
+    assert grouped == plain
+    assert min(late0) > -1e-6 and min(late4) > -1e-6
+    assert wakes0 > 0.8 * n                     # one a step (a busy machine merges a few)
+    assert wakes4 < 0.4 * n                     # about one per four steps
+    # the first of four goes out 3 periods late, the last at its deadline
+    assert 1.0 * period < statistics.median(late4) < 2.5 * period
+    assert max(late4) < 3 * period + 0.2
 
 
 def test_commands_already_waiting_are_applied_at_the_start():
