@@ -401,11 +401,14 @@ class PressTwin(Node):
             + f", outputs {', '.join(tw.outputs)}"
             + ("" if self.p["scene_commands"] else ", scene commands off (listening on "
                f"{self.names[MODE.key]})"))
+        # the kernels built and the channels registered while the peers are awaited
+        self.runner.prepare()
         self._wait_for_peers(stop)
         stop.wait(self.p["start_delay"])
         if stop.is_set():
             self.runner.request_stop("signal")
         self._set_priority()
+        self.get_logger().info("stepping starts")
         return self.runner.run()
 
     def _set_priority(self) -> None:

@@ -577,6 +577,7 @@ class Runner:
         self.wall_end = 0.0
         self.cpu_start = 0.0
         self.cpu_end: float | None = None
+        self._prepared = False
         self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None       # the release being filled (realtime)
@@ -791,7 +792,12 @@ class Runner:
     # -- the loop -------------------------------------------------------------------------
     def prepare(self) -> None:
         """Everything slow done once before the clock starts: the kernels the first steps
-        would build (:meth:`Twin.warm_up`, paced runs), encoders, the sinks' channels."""
+        would build (:meth:`Twin.warm_up`, paced runs), encoders, the sinks' channels. The run
+        calls it; a caller may call it earlier (the node, while it waits for its peers): the
+        second call does nothing."""
+        if self._prepared:
+            return
+        self._prepared = True
         if self.pacing == "realtime" and self.warm_up > 0:
             self.twin.warm_up(self.warm_up)
         keys = [t.key for t in BY_KEY.values()
