@@ -6,9 +6,14 @@
    steps, with an external subscriber in another process taking every topic (reliable): the
    node's achieved real-time factor, step compute time p50/p99, latency (publication after the
    step's deadline) p50/p99, deadline misses per 10^4 steps, the messages a second the
-   subscriber received, and the node's CPU share (its user + system time over the wall time).
+   subscriber received, and the node's CPU a step: its own count (its process's CPU time over
+   the run's steps) and, from outside, its user + system time in ``/proc`` over the wall time.
 2. **as fast as possible**: the same scene and step, no subscriber, recording on and off: the
    largest real-time factor; and ``mps record`` (no ROS at all) for comparison.
+
+``soak``: the realtime run for ``--minutes`` (memory, drift, messages lost); ``table``: the node
+as fast as possible by outputs; ``wakeup``: the CPU one wake-up from a 1 ms timed wait costs a
+thread on this machine (no ROS).
 
 Every process stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set) with ROS
 logs in a temporary folder; give it a ROS_DOMAIN_ID of its own. ``probe`` is the subscriber's
@@ -245,11 +250,37 @@ def probe() -> int:
     return 0
 
 
+def wakeup_costs(n: int = 2000) -> dict:
+    """CPU time (µs, the waiting thread's own) of one wake-up from a 1 ms timed wait, by the
+    primitives the node's threads wait in: what each deadline costs the publishing thread
+    beside its publishing."""
+    import threading
+
+    cond, event, lock = threading.Condition(), threading.Event(), threading.Lock()
+    lock.acquire()
+
+    def cond_wait():
+        with cond:
+            cond.wait(0.001)
+
+    out = {}
+    for name, wait in (("threading.Condition.wait(0.001)", cond_wait),
+                       ("threading.Event.wait(0.001)", lambda: event.wait(0.001)),
+                       ("threading.Lock.acquire(timeout=0.001)",
+                        lambda: lock.acquire(timeout=0.001)),
+                       ("time.sleep(0.001)", lambda: time.sleep(0.001))):
+        t0 = time.thread_time()
+        for _ in range(n):
+            wait()
+        out[name] = (time.thread_time() - t0) / n * 1e6
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("what", nargs="?", default="all",
-                   choices=("all", "realtime", "afap", "table", "soak", "probe"))
+                   choices=("all", "realtime", "afap", "table", "soak", "wakeup", "probe"))
     p.add_argument("--minutes", type=float, default=10.0,
                    help="length of the soak run (default 10): realtime, every output, a "
                         "subscriber; RSS at 5 s and at the end, drift, messages lost")
@@ -277,6 +308,10 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.what == "probe":
         return probe()
+    if a.what == "wakeup":
+        for name, us in wakeup_costs().items():
+            print(f"{name:38s} {us:5.1f} us of CPU a wake-up (1 ms waits, this thread's own time)")
+        return 0
     env = ros_env()
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR",
                                            "RMW_IMPLEMENTATION")})
