@@ -85,9 +85,33 @@ def _node(params: dict, env, log_path: Path) -> subprocess.Popen:
                             stderr=subprocess.STDOUT, start_new_session=True)
 
 
+def loop_cost(steps: int = 3000, outputs: str | None = None,
+              derivatives: str | None = None) -> float:
+    """CPU µs a step of the node's own work done in a plain loop in this process (no ROS, no
+    threads, no waiting): press-cycle at 1 kHz, each step stepped, its messages made, its
+    checkpoint taken and its events collected, over the run's first ``steps`` steps. Measured
+    beside a realtime run, it says how fast the machine is at that moment: the ratio of the
+    node's CPU to it moves less from run to run than either."""
+    from .topics import OUTPUTS
+    from .twin import Twin
+
+    outs = outputs.split(",") if outputs else OUTPUTS
+    tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=outs,
+              derivatives=derivatives)
+    tw.warm_up(1.0)
+    t0 = time.thread_time()
+    while not tw.done:
+        tw.step()
+        tw.state_payloads()
+        tw.checkpoint()
+        tw.new_events()
+    return (time.thread_time() - t0) / tw.k * 1e6
+
+
 def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
              outputs: str | None = None, publish_every: int = 1, priority: int = 0,
-             lead: float | None = None, release_period: float | None = None) -> dict:
+             lead: float | None = None, release_period: float | None = None,
+             derivatives: str | None = None) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
@@ -96,6 +120,9 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         params["lead"] = lead
     if release_period is not None:
         params["release_period"] = release_period
+    if derivatives is not None:
+        params["derivatives"] = derivatives
+    loop = loop_cost(min(steps, 3000), outputs, derivatives)
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
@@ -144,6 +171,7 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         st["drift_ms"] = got.get("drift_ms")
         st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
+        st["loop_us"] = loop
         return st
     finally:
         stop_group(node)
@@ -302,6 +330,8 @@ def main(argv=None) -> int:
                    help="the node's release_period: the steps due go out together about once "
                         "per S wall seconds, each at most S less one step's period late (default: "
                         "the node's, 0: each step at its deadline, one wake-up a step)")
+    p.add_argument("--derivatives", choices=("central", "autodiff"), default=None,
+                   help="the node's derivatives (default: the scene's, central)")
     p.add_argument("--deserialize", action="store_true",
                    help="the subscriber deserializes every message into a Python object "
                         "(default: it takes them serialized, as delivered)")
@@ -321,14 +351,16 @@ def main(argv=None) -> int:
         tmp = Path(d)
         if a.what in ("all", "realtime"):
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period)
+                         a.priority, a.lead, a.release_period, a.derivatives)
             res["realtime_1kHz"] = r
             how = "deserializing" if a.deserialize else "taking them serialized"
+            scheme = a.derivatives or "central (the scene's)"
             print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
                   f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
                   f"subscriber ({how}), realtime_priority {a.priority}, lead "
                   f"{'0.05 (default)' if a.lead is None else a.lead} s, release_period "
-                  f"{'0 (default)' if a.release_period is None else a.release_period} s:\n"
+                  f"{'0 (default)' if a.release_period is None else a.release_period} s, derivatives "
+                  f"{scheme}:\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
                   f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
                   f"{r['step_p99_ms']:.3f} ms\n"
@@ -345,6 +377,9 @@ def main(argv=None) -> int:
                   f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
                   f"the run's steps (the node's own count: every thread; not the recording "
                   f"process)\n"
+                  f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
+                  f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
+                  f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
                   f"                              {r['cpu_per_step_us']:.0f} us a step from "
                   f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
                   f"the start to the run's end); the recording process "
@@ -372,7 +407,7 @@ def main(argv=None) -> int:
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
             r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period)
+                         a.priority, a.lead, a.release_period, a.derivatives)
             res["soak"] = r
             print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
                   f"every output, one external subscriber:\n"

@@ -18,6 +18,8 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
 ``pacing``                  ``realtime`` (default) or ``as_fast_as_possible``
 ``real_time_factor``        simulated seconds per wall second in realtime pacing (default 1.0)
 ``dt``, ``t_end``           step and end time (s); 0 (default): the scene's
+``derivatives``             the Lagrange equations' derivatives: ``central`` (the seed's finite
+                            differences) or ``autodiff`` (exact); empty (default): the scene's
 ``publish_every``           publish (and record) every N-th step (default 1); commands and events
                             are taken at every step
 ``outputs``                 what to compute and publish, a subset of joint_states, reactions,
@@ -173,7 +175,8 @@ class PressTwin(Node):
         try:
             self.twin = Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
                              outputs=p["outputs"], scene_commands=p["scene_commands"],
-                             markers_hz=p["markers_hz"], markers_scale=p["markers_scale"])
+                             markers_hz=p["markers_hz"], markers_scale=p["markers_scale"],
+                             derivatives=p["derivatives"] or None)
         except (MpsError, OSError, ValueError) as exc:
             raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
@@ -217,6 +220,7 @@ class PressTwin(Node):
     # -- parameters -----------------------------------------------------------------------
     _DEFAULTS = {
         "scene": None, "pacing": "realtime", "real_time_factor": 1.0, "dt": 0.0, "t_end": 0.0,
+        "derivatives": "",
         "publish_every": 1, "outputs": list(OUTPUTS), "recording": "auto",
         "recording_flush_period": 1.0, "scene_commands": True, "qos_depth": 1000,
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
@@ -259,6 +263,12 @@ class PressTwin(Node):
         out["pacing"] = raw["pacing"]
         out["real_time_factor"] = number("real_time_factor", strict=True)
         out["dt"] = number("dt")
+        from mps_core.engine import SCHEMES
+
+        if raw["derivatives"] not in ("", *SCHEMES):
+            raise ParameterError(f"parameter derivatives: {raw['derivatives']!r}, expected "
+                                 f"'' (the scene's) or one of {', '.join(SCHEMES)}")
+        out["derivatives"] = raw["derivatives"]
         out["t_end"] = number("t_end")
         out["publish_every"] = integer("publish_every", 1)
         o = raw["outputs"]

@@ -88,20 +88,24 @@ def check_outputs(outputs: Iterable[str]) -> tuple[str, ...]:
 class Twin:
     """A scene stepped on a fixed grid, with its messages.
 
-    ``dt``/``t_end``: override the scene's (None: the scene's). ``scene_commands``: False drops
+    ``dt``/``t_end``: override the scene's (None: the scene's); so does ``derivatives`` (the
+    scheme of the Lagrange equations' derivatives: ``central``, the seed's finite differences,
+    or ``autodiff``, exact). ``scene_commands``: False drops
     the scene's own [[commands]] schedule (an operator sends them instead). ``outputs``: the
     subset of :data:`~mps_ros.topics.OUTPUTS` to produce; the reactions are solved only when
     ``reactions`` or ``foundation`` is among them."""
 
     def __init__(self, scene, *, dt: float | None = None, t_end: float | None = None,
                  outputs: Iterable[str] = OUTPUTS, scene_commands: bool = True,
-                 markers_hz: float = 30.0, markers_scale: float | None = None):
+                 markers_hz: float = 30.0, markers_scale: float | None = None,
+                 derivatives: str | None = None):
         from mps_core import build, load_scene
 
         if not hasattr(scene, "with_overrides"):
             scene = load_scene(scene)
         # the scene's step unless told (a new t_end alone keeps the step, not the step count)
-        scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None)
+        scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None,
+                                     scheme=derivatives or None)
         self._scene_with_commands = scene
         if not scene_commands:
             scene = replace(scene, commands=())
