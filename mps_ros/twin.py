@@ -465,6 +465,17 @@ def shown(word: str, n: int = 40) -> str:
 
 
 # -- the run --------------------------------------------------------------------------------
+def _name_os_thread(name: bytes) -> None:
+    """Give the calling thread this name in the system's view (``top -H``, ``/proc``; 15 bytes
+    at most), where the system has ``prctl``; elsewhere nothing."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(15, ctypes.c_char_p(name[:15]), 0, 0, 0)     # PR_SET_NAME
+    except (OSError, AttributeError):
+        pass
+
+
 class _Release:
     """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
     (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
@@ -1035,6 +1046,7 @@ class Runner:
         it sends that step and every one queued behind it whose deadline has passed by then
         (one wake-up for them all); then each step goes to the stepping thread for the other
         sinks."""
+        _name_os_thread(b"mps-release")
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
         delay = self._release_delay
