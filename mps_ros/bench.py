@@ -127,8 +127,9 @@ def loop_cost(steps: int = 3000, outputs: str | None = None,
     """CPU µs a step of the node's own work done in a plain loop in this process (no ROS, no
     threads, no waiting): press-cycle at 1 kHz, each step stepped, its messages made, its
     checkpoint taken and its events collected, over the run's first ``steps`` steps. Measured
-    beside a realtime run, it says how fast the machine is at that moment: the ratio of the
-    node's CPU to it moves less from run to run than either."""
+    beside a realtime run, it says what the same work costs this machine outside the node at
+    that moment; the node's CPU a step is a multiple of it (the threads, the waiting, the
+    middleware; the multiple itself varies from run to run on a virtual machine)."""
     from .topics import OUTPUTS
     from .twin import Twin
 
