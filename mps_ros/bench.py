@@ -100,14 +100,16 @@ def _final_stats(log: str) -> dict:
     m = re.search(r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
                   r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, (?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
                   r"(\d+) messages, stepping thread CPU ([\d.e+-]+) us a step"
-                  r"(?:, process CPU ([\d.e+-]+) us a step)?", log)
+                  r"(?:, process CPU ([\d.e+-]+) us a step)?"
+                  r"(?:, publishing thread's slice ([\d.e+-]+) ms)?", log)
     if not m:
         raise RuntimeError("no final statistics in the node's log:\n" + log[-3000:])
     g = m.groups()
     out = {"rtf": float(g[0]), "step_p50_ms": float(g[1]), "step_p99_ms": float(g[2]),
            "publish_p50_ms": float(g[3]), "publish_p99_ms": float(g[4]),
            "misses": int(g[7]), "messages": int(g[8]), "step_thread_cpu_us": float(g[9]),
-           "process_cpu_us": float(g[10]) if g[10] is not None else float("nan")}
+           "process_cpu_us": float(g[10]) if g[10] is not None else float("nan"),
+           "release_slice_ms": float(g[11]) if g[11] is not None else float("nan")}
     if g[5] is not None:
         out["latency_p50_ms"], out["latency_p99_ms"] = float(g[5]), float(g[6])
     return out
@@ -149,7 +151,7 @@ def loop_cost(steps: int = 3000, outputs: str | None = None,
 def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
              outputs: str | None = None, publish_every: int = 1, priority: int = 0,
              lead: float | None = None, release_period: float | None = None,
-             derivatives: str | None = None) -> dict:
+             derivatives: str | None = None, release_slice: float | None = None) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
@@ -158,6 +160,8 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         params["lead"] = lead
     if release_period is not None:
         params["release_period"] = release_period
+    if release_slice is not None:
+        params["release_slice"] = release_slice
     if derivatives is not None:
         params["derivatives"] = derivatives
     loop = loop_cost(min(steps, 3000), outputs, derivatives)
@@ -375,6 +379,9 @@ def main(argv=None) -> int:
                    help="the node's release_period: the steps due go out together about once "
                         "per S wall seconds, each at most S less one step's period late (default: "
                         "the node's, 0: each step at its deadline, one wake-up a step)")
+    p.add_argument("--release-slice", type=float, default=None, metavar="S",
+                   help="the node's release_slice: the publishing thread's scheduler slice "
+                        "(default: the node's, 0.0001; 0: none asked)")
     p.add_argument("--derivatives", choices=("central", "autodiff"), default=None,
                    help="the node's derivatives (default: the scene's, central)")
     p.add_argument("--deserialize", action="store_true",
@@ -396,7 +403,7 @@ def main(argv=None) -> int:
         tmp = Path(d)
         if a.what in ("all", "realtime"):
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives)
+                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
             res["realtime_1kHz"] = r
             how = "deserializing" if a.deserialize else "taking them serialized"
             scheme = a.derivatives or "central (the scene's)"
@@ -404,7 +411,9 @@ def main(argv=None) -> int:
                   f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
                   f"subscriber ({how}), realtime_priority {a.priority}, lead "
                   f"{'0.05 (default)' if a.lead is None else a.lead} s, release_period "
-                  f"{'0 (default)' if a.release_period is None else a.release_period} s, derivatives "
+                  f"{'0 (default)' if a.release_period is None else a.release_period} s, "
+                  f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
+                  f" s, derivatives "
                   f"{scheme}:\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
                   f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
@@ -419,6 +428,8 @@ def main(argv=None) -> int:
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
                   f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
                   f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
+                  f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
+                  f"(0: the system's own)\n"
                   f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
                   f"the run's steps (the node's own count: every thread; not the recording "
                   f"process)\n"
@@ -456,7 +467,7 @@ def main(argv=None) -> int:
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
             r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives)
+                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
             res["soak"] = r
             print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
                   f"every output, one external subscriber:\n"

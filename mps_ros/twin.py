@@ -37,6 +37,7 @@ import numpy as np
 from mps_core.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.simulation import COMMANDS
 
+from .os_threads import name_thread, short_slice
 from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
 
 _RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
@@ -465,17 +466,6 @@ def shown(word: str, n: int = 40) -> str:
 
 
 # -- the run --------------------------------------------------------------------------------
-def _name_os_thread(name: bytes) -> None:
-    """Give the calling thread this name in the system's view (``top -H``, ``/proc``; 15 bytes
-    at most), where the system has ``prctl``; elsewhere nothing."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None).prctl(15, ctypes.c_char_p(name[:15]), 0, 0, 0)     # PR_SET_NAME
-    except (OSError, AttributeError):
-        pass
-
-
 class _Release:
     """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
     (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
@@ -540,7 +530,8 @@ class Runner:
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
                  name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05,
-                 release_period: float = 0.0, freeze_gc: bool = False):
+                 release_period: float = 0.0, release_slice: float = 1e-4,
+                 freeze_gc: bool = False):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -549,6 +540,9 @@ class Runner:
             raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
         if not (lead >= 0 and math.isfinite(lead)):
             raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
+        if not (release_slice == 0 or 1e-4 <= release_slice <= 0.1):
+            raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or "
+                             "0.0001 to 0.1 s")
         if not (release_period >= 0 and math.isfinite(release_period)):
             raise ValueError(f"release_period {release_period!r}: expected a number of seconds "
                              ">= 0")
@@ -560,6 +554,9 @@ class Runner:
         #: every step whose deadline has passed, so a step goes out at most this less one step's
         #: period after its deadline; up to one step's period (0 too): each at its deadline
         self.release_period = float(release_period)
+        #: realtime: the scheduler slice (s) the releasing thread asks for, where the system
+        #: grants one (:func:`mps_ros.os_threads.short_slice`); 0: it asks for none
+        self.release_slice_asked = float(release_slice)
         #: realtime, once prepared: the objects made so far (scene, kernels, ROS) are frozen
         #: out of the garbage collector's passes (``gc.freeze``), so that a full collection
         #: during the run scans only what the run made since (milliseconds, not tens of them,
@@ -593,6 +590,8 @@ class Runner:
         self.cpu_start = 0.0
         self.cpu_end: float | None = None
         self._prepared = False
+        #: realtime: the releasing thread's scheduler slice (s) as granted; None: the system's
+        self.release_slice: float | None = None
         self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None       # the release being filled (realtime)
@@ -784,6 +783,9 @@ class Runner:
         # the whole process's CPU over the run (every thread: stepping, releasing, the
         # middleware's; not the recording process), from the clocks' start to the run's end
         out["process_cpu_per_step_us"] = out["cpu_time"] / max(1, self.twin.k) * 1e6
+        if self.pacing == "realtime":
+            # the releasing thread's own scheduler slice (0: none was granted)
+            out["release_slice_ms"] = (self.release_slice or 0.0) * 1e3
         if self.latencies.n:
             lat = self.latencies
             out["latency_p50_ms"] = lat.percentile(50) * 1e3
@@ -1046,7 +1048,11 @@ class Runner:
         it sends that step and every one queued behind it whose deadline has passed by then
         (one wake-up for them all); then each step goes to the stepping thread for the other
         sinks."""
-        _name_os_thread(b"mps-release")
+        # named for top -H and /proc; a short scheduler slice, so that the subscribers'
+        # threads its messages wake preempt it less often (Linux 6.12 on; elsewhere not)
+        name_thread("mps-release")
+        ask = self.release_slice_asked
+        self.release_slice = ask if ask and short_slice(ask) else None
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
         delay = self._release_delay

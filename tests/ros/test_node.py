@@ -539,7 +539,8 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"outputs": "[joint_states, torque]"}, "unknown output 'torque'"),
              ({"realtime_priority": 120}, "parameter realtime_priority: 120"),
              ({"release_period": 0.5}, "parameter release_period: 0.5"),
-             ({"derivatives": "spline"}, "parameter derivatives: 'spline'")]
+             ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
+             ({"release_slice": 0.5}, "parameter release_slice: 0.5")]
     for params, message in cases:
         with NodeProcess(tmp_path, params, name="bad") as node:
             rc = node.wait(60)

@@ -70,6 +70,8 @@ def test_released_at_deadlines_and_the_same_to_every_sink():
     assert [m for m in rec.got if not m[3]] == live.got
     stamps = [t for _, t in live.walls]
     assert stamps == sorted(stamps) and len(stamps) == round(T_END / DT) + 1
+    # the releasing thread's scheduler slice, as the system granted it (none: 0)
+    assert st["release_slice_ms"] == 0.0 or st["release_slice_ms"] == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("release_period", [0.0, 4 * DT / RTF])
