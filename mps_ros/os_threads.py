@@ -38,26 +38,29 @@ def name_thread(name: str) -> bool:
         return False
 
 
-def _getattr(ctypes, libc, number) -> list | None:
-    buf = ctypes.create_string_buffer(_ATTR.size)
-    if libc.syscall(number, 0, buf, _ATTR.size, 0) != 0:
-        return None
-    return list(_ATTR.unpack(buf.raw))
-
-
-def thread_slice() -> float | None:
-    """The calling thread's own scheduler slice (s) where it has one, else None."""
+def _fair_attr():
+    """(ctypes, libc, sched_setattr's number, the calling thread's sched_attr as a list) where
+    the thread is under the fair scheduler (SCHED_OTHER or SCHED_BATCH) on a system and machine
+    this module knows; else None."""
     calls = _SYSCALLS.get(platform.machine())
     if calls is None:
         return None
     try:
         ctypes, libc = _libc()
-        attr = _getattr(ctypes, libc, calls[1])
+        buf = ctypes.create_string_buffer(_ATTR.size)
+        if libc.syscall(calls[1], 0, buf, _ATTR.size, 0) != 0:
+            return None
     except (OSError, AttributeError):
         return None
-    if attr is None or attr[1] not in (_SCHED_OTHER, _SCHED_BATCH) or not attr[5]:
-        return None
-    return attr[5] * 1e-9
+    attr = list(_ATTR.unpack(buf.raw))
+    return (ctypes, libc, calls[0], attr) if attr[1] in (_SCHED_OTHER, _SCHED_BATCH) else None
+
+
+def thread_slice() -> float | None:
+    """The calling thread's scheduler slice (s) as the system reports it (its own where it
+    asked for one), where it reports one; else None."""
+    got = _fair_attr()
+    return got[3][5] * 1e-9 if got is not None and got[3][5] else None
 
 
 def short_slice(seconds: float = 1e-4) -> bool:
@@ -65,23 +68,20 @@ def short_slice(seconds: float = 1e-4) -> bool:
     value kept. True where the system granted it (read back), False elsewhere: another system
     or machine, a kernel before 6.12 (it takes the call and ignores the slice), a thread under
     a realtime policy."""
-    calls = _SYSCALLS.get(platform.machine())
-    if calls is None:
+    got = _fair_attr()
+    if got is None:
         return False
+    ctypes, libc, setattr_number, attr = got
+    attr[0] = _ATTR.size
+    attr[5] = int(round(seconds * 1e9))
     try:
-        ctypes, libc = _libc()
-        attr = _getattr(ctypes, libc, calls[1])
-        if attr is None or attr[1] not in (_SCHED_OTHER, _SCHED_BATCH):
-            return False
-        attr[0] = _ATTR.size
-        attr[5] = int(round(seconds * 1e9))
         buf = ctypes.create_string_buffer(_ATTR.pack(*attr), _ATTR.size)
-        if libc.syscall(calls[0], 0, buf, 0) != 0:
+        if libc.syscall(setattr_number, 0, buf, 0) != 0:
             return False
-    except (OSError, AttributeError, struct.error):
+    except (OSError, struct.error):
         return False
-    got = thread_slice()
-    return got is not None and abs(got - seconds) < 1e-9
+    now = thread_slice()
+    return now is not None and abs(now - seconds) < 1e-9
 
 
 __all__ = ["name_thread", "short_slice", "thread_slice"]
