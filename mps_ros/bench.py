@@ -36,16 +36,19 @@ from pathlib import Path
 from .demo import ros_env, stop_group
 
 
+def _stat_cpu(stat: str) -> float:
+    """User + system CPU seconds of a ``/proc/.../stat`` line."""
+    fields = stat.rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    tick = os.sysconf("SC_CLK_TCK")
-    return (int(fields[11]) + int(fields[12])) / tick      # utime + stime
+    return _stat_cpu(Path(f"/proc/{pid}/stat").read_text())
 
 
 def _threads(pid: int) -> dict:
     """Every thread of the process: tid -> (name, CPU s, voluntary and involuntary context
     switches), from ``/proc``."""
-    tick = os.sysconf("SC_CLK_TCK")
     out = {}
     for task in Path(f"/proc/{pid}/task").glob("*"):
         try:
@@ -54,9 +57,8 @@ def _threads(pid: int) -> dict:
         except (FileNotFoundError, ProcessLookupError):
             continue
         name = stat[stat.index("(") + 1:stat.rindex(")")]
-        f = stat.rsplit(")", 1)[1].split()
         sw = dict(line.split(":", 1) for line in status.splitlines() if "ctxt_switches" in line)
-        out[int(task.name)] = (name, (int(f[11]) + int(f[12])) / tick,
+        out[int(task.name)] = (name, _stat_cpu(stat),
                                int(sw["voluntary_ctxt_switches"]),
                                int(sw["nonvoluntary_ctxt_switches"]))
     return out
