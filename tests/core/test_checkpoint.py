@@ -96,3 +96,36 @@ def test_an_observer_without_checkpoint_makes_the_run_not_rewindable():
     assert sim.rewindable
     sim.observers.append(object())
     assert not sim.rewindable
+
+
+def test_joint_state_is_the_snapshots_numbers_at_every_boundary_and_after_coming_back():
+    """``joint_state()`` (the twin's joint messages: values and rates, no accelerations,
+    kept for the evaluation it was asked at) gives the snapshot's numbers at every step,
+    through impacts, the latch and chart changes, asked once or twice, and after a restore
+    to an earlier boundary."""
+    sim = _press()
+
+    def check():
+        s = sim.snapshot()
+        # ẋ_C: the analogs' product on floats (the snapshot's is numpy's, equal to round-off)
+        want = (s["phi"], s["phi_dot"], s["psi"], s["psi_dot"], s["x_C"],
+                sim.solver.current.kin.vxy("C")[0])
+        assert abs(want[5] - s["x_C_dot"]) <= 1e-12 * (1.0 + abs(want[5]))
+        assert sim.joint_state() == want
+        assert sim.joint_state() == want
+
+    kinds = set()
+    cp = None
+    for k in range(120):
+        if k in COMMANDS:
+            sim.command(COMMANDS[k])
+        if k == 60:
+            cp = sim.checkpoint()
+            at = sim.joint_state()
+        sim.advance_to((k + 1) * DT)
+        check()
+        kinds.update(e["kind"] for e in sim.events)
+    assert {"chart", "latch-closes"} <= kinds
+    sim.restore(cp)
+    assert sim.joint_state() == at
+    check()
