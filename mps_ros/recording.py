@@ -21,6 +21,7 @@ far is intact, and :func:`recover` (``mps recover IN OUT``) copies them into a c
 from __future__ import annotations
 
 import io
+import marshal
 import os
 import struct
 import time
@@ -161,8 +162,9 @@ class BackgroundRecorder:
     The pipe's frames: one byte (``I`` the recorder's settings as JSON, ``C`` a channel as
     JSON, ``B`` a batch of messages, ``S`` a batch of steps, ``F`` flush, ``E`` finish), the
     payload's length (u32), the payload; a batch is records of (channel u16, time ns i64,
-    length u32, CDR bytes); a batch of steps is the pickle of (the keys' channel ids where
-    they grew, else None; the steps' lists of (key, CDR bytes, t_ns, received)). The
+    length u32, CDR bytes); a batch of steps is the :mod:`marshal` dump (one interpreter
+    writes and reads it) of (the keys' channel ids where they grew, else None; the steps'
+    lists of (key, CDR bytes, t_ns, received)). The
     writing process answers on its standard output, one JSON line each: ``{"ready": true}``
     (or ``{"error": …}``) after the settings, ``{"done": N, "counts": {topic: n}}`` (or
     ``{"error": …}``) at the end.
@@ -243,7 +245,7 @@ class BackgroundRecorder:
     def write_steps(self, msgs, ids: dict) -> None:
         """Record a step's messages: ``(key, CDR bytes, t_ns, received)`` each, in order, with
         ``ids`` the caller's map of keys to the channel ids :meth:`channel` gave. They are kept
-        as they are and go down the pipe pickled with the others of the batch (the work per
+        as they are and go down the pipe marshalled with the others of the batch (the work per
         message is then C code's), the map beside them where it grew."""
         if self._batch:
             self._send()                # what write() was given goes first
@@ -257,13 +259,10 @@ class BackgroundRecorder:
 
     def _send(self) -> None:
         if self._steps:
-            import pickle
-
             ids = self._ids_of_keys
             grew = ids is not None and len(ids) != self._ids_sent
             self._ids_sent = len(ids) if ids is not None else 0
-            self._frame(b"S", pickle.dumps((dict(ids) if grew else None, self._steps),
-                                           pickle.HIGHEST_PROTOCOL))
+            self._frame(b"S", marshal.dumps((dict(ids) if grew else None, self._steps)))
             self._steps = []
         if self._batch:
             self._frame(b"B", b"".join(self._batch))
@@ -407,9 +406,7 @@ def _write_from_pipe() -> int:
                         pos += n
                     rec.tick()
                 elif kind == b"S":
-                    import pickle
-
-                    ids, steps = pickle.loads(payload)
+                    ids, steps = marshal.loads(payload)
                     if ids is not None:
                         by_key = ids
                     write = rec.write
