@@ -13,11 +13,16 @@
 
 ``soak``: the realtime run for ``--minutes`` (memory, drift, messages lost); ``table``: the node
 as fast as possible by outputs; ``wakeup``: the CPU one wake-up from a 1 ms timed wait costs a
-thread on this machine (no ROS).
+thread on this machine (no ROS). Messages lost are counted by topic too: the recording holds
+every message the node published, the subscriber counts what it received on each topic.
+``--keep DIR`` keeps the realtime or soak run's logs (the node's, the subscriber's) and figures
+there, which a run in the temporary folder otherwise takes with it.
 
 Every process stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set) with ROS
 logs in a temporary folder; give it a ROS_DOMAIN_ID of its own. ``probe`` is the subscriber's
-entry point (``python -m mps_ros.bench probe``).
+entry point (``python -m mps_ros.bench probe``). ``MPS_BENCH_NODE_PREFIX``, where set, is put
+before the node's command line (split at spaces): a profiler, e.g.
+``MPS_BENCH_NODE_PREFIX="perf record -e cpu-clock -F 10000 -o node.perf --"``.
 """
 
 from __future__ import annotations
@@ -121,9 +126,11 @@ def _node(params: dict, env, log_path: Path) -> subprocess.Popen:
     args = []
     for k, v in params.items():
         args += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-    return subprocess.Popen([*os.environ.get("MPS_BENCH_NODE_PREFIX", "").split(), sys.executable, "-m", "mps_core.cli", "node", "press-cycle",
-                             "--ros-args", *args], env=env, stdout=open(log_path, "wb"),
-                            stderr=subprocess.STDOUT, start_new_session=True)
+    prefix = os.environ.get("MPS_BENCH_NODE_PREFIX", "").split()     # e.g. a profiler
+    return subprocess.Popen([*prefix, sys.executable, "-m", "mps_core.cli", "node",
+                             "press-cycle", "--ros-args", *args], env=env,
+                            stdout=open(log_path, "wb"), stderr=subprocess.STDOUT,
+                            start_new_session=True)
 
 
 def loop_cost(steps: int = 3000, outputs: str | None = None,
@@ -217,6 +224,9 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         st["rss_start_mb"], st["rss_end_mb"] = rss0, rss1
         st["subscriber_msgs_per_s"] = got["rate"]
         st["subscriber_received"] = got["received"]
+        # by topic: the recording holds every message the node published, and no other
+        st["lost_by_topic"] = lost_by_topic(recorded_counts(tmp / "rt.mcap"),
+                                            got.get("by_topic", {}))
         st["drift_ms"] = got.get("drift_ms")
         st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
@@ -227,6 +237,44 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
     finally:
         stop_group(node)
         stop_group(probe)
+
+
+def recorded_counts(path) -> dict[str, int]:
+    """Messages by topic in a finished recording (its summary's statistics; a channel with
+    none counts 0)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    why = "it has none"
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except McapError as exc:
+            summary, why = None, f"{type(exc).__name__}: {exc}"
+    if summary is None or summary.statistics is None:
+        raise RuntimeError(f"recording {str(path)!r}: no summary to count its messages by "
+                           f"({why}; an unfinished recording has none)")
+    counts = summary.statistics.channel_message_counts
+    return {ch.topic: counts.get(c, 0) for c, ch in summary.channels.items()}
+
+
+def lost_by_topic(published: dict, received: dict) -> dict[str, int]:
+    """Published less received, by topic, where they differ (a topic received but never
+    published counts as published 0 times)."""
+    out = {t: n - received.get(t, 0) for t, n in published.items()}
+    out.update({t: -n for t, n in received.items() if t not in published})
+    return {t: d for t, d in sorted(out.items()) if d}
+
+
+def keep_logs(tmp: Path, keep: Path, what: str, result: dict) -> None:
+    """Copy a run's logs (the node's, the subscriber's) and its figures to ``keep``."""
+    import shutil
+
+    keep.mkdir(parents=True, exist_ok=True)
+    for name, kept in (("rt.log", "node.log"), ("probe.log", "subscriber.log")):
+        if (tmp / name).exists():
+            shutil.copyfile(tmp / name, keep / f"{what}-{kept}")
+    (keep / f"{what}.json").write_text(json.dumps(result, indent=2))
 
 
 def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None) -> dict:
@@ -269,37 +317,53 @@ def probe() -> int:
              "clock1": None}
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
-    def count(msg):
-        now = time.monotonic()
-        state["n"] += 1
-        state["first"] = state["first"] or now
-        state["last"] = now
+    by_topic: dict[str, int] = {}       # topic -> messages received on it
 
-    def events(msg):
-        count(msg)
-        if '"kind":"run-end"' in msg.data:
-            state["ended"] = True
+    def counter(topic: str):
+        by_topic[topic] = 0
+
+        def count(msg):
+            now = time.monotonic()
+            state["n"] += 1
+            by_topic[topic] += 1
+            state["first"] = state["first"] or now
+            state["last"] = now
+        return count
+
+    def events(topic: str):
+        count = counter(topic)
+
+        def on_event(msg):
+            count(msg)
+            if '"kind":"run-end"' in msg.data:
+                state["ended"] = True
+        return on_event
 
     lowest: dict = {}       # whole simulated seconds -> the lowest (wall − simulated) in it
 
-    def clock(msg):
-        count(msg)
-        at = (msg.clock.sec + msg.clock.nanosec * 1e-9, time.monotonic())
-        state["clock0"] = state["clock0"] or at
-        state["clock1"] = at
-        k = int(at[0] - state["clock0"][0])
-        off = at[1] - at[0]
-        if off < lowest.get(k, math.inf):
-            lowest[k] = off
+    def clock(topic: str):
+        count = counter(topic)
+
+        def on_clock(msg):
+            count(msg)
+            at = (msg.clock.sec + msg.clock.nanosec * 1e-9, time.monotonic())
+            state["clock0"] = state["clock0"] or at
+            state["clock1"] = at
+            k = int(at[0] - state["clock0"][0])
+            off = at[1] - at[0]
+            if off < lowest.get(k, math.inf):
+                lowest[k] = off
+        return on_clock
 
     raw = "--deserialize" not in sys.argv
     for t in TOPICS:
+        topic = resolve(t.key)
         if t.key == "/clock":       # deserialized: simulated against wall time (the drift)
-            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), clock, qos)
+            node.create_subscription(MSG_CLASSES[t.msgtype], topic, clock(topic), qos)
         elif t.key == "~/events":
-            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), events, qos)
+            node.create_subscription(MSG_CLASSES[t.msgtype], topic, events(topic), qos)
         else:       # counted as delivered, serialized (raw) unless --deserialize
-            node.create_subscription(MSG_CLASSES[t.msgtype], resolve(t.key), count, qos,
+            node.create_subscription(MSG_CLASSES[t.msgtype], topic, counter(topic), qos,
                                      raw=raw)
     deadline = time.monotonic() + 3600
     while not state["ended"] and time.monotonic() < deadline:
@@ -309,7 +373,8 @@ def probe() -> int:
     while time.monotonic() - (state["last"] or 0.0) < 2.0:     # until 2 s without a message
         rclpy.spin_once(node, timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
-    out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0}
+    out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0,
+           "by_topic": by_topic}
     if state["clock0"] and state["clock1"]:
         (s0, w0), (s1, w1) = state["clock0"], state["clock1"]
         # first message against last: their own delivery delays are in it
@@ -355,6 +420,14 @@ def wakeup_costs(n: int = 2000) -> dict:
     return out
 
 
+def _lost_line(r: dict) -> str:
+    lost = r.get("lost_by_topic")
+    if not lost:
+        return ""
+    return ("  published less received     "
+            + ", ".join(f"{t} {n}" for t, n in lost.items()) + "\n")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -366,6 +439,9 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=10_000, help="steps of the realtime run")
     p.add_argument("--afap-steps", type=int, default=5_000, help="steps of each AFAP run")
     p.add_argument("--json", help="write the figures to this file")
+    p.add_argument("--keep", metavar="DIR", type=Path,
+                   help="keep the realtime or soak run's logs (the node's, the subscriber's) "
+                        "and figures in DIR")
     p.add_argument("--outputs", metavar="LIST",
                    help="the realtime run's outputs, comma-separated (default: all)")
     p.add_argument("--publish-every", type=int, default=1, metavar="N",
@@ -407,6 +483,8 @@ def main(argv=None) -> int:
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
                          a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
             res["realtime_1kHz"] = r
+            if a.keep:
+                keep_logs(tmp, a.keep, "realtime", r)
             how = "deserializing" if a.deserialize else "taking them serialized"
             scheme = a.derivatives or "central (the scene's)"
             print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
@@ -428,6 +506,7 @@ def main(argv=None) -> int:
                   f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
                   f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
+                  + _lost_line(r) +
                   f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
                   f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
                   f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
@@ -471,6 +550,8 @@ def main(argv=None) -> int:
             r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
                          a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
             res["soak"] = r
+            if a.keep:
+                keep_logs(tmp, a.keep, "soak", r)
             print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
                   f"every output, one external subscriber:\n"
                   f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
@@ -483,6 +564,7 @@ def main(argv=None) -> int:
                   f"  messages                    {r['messages']} published, "
                   f"{r['subscriber_received']} received "
                   f"({r['messages'] - r['subscriber_received']} lost)\n"
+                  + _lost_line(r) +
                   f"  real-time factor            {r['rtf']:.4f}, deadline misses "
                   f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
                   f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
