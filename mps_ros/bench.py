@@ -225,8 +225,11 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         st["subscriber_msgs_per_s"] = got["rate"]
         st["subscriber_received"] = got["received"]
         # by topic: the recording holds every message the node published, and no other
-        st["lost_by_topic"] = lost_by_topic(recorded_counts(tmp / "rt.mcap"),
-                                            got.get("by_topic", {}))
+        try:
+            st["lost_by_topic"] = lost_by_topic(recorded_counts(tmp / "rt.mcap"),
+                                                got.get("by_topic", {}))
+        except (OSError, RuntimeError) as exc:     # the other figures still stand
+            st["lost_by_topic"], st["recording_error"] = None, str(exc)
         st["drift_ms"] = got.get("drift_ms")
         st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
@@ -421,6 +424,8 @@ def wakeup_costs(n: int = 2000) -> dict:
 
 
 def _lost_line(r: dict) -> str:
+    if r.get("recording_error"):
+        return f"  no messages by topic        {r['recording_error']}\n"
     lost = r.get("lost_by_topic")
     if not lost:
         return ""

@@ -38,6 +38,8 @@ def test_lost_by_topic_names_each_topic_that_differs_and_no_other():
     # printed only where some differ
     assert _lost_line({"lost_by_topic": {}}) == ""
     assert "/joint_states 2" in _lost_line({"lost_by_topic": {"/joint_states": 2}})
+    assert "no summary" in _lost_line({"lost_by_topic": None,
+                                       "recording_error": "recording 'x': no summary"})
 
 
 def test_keep_logs_copies_the_runs_logs_and_figures(tmp_path):
