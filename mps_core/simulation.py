@@ -257,7 +257,6 @@ class Simulation:
             for b in mechanism.bodies if (b.origin, b.toward) == tuple(o.points)}
         self.phys: dict[str, float] = {}
         self._phys_of = None            # the evaluation phys was last read from
-        self._joint_state_of = None     # (evaluation, joint_state(), _phys_of) last answered
         self._plans: dict[ChartView, _ViewPlan] = {}
         #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
         self._spans = None
@@ -375,10 +374,8 @@ class Simulation:
         """Reported observables (value, rate, acceleration) from an evaluation, any chart."""
         return dict(zip(self._report, self._observations(e)))
 
-    def _observations(self, e, accelerations: bool = True) -> list:
-        """(value, rate, acceleration) of each reported observable, in the report's order
-        (``accelerations=False``: (value, rate), the same numbers, the accelerations' work
-        left out)."""
+    def _observations(self, e) -> list:
+        """(value, rate, acceleration) of each reported observable, in the report's order."""
         view = e.view
         out = []
         jets = q = qdd = None           # floats of q, q̇ (q̈) and the jets, made on first use
@@ -390,16 +387,16 @@ class Simulation:
             if how == _COORD:
                 if q is None:
                     q, qd = e.q.tolist(), e.qd.tolist()
-                    if qdd is None and accelerations:
+                    if qdd is None:
                         qdd = e.qdd.tolist()
-                out.append((q[arg], qd[arg], qdd[arg]) if accelerations else (q[arg], qd[arg]))
+                out.append((q[arg], qd[arg], qdd[arg]))
                 continue
             if how == _FROZEN:
-                out.append((arg, 0.0, 0.0) if accelerations else (arg, 0.0))
+                out.append((arg, 0.0, 0.0))
                 continue
             if how == _POSE:
-                v = phys[name] if same and not obs.is_angle else obs.value(e.kin.pose)
-                out.append((v, math.nan, math.nan) if accelerations else (v, math.nan))
+                out.append((phys[name] if same and not obs.is_angle else obs.value(e.kin.pose),
+                            math.nan, math.nan))
                 continue
             kin = e.kin
             if how == _BODY and (conv := kin.angular_convective(arg)) is not None:
@@ -411,9 +408,6 @@ class Simulation:
                     v = obs.value(kin.pose)
                     if name in phys:
                         v = unwrap_to(v, phys[name])
-                if not accelerations:
-                    out.append((v, kin.rate(arg)))
-                    continue
                 if qdd is None:
                     qdd = e.qdd.tolist()
                 acc = conv
@@ -427,8 +421,7 @@ class Simulation:
             v = float(j.val)
             if obs.is_angle and name in phys:
                 v = unwrap_to(v, phys[name])
-            out.append((v, float(j.d1), float(j.grad @ e.qdd + j.d2)) if accelerations
-                       else (v, float(j.d1)))
+            out.append((v, float(j.d1), float(j.grad @ e.qdd + j.d2)))
         return out
 
     def _update_phys(self, e):
@@ -821,17 +814,9 @@ class Simulation:
         """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
         gives under those names, without the energies."""
         e = self.solver.current
-        last = self._joint_state_of
-        if last is not None and last[0] is e and last[2] is self._phys_of:
-            return last[1]
-        obs = self._observations(e, accelerations=False)
-        at = self._report_at
-        phi, psi = obs[at["phi"]], obs[at["psi"]]
-        out = (phi[0], phi[1], psi[0], psi[1], obs[at["x_C"]][0], e.kin.vxy("C")[0])
-        # asked again for the same evaluation and unwrapping references (the twin's messages
-        # and its markers): the same tuple; a step, a cut or a restore replaces ``e``
-        self._joint_state_of = (e, out, self._phys_of)
-        return out
+        obs = self._observe(e)
+        phi, psi, x = obs["phi"], obs["psi"], obs["x_C"]
+        return (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
 
     def snapshot(self) -> dict:
         """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,

@@ -99,10 +99,9 @@ def test_an_observer_without_checkpoint_makes_the_run_not_rewindable():
 
 
 def test_joint_state_is_the_snapshots_numbers_at_every_boundary_and_after_coming_back():
-    """``joint_state()`` (the twin's joint messages: values and rates, no accelerations,
-    kept for the evaluation it was asked at) gives the snapshot's numbers at every step,
-    through impacts, the latch and chart changes, asked once or twice, and after a restore
-    to an earlier boundary."""
+    """``joint_state()`` (what the twin's joint messages carry) gives the snapshot's numbers
+    at every step, through impacts, the latch and chart changes, asked once or twice, and
+    after a restore to an earlier boundary."""
     sim = _press()
 
     def check():
