@@ -96,6 +96,45 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def _node_processes(pid: int) -> tuple[list[int], list[int]]:
+    """(the node's processes: itself and its stepping process, where it has one; its recording
+    processes), from ``/proc``."""
+    node, rec = [pid], []
+    for kid in _children(pid):
+        line = _cmdline(kid)
+        if "mps_ros.stepping" in line:
+            node.append(kid)
+            rec += [k for k in _children(kid) if "mps_ros.recording" in _cmdline(k)]
+        elif "mps_ros.recording" in line:
+            rec.append(kid)
+    return node, rec
+
+
+def _all_threads(pids: list[int]) -> dict:
+    """:func:`_threads` of several processes, keyed by thread id."""
+    out = {}
+    for pid in pids:
+        try:
+            out.update(_threads(pid))
+        except (FileNotFoundError, ProcessLookupError):
+            pass
+    return out
+
+
+def neighbours(n: int) -> list[subprocess.Popen]:
+    """``n`` pure-Python busy loops, each a process of its own session (what a user's machine
+    also runs beside the node); end them with :func:`stop_group`."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                             start_new_session=True) for _ in range(max(0, n))]
+
+
 def _rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -108,6 +147,8 @@ def _final_stats(log: str) -> dict:
                   r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, (?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
                   r"(\d+) messages, stepping thread CPU ([\d.e+-]+) us a step"
                   r"(?:, process CPU ([\d.e+-]+) us a step)?"
+                  r"(?:, stepping process ([\d.e+-]+) us and ROS process ([\d.e+-]+) us of it)?"
+                  r"(?:, realtime priority (\d+))?"
                   r"(?:, publishing thread's slice ([\d.e+-]+) ms)?", log)
     if not m:
         raise RuntimeError("no final statistics in the node's log:\n" + log[-3000:])
@@ -116,7 +157,10 @@ def _final_stats(log: str) -> dict:
            "publish_p50_ms": float(g[3]), "publish_p99_ms": float(g[4]),
            "misses": int(g[7]), "messages": int(g[8]), "step_thread_cpu_us": float(g[9]),
            "process_cpu_us": float(g[10]) if g[10] is not None else float("nan"),
-           "release_slice_ms": float(g[11]) if g[11] is not None else float("nan")}
+           "stepping_process_cpu_us": float(g[11]) if g[11] is not None else float("nan"),
+           "ros_process_cpu_us": float(g[12]) if g[12] is not None else float("nan"),
+           "priority": int(g[13]) if g[13] is not None else 0,
+           "release_slice_ms": float(g[14]) if g[14] is not None else float("nan")}
     if g[5] is not None:
         out["latency_p50_ms"], out["latency_p99_ms"] = float(g[5]), float(g[6])
     return out
@@ -157,14 +201,23 @@ def loop_cost(steps: int = 3000, outputs: str | None = None,
     return (time.thread_time() - t0) / tw.k * 1e6
 
 
+#: the subscriber's executor: rclpy's ``single`` threaded one, or its ``events`` executor
+PROBE_EXECUTOR = os.environ.get("MPS_BENCH_EXECUTOR", "events")
+
+
 def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
-             outputs: str | None = None, publish_every: int = 1, priority: int = 0,
+             outputs: str | None = None, publish_every: int = 1, priority: int | None = None,
              lead: float | None = None, release_period: float | None = None,
-             derivatives: str | None = None, release_slice: float | None = None) -> dict:
+             derivatives: str | None = None, release_slice: float | None = None,
+             n_neighbours: int = 0, in_process: bool = False) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
-                  publish_every=publish_every, realtime_priority=priority)
+                  publish_every=publish_every)
+    if priority is not None:
+        params["realtime_priority"] = priority
+    if in_process:
+        params["stepping_process"] = False
     if lead is not None:
         params["lead"] = lead
     if release_period is not None:
@@ -173,12 +226,24 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         params["release_slice"] = release_slice
     if derivatives is not None:
         params["derivatives"] = derivatives
+    busy = neighbours(n_neighbours)       # for the whole run, the plain loop's too
+    try:
+        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives)
+    finally:
+        for b in busy:
+            stop_group(b)
+
+
+def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives) -> dict:
+    t_end = steps * 1e-3
     loop = loop_cost(min(steps, 3000), outputs, derivatives)
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
     probe = subprocess.Popen([sys.executable, "-m", "mps_ros.bench", "probe"]
-                             + (["--deserialize"] if deserialize else []), env=env,
+                             + (["--deserialize"] if deserialize else [])
+                             + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"]),
+                             env=env,
                              stdout=subprocess.PIPE, stderr=open(tmp / "probe.log", "wb"),
                              text=True, start_new_session=True)
     try:
@@ -189,12 +254,13 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
             time.sleep(0.01)
         # from the run's start (its kernels already built), after its first lead is banked
         time.sleep(0.2)
-        kids = _children(node.pid)          # the recording process
-        cpu0, wall0 = _cpu_seconds(node.pid), time.monotonic()
+        mine, kids = _node_processes(node.pid)      # the node's; the recording process
+        cpu0, wall0 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
         kid0 = sum(_cpu_seconds(k) for k in kids)
-        threads0 = _threads(node.pid)
+        sub0 = _cpu_seconds(probe.pid)
+        threads0 = _all_threads(mine)
         threads1, wall_t = dict(threads0), wall0    # the last reading of each thread
-        cpu1 = wall1 = kid1 = None
+        cpu1 = wall1 = kid1 = sub1 = None
         rss0 = rss1 = None
         ended = False
         while node.poll() is None and not ended:
@@ -202,10 +268,11 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
             text = log.read_text()
             ended = "run ended at t = " in text or "run stopped (" in text
             try:
-                cpu1, wall1 = _cpu_seconds(node.pid), time.monotonic()
+                cpu1, wall1 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
                 kid1 = sum(_cpu_seconds(k) for k in kids)
+                sub1 = _cpu_seconds(probe.pid)
                 if not ended:       # a thread that ends keeps its last reading
-                    threads1.update(_threads(node.pid))
+                    threads1.update(_all_threads(mine))
                     wall_t = time.monotonic()
                 rss1 = _rss_mb(node.pid)
                 if rss0 is None and wall1 - wall0 >= 5.0:
@@ -220,6 +287,8 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         st["cpu_share"] = (cpu1 - cpu0) / (wall1 - wall0) if wall1 else float("nan")
         st["recorder_cpu_share"] = ((kid1 - kid0) / (wall1 - wall0) if wall1 and kids
                                     else float("nan"))
+        st["subscriber_cpu_share"] = (sub1 - sub0) / (wall1 - wall0) if wall1 else float("nan")
+        st["node_processes"] = len(mine)
         st["cpu_per_step_us"] = st["cpu_share"] * 1e3       # at 1 kHz, realtime x1
         st["rss_start_mb"], st["rss_end_mb"] = rss0, rss1
         st["subscriber_msgs_per_s"] = got["rate"]
@@ -368,13 +437,25 @@ def probe() -> int:
         else:       # counted as delivered, serialized (raw) unless --deserialize
             node.create_subscription(MSG_CLASSES[t.msgtype], topic, counter(topic), qos,
                                      raw=raw)
+    # one executor for the whole run (rclpy.spin_once(node) adds and removes the node at every
+    # call: a subscriber that did so would spend most of its time there, not in its callbacks)
+    # rclpy's events executor (C++, Jazzy's wheels have it) where the subscriber asks for it
+    if "--events-executor" in sys.argv:
+        from rclpy.experimental import EventsExecutor
+
+        executor = EventsExecutor()
+    else:
+        from rclpy.executors import SingleThreadedExecutor
+
+        executor = SingleThreadedExecutor()
+    executor.add_node(node)
     deadline = time.monotonic() + 3600
     while not state["ended"] and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.1)
+        executor.spin_once(timeout_sec=0.1)
         if state["last"] is not None and time.monotonic() - state["last"] > 5.0:
             break                              # the node is gone without its run-end event
     while time.monotonic() - (state["last"] or 0.0) < 2.0:     # until 2 s without a message
-        rclpy.spin_once(node, timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
     out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0,
            "by_topic": by_topic}
@@ -451,9 +532,10 @@ def main(argv=None) -> int:
                    help="the realtime run's outputs, comma-separated (default: all)")
     p.add_argument("--publish-every", type=int, default=1, metavar="N",
                    help="the realtime run publishes every N-th step (default 1)")
-    p.add_argument("--priority", type=int, default=0, metavar="P",
-                   help="the node's realtime_priority (0: normal scheduling; 1-99: its "
-                        "stepping thread under SCHED_FIFO, where allowed)")
+    p.add_argument("--priority", type=int, default=None, metavar="P",
+                   help="the node's realtime_priority (default: the node's; 0: normal "
+                        "scheduling; 1-99: its stepping process and publishing thread under "
+                        "SCHED_FIFO, where allowed)")
     p.add_argument("--lead", type=float, default=None, metavar="S",
                    help="the node's lead: steps computed up to S wall seconds ahead of their "
                         "deadlines (default: the node's, 0.05; 0: one step's period, none "
@@ -467,6 +549,15 @@ def main(argv=None) -> int:
                         "(default: the node's, 0.0001; 0: none asked)")
     p.add_argument("--derivatives", choices=("central", "autodiff"), default=None,
                    help="the node's derivatives (default: the scene's, central)")
+    p.add_argument("--in-process", action="store_true",
+                   help="the node steps in its own process (stepping_process:=false) instead "
+                        "of a stepping process of its own")
+    p.add_argument("--neighbours", type=int, default=0, metavar="N",
+                   help="run N pure-Python busy loops beside the node for the whole realtime "
+                        "or soak run (default 0)")
+    p.add_argument("--events-executor", action="store_true",
+                   help="probe: spin rclpy's events executor (the realtime run's subscriber "
+                        "does unless MPS_BENCH_EXECUTOR=single)")
     p.add_argument("--deserialize", action="store_true",
                    help="the subscriber deserializes every message into a Python object "
                         "(default: it takes them serialized, as delivered)")
@@ -486,20 +577,26 @@ def main(argv=None) -> int:
         tmp = Path(d)
         if a.what in ("all", "realtime"):
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
+                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
+                         a.neighbours, a.in_process)
             res["realtime_1kHz"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "realtime", r)
             how = "deserializing" if a.deserialize else "taking them serialized"
-            scheme = a.derivatives or "central (the scene's)"
+            scheme = a.derivatives or "the scene's (autodiff)"
             print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
                   f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
-                  f"subscriber ({how}), realtime_priority {a.priority}, lead "
+                  f"subscriber ({how}, rclpy's {PROBE_EXECUTOR} executor), "
+                  f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
+                  f", {a.neighbours} busy neighbour process(es), "
+                  f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
                   f"{'0.05 (default)' if a.lead is None else a.lead} s, release_period "
                   f"{'0 (default)' if a.release_period is None else a.release_period} s, "
                   f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
                   f" s, derivatives "
                   f"{scheme}:\n"
+                  f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
+                  f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
                   f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
                   f"{r['step_p99_ms']:.3f} ms\n"
@@ -512,13 +609,18 @@ def main(argv=None) -> int:
                   f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
                   + _lost_line(r) +
+                  f"  the subscriber's CPU        {100 * r['subscriber_cpu_share']:.0f} % of one core\n"
                   f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
                   f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
                   f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
                   f"(0: the system's own)\n"
                   f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
-                  f"the run's steps (the node's own count: every thread; not the recording "
-                  f"process)\n"
+                  f"the run's steps (the node's own count: every thread of its "
+                  f"{r['node_processes']} process(es); not the recording process)"
+                  + (f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
+                     f"{r['ros_process_cpu_us']:.0f} us"
+                     if r['stepping_process_cpu_us'] == r['stepping_process_cpu_us'] else "")
+                  + "\n"
                   f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
                   f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
                   f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
@@ -553,11 +655,12 @@ def main(argv=None) -> int:
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
             r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice)
+                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
+                         a.neighbours, a.in_process)
             res["soak"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "soak", r)
-            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), recording on, "
+            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), {a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
                   f"every output, one external subscriber:\n"
                   f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
                   f"{r['rss_end_mb']:.1f} MB at the end "

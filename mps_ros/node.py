@@ -42,8 +42,9 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
 ``command_burst``,          flood limit: at most ``command_burst`` commands at once, then
 ``command_rate``            ``command_rate`` a second (10, 20.0); the rest are refused
 ``diagnostics_period``      wall seconds between /diagnostics messages (1.0)
-``realtime_priority``       0 (default): normal scheduling; 1-99: the stepping thread under
-                            SCHED_FIFO at that priority, where the system allows it
+``realtime_priority``       SCHED_FIFO priority of the stepping and publishing work (40,
+                            default: below the kernel's threaded interrupts at 50); where the
+                            system refuses it, one warning and normal scheduling. 0: normal
 ``markers_hz``              ``~/markers`` (the press drawn for RViz2 and Foxglove) this many times a
                             simulated second at most, never more often than the steps (30.0)
 ``markers_scale``           their arrows: newtons a metre of arrow (2e6; in the arrows' namespace)
@@ -57,6 +58,9 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
                             (default), or up to one step's period: each step at its deadline, one
                             wake-up a step; 0.002 at 1 kHz: steps in pairs, each up to 1 ms
                             late, for less CPU (docs/ros.md has both measured)
+``stepping_process``        realtime: step the twin in a process of its own (true, default:
+                            :mod:`mps_ros.stepping`); false: in this process, a thread beside
+                            the publishing one (docs/ros.md compares both)
 ``release_slice``           realtime: the scheduler slice (s) the publishing thread asks for
                             (0.0001; Linux 6.12 on, no privilege needed): the subscribers'
                             threads its messages wake preempt it less often. 0: none asked
@@ -127,6 +131,22 @@ class RosSink:
     def __init__(self, publishers: dict):
         self.pubs = publishers     # key -> publisher
         self._raw: dict = {}       # key -> the publisher's own publish_raw
+
+    def publish_pairs(self, pairs) -> None:
+        """A released step's messages from the stepping process: (key, CDR bytes) each."""
+        raw = self._raw
+        for key, data in pairs:
+            f = raw.get(key)
+            if f is None:
+                p = self.pubs.get(key)
+                if p is None:
+                    continue
+                f = raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
+                                       None) or p.publish
+            try:
+                f(data)
+            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+                pass
 
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
@@ -211,7 +231,15 @@ class PressTwin(Node):
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
         self.recorder = None
+        self.priority_got = 0
         self.ros_sink = RosSink(self.pubs)
+        #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
+        #: process publishes what it releases and forwards the commands
+        self.split = p["pacing"] == "realtime" and p["stepping_process"]
+        if self.split:
+            self.runner = self._stepping_process(p)
+            self.inbox = self.runner.inbox
+            return
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"], lead=p["lead"],
                              release_period=p["release_period"],
@@ -220,6 +248,24 @@ class PressTwin(Node):
                              diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
                              gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
                              name=self.get_fully_qualified_name().lstrip("/"))
+
+    def _stepping_process(self, p: dict):
+        from .stepping import SteppingProcess
+
+        twin = dict(dt=p["dt"] or None, t_end=p["t_end"] or None, outputs=list(p["outputs"]),
+                    scene_commands=p["scene_commands"], markers_hz=p["markers_hz"],
+                    markers_scale=p["markers_scale"], derivatives=p["derivatives"] or None)
+        runner = dict(real_time_factor=p["real_time_factor"], lead=p["lead"],
+                      release_period=p["release_period"], release_slice=p["release_slice"],
+                      freeze_gc=True, publish_every=p["publish_every"],
+                      diagnostics_period=p["diagnostics_period"],
+                      name=self.get_fully_qualified_name().lstrip("/"))
+        tw = self.twin
+        spec = {"scene": p["scene"], "twin": twin, "runner": runner,
+                "grid": [tw.t0, tw.t_end, tw.n]}
+        return SteppingProcess(spec, self.ros_sink, self._log,
+                               Gate(p["command_burst"], p["command_rate"]),
+                               p["realtime_priority"])
 
     # -- parameters -----------------------------------------------------------------------
     _DEFAULTS = {
@@ -230,8 +276,8 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 0, "lead": 0.05, "release_period": 0.0, "release_slice": 1e-4,
-        "markers_hz": 30.0, "markers_scale": 2e6,
+        "realtime_priority": 40, "lead": 0.05, "release_period": 0.0, "release_slice": 1e-4,
+        "markers_hz": 30.0, "markers_scale": 2e6, "stepping_process": True,
     }
 
     def _declare(self, scene: str):
@@ -288,6 +334,10 @@ class PressTwin(Node):
             raise ParameterError(f"parameter scene_commands: {raw['scene_commands']!r}, "
                                  "expected true or false")
         out["scene_commands"] = raw["scene_commands"]
+        if not isinstance(raw["stepping_process"], bool):
+            raise ParameterError(f"parameter stepping_process: {raw['stepping_process']!r}, "
+                                 "expected true or false")
+        out["stepping_process"] = raw["stepping_process"]
         out["qos_depth"] = integer("qos_depth", 1)
         out["wait_for_subscribers"] = integer("wait_for_subscribers", 0)
         out["wait_for_commanders"] = integer("wait_for_commanders", 0)
@@ -425,7 +475,8 @@ class PressTwin(Node):
         stop.wait(self.p["start_delay"])
         if stop.is_set():
             self.runner.request_stop("signal")
-        self._set_priority()
+        if not self.split:
+            self._set_priority()
         self.get_logger().info("stepping starts")
         return self.runner.run()
 
@@ -437,13 +488,15 @@ class PressTwin(Node):
         prio = self.p["realtime_priority"]
         if not prio:
             return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-        except (AttributeError, OSError) as exc:
-            self.get_logger().warning(f"realtime_priority {prio}: not allowed here ({exc}); "
-                                      "stepping at normal priority")
+        from .stepping import HOW_TO_ALLOW, ask_fifo
+
+        why = ask_fifo(prio)
+        if why is not None:
+            self.get_logger().warning(f"realtime_priority {prio}: SCHED_FIFO refused here "
+                                      f"({why}); stepping at normal priority; {HOW_TO_ALLOW}")
             return
-        self.get_logger().info(f"stepping thread: SCHED_FIFO, priority {prio}")
+        self.priority_got = prio
+        self.get_logger().info(f"stepping and publishing threads: SCHED_FIFO, priority {prio}")
 
     def drain(self, timeout: float = 1.0) -> None:
         """Give the subscribers a bounded time to acknowledge what was published (the writers
@@ -527,19 +580,31 @@ def main(argv=None) -> int:
 
         try:
             stats = node.run(stop)
+            if node.split and node.runner.error_kind == "simulation":
+                code = 2            # the stepping process said why (its log line)
+            elif node.split and node.runner.error:
+                node.get_logger().error(f"the run failed: {node.runner.error}")
+                code = 1
         except MpsError as exc:
             node.get_logger().error(f"the simulation stopped: {exc}")
             stats = node.runner.stats()
             code = 2
+        except OSError as exc:      # the stepping process could not start its run
+            if not node.split:
+                raise
+            node.get_logger().error(f"the run could not start: {exc}")
+            return 2
         finally:
             node.closed = True
             if node.recorder is not None:
                 node.recorder.finish()
+            if node.split:
+                node.runner.close()
         node.drain()
         why = node.runner.stop_reason or "end"
         node.get_logger().info(
             f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
-            f"{node.twin.t:.6g} s after {stats['steps']} steps: real-time factor "
+            f"{stats.get('t', node.twin.t):.6g} s after {stats['steps']} steps: real-time factor "
             f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
             f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
             f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
@@ -548,6 +613,10 @@ def main(argv=None) -> int:
             + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
             f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
             f"process CPU {stats['process_cpu_per_step_us']:.0f} us a step, "
+            + (f"stepping process {stats['stepping_process_cpu_per_step_us']:.0f} us and ROS "
+               f"process {stats['ros_process_cpu_per_step_us']:.0f} us of it, "
+               if "ros_process_cpu_per_step_us" in stats else "")
+            + f"realtime priority {stats.get('realtime_priority', node.priority_got)}, "
             + (f"publishing thread's slice {stats['release_slice_ms']:.3g} ms, "
                if "release_slice_ms" in stats else "")
             + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "

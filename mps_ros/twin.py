@@ -759,7 +759,7 @@ class Runner:
             "pacing": self.pacing,
             "real_time_factor_target": self.rtf if self.pacing == "realtime" else math.inf,
             "real_time_factor": sim / wall if wall > 0 else math.nan,
-            "sim_time": sim, "wall_time": wall, "steps": self.twin.k,
+            "sim_time": sim, "wall_time": wall, "steps": self.twin.k, "t": self.twin.t,
             "step_time_p50_ms": st.percentile(50) * 1e3,
             "step_time_p99_ms": st.percentile(99) * 1e3,
             "step_time_max_ms": st.max * 1e3,
@@ -1085,6 +1085,10 @@ class Runner:
                     if not received:
                         n += 1
                 for s in live:
+                    release = getattr(s, "release", None)
+                    if release is not None:     # the step at once, with its deadline
+                        release(msgs, head.deadline, head.state)
+                        continue
                     emit_all = getattr(s, "emit_all", None)
                     if emit_all is not None:
                         emit_all(msgs)

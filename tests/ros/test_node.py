@@ -548,18 +548,6 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
         assert rc == 2 and message in log and "Traceback" not in log, log
 
 
-def test_a_realtime_priority_runs_or_says_why_not(tmp_path):
-    """realtime_priority: the stepping thread under SCHED_FIFO where allowed; elsewhere a
-    warning, and the run goes on at normal priority. Either way the run ends normally."""
-    params = dict(pacing="realtime", dt=DT, t_end=0.05, recording="none", realtime_priority=10)
-    with NodeProcess(tmp_path, params, name="prio") as node:
-        rc = node.wait(60)
-        log = node.log()
-    assert rc == 0, log
-    assert ("stepping thread: SCHED_FIFO, priority 10" in log
-            or "realtime_priority 10: not allowed here" in log), log
-
-
 def test_no_process_left(tmp_path):
     """A node stopped by its fixture leaves nothing: its whole process group is gone."""
     with NodeProcess(tmp_path, dict(t_end=50.0, recording="none")) as node:

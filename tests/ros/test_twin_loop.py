@@ -45,17 +45,18 @@ def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():
 def test_the_derivatives_override_the_scenes():
     """``derivatives``: the twin steps the scene with that scheme, as mps_core does."""
     scene = load_scene("press-cycle")
-    assert scene.solver.scheme == "central"
-    tw = Twin(scene, dt=1e-3, t_end=0.05, derivatives="autodiff")
-    assert tw.describe()["derivatives"] == "autodiff"
-    sim = build(scene.with_overrides(dt=1e-3, t_end=0.05, scheme="autodiff"))
-    central = Twin(scene, dt=1e-3, t_end=0.05)
+    assert scene.solver.scheme == "autodiff"       # the live twin's default
+    tw = Twin(scene, dt=1e-3, t_end=0.05, derivatives="central")
+    assert tw.describe()["derivatives"] == "central"
+    sim = build(scene.with_overrides(dt=1e-3, t_end=0.05, scheme="central"))
+    exact = Twin(scene, dt=1e-3, t_end=0.05)
+    assert exact.describe()["derivatives"] == "autodiff"
     while not tw.done:
         tw.step()
-        central.step()
+        exact.step()
         sim.advance_to(tw.sim.t)
         assert tw.sim.joint_state() == sim.joint_state()
-    assert tw.sim.joint_state() != central.sim.joint_state()
+    assert tw.sim.joint_state() != exact.sim.joint_state()
 
 
 def test_deferred_impulses_are_the_immediate_ones():

@@ -1,0 +1,851 @@
+"""The live node's stepping process: the twin stepped in an interpreter of its own.
+
+In realtime pacing the node (:mod:`mps_ros.node`) does not step the twin itself. It starts
+``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and runs the
+same :class:`~mps_ros.twin.Runner` (steps computed ahead, checkpoints, commands at their
+boundary, the recorder fed with what was released), and whose releasing thread, at each
+step's deadline, writes the step's messages, already encoded, down a pipe instead of
+publishing them. The node's process reads them and publishes each at once: its interpreter is
+not shared with the stepping, so a step being computed (or a stepping thread preempted by
+another process while it holds its interpreter's lock) never holds a publication back, and the
+eleven publishes of a step never hold a step back.
+
+::
+
+    ROS process (mps_ros.node)                  stepping process (python -m mps_ros.stepping)
+      executor thread: ~/mode, services ── C ──▶  commands, with their arrival (wall) time
+      main thread: publish each released   ◀── M ──  releasing thread, at each deadline
+                   step, answer services   ◀── A, L, E ── answers, log lines, the run's end
+                                                    │ released steps
+                                                    ▼
+                                                  recording process (python -m mps_ros.recording)
+
+The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both processes: a command
+keeps the time it arrived in the ROS process and is applied at the first step boundary whose
+deadline is not before it, as in one process. What the node publishes is what the recorder
+writes, byte for byte: the same bytes go both ways.
+
+**Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
+stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
+command (marshal: id or None, word, source, wall), ``S`` stop (the reason, UTF-8). From it:
+``R`` ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a released step
+(marshal: deadline, whether it holds the step's state, its (key, CDR bytes) pairs), ``A`` a
+command's answer (marshal: id, JSON), ``L`` a log line (marshal: level, text), ``E`` the run's
+end (JSON: statistics, stop reason, error, the recording's count).
+
+**Faults.** The stepping process asks the system to send it SIGTERM when the node's process
+dies (``PR_SET_PDEATHSIG``) and stops as on a stop frame when its pipe closes: it finishes the
+recording either way. Where the stepping process dies (a SIGKILL), the node reads the end of its
+pipe, says so in one line and exits nonzero; the recording process, whose pipe closed with it,
+finishes the file up to the last step handed over, and the node waits for it to be done.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import marshal
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+
+from .topics import BY_KEY
+from .twin import Command, Gate, Runner, Timings, Twin, to_json, to_ns
+
+_HEAD = struct.Struct("<cI")
+
+
+# -- frames -----------------------------------------------------------------------------------
+class FrameWriter:
+    """Frames to a file descriptor, one writer at a time (the threads of a process share it)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self._lock = threading.Lock()
+        self.broken = False
+
+    def frame(self, kind: bytes, payload: bytes) -> bool:
+        return self.write(_HEAD.pack(kind, len(payload)) + payload)
+
+    def write(self, data: bytes) -> bool:
+        """Whole frames at once (False: the other side is gone)."""
+        with self._lock:
+            if self.broken:
+                return False
+            view = memoryview(data)
+            try:
+                while view:
+                    view = view[os.write(self.fd, view):]
+            except OSError:         # the other side is gone
+                self.broken = True
+                return False
+        return True
+
+
+class FrameReader:
+    """Whole frames from a file descriptor: :meth:`read` blocks until at least one has come
+    (an empty list: the other side closed its end)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self._buf = bytearray()
+
+    def read(self) -> list[tuple[bytes, bytes]]:
+        buf = self._buf
+        while True:
+            got = []
+            pos = 0
+            n_buf = len(buf)
+            while n_buf - pos >= 5:
+                kind, n = _HEAD.unpack_from(buf, pos)
+                if n_buf - pos - 5 < n:
+                    break
+                got.append((kind, bytes(buf[pos + 5:pos + 5 + n])))
+                pos += 5 + n
+            if pos:
+                del buf[:pos]
+            if got:
+                return got
+            try:
+                chunk = os.read(self.fd, 1 << 20)
+            except InterruptedError:
+                continue
+            if not chunk:
+                return []
+            buf.extend(chunk)
+
+
+def _widen(fd: int, size: int = 1 << 20) -> None:
+    """Room for about a second of a 1 kHz run's messages in the pipe (Linux)."""
+    import fcntl
+
+    try:
+        fcntl.fcntl(fd, getattr(fcntl, "F_SETPIPE_SZ", 1031), size)
+    except OSError:
+        pass
+
+
+# -- real-time scheduling ---------------------------------------------------------------------
+HOW_TO_ALLOW = ("to allow it, raise the user's rtprio limit (ulimit -r 99, or a line "
+                "'@realtime - rtprio 99' in /etc/security/limits.conf with the user in group "
+                "realtime) or grant CAP_SYS_NICE; see docs/ros.md, 'Real-time scheduling'")
+
+
+def ask_fifo(priority: int) -> str | None:
+    """Put the calling thread under SCHED_FIFO at ``priority`` (threads it starts after
+    inherit it). None where granted, else why not (the system's words)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+# -- the stepping process's side --------------------------------------------------------------
+class _Ahead:
+    """The stepping process's loop: the twin stepped up to ``lead`` wall seconds ahead of the
+    steps' deadlines, each step's messages written down the pipe as soon as the lead is full
+    (or its deadline is near), a checkpoint kept for each step not yet past, and each command
+    applied at the boundary the ROS process chose for it (coming back to that step's
+    checkpoint, or stepping on to it)."""
+
+    #: steps written at once at most; a step due within this (wall s) goes at once
+    BATCH, NEAR = 16, 0.002
+
+    def __init__(self, runner: Runner, out: FrameWriter, commands, wake: threading.Event):
+        self.runner, self.twin, self.out = runner, runner.twin, out
+        self.commands, self.wake = commands, wake
+        self.gen = 0
+        self.cps: dict[int, tuple] = {}
+        self.pending: list[bytes] = []
+        self.due = math.inf                 # the earliest deadline among the pending steps
+
+    def deadline(self, k: int) -> float:
+        tw = self.twin
+        return self.wall_start + (tw.time_of(k) - tw.t0) / self.runner.rtf
+
+    def _entry(self, k: int, deadline: float, state: bool, msgs: list) -> None:
+        self.pending.append(marshal.dumps((k, self.gen, deadline, state,
+                                           self.twin.sim.structure, msgs)))
+        if deadline < self.due:
+            self.due = deadline
+
+    def flush(self) -> None:
+        if self.pending:
+            data = b"".join(_HEAD.pack(b"M", len(p)) + p for p in self.pending)
+            self.pending = []
+            self.due = math.inf
+            if not self.out.write(data):
+                raise BrokenPipeError("the node's process is gone")
+
+    def run(self) -> None:
+        runner, twin = self.runner, self.twin
+        clock = time.perf_counter
+        step = twin.dt / runner.rtf
+        ahead = twin.rewindable and runner.lead > step
+        lead = runner.lead if ahead else step
+        keep = int(math.ceil(2.0 * lead / step)) + 100      # checkpoints kept, by step
+        refill = 0.2 * lead if ahead else 0.0
+        runner.prepare()
+        runner._start_clocks()
+        staged: list = []
+        runner._staging = staged
+        runner._begin()
+        runner._staging = None
+        self.wall_start = runner.wall_start = clock() + (lead - step)
+        if ahead:
+            self.cps[twin.k] = twin.checkpoint()
+        self._entry(twin.k, self.wall_start, True, staged)
+        runner._later_logs = []
+        next_diag = runner.wall_start + runner.period
+        commands, stop = self.commands, runner._stop
+        try:
+            while not twin.done and not stop.is_set():
+                if commands and twin.k >= commands[0][4]:
+                    self._command(commands.popleft(), ahead)
+                    continue
+                deadline = self.deadline(twin.k + 1)
+                if not commands:
+                    wait = deadline - lead - clock()
+                    if wait > 0.0:
+                        self.flush()
+                        if runner._later_logs:
+                            runner._flush_logs()
+                            continue
+                        wait += refill
+                        self.wake.wait(wait if wait < 0.05 else 0.05)
+                        self.wake.clear()
+                        continue
+                c0 = clock()
+                twin.step()
+                k = twin.k
+                msgs = twin.state_payloads() if (k % runner.every == 0 or twin.done) else None
+                c1 = clock()
+                runner.step_times.add(c1 - c0)
+                if c1 > deadline:
+                    runner.misses += 1
+                t_ns = to_ns(twin.t)
+                staged = [] if msgs is None else [(key, data, t_ns, False)
+                                                  for key, data in msgs]
+                runner._staging = staged
+                runner._emit_events(twin.new_events(hold=not ahead), t_ns)
+                if c1 >= next_diag:
+                    next_diag = c1 + runner.period
+                    runner._diagnostics(t_ns)
+                runner._staging = None
+                runner.messages += sum(1 for m in staged if not m[3])
+                if ahead:
+                    self.cps[k] = twin.checkpoint()
+                    self.cps.pop(k - keep, None)
+                self._entry(k, deadline, msgs is not None, staged)
+                if len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
+                    self.flush()
+        except Exception as exc:
+            runner._failed(exc)
+            raise
+        finally:
+            runner._staging = None
+            try:
+                self.flush()
+            except BrokenPipeError:
+                pass
+            runner._flush_logs()
+            runner._later_logs = None
+            staged = []
+            runner._staging = staged
+            try:
+                runner._end()
+            finally:
+                runner._staging = None
+            runner.messages += sum(1 for m in staged if not m[3])
+            self._entry(twin.k, self.deadline(twin.k), False, staged)
+            try:
+                self.flush()
+            except BrokenPipeError:
+                pass
+
+    def _command(self, cmd: tuple, ahead: bool) -> None:
+        """A command at its boundary ``k`` (the ROS process chose it, dropped the steps it had
+        beyond it, and numbered what follows ``gen``)."""
+        cid, word, source, wall, k, gen = cmd
+        runner, twin = self.runner, self.twin
+        if twin.k > k:
+            cp = self.cps.get(k)
+            if cp is not None:
+                runner.steps_recomputed += twin.k - k
+                twin.restore(cp)
+                for j in [j for j in self.cps if j > k]:
+                    del self.cps[j]
+        self.gen = gen
+        reply = None if cid is None else self._reply(cid)
+        staged: list = []
+        runner._staging = staged
+        try:
+            runner._take_commands([Command(word, source, reply, wall)], gated=True)
+        finally:
+            runner._staging = None
+        if ahead:
+            self.cps[twin.k] = twin.checkpoint()
+        self._entry(twin.k, self.deadline(twin.k), False, staged)
+        self.flush()
+
+    def _reply(self, cid: int):
+        def reply(ack):
+            self.out.frame(b"A", marshal.dumps((cid, to_json(ack))))
+        return reply
+
+
+def _set_parent_death_signal() -> None:
+    """SIGTERM to this process when the process that started it dies (Linux)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def serve(fd_in: int = 0, fd_out: int = 1) -> int:
+    """The stepping process (``python -m mps_ros.stepping``): settings, ready, go, the run,
+    its end; see the module's docstring."""
+    parent = os.getppid()
+    _set_parent_death_signal()
+    if fd_out == 1:         # the frames keep the pipe; whatever else prints goes to stderr
+        fd_out = os.dup(1)
+        os.dup2(2, 1)
+    out = FrameWriter(fd_out)
+    _widen(fd_out)
+    reader = FrameReader(fd_in)
+    frames = reader.read()
+    if not frames or frames[0][0] != b"I":
+        return 2
+    spec = json.loads(frames[0][1])
+    pending = frames[1:]
+
+    def log(level: str, text: str) -> None:
+        out.frame(b"L", marshal.dumps((level, text)))
+
+    try:
+        twin = Twin(spec["scene"], **spec["twin"])
+        runner = Runner(twin, pacing="realtime", log=log, **spec["runner"])
+        runner.prepare()
+    except Exception as exc:
+        out.frame(b"R", json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
+        return 2
+    commands: collections.deque = collections.deque()
+    wake = threading.Event()
+
+    def stop(reason: str) -> None:
+        runner.request_stop(reason)
+        wake.set()
+
+    def on_signal(signum, _frame):
+        stop(signal.Signals(signum).name)
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, on_signal)
+    if os.getppid() != parent:          # the node died before the death signal was asked for
+        stop("the node's process ended")
+    out.frame(b"R", json.dumps({"ready": True, "pid": os.getpid(),
+                                "rewindable": twin.rewindable}).encode())
+    go = threading.Event()
+    asked: dict = {}
+
+    def take(kind, payload) -> None:
+        if kind == b"C":
+            commands.append(marshal.loads(payload))
+            wake.set()
+        elif kind == b"S":
+            stop(payload.decode())
+            go.set()
+        elif kind == b"G":
+            asked.update(json.loads(payload))
+            go.set()
+
+    def listen() -> None:
+        for kind, payload in pending:
+            take(kind, payload)
+        while True:
+            got = reader.read()
+            if not got:                 # the node's end of the pipe closed
+                stop("the node's process ended")
+                go.set()
+                return
+            for kind, payload in got:
+                take(kind, payload)
+
+    threading.Thread(target=listen, name="mps-commands", daemon=True).start()
+    go.wait()
+    prio = int(asked.get("priority", 0))
+    why = ask_fifo(prio) if prio else None
+    out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio,
+                                "refused": why}).encode())
+    from .os_threads import name_thread
+
+    name_thread("mps-step")
+    error_kind = None
+    try:
+        _Ahead(runner, out, commands, wake).run()
+    except Exception as exc:
+        from mps_core import MpsError
+
+        error_kind = "simulation" if isinstance(exc, MpsError) else "error"
+    stats = runner.stats()
+    stats["structure"] = twin.sim.structure
+    out.frame(b"E", json.dumps({"stats": stats, "stop_reason": runner.stop_reason,
+                                "error": runner.error, "error_kind": error_kind},
+                               default=str).encode())
+    return 0
+
+
+# -- the ROS process's side -------------------------------------------------------------------
+class _Entry:
+    """A step (or a command's answers) from the stepping process, waiting for its deadline."""
+
+    __slots__ = ("k", "gen", "deadline", "state", "structure", "msgs")
+
+    def __init__(self, k, gen, deadline, state, structure, msgs):
+        self.k, self.gen, self.deadline = k, gen, deadline
+        self.state, self.structure, self.msgs = state, structure, msgs
+
+
+class ForwardingInbox:
+    """The node's inbox in a split run: each command is taken at once (:meth:`put`)."""
+
+    def __init__(self, stepper: "SteppingProcess"):
+        self.stepper = stepper
+
+    def put(self, cmd: Command) -> None:
+        self.stepper.command(cmd)
+
+    def wake(self) -> None:
+        pass
+
+    def __bool__(self) -> bool:
+        return False
+
+    def drain(self) -> list:
+        return []
+
+
+class SteppingProcess:
+    """The ROS process's side of a split run, with what the node needs of a
+    :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
+    ``stop_reason``, ``error``, ``commands_lost``, ``inbox``, ``sinks``).
+
+    It holds the steps the stepping process has computed ahead and releases each at its
+    deadline: to ``sink.publish_pairs`` (the ROS publishers) at once, then to the other
+    ``sinks`` (the recorder). A command is taken as it arrives: the gate (a flood, an empty or
+    overlong word) answers here, at the boundary, without disturbing the stepping; any other
+    command's boundary is chosen here (the first step whose deadline is not before its arrival,
+    among the last released and those held), the steps held beyond it are dropped, and the
+    stepping process applies it there and computes on.
+
+    ``spec``: the stepping process's settings (``scene``; ``twin``: :class:`Twin`'s keywords;
+    ``runner``: :class:`Runner`'s). ``log(level, text)``; ``gate``: the command gate;
+    ``priority``: the SCHED_FIFO priority asked for the stepping process and this process's
+    publishing thread (0: none)."""
+
+    def __init__(self, spec: dict, sink, log, gate: Gate, priority: int = 0):
+        from .cdr import string
+
+        self.spec = spec
+        self.sink = sink
+        self.sinks: list = []               # the others: the recorder
+        self.log = log
+        self.gate = gate
+        self.priority = int(priority)
+        self.inbox = ForwardingInbox(self)
+        self.stop_reason: str | None = None
+        self.error: str | None = None
+        self.error_kind: str | None = None
+        self.commands_lost = 0
+        self.commands_refused = 0
+        self.pid: int | None = None
+        self.priority_got: int | None = None
+        self.latencies = Timings()
+        self.publish_times = Timings()
+        self.messages = 0
+        self.k_released: int | None = None
+        self.structure = ""
+        self._string = string
+        self._proc: subprocess.Popen | None = None
+        self._replies: dict[int, object] = {}
+        self._next_id = 0
+        self._lock = threading.Lock()       # the held steps, the generation, the replies
+        self._out: FrameWriter | None = None
+        self._reader: FrameReader | None = None
+        self._queue: collections.deque[_Entry] = collections.deque()
+        self._released: _Entry | None = None
+        self._gen = 0
+        self._limits: dict[int, int] = {}   # an earlier generation: its last valid step
+        self._received_gen = 0              # the last generation received
+        self._held: dict[int, list] = {}    # refusals that follow a command's answers
+        self._stats: dict = {}
+        self._flood_logged = -math.inf
+        self._flood_quiet = 0
+        self._prepared = False
+        self._first: float | None = None        # the schedule's start (wall s)
+        self._last = 0.0                        # the last release (wall s)
+        self._ended = False
+        self._this_refused: str | None = None
+
+    # -- start ------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Start the stepping process and wait until it has built its twin and its kernels
+        (raises OSError with its reason where it could not); the sinks' channels."""
+        if self._prepared:
+            return
+        self._prepared = True
+        self._proc = subprocess.Popen([sys.executable, "-m", "mps_ros.stepping"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      bufsize=0)
+        self._out = FrameWriter(self._proc.stdin.fileno())
+        _widen(self._proc.stdin.fileno())
+        self._reader = FrameReader(self._proc.stdout.fileno())
+        self._out.frame(b"I", json.dumps(self.spec).encode())
+        keys = [t.key for t in BY_KEY.values()
+                if not t.output or t.output in self.spec["twin"]["outputs"]]
+        for s in self.sinks:
+            if hasattr(s, "prepare"):
+                s.prepare(keys)
+        while True:
+            got = self._reader.read()
+            if not got:
+                self._proc.wait(10)
+                raise OSError(f"the stepping process ended before it was ready "
+                              f"({_exit_words(self._proc.returncode)})")
+            for kind, payload in got:
+                if kind == b"L":
+                    self.log(*marshal.loads(payload))
+                elif kind == b"R":
+                    reply = json.loads(payload)
+                    if not reply.get("ready"):
+                        self._proc.wait(10)
+                        raise OSError(reply.get("error", "the stepping process failed"))
+                    self.pid = reply["pid"]
+                    return
+
+    # -- commands and stops (any thread) ------------------------------------------------------
+    def command(self, cmd: Command) -> None:
+        word = cmd.word if isinstance(cmd.word, str) else str(cmd.word)
+        with self._lock:
+            refusal = "the run has ended" if self._ended else self.gate.check(word)
+            at = self._boundary(cmd.wall)
+            if refusal is not None or at is None:
+                self._refuse(cmd, word, refusal or "the run has not started", at)
+                return
+            cid = None
+            if cmd.reply is not None:
+                cid = self._next_id
+                self._next_id += 1
+                self._replies[cid] = cmd.reply
+            queue = self._queue
+            while queue and queue[-1] is not at:
+                queue.pop()
+            self._limits[self._gen] = at.k
+            self._gen += 1
+            self._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, at.k,
+                                                 self._gen)))
+
+    def _boundary(self, wall: float) -> _Entry | None:
+        """The entry a command that arrived at ``wall`` follows (the lock held): the last
+        entry of the first step whose deadline is not before ``wall``, among the last released
+        and those held; the last of them where none is that late yet."""
+        held = self._queue
+        first = self._released
+        if first is None and not held:
+            return None
+        entries = ([first] if first is not None else []) + list(held)
+        d = next((e.deadline for e in entries if e.deadline >= wall), None)
+        if d is None:
+            return entries[-1]
+        return [e for e in entries if e.deadline <= d][-1]
+
+    def _refuse(self, cmd: Command, word: str, reason: str, at: _Entry | None) -> None:
+        """A command the gate refused, answered at its boundary: its messages go out (and are
+        recorded) right after that step's; the stepping is not disturbed."""
+        from .twin import shown
+
+        self.commands_refused += 1
+        k = at.k if at is not None else 0
+        t = self._time_of(k)
+        structure = at.structure if at is not None else ""
+        ack = {"t": t, "command": shown(word, 64), "accepted": False, "reason": reason,
+               "source": cmd.source, "structure": structure}
+        t_ns = to_ns(t)
+        msgs = [("~/mode", self._string({"data": word}), t_ns, True),
+                ("~/mode/status", self._string({"data": to_json(ack)}), t_ns, False)]
+        entry = _Entry(k, self._gen, at.deadline if at is not None else 0.0, False,
+                       structure, msgs)
+        queue = self._queue
+        if self._gen > self._received_gen:
+            # a command sent on is being applied: this answer follows that one's
+            self._held.setdefault(self._gen, []).append(entry)
+        else:
+            i = next((n for n, e in enumerate(queue) if e is at), -1)
+            queue.insert(i + 1, entry)
+        flood = reason.startswith("flood")
+        if flood and cmd.wall - self._flood_logged < 1.0:
+            self._flood_quiet += 1          # a flood is logged once a second, with its count
+        else:
+            more = (f" ({self._flood_quiet} more refused as a flood before this)"
+                    if self._flood_quiet else "")
+            self.log("warn", f"refused command {shown(word)!r} ({cmd.source}) at "
+                             f"t = {t:.6f} s: {reason}{more}")
+            self._flood_quiet = 0
+            if flood:
+                self._flood_logged = cmd.wall
+        if cmd.reply is not None:
+            try:
+                cmd.reply(ack)
+            except Exception:
+                pass
+
+    def _time_of(self, k: int) -> float:
+        tw = self.spec.get("grid")
+        if tw is None:
+            return math.nan
+        t0, t_end, n = tw
+        return t_end if k == n else t0 + k * (t_end - t0) / n
+
+    def request_stop(self, reason: str) -> None:
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        if self._out is not None:
+            self._out.frame(b"S", reason.encode())
+
+    # -- the run ----------------------------------------------------------------------------
+    def run(self) -> dict:
+        """Go; release each step at its deadline until the stepping process's end (or its
+        death: :attr:`error` says so)."""
+        self.prepare()
+        import gc
+
+        from .os_threads import name_thread, short_slice
+
+        if self.priority:
+            self._this_refused = ask_fifo(self.priority)
+        if not self.priority or self._this_refused:
+            # under the fair scheduler: a short slice, so that this thread, woken at each
+            # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
+            ask = self.spec["runner"].get("release_slice", 1e-4)
+            if ask:
+                short_slice(ask)
+        name_thread("mps-publish")
+        # what the node made so far (rclpy, the publishers, the scene) out of the collector's
+        # passes: a full collection during the run scans only what the run made since
+        gc.collect()
+        gc.freeze()
+        self._out.frame(b"G", json.dumps({"priority": self.priority}).encode())
+        cpu0 = time.process_time()
+        clock = time.perf_counter
+        fd = self._reader.fd
+        queue, lock = self._queue, self._lock
+        end = None
+        eof = False
+        import select
+
+        while True:
+            # a run stopped early lets go of what it holds at once
+            flush = end is not None and (end.get("stop_reason") or end.get("error"))
+            now = clock()
+            while True:             # every held step whose deadline has passed
+                with lock:
+                    if not queue or (queue[0].deadline > now and not flush):
+                        break
+                    head = self._released = queue.popleft()
+                self._release(head, clock)
+            if (end is not None or eof) and not queue:
+                break
+            if eof:
+                if queue:
+                    wait = queue[0].deadline - clock()
+                    if wait > 0:
+                        time.sleep(min(wait, 0.05))
+                continue
+            wait = (queue[0].deadline - clock()) if queue else 0.5
+            # the next deadline, or what the stepping process sends, whichever comes first
+            if not select.select([fd], [], [], wait if wait > 0.0 else 0.0)[0]:
+                continue
+            got = self._reader.read()
+            if not got:
+                eof = True
+                continue
+            for kind, payload in got:
+                if kind == b"M":
+                    k, gen, deadline, state, structure, msgs = marshal.loads(payload)
+                    with lock:
+                        if gen == self._gen or k <= self._limits.get(gen, -1):
+                            queue.append(_Entry(k, gen, deadline, state, structure, msgs))
+                            if gen > self._received_gen:    # a command's answers
+                                self._received_gen = gen
+                                queue.extend(self._held.pop(gen, ()))
+                elif kind == b"A":
+                    cid, ack = marshal.loads(payload)
+                    with lock:
+                        reply = self._replies.pop(cid, None)
+                    if reply is not None:
+                        try:
+                            reply(json.loads(ack))
+                        except Exception:   # a reply must never take the run down
+                            pass
+                elif kind == b"L":
+                    self.log(*marshal.loads(payload))
+                elif kind == b"P":
+                    self._priority_said(json.loads(payload))
+                elif kind == b"E":
+                    end = json.loads(payload)
+                    with lock:
+                        self._ended = True
+        with lock:
+            self._ended = True
+        self.ros_cpu = time.process_time() - cpu0
+        for s in self.sinks:
+            s.tick(None)
+        return self._finish(end)
+
+    def _release(self, head: _Entry, clock) -> None:
+        msgs = head.msgs
+        pairs = [(key, data) for key, data, _t, received in msgs if not received]
+        p0 = clock()
+        if pairs:
+            self.sink.publish_pairs(pairs)
+        p1 = clock()
+        if self._first is None:
+            self._first = head.deadline
+        self._last = p1
+        self.messages += len(pairs)
+        self.k_released, self.structure = head.k, head.structure
+        if head.state:
+            self.publish_times.add(p1 - p0)
+            late = p1 - head.deadline
+            self.latencies.add(late if late > 0.0 else 0.0)
+        for s in self.sinks:
+            try:
+                s.emit_all(msgs)
+                s.tick(head.deadline)
+            except Exception as exc:    # the recording failed: say so once, step on
+                if not getattr(s, "failed", False):
+                    s.failed = True
+                    self.log("error", f"recording failed at step {head.k}: "
+                                      f"{type(exc).__name__}: {exc}")
+        self.sinks = [s for s in self.sinks if not getattr(s, "failed", False)]
+
+    def _priority_said(self, got: dict) -> None:
+        prio = self.priority
+        if not prio:
+            return
+        why = got.get("refused") or self._this_refused
+        if why is None:
+            self.priority_got = prio
+            self.log("info", f"stepping process and publishing thread: SCHED_FIFO, priority "
+                             f"{prio}")
+        else:
+            self.priority_got = 0
+            self.log("warn", f"realtime_priority {prio}: SCHED_FIFO refused here ({why}); "
+                             f"stepping at normal priority; {HOW_TO_ALLOW}")
+
+    def _finish(self, end: dict | None) -> dict:
+        proc = self._proc
+        if self._flood_quiet:
+            self.log("warn", f"{self._flood_quiet} more refused as a flood, not logged one by "
+                             "one")
+            self._flood_quiet = 0
+        if end is None:                 # the stepping process died
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+            self.error = (f"the stepping process (pid {proc.pid}) ended without finishing "
+                          f"the run ({_exit_words(proc.returncode)})")
+            self.error_kind = "died"
+            self.stop_reason = "error"
+            k = self.k_released or 0
+            self._stats = {"steps": k, "t": self._time_of(k)}
+        else:
+            proc.wait(30)
+            self._stats = end["stats"]
+            self.stop_reason = end.get("stop_reason") or self.stop_reason
+            self.error = end.get("error")
+            self.error_kind = end.get("error_kind")
+        with self._lock:
+            replies, self._replies = self._replies, {}
+        for reply in replies.values():
+            try:
+                reply({"t": math.nan, "command": "", "accepted": False,
+                       "reason": "the run has ended", "source": "service", "structure": ""})
+            except Exception:
+                pass
+        return self.stats()
+
+    def stats(self) -> dict:
+        """The stepping process's statistics, with this process's publication figures (the
+        latency is measured here, after each step's publishes) and the CPU of both."""
+        s = dict(self._stats)
+        steps = max(1, int(s.get("steps", 0) or 0))
+        if self.latencies.n:
+            s["latency_p50_ms"] = self.latencies.percentile(50) * 1e3
+            s["latency_p99_ms"] = self.latencies.percentile(99) * 1e3
+            s["publish_time_p50_ms"] = self.publish_times.percentile(50) * 1e3
+            s["publish_time_p99_ms"] = self.publish_times.percentile(99) * 1e3
+        ros = getattr(self, "ros_cpu", None)
+        step_cpu = s.get("cpu_time")
+        if ros is not None and step_cpu is not None:
+            s["stepping_process_cpu_per_step_us"] = step_cpu / steps * 1e6
+            s["ros_process_cpu_per_step_us"] = ros / steps * 1e6
+            s["process_cpu_per_step_us"] = (step_cpu + ros) / steps * 1e6
+        s["messages"] = self.messages
+        if self._first is not None and "sim_time" in s and self._last > self._first:
+            # from the schedule's start to the last release (the steps were computed ahead)
+            s["wall_time"] = self._last - self._first
+            s["real_time_factor"] = s["sim_time"] / s["wall_time"]
+        s["commands_lost"] = self.commands_lost
+        s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused
+        s["realtime_priority"] = self.priority_got or 0
+        for k in ("step_time_p50_ms", "step_time_p99_ms", "publish_time_p50_ms",
+                  "publish_time_p99_ms", "real_time_factor", "deadline_misses",
+                  "step_thread_cpu_per_step_us", "process_cpu_per_step_us",
+                  "commands_accepted", "steps"):
+            s.setdefault(k, 0 if k in ("deadline_misses", "steps", "commands_accepted")
+                         else math.nan)
+        return s
+
+    def close(self) -> None:
+        """End the stepping process if it is still there (the node is going away)."""
+        proc = self._proc
+        if proc is None:
+            return
+        if proc.poll() is None:
+            self.request_stop("the node is shutting down")
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+        for f in (proc.stdin, proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+
+def _exit_words(code: int | None) -> str:
+    if code is None:
+        return "still running"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
+
+
+if __name__ == "__main__":
+    sys.exit(serve())

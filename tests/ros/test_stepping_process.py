@@ -1,0 +1,159 @@
+"""The live node's stepping process (mps_ros.stepping): its frames, a SIGKILL of it mid-run (the
+node ends with one line naming it, nonzero; the recording is finished and reads back; no
+process is left), and the real-time scheduling it asks for by default (granted, or one warning
+where the system refuses it, and the run goes on)."""
+
+from __future__ import annotations
+
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("rosbags")
+
+from mps_ros.stepping import FrameReader, FrameWriter  # noqa: E402
+from twin_probe import Listener, NodeProcess, ns  # noqa: E402
+
+DT = 1e-3
+
+
+def test_frames_cross_a_pipe_whole_and_in_order():
+    r, w = os.pipe()
+    out, back = FrameWriter(w), FrameReader(r)
+    sent = [(b"M", os.urandom(n)) for n in (0, 1, 5, 70_000, 3)]
+
+    def write():
+        for kind, payload in sent:
+            out.frame(kind, payload)
+        os.close(w)
+
+    t = threading.Thread(target=write)
+    t.start()
+    got = []
+    while True:
+        frames = back.read()
+        if not frames:
+            break
+        got += frames
+    t.join()
+    os.close(r)
+    assert got == sent
+
+
+def _kids(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out += [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    rec = tmp_path / "cut.mcap"
+    params = dict(pacing="realtime", dt=DT, t_end=30.0, recording=str(rec),
+                  recording_flush_period=0.2, wait_for_subscribers=1, wait_timeout=30.0,
+                  outputs="[joint_states, clock, events]")
+    lis = Listener(keys=["joint_states", "/clock", "~/events"])
+    try:
+        with NodeProcess(tmp_path, params, name="killed") as node:
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.5, 60, "/clock >= 0.5 s")
+            stepper = [k for k in _kids(node.pid) if "mps_ros.stepping" in _cmdline(k)]
+            assert len(stepper) == 1, _kids(node.pid)
+            os.kill(stepper[0], signal.SIGKILL)
+            t_kill = lis.clock()
+            rc = node.wait(60)
+            log = node.log()
+            # no process of the node's is left: its group is empty once it has exited
+            end = time.monotonic() + 30
+            while time.monotonic() < end:
+                try:
+                    os.killpg(node.pid, 0)
+                except ProcessLookupError:
+                    break
+                time.sleep(0.05)
+            with pytest.raises(ProcessLookupError):
+                os.killpg(node.pid, 0)
+        got = lis.get("joint_states")
+    finally:
+        lis.close()
+    assert rc != 0, log
+    lines = [ln for ln in log.splitlines() if "stepping process" in ln and "killed" in ln]
+    assert len(lines) == 1, log
+    assert f"pid {stepper[0]}" in lines[0] and "SIGKILL" in lines[0]
+    assert "Traceback" not in log
+    # the recording process finished the file: it reads back without recovery, in order, up
+    # to a step near the kill, and what it holds is what the subscriber received
+    with AnyReader([rec]) as r:
+        conn = [c for c in r.connections if c.topic == "/joint_states"]
+        stamps = [t for _, t, _ in r.messages(connections=conn)]
+    assert stamps == sorted(stamps) and len(stamps) >= 400
+    assert stamps[-1] * 1e-9 >= t_kill - 0.3
+    received = {ns(m.header.stamp) for m in got}
+    assert {s for s in stamps if s <= max(received)} <= received
+
+
+def _refusing_prefix() -> list[str] | None:
+    """A command prefix under which SCHED_FIFO is refused: as root, without CAP_SYS_NICE in
+    the bounding set (setpriv); as another user, none where the rtprio limit is already 0."""
+    if os.geteuid() != 0 and resource.getrlimit(resource.RLIMIT_RTPRIO)[0] == 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        return None
+    probe = subprocess.run([setpriv, "--bounding-set=-sys_nice", "python3", "-c",
+                            "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
+                            "os.sched_param(10))"], capture_output=True)
+    return [setpriv, "--bounding-set=-sys_nice"] if probe.returncode != 0 else None
+
+
+def test_fifo_is_asked_for_by_default_and_a_refusal_is_one_warning(tmp_path):
+    prefix = _refusing_prefix()
+    if prefix is None:
+        pytest.skip("no way here to run a process that the system refuses SCHED_FIFO")
+    params = dict(pacing="realtime", dt=DT, t_end=0.05, recording="none")
+    node = NodeProcess(tmp_path, params, name="refused")
+    node.cmd = [*prefix, *node.cmd]
+    with node:
+        rc = node.wait(60)
+        log = node.log()
+    assert rc == 0, log
+    warnings = [ln for ln in log.splitlines() if "SCHED_FIFO refused" in ln]
+    assert len(warnings) == 1, log
+    assert "realtime_priority 40" in warnings[0] and "rtprio" in warnings[0]
+    assert "realtime priority 0" in log and "run ended at t = 0.05 s" in log
+
+
+def test_fifo_where_the_system_allows_it(tmp_path):
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+    except OSError:
+        pytest.skip("SCHED_FIFO is not allowed here")
+    finally:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    params = dict(pacing="realtime", dt=DT, t_end=0.05, recording="none",
+                  realtime_priority=10)
+    with NodeProcess(tmp_path, params, name="fifo") as node:
+        rc = node.wait(60)
+        log = node.log()
+    assert rc == 0, log
+    assert "stepping process and publishing thread: SCHED_FIFO, priority 10" in log
+    assert "realtime priority 10" in log
