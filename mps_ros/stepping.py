@@ -1,43 +1,49 @@
 """The live node's stepping process: the twin stepped in an interpreter of its own.
 
 In realtime pacing the node (:mod:`mps_ros.node`) does not step the twin itself. It starts
-``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and runs the
-same :class:`~mps_ros.twin.Runner` (steps computed ahead, checkpoints, commands at their
-boundary, the recorder fed with what was released), and whose releasing thread, at each
-step's deadline, writes the step's messages, already encoded, down a pipe instead of
-publishing them. The node's process reads them and publishes each at once: its interpreter is
-not shared with the stepping, so a step being computed (or a stepping thread preempted by
-another process while it holds its interpreter's lock) never holds a publication back, and the
-eleven publishes of a step never hold a step back.
+``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and uses the
+same :class:`~mps_ros.twin.Runner`'s parts (the run's start and end messages, events,
+diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
+keeps a checkpoint of each, and writes each step's messages, already encoded, down a pipe. The
+node's process holds them and publishes each at its deadline, then hands it to the recorder: its
+interpreter is not shared with the stepping, so a step being computed (or a stepping thread that
+another process preempts while it holds its interpreter's lock) never holds a publication back,
+and a step's eleven publishes never hold a step back.
 
 ::
 
-    ROS process (mps_ros.node)                  stepping process (python -m mps_ros.stepping)
-      executor thread: ~/mode, services ── C ──▶  commands, with their arrival (wall) time
-      main thread: publish each released   ◀── M ──  releasing thread, at each deadline
-                   step, answer services   ◀── A, L, E ── answers, log lines, the run's end
-                                                    │ released steps
-                                                    ▼
-                                                  recording process (python -m mps_ros.recording)
+    ROS process (mps_ros.node)                     stepping process (python -m mps_ros.stepping)
+      executor thread: ~/mode, services: gate,  ── C ──▶  a command at its boundary, numbered
+        boundary, refusals answered here
+      main thread: holds the steps, publishes   ◀── M ──  each step computed ahead, encoded
+        each at its deadline, then records it   ◀── A, L, P, E ── answers, log lines, the end
+        │
+        ▼ recording process (python -m mps_ros.recording)
 
-The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both processes: a command
-keeps the time it arrived in the ROS process and is applied at the first step boundary whose
-deadline is not before it, as in one process. What the node publishes is what the recorder
-writes, byte for byte: the same bytes go both ways.
+**Commands.** The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both
+processes. A command that arrives at wall time w is taken in the ROS process at once: the gate
+(a flood, an empty or overlong word) answers it there, at its boundary, and the stepping is not
+disturbed; any other's boundary is the first step whose deadline is not before w, among the
+last released and those held. The steps held beyond it are dropped, the steps that follow are
+numbered with a new *generation*, and the command goes to the stepping process with its
+boundary and generation: that process comes back to the boundary's checkpoint (or steps on to
+it), applies the command there and computes on. Whatever it had sent of the old generation
+beyond the boundary is dropped on arrival. So the run is the one that stepped in time, as in
+one process, and what the node publishes is what it records, byte for byte, in the same order.
 
 **Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
 stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
-command (marshal: id or None, word, source, wall), ``S`` stop (the reason, UTF-8). From it:
-``R`` ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a released step
-(marshal: deadline, whether it holds the step's state, its (key, CDR bytes) pairs), ``A`` a
-command's answer (marshal: id, JSON), ``L`` a log line (marshal: level, text), ``E`` the run's
-end (JSON: statistics, stop reason, error, the recording's count).
+command (marshal: reply id or None, word, source, wall, boundary step, generation), ``S`` stop
+(the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
+(JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
+holds the step's state, the structure, its (key, CDR bytes, t_ns, received) messages), ``A`` a
+command's answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text),
+``E`` the run's end (JSON: statistics, stop reason, error).
 
-**Faults.** The stepping process asks the system to send it SIGTERM when the node's process
-dies (``PR_SET_PDEATHSIG``) and stops as on a stop frame when its pipe closes: it finishes the
-recording either way. Where the stepping process dies (a SIGKILL), the node reads the end of its
-pipe, says so in one line and exits nonzero; the recording process, whose pipe closed with it,
-finishes the file up to the last step handed over, and the node waits for it to be done.
+**Faults.** The stepping process asks the system for SIGTERM when the node's process dies
+(``PR_SET_PDEATHSIG``) and stops as on a stop frame when its pipe closes. Where the stepping
+process dies (a SIGKILL), the node reads the end of its pipe, releases what it holds at its
+deadlines, says so in one line, finishes the recording and exits nonzero.
 """
 
 from __future__ import annotations
