@@ -132,17 +132,25 @@ class RosSink:
         self.pubs = publishers     # key -> publisher
         self._raw: dict = {}       # key -> the publisher's own publish_raw
 
+    def _publisher(self, key):
+        """The publisher's own ``publish_raw`` for ``key`` (what ``Publisher.publish`` calls
+        for bytes, without its checks: the run's publishers outlive its releases); None
+        where the key is not published."""
+        f = self._raw.get(key)
+        if f is None:
+            p = self.pubs.get(key)
+            if p is None:
+                return None
+            f = self._raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
+                                         None) or p.publish
+        return f
+
     def publish_pairs(self, pairs) -> None:
         """A released step's messages from the stepping process: (key, CDR bytes) each."""
-        raw = self._raw
         for key, data in pairs:
-            f = raw.get(key)
+            f = self._publisher(key)
             if f is None:
-                p = self.pubs.get(key)
-                if p is None:
-                    continue
-                f = raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
-                                       None) or p.publish
+                continue
             try:
                 f(data)
             except Exception:       # a publisher destroyed at shutdown: nothing to send to
@@ -161,21 +169,7 @@ class RosSink:
         commands as received are not published again). Each goes straight to its publisher's
         ``publish_raw`` (what ``Publisher.publish`` calls for bytes, without its checks: the
         run's publishers live until the releasing thread has ended)."""
-        raw = self._raw
-        for key, data, _t, received in msgs:
-            if received:
-                continue
-            f = raw.get(key)
-            if f is None:
-                p = self.pubs.get(key)
-                if p is None:
-                    continue
-                f = raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
-                                       None) or p.publish
-            try:
-                f(data)
-            except Exception:       # a publisher destroyed at shutdown: nothing to send to
-                pass
+        self.publish_pairs([(key, data) for key, data, _t, received in msgs if not received])
 
     def tick(self, deadline: float | None = None):
         pass

@@ -61,7 +61,7 @@ import threading
 import time
 
 from .topics import BY_KEY
-from .twin import Command, Gate, Runner, Timings, Twin, to_json, to_ns
+from .twin import Command, Gate, RefusalLog, Runner, Timings, Twin, shown, to_json, to_ns
 
 _HEAD = struct.Struct("<cI")
 
@@ -493,8 +493,7 @@ class SteppingProcess:
         self._received_gen = 0              # the last generation received
         self._held: dict[int, list] = {}    # refusals that follow a command's answers
         self._stats: dict = {}
-        self._flood_logged = -math.inf
-        self._flood_quiet = 0
+        self._refusals = RefusalLog(log)
         self._prepared = False
         self._first: float | None = None        # the schedule's start (wall s)
         self._last = 0.0                        # the last release (wall s)
@@ -576,8 +575,6 @@ class SteppingProcess:
     def _refuse(self, cmd: Command, word: str, reason: str, at: _Entry | None) -> None:
         """A command the gate refused, answered at its boundary: its messages go out (and are
         recorded) right after that step's; the stepping is not disturbed."""
-        from .twin import shown
-
         self.commands_refused += 1
         k = at.k if at is not None else 0
         t = self._time_of(k)
@@ -596,17 +593,7 @@ class SteppingProcess:
         else:
             i = next((n for n, e in enumerate(queue) if e is at), -1)
             queue.insert(i + 1, entry)
-        flood = reason.startswith("flood")
-        if flood and cmd.wall - self._flood_logged < 1.0:
-            self._flood_quiet += 1          # a flood is logged once a second, with its count
-        else:
-            more = (f" ({self._flood_quiet} more refused as a flood before this)"
-                    if self._flood_quiet else "")
-            self.log("warn", f"refused command {shown(word)!r} ({cmd.source}) at "
-                             f"t = {t:.6f} s: {reason}{more}")
-            self._flood_quiet = 0
-            if flood:
-                self._flood_logged = cmd.wall
+        self._refusals.refused(word, cmd.source, t, reason, cmd.wall)
         if cmd.reply is not None:
             try:
                 cmd.reply(ack)
@@ -759,10 +746,7 @@ class SteppingProcess:
 
     def _finish(self, end: dict | None) -> dict:
         proc = self._proc
-        if self._flood_quiet:
-            self.log("warn", f"{self._flood_quiet} more refused as a flood, not logged one by "
-                             "one")
-            self._flood_quiet = 0
+        self._refusals.close()
         if end is None:                 # the stepping process died
             try:
                 proc.wait(10)

@@ -465,6 +465,34 @@ def shown(word: str, n: int = 40) -> str:
     return word if len(word) <= n else word[:n] + f"...({len(word)} characters)"
 
 
+class RefusalLog:
+    """The log lines of refused commands: one each, but a flood's once a second with the count
+    of those refused since (``say(level, text)`` writes a line)."""
+
+    def __init__(self, say: Callable[[str, str], None]):
+        self.say = say
+        self.logged = -math.inf         # when a flood's refusal was last logged (wall s)
+        self.quiet = 0                  # refused as a flood since, not logged
+
+    def refused(self, word: str, source: str, t: float, reason, wall: float) -> None:
+        flood = str(reason).startswith("flood")
+        if flood and wall - self.logged < 1.0:
+            self.quiet += 1
+            return
+        more = f" ({self.quiet} more refused as a flood before this)" if self.quiet else ""
+        self.say("warn", f"refused command {shown(word)!r} ({source}) at t = {t:.6f} s: "
+                         f"{reason}{more}")
+        self.quiet = 0
+        if flood:
+            self.logged = wall
+
+    def close(self) -> None:
+        """The count of a flood's refusals not logged yet, if any."""
+        if self.quiet:
+            self.say("warn", f"{self.quiet} more refused as a flood, not logged one by one")
+            self.quiet = 0
+
+
 # -- the run --------------------------------------------------------------------------------
 class _Release:
     """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
@@ -598,8 +626,7 @@ class Runner:
         #: realtime with steps banked: the commands' log lines, written when the lead is full
         #: (a line through rclpy's logger costs about 0.6 ms: not in the steps after a command)
         self._later_logs: list | None = None
-        self._flood_logged = -math.inf          # when a flood's refusal was last logged
-        self._flood_quiet = 0                   # refused as a flood since, not logged
+        self._refusals = RefusalLog(lambda level, text: self._say(level, text))
         self.thread_cpu_start = time.thread_time()
         self.thread_cpu: float | None = None
 
@@ -719,17 +746,7 @@ class Runner:
             self._say("info", f"command {word.strip()!r} ({c.source}) applied at t = {t:.6f} s")
         else:
             self.commands_refused += 1
-            flood = c.wall - self._flood_logged < 1.0 and str(reason).startswith("flood")
-            if flood:                   # a flood is logged once a second, with its count
-                self._flood_quiet += 1
-            else:
-                more = (f" ({self._flood_quiet} more refused as a flood before this)"
-                        if self._flood_quiet else "")
-                self._say("warn", f"refused command {shown(word)!r} ({c.source}) at "
-                                  f"t = {t:.6f} s: {reason}{more}")
-                self._flood_quiet = 0
-                if str(reason).startswith("flood"):
-                    self._flood_logged = c.wall
+            self._refusals.refused(word, c.source, t, reason, c.wall)
         self._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
         if c.reply is not None:
             try:
@@ -863,10 +880,7 @@ class Runner:
         self.thread_cpu = time.thread_time() - self.thread_cpu_start
         reason = self.stop_reason or "end"
         t_ns = to_ns(twin.t)
-        if self._flood_quiet:
-            self.log("warn", f"{self._flood_quiet} more refused as a flood, not logged one by "
-                             "one")
-            self._flood_quiet = 0
+        self._refusals.close()
         end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
         if self.error:
             end["error"] = self.error

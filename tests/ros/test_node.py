@@ -460,6 +460,9 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             r = lis.call("stop")
             assert not r.success and "the motor is already off" in r.message
             assert lis.call("start").success
+            # its answer on ~/mode/status goes out at its step's deadline, after the reply
+            lis.wait_for(lambda: lis.acks() and lis.acks()[-1]["command"] == "start", 10,
+                         "start's answer on ~/mode/status")
             # a flood: 40 at once; a few pass the gate (and are refused on their merits)
             n0 = len(lis.acks())
             for _ in range(40):

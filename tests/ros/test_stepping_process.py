@@ -11,14 +11,13 @@ import shutil
 import signal
 import subprocess
 import threading
-import time
-from pathlib import Path
 
 import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
+from mps_ros.bench import _children as _kids, _cmdline  # noqa: E402
 from mps_ros.stepping import FrameReader, FrameWriter  # noqa: E402
 from twin_probe import Listener, NodeProcess, ns  # noqa: E402
 
@@ -48,23 +47,6 @@ def test_frames_cross_a_pipe_whole_and_in_order():
     assert got == sent
 
 
-def _kids(pid: int) -> list[int]:
-    out = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            out += [int(c) for c in (task / "children").read_text().split()]
-        except (OSError, ValueError):
-            pass
-    return out
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
-
-
 def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
     from rosbags.highlevel import AnyReader
 
@@ -83,15 +65,14 @@ def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
             rc = node.wait(60)
             log = node.log()
             # no process of the node's is left: its group is empty once it has exited
-            end = time.monotonic() + 30
-            while time.monotonic() < end:
+            def group_gone():
                 try:
                     os.killpg(node.pid, 0)
                 except ProcessLookupError:
-                    break
-                time.sleep(0.05)
-            with pytest.raises(ProcessLookupError):
-                os.killpg(node.pid, 0)
+                    return True
+                return False
+
+            lis.wait_for(group_gone, 30, "the node's process group to be gone", poll=0.02)
         got = lis.get("joint_states")
     finally:
         lis.close()
