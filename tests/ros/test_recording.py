@@ -181,10 +181,15 @@ def test_mps_record_finishes_the_file_on_sigint(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             start_new_session=True)
     try:
-        end = time.monotonic() + 30
+        # the header first, then a chunk of steps (written within a second of stepping):
+        # the run is under way once the file has grown past its header
+        end = time.monotonic() + 60
         while time.monotonic() < end and (not out.exists() or out.stat().st_size < 1000):
             time.sleep(0.05)
-        time.sleep(0.5)
+        head = out.stat().st_size
+        while time.monotonic() < end and out.stat().st_size == head:
+            time.sleep(0.05)
+        assert out.stat().st_size > head, "no chunk of steps written within 60 s"
         proc.send_signal(signal.SIGINT)
         assert proc.wait(20) == 0
     finally:
