@@ -49,9 +49,12 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
                             simulated second at most, never more often than the steps (30.0)
 ``markers_scale``           their arrows: newtons a metre of arrow (2e6; in the arrows' namespace)
 ``lead``                    realtime: steps are computed up to this many wall seconds ahead of
-                            their deadlines and released at them (0.05, at most 1); a command
-                            still takes effect at the first step boundary after it arrives (the
-                            twin comes back to it). 0: one step's period, none banked
+                            their deadlines and released at them (0.1, at most 1). 0: one
+                            step's period, none banked
+``command_delay``           realtime, steps banked: a command takes effect at the first step
+                            boundary at least this many wall seconds after it arrives (0.05,
+                            at most 1; the twin comes back to that step): time to redo the
+                            steps after it, whose first cost more. 0: the next boundary
 ``release_period``          realtime: the publishing thread wakes about once per this many wall
                             seconds and sends every step whose deadline has passed: a step goes
                             out at most this less one step's period after its deadline. 0
@@ -236,6 +239,7 @@ class PressTwin(Node):
             return
         self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
                              real_time_factor=p["real_time_factor"], lead=p["lead"],
+                             command_delay=p["command_delay"],
                              release_period=p["release_period"],
                              release_slice=p["release_slice"], freeze_gc=True,
                              publish_every=p["publish_every"],
@@ -250,6 +254,7 @@ class PressTwin(Node):
                     scene_commands=p["scene_commands"], markers_hz=p["markers_hz"],
                     markers_scale=p["markers_scale"], derivatives=p["derivatives"] or None)
         runner = dict(real_time_factor=p["real_time_factor"], lead=p["lead"],
+                      command_delay=p["command_delay"],
                       release_period=p["release_period"], release_slice=p["release_slice"],
                       freeze_gc=True, publish_every=p["publish_every"],
                       diagnostics_period=p["diagnostics_period"],
@@ -270,7 +275,8 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 40, "lead": 0.05, "release_period": 0.0, "release_slice": 1e-4,
+        "realtime_priority": 40, "lead": 0.1, "command_delay": 0.05,
+        "release_period": 0.0, "release_slice": 1e-4,
         "markers_hz": 30.0, "markers_scale": 2e6, "stepping_process": True,
     }
 
@@ -342,12 +348,16 @@ class PressTwin(Node):
         out["diagnostics_period"] = number("diagnostics_period", strict=True)
         out["realtime_priority"] = integer("realtime_priority", 0)
         out["lead"] = number("lead")
+        out["command_delay"] = number("command_delay")
         out["release_period"] = number("release_period")
         out["release_slice"] = number("release_slice")
         out["markers_hz"] = number("markers_hz", strict=True)
         out["markers_scale"] = number("markers_scale", strict=True)
         if out["lead"] > 1.0:
             raise ParameterError(f"parameter lead: {out['lead']!r} must be from 0 to 1 s")
+        if out["command_delay"] > 1.0:
+            raise ParameterError(f"parameter command_delay: {out['command_delay']!r} must be "
+                                 "from 0 to 1 s")
         if out["release_slice"] and not 1e-4 <= out["release_slice"] <= 0.1:
             raise ParameterError(f"parameter release_slice: {out['release_slice']!r} must be 0 "
                                  "(the system's) or from 0.0001 to 0.1 s")

@@ -22,9 +22,11 @@ and a step's eleven publishes never hold a step back.
 
 **Commands.** The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both
 processes. A command that arrives at wall time w is taken in the ROS process at once: the gate
-(a flood, an empty or overlong word) answers it there, at its boundary, and the stepping is not
-disturbed; any other's boundary is the first step whose deadline is not before w, among the
-last released and those held. The steps held beyond it are dropped, the steps that follow are
+(a flood, an empty, overlong or unknown word) answers it there, at the boundary of w, and the
+stepping is not disturbed; any other's boundary is the first step whose deadline is not before
+w + ``command_delay``, among the last released and those held (the delay leaves the stepping
+process time to redo the steps after it, whose first cost more: the command's events, charts
+met for the first time). The steps held beyond it are dropped, the steps that follow are
 numbered with a new *generation*, and the command goes to the stepping process with its
 boundary and generation: that process comes back to the boundary's checkpoint (or steps on to
 it), applies the command there and computes on. Whatever it had sent of the old generation
@@ -150,6 +152,29 @@ def ask_fifo(priority: int) -> str | None:
     except (AttributeError, OSError) as exc:
         return f"{type(exc).__name__}: {exc}"
     return None
+
+
+def fifo_for_the_others(priority: int) -> int:
+    """Put every other thread of this process (rclpy's executor, the middleware's: receiving,
+    events, sending) under SCHED_FIFO at ``priority``; how many took it. One of them holding a
+    lock that a real-time thread waits for (the interpreter's, a writer's) is then not kept
+    off the processor by ordinary processes for a scheduler slice (milliseconds); they sleep
+    but for their short work."""
+    me = threading.get_native_id()
+    done = 0
+    try:
+        tids = [int(n) for n in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    for tid in tids:
+        if tid == me:
+            continue
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            done += 1
+        except (AttributeError, OSError):
+            pass
+    return done
 
 
 # -- the stepping process's side --------------------------------------------------------------
@@ -446,11 +471,12 @@ class SteppingProcess:
 
     It holds the steps the stepping process has computed ahead and releases each at its
     deadline: to ``sink.publish_pairs`` (the ROS publishers) at once, then to the other
-    ``sinks`` (the recorder). A command is taken as it arrives: the gate (a flood, an empty or
-    overlong word) answers here, at the boundary, without disturbing the stepping; any other
-    command's boundary is chosen here (the first step whose deadline is not before its arrival,
-    among the last released and those held), the steps held beyond it are dropped, and the
-    stepping process applies it there and computes on.
+    ``sinks`` (the recorder). A command is taken as it arrives: the gate (a flood, an empty,
+    overlong or unknown word) answers here, at the boundary, without disturbing the stepping;
+    any other command's boundary is chosen here (the first step whose deadline is not before
+    its arrival plus :attr:`command_delay`, among the last released and those held), the
+    steps held beyond it are dropped, and the stepping process applies it there and computes
+    on.
 
     ``spec``: the stepping process's settings (``scene``; ``twin``: :class:`Twin`'s keywords;
     ``runner``: :class:`Runner`'s). ``log(level, text)``; ``gate``: the command gate;
@@ -466,6 +492,9 @@ class SteppingProcess:
         self.log = log
         self.gate = gate
         self.priority = int(priority)
+        #: a command takes effect at the first step boundary at least this long (wall s) after
+        #: it arrived (see :attr:`Runner.command_delay`)
+        self.command_delay = float(spec["runner"].get("command_delay", 0.0))
         self.inbox = ForwardingInbox(self)
         self.stop_reason: str | None = None
         self.error: str | None = None
@@ -491,6 +520,7 @@ class SteppingProcess:
         self._gen = 0
         self._limits: dict[int, int] = {}   # an earlier generation: its last valid step
         self._received_gen = 0              # the last generation received
+        self._last_boundary = -1            # the step of the last command sent on
         self._held: dict[int, list] = {}    # refusals that follow a command's answers
         self._stats: dict = {}
         self._refusals = RefusalLog(log)
@@ -541,9 +571,10 @@ class SteppingProcess:
         word = cmd.word if isinstance(cmd.word, str) else str(cmd.word)
         with self._lock:
             refusal = "the run has ended" if self._ended else self.gate.check(word)
-            at = self._boundary(cmd.wall)
-            if refusal is not None or at is None:
-                self._refuse(cmd, word, refusal or "the run has not started", at)
+            kb = None if refusal is not None else self._step_at(cmd.wall + self.command_delay)
+            if kb is None:
+                self._refuse(cmd, word, refusal or "the run has not started",
+                             self._boundary(cmd.wall))
                 return
             cid = None
             if cmd.reply is not None:
@@ -551,12 +582,33 @@ class SteppingProcess:
                 self._next_id += 1
                 self._replies[cid] = cmd.reply
             queue = self._queue
-            while queue and queue[-1] is not at:
+            while queue and queue[-1].k > kb:
                 queue.pop()
-            self._limits[self._gen] = at.k
+            self._limits[self._gen] = kb
+            self._last_boundary = kb
             self._gen += 1
-            self._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, at.k,
+            self._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb,
                                                  self._gen)))
+
+    def _step_at(self, wall: float) -> int | None:
+        """The first step whose deadline is not before ``wall`` (the lock held), among the
+        last released, those held and those still to come (the schedule's; the stepping
+        process steps on to it, where it is not there yet); None before the run has started."""
+        last = self._queue[-1] if self._queue else self._released
+        if last is None:
+            return None
+        grid = self.spec.get("grid")
+        if last.deadline >= wall or grid is None:
+            return self._boundary(wall).k
+        n = grid[2]
+        return min(n, last.k + max(1, math.ceil((wall - last.deadline) / self._period() - 1e-9)))
+
+    def _period(self) -> float:
+        """A step's period on the wall clock (s; 0 where the schedule is not known)."""
+        if self.spec.get("grid") is None:
+            return 0.0
+        t0, t_end, n = self.spec["grid"]
+        return (t_end - t0) / n / float(self.spec["runner"].get("real_time_factor", 1.0))
 
     def _boundary(self, wall: float) -> _Entry | None:
         """The entry a command that arrived at ``wall`` follows (the lock held): the last
@@ -573,10 +625,16 @@ class SteppingProcess:
         return [e for e in entries if e.deadline <= d][-1]
 
     def _refuse(self, cmd: Command, word: str, reason: str, at: _Entry | None) -> None:
-        """A command the gate refused, answered at its boundary: its messages go out (and are
-        recorded) right after that step's; the stepping is not disturbed."""
+        """A command the gate refused, answered at its boundary (but never before the answer
+        of a command that came earlier: at the boundary of the last one sent on, where that is
+        later): its messages go out (and are recorded) right after that step's; the stepping
+        is not disturbed."""
         self.commands_refused += 1
         k = at.k if at is not None else 0
+        deadline = at.deadline if at is not None else 0.0
+        if self._last_boundary > k and at is not None:
+            deadline += (self._last_boundary - k) * self._period()
+            k = self._last_boundary
         t = self._time_of(k)
         structure = at.structure if at is not None else ""
         ack = {"t": t, "command": shown(word, 64), "accepted": False, "reason": reason,
@@ -584,14 +642,14 @@ class SteppingProcess:
         t_ns = to_ns(t)
         msgs = [("~/mode", self._string({"data": word}), t_ns, True),
                 ("~/mode/status", self._string({"data": to_json(ack)}), t_ns, False)]
-        entry = _Entry(k, self._gen, at.deadline if at is not None else 0.0, False,
-                       structure, msgs)
+        entry = _Entry(k, self._gen, deadline, False, structure, msgs)
         queue = self._queue
         if self._gen > self._received_gen:
             # a command sent on is being applied: this answer follows that one's
             self._held.setdefault(self._gen, []).append(entry)
         else:
-            i = next((n for n, e in enumerate(queue) if e is at), -1)
+            # after everything held at its step or before (the answers given there included)
+            i = next((n for n in range(len(queue) - 1, -1, -1) if queue[n].k <= k), -1)
             queue.insert(i + 1, entry)
         self._refusals.refused(word, cmd.source, t, reason, cmd.wall)
         if cmd.reply is not None:
@@ -624,6 +682,10 @@ class SteppingProcess:
 
         if self.priority:
             self._this_refused = ask_fifo(self.priority)
+            if not self._this_refused:
+                # the rest of this process one below: never ahead of the releases, never
+                # behind an ordinary process while holding what the releases need
+                fifo_for_the_others(max(1, self.priority - 1))
         if not self.priority or self._this_refused:
             # under the fair scheduler: a short slice, so that this thread, woken at each
             # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)

@@ -142,22 +142,45 @@ class Twin:
         self._holding = False                   # new_events() holds this step's events
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
 
-    def warm_up(self, seconds: float = 1.0) -> None:
+    def warm_up(self, seconds: float = 1.0, tries: int = 10, trial: float = 0.06) -> None:
         """Do once, before a paced run's clock starts, what its first steps would otherwise do
         on the clock: generate and compile the chart views' kernels and reaction kernels (the
         compiled code is kept by what it depends on, so this twin's first use of a view finds
         it). A copy of the scene, with its own commands, runs ``seconds`` of simulated time;
-        what it meets (an error included) stays with the copy."""
+        then a copy of this run's scene runs them again and, at ``tries`` points spread over
+        them, tries each command the machine takes there for ``trial`` simulated seconds and
+        comes back (an operator's command meets branches of the effects that the scene's own
+        schedule may not: an engage in another phase of the stroke). What the copies meet (an
+        error included) stays with them."""
         t_end = min(self.t_end, self.t0 + seconds)
         if t_end <= self.t0:
             return
-        try:
-            copy = Twin(self._scene_with_commands, dt=self.dt, t_end=t_end,
-                        outputs=self.outputs)
-            while not copy.done:
+
+        def run(copy, n):
+            for _ in range(n):
+                if copy.done:
+                    return
                 copy.step()
                 copy.state_payloads()
                 copy.new_events()
+
+        try:
+            copy = Twin(self._scene_with_commands, dt=self.dt, t_end=t_end,
+                        outputs=self.outputs)
+            run(copy, copy.n)
+            copy = Twin(self.scene, dt=self.dt, t_end=min(self.t_end, t_end + trial),
+                        outputs=self.outputs)
+            if not (tries > 0 and copy.rewindable):
+                return
+            every = max(1, int(round((t_end - self.t0) / (tries * self.dt))))
+            n_trial = max(1, int(round(trial / self.dt)))
+            while copy.k + every <= copy.n - n_trial:
+                run(copy, every)
+                for word in COMMANDS:
+                    cp = copy.checkpoint()
+                    if copy.command(word)[0]:
+                        run(copy, n_trial)
+                    copy.restore(cp)
         except Exception:
             pass                        # the run itself will meet it, and say so
 
@@ -434,8 +457,9 @@ class Inbox:
 
 
 class Gate:
-    """What a command must pass before the machine sees it: not empty, not too long, not part
-    of a flood (a token bucket over wall time: ``burst`` at once, ``rate`` a second after)."""
+    """What a command must pass before the machine sees it: not part of a flood (a token
+    bucket over wall time: ``burst`` at once, ``rate`` a second after), not empty, not too
+    long, one of the machine's words. What is refused here costs the stepping nothing."""
 
     MAX_LEN = 64
 
@@ -458,6 +482,8 @@ class Gate:
             return f"empty command: {EXPECTED}"
         if len(word) > self.MAX_LEN:
             return f"a {len(word)}-character command: {EXPECTED}"
+        if word not in COMMANDS:
+            return EXPECTED
         return None
 
 
@@ -557,9 +583,9 @@ class Runner:
                  real_time_factor: float = 1.0, publish_every: int = 1,
                  diagnostics_period: float = 1.0, inbox: Inbox | None = None,
                  gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
-                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.05,
-                 release_period: float = 0.0, release_slice: float = 1e-4,
-                 freeze_gc: bool = False):
+                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.1,
+                 command_delay: float = 0.0, release_period: float = 0.0,
+                 release_slice: float = 1e-4, freeze_gc: bool = False):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -568,6 +594,8 @@ class Runner:
             raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
         if not (lead >= 0 and math.isfinite(lead)):
             raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
+        if not (0 <= command_delay <= 1.0):
+            raise ValueError(f"command_delay {command_delay!r}: expected 0 to 1 s")
         if not (release_slice == 0 or 1e-4 <= release_slice <= 0.1):
             raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or "
                              "0.0001 to 0.1 s")
@@ -578,6 +606,11 @@ class Runner:
         #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
         #: step's period; only that where the twin cannot come back to a checkpoint)
         self.lead = float(lead)
+        #: realtime, steps computed ahead: a command takes effect at the first step boundary
+        #: at least this long (wall s) after it arrived, so that the steps redone after it
+        #: (a command's first steps cost more: events, new charts) are ready by their
+        #: deadlines; at most the lead, where the steps ahead end
+        self.command_delay = float(command_delay)
         #: realtime: the releasing thread wakes about once per this many wall seconds and sends
         #: every step whose deadline has passed, so a step goes out at most this less one step's
         #: period after its deadline; up to one step's period (0 too): each at its deadline
@@ -943,7 +976,8 @@ class Runner:
         step that costs more than the period (an impact, a chart change, the machine busy for
         a moment) is absorbed by the steps computed ahead instead of coming out late. A
         command that arrives at wall time w is applied at the first step boundary whose
-        deadline is not before w: the twin comes back to that step's checkpoint (the steps
+        deadline is not before w + ``command_delay`` (one the gate refuses is answered at w's
+        boundary, and changes nothing): the twin comes back to that step's checkpoint (the steps
         computed beyond it are dropped, never released) and goes on from there with the
         command. Nothing is released before its deadline, so what the sinks get is what a run
         that stepped in time would have given them."""
@@ -1186,7 +1220,7 @@ class Runner:
                 continue
             with cond:
                 last = queue[-1] if queue else self._released
-                at = self._boundary(c.wall, ahead)
+                at = self._boundary(c.wall + self.command_delay, ahead)
                 while queue and queue[-1] is not at:
                     queue.pop()
             if at is not last:

@@ -115,8 +115,10 @@ def test_commands_take_effect_when_received(commanded):
         ("engage", True, "topic"), ("disengage", True, "topic")]
     for (t_seen, word), ack in zip(sent, acks):
         # applied at a step boundary after the clock the sender saw, some steps later at most
-        # (how many: the sender's lag behind /clock on a busy machine, x 0.2)
-        assert t_seen < ack["t"] <= t_seen + 0.03, (word, t_seen, ack["t"])
+        # (how many: the node's command_delay, 0.05 wall s, and the sender's lag behind /clock
+        # on a busy machine, x 0.2)
+        assert t_seen + 0.05 * 0.2 <= ack["t"] + 1e-9, (word, t_seen, ack["t"])
+        assert ack["t"] <= t_seen + 0.05 * 0.2 + 0.03, (word, t_seen, ack["t"])
         assert min(abs(ack["t"] - t) for t in TIMES) < 1e-12
     ev = commanded["events"]
     kinds = [(e["kind"], e.get("command")) for e in ev]
@@ -450,9 +452,14 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 10,
                                 "two answers")
             assert both[0]["accepted"] and not both[1]["accepted"]
-            assert "already engaging" in both[1]["reason"]
-            lis.wait_for(lambda: lis.get("~/structure")[-1].data == "locked", 10,
-                         "the latch to close")
+            # the second is answered at the boundary where it arrived: "already engaging" while
+            # the latch is still open (the usual case: tens of ms), the latch's reason after
+            locked = lis.wait_for(lambda: [e["t"] for e in lis.events()
+                                           if e.get("kind") == "latch-closes"], 10,
+                                  "the latch to close")[0]
+            assert both[0]["t"] < locked
+            assert ("already engaging" if both[1]["t"] < locked
+                    else "the latch is already closed") in both[1]["reason"], (both, locked)
             ask("engage", False, "the latch is already closed (working)")
             # the service form: std_srvs/Trigger
             r = lis.call("stop")
@@ -471,7 +478,11 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             flood = lis.wait_for(lambda: len(lis.acks()) >= n0 + 40 and lis.acks()[n0:], 10,
                                  "40 answers")
             assert all(not a["accepted"] for a in flood)
-            assert sum(a["reason"].startswith("flood") for a in flood) >= 30
+            # the gate passes at most its burst and its rate over the time the 40 took to
+            # arrive (each answered at the first step boundary after it came: within a step)
+            spread = max(a["t"] for a in flood) - min(a["t"] for a in flood) + 2 * DT
+            passed = sum(not a["reason"].startswith("flood") for a in flood)
+            assert passed <= 5 + 50.0 * spread + 1, (passed, spread)
             # the run goes on
             t1 = lis.clock()
             lis.wait_for(lambda: lis.clock() > t1 + 0.05, 10, "the clock to go on")

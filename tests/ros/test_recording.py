@@ -215,6 +215,14 @@ def test_gate_refuses_empty_long_and_floods():
     assert g.check("stop").startswith("flood")
 
 
+def test_gate_refuses_unknown_words_before_the_machine_sees_them():
+    g = Gate(burst=10, rate=20.0)
+    for word in ("launch", "ENGAGE", "engage now", " engage"):
+        assert g.check(word) == "expected one of engage, disengage, stop, start", word
+    for word in ("engage", "disengage", "stop", "start"):
+        assert g.check(word) is None
+
+
 def test_foundation_wrench_is_the_reactions_resultant():
     """The foundation topic carries F_found and M_found_O about O in the press frame."""
     twin = Twin("working", dt=1e-3, t_end=0.01)
