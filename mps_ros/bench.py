@@ -163,6 +163,9 @@ def _final_stats(log: str) -> dict:
            "release_slice_ms": float(g[14]) if g[14] is not None else float("nan")}
     if g[5] is not None:
         out["latency_p50_ms"], out["latency_p99_ms"] = float(g[5]), float(g[6])
+    c = re.search(r"(\d+) commands applied, (\d+) refused", log)
+    out["commands_applied"], out["commands_refused"] = (
+        (int(c.group(1)), int(c.group(2))) if c else (0, 0))
     return out
 
 
@@ -209,11 +212,17 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
              outputs: str | None = None, publish_every: int = 1, priority: int | None = None,
              lead: float | None = None, release_period: float | None = None,
              derivatives: str | None = None, release_slice: float | None = None,
-             n_neighbours: int = 0, in_process: bool = False) -> dict:
+             n_neighbours: int = 0, in_process: bool = False,
+             commands_every: float | None = None, command_delay: float | None = None) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
                   publish_every=publish_every)
+    if commands_every:
+        # an operator instead of the scene's schedule: the subscriber sends the commands
+        params.update(scene_commands=False, wait_for_commanders=1)
+    if command_delay is not None:
+        params["command_delay"] = command_delay
     if priority is not None:
         params["realtime_priority"] = priority
     if in_process:
@@ -228,13 +237,15 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         params["derivatives"] = derivatives
     busy = neighbours(n_neighbours)       # for the whole run, the plain loop's too
     try:
-        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives)
+        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
+                         commands_every)
     finally:
         for b in busy:
             stop_group(b)
 
 
-def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives) -> dict:
+def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
+              commands_every=None) -> dict:
     t_end = steps * 1e-3
     loop = loop_cost(min(steps, 3000), outputs, derivatives)
     if outputs:
@@ -242,7 +253,9 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives) -> dic
     node = _node(params, env, tmp / "rt.log")
     probe = subprocess.Popen([sys.executable, "-m", "mps_ros.bench", "probe"]
                              + (["--deserialize"] if deserialize else [])
-                             + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"]),
+                             + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
+                             + ([f"--commands-every={commands_every}"] if commands_every
+                                else []),
                              env=env,
                              stdout=subprocess.PIPE, stderr=open(tmp / "probe.log", "wb"),
                              text=True, start_new_session=True)
@@ -295,8 +308,11 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives) -> dic
         st["subscriber_received"] = got["received"]
         # by topic: the recording holds every message the node published, and no other
         try:
-            st["lost_by_topic"] = lost_by_topic(recorded_counts(tmp / "rt.mcap"),
-                                                got.get("by_topic", {}))
+            from .topics import MODE, resolve
+
+            published = recorded_counts(tmp / "rt.mcap")
+            published.pop(resolve(MODE.key), None)  # recorded as received, not published
+            st["lost_by_topic"] = lost_by_topic(published, got.get("by_topic", {}))
         except (OSError, RuntimeError) as exc:     # the other figures still stand
             st["lost_by_topic"], st["recording_error"] = None, str(exc)
         st["drift_ms"] = got.get("drift_ms")
@@ -369,6 +385,38 @@ def record_only(tmp: Path, steps: int) -> dict:
                       stop_on_signals=False)
     return {"rtf": st["real_time_factor"], "step_p50_ms": st["step_time_p50_ms"],
             "step_p99_ms": st["step_time_p99_ms"]}
+
+
+#: what the benchmark's operator sends, in turn
+OPERATOR_WORDS = ("engage", "disengage", "stop", "start")
+
+
+def _operator(node, every: float, state: dict) -> None:
+    """A thread of the subscriber's process that sends :data:`OPERATOR_WORDS` in turn on
+    ``/press_twin/mode``, one every ``every`` wall seconds from the first message received,
+    until the run's end."""
+    import threading
+
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from .topics import MODE, resolve
+
+    pub = node.create_publisher(String, resolve(MODE.key),
+                                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+
+    def send():
+        while state["first"] is None:
+            time.sleep(0.01)
+        i = 0
+        while not state["ended"]:
+            time.sleep(every)
+            if state["ended"]:
+                return
+            pub.publish(String(data=OPERATOR_WORDS[i % len(OPERATOR_WORDS)]))
+            i += 1
+
+    threading.Thread(target=send, name="operator", daemon=True).start()
 
 
 def probe() -> int:
@@ -449,6 +497,10 @@ def probe() -> int:
 
         executor = SingleThreadedExecutor()
     executor.add_node(node)
+    every = next((float(a.split("=", 1)[1]) for a in sys.argv
+                  if a.startswith("--commands-every=")), None)
+    if every:
+        _operator(node, every, state)
     deadline = time.monotonic() + 3600
     while not state["ended"] and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
@@ -538,7 +590,7 @@ def main(argv=None) -> int:
                         "SCHED_FIFO, where allowed)")
     p.add_argument("--lead", type=float, default=None, metavar="S",
                    help="the node's lead: steps computed up to S wall seconds ahead of their "
-                        "deadlines (default: the node's, 0.05; 0: one step's period, none "
+                        "deadlines (default: the node's, 0.1; 0: one step's period, none "
                         "banked)")
     p.add_argument("--release-period", type=float, default=None, metavar="S",
                    help="the node's release_period: the steps due go out together about once "
@@ -555,6 +607,11 @@ def main(argv=None) -> int:
     p.add_argument("--neighbours", type=int, default=0, metavar="N",
                    help="run N pure-Python busy loops beside the node for the whole realtime "
                         "or soak run (default 0)")
+    p.add_argument("--commands-every", type=float, default=None, metavar="S",
+                   help="realtime: the subscriber also sends engage, disengage, stop, start in "
+                        "turn on ~/mode, one every S wall seconds (the scene's own commands off)")
+    p.add_argument("--command-delay", type=float, default=None, metavar="S",
+                   help="the node's command_delay (default: the node's, 0.05)")
     p.add_argument("--events-executor", action="store_true",
                    help="probe: spin rclpy's events executor (the realtime run's subscriber "
                         "does unless MPS_BENCH_EXECUTOR=single)")
@@ -578,7 +635,7 @@ def main(argv=None) -> int:
         if a.what in ("all", "realtime"):
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
                          a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
-                         a.neighbours, a.in_process)
+                         a.neighbours, a.in_process, a.commands_every, a.command_delay)
             res["realtime_1kHz"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "realtime", r)
@@ -590,11 +647,13 @@ def main(argv=None) -> int:
                   f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
                   f", {a.neighbours} busy neighbour process(es), "
                   f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
-                  f"{'0.05 (default)' if a.lead is None else a.lead} s, release_period "
+                  f"{'0.1 (default)' if a.lead is None else a.lead} s, release_period "
                   f"{'0 (default)' if a.release_period is None else a.release_period} s, "
                   f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
-                  f" s, derivatives "
-                  f"{scheme}:\n"
+                  f" s, derivatives {scheme}"
+                  + (f", an operator command every {a.commands_every:g} s, command_delay "
+                     f"{'0.05 (default)' if a.command_delay is None else a.command_delay} s"
+                     if a.commands_every else "") + ":\n"
                   f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
                   f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
@@ -606,6 +665,8 @@ def main(argv=None) -> int:
                   f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
                   f"step's deadline)\n"
                   f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
+                  + (f"  commands                    {r['commands_applied']} applied, "
+                     f"{r['commands_refused']} refused\n" if a.commands_every else "") +
                   f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
                   + _lost_line(r) +
