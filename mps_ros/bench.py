@@ -611,7 +611,7 @@ def main(argv=None) -> int:
                    help="realtime: the subscriber also sends engage, disengage, stop, start in "
                         "turn on ~/mode, one every S wall seconds (the scene's own commands off)")
     p.add_argument("--command-delay", type=float, default=None, metavar="S",
-                   help="the node's command_delay (default: the node's, 0.05)")
+                   help="the node's command_delay (default: the node's, 0)")
     p.add_argument("--events-executor", action="store_true",
                    help="probe: spin rclpy's events executor (the realtime run's subscriber "
                         "does unless MPS_BENCH_EXECUTOR=single)")
@@ -652,7 +652,7 @@ def main(argv=None) -> int:
                   f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
                   f" s, derivatives {scheme}"
                   + (f", an operator command every {a.commands_every:g} s, command_delay "
-                     f"{'0.05 (default)' if a.command_delay is None else a.command_delay} s"
+                     f"{'0 (default)' if a.command_delay is None else a.command_delay} s"
                      if a.commands_every else "") + ":\n"
                   f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
                   f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"

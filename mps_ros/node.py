@@ -52,9 +52,9 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
                             their deadlines and released at them (0.1, at most 1). 0: one
                             step's period, none banked
 ``command_delay``           realtime, steps banked: a command takes effect at the first step
-                            boundary at least this many wall seconds after it arrives (0.05,
-                            at most 1; the twin comes back to that step): time to redo the
-                            steps after it, whose first cost more. 0: the next boundary
+                            boundary at least this many wall seconds after it arrives (at most
+                            1): time to redo the steps after it, whose first cost more, with
+                            steps still banked. 0 (default): the first boundary after it arrives
 ``release_period``          realtime: the publishing thread wakes about once per this many wall
                             seconds and sends every step whose deadline has passed: a step goes
                             out at most this less one step's period after its deadline. 0
@@ -275,7 +275,7 @@ class PressTwin(Node):
         "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
         "start_delay": 0.0,
         "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 40, "lead": 0.1, "command_delay": 0.05,
+        "realtime_priority": 40, "lead": 0.1, "command_delay": 0.0,
         "release_period": 0.0, "release_slice": 1e-4,
         "markers_hz": 30.0, "markers_scale": 2e6, "stepping_process": True,
     }

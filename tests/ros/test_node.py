@@ -54,14 +54,16 @@ def read_mcap(path):
 # -- one commanded run, shared by several tests -------------------------------------------------
 @pytest.fixture(scope="module")
 def commanded(ros, tmp_path_factory):
-    """press-cycle to 0.12 s at 1 kHz, realtime x0.2, the scene's commands off; this process
-    subscribes to everything and sends engage when it sees t >= 0.008 s on /clock and
-    disengage at t >= 0.06 s."""
+    """press-cycle to 0.12 s at 1 kHz, realtime x0.2, the scene's commands off, each command
+    taking effect 0.05 wall s (0.01 simulated s) after it arrives; this process subscribes to
+    everything and sends engage when it sees t >= 0.008 s on /clock and disengage at
+    t >= 0.06 s."""
     tmp = tmp_path_factory.mktemp("commanded")
     rec = tmp / "run.mcap"
     params = dict(pacing="realtime", real_time_factor=0.2, dt=DT, t_end=T_END,
                   scene_commands=False, recording=str(rec), wait_for_subscribers=1,
-                  wait_for_commanders=1, wait_timeout=30.0, start_delay=0.3)
+                  wait_for_commanders=1, wait_timeout=30.0, start_delay=0.3,
+                  command_delay=0.05)
     lis = Listener()
     try:
         with NodeProcess(tmp, params) as node:
@@ -115,8 +117,8 @@ def test_commands_take_effect_when_received(commanded):
         ("engage", True, "topic"), ("disengage", True, "topic")]
     for (t_seen, word), ack in zip(sent, acks):
         # applied at a step boundary after the clock the sender saw, some steps later at most
-        # (how many: the node's command_delay, 0.05 wall s, and the sender's lag behind /clock
-        # on a busy machine, x 0.2)
+        # (how many: the node's command_delay here, 0.05 wall s, and the sender's lag behind
+        # /clock on a busy machine, x 0.2)
         assert t_seen + 0.05 * 0.2 <= ack["t"] + 1e-9, (word, t_seen, ack["t"])
         assert ack["t"] <= t_seen + 0.05 * 0.2 + 0.03, (word, t_seen, ack["t"])
         assert min(abs(ack["t"] - t) for t in TIMES) < 1e-12
