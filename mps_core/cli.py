@@ -2,7 +2,7 @@
 
     mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--step S] [--delta-deg D]
                   [--derivatives central|autodiff] [--iterations K] [--rtol R] [--atol A]
-                  [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE]
+                  [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE] [--force]
     mps scenes
 
 SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
@@ -54,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
                         "(adds their columns to --csv)")
     r.add_argument("--csv", metavar="FILE", help="write one row per step to FILE")
     r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
+    r.add_argument("--force", action="store_true",
+                   help="replace an output file that exists (never the scene itself)")
 
     sub.add_parser("scenes", help="list the preset scenes")
     for name in PLUGINS:
@@ -72,6 +74,12 @@ PLUGINS = ("mps_core.loads_cli", "mps_core.bench.cli", "mps_ros.cli", "mps_ros.v
 
 
 def _run(args) -> int:
+    from .output_files import check_outputs, written_whole
+
+    # before anything runs: a results path that cannot be written, or that would destroy the
+    # scene or an existing file, is refused now, not after the run
+    check_outputs({"--csv": args.csv, "--events": args.events}, inputs=[args.scene],
+                  force=args.force)
     scene = load_scene(args.scene)
     scene = scene.with_overrides(
         t_end=args.t_end, steps=args.steps, dt=args.dt, solver=args.solver,
@@ -130,15 +138,17 @@ def _run(args) -> int:
             print(f"reactions: not unique at some steps (rank short by "
                   f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
     if args.csv:
-        if args.reactions:
-            from .reactions import write_csv
+        with written_whole(args.csv) as tmp:
+            if args.reactions:
+                from .reactions import write_csv
 
-            write_csv(traj, args.csv)
-        else:
-            traj.to_csv(args.csv)
+                write_csv(traj, tmp)
+            else:
+                traj.to_csv(tmp)
         print(f"wrote {len(traj)} rows to {args.csv}")
     if args.events:
-        traj.events_to_jsonl(args.events)
+        with written_whole(args.events) as tmp:
+            traj.events_to_jsonl(tmp)
         print(f"wrote {len(traj.events)} events to {args.events}")
     return 0
 

@@ -64,7 +64,11 @@ def _outputs(text):
 
 
 def _record(args) -> int:
+    from mps_core.output_files import check_outputs
+
     from .recording import record
+
+    check_outputs({"recording": args.out}, inputs=[args.scene], force=args.force)
 
     def log(level, text):
         if level != "info" or args.verbose:
@@ -96,10 +100,15 @@ def _recover(args) -> int:
     from mps_core.input_files import check_file
     from mps_core.loads_cli import MCAP_MAGIC
 
+    from mps_core.output_files import check_outputs, written_whole
+
     src = check_file(args.input, "recording", MCAP_MAGIC, "an MCAP file")
     dst = Path(args.output) if args.output else src.with_name(src.stem + "-recovered.mcap")
+    check_outputs({"output": dst}, inputs=[src], force=args.force)
     try:
-        rep = recover(src, dst)
+        # whole or not at all: a disk that fills up leaves no half-written file behind
+        with written_whole(dst) as tmp:
+            rep = recover(src, tmp)
     except (OSError, ValueError) as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
@@ -162,7 +171,7 @@ def register(sub) -> None:
     d.add_argument("scene", nargs="?", default="press-cycle")
     d.add_argument("--dt", type=_positive, default=1e-3, help="step (s), default 0.001 (1 kHz)")
     d.add_argument("--real-time-factor", type=_positive, default=1.0)
-    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME.mcap)")
+    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME-MS.mcap; never an existing file)")
     d.set_defaults(func=_demo)
 
     r = sub.add_parser("record", help="write the node's MCAP recording without ROS",
@@ -184,6 +193,8 @@ def register(sub) -> None:
     r.add_argument("--no-scene-commands", action="store_true",
                    help="ignore the scene's [[commands]]")
     r.add_argument("-v", "--verbose", action="store_true", help="print every command applied")
+    r.add_argument("--force", action="store_true",
+                   help="replace FILE.mcap where it exists (never the scene itself)")
     r.set_defaults(func=_record)
 
     c = sub.add_parser("recover", help="complete an MCAP recording cut short (e.g. SIGKILL)",
@@ -192,4 +203,5 @@ def register(sub) -> None:
                                    "(default IN-recovered.mcap).")
     c.add_argument("input", metavar="IN.mcap")
     c.add_argument("output", nargs="?", metavar="OUT.mcap")
+    c.add_argument("--force", action="store_true", help="replace OUT.mcap where it exists")
     c.set_defaults(func=_recover)

@@ -81,11 +81,17 @@ r = AnyReader([Path('{p}')]); r.open(); [print(c.topic, c.msgtype, c.msgcount) f
 def main(args) -> int:
     from mps_core import load_scene
 
-    from .recording import default_path
+    from mps_core.output_files import check_outputs
+
+    from .recording import new_recording
 
     scene = load_scene(args.scene)
-    out = Path(args.out) if args.out else default_path(scene.name)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if args.out:
+        # before the node starts: a path it could not write, or an existing file, is refused
+        out = Path(args.out)
+        check_outputs({"--out": out}, inputs=[args.scene])
+    else:
+        out = new_recording(scene.name)     # created empty, this run's own
     env = ros_env()
     cmds = ", ".join(f"{w} at {t:g} s" for t, w in scene.commands) or "none"
     print(f"demo: scene {scene.name}, {scene.t_end:g} s in realtime (x{args.real_time_factor:g}) "

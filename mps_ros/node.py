@@ -25,7 +25,8 @@ Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin
 ``outputs``                 what to compute and publish, a subset of joint_states, reactions,
                             foundation, clock, structure, events, diagnostics (default: all); the
                             reactions are solved only if reactions or foundation is asked for
-``recording``               MCAP path; ``auto`` (default): recordings/SCENE-DATE-TIME.mcap;
+``recording``               MCAP path (never an existing file); ``auto`` (default):
+                            recordings/SCENE-DATE-TIME-MS.mcap, created exclusively;
                             ``none`` or empty: no recording. Written by a process of its own
                             (:class:`~mps_ros.recording.BackgroundRecorder`), off the steps' time
 ``recording_flush_period``  wall seconds after which a chunk is written even if not full (1.0)
@@ -78,6 +79,7 @@ import sys
 import tempfile
 import threading
 import time
+from pathlib import Path
 
 DEFAULT_SCENE = "press-cycle"
 
@@ -116,6 +118,7 @@ from .twin import (PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs, s
                    to_json)
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
+from mps_core import MpsError  # noqa: E402
 
 MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": JointState,
                "visualization_msgs/msg/MarkerArray": MarkerArray,
@@ -444,13 +447,15 @@ class PressTwin(Node):
             time.sleep(0.01)
 
     def open_recording(self):
-        from .recording import BackgroundRecorder, RecordingSink, _run_metadata, default_path
+        from .recording import BackgroundRecorder, RecordingSink, _run_metadata, new_recording
 
         path = self.p["recording"]
         if path.lower() in ("", "none", "off", "false"):
             return None
         if path == "auto":
-            path = default_path(self.twin.scene.name)
+            path = new_recording(self.twin.scene.name)
+        else:
+            path = claim_recording(path)
         meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
                              self.p["publish_every"])
         meta["node"] = self.get_fully_qualified_name()
@@ -516,6 +521,29 @@ class PressTwin(Node):
                 pass
 
 
+def claim_recording(path) -> Path:
+    """The recording path a user named, made this run's own: created empty where it is new;
+    an empty file (one reserved for it, e.g. by ``mps demo``) is taken; anything else is
+    :class:`~mps_core.output_files.OutputFileError` (a recording never replaces a file)."""
+    from mps_core.output_files import OutputFileError
+    from mps_core.output_files import check_outputs as check_paths
+
+    from .recording import reserve
+
+    p = Path(path)
+    if p.is_file() and p.stat().st_size == 0:
+        return p
+    exists = OutputFileError(p, "parameter recording", "exists; a recording never replaces a "
+                                                       "file: expected a new path")
+    if p.exists() and not p.is_dir():
+        raise exists
+    check_paths({"parameter recording": p})
+    try:
+        return reserve(p)
+    except FileExistsError:
+        raise exists from None
+
+
 def _split_argv(argv):
     """(scene or None, ROS arguments) from a command line like ``[SCENE] [--ros-args ...]``."""
     argv = list(argv)
@@ -577,10 +605,13 @@ def main(argv=None) -> int:
                     node.runner.request_stop("error")
         thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
         thread.start()
-        rec = node.open_recording()
+        try:
+            rec = node.open_recording()
+        except (MpsError, OSError) as exc:
+            print(f"press_twin: error: {exc}", file=sys.stderr, flush=True)
+            return 2
         if rec is not None:
             node.get_logger().info(f"recording to {rec.path}")
-        from mps_core import MpsError
 
         try:
             stats = node.run(stop)

@@ -38,8 +38,33 @@ PROFILE = "ros2"
 MAGIC = b"\x89MCAP0\r\n"
 
 def default_path(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    """``DIRECTORY/SCENE-DATE-TIME.mcap``, the time to the millisecond (not created)."""
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S-%f")[:-3]
     return Path(directory) / f"{scene_name}-{stamp}.mcap"
+
+
+def new_recording(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
+    """A recording's path of its own, created empty (exclusively: two runs started in the same
+    millisecond, in two processes, never get the same file): :func:`default_path`, or with
+    ``-2``, ``-3``... where that exists. The folder is made where missing."""
+    first = default_path(scene_name, directory)
+    first.parent.mkdir(parents=True, exist_ok=True)
+    for i in range(1, 1000):
+        path = first if i == 1 else first.with_name(f"{first.stem}-{i}{first.suffix}")
+        try:
+            reserve(path)
+            return path
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free recording name like {str(first)!r}")
+
+
+def reserve(path) -> Path:
+    """Create ``path`` empty, exclusively: FileExistsError where it exists (a recording is never
+    written over another file)."""
+    with open(path, "xb"):
+        pass
+    return Path(path)
 
 
 class _Direct:
@@ -649,7 +674,7 @@ def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:
 
 
 __all__ = ["Recorder", "BackgroundRecorder", "RecordingSink", "recover", "record", "read_metadata", "msgdef",
-           "encoder", "generic_encoder", "default_path", "Recovered"]
+           "encoder", "generic_encoder", "default_path", "new_recording", "reserve", "Recovered"]
 
 
 if __name__ == "__main__":

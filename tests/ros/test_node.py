@@ -556,12 +556,30 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"realtime_priority": 120}, "parameter realtime_priority: 120"),
              ({"release_period": 0.5}, "parameter release_period: 0.5"),
              ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
-             ({"release_slice": 0.5}, "parameter release_slice: 0.5")]
+             ({"release_slice": 0.5}, "parameter release_slice: 0.5"),
+             ({"command_delay": 2.0}, "parameter command_delay: 2.0")]
     for params, message in cases:
         with NodeProcess(tmp_path, params, name="bad") as node:
             rc = node.wait(60)
             log = node.log()
         assert rc == 2 and message in log and "Traceback" not in log, log
+
+
+def test_a_recording_never_replaces_a_file(tmp_path):
+    """recording:= an existing file (not an empty one reserved for it): one line, exit 2, the
+    file untouched; a folder that does not exist: the same."""
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(b"an earlier run")
+    for path, message in ((kept, "exists; a recording never replaces a file"),
+                          (tmp_path / "nodir" / "x.mcap", "no directory")):
+        with NodeProcess(tmp_path, dict(t_end=0.01, recording=str(path)), name="rec") as node:
+            rc = node.wait(60)
+            log = node.log()
+        errors = [ln for ln in log.splitlines() if "error" in ln]
+        assert rc == 2 and len(errors) == 1 and message in errors[0], log
+        assert "Traceback" not in log
+    assert kept.read_bytes() == b"an earlier run"
+    assert not (tmp_path / "nodir").exists()
 
 
 def test_no_process_left(tmp_path):

@@ -288,3 +288,50 @@ def test_record_needs_no_rclpy(tmp_path):
     assert res.returncode == 2, res.stderr
     assert "this command needs ROS 2 Jazzy's rclpy: install the ros extra" in res.stderr
     assert len(read_all(out)["/joint_states"]) == 11
+
+
+def test_record_and_recover_never_write_over_a_file(tmp_path, capsys):
+    from mps_ros.recording import MAGIC
+
+    rec = tmp_path / "r.mcap"
+    assert mps_main(["record", "paper", "--out", str(rec), "--t-end", "0.01"]) == 0
+    before = rec.read_bytes()
+    steps = len(read_all(rec)["/clock"])
+    capsys.readouterr()
+    # an existing recording, the scene itself: refused before anything runs
+    scene = tmp_path / "s.toml"
+    scene.write_text(load_scene("paper").text)
+    for out, words in ((rec, "exists"), (scene, "the command's input")):
+        src = "paper" if out is rec else str(scene)
+        assert mps_main(["record", src, "--out", str(out), "--t-end", "0.01"]) == 2
+        out_text, err = capsys.readouterr()
+        assert out_text == "" and words in err, err
+    assert rec.read_bytes() == before and scene.read_text() == load_scene("paper").text
+    assert mps_main(["record", "paper", "--out", str(rec), "--t-end", "0.02", "--force"]) == 0
+    assert len(read_all(rec)["/clock"]) > steps            # the new run's
+    # recover: never over a file without --force, never over its input, whole or not at all
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(before[: len(before) * 2 // 3])
+    good = tmp_path / "good.mcap"
+    good.write_bytes(b"precious")
+    assert mps_main(["recover", str(cut), str(good)]) == 2
+    assert "exists" in capsys.readouterr().err and good.read_bytes() == b"precious"
+    assert mps_main(["recover", str(cut), str(cut), "--force"]) == 2
+    assert "the command's input" in capsys.readouterr().err
+    assert mps_main(["recover", str(cut), str(good), "--force"]) == 0
+    assert good.read_bytes()[:8] == MAGIC
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "good.mcap", "r.mcap",
+                                                          "s.toml"]
+
+
+def test_new_recordings_never_share_a_file(tmp_path, monkeypatch):
+    from mps_ros import recording
+
+    # two runs started in the same millisecond: the second gets a name of its own
+    monkeypatch.setattr(recording, "default_path",
+                        lambda scene, d="recordings": tmp_path / f"{scene}-20261125-120000-123.mcap")
+    a = recording.new_recording("press-cycle", tmp_path)
+    b = recording.new_recording("press-cycle", tmp_path)
+    assert (a.name, b.name) == ("press-cycle-20261125-120000-123.mcap",
+                                "press-cycle-20261125-120000-123-2.mcap")
+    assert a.exists() and b.exists()

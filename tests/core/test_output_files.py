@@ -1,0 +1,74 @@
+"""Outputs never destroy: a path checked before the run, never an input, never an existing file
+unless --force, written whole (a temporary name renamed when complete)."""
+
+from importlib import resources
+
+import pytest
+
+from mps_core.cli import main
+from mps_core.output_files import (OutputFileError, check_outputs, partial_name,
+                                   written_whole)
+
+
+@pytest.fixture
+def scene_copy(tmp_path):
+    s = tmp_path / "s.toml"
+    s.write_bytes(resources.files("mps_core.scenes").joinpath("paper.toml").read_bytes())
+    return s
+
+
+@pytest.mark.parametrize("flag", ["--csv", "--events"])
+def test_an_output_that_is_the_scene_is_refused_before_the_run(scene_copy, capsys, flag):
+    before = scene_copy.read_bytes()
+    assert main(["run", str(scene_copy), flag, str(scene_copy), "--force"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""                                    # nothing ran
+    assert err.count("\n") == 1 and f"{flag} {str(scene_copy)!r}" in err
+    assert "the command's input" in err and "destroy" in err
+    assert scene_copy.read_bytes() == before
+
+
+def test_an_existing_output_needs_force(tmp_path, capsys):
+    csv = tmp_path / "p.csv"
+    csv.write_text("keep me\n")
+    assert main(["run", "paper", "--csv", str(csv)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "exists" in err and "--force" in err
+    assert csv.read_text() == "keep me\n"
+    assert main(["run", "paper", "--csv", str(csv), "--force"]) == 0
+    assert csv.read_text().startswith("t,")
+    assert list(tmp_path.iterdir()) == [csv]            # no temporary file left
+
+
+def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
+    cases = [
+        (["--csv", str(tmp_path / "nodir" / "x.csv")], "no directory"),
+        (["--events", str(tmp_path)], "a directory, expected a file path"),
+        (["--csv", str(tmp_path / "a"), "--events", str(tmp_path / "a")], "also the --csv"),
+    ]
+    for args, words in cases:
+        assert main(["run", "paper", *args]) == 2, args
+        out, err = capsys.readouterr()
+        assert out == "" and words in err, (args, err)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_written_whole_leaves_the_target_as_it_was_on_an_error(tmp_path):
+    target = tmp_path / "x.csv"
+    target.write_text("old")
+    with pytest.raises(RuntimeError):
+        with written_whole(target) as tmp:
+            assert tmp == partial_name(target) and tmp.parent == tmp_path
+            tmp.write_text("half")
+            raise RuntimeError("the disk is full")
+    assert target.read_text() == "old" and list(tmp_path.iterdir()) == [target]
+    with written_whole(target) as tmp:
+        tmp.write_text("new")
+    assert target.read_text() == "new" and list(tmp_path.iterdir()) == [target]
+
+
+def test_check_outputs_ignores_absent_ones_and_preset_names(tmp_path):
+    got = check_outputs({"--csv": None, "--events": tmp_path / "e.jsonl"}, inputs=["paper"])
+    assert got == {"--events": tmp_path / "e.jsonl"}
+    with pytest.raises(OutputFileError, match="not a file name"):
+        check_outputs({"--csv": ""})
