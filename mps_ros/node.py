@@ -290,6 +290,15 @@ class PressTwin(Node):
                 name=name, read_only=True, dynamic_typing=True))
 
     def _params(self) -> dict:
+        # a parameter given (-p, a parameters file for this node) that the node does not have:
+        # refused, not ignored (a typo would otherwise run with the default, without a word);
+        # rclpy keeps what it was given in _parameter_overrides, and declares use_sim_time
+        given = getattr(self, "_parameter_overrides", {}) or {}
+        unknown = sorted(n for n in given if not self.has_parameter(n))
+        if unknown:
+            raise ParameterError(f"unknown parameter{'s' if len(unknown) > 1 else ''} "
+                                 f"{', '.join(unknown)}: expected one of "
+                                 f"{', '.join(sorted(self._DEFAULTS))}")
         raw = {n: self.get_parameter(n).value for n in self._DEFAULTS}
         out = {}
 

@@ -557,7 +557,8 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"release_period": 0.5}, "parameter release_period: 0.5"),
              ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
              ({"release_slice": 0.5}, "parameter release_slice: 0.5"),
-             ({"command_delay": 2.0}, "parameter command_delay: 2.0")]
+             ({"command_delay": 2.0}, "parameter command_delay: 2.0"),
+             ({"no_such": 1}, "unknown parameter no_such: expected one of command_burst, ")]
     for params, message in cases:
         with NodeProcess(tmp_path, params, name="bad") as node:
             rc = node.wait(60)
