@@ -74,7 +74,7 @@ PLUGINS = ("mps_core.loads_cli", "mps_core.bench.cli", "mps_ros.cli", "mps_ros.v
 
 
 def _run(args) -> int:
-    from .output_files import check_outputs, written_whole
+    from .output_files import check_outputs
 
     # before anything runs: a results path that cannot be written, or that would destroy the
     # scene or an existing file, is refused now, not after the run
@@ -95,7 +95,14 @@ def _run(args) -> int:
         observer = ReactionObserver()
         sim.observers.append(observer)
     c0 = time.process_time()
-    traj = sim.run(scene.t_end, scene.dt)
+    try:
+        traj = sim.run(scene.t_end, scene.dt)
+    except MpsError as exc:
+        # what was computed up to the failure still goes to the outputs asked for, marked
+        partial = getattr(exc, "partial", None)
+        if partial is not None and len(partial):
+            _write_outputs(args, partial, failure=str(exc))
+        raise
     cpu = time.process_time() - c0
     s = scene.solver
     print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
@@ -137,6 +144,20 @@ def _run(args) -> int:
         if observer.max_rank_deficiency:
             print(f"reactions: not unique at some steps (rank short by "
                   f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
+    _write_outputs(args, traj)
+    return 0
+
+
+def _write_outputs(args, traj, failure: str | None = None) -> None:
+    """``--csv`` and ``--events``, each written whole; ``failure``: the run stopped with this
+    error, and what it computed is marked partial (the CSV's last line a ``# partial: ...``
+    comment, the event log's last row a ``run-failed`` event)."""
+    import json
+
+    from .output_files import written_whole
+
+    t_last = float(traj.t[-1])
+    note = "" if failure is None else f" (partial: up to t = {t_last:.6g} s, where the run stopped)"
     if args.csv:
         with written_whole(args.csv) as tmp:
             if args.reactions:
@@ -145,12 +166,18 @@ def _run(args) -> int:
                 write_csv(traj, tmp)
             else:
                 traj.to_csv(tmp)
-        print(f"wrote {len(traj)} rows to {args.csv}")
+            if failure is not None:
+                with tmp.open("a") as fh:
+                    fh.write(f"# partial: the run stopped at t = {t_last!r} s: {failure}\n")
+        print(f"wrote {len(traj)} rows to {args.csv}{note}")
     if args.events:
         with written_whole(args.events) as tmp:
             traj.events_to_jsonl(tmp)
-        print(f"wrote {len(traj.events)} events to {args.events}")
-    return 0
+            if failure is not None:
+                with tmp.open("a") as fh:
+                    fh.write(json.dumps({"t": t_last, "kind": "run-failed",
+                                         "error": failure}) + "\n")
+        print(f"wrote {len(traj.events)} events to {args.events}{note}")
 
 
 def main(argv=None) -> int:

@@ -768,7 +768,8 @@ def read_csv(path) -> dict[str, np.ndarray]:
     """Columns of a CSV written by :func:`write_csv` (or ``Trajectory.to_csv``) as arrays."""
     path = Path(path)
     with path.open(newline="") as fh:
-        rows = list(csv.reader(fh))
+        # a partial run's last line is a comment (# partial: ...)
+        rows = [r for r in csv.reader(fh) if r and not r[0].startswith("#")]
     if not rows:
         raise ValueError(f"{path}: an empty file, expected a header and rows")
     head, body = rows[0], rows[1:]

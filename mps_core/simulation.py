@@ -65,7 +65,7 @@ from scipy.optimize import brentq
 from .effects import Controls, Latch, Motor, TopStop
 from .effects.controls import ControlledEffect
 from .engine import PartialSystems
-from .errors import (ChartBreakdown, ChartDomainError, NumericalError,
+from .errors import (ChartBreakdown, ChartDomainError, MpsError, NumericalError,
                      SimulationError, SingularConfiguration, config_in_degrees)
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
@@ -943,14 +943,22 @@ class Simulation:
         rows: list[tuple] = []
         self._record(rows, self.solver.current)
         step = self.settings.step
-        if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
-                self.settings.name not in ADAPTIVE_SOLVERS:
-            return self._run_long_steps(rows, t0, t_end, n, step)
-        for k in range(1, n + 1):
-            tk = t_end if k == n else t0 + k * (t_end - t0) / n
-            self.advance_to(tk)                 # keeps the unwrap references current
-            self._record(rows, self.solver.current)
-        return self._trajectory(rows)
+        try:
+            if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
+                    self.settings.name not in ADAPTIVE_SOLVERS:
+                return self._run_long_steps(rows, t0, t_end, n, step)
+            for k in range(1, n + 1):
+                tk = t_end if k == n else t0 + k * (t_end - t0) / n
+                self.advance_to(tk)                 # keeps the unwrap references current
+                self._record(rows, self.solver.current)
+            return self._trajectory(rows)
+        except MpsError as exc:
+            # what was computed up to the failure, for a caller that writes it (marked partial)
+            try:
+                exc.partial = self._trajectory(rows)
+            except Exception:
+                exc.partial = None
+            raise
 
     def _run_long_steps(self, rows, t0, t_end, n, step) -> Trajectory:
         """Steps longer than the output interval. Each output inside a step is the step's

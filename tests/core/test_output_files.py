@@ -72,3 +72,25 @@ def test_check_outputs_ignores_absent_ones_and_preset_names(tmp_path):
     assert got == {"--events": tmp_path / "e.jsonl"}
     with pytest.raises(OutputFileError, match="not a file name"):
         check_outputs({"--csv": ""})
+
+
+def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys):
+    import json
+
+    from mps_core.reactions import read_csv
+
+    csv, ev = tmp_path / "p.csv", tmp_path / "p.jsonl"
+    assert main(["run", "press-cycle", "--no-chart-switching", "--dt", "0.001", "--reactions",
+                 "--csv", str(csv), "--events", str(ev)]) == 2
+    out, err = capsys.readouterr()
+    assert err.startswith("mps: error: t = ") and err.count("\n") == 1
+    assert "(partial: up to t = " in out
+    last = csv.read_text().splitlines()[-1]
+    assert last.startswith("# partial: the run stopped at t = ") and "chart switching is off" in last
+    cols = read_csv(csv)                          # our reader skips the comment
+    t_stop = cols["t"][-1]
+    assert 0.1 < t_stop < 1.0 and len(cols["t"]) == round(t_stop / 0.001) + 1
+    assert "F_found_x" in cols
+    events = [json.loads(line) for line in ev.read_text().splitlines()]
+    assert events[-1]["kind"] == "run-failed" and events[-1]["t"] == t_stop
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.csv", "p.jsonl"]
