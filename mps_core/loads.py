@@ -416,7 +416,7 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     if fx:
         sub += f"; |F_found| peak {fx['peak'] / 1e3:.3g} kN, RMS {fx['rms'] / 1e3:.3g} kN"
     fig.suptitle(f"{head}\n{sub}", fontsize=12)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
     return path
 

@@ -40,6 +40,8 @@ def register(subparsers) -> None:
     p.add_argument("--dt", type=float, metavar="S", help="step of the run (s), scenes only")
     p.add_argument("--events", metavar="FILE",
                    help="a recording's event log (JSON lines) for the transients' impulses")
+    p.add_argument("--force", action="store_true",
+                   help="replace an output file that exists (never an input)")
     p.set_defaults(func=run)
 
 
@@ -115,19 +117,22 @@ def _events(path) -> list[dict]:
 
 
 def run(args) -> int:
+    from .output_files import check_outputs, written_whole
+
     if not 1 <= args.harmonics <= 50:
         raise loads.LoadReportError(f"--harmonics = {args.harmonics}: expected 1 to 50")
+    # before the run or the reading: paths that cannot be written, inputs, existing files
+    check_outputs({"--json": args.json, "--csv": args.csv, "--png": args.png},
+                  inputs=[args.source, args.events], force=args.force)
     columns, events, name = _columns(args)
     report = loads.load_report(columns, n=args.harmonics, mode=args.structure, events=events,
                                source=name)
     print(loads.format_table(report))
-    if args.json:
-        loads.write_json(report, args.json)
-        print(f"wrote {args.json}")
-    if args.csv:
-        loads.write_csv(report, args.csv)
-        print(f"wrote {args.csv}")
-    if args.png:
-        loads.write_png(report, columns, args.png)
-        print(f"wrote {args.png}")
+    for path, write in ((args.json, lambda tmp: loads.write_json(report, tmp)),
+                        (args.csv, lambda tmp: loads.write_csv(report, tmp)),
+                        (args.png, lambda tmp: loads.write_png(report, columns, tmp))):
+        if path:
+            with written_whole(path) as tmp:
+                write(tmp)
+            print(f"wrote {path}")
     return 0

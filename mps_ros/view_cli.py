@@ -30,6 +30,8 @@ def register(subparsers) -> None:
                    help="do not open the viewer (with --save: only write the file)")
     p.add_argument("--scene", metavar="SCENE",
                    help="preset name or scene file for the geometry, if the recording has none")
+    p.add_argument("--force", action="store_true",
+                   help="replace FILE.rrd where it exists (never the recording)")
     p.set_defaults(func=run)
 
 
@@ -52,7 +54,11 @@ def run(args) -> int:
         return 0
     if not args.recording:
         raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")
+    from mps_core.output_files import check_outputs
+
     from .view import view
+
+    check_outputs({"--save": args.save}, inputs=[args.recording], force=args.force)
 
     scene = load_scene(args.scene) if args.scene else None
     view(args.recording, save=args.save, spawn=not args.no_spawn, scene=scene)

@@ -90,7 +90,8 @@ def test_mps_loads_on_a_scene_and_on_its_recording(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     # the same report from a recording of the same run
     assert main(["run", "working", *args, "--reactions", "--csv", str(rec)]) == 0
-    assert main(["loads", str(rec), "--json", str(js)]) == 0
+    assert main(["loads", str(rec), "--json", str(js)]) == 2     # it exists: --force
+    assert main(["loads", str(rec), "--json", str(js), "--force"]) == 0
     rep2 = json.loads(js.read_text())
     assert quantity(rep2, "F_found_x")["harmonics"] == fx["harmonics"]
     # a recording's impulse events are listed as transients, not folded into the cycle
@@ -99,7 +100,7 @@ def test_mps_loads_on_a_scene_and_on_its_recording(tmp_path, capsys):
                               "impulses_Ns": {"M_latch": 0.5}}) + "\n"
                   + json.dumps({"t": 0.02, "kind": "chart"}) + "\n")
     capsys.readouterr()
-    assert main(["loads", str(rec), "--events", str(ev), "--json", str(js)]) == 0
+    assert main(["loads", str(rec), "--events", str(ev), "--json", str(js), "--force"]) == 0
     assert "transients (impulses, N*s)" in capsys.readouterr().out
     assert json.loads(js.read_text())["transients"][0]["impulses_Ns"] == {"M_latch": 0.5}
     # no working structure, no full revolution: clear errors, exit 2

@@ -94,3 +94,31 @@ def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys
     events = [json.loads(line) for line in ev.read_text().splitlines()]
     assert events[-1]["kind"] == "run-failed" and events[-1]["t"] == t_stop
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.csv", "p.jsonl"]
+
+
+def test_mps_loads_checks_its_outputs_before_the_run(tmp_path, capsys):
+    kept = tmp_path / "w.json"
+    kept.write_text("{}")
+    for args, words in (([ "--png", str(tmp_path / "nodir" / "w.png")], "no directory"),
+                        (["--json", str(kept)], "exists")):
+        assert main(["loads", "working", *args]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and words in err, err
+    assert kept.read_text() == "{}"
+    assert main(["loads", "working", "--t-end", "0.3", "--json", str(kept), "--png",
+                 str(tmp_path / "w.png"), "--force"]) == 0
+    assert kept.read_text().startswith("{\n") or len(kept.read_text()) > 2
+    assert (tmp_path / "w.png").read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["w.json", "w.png"]
+
+
+def test_mps_view_save_is_checked_before_reading(tmp_path, capsys):
+    pytest.importorskip("rerun")
+    from pathlib import Path
+
+    sample = tmp_path / "s.mcap"
+    repo = Path(__file__).resolve().parents[2]
+    sample.write_bytes((repo / "recordings" / "sample_press-cycle.mcap").read_bytes())
+    for save, words in ((tmp_path, "a directory"), (sample, "the command's input")):
+        assert main(["view", str(sample), "--save", str(save), "--no-spawn", "--force"]) == 2
+        assert words in capsys.readouterr().err
