@@ -95,12 +95,11 @@ def _record(args) -> int:
 def _recover(args) -> int:
     from pathlib import Path
 
-    from .recording import recover
-
     from mps_core.input_files import check_file
     from mps_core.loads_cli import MCAP_MAGIC
-
     from mps_core.output_files import check_outputs, written_whole
+
+    from .recording import recover
 
     src = check_file(args.input, "recording", MCAP_MAGIC, "an MCAP file")
     dst = Path(args.output) if args.output else src.with_name(src.stem + "-recovered.mcap")
@@ -109,7 +108,11 @@ def _recover(args) -> int:
         # whole or not at all: a disk that fills up leaves no half-written file behind
         with written_whole(dst) as tmp:
             rep = recover(src, tmp)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:          # the disk full: nothing of OUT is left behind
+        print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written",
+              file=sys.stderr)
+        return 2
+    except ValueError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
     state = "complete" if rep.complete else (f"cut short at byte {rep.truncated_at} of "

@@ -231,6 +231,7 @@ class PressTwin(Node):
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
         self.recorder = None
+        self.recording_sink = None
         self.priority_got = 0
         self.ros_sink = RosSink(self.pubs)
         #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
@@ -474,8 +475,9 @@ class PressTwin(Node):
         self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
                                            scene_text=self.twin.scene.text, metadata=meta,
                                            flush_period=self.p["recording_flush_period"])
-        self.runner.sinks.append(RecordingSink(self.recorder, names=dict(self.names),
-                                               qos=offered_qos(self.p["qos_depth"])))
+        self.recording_sink = RecordingSink(self.recorder, names=dict(self.names),
+                                            qos=offered_qos(self.p["qos_depth"]), log=self._log)
+        self.runner.sinks.append(self.recording_sink)
         return self.recorder
 
     def run(self, stop: threading.Event) -> dict:
@@ -622,6 +624,7 @@ def main(argv=None) -> int:
         if rec is not None:
             node.get_logger().info(f"recording to {rec.path}")
 
+        recording_error = None
         try:
             stats = node.run(stop)
             if node.split and node.runner.error_kind == "simulation":
@@ -641,7 +644,10 @@ def main(argv=None) -> int:
         finally:
             node.closed = True
             if node.recorder is not None:
-                node.recorder.finish()
+                try:
+                    node.recorder.finish()
+                except OSError as exc:      # said when it happened (the sink's line)
+                    recording_error = str(exc)
             if node.split:
                 node.runner.close()
         node.drain()
@@ -666,8 +672,13 @@ def main(argv=None) -> int:
             + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
             f"{stats['commands_lost']} lost")
         if node.recorder is not None:
-            node.get_logger().info(f"recording finished: {node.recorder.path} "
-                                   f"({node.recorder.messages} messages)")
+            failure = node.recording_sink.failure or recording_error
+            if failure is None:
+                node.get_logger().info(f"recording finished: {node.recorder.path} "
+                                       f"({node.recorder.messages} messages)")
+            else:
+                node.get_logger().error(f"recording incomplete ({failure})")
+                code = code or 1
         return code
     finally:
         if executor is not None:

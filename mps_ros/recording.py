@@ -231,12 +231,18 @@ class BackgroundRecorder:
         self.messages = 0
         self.finished = False
         self.written: int | None = None
+        #: what the writing process answered when it could not write (the disk full)
+        self.error: str | None = None
 
     def _frame(self, kind: bytes, payload: bytes) -> None:
         data = kind + _FRAME_LEN(len(payload)) + payload
         view = memoryview(data)
-        while view:
-            view = view[self._out.write(view):]
+        try:
+            while view:
+                view = view[self._out.write(view):]
+        except (BrokenPipeError, ConnectionResetError):
+            self._check()               # its reason, where it gave one
+            raise
 
     def _reply(self) -> dict:
         import json
@@ -282,7 +288,18 @@ class BackgroundRecorder:
         if (self._batch or self._steps) and time.monotonic() - self._last >= self.batch_period:
             self._send()
 
+    def _check(self) -> None:
+        """An error the writing process has answered with already (OSError, once)."""
+        import select
+
+        if self.error is None and select.select([self._proc.stdout], [], [], 0)[0]:
+            reply = self._reply()
+            self.error = reply.get("error") or "the recording process ended"
+        if self.error is not None:
+            raise OSError(f"recording {str(self.path)!r}: {self.error}")
+
     def _send(self) -> None:
+        self._check()
         if self._steps:
             ids = self._ids_of_keys
             grew = ids is not None and len(ids) != self._ids_sent
@@ -312,20 +329,25 @@ class BackgroundRecorder:
             return
         self.finished = True
         try:
-            if self._batch or self._steps:
-                self._send()
-            self._frame(b"E", b"")
-            self._out.close()
-            reply = self._reply()
-        except (BrokenPipeError, ConnectionResetError):
-            reply = {"error": "the recording process ended early"}
+            if self.error is not None:
+                reply = {"error": self.error}
+                self._frame(b"E", b"")
+                self._out.close()
+            else:
+                if self._batch or self._steps:
+                    self._send()
+                self._frame(b"E", b"")
+                self._out.close()
+                reply = self._reply()
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            reply = {"error": self.error or "the recording process ended early"}
         finally:
             try:
                 self._proc.wait(timeout)
             finally:
                 self._proc.stdout.close()
         if "done" not in reply:
-            raise OSError(f"{self.path}: {reply.get('error')}")
+            raise OSError(f"recording {str(self.path)!r}: {reply.get('error')}")
         self.written = int(reply["done"])
         self._written_counts = reply.get("counts")
 
@@ -449,13 +471,25 @@ def _write_from_pipe() -> int:
                 elif kind == b"E":
                     done = True
                     break
+    except OSError as exc:              # the disk full, the file system gone read-only
+        error = f"{exc.strerror or exc}"
     except Exception as exc:
         error = f"{type(exc).__name__}: {exc}"
-    finally:
+    if error is None:
         rec.finish()
-    answer({"done": rec.messages, "counts": rec.counts()} if error is None
-           else {"error": error})
-    return 0 if error is None else 1
+        answer({"done": rec.messages, "counts": rec.counts()})
+        return 0
+    # said at once (the other side polls for it), then the file ended as far as it can be (the
+    # chunks already written stay whole: mps recover copies them), then what still comes is
+    # read and dropped, so that the other side never waits on a full pipe
+    answer({"error": error, "written": rec.messages})
+    try:
+        rec.finish()
+    except Exception:
+        pass
+    while not done and not eof:
+        done = any(kind == b"E" for kind, _ in frames(None))
+    return 1
 
 
 class RecordingSink:
@@ -464,12 +498,27 @@ class RecordingSink:
     names) with the QoS it was offered with (``qos``: key -> YAML)."""
 
     def __init__(self, recorder: Recorder, names: dict | None = None, qos: dict | None = None,
-                 node: str = NODE_NAME):
+                 node: str = NODE_NAME, log=None):
         self.rec = recorder
         self.names = names or {}
         self.qos = qos or {}
         self.node = node
         self._ids: dict = {}         # key -> the recorder's channel id (emit_all)
+        #: ``log(level, text)``: where the recording's failure is said (once); None: raised
+        self.log = log
+        #: why the recording stopped (the disk full...); the run goes on without it
+        self.failure: str | None = None
+        self._t_ns = 0
+
+    def _failed(self, exc: Exception) -> None:
+        if self.log is None:
+            raise exc
+        self.failure = str(exc)
+        path = getattr(self.rec, "path", None)
+        self.log("error", f"recording stopped at t = {self._t_ns * 1e-9:.6g} s: {exc}; the run "
+                          "goes on without it; the file keeps the whole chunks written before"
+                          + (f" (complete it with `mps recover {path} OUT.mcap` where there "
+                             "is room)" if path is not None else ""))
 
     def _topic(self, key):
         name = self.names.get(key)
@@ -483,7 +532,13 @@ class RecordingSink:
             self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
 
     def emit(self, key, data, t_ns):
-        self.rec.write(self._topic(key), BY_KEY[key].msgtype, data, t_ns, self.qos.get(key))
+        if self.failure is not None:
+            return
+        self._t_ns = t_ns
+        try:
+            self.rec.write(self._topic(key), BY_KEY[key].msgtype, data, t_ns, self.qos.get(key))
+        except OSError as exc:
+            self._failed(exc)
 
     received = emit
 
@@ -491,20 +546,32 @@ class RecordingSink:
         """A released step's messages, ``(key, data, t_ns, received)`` each, in order: the
         commands as received are recorded like the others (:meth:`received` is :meth:`emit`).
         A recorder with ``write_steps`` takes the list as it is."""
+        if self.failure is not None:
+            return
         write_steps = getattr(self.rec, "write_steps", None)
         if write_steps is None:
             for key, data, t_ns, _received in msgs:
                 self.emit(key, data, t_ns)
             return
+        if msgs:
+            self._t_ns = msgs[0][2]
         ids = self._ids
-        for key, _data, _t, _r in msgs:
-            if key not in ids:          # a key met for the first time: its channel first
-                ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype,
-                                            self.qos.get(key))
-        write_steps(msgs, ids)
+        try:
+            for key, _data, _t, _r in msgs:
+                if key not in ids:      # a key met for the first time: its channel first
+                    ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype,
+                                                self.qos.get(key))
+            write_steps(msgs, ids)
+        except OSError as exc:
+            self._failed(exc)
 
     def tick(self, deadline: float | None = None):
-        self.rec.tick()
+        if self.failure is not None:
+            return
+        try:
+            self.rec.tick()
+        except OSError as exc:
+            self._failed(exc)
 
 
 # -- reading back and recovering --------------------------------------------------------------

@@ -335,3 +335,36 @@ def test_new_recordings_never_share_a_file(tmp_path, monkeypatch):
     assert (a.name, b.name) == ("press-cycle-20261125-120000-123.mcap",
                                 "press-cycle-20261125-120000-123-2.mcap")
     assert a.exists() and b.exists()
+
+
+@pytest.mark.parametrize("pacing", ["as_fast_as_possible", "realtime"])
+def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing):
+    """The recording's file cannot grow (here a file size limit on the node's processes, as a
+    full disk would): one line when it happens, the run goes on to its end and publishes, the
+    node ends with status 1 and says the recording is incomplete; what was written is
+    recovered whole by mps recover."""
+    import sys
+
+    from twin_probe import NodeProcess
+
+    rec = tmp_path / "r.mcap"
+    params = dict(pacing=pacing, real_time_factor=2.0, dt=0.001, t_end=8.0, recording=str(rec))
+    limit = 1_500_000
+    node = NodeProcess(tmp_path, params, name=pacing)
+    node.cmd = [sys.executable, "-c",
+                "import os, resource, sys; "
+                f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+                "os.execv(sys.argv[1], sys.argv[1:])", *node.cmd]
+    with node:
+        rc = node.wait(120)
+        log = node.log()
+    stopped = [ln for ln in log.splitlines() if "recording stopped at t = " in ln]
+    assert rc == 1 and len(stopped) == 1, log
+    assert "File too large" in stopped[0] and f"mps recover {rec}" in stopped[0]
+    assert "run ended at t = 8 s after 8000 steps" in log and "Traceback" not in log
+    assert "recording incomplete" in log
+    assert rec.stat().st_size <= limit
+    out = tmp_path / "back.mcap"
+    assert mps_main(["recover", str(rec), str(out)]) == 0
+    clock = read_all(out)["/clock"]
+    assert 1000 < len(clock) < 8001
