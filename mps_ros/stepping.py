@@ -229,12 +229,15 @@ class _Ahead:
         runner._begin()
         runner._staging = None
         self.wall_start = runner.wall_start = clock() + (lead - step)
+        self.k0 = twin.k
         if ahead:
             self.cps[twin.k] = twin.checkpoint()
         self._entry(twin.k, self.wall_start, True, staged)
         runner._later_logs = []
         next_diag = runner.wall_start + runner.period
         commands, stop = self.commands, runner._stop
+        # a schedule this far behind (wall s) is said once: the run cannot keep real time
+        behind, warned = max(0.1, lead), False
         try:
             while not twin.done and not stop.is_set():
                 if commands and twin.k >= commands[0][4]:
@@ -260,6 +263,9 @@ class _Ahead:
                 runner.step_times.add(c1 - c0)
                 if c1 > deadline:
                     runner.misses += 1
+                    if c1 > deadline + behind and not warned:
+                        warned = True
+                        self._say_behind(k, c1 - deadline)
                 t_ns = to_ns(twin.t)
                 staged = [] if msgs is None else [(key, data, t_ns, False)
                                                   for key, data in msgs]
@@ -299,6 +305,19 @@ class _Ahead:
                 self.flush()
             except BrokenPipeError:
                 pass
+
+    def _say_behind(self, k: int, late: float) -> None:
+        """One warning: the steps cost more than their period (the run goes on, late)."""
+        runner, twin = self.runner, self.twin
+        period = twin.dt / runner.rtf
+        steps = max(1, k - self.k0)
+        rate = steps / (steps * period + late)
+        runner.log("warn", f"cannot keep real time: step {k} (t = {twin.t:.6g} s) came "
+                           f"{late * 1e3:.0f} ms after its deadline; the node makes about "
+                           f"{rate:.0f} steps a wall second where real time needs "
+                           f"{1.0 / period:.0f} (a step every {period * 1e3:.3g} ms): give a "
+                           "larger dt or a smaller real_time_factor (the run goes on, behind "
+                           "its schedule)")
 
     def _command(self, cmd: tuple, ahead: bool) -> None:
         """A command at its boundary ``k`` (the ROS process chose it, dropped the steps it had

@@ -155,3 +155,17 @@ def test_fifo_where_the_system_allows_it(tmp_path):
     assert policies.pop(node.pid) == (os.SCHED_FIFO, 10)
     assert len(policies) >= 3 and set(policies.values()) == {(os.SCHED_FIFO, 9)}, policies
     assert "realtime priority 10" in log
+
+
+def test_a_node_that_cannot_keep_real_time_says_so_once(tmp_path):
+    """40 000 steps a wall second asked (0.1 ms steps at x4): no machine steps that in
+    Python; the node says so once, early, and runs on to its end."""
+    params = dict(pacing="realtime", dt=1e-4, real_time_factor=4.0, t_end=0.5,
+                  recording="none")
+    with NodeProcess(tmp_path, params, name="slow") as node:
+        rc = node.wait(120)
+        log = node.log()
+    warnings = [ln for ln in log.splitlines() if "cannot keep real time" in ln]
+    assert rc == 0 and len(warnings) == 1, log
+    assert "where real time needs 40000" in warnings[0] and "larger dt" in warnings[0]
+    assert "run ended at t = 0.5 s after 5000 steps" in log
