@@ -594,15 +594,20 @@ def test_no_process_left(tmp_path):
 
 def test_node_and_mps_record_write_the_same_messages(tmp_path):
     """One recording module: a node run and ``mps record`` of the same scene hold the same
-    messages, byte for byte (the pacing diagnostics aside)."""
-    from mps_ros.recording import record
+    messages, byte for byte (the pacing diagnostics aside). Each runs in a fresh process of
+    its own, as a user runs them. (Called inside this test process, after the hundreds of
+    scenes the suite runs before, ``record`` once gave reaction bytes that differed from the
+    node's; not reproduced alone or after every preset warmed up: what in a long-lived
+    process's kept state did it is not known yet.)"""
+    import subprocess
 
     a = tmp_path / "node.mcap"
     with NodeProcess(tmp_path, dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05,
                                     recording=str(a))) as node:
         assert node.wait(60) == 0, node.log()
     b = tmp_path / "record.mcap"
-    record("press-cycle", b, dt=DT, t_end=0.05, stop_on_signals=False)
+    subprocess.run(mps_cmd("record", "press-cycle", "--out", str(b), "--dt", str(DT),
+                           "--t-end", "0.05"), check=True, capture_output=True, timeout=120)
 
     def raw(path):
         from rosbags.highlevel import AnyReader
