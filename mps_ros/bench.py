@@ -213,12 +213,13 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
              lead: float | None = None, release_period: float | None = None,
              derivatives: str | None = None, release_slice: float | None = None,
              n_neighbours: int = 0, in_process: bool = False,
-             commands_every: float | None = None, command_delay: float | None = None) -> dict:
+             commands_every: float | None = None, command_delay: float | None = None,
+             flood: int = 0) -> dict:
     t_end = steps * 1e-3
     params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
                   wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
                   publish_every=publish_every)
-    if commands_every:
+    if commands_every or flood:
         # an operator instead of the scene's schedule: the subscriber sends the commands
         params.update(scene_commands=False, wait_for_commanders=1)
     if command_delay is not None:
@@ -238,14 +239,14 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
     busy = neighbours(n_neighbours)       # for the whole run, the plain loop's too
     try:
         return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
-                         commands_every)
+                         commands_every, flood)
     finally:
         for b in busy:
             stop_group(b)
 
 
 def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
-              commands_every=None) -> dict:
+              commands_every=None, flood=0) -> dict:
     t_end = steps * 1e-3
     loop = loop_cost(min(steps, 3000), outputs, derivatives)
     if outputs:
@@ -255,7 +256,8 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
                              + (["--deserialize"] if deserialize else [])
                              + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
                              + ([f"--commands-every={commands_every}"] if commands_every
-                                else []),
+                                else [])
+                             + ([f"--flood={flood}"] if flood else []),
                              env=env,
                              stdout=subprocess.PIPE, stderr=open(tmp / "probe.log", "wb"),
                              text=True, start_new_session=True)
@@ -316,6 +318,7 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
         except (OSError, RuntimeError) as exc:     # the other figures still stand
             st["lost_by_topic"], st["recording_error"] = None, str(exc)
         st["drift_ms"] = got.get("drift_ms")
+        st["flood_s"] = got.get("flood_s")
         st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
         st["threads"] = _thread_table(threads0, threads1, wall_t - wall0) if wall_t > wall0 \
@@ -391,10 +394,11 @@ def record_only(tmp: Path, steps: int) -> dict:
 OPERATOR_WORDS = ("engage", "disengage", "stop", "start")
 
 
-def _operator(node, every: float, state: dict) -> None:
+def _operator(node, every: float | None, state: dict, flood: int = 0) -> None:
     """A thread of the subscriber's process that sends :data:`OPERATOR_WORDS` in turn on
     ``/press_twin/mode``, one every ``every`` wall seconds from the first message received,
-    until the run's end."""
+    until the run's end; ``flood``: 2 s after the first message, that many ``engage`` at once
+    (as fast as the publisher takes them)."""
     import threading
 
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -408,8 +412,15 @@ def _operator(node, every: float, state: dict) -> None:
     def send():
         while state["first"] is None:
             time.sleep(0.01)
+        if flood:
+            time.sleep(2.0)
+            t0 = time.monotonic()
+            msg = String(data="engage")
+            for _ in range(flood):
+                pub.publish(msg)
+            state["flood_s"] = time.monotonic() - t0
         i = 0
-        while not state["ended"]:
+        while every and not state["ended"]:
             time.sleep(every)
             if state["ended"]:
                 return
@@ -499,8 +510,9 @@ def probe() -> int:
     executor.add_node(node)
     every = next((float(a.split("=", 1)[1]) for a in sys.argv
                   if a.startswith("--commands-every=")), None)
-    if every:
-        _operator(node, every, state)
+    flood = next((int(a.split("=", 1)[1]) for a in sys.argv if a.startswith("--flood=")), 0)
+    if every or flood:
+        _operator(node, every, state, flood)
     deadline = time.monotonic() + 3600
     while not state["ended"] and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
@@ -510,7 +522,7 @@ def probe() -> int:
         executor.spin_once(timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
     out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0,
-           "by_topic": by_topic}
+           "by_topic": by_topic, "flood_s": state.get("flood_s")}
     if state["clock0"] and state["clock1"]:
         (s0, w0), (s1, w1) = state["clock0"], state["clock1"]
         # first message against last: their own delivery delays are in it
@@ -610,6 +622,9 @@ def main(argv=None) -> int:
     p.add_argument("--commands-every", type=float, default=None, metavar="S",
                    help="realtime: the subscriber also sends engage, disengage, stop, start in "
                         "turn on ~/mode, one every S wall seconds (the scene's own commands off)")
+    p.add_argument("--flood", type=int, default=0, metavar="N",
+                   help="realtime: the subscriber sends N engage at once, 2 s into the run "
+                        "(the scene's own commands off)")
     p.add_argument("--command-delay", type=float, default=None, metavar="S",
                    help="the node's command_delay (default: the node's, 0)")
     p.add_argument("--events-executor", action="store_true",
@@ -635,7 +650,8 @@ def main(argv=None) -> int:
         if a.what in ("all", "realtime"):
             r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
                          a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
-                         a.neighbours, a.in_process, a.commands_every, a.command_delay)
+                         a.neighbours, a.in_process, a.commands_every, a.command_delay,
+                         a.flood)
             res["realtime_1kHz"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "realtime", r)
@@ -651,9 +667,13 @@ def main(argv=None) -> int:
                   f"{'0 (default)' if a.release_period is None else a.release_period} s, "
                   f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
                   f" s, derivatives {scheme}"
-                  + (f", an operator command every {a.commands_every:g} s, command_delay "
+                  + (f", an operator command every {a.commands_every:g} s"
+                     if a.commands_every else "")
+                  + (f", a flood of {a.flood} engage at once 2 s in (sent in "
+                     f"{r.get('flood_s') or float('nan'):.3f} s)" if a.flood else "")
+                  + (f", command_delay "
                      f"{'0 (default)' if a.command_delay is None else a.command_delay} s"
-                     if a.commands_every else "") + ":\n"
+                     if a.commands_every or a.flood else "") + ":\n"
                   f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
                   f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
                   f"  achieved real-time factor   {r['rtf']:.3f}\n"
@@ -666,7 +686,8 @@ def main(argv=None) -> int:
                   f"step's deadline)\n"
                   f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
                   + (f"  commands                    {r['commands_applied']} applied, "
-                     f"{r['commands_refused']} refused\n" if a.commands_every else "") +
+                     f"{r['commands_refused']} refused\n" if a.commands_every or a.flood
+                     else "") +
                   f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
                   f"({r['subscriber_received']} of {r['messages']} published)\n"
                   + _lost_line(r) +
