@@ -69,6 +69,8 @@ class _Inbox:
         self.msgs: dict[str, list] = {t: [] for t in self.topics}
         self.last_ns = None             # the newest simulated time seen
         self.ended = False
+        self.end_ns = None              # the run-end event's simulated time
+        self.last_arrival = time.monotonic()
 
     def callback(self, topic: str):
         stamped = self.topics[topic] in _STAMPED
@@ -82,16 +84,29 @@ class _Inbox:
                 t = self.last_ns if self.last_ns is not None else 0
             with self.lock:
                 self.msgs[topic].append((t, bytes(data)))
+                self.last_arrival = time.monotonic()
                 if stamped and (self.last_ns is None or t > self.last_ns):
                     self.last_ns = t
                 if events and b'"run-end"' in data:
                     self.ended = True
+                    self.end_ns = _end_ns(data)
         return cb
 
     def take(self) -> dict:
         with self.lock:
             out, self.msgs = self.msgs, {t: [] for t in self.topics}
         return out
+
+
+def _end_ns(data: bytes) -> int | None:
+    """The simulated time (ns) of a ``run-end`` event's message (CDR std_msgs/String)."""
+    import json
+
+    try:
+        text = bytes(data[8:]).rstrip(b"\x00").decode()
+        return round(float(json.loads(text)["t"]) * 1e9)
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | None = None,
@@ -181,7 +196,12 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
             if newest is not None and last_logged is not None:
                 max_lag = max(max_lag, newest * 1e-9 - last_logged)
             if ended:
-                break
+                # the run's end came on its own topic: the steps still on their way (other
+                # topics, other queues) are taken too, up to the end's time or a quiet second
+                reached = inbox.end_ns is None or (
+                    last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns)
+                if reached or time.monotonic() - inbox.last_arrival > 1.0:
+                    break
             if duration is not None and time.monotonic() - t_start >= duration:
                 break
     finally:
