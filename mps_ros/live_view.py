@@ -128,6 +128,10 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
             print(text, flush=True)
     if not (hz > 0):
         raise ReplayError(f"--hz {hz!r}: expected a positive number of frames a second")
+    if save is None and connect is None:
+        from .view import no_display
+
+        no_display()            # before anything is started
     rr = _rr()
     import rerun.blueprint as rrb
 

@@ -516,6 +516,8 @@ def view(path, *, save=None, spawn: bool = True, scene=None, log=print) -> tuple
     the viewer unless ``spawn`` is False."""
     import time
 
+    if spawn:
+        no_display()
     c0 = time.perf_counter()
     rep = read_recording(path)
     c1 = time.perf_counter()
@@ -532,9 +534,26 @@ def view(path, *, save=None, spawn: bool = True, scene=None, log=print) -> tuple
         f"{out.calls['log']} static logs, {out.rows} rows)")
     log(f"wrote {save}")
     if spawn:
-        spawn_viewer(Path(save))
+        viewer = spawn_viewer(Path(save))
+        try:                # a viewer that cannot start ends at once: say so, not "opened"
+            code = viewer.wait(1.5)
+        except subprocess.TimeoutExpired:
+            code = None
+        if code is not None:
+            raise ReplayError(f"the viewer ended at once (exit status {code}); the recording "
+                              f"is saved in {save}: open it with rerun --bind 127.0.0.1 {save}")
         log(f"opened the viewer on {save} (listening on 127.0.0.1 only)")
     return Path(save), out
+
+
+def no_display() -> None:
+    """ReplayError where a native viewer has no display to open on (Linux without DISPLAY or
+    WAYLAND_DISPLAY), before any work is done."""
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                 or os.environ.get("WAYLAND_DISPLAY")):
+        raise ReplayError("no display to open the viewer on (DISPLAY and WAYLAND_DISPLAY are "
+                          "unset): give --save FILE.rrd --no-spawn and open the file where "
+                          "there is one")
 
 
 __all__ = ["convert", "save_rrd", "view", "spawn_viewer", "positions", "to_view", "blueprint",

@@ -3,6 +3,8 @@ traceback; a recording cut short gets a recovery hint that works."""
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from view_helpers import cut_before_end, foreign_mcap
@@ -95,3 +97,21 @@ def test_damaged_message(tmp_path, capsys):
         w.finish()
     for err in _both(p, tmp_path, capsys):
         assert "cannot be decoded" in err
+
+
+def test_no_display_is_said_before_any_work(cycle_mcap, tmp_path, capsys, monkeypatch):
+    """Without a display the viewer cannot open: one line at once, nothing written, neither
+    for a recording nor for --live (with --save it works: the other tests)."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the display check is Linux's (DISPLAY, WAYLAND_DISPLAY)")
+    for argv in (["view", str(cycle_mcap)], ["view", "--live", "--duration", "1"]):
+        assert main(argv) == 2, argv
+        out, err = capsys.readouterr()
+        assert err.startswith("mps: error: no display to open the viewer on") and out == "", err
+    assert list(tmp_path.iterdir()) == []       # no temporary .rrd left
