@@ -25,11 +25,15 @@ def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, caps
 
     started = []
 
-    class FakePopen:
+    class FakePopen:            # a viewer that starts and keeps running
         def __init__(self, cmd, **kw):
             started.append(cmd)
 
+        def wait(self, timeout=None):
+            raise view.subprocess.TimeoutExpired(started[-1], timeout)
+
     monkeypatch.setattr(view.subprocess, "Popen", FakePopen)
+    monkeypatch.setenv("DISPLAY", ":99")          # a display to open on (none is used)
     monkeypatch.setattr(view.tempfile, "mkdtemp", lambda prefix="": str(tmp_path))
     assert main(["view", str(cycle_mcap)]) == 0
     (cmd,) = started
@@ -39,3 +43,24 @@ def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, caps
     assert "listening on 127.0.0.1 only" in capsys.readouterr().out
     assert main(["view", str(cycle_mcap), "--no-spawn"]) == 2
     assert "--no-spawn without --save" in capsys.readouterr().err
+
+
+def test_a_viewer_that_ends_at_once_is_an_error(cycle_mcap, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rerun")
+    from mps_core.cli import main
+    from mps_ros import view
+
+    class DeadViewer:           # e.g. no usable display: it exits with an error at once
+        def __init__(self, cmd, **kw):
+            pass
+
+        def wait(self, timeout=None):
+            return 1
+
+    monkeypatch.setattr(view.subprocess, "Popen", DeadViewer)
+    monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setattr(view.tempfile, "mkdtemp", lambda prefix="": str(tmp_path))
+    assert main(["view", str(cycle_mcap)]) == 2
+    out, err = capsys.readouterr()
+    assert "opened the viewer" not in out
+    assert "the viewer ended at once (exit status 1)" in err and "press-cycle.rrd" in err
