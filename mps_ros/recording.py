@@ -32,6 +32,7 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from .cdr import encoder, generic_encoder, msgdef
+from .os_threads import widen_pipe
 from .topics import BY_KEY, DEPTH, NODE_NAME, offered_qos, qos_yaml, resolve
 
 PROFILE = "ros2"
@@ -209,7 +210,7 @@ class BackgroundRecorder:
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       bufsize=0)
         self._out = self._proc.stdin
-        _widen_pipe(self._out)
+        widen_pipe(self._out.fileno())
         settings = {"path": str(path), "scene_name": scene_name, "scene_text": scene_text,
                     "metadata": {k: str(v) for k, v in (metadata or {}).items()},
                     "chunk_size": int(chunk_size), "flush_period": float(flush_period),
@@ -350,18 +351,6 @@ class BackgroundRecorder:
             raise OSError(f"recording {str(self.path)!r}: {reply.get('error')}")
         self.written = int(reply["done"])
         self._written_counts = reply.get("counts")
-
-
-def _widen_pipe(f, size: int = 1 << 20) -> None:
-    """Give the pipe to the writing process room for about a second of a 1 kHz run's
-    messages (Linux; elsewhere the default stays), so that handing a batch over never waits
-    for the other process to read: a paced run hands them over between its deadlines."""
-    import fcntl
-
-    try:
-        fcntl.fcntl(f.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), size)
-    except OSError:
-        pass
 
 
 _FRAME_LEN = struct.Struct("<I").pack

@@ -62,6 +62,7 @@ import sys
 import threading
 import time
 
+from .os_threads import widen_pipe
 from .topics import BY_KEY
 from .twin import Command, Gate, RefusalLog, Runner, Timings, Twin, shown, to_json, to_ns
 
@@ -126,16 +127,6 @@ class FrameReader:
             if not chunk:
                 return []
             buf.extend(chunk)
-
-
-def _widen(fd: int, size: int = 1 << 20) -> None:
-    """Room for about a second of a 1 kHz run's messages in the pipe (Linux)."""
-    import fcntl
-
-    try:
-        fcntl.fcntl(fd, getattr(fcntl, "F_SETPIPE_SZ", 1031), size)
-    except OSError:
-        pass
 
 
 # -- real-time scheduling ---------------------------------------------------------------------
@@ -255,17 +246,10 @@ class _Ahead:
                         self.wake.wait(wait if wait < 0.05 else 0.05)
                         self.wake.clear()
                         continue
-                c0 = clock()
-                twin.step()
-                k = twin.k
-                msgs = twin.state_payloads() if (k % runner.every == 0 or twin.done) else None
-                c1 = clock()
-                runner.step_times.add(c1 - c0)
-                if c1 > deadline:
-                    runner.misses += 1
-                    if c1 > deadline + behind and not warned:
-                        warned = True
-                        self._say_behind(k, c1 - deadline)
+                k, msgs, c1 = runner._timed_step(deadline, clock)
+                if c1 > deadline + behind and not warned:
+                    warned = True
+                    self._say_behind(k, c1 - deadline)
                 t_ns = to_ns(twin.t)
                 staged = [] if msgs is None else [(key, data, t_ns, False)
                                                   for key, data in msgs]
@@ -369,7 +353,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         fd_out = os.dup(1)
         os.dup2(2, 1)
     out = FrameWriter(fd_out)
-    _widen(fd_out)
+    widen_pipe(fd_out)
     reader = FrameReader(fd_in)
     frames = reader.read()
     if not frames or frames[0][0] != b"I":
@@ -560,7 +544,7 @@ class SteppingProcess:
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       bufsize=0)
         self._out = FrameWriter(self._proc.stdin.fileno())
-        _widen(self._proc.stdin.fileno())
+        widen_pipe(self._proc.stdin.fileno())
         self._reader = FrameReader(self._proc.stdout.fileno())
         self._out.frame(b"I", json.dumps(self.spec).encode())
         keys = [t.key for t in BY_KEY.values()
@@ -804,12 +788,10 @@ class SteppingProcess:
             try:
                 s.emit_all(msgs)
                 s.tick(head.deadline)
-            except Exception as exc:    # the recording failed: say so once, step on
-                if not getattr(s, "failed", False):
-                    s.failed = True
-                    self.log("error", f"recording failed at step {head.k}: "
-                                      f"{type(exc).__name__}: {exc}")
-        self.sinks = [s for s in self.sinks if not getattr(s, "failed", False)]
+            except Exception as exc:    # a sink that fails: said once, dropped, step on
+                self.log("error", f"recording failed at step {head.k}: "
+                                  f"{type(exc).__name__}: {exc}")
+                self.sinks = [x for x in self.sinks if x is not s]
 
     def _priority_said(self, got: dict) -> None:
         prio = self.priority

@@ -1044,14 +1044,7 @@ class Runner:
                                or (queue and queue[0].deadline + delay - clock() < guard)) \
                                 and not self._stop.is_set() and not inbox:
                             cond.wait(0.002)
-                c0 = clock()
-                twin.step()
-                k = twin.k
-                msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
-                c1 = clock()
-                self.step_times.add(c1 - c0)
-                if c1 > deadline:
-                    self.misses += 1
+                k, msgs, c1 = self._timed_step(deadline, clock)
                 t_ns = to_ns(twin.t)
                 entry = _Release(k, t_ns, deadline, [], msgs is not None, None,
                                  twin.sim.structure)
@@ -1133,10 +1126,6 @@ class Runner:
                     if not received:
                         n += 1
                 for s in live:
-                    release = getattr(s, "release", None)
-                    if release is not None:     # the step at once, with its deadline
-                        release(msgs, head.deadline, head.state)
-                        continue
                     emit_all = getattr(s, "emit_all", None)
                     if emit_all is not None:
                         emit_all(msgs)
@@ -1193,6 +1182,21 @@ class Runner:
         steps = (self._released, *queue)
         d = next((e.deadline for e in steps if e.deadline >= wall), None)
         return last if d is None else [e for e in steps if e.deadline <= d][-1]
+
+    def _timed_step(self, deadline: float, clock) -> tuple[int, list | None, float]:
+        """One step computed ahead: the twin stepped and its messages made where due, the
+        compute time kept and a deadline miss counted where it ended after ``deadline``;
+        (k, the messages or None, the wall time it ended)."""
+        twin = self.twin
+        c0 = clock()
+        twin.step()
+        k = twin.k
+        msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
+        c1 = clock()
+        self.step_times.add(c1 - c0)
+        if c1 > deadline:
+            self.misses += 1
+        return k, msgs, c1
 
     def _commands_ahead(self, ahead: bool) -> None:
         """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One

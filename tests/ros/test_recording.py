@@ -27,7 +27,7 @@ from mps_ros.recording import (Recorder, generic_encoder, read_metadata, record,
                                recover)
 from mps_ros.topics import FOUNDATION, WRENCHES  # noqa: E402
 from mps_ros.twin import Gate, Twin  # noqa: E402
-from twin_probe import mps_cmd  # noqa: E402
+from twin_probe import mps_cmd, wait_until  # noqa: E402
 
 
 def read_all(path):
@@ -183,13 +183,9 @@ def test_mps_record_finishes_the_file_on_sigint(tmp_path):
     try:
         # the header first, then a chunk of steps (written within a second of stepping):
         # the run is under way once the file has grown past its header
-        end = time.monotonic() + 60
-        while time.monotonic() < end and (not out.exists() or out.stat().st_size < 1000):
-            time.sleep(0.05)
+        wait_until(lambda: out.exists() and out.stat().st_size >= 1000, 60, "the file's header")
         head = out.stat().st_size
-        while time.monotonic() < end and out.stat().st_size == head:
-            time.sleep(0.05)
-        assert out.stat().st_size > head, "no chunk of steps written within 60 s"
+        wait_until(lambda: out.stat().st_size > head, 60, "a chunk of steps in the file")
         proc.send_signal(signal.SIGINT)
         assert proc.wait(20) == 0
     finally:

@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import threading
-import time
 
 import pytest
 
@@ -20,7 +19,7 @@ pytest.importorskip("rosbags")
 
 from mps_ros.bench import _children as _kids, _cmdline  # noqa: E402
 from mps_ros.stepping import FrameReader, FrameWriter  # noqa: E402
-from twin_probe import Listener, NodeProcess, ns  # noqa: E402
+from twin_probe import Listener, NodeProcess, ns, wait_until  # noqa: E402
 
 DT = 1e-3
 
@@ -135,10 +134,9 @@ def test_fifo_where_the_system_allows_it(tmp_path):
                   realtime_priority=10)
     granted = "stepping process and publishing thread: SCHED_FIFO, priority 10"
     with NodeProcess(tmp_path, params, name="fifo") as node:
-        end = time.monotonic() + 60
-        while granted not in node.log():
-            assert node.alive() and time.monotonic() < end, node.log()
-            time.sleep(0.05)
+        wait_until(lambda: granted in node.log() or not node.alive(), 60,
+                   "the node's line on its priority")
+        assert granted in node.log(), node.log()
         # the node's process: its publishing (main) thread at 10, every other one (rclpy's
         # executor, the middleware's) one below, so that none holding what a release needs
         # waits behind an ordinary process

@@ -64,6 +64,18 @@ class NodeProcess:
         return False
 
 
+def wait_until(cond, timeout: float, what: str, poll: float = 0.002):
+    """``cond()``'s first true value, polled until ``timeout`` s; AssertionError naming
+    ``what`` when it never comes."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(poll)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+
 def stop_group(proc, grace: float = 5.0) -> None:
     """End a test's process group (None: nothing started)."""
     if proc is not None:
@@ -149,13 +161,7 @@ class Listener:
         return any(e.get("kind") == "run-end" for e in self.events())
 
     def wait_for(self, cond, timeout: float, what: str, poll: float = 0.002):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            v = cond()
-            if v:
-                return v
-            time.sleep(poll)
-        raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        return wait_until(cond, timeout, what, poll)
 
     # -- sending ---------------------------------------------------------------------------
     def send(self, word: str) -> None:
