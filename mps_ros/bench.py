@@ -13,7 +13,8 @@
 
 ``soak``: the realtime run for ``--minutes`` (memory, drift, messages lost); ``table``: the node
 as fast as possible by outputs; ``wakeup``: the CPU one wake-up from a 1 ms timed wait costs a
-thread on this machine (no ROS). Messages lost are counted by topic too: the recording holds
+thread on this machine (no ROS); ``writer``: the recording's MCAP writer against the ``mcap``
+library's, CPU a message side by side (no ROS). Messages lost are counted by topic too: the recording holds
 every message the node published, the subscriber counts what it received on each topic.
 ``--keep DIR`` keeps the realtime or soak run's logs (the node's, the subscriber's) and figures
 there, which a run in the temporary folder otherwise takes with it.
@@ -568,6 +569,57 @@ def wakeup_costs(n: int = 2000) -> dict:
     return out
 
 
+def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
+    """CPU µs a message of the recording's MCAP writer (:class:`~mps_ros.mcap_writer.McapWriter`)
+    and of the ``mcap`` library's ``Writer``, given the same messages (press-cycle at 1 kHz,
+    every output, ``steps`` steps: what the recording process writes) into memory, zstd chunks
+    of 512 KiB; the two interleaved, best of ``rounds``; and whether the files were the same."""
+    import io
+
+    from mcap.writer import CompressionType, Writer
+
+    from .mcap_writer import McapWriter
+    from .topics import OUTPUTS
+    from .twin import Twin
+
+    tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=OUTPUTS)
+    msgs = []
+    while not tw.done:
+        tw.step()
+        msgs.extend((key, data, tw.k * 1_000_000) for key, data in tw.state_payloads())
+    ids = {key: n + 1 for n, key in enumerate(dict.fromkeys(k for k, _d, _t in msgs))}
+
+    def write(w) -> tuple[float, bytes]:
+        out = io.BytesIO()
+        w = w(out)
+        w.start(profile="ros2", library="bench")
+        sid = w.register_schema("s", "ros2msg", b"")
+        for key in ids:
+            w.register_channel(str(key), "cdr", sid, {})
+        seq = dict.fromkeys(ids.values(), 0)
+        add = w.add_message
+        t0 = time.process_time()
+        for key, data, t_ns in msgs:
+            cid = ids[key]
+            seq[cid] += 1
+            add(cid, log_time=t_ns, data=data, publish_time=t_ns, sequence=seq[cid])
+        w.finish()
+        return (time.process_time() - t0) / len(msgs) * 1e6, out.getvalue()
+
+    ours = lambda out: McapWriter(out, chunk_size=512 * 1024)             # noqa: E731
+    theirs = lambda out: Writer(out, chunk_size=512 * 1024,               # noqa: E731
+                                compression=CompressionType.ZSTD)
+    best = {"mps": math.inf, "mcap": math.inf}
+    same = True
+    for _ in range(rounds):
+        a, fa = write(ours)
+        b, fb = write(theirs)
+        best["mps"], best["mcap"] = min(best["mps"], a), min(best["mcap"], b)
+        same = same and fa == fb
+    return {"messages": len(msgs), "per_step": len(msgs) / steps, "mps_us": best["mps"],
+            "mcap_us": best["mcap"], "same_bytes": same}
+
+
 def _lost_line(r: dict) -> str:
     if r.get("recording_error"):
         return f"  no messages by topic        {r['recording_error']}\n"
@@ -582,7 +634,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("what", nargs="?", default="all",
-                   choices=("all", "realtime", "afap", "table", "soak", "wakeup", "probe"))
+                   choices=("all", "realtime", "afap", "table", "soak", "wakeup", "writer",
+                            "probe"))
     p.add_argument("--minutes", type=float, default=10.0,
                    help="length of the soak run (default 10): realtime, every output, a "
                         "subscriber; RSS at 5 s and at the end, drift, messages lost")
@@ -640,6 +693,15 @@ def main(argv=None) -> int:
         for name, us in wakeup_costs().items():
             print(f"{name:38s} {us:5.1f} us of CPU a wake-up (1 ms waits, this thread's own time)")
         return 0
+    if a.what == "writer":
+        r = writer_costs()
+        print(f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
+              f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
+              f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
+              f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
+              f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
+              f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}")
+        return 0 if r["same_bytes"] else 1
     env = ros_env()
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR",
                                            "RMW_IMPLEMENTATION")})

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
+from .mcap_writer import McapWriter
 
 from .cdr import encoder, generic_encoder, msgdef
 from .os_threads import widen_pipe
@@ -110,9 +110,8 @@ class Recorder:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = _Direct(self.path)
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE}[compression]
-        self._w = Writer(self._stream, chunk_size=chunk_size, compression=comp)
+        self._w = McapWriter(self._stream, chunk_size=chunk_size,
+                             compression="" if compression == "none" else compression)
         self._w.start(profile=PROFILE, library=f"mps {__version__} (mcap writer)")
         meta = {"software": "mps", "version": __version__, "scene": scene_name,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
@@ -175,7 +174,7 @@ class BackgroundRecorder:
     """A :class:`Recorder` that writes in a process of its own (the machine's second core),
     off the stepping loop's time: the loop hands it each message's CDR bytes, which it sends
     down a pipe in batches (every ``batch_period`` wall seconds, at :meth:`tick`); the other
-    process (``python -m mps_ros.recording``) writes them with the ``mcap`` library in the
+    process (``python -m mps_ros.recording``) writes them (:class:`~mps_ros.mcap_writer.McapWriter`) in the
     order they were given. Same methods as :class:`Recorder`; ``messages`` and :meth:`counts`
     count what was handed over, ``written`` what the other process wrote (after
     :meth:`finish`).
@@ -649,7 +648,7 @@ def recover(src, dst) -> Recovered:
     report = Recovered()
     dst.parent.mkdir(parents=True, exist_ok=True)
     with open(dst, "wb") as fh:
-        w = Writer(fh, compression=CompressionType.ZSTD)
+        w = McapWriter(fh)
         started = False
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
