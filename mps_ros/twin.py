@@ -59,6 +59,17 @@ def to_ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
+def recording_alarm(name: str, t_ns: int, failure: str) -> dict:
+    """The /diagnostics message that says a run's recording has stopped (level ERROR, status
+    ``NAME: recording``): sent at once and again with each diagnostics period while the run
+    goes on without its recording."""
+    return {"header": {"stamp": {"sec": t_ns // 1_000_000_000,
+                                 "nanosec": t_ns % 1_000_000_000}, "frame_id": ""},
+            "status": [{"level": 2, "name": f"{name}: recording",
+                        "message": f"recording stopped: {failure}", "hardware_id": "mps",
+                        "values": [{"key": "error", "value": failure}]}]}
+
+
 def _jsonable(v):
     if isinstance(v, (np.floating, np.integer)):
         return v.item()
@@ -851,10 +862,14 @@ class Runner:
                   for k, v in s.items()]
         msg = (f"rtf {s['real_time_factor']:.3g}, step p50 {s['step_time_p50_ms']:.3g} ms "
                f"p99 {s['step_time_p99_ms']:.3g} ms, {s['deadline_misses']} deadline misses")
+        status = [{"level": 1 if late else 0, "name": f"{self.name}: pacing",
+                   "message": msg, "hardware_id": "mps", "values": values}]
+        failure = next((f for f in (getattr(x, "failure", None) for x in self.sinks) if f),
+                       None)
+        if failure:         # the recording stopped: said with every period (not recorded)
+            status += recording_alarm(self.name, t_ns, failure)["status"]
         self._emit("/diagnostics", {
-            "header": {"stamp": stamp(self.twin.t), "frame_id": ""},
-            "status": [{"level": 1 if late else 0, "name": f"{self.name}: pacing",
-                        "message": msg, "hardware_id": "mps", "values": values}]}, t_ns)
+            "header": {"stamp": stamp(self.twin.t), "frame_id": ""}, "status": status}, t_ns)
 
     # -- the loop -------------------------------------------------------------------------
     def prepare(self) -> None:

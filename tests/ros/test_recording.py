@@ -334,26 +334,41 @@ def test_new_recordings_never_share_a_file(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("pacing", ["as_fast_as_possible", "realtime"])
-def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing):
+def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing, ros):
     """The recording's file cannot grow (here a file size limit on the node's processes, as a
-    full disk would): one line when it happens, the run goes on to its end and publishes, the
-    node ends with status 1 and says the recording is incomplete; what was written is
-    recovered whole by mps recover."""
+    full disk would): one line when it happens, the run goes on to its end and publishes, an
+    ERROR status ``press_twin: recording`` on /diagnostics from then on, the node ends with
+    status 1 and says the recording is incomplete; what was written is recovered whole by mps
+    recover."""
     import sys
 
-    from twin_probe import NodeProcess
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from twin_probe import Listener, NodeProcess
 
     rec = tmp_path / "r.mcap"
-    params = dict(pacing=pacing, real_time_factor=2.0, dt=0.001, t_end=8.0, recording=str(rec))
+    params = dict(pacing=pacing, real_time_factor=2.0, dt=0.001, t_end=8.0, recording=str(rec),
+                  wait_for_subscribers=1, wait_timeout=30.0)
     limit = 1_500_000
     node = NodeProcess(tmp_path, params, name=pacing)
     node.cmd = [sys.executable, "-c",
                 "import os, resource, sys; "
                 f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
                 "os.execv(sys.argv[1], sys.argv[1:])", *node.cmd]
-    with node:
-        rc = node.wait(120)
-        log = node.log()
+    lis = Listener(keys=("/diagnostics",))
+    try:
+        with node:
+            rc = node.wait(120)
+            log = node.log()
+        diagnostics = lis.get("/diagnostics")
+    finally:
+        lis.close()
+    statuses = [(s.name, s.level, s.message) for m in diagnostics for s in m.status]
+    alarms = [s for s in statuses if s[0] == "press_twin: recording"]
+    assert alarms, statuses
+    assert all(lvl == DiagnosticStatus.ERROR and "File too large" in msg
+               for _n, lvl, msg in alarms), alarms
+    first = statuses.index(alarms[0])
+    assert any(n == "press_twin: pacing" for n, _l, _m in statuses[first:]), statuses
     stopped = [ln for ln in log.splitlines() if "recording stopped at t = " in ln]
     assert rc == 1 and len(stopped) == 1, log
     assert "File too large" in stopped[0] and f"mps recover {rec}" in stopped[0]
