@@ -185,11 +185,25 @@ class ParameterError(ValueError):
     pass
 
 
+class NameTaken(RuntimeError):
+    """Another node of this node's name and namespace is running in the same ROS domain."""
+
+
+#: wall seconds after its creation within which a node expects to have discovered the others
+#: on its machine (Fast DDS on loopback: well under one)
+DISCOVERY_S = 1.5
+#: a node killed (SIGKILL, power) stays in the others' graph until its participant's lease runs
+#: out: 5 s with :data:`FASTDDS_PROFILE` (Fast DDS's default: 20 s)
+LEASE_S = 5.0
+
+
 class PressTwin(Node):
     """The node. Construct, then :meth:`run` (blocks until the run ends or is stopped)."""
 
     def __init__(self, default_scene: str | None = None, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
+        self._created = time.monotonic()
+        self._recording_reserved = False
         self._declare(default_scene or DEFAULT_SCENE)
         p = self._params()
         self.p = p
@@ -465,6 +479,8 @@ class PressTwin(Node):
         if path == "auto":
             path = new_recording(self.twin.scene.name)
         else:
+            p = Path(path)
+            self._recording_reserved = p.is_file() and p.stat().st_size == 0
             path = claim_recording(path)
         meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
                              self.p["publish_every"])
@@ -491,6 +507,7 @@ class PressTwin(Node):
                f"{self.names[MODE.key]})"))
         # the kernels built and the channels registered while the peers are awaited
         self.runner.prepare()
+        self._refuse_a_second_of_my_name(self._created + DISCOVERY_S)
         self._wait_for_peers(stop)
         stop.wait(self.p["start_delay"])
         if stop.is_set():
@@ -499,6 +516,34 @@ class PressTwin(Node):
             self._set_priority()
         self.get_logger().info("stepping starts")
         return self.runner.run()
+
+    def _refuse_a_second_of_my_name(self, until: float) -> None:
+        """:class:`NameTaken` where another node of this node's name and namespace is running
+        in its domain (its topics, services and /clock would mix with this one's). The graph
+        is looked at until ``until`` (monotonic s: the discovery's time); one of the name seen
+        there is running if it is still there a lease later (one killed leaves the graph when
+        its lease runs out; then this node goes on)."""
+        me = (self.get_name(), self.get_namespace())
+        fqn = self.get_fully_qualified_name()
+        seen = None
+        while True:
+            twice = sum(1 for n in self.get_node_names_and_namespaces() if tuple(n) == me) > 1
+            now = time.monotonic()
+            if not twice:
+                if seen is not None or now >= until:
+                    return          # none, or one that had ended and has left the graph
+            elif seen is None:
+                seen = now
+                self.get_logger().warn(
+                    f"another node {fqn} is in the graph: is it running? (waiting up to "
+                    f"{LEASE_S + 1:g} s for one that has ended to leave)")
+            elif now - seen > LEASE_S + 1.0:
+                raise NameTaken(
+                    f"a node {fqn} is already running in ROS domain "
+                    f"{os.environ.get('ROS_DOMAIN_ID', '0')}; give this one another name or "
+                    "namespace (--ros-args -r __node:=NAME or -r __ns:=/NAMESPACE), or another "
+                    "ROS_DOMAIN_ID")
+            time.sleep(0.05)
 
     def _set_priority(self) -> None:
         """``realtime_priority`` > 0: the stepping thread runs under SCHED_FIFO at that priority
@@ -625,6 +670,7 @@ def main(argv=None) -> int:
             node.get_logger().info(f"recording to {rec.path}")
 
         recording_error = None
+        taken = None
         try:
             stats = node.run(stop)
             if node.split and node.runner.error_kind == "simulation":
@@ -632,6 +678,8 @@ def main(argv=None) -> int:
             elif node.split and node.runner.error:
                 node.get_logger().error(f"the run failed: {node.runner.error}")
                 code = 1
+        except NameTaken as exc:
+            taken = exc
         except MpsError as exc:
             node.get_logger().error(f"the simulation stopped: {exc}")
             stats = node.runner.stats()
@@ -650,6 +698,14 @@ def main(argv=None) -> int:
                     recording_error = str(exc)
             if node.split:
                 node.runner.close()
+        if taken is not None:       # nothing ran: the recording begun is not one
+            if node.recorder is not None:
+                if node._recording_reserved:
+                    node.recorder.path.write_bytes(b"")
+                else:
+                    node.recorder.path.unlink(missing_ok=True)
+            print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
+            return 2
         node.drain()
         why = node.runner.stop_reason or "end"
         node.get_logger().info(

@@ -515,25 +515,74 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
         assert packets == [], f"DDS traffic off loopback: {packets[:5]}"     # ... all on lo
 
 
-def test_fastdds_profile_changes_the_writer_timers_only():
-    """The package's Fast DDS profile: the default writer profile with the heartbeat period and
-    the NACK suppression period, nothing else (every QoS policy stays the code's)."""
+def test_fastdds_profile_changes_the_lease_and_writer_timers_only():
+    """The package's Fast DDS profile: the default participant profile with the lease and its
+    announcement period, the default writer profile with the heartbeat period and the NACK
+    suppression period, nothing else (every QoS policy stays the code's, discovery's reach and
+    the transports ROS's)."""
     import xml.etree.ElementTree as ET
 
     ns_ = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     root = ET.parse(FASTDDS_PROFILE).getroot()
     profiles = list(root)
-    assert [e.tag.split("}")[1] for e in profiles] == ["data_writer"]
-    writer = profiles[0]
-    assert writer.get("is_default_profile") == "true"
+    assert [e.tag.split("}")[1] for e in profiles] == ["participant", "data_writer"]
+    part, writer = profiles
+    assert part.get("is_default_profile") == writer.get("is_default_profile") == "true"
     assert [e.tag.split("}")[1] for e in writer] == ["times"]
+    discovery = part.find("p:rtps/p:builtin/p:discovery_config", ns_)
+    assert [e.tag.split("}")[1] for e in part.iter()] == [
+        "participant", "rtps", "builtin", "discovery_config", "leaseDuration", "sec", "nanosec",
+        "leaseAnnouncement", "sec", "nanosec"]
 
-    def seconds(name):
-        e = writer.find(f"p:times/p:{name}", ns_)
+    def seconds(parent, path):
+        e = parent.find(path, ns_)
         return int(e.find("p:sec", ns_).text) + int(e.find("p:nanosec", ns_).text) * 1e-9
 
-    assert seconds("heartbeatPeriod") == pytest.approx(0.1)
-    assert seconds("nackSupressionDuration") == pytest.approx(0.05)
+    assert seconds(discovery, "p:leaseDuration") == 5.0
+    assert seconds(discovery, "p:leaseAnnouncement") == 1.0
+    assert seconds(writer, "p:times/p:heartbeatPeriod") == pytest.approx(0.1)
+    assert seconds(writer, "p:times/p:nackSupressionDuration") == pytest.approx(0.05)
+
+
+def test_one_node_a_name(ros, tmp_path):
+    """A second node of the name of one that runs in the domain refuses to start (one line,
+    status 2, no recording left of its own, nothing of the first disturbed); one of another
+    name runs beside it; a node killed a moment ago does not count once it has left the
+    graph (its lease)."""
+    first_rec, second_rec = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    params = dict(pacing="realtime", dt=DT, t_end=60.0, recording=str(first_rec),
+                  wait_for_subscribers=1, wait_timeout=30.0,
+                  outputs="[clock, events]")
+    lis = Listener(keys=("/clock", "~/events"))
+    try:
+        with NodeProcess(tmp_path, params, name="first") as first:
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "the first node's /clock")
+            second = subprocess.run(
+                mps_cmd("node", "press-cycle", "--ros-args", "-p", f"recording:={second_rec}",
+                        "-p", "t_end:=1.0"), capture_output=True, text=True, timeout=120)
+            assert second.returncode == 2, second.stdout + second.stderr
+            err = [ln for ln in second.stderr.splitlines() if "error" in ln]
+            assert len(err) == 1 and "a node /press_twin is already running in ROS domain" \
+                in err[0] and "__node:=NAME" in err[0], second.stderr
+            assert not second_rec.exists()
+            other = subprocess.run(
+                mps_cmd("node", "press-cycle", "--ros-args", "-r", "__node:=press_twin_2",
+                        "-p", "recording:=none", "-p", "pacing:=as_fast_as_possible",
+                        "-p", "t_end:=0.05"), capture_output=True, text=True, timeout=120)
+            assert other.returncode == 0, other.stdout + other.stderr
+            assert first.alive()
+            t = lis.clock()
+            lis.wait_for(lambda: lis.clock() > t, 30, "the first node still stepping")
+            first.signal(signal.SIGKILL)
+            first.wait(10)
+        # killed: it stays in the graph until its lease runs out, then a new one runs
+        again = subprocess.run(
+            mps_cmd("node", "press-cycle", "--ros-args", "-p", "recording:=none",
+                    "-p", "pacing:=as_fast_as_possible", "-p", "t_end:=0.05"),
+            capture_output=True, text=True, timeout=120)
+        assert again.returncode == 0, again.stdout + again.stderr
+    finally:
+        lis.close()
 
 
 def test_a_profile_named_by_the_environment_is_kept(tmp_path):
