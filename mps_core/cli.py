@@ -3,6 +3,7 @@
     mps run SCENE [--t-end S] [--steps N | --dt S] [--solver NAME] [--step S] [--delta-deg D]
                   [--derivatives central|autodiff] [--iterations K] [--rtol R] [--atol A]
                   [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE] [--force]
+                  [--quiet]
     mps scenes
 
 SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
@@ -56,6 +57,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
     r.add_argument("--force", action="store_true",
                    help="replace an output file that exists (never the scene itself)")
+    r.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress line while it runs (there is one on a terminal only)")
 
     sub.add_parser("scenes", help="list the preset scenes")
     for name in PLUGINS:
@@ -94,15 +97,24 @@ def _run(args) -> int:
 
         observer = ReactionObserver()
         sim.observers.append(observer)
+    from .progress import Progress
+
+    progress = Progress(sim.solver.t, scene.t_end, label=scene.name, quiet=args.quiet)
     c0 = time.process_time()
     try:
-        traj = sim.run(scene.t_end, scene.dt)
+        traj = sim.run(scene.t_end, scene.dt, progress=progress)
     except MpsError as exc:
+        progress.done()
         # what was computed up to the failure still goes to the outputs asked for, marked
         partial = getattr(exc, "partial", None)
         if partial is not None and len(partial):
             _write_outputs(args, partial, failure=str(exc))
+            _say_coarse(partial, scene)
         raise
+    except KeyboardInterrupt:
+        progress.done()
+        raise
+    progress.done()
     cpu = time.process_time() - c0
     s = scene.solver
     print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
@@ -145,7 +157,21 @@ def _run(args) -> int:
             print(f"reactions: not unique at some steps (rank short by "
                   f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
     _write_outputs(args, traj)
+    _say_coarse(traj, scene)
     return 0
+
+
+def _say_coarse(traj, scene) -> None:
+    """One warning (stderr) where the fixed-step solver's step is coarse for the run's
+    fastest motion (see :func:`mps_core.trajectory.coarse_step`)."""
+    from .trajectory import coarse_step
+
+    s = scene.solver
+    if s.name in ("dop853", "radau"):       # their steps follow their error estimates
+        return
+    said = coarse_step(traj, s.step if s.step is not None else scene.dt)
+    if said:
+        print(f"mps: warning: {said}", file=sys.stderr)
 
 
 def _write_outputs(args, traj, failure: str | None = None) -> None:

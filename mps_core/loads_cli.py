@@ -42,6 +42,8 @@ def register(subparsers) -> None:
                    help="a recording's event log (JSON lines) for the transients' impulses")
     p.add_argument("--force", action="store_true",
                    help="replace an output file that exists (never an input)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress line while a scene runs (there is one on a terminal only)")
     p.set_defaults(func=run)
 
 
@@ -97,7 +99,13 @@ def _columns(args):
     sim = build(scene)
     obs = ReactionObserver()
     sim.observers.append(obs)
-    traj = sim.run(scene.t_end, scene.dt)
+    from .progress import Progress
+
+    progress = Progress(sim.solver.t, scene.t_end, label=scene.name, quiet=args.quiet)
+    try:
+        traj = sim.run(scene.t_end, scene.dt, progress=progress)
+    finally:
+        progress.done()
     return traj.columns, list(traj.events), scene.name
 
 

@@ -95,8 +95,10 @@ class Scene:
             _choice("solver.derivatives", scheme, SCHEMES)
             st = replace(st, scheme=scheme)
         if iterations is not None:
-            if not isinstance(iterations, int) or iterations < 1:
-                raise SceneError("solver.corrector_iterations", iterations, "an integer >= 1")
+            if isinstance(iterations, bool) or not isinstance(iterations, int) or \
+                    not 1 <= iterations <= 50:
+                raise SceneError("solver.corrector_iterations", iterations,
+                                 "an integer from 1 to 50")
             st = replace(st, iterations=iterations)
         if rtol is not None:
             st = replace(st, rtol=_tol("solver.rtol", rtol))

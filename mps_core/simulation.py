@@ -930,10 +930,12 @@ class Simulation:
             self._update_phys(e)
             self._chart_due = True
 
-    def run(self, t_end: float, dt: float) -> Trajectory:
+    def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
         ``dt``, or by the settings' ``step`` where given: shorter, several steps an output;
-        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`)."""
+        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`).
+        ``progress``: called with the simulated time after each output (e.g. a
+        :class:`~mps_core.progress.Progress`)."""
         t0 = self.solver.t
         if not (t_end > t0):
             raise ValueError(f"t_end = {t_end!r}: expected a time after the start {t0!r}")
@@ -946,11 +948,13 @@ class Simulation:
         try:
             if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
                     self.settings.name not in ADAPTIVE_SOLVERS:
-                return self._run_long_steps(rows, t0, t_end, n, step)
+                return self._run_long_steps(rows, t0, t_end, n, step, progress)
             for k in range(1, n + 1):
                 tk = t_end if k == n else t0 + k * (t_end - t0) / n
                 self.advance_to(tk)                 # keeps the unwrap references current
                 self._record(rows, self.solver.current)
+                if progress is not None:
+                    progress(tk)
             return self._trajectory(rows)
         except MpsError as exc:
             # what was computed up to the failure, for a caller that writes it (marked partial)
@@ -960,7 +964,7 @@ class Simulation:
                 exc.partial = None
             raise
 
-    def _run_long_steps(self, rows, t0, t_end, n, step) -> Trajectory:
+    def _run_long_steps(self, rows, t0, t_end, n, step, progress=None) -> Trajectory:
         """Steps longer than the output interval. Each output inside a step is the step's
         interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
         structure, work (trapezoid from the step's start) and impact loss of that step; an
@@ -986,6 +990,8 @@ class Simulation:
                     else:
                         self._record_inside(rows, tk, spans, tol)
                     k += 1
+                if progress is not None:
+                    progress(t_now)
         finally:
             self._spans = None
         return self._trajectory(rows)

@@ -59,3 +59,25 @@ class Trajectory:
             for ev in self.events:
                 fh.write(json.dumps(ev) + "\n")
         return path
+
+
+#: a fixed step beyond which a run's trajectory depends on the step: the crank or the rocker
+#: turning more than this (rad) in one step. press-cycle at 1 s (docs/model.md's table): dt =
+#: 2 ms (8.1 deg a step at most) lands 5 deg of crank angle from dt = 0.5 ms; 5 ms (14.5 deg)
+#: 311 deg away, with another chart sequence; 20 ms cannot go on (no chart holds).
+COARSE_TURN = np.radians(10.0)
+
+
+def coarse_step(traj: Trajectory, step: float) -> str | None:
+    """Where a fixed ``step`` (s) is coarse for the run's fastest motion (the crank's or the
+    rocker's rate times the step above :data:`COARSE_TURN`), a sentence saying so with the
+    largest step that keeps the turn a step within it; else None."""
+    rates = [np.abs(traj.columns[c]) for c in ("phi_dot", "psi_dot") if c in traj.columns]
+    fast = max((float(np.nanmax(r)) for r in rates if len(r)), default=0.0)
+    if not (fast > 0.0 and np.isfinite(fast)) or fast * step <= COARSE_TURN:
+        return None
+    return (f"the step {step:.6g} s is coarse for this run: the crank or rocker turns up to "
+            f"{np.degrees(fast * step):.3g} deg in one ({fast:.4g} rad/s); beyond "
+            f"{np.degrees(COARSE_TURN):.0f} deg a step the trajectory depends on the step "
+            f"(impacts and chart changes move or vanish). Largest step within it: "
+            f"{COARSE_TURN / fast:.2g} s")

@@ -684,11 +684,13 @@ def recover(src, dst) -> Recovered:
 def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
            pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
            scene_commands: bool = True, flush_period: float = 1.0, log=None,
-           stop_on_signals: bool = True, background: bool = True) -> tuple[Path, dict, dict]:
+           stop_on_signals: bool = True, background: bool = True,
+           progress: bool = False) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
-    :class:`BackgroundRecorder` (another process), else in this one. Returns (path, stats,
-    counts)."""
+    :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
+    line on standard error where it is a terminal (:class:`~mps_core.progress.Progress`).
+    Returns (path, stats, counts)."""
     import signal
 
     from .topics import OUTPUTS
@@ -696,13 +698,16 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
 
     twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS,
                 scene_commands=scene_commands)
+    from mps_core.progress import Progress
+
+    shown = Progress(twin.t0, twin.t_end, label=twin.scene.name, quiet=not progress)
     rec = (BackgroundRecorder if background else Recorder)(
         out, scene_name=twin.scene.name, scene_text=twin.scene.text,
         metadata=_run_metadata(twin, "mps record", pacing, real_time_factor, publish_every),
         flush_period=flush_period)
     sink = RecordingSink(rec, qos=offered_qos(DEPTH))
-    runner = Runner(twin, sinks=[sink], pacing=pacing, real_time_factor=real_time_factor,
-                    publish_every=publish_every, log=log)
+    runner = Runner(twin, sinks=[sink, _ProgressSink(twin, shown)], pacing=pacing,
+                    real_time_factor=real_time_factor, publish_every=publish_every, log=log)
     old = {}
     if stop_on_signals:
         def stop(signum, _frame):
@@ -712,10 +717,27 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
     try:
         stats = runner.run()
     finally:
+        shown.done()
         rec.finish()
         for sig, h in old.items():
             signal.signal(sig, h)
     return rec.path, stats, rec.counts()
+
+
+class _ProgressSink:
+    """A run's sink that only shows how far the run has got (at each step's tick)."""
+
+    def __init__(self, twin, progress):
+        self.twin, self.progress = twin, progress
+
+    def emit(self, key, data, t_ns) -> None:
+        pass
+
+    def emit_all(self, msgs) -> None:
+        pass
+
+    def tick(self, deadline: float | None = None) -> None:
+        self.progress(self.twin.t)
 
 
 def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:

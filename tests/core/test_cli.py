@@ -46,3 +46,56 @@ def test_errors_are_clear_and_exit_2(tmp_path):
     assert p.returncode == 2 and "mechanism.l1_mm = -1" in p.stderr
     p = mps("run", "paper", "--delta-deg", "90")
     assert p.returncode == 2 and "solver.delta_deg" in p.stderr
+
+
+def test_a_coarse_step_is_said_with_the_largest_sensible_one():
+    """press-cycle at 5 ms a step: the crank turns about 14 deg a step and the trajectory is
+    another (another chart sequence than at 0.5 ms): one warning naming the step, the turn and
+    the largest step within 10 deg; at 1 ms, none."""
+    coarse = mps("run", "press-cycle", "--t-end", "1", "--dt", "0.005")
+    assert coarse.returncode == 0, coarse.stderr
+    warn = [ln for ln in coarse.stderr.splitlines() if ln.startswith("mps: warning:")]
+    assert len(warn) == 1, coarse.stderr
+    assert "the step 0.005 s is coarse" in warn[0] and "Largest step within it: 0.0034 s" \
+        in warn[0], warn
+    fine = mps("run", "press-cycle", "--t-end", "1", "--dt", "0.001")
+    assert fine.returncode == 0 and "warning" not in fine.stderr, fine.stderr
+
+
+def test_corrections_bounded_from_the_command_line_too():
+    p = mps("run", "paper", "--iterations", "100000")
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.strip() == ("mps: error: solver.corrector_iterations = 100000: expected an "
+                                "integer from 1 to 50")
+
+
+def test_progress_line_on_a_terminal_only():
+    """The progress line: simulated time, share, rate and time left, rewritten in place on a
+    terminal, cleared at the end; nothing on a file or pipe, or when quiet."""
+    import io
+
+    from mps_core.progress import Progress
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    out = Tty()
+    p = Progress(0.0, 10.0, label="press-cycle", stream=out, every=0.0, check=1)
+    for k in range(1, 6):
+        p(k * 1.0)
+    p.done()
+    lines = [s for s in out.getvalue().split("\r") if s.strip()]
+    assert len(lines) == 4            # the first look only starts the rate's clock
+    assert lines[-1].startswith("press-cycle: t = 5 of 10 s (50 %), ") and "x real time, " \
+        in lines[-1] and lines[-1].rstrip().endswith(" left"), lines
+    assert out.getvalue().endswith("\r") and out.getvalue().split("\r")[-2].strip() == ""
+    for stream, quiet in ((io.StringIO(), False), (Tty(), True)):
+        q = Progress(0.0, 10.0, stream=stream, quiet=quiet, every=0.0, check=1)
+        for k in range(1, 6):
+            q(k * 1.0)
+        q.done()
+        assert stream.getvalue() == ""
+    # a run to a pipe: the summary only
+    r = mps("run", "paper")
+    assert r.returncode == 0 and "\r" not in r.stdout + r.stderr and r.stderr == ""
