@@ -39,6 +39,9 @@ from .topics import BY_KEY, FOUNDATION, NODE_NAME, WRENCHES, resolve
 KEYS = ("joint_states", *(w.key for w in WRENCHES), FOUNDATION.key, "~/structure", "~/events",
         "~/mode/status", "/diagnostics")
 _STAMPED = {"sensor_msgs/msg/JointState", "geometry_msgs/msg/WrenchStamped"}
+#: a frame draws the mechanism at this many of its steps at most (a 1 kHz run gives a 30 Hz
+#: view about 33 a frame): a view that has fallen behind thins the drawing, never the plots
+DRAW_MAX = 100
 _STAMP = struct.Struct("<iI")
 
 
@@ -174,7 +177,7 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     log(f"following {resolve('joint_states', node_name)}: "
         + (f"saving to {save}" if save is not None else
            f"streaming to {connect or 'a viewer on 127.0.0.1'}"))
-    frames = steps = 0
+    frames = steps = drawn = thinned = 0
     last_logged = None
     max_lag = 0.0
     work: list[float] = []
@@ -190,10 +193,15 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
             w0 = time.perf_counter()
             rep = replay_of_messages("live", got, node_name)
             if rep is not None and len(rep):
-                convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
-                        statics=frames == 0)
+                # behind the run (a frame holding more steps than DRAW_MAX): the mechanism
+                # drawn at every k-th step, the plots and events at every one
+                k = max(1, math.ceil(len(rep) / DRAW_MAX))
+                c = convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
+                            statics=frames == 0, draw_every=k)
                 frames += 1
                 steps += len(rep)
+                drawn += c.drawn_steps
+                thinned += k > 1
                 last_logged = float(rep.columns["t"][-1])
                 work.append(time.perf_counter() - w0)
             newest = inbox.last_ns
@@ -217,7 +225,8 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
         rec.flush()
         rr.disconnect(recording=rec)
     work.sort()
-    return {"frames": frames, "steps": steps, "last_t": last_logged, "max_lag_s": max_lag,
+    return {"frames": frames, "steps": steps, "drawn_steps": drawn, "thinned_frames": thinned,
+            "last_t": last_logged, "max_lag_s": max_lag,
             "frame_work_p50_s": work[len(work) // 2] if work else math.nan,
             "frame_work_max_s": work[-1] if work else math.nan,
             "viewer_pid": viewer.pid if viewer is not None else None}

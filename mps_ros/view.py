@@ -46,6 +46,7 @@ import sys
 import tempfile
 import uuid
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -128,6 +129,7 @@ class Converted:
     entities: dict = field(default_factory=dict)     # entity -> rows sent
     arrow_scale_n_per_mm: float = math.nan
     steps: int = 0
+    drawn_steps: int = 0            # the steps the mechanism was drawn at (draw_every)
 
 
 class _Logger:
@@ -190,13 +192,15 @@ def _fmt_force(v: float) -> str:
 # -- the conversion ---------------------------------------------------------------------------
 def convert(rep: Replay, *, scene=None, recording=None, application_id: str = APPLICATION_ID,
             arrow_scale: float | None = None, extent: tuple | None = None,
-            statics: bool = True) -> Converted:
+            statics: bool = True, draw_every: int = 1) -> Converted:
     """Log a recording into a Rerun recording stream (a new one unless ``recording`` is given);
     the scene's geometry comes from ``scene`` or else from the recording's metadata.
 
     A live run is logged a stretch at a time into one stream: ``arrow_scale`` (N/mm) and
     ``extent`` (the drawing's lowest and highest x along the guide, mm) fixed beforehand
-    instead of taken from the data, ``statics`` only for the first stretch."""
+    instead of taken from the data, ``statics`` only for the first stretch; ``draw_every``
+    > 1 draws the mechanism and the force arrows at every such step only (and the stretch's
+    last), the plots and events still at every step (a live view behind the run)."""
     rr = _rr()
     import rerun.blueprint as rrb
 
@@ -216,8 +220,18 @@ def convert(rep: Replay, *, scene=None, recording=None, application_id: str = AP
 
     pts = positions(cols, g.l1, g.l3)
     view = {k: to_view(v) for k, v in pts.items()}
-    bounds = _mechanism(rr, log, rep, scene, t, view, extent)
-    out.arrow_scale_n_per_mm = _reactions(rr, log, cols, t, pts, scene, arrow_scale)
+    drawn, dcols, dt_, dpts, dview = rep, cols, t, pts, view
+    if draw_every > 1 and n > 2:
+        idx = np.unique(np.r_[np.arange(0, n, int(draw_every)), n - 1])
+        dcols = {c: (v[idx] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
+                 for c, v in cols.items()}
+        drawn = SimpleNamespace(columns=dcols)
+        dt_ = t[idx]
+        dpts = {k: v[idx] for k, v in pts.items()}
+        dview = {k: v[idx] for k, v in view.items()}
+    out.drawn_steps = dt_.size
+    bounds = _mechanism(rr, log, drawn, scene, dt_, dview, extent)
+    out.arrow_scale_n_per_mm = _reactions(rr, log, dcols, dt_, dpts, scene, arrow_scale)
     _plots(rr, log, cols, t)
     _events(rr, log, rep, t)
     out.blueprint = blueprint(rrb, bounds, out.arrow_scale_n_per_mm, rep)

@@ -46,7 +46,9 @@ def run(args) -> int:
         st = run_live(scene=load_scene(args.scene or "press-cycle"), node_name=args.node,
                       save=args.save, connect=args.connect, duration=args.duration,
                       hz=args.hz)
-        print(f"live view: {st['frames']} frames, {st['steps']} steps logged, to t = "
+        print(f"live view: {st['frames']} frames, {st['steps']} steps logged (the mechanism "
+              f"drawn at {st['drawn_steps']}; {st['thinned_frames']} frames behind the run "
+              f"drew it thinned), to t = "
               f"{st['last_t'] if st['last_t'] is not None else float('nan'):.4g} s; lag "
               f"(newest simulated time received - newest logged) at most "
               f"{st['max_lag_s'] * 1e3:.1f} ms; a frame's work p50 "

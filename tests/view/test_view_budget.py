@@ -59,3 +59,26 @@ def test_ten_seconds_at_1khz_within_budget(synthetic_10s, tmp_path, monkeypatch)
     print(f"\n10 s at 1 kHz: read {c1 - c0:.2f} s, converted {c2 - c1:.2f} s, "
           f"{out.calls['send_columns']} send_columns, {out.calls['log']} static logs, "
           f"{out.rows} rows ({out.rows / n:.1f} a step)")
+
+
+def test_a_view_behind_the_run_thins_the_drawing_not_the_plots(synthetic_10s):
+    """draw_every = 10 (what the live view does when a frame holds ten times its drawing's
+    steps): the mechanism and the arrows get every tenth step and the last, each plot every
+    step."""
+    path, _cols = synthetic_10s
+    rep = read_recording(path)
+    n = len(rep)
+    full = view_mod.convert(rep, recording=rr.RecordingStream("full"))
+    thin = view_mod.convert(rep, recording=rr.RecordingStream("thin"), draw_every=10)
+    drawn = len(range(0, n, 10)) + (0 if (n - 1) % 10 == 0 else 1)
+    assert full.drawn_steps == n and thin.drawn_steps == drawn
+    drawing = [e for e in thin.entities if e in ("mechanism/links", "mechanism/joints",
+                                                 "mechanism/slider")
+               or e.startswith("mechanism/reactions/")]
+    plots = [e for e in thin.entities if e.startswith("plots/")]
+    assert len(drawing) >= 8 and len(plots) >= 15, sorted(thin.entities)
+    for entity in drawing:
+        assert full.entities[entity] == n and thin.entities[entity] == drawn, entity
+    for entity in plots:
+        assert thin.entities[entity] == full.entities[entity], entity
+    assert sum(thin.entities[e] == n for e in plots) >= 15
