@@ -101,6 +101,23 @@ class _Inbox:
         return out
 
 
+def _take(subs, stop: threading.Event, period: float = 0.002) -> None:
+    """Take what has arrived on each subscription (serialized) and hand it to its callback,
+    every ``period`` wall seconds until ``stop``: a loop of rclpy's take, without an executor's
+    machinery a message (which, at eleven topics of 1 kHz, cost more than a core here and let
+    the middleware's queues overflow)."""
+    while not stop.is_set():
+        for sub, cb in subs:
+            handle = sub.handle
+            with handle:
+                while True:
+                    got = handle.take_message(sub.msg_type, True)
+                    if got is None:
+                        break
+                    cb(got[0])
+        stop.wait(period)
+
+
 def _end_ns(data: bytes) -> int | None:
     """The simulated time (ns) of a ``run-end`` event's message (CDR std_msgs/String)."""
     import json
@@ -121,7 +138,6 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     from .node import MSG_CLASSES
 
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     from .view import FAMILIES, _rr, blueprint, convert
@@ -167,13 +183,16 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    subs = []
     for topic, msgtype in inbox.topics.items():
-        node.create_subscription(MSG_CLASSES[msgtype], topic, inbox.callback(topic),
-                                 latched if topic.endswith("/structure") else qos, raw=True)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+        cb = inbox.callback(topic)
+        subs.append((node.create_subscription(
+            MSG_CLASSES[msgtype], topic, cb, latched if topic.endswith("/structure") else qos,
+            raw=True), cb))
+    taking = threading.Event()
+    taker = threading.Thread(target=_take, args=(subs, taking), name="mps-view-take",
+                             daemon=True)
+    taker.start()
     log(f"following {resolve('joint_states', node_name)}: "
         + (f"saving to {save}" if save is not None else
            f"streaming to {connect or 'a viewer on 127.0.0.1'}"))
@@ -217,7 +236,8 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
             if duration is not None and time.monotonic() - t_start >= duration:
                 break
     finally:
-        executor.shutdown(timeout_sec=1.0)
+        taking.set()
+        taker.join(timeout=2.0)
         node.destroy_node()
         rclpy.try_shutdown()
         for s, h in old.items():
