@@ -533,7 +533,7 @@ class SteppingProcess:
         self._last = 0.0                        # the last release (wall s)
         self._ended = False
         self._this_refused: str | None = None
-        self._alarm: bytes | None = None        # /diagnostics: the recording stopped
+        self._failure: str | None = None        # why the recording stopped, where it did
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -794,25 +794,29 @@ class SteppingProcess:
                 self.log("error", f"recording failed at step {head.k}: "
                                   f"{type(exc).__name__}: {exc}")
                 self.sinks = [x for x in self.sinks if x is not s]
-                self._recording_failed(msgs, f"{type(exc).__name__}: {exc}")
+                if self._failure is None:
+                    self._failure = f"{type(exc).__name__}: {exc}"
+                    self._alarm(msgs)
             else:
-                if self._alarm is None and getattr(s, "failure", None):
-                    self._recording_failed(msgs, s.failure)
-        if self._alarm is not None and any(key == "/diagnostics" for key, _d in pairs):
-            self.sink.publish_pairs([("/diagnostics", self._alarm)])
+                if self._failure is None and getattr(s, "failure", None):
+                    self._failure = s.failure
+                    self._alarm(msgs)
+        if self._failure is not None and any(key == "/diagnostics" for key, _d in pairs):
+            self._alarm(msgs)
 
-    def _recording_failed(self, msgs: list, failure: str) -> None:
-        """The recording stopped: /diagnostics says so (ERROR) at once, and again with each
-        of the run's diagnostics (where the run publishes diagnostics)."""
-        if self._alarm is not None or "diagnostics" not in self.spec["twin"]["outputs"]:
+    def _alarm(self, msgs: list) -> None:
+        """The recording has stopped: an ERROR status on /diagnostics, at once and again with
+        each of the run's diagnostics (where the run publishes diagnostics), stamped with the
+        step released."""
+        if "diagnostics" not in self.spec["twin"]["outputs"]:
             return
         from .cdr import encoder
 
         t_ns = msgs[0][2] if msgs else 0
         name = self.spec["runner"].get("name", "press_twin")
-        self._alarm = encoder(BY_KEY["/diagnostics"].msgtype)(
-            recording_alarm(name, t_ns, failure))
-        self.sink.publish_pairs([("/diagnostics", self._alarm)])
+        data = encoder(BY_KEY["/diagnostics"].msgtype)(recording_alarm(name, t_ns,
+                                                                        self._failure))
+        self.sink.publish_pairs([("/diagnostics", data)])
 
     def _priority_said(self, got: dict) -> None:
         prio = self.priority
