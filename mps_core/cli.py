@@ -111,10 +111,8 @@ def _run(args) -> int:
             _write_outputs(args, partial, failure=str(exc))
             _say_coarse(partial, scene)
         raise
-    except KeyboardInterrupt:
+    finally:
         progress.done()
-        raise
-    progress.done()
     cpu = time.process_time() - c0
     s = scene.solver
     print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "

@@ -114,7 +114,10 @@ def _take(subs, stop: threading.Event, period: float = 0.002) -> None:
                     got = handle.take_message(sub.msg_type, True)
                     if got is None:
                         break
-                    cb(got[0])
+                    try:
+                        cb(got[0])
+                    except Exception:       # a message the view cannot read: not the run's end
+                        pass
         stop.wait(period)
 
 
@@ -207,6 +210,8 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
         while not stop.is_set():
             nxt += period
             time.sleep(max(0.0, nxt - time.monotonic()))
+            if not taker.is_alive():
+                raise ReplayError("the view stopped taking the node's messages")
             ended = inbox.ended
             got = inbox.take()
             w0 = time.perf_counter()

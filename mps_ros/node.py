@@ -191,10 +191,7 @@ class NameTaken(RuntimeError):
 
 #: wall seconds after its creation within which a node expects to have discovered the others
 #: on its machine (Fast DDS on loopback: well under one)
-DISCOVERY_S = 1.5
-#: a node killed (SIGKILL, power) stays in the others' graph until its participant's lease runs
-#: out: 5 s with :data:`FASTDDS_PROFILE` (Fast DDS's default: 20 s)
-LEASE_S = 5.0
+DISCOVERY_S = 2.5
 
 
 class PressTwin(Node):
@@ -507,7 +504,7 @@ class PressTwin(Node):
                f"{self.names[MODE.key]})"))
         # the kernels built and the channels registered while the peers are awaited
         self.runner.prepare()
-        self._refuse_a_second_of_my_name(self._created + DISCOVERY_S)
+        self._refuse_a_second_of_my_name(self._created + DISCOVERY_S, stop)
         self._wait_for_peers(stop)
         stop.wait(self.p["start_delay"])
         if stop.is_set():
@@ -517,33 +514,23 @@ class PressTwin(Node):
         self.get_logger().info("stepping starts")
         return self.runner.run()
 
-    def _refuse_a_second_of_my_name(self, until: float) -> None:
-        """:class:`NameTaken` where another node of this node's name and namespace is running
-        in its domain (its topics, services and /clock would mix with this one's). The graph
-        is looked at until ``until`` (monotonic s: the discovery's time); one of the name seen
-        there is running if it is still there a lease later (one killed leaves the graph when
-        its lease runs out; then this node goes on)."""
+    def _refuse_a_second_of_my_name(self, until: float, stop: threading.Event) -> None:
+        """:class:`NameTaken` where another node of this node's name and namespace runs in
+        its domain (its topics, services and /clock would mix with this one's), looked for in
+        the graph until ``until`` (monotonic s: the discovery's time), a stop, or one seen. A
+        node that ended without a word (SIGKILL) before this one started is never in this
+        one's graph: a participant learns of the others from themselves."""
         me = (self.get_name(), self.get_namespace())
-        fqn = self.get_fully_qualified_name()
-        seen = None
-        while True:
-            twice = sum(1 for n in self.get_node_names_and_namespaces() if tuple(n) == me) > 1
-            now = time.monotonic()
-            if not twice:
-                if seen is not None or now >= until:
-                    return          # none, or one that had ended and has left the graph
-            elif seen is None:
-                seen = now
-                self.get_logger().warn(
-                    f"another node {fqn} is in the graph: is it running? (waiting up to "
-                    f"{LEASE_S + 1:g} s for one that has ended to leave)")
-            elif now - seen > LEASE_S + 1.0:
+        while not stop.is_set():
+            if sum(1 for n in self.get_node_names_and_namespaces() if tuple(n) == me) > 1:
                 raise NameTaken(
-                    f"a node {fqn} is already running in ROS domain "
-                    f"{os.environ.get('ROS_DOMAIN_ID', '0')}; give this one another name or "
-                    "namespace (--ros-args -r __node:=NAME or -r __ns:=/NAMESPACE), or another "
-                    "ROS_DOMAIN_ID")
-            time.sleep(0.05)
+                    f"a node {self.get_fully_qualified_name()} is already running in ROS "
+                    f"domain {os.environ.get('ROS_DOMAIN_ID', '0')}; give this one another "
+                    "name or namespace (--ros-args -r __node:=NAME or -r __ns:=/NAMESPACE), or "
+                    "another ROS_DOMAIN_ID")
+            if time.monotonic() >= until:
+                return
+            stop.wait(0.02)
 
     def _set_priority(self) -> None:
         """``realtime_priority`` > 0: the stepping thread runs under SCHED_FIFO at that priority

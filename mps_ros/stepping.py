@@ -786,6 +786,7 @@ class SteppingProcess:
             self.publish_times.add(p1 - p0)
             late = p1 - head.deadline
             self.latencies.add(late if late > 0.0 else 0.0)
+        said = False                    # the recording's failure, first seen at this step
         for s in self.sinks:
             try:
                 s.emit_all(msgs)
@@ -796,12 +797,13 @@ class SteppingProcess:
                 self.sinks = [x for x in self.sinks if x is not s]
                 if self._failure is None:
                     self._failure = f"{type(exc).__name__}: {exc}"
-                    self._alarm(msgs)
+                    said = True
             else:
                 if self._failure is None and getattr(s, "failure", None):
                     self._failure = s.failure
-                    self._alarm(msgs)
-        if self._failure is not None and any(key == "/diagnostics" for key, _d in pairs):
+                    said = True
+        if said or (self._failure is not None
+                    and any(key == "/diagnostics" for key, _d in pairs)):
             self._alarm(msgs)
 
     def _alarm(self, msgs: list) -> None:

@@ -515,45 +515,38 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
         assert packets == [], f"DDS traffic off loopback: {packets[:5]}"     # ... all on lo
 
 
-def test_fastdds_profile_changes_the_lease_and_writer_timers_only():
-    """The package's Fast DDS profile: the default participant profile with the lease and its
-    announcement period, the default writer profile with the heartbeat period and the NACK
-    suppression period, nothing else (every QoS policy stays the code's, discovery's reach and
-    the transports ROS's)."""
+def test_fastdds_profile_changes_the_writer_timers_only():
+    """The package's Fast DDS profile: the default writer profile with the heartbeat period and
+    the NACK suppression period, nothing else (every QoS policy stays the code's)."""
     import xml.etree.ElementTree as ET
 
     ns_ = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     root = ET.parse(FASTDDS_PROFILE).getroot()
     profiles = list(root)
-    assert [e.tag.split("}")[1] for e in profiles] == ["participant", "data_writer"]
-    part, writer = profiles
-    assert part.get("is_default_profile") == writer.get("is_default_profile") == "true"
+    assert [e.tag.split("}")[1] for e in profiles] == ["data_writer"]
+    writer = profiles[0]
+    assert writer.get("is_default_profile") == "true"
     assert [e.tag.split("}")[1] for e in writer] == ["times"]
-    discovery = part.find("p:rtps/p:builtin/p:discovery_config", ns_)
-    assert [e.tag.split("}")[1] for e in part.iter()] == [
-        "participant", "rtps", "builtin", "discovery_config", "leaseDuration", "sec", "nanosec",
-        "leaseAnnouncement", "sec", "nanosec"]
 
-    def seconds(parent, path):
-        e = parent.find(path, ns_)
+    def seconds(name):
+        e = writer.find(f"p:times/p:{name}", ns_)
         return int(e.find("p:sec", ns_).text) + int(e.find("p:nanosec", ns_).text) * 1e-9
 
-    assert seconds(discovery, "p:leaseDuration") == 5.0
-    assert seconds(discovery, "p:leaseAnnouncement") == 1.0
-    assert seconds(writer, "p:times/p:heartbeatPeriod") == pytest.approx(0.1)
-    assert seconds(writer, "p:times/p:nackSupressionDuration") == pytest.approx(0.05)
+    assert seconds("heartbeatPeriod") == pytest.approx(0.1)
+    assert seconds("nackSupressionDuration") == pytest.approx(0.05)
 
 
 def test_one_node_a_name(ros, tmp_path):
     """A second node of the name of one that runs in the domain refuses to start (one line,
     status 2, no recording left of its own, nothing of the first disturbed); one of another
-    name runs beside it; a node killed a moment ago does not count once it has left the
-    graph (its lease)."""
+    name runs beside it; a node started after the first was killed (SIGKILL: it never said
+    goodbye) runs: a process that starts after it never learns of it."""
     first_rec, second_rec = tmp_path / "first.mcap", tmp_path / "second.mcap"
     params = dict(pacing="realtime", dt=DT, t_end=60.0, recording=str(first_rec),
                   wait_for_subscribers=1, wait_timeout=30.0,
                   outputs="[clock, events]")
-    lis = Listener(keys=("/clock", "~/events"))
+    # every topic the node publishes with those outputs: it waits for a subscriber on each
+    lis = Listener(keys=("/clock", "~/events", "~/mode/status"))
     try:
         with NodeProcess(tmp_path, params, name="first") as first:
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "the first node's /clock")
@@ -575,7 +568,9 @@ def test_one_node_a_name(ros, tmp_path):
             lis.wait_for(lambda: lis.clock() > t, 30, "the first node still stepping")
             first.signal(signal.SIGKILL)
             first.wait(10)
-        # killed: it stays in the graph until its lease runs out, then a new one runs
+        # killed: this process's graph still holds it (until its lease runs out), a new
+        # node's never does
+        assert any(n == "press_twin" for n, _ns in lis.node.get_node_names_and_namespaces())
         again = subprocess.run(
             mps_cmd("node", "press-cycle", "--ros-args", "-p", "recording:=none",
                     "-p", "pacing:=as_fast_as_possible", "-p", "t_end:=0.05"),
