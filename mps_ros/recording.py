@@ -29,14 +29,13 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .mcap_writer import McapWriter
-
 from .cdr import encoder, generic_encoder, msgdef
+from .mcap_writer import MAGIC, McapWriter
 from .os_threads import widen_pipe
 from .topics import BY_KEY, DEPTH, NODE_NAME, offered_qos, qos_yaml, resolve
 
 PROFILE = "ros2"
-MAGIC = b"\x89MCAP0\r\n"
+
 
 def default_path(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
     """``DIRECTORY/SCENE-DATE-TIME.mcap``, the time to the millisecond (not created)."""

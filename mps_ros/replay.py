@@ -42,9 +42,8 @@ import numpy as np
 
 from mps_core.errors import MpsError
 
+from .mcap_writer import MAGIC
 from .topics import BY_KEY, FOUNDATION, JOINT_NAMES, MODE, NODE_NAME, WRENCHES, resolve
-
-MAGIC = b"\x89MCAP0\r\n"
 
 #: the recording's metadata records (as :mod:`mps_ros.recording` writes them)
 META_SOFTWARE = "mps"
