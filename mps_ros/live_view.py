@@ -167,7 +167,6 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     bp = blueprint(rrb, _bounds(scene, extent), scale, every)
     if save is not None:
         try:
-            Path(save).parent.mkdir(parents=True, exist_ok=True)
             rr.save(Path(save), default_blueprint=bp, recording=rec)
         except (OSError, RuntimeError) as exc:
             raise ReplayError(f"--save {save}: cannot write it ({exc})") from None

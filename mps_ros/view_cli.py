@@ -38,10 +38,16 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from mps_core.scene import load_scene
 
+    from mps_core.output_files import check_outputs
+
     if args.live:
         if args.recording:
             raise SystemExit("mps view: --live follows the running node: give no recording")
         from .live_view import run_live
+
+        # before anything starts: never over an existing file without --force, never into a
+        # folder that is not there
+        check_outputs({"--save": args.save}, force=args.force)
 
         st = run_live(scene=load_scene(args.scene or "press-cycle"), node_name=args.node,
                       save=args.save, connect=args.connect, duration=args.duration,
@@ -56,8 +62,6 @@ def run(args) -> int:
         return 0
     if not args.recording:
         raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")
-    from mps_core.output_files import check_outputs
-
     from .view import view
 
     check_outputs({"--save": args.save}, inputs=[args.recording], force=args.force)

@@ -78,13 +78,21 @@ def test_live_view_saves_what_the_offline_view_draws(ros, tmp_path):
 
 
 def test_live_view_refuses_a_save_it_cannot_write(tmp_path):
+    """--save is checked before anything starts: a folder that is not there, and an existing
+    file without --force (left as it was), are one line each and status 2."""
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     p = subprocess.run(mps_cmd("view", "--live", "--save", str(blocker / "x.rrd"),
                                "--duration", "1"), capture_output=True, text=True, timeout=120)
     assert p.returncode == 2, p.stderr
-    assert "--save" in p.stderr and "cannot write it" in p.stderr
+    assert "--save" in p.stderr and "no directory" in p.stderr
     assert "Traceback" not in p.stderr
+    kept = tmp_path / "kept.rrd"
+    kept.write_bytes(b"an earlier view")
+    p = subprocess.run(mps_cmd("view", "--live", "--save", str(kept), "--duration", "1"),
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "exists" in p.stderr and "--force" in p.stderr, p.stderr
+    assert kept.read_bytes() == b"an earlier view" and "Traceback" not in p.stderr
 
 
 def test_live_view_refuses_a_recording_and_a_bad_rate():
