@@ -78,10 +78,10 @@ class McapWriter:
         self._chunk_indexes: list[bytes] = []
         self._metadata_indexes: list[bytes] = []
         self._metadata_count = 0
-        # statistics
+        # the statistics, gathered from each chunk as it is closed
         self.message_count = 0
         self._start = self._end = 0
-        self._per_channel: dict[int, int] = {}
+        self._per_channel: dict[int, int] = {}      # in the order channels first had one
         # the chunk in progress
         self._chunk = bytearray()
         self._chunk_messages = 0
@@ -131,17 +131,6 @@ class McapWriter:
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                     sequence: int = 0) -> None:
         """One message into the chunk in progress (closed once it is full)."""
-        if self.message_count:
-            if log_time < self._start:
-                self._start = log_time
-            if log_time > self._end:
-                self._end = log_time
-        else:
-            self._start = log_time
-            self._end = log_time if log_time > self._end else self._end
-        self.message_count += 1
-        per = self._per_channel
-        per[channel_id] = per.get(channel_id, 0) + 1
         chunk = self._chunk
         if self._chunk_messages:
             if log_time < self._chunk_start:
@@ -179,6 +168,17 @@ class McapWriter:
             indexes += _record(MESSAGE_INDEX, _U16.pack(cid) + _U32.pack(len(flat) * 8)
                                + struct.pack(f"<{len(flat)}Q", *flat))
         self._out(bytes(indexes))
+        # the file's statistics: the chunk's range and counts folded in (channels in the
+        # order they first had a message, as the chunk's index keeps them)
+        if self.message_count:
+            self._start = min(self._start, self._chunk_start)
+        else:
+            self._start = self._chunk_start
+        self._end = max(self._end, self._chunk_end)
+        self.message_count += self._chunk_messages
+        per = self._per_channel
+        for cid, flat in self._index.items():
+            per[cid] = per.get(cid, 0) + len(flat) // 2
         self._chunk_indexes.append(_record(
             CHUNK_INDEX, _CHUNK_INDEX_HEAD.pack(self._chunk_start, self._chunk_end, chunk_at,
                                                 len(chunk))
