@@ -476,9 +476,7 @@ class PressTwin(Node):
         if path == "auto":
             path = new_recording(self.twin.scene.name)
         else:
-            p = Path(path)
-            self._recording_reserved = p.is_file() and p.stat().st_size == 0
-            path = claim_recording(path)
+            path, self._recording_reserved = claim_recording(path)
         meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
                              self.p["publish_every"])
         meta["node"] = self.get_fully_qualified_name()
@@ -564,10 +562,11 @@ class PressTwin(Node):
                 pass
 
 
-def claim_recording(path) -> Path:
+def claim_recording(path) -> tuple[Path, bool]:
     """The recording path a user named, made this run's own: created empty where it is new;
     an empty file (one reserved for it, e.g. by ``mps demo``) is taken; anything else is
-    :class:`~mps_core.output_files.OutputFileError` (a recording never replaces a file)."""
+    :class:`~mps_core.output_files.OutputFileError` (a recording never replaces a file).
+    Returns (the path, whether it was an empty file reserved for it)."""
     from mps_core.output_files import OutputFileError
     from mps_core.output_files import check_outputs as check_paths
 
@@ -575,14 +574,14 @@ def claim_recording(path) -> Path:
 
     p = Path(path)
     if p.is_file() and p.stat().st_size == 0:
-        return p
+        return p, True
     exists = OutputFileError(p, "parameter recording", "exists; a recording never replaces a "
                                                        "file: expected a new path")
     if p.exists() and not p.is_dir():
         raise exists
     check_paths({"parameter recording": p})
     try:
-        return reserve(p)
+        return reserve(p), False
     except FileExistsError:
         raise exists from None
 

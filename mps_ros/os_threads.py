@@ -84,9 +84,6 @@ def short_slice(seconds: float = 1e-4) -> bool:
     return now is not None and abs(now - seconds) < 1e-9
 
 
-__all__ = ["name_thread", "short_slice", "thread_slice"]
-
-
 def widen_pipe(fd: int, size: int = 1 << 20) -> None:
     """Give a pipe room for about a second of a 1 kHz run's messages (Linux; elsewhere the
     default stays), so that handing a batch over never waits for the other process to read."""
@@ -96,3 +93,6 @@ def widen_pipe(fd: int, size: int = 1 << 20) -> None:
         fcntl.fcntl(fd, getattr(fcntl, "F_SETPIPE_SZ", 1031), size)
     except OSError:
         pass
+
+
+__all__ = ["name_thread", "short_slice", "thread_slice", "widen_pipe"]

@@ -953,12 +953,7 @@ class Runner:
         try:
             self._begin()
             while not twin.done and not self._stop.is_set():
-                c0 = clock()
-                twin.step()
-                k = twin.k
-                msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
-                p0 = clock()
-                self.step_times.add(p0 - c0)
+                _k, msgs, p0 = self._timed_step(math.inf, clock)     # no deadline: no miss
                 t_ns = to_ns(twin.t)
                 if msgs is not None:
                     self._publish_step(msgs, t_ns)
@@ -1199,9 +1194,9 @@ class Runner:
         return last if d is None else [e for e in steps if e.deadline <= d][-1]
 
     def _timed_step(self, deadline: float, clock) -> tuple[int, list | None, float]:
-        """One step computed ahead: the twin stepped and its messages made where due, the
-        compute time kept and a deadline miss counted where it ended after ``deadline``;
-        (k, the messages or None, the wall time it ended)."""
+        """One step: the twin stepped and its messages made where due, the compute time kept
+        and a deadline miss counted where it ended after ``deadline``; (k, the messages or
+        None, the wall time it ended)."""
         twin = self.twin
         c0 = clock()
         twin.step()
