@@ -19,6 +19,7 @@ maximum over the run is reported (``max_lag_s``), and the frame's own work.
 
 from __future__ import annotations
 
+import bisect
 import math
 import os
 import signal
@@ -63,7 +64,10 @@ def _free_port() -> int:
 
 
 class _Inbox:
-    """What arrived since the last frame, by topic: (stamp ns, CDR bytes)."""
+    """What arrived since the last frame, by topic: (stamp ns, CDR bytes). A step's messages
+    come on several topics, each in its own queue: :meth:`take` gives the steps every stamped
+    topic has reached and keeps the newer ones for the next frame, so that a step is never cut
+    between two frames (its values on one topic would be lost)."""
 
     def __init__(self, node_name: str):
         self.lock = threading.Lock()
@@ -71,6 +75,7 @@ class _Inbox:
         self.topics = {resolve(k, node_name): BY_KEY[k].msgtype for k in KEYS}
         self.msgs: dict[str, list] = {t: [] for t in self.topics}
         self.last_ns = None             # the newest simulated time seen
+        self.newest: dict[str, int] = {}    # by stamped topic, its newest stamp
         self.ended = False
         self.end_ns = None              # the run-end event's simulated time
         self.last_arrival = time.monotonic()
@@ -88,16 +93,28 @@ class _Inbox:
             with self.lock:
                 self.msgs[topic].append((t, bytes(data)))
                 self.last_arrival = time.monotonic()
-                if stamped and (self.last_ns is None or t > self.last_ns):
-                    self.last_ns = t
+                if stamped:
+                    self.newest[topic] = t
+                    if self.last_ns is None or t > self.last_ns:
+                        self.last_ns = t
                 if events and b'"run-end"' in data:
                     self.ended = True
                     self.end_ns = _end_ns(data)
         return cb
 
-    def take(self) -> dict:
+    def take(self, whole: bool = False) -> dict:
+        """The messages of the steps that every stamped topic heard from has reached (all of
+        them: ``whole``), by topic; the rest stay for the next take."""
         with self.lock:
             out, self.msgs = self.msgs, {t: [] for t in self.topics}
+            if whole or not self.newest:
+                return out
+            horizon = min(self.newest.values())
+            for topic in self.newest:
+                msgs = out[topic]
+                cut = bisect.bisect_right(msgs, horizon, key=lambda m: m[0])
+                if cut < len(msgs):
+                    out[topic], self.msgs[topic] = msgs[:cut], msgs[cut:]
         return out
 
 
@@ -204,6 +221,25 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     work: list[float] = []
     t_start = time.monotonic()
     period = 1.0 / hz
+
+    def log_frame(got: dict) -> None:
+        nonlocal frames, steps, drawn, thinned, last_logged
+        w0 = time.perf_counter()
+        rep = replay_of_messages("live", got, node_name)
+        if rep is None or not len(rep):
+            return
+        # behind the run (a frame holding more steps than DRAW_MAX): the mechanism drawn at
+        # every k-th step, the plots and events at every one
+        k = max(1, math.ceil(len(rep) / DRAW_MAX))
+        c = convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
+                    statics=frames == 0, draw_every=k)
+        frames += 1
+        steps += len(rep)
+        drawn += c.drawn_steps
+        thinned += k > 1
+        last_logged = float(rep.columns["t"][-1])
+        work.append(time.perf_counter() - w0)
+
     try:
         nxt = time.monotonic()
         while not stop.is_set():
@@ -212,21 +248,7 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
             if not taker.is_alive():
                 raise ReplayError("the view stopped taking the node's messages")
             ended = inbox.ended
-            got = inbox.take()
-            w0 = time.perf_counter()
-            rep = replay_of_messages("live", got, node_name)
-            if rep is not None and len(rep):
-                # behind the run (a frame holding more steps than DRAW_MAX): the mechanism
-                # drawn at every k-th step, the plots and events at every one
-                k = max(1, math.ceil(len(rep) / DRAW_MAX))
-                c = convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
-                            statics=frames == 0, draw_every=k)
-                frames += 1
-                steps += len(rep)
-                drawn += c.drawn_steps
-                thinned += k > 1
-                last_logged = float(rep.columns["t"][-1])
-                work.append(time.perf_counter() - w0)
+            log_frame(inbox.take())
             newest = inbox.last_ns
             if newest is not None and last_logged is not None:
                 max_lag = max(max_lag, newest * 1e-9 - last_logged)
@@ -235,9 +257,13 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
                 # topics, other queues) are taken too, up to the end's time or a quiet second
                 reached = inbox.end_ns is None or (
                     last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns)
-                if reached or time.monotonic() - inbox.last_arrival > 1.0:
+                if reached:
+                    break
+                if time.monotonic() - inbox.last_arrival > 1.0:
+                    log_frame(inbox.take(whole=True))   # what a topic never completed
                     break
             if duration is not None and time.monotonic() - t_start >= duration:
+                log_frame(inbox.take(whole=True))
                 break
     finally:
         taking.set()
