@@ -244,6 +244,12 @@ class StructureLayer:
         qdd_f = np.linalg.solve(A[np.ix_(f, f)], Q[f] - h[f])
         return float(A[c, f] @ qdd_f + h[c] - Q[c])
 
+    def command_state(self) -> tuple:
+        """What :meth:`check_command` reads of the present state: where two states give the
+        same tuple, every command gets the same answer in both."""
+        c = self.sim.controls
+        return self.sim.structure, c.engage_on, c.motor_on
+
     def check_command(self, name) -> None:
         """Raise :class:`CommandRefused` if ``name`` makes no sense now."""
         sim = self.sim

@@ -26,11 +26,14 @@ processes. A command that arrives at wall time w is taken in the ROS process at 
 stepping is not disturbed; any other's boundary is the first step whose deadline is not before
 w + ``command_delay``, among the last released and those held (the delay leaves the stepping
 process time to redo the steps after it, whose first cost more: the command's events, charts
-met for the first time). The steps held beyond it are dropped, the steps that follow are
-numbered with a new *generation*, and the command goes to the stepping process with its
-boundary and generation: that process comes back to the boundary's checkpoint (or steps on to
-it), applies the command there and computes on. Whatever it had sent of the old generation
-beyond the boundary is dropped on arrival. So the run is the one that stepped in time, as in
+met for the first time). Where the step held there says that the machine would refuse it
+(an ``engage`` while engaging; each step carries :meth:`Twin.refusals`), it is answered there
+too and the stepping is not disturbed: only a command the machine takes costs steps redone
+(and one that comes while such a command is still unanswered). Otherwise the steps held beyond
+it are dropped, the steps that follow are numbered with a new *generation*, and the command
+goes to the stepping process with its boundary and generation: that process comes back to the
+boundary's checkpoint (or steps on to it), applies the command there and computes on. Whatever
+it had sent of the old generation beyond the boundary is dropped on arrival. So the run is the one that stepped in time, as in
 one process, and what the node publishes is what it records, byte for byte, in the same order.
 
 **Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
@@ -38,7 +41,8 @@ stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, 
 command (marshal: reply id or None, word, source, wall, boundary step, generation), ``S`` stop
 (the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
 (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
-holds the step's state, the structure, its (key, CDR bytes, t_ns, received) messages), ``A`` a
+holds the step's state, the structure, why the machine would refuse each command word
+there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
 command's answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text),
 ``E`` the run's end (JSON: statistics, stop reason, error).
 
@@ -64,8 +68,8 @@ import time
 
 from .os_threads import widen_pipe
 from .topics import BY_KEY
-from .twin import (Command, Gate, RefusalLog, Runner, Timings, Twin, recording_alarm, shown,
-                   to_json, to_ns)
+from .twin import (COMMAND_INDEX, Command, Gate, RefusalLog, Runner, Timings, Twin,
+                   recording_alarm, shown, to_json, to_ns)
 
 _HEAD = struct.Struct("<cI")
 
@@ -193,8 +197,9 @@ class _Ahead:
         return self.wall_start + (tw.time_of(k) - tw.t0) / self.runner.rtf
 
     def _entry(self, k: int, deadline: float, state: bool, msgs: list) -> None:
-        self.pending.append(marshal.dumps((k, self.gen, deadline, state,
-                                           self.twin.sim.structure, msgs)))
+        twin = self.twin
+        self.pending.append(marshal.dumps((k, self.gen, deadline, state, twin.sim.structure,
+                                           twin.refusals(), msgs)))
         if deadline < self.due:
             self.due = deadline
 
@@ -440,13 +445,14 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
 
 # -- the ROS process's side -------------------------------------------------------------------
 class _Entry:
-    """A step (or a command's answers) from the stepping process, waiting for its deadline."""
+    """A step (or a command's answers) from the stepping process, waiting for its deadline;
+    ``structure`` and ``refusals`` (:meth:`Twin.refusals`): the twin's after it."""
 
-    __slots__ = ("k", "gen", "deadline", "state", "structure", "msgs")
+    __slots__ = ("k", "gen", "deadline", "state", "structure", "refusals", "msgs")
 
-    def __init__(self, k, gen, deadline, state, structure, msgs):
+    def __init__(self, k, gen, deadline, state, structure, refusals, msgs):
         self.k, self.gen, self.deadline = k, gen, deadline
-        self.state, self.structure, self.msgs = state, structure, msgs
+        self.state, self.structure, self.refusals, self.msgs = state, structure, refusals, msgs
 
 
 class ForwardingInbox:
@@ -576,10 +582,16 @@ class SteppingProcess:
         word = cmd.word if isinstance(cmd.word, str) else str(cmd.word)
         with self._lock:
             refusal = "the run has ended" if self._ended else self.gate.check(word)
-            kb = None if refusal is not None else self._step_at(cmd.wall + self.command_delay)
+            wall = cmd.wall + self.command_delay
+            kb = None if refusal is not None else self._step_at(wall)
             if kb is None:
                 self._refuse(cmd, word, refusal or "the run has not started",
                              self._boundary(cmd.wall))
+                return
+            at = self._settled(wall, kb)
+            if at is not None and at.refusals[COMMAND_INDEX[word]] is not None:
+                # the machine refuses it there: answered as the gate's, the steps stand
+                self._refuse(cmd, word, at.refusals[COMMAND_INDEX[word]], at)
                 return
             cid = None
             if cmd.reply is not None:
@@ -607,6 +619,17 @@ class SteppingProcess:
             return self._boundary(wall).k
         n = grid[2]
         return min(n, last.k + max(1, math.ceil((wall - last.deadline) / self._period() - 1e-9)))
+
+    def _settled(self, wall: float, kb: int) -> _Entry | None:
+        """The held (or last released) entry that ends step ``kb``, where what it says of the
+        machine is what a command there meets (the lock held): no command sent on is still
+        unanswered and it is of the present generation; None where that is not known here."""
+        if self._gen != self._received_gen:
+            return None
+        at = self._boundary(wall)
+        if at is None or at.k != kb or at.gen != self._gen:
+            return None
+        return at
 
     def _period(self) -> float:
         """A step's period on the wall clock (s; 0 where the schedule is not known)."""
@@ -647,7 +670,8 @@ class SteppingProcess:
         t_ns = to_ns(t)
         msgs = [("~/mode", self._string({"data": word}), t_ns, True),
                 ("~/mode/status", self._string({"data": to_json(ack)}), t_ns, False)]
-        entry = _Entry(k, self._gen, deadline, False, structure, msgs)
+        entry = _Entry(k, self._gen, deadline, False, structure,
+                       at.refusals if at is not None else None, msgs)
         queue = self._queue
         if self._gen > self._received_gen:
             # a command sent on is being applied: this answer follows that one's
@@ -739,10 +763,11 @@ class SteppingProcess:
                 continue
             for kind, payload in got:
                 if kind == b"M":
-                    k, gen, deadline, state, structure, msgs = marshal.loads(payload)
+                    k, gen, deadline, state, structure, refusals, msgs = marshal.loads(payload)
                     with lock:
                         if gen == self._gen or k <= self._limits.get(gen, -1):
-                            queue.append(_Entry(k, gen, deadline, state, structure, msgs))
+                            queue.append(_Entry(k, gen, deadline, state, structure, refusals,
+                                                msgs))
                             if gen > self._received_gen:    # a command's answers
                                 self._received_gen = gen
                                 queue.extend(self._held.pop(gen, ()))

@@ -45,6 +45,8 @@ _CLOCK_HEAD = b"\x00\x01\x00\x00"      # CDR, little endian
 _time = struct.Struct("<iI").pack
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
+#: a word's place in :data:`COMMANDS` (and in :meth:`Twin.refusals`)
+COMMAND_INDEX = {word: i for i, word in enumerate(COMMANDS)}
 
 PACINGS = ("realtime", "as_fast_as_possible")
 
@@ -151,6 +153,7 @@ class Twin:
         self._marker_presets: dict = {}
         self._structure_sent: str | None = None
         self._holding = False                   # new_events() holds this step's events
+        self._refusals: dict[tuple, tuple] = {}     # refusals(), by what they depend on
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
 
     def warm_up(self, seconds: float = 1.0, tries: int = 10, trial: float = 0.06) -> None:
@@ -238,6 +241,28 @@ class Twin:
         except CommandRefused as exc:
             return False, exc.reason
         return True, None
+
+    def refusals(self) -> tuple:
+        """Why :meth:`command` would refuse each of the machine's words now, in
+        :data:`~mps_core.simulation.COMMANDS` order (None: it would apply it): what a step
+        carries, so that a command refused at its boundary is answered there without coming
+        back to it."""
+        key = (self.done, self.sim.structures.command_state())
+        got = self._refusals.get(key)
+        if got is None:
+            got = self._refusals[key] = tuple(self._why_not(w) for w in COMMANDS)
+        return got
+
+    def _why_not(self, word: str) -> str | None:
+        from mps_core.simulation import CommandRefused
+
+        if self.done:
+            return "the run has ended"
+        try:
+            self.sim.check_command(word)
+        except CommandRefused as exc:
+            return exc.reason
+        return None
 
     # -- messages -------------------------------------------------------------------------
     def reaction_list(self) -> list | None:
@@ -534,15 +559,15 @@ class RefusalLog:
 class _Release:
     """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
     (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
-    twin's checkpoint after the step (to come back to for a command); ``structure``: the
-    twin's after the step."""
+    twin's checkpoint after the step (to come back to for a command); ``structure`` and
+    ``refusals`` (:meth:`Twin.refusals`): the twin's after the step."""
 
-    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp", "structure")
+    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp", "structure", "refusals")
 
-    def __init__(self, k, t_ns, deadline, msgs, state, cp, structure=""):
+    def __init__(self, k, t_ns, deadline, msgs, state, cp, structure="", refusals=None):
         self.k, self.t_ns, self.deadline = k, t_ns, deadline
         self.msgs, self.state, self.cp = msgs, state, cp
-        self.structure = structure
+        self.structure, self.refusals = structure, refusals
 
 
 class Timings:
@@ -1018,7 +1043,8 @@ class Runner:
             # the run's start, t0's state and the commands already waiting go out at the
             # schedule's start; with steps computed ahead, that is once the first of them are
             # (the schedule's first steps would otherwise find none banked)
-            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure)
+            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure,
+                             twin.refusals())
             self._staging = first.msgs
             self._begin()
             self._staging = None
@@ -1057,7 +1083,7 @@ class Runner:
                 k, msgs, c1 = self._timed_step(deadline, clock)
                 t_ns = to_ns(twin.t)
                 entry = _Release(k, t_ns, deadline, [], msgs is not None, None,
-                                 twin.sim.structure)
+                                 twin.sim.structure, twin.refusals())
                 self._staging = entry.msgs
                 if msgs is not None:
                     entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
@@ -1210,17 +1236,27 @@ class Runner:
 
     def _commands_ahead(self, ahead: bool) -> None:
         """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One
-        the gate refuses (a flood, an empty or overlong word) changes nothing: its answer is
+        the gate refuses (a flood, an empty or overlong word), or the machine would refuse at
+        its boundary (the step's :attr:`_Release.refusals`), changes nothing: its answer is
         queued right after its boundary and the steps computed beyond it stand. Any other comes
         back to its boundary's checkpoint, drops the steps beyond it, and is applied there."""
         twin, queue, cond = self.twin, self._queue, self._cond
         for c in self.inbox.drain():
             word = c.word if isinstance(c.word, str) else str(c.word)
             refusal = self.gate.check(word)
-            if refusal is not None:
-                with cond:
+            with cond:
+                if refusal is not None:
                     at = self._boundary(c.wall, ahead)
-                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure)
+                else:
+                    at = self._boundary(c.wall + self.command_delay, ahead)
+                    refusal = at.refusals[COMMAND_INDEX[word]]
+                    if refusal is None:
+                        last = queue[-1] if queue else self._released
+                        while queue and queue[-1] is not at:
+                            queue.pop()
+            if refusal is not None:
+                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure,
+                                 at.refusals)
                 self._staging = entry.msgs
                 try:
                     self._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
@@ -1232,11 +1268,6 @@ class Runner:
                     queue.insert(i + 1, entry)
                     cond.notify_all()
                 continue
-            with cond:
-                last = queue[-1] if queue else self._released
-                at = self._boundary(c.wall + self.command_delay, ahead)
-                while queue and queue[-1] is not at:
-                    queue.pop()
             if at is not last:
                 self.steps_recomputed += last.k - at.k
                 twin.restore(at.cp)
@@ -1246,7 +1277,7 @@ class Runner:
                 self._take_commands([c], gated=True)
             finally:
                 self._staging = None
-            entry.structure = twin.sim.structure
+            entry.structure, entry.refusals = twin.sim.structure, twin.refusals()
             if ahead:
                 entry.cp = twin.checkpoint()
             with cond:
@@ -1254,5 +1285,5 @@ class Runner:
                 cond.notify_all()
 
 
-__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "stamp", "to_ns",
-           "to_json", "check_outputs", "BY_KEY"]
+__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "COMMAND_INDEX", "stamp",
+           "to_ns", "to_json", "check_outputs", "BY_KEY"]

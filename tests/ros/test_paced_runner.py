@@ -232,3 +232,131 @@ def test_a_live_sink_that_fails_ends_the_run_and_the_rest_is_still_handed_over()
     assert st["steps"] < round(0.2 / DT)
     ends = [e for e in _events(rec) if e["kind"] == "run-end"]
     assert len(ends) == 1 and ends[0]["reason"] == "error"
+
+
+class _Publishers:
+    """A split run's live side (the ROS publishers): what goes out, in order."""
+
+    def __init__(self, on_clock):
+        self.got: list = []
+        self.on_clock = on_clock
+
+    def publish_pairs(self, pairs):
+        import struct
+
+        for key, data in pairs:
+            self.got.append((key, data))
+            if key == "/clock":
+                sec, nsec = struct.unpack_from("<iI", data, 4)
+                self.on_clock(sec * 1_000_000_000 + nsec)
+
+
+class _Recorder:
+    """A split run's other sink: each released step's messages, as handed over."""
+
+    def __init__(self):
+        self.got: list = []
+
+    def emit_all(self, msgs):
+        self.got.extend(tuple(m) for m in msgs)
+
+    def tick(self, deadline=None):
+        pass
+
+
+@pytest.mark.parametrize("split", [False, True], ids=["one process", "stepping process"])
+def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no_step(split):
+    """``disengage`` while the press is not engaged: refused where its boundary's step says so,
+    no step computed ahead is redone, and the run is the one that stepped in time."""
+    from mps_ros.stepping import SteppingProcess
+    from mps_ros.topics import OUTPUTS
+    from mps_ros.twin import Gate
+
+    K = 60
+    tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+    sent = {}
+
+    def on_clock(t_ns):
+        if not sent and t_ns >= round(K * DT * 1e9):
+            sent["t_ns"] = t_ns
+            runner.inbox.put(Command("disengage"))
+
+    if split:
+        rec = _Recorder()
+        spec = {"scene": "press-cycle",
+                "twin": dict(dt=DT, t_end=T_END, scene_commands=False, outputs=list(OUTPUTS)),
+                "runner": dict(real_time_factor=RTF, lead=0.05, warm_up=0.0),
+                "grid": [tw.t0, tw.t_end, tw.n]}
+        runner = SteppingProcess(spec, _Publishers(on_clock), lambda *a: None, Gate(), 0)
+        runner.sinks.append(rec)
+        try:
+            st = runner.run()
+        finally:
+            runner.close()
+        got = rec.got
+    else:
+        live = Sink(True, on_clock)
+        runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05,
+                        warm_up=0.0)
+        st = runner.run()
+        got = live.got
+    assert st["commands_refused"] == 1 and st["commands_accepted"] == 0
+    assert st["steps_recomputed"] == 0
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in got
+            if k == "~/mode/status"]
+    assert [(a["command"], a["accepted"], a["reason"]) for a in acks] == [
+        ("disengage", False, "the press is not engaged")]
+    # at the step whose state was going out or one of the next
+    t = acks[0]["t"]
+    assert sent["t_ns"] * 1e-9 <= t + 1e-12 and min(abs(t - tw.time_of(k)) for k in
+                                                      range(tw.n + 1)) < 1e-12
+    # the same run as fast as possible, the command given at that boundary, in an interpreter
+    # as fresh as the stepping process (a reaction kernel is generated at the first state
+    # that needs it in a process, and one generated elsewhere can differ in the last bit)
+    done = Sink(True)
+    done.got = list(got)
+    assert _comparable(done) == _afap_with(round(t * 1e9), "disengage", fresh=split)
+
+
+_AFAP = """
+import pickle, sys
+sys.path.insert(0, {here!r})
+from test_paced_runner import Sink, _comparable, DT, T_END
+from mps_ros.twin import Command, Runner, Twin
+j_ns, word = {j_ns!r}, {word!r}
+def at_j(t_ns, box=[]):
+    if not box and t_ns >= j_ns:
+        box.append(1)
+        afap.inbox.put(Command(word))
+same = Sink(True, at_j)
+afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
+              pacing="as_fast_as_possible", warm_up=0.0)
+afap.run()
+sys.stdout.buffer.write(pickle.dumps(_comparable(same)))
+"""
+
+
+def _afap_with(j_ns: int, word: str, fresh: bool) -> list:
+    """:func:`_comparable` of the run as fast as possible with ``word`` at step time ``j_ns``
+    (``fresh``: in a new interpreter)."""
+    import os
+    import pickle
+    import subprocess
+    import sys
+
+    if fresh:
+        code = _AFAP.format(here=os.path.dirname(__file__), j_ns=j_ns, word=word)
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True,
+                             timeout=300)
+        return pickle.loads(out.stdout)
+
+    def at_j(t_ns, box=[]):
+        if not box and t_ns >= j_ns:
+            box.append(1)
+            afap.inbox.put(Command(word))
+
+    same = Sink(True, at_j)
+    afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
+                  pacing="as_fast_as_possible", warm_up=0.0)
+    afap.run()
+    return _comparable(same)
