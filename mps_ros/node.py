@@ -102,7 +102,7 @@ env_defaults()
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks  # noqa: E402
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -225,8 +225,13 @@ class PressTwin(Node):
         for t in TOPICS:
             if t.output and t.output not in outputs:
                 continue
+            # no QoS event handlers (rclpy's default: two a publisher, each one more entity
+            # that the executor goes through for every command it takes; a subscriber that
+            # asks for an incompatible QoS is told so by its own node)
             pub = self.create_publisher(MSG_CLASSES[t.msgtype], t.key,
-                                        latched if t.key in LATCHED else qos)
+                                        latched if t.key in LATCHED else qos,
+                                        event_callbacks=PublisherEventCallbacks(
+                                            use_default_callbacks=False))
             self.pubs[t.key] = pub
             self.names[t.key] = pub.topic_name
         self.inbox = Inbox()
