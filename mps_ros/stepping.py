@@ -28,8 +28,9 @@ w + ``command_delay``, among the last released and those held (the delay leaves 
 process time to redo the steps after it, whose first cost more: the command's events, charts
 met for the first time). Where the step held there says that the machine would refuse it
 (an ``engage`` while engaging; each step carries :meth:`Twin.refusals`), it is answered there
-too and the stepping is not disturbed: only a command the machine takes costs steps redone
-(and one that comes while such a command is still unanswered). Otherwise the steps held beyond
+too and the stepping is not disturbed: only a command the machine takes costs steps redone.
+(One that comes while a command sent on is still unanswered waits for that answer, a few
+milliseconds, and is taken then, in the order they came.) Otherwise the steps held beyond
 it are dropped, the steps that follow are numbered with a new *generation*, and the command
 goes to the stepping process with its boundary and generation: that process comes back to the
 boundary's checkpoint (or steps on to it), applies the command there and computes on. Whatever
@@ -423,6 +424,12 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     go.wait()
     prio = int(asked.get("priority", 0))
     why = ask_fifo(prio) if prio else None
+    if prio and why is None:
+        # the commands' thread too: a command waits for no ordinary process on the machine
+        fifo_for_the_others(prio)
+    # a command waits this long at most for the stepping thread to let go of the interpreter
+    # (Python's default: 5 ms, five steps)
+    sys.setswitchinterval(2e-4)
     out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio,
                                 "refused": why}).encode())
     from .os_threads import name_thread
@@ -532,6 +539,9 @@ class SteppingProcess:
         self._received_gen = 0              # the last generation received
         self._last_boundary = -1            # the step of the last command sent on
         self._held: dict[int, list] = {}    # refusals that follow a command's answers
+        #: commands that came while one sent on was unanswered: (command, word, the gate's
+        #: refusal or None)
+        self._waiting: collections.deque = collections.deque()
         self._stats: dict = {}
         self._refusals = RefusalLog(log)
         self._prepared = False
@@ -582,30 +592,54 @@ class SteppingProcess:
         word = cmd.word if isinstance(cmd.word, str) else str(cmd.word)
         with self._lock:
             refusal = "the run has ended" if self._ended else self.gate.check(word)
-            wall = cmd.wall + self.command_delay
-            kb = None if refusal is not None else self._step_at(wall)
-            if kb is None:
-                self._refuse(cmd, word, refusal or "the run has not started",
-                             self._boundary(cmd.wall))
+            if self._waiting or (refusal is None and self._gen != self._received_gen):
+                # a command sent on is still unanswered: this one is taken once it is (what
+                # the machine says to it is known then), in the order they came
+                self._waiting.append((cmd, word, refusal))
                 return
-            at = self._settled(wall, kb)
-            if at is not None and at.refusals[COMMAND_INDEX[word]] is not None:
-                # the machine refuses it there: answered as the gate's, the steps stand
-                self._refuse(cmd, word, at.refusals[COMMAND_INDEX[word]], at)
-                return
-            cid = None
-            if cmd.reply is not None:
-                cid = self._next_id
-                self._next_id += 1
-                self._replies[cid] = cmd.reply
-            queue = self._queue
-            while queue and queue[-1].k > kb:
-                queue.pop()
-            self._limits[self._gen] = kb
-            self._last_boundary = kb
-            self._gen += 1
-            self._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb,
-                                                 self._gen)))
+            self._take(cmd, word, refusal)
+
+    def _take(self, cmd: Command, word: str, refusal: str | None) -> None:
+        """A command past the gate (``refusal`` None) is answered at its boundary where the
+        step held there says that the machine refuses it, else sent on; one the gate refused
+        is answered at its boundary (the lock held)."""
+        wall = cmd.wall + self.command_delay
+        kb = None if refusal is not None else self._step_at(wall)
+        if kb is None:
+            self._refuse(cmd, word, refusal or "the run has not started",
+                         self._boundary(cmd.wall))
+            return
+        at = self._settled(wall, kb)
+        if at is not None and at.refusals[COMMAND_INDEX[word]] is not None:
+            # the machine refuses it there: answered as the gate's, the steps stand
+            self._refuse(cmd, word, at.refusals[COMMAND_INDEX[word]], at)
+            return
+        cid = None
+        if cmd.reply is not None:
+            cid = self._next_id
+            self._next_id += 1
+            self._replies[cid] = cmd.reply
+        queue = self._queue
+        while queue and queue[-1].k > kb:
+            queue.pop()
+        self._limits[self._gen] = kb
+        self._last_boundary = kb
+        self._gen += 1
+        self._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen)))
+
+    def _take_waiting(self) -> None:
+        """The commands that waited for an answer, in order (the lock held), each once the
+        step of its boundary is here, until one is sent on; after the run's end, each
+        refused."""
+        waiting = self._waiting
+        while waiting and (self._ended or self._gen == self._received_gen):
+            cmd, word, refusal = waiting[0]
+            if not self._ended and refusal is None:
+                last = self._queue[-1] if self._queue else self._released
+                if last is None or last.deadline < cmd.wall + self.command_delay:
+                    return                  # its boundary's step is still to come
+            waiting.popleft()
+            self._take(cmd, word, "the run has ended" if self._ended else refusal)
 
     def _step_at(self, wall: float) -> int | None:
         """The first step whose deadline is not before ``wall`` (the lock held), among the
@@ -642,15 +676,19 @@ class SteppingProcess:
         """The entry a command that arrived at ``wall`` follows (the lock held): the last
         entry of the first step whose deadline is not before ``wall``, among the last released
         and those held; the last of them where none is that late yet."""
-        held = self._queue
-        first = self._released
-        if first is None and not held:
-            return None
-        entries = ([first] if first is not None else []) + list(held)
-        d = next((e.deadline for e in entries if e.deadline >= wall), None)
-        if d is None:
-            return entries[-1]
-        return [e for e in entries if e.deadline <= d][-1]
+        at = self._released
+        d = at.deadline if at is not None and at.deadline >= wall else None
+        # held in the order of their deadlines: a command's boundary is near the front
+        for e in self._queue:
+            if d is None:
+                at = e
+                if e.deadline >= wall:
+                    d = e.deadline
+            elif e.deadline <= d:
+                at = e
+            else:
+                break
+        return at
 
     def _refuse(self, cmd: Command, word: str, reason: str, at: _Entry | None) -> None:
         """A command the gate refused, answered at its boundary (but never before the answer
@@ -678,8 +716,8 @@ class SteppingProcess:
             self._held.setdefault(self._gen, []).append(entry)
         else:
             # after everything held at its step or before (the answers given there included)
-            i = next((n for n in range(len(queue) - 1, -1, -1) if queue[n].k <= k), -1)
-            queue.insert(i + 1, entry)
+            i = next((n for n, e in enumerate(queue) if e.k > k), len(queue))
+            queue.insert(i, entry)
         self._refusals.refused(word, cmd.source, t, reason, cmd.wall)
         if cmd.reply is not None:
             try:
@@ -788,8 +826,12 @@ class SteppingProcess:
                     end = json.loads(payload)
                     with lock:
                         self._ended = True
+            if self._waiting:
+                with lock:
+                    self._take_waiting()
         with lock:
             self._ended = True
+            self._take_waiting()
         self.ros_cpu = time.process_time() - cpu0
         for s in self.sinks:
             s.tick(None)

@@ -788,8 +788,9 @@ class Runner:
             else:
                 ok = False
             self._answer(c, word, ok, reason, t, twin.sim.structure)
-        # a command's event (and what it set off) goes out at once
-        self._emit_events(twin.new_events(), t_ns)
+            # a command's event (and what it set off) goes out at once, before the next
+            # command's answer
+            self._emit_events(twin.new_events(), t_ns)
 
     def _say(self, level: str, text: str) -> None:
         if self._later_logs is not None:

@@ -264,22 +264,32 @@ class _Recorder:
         pass
 
 
+REFUSED = {"disengage": [("disengage", False, "the press is not engaged")],
+           "engage, engage": [("engage", True, None), ("engage", False, "already engaging")]}
+
+
+@pytest.mark.parametrize("words", list(REFUSED))
 @pytest.mark.parametrize("split", [False, True], ids=["one process", "stepping process"])
-def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no_step(split):
-    """``disengage`` while the press is not engaged: refused where its boundary's step says so,
-    no step computed ahead is redone, and the run is the one that stepped in time."""
+def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no_step(
+        split, words):
+    """A command the machine refuses at its boundary (``disengage`` while the press is not
+    engaged; a second ``engage`` right after the first, while that one is being applied) is
+    answered where its boundary's step says so, no step computed ahead is redone for it, and
+    the run is the one that stepped in time."""
     from mps_ros.stepping import SteppingProcess
     from mps_ros.topics import OUTPUTS
     from mps_ros.twin import Gate
 
     K = 60
+    words = words.split(", ")
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
     sent = {}
 
     def on_clock(t_ns):
         if not sent and t_ns >= round(K * DT * 1e9):
             sent["t_ns"] = t_ns
-            runner.inbox.put(Command("disengage"))
+            for w in words:             # one after the other, before any answer is read
+                runner.inbox.put(Command(w))
 
     if split:
         rec = _Recorder()
@@ -294,28 +304,34 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
         finally:
             runner.close()
         got = rec.got
+        # refused here, in the node's process: the stepping process never saw it
+        assert runner.commands_refused == 1
     else:
         live = Sink(True, on_clock)
         runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05,
                         warm_up=0.0)
         st = runner.run()
         got = live.got
-    assert st["commands_refused"] == 1 and st["commands_accepted"] == 0
-    assert st["steps_recomputed"] == 0
+    expected = REFUSED[", ".join(words)]
+    assert st["commands_refused"] == 1
+    assert st["commands_accepted"] == sum(1 for *_w, ok, _r in expected if ok)
+    if len(words) == 1:
+        assert st["steps_recomputed"] == 0
     acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in got
             if k == "~/mode/status"]
-    assert [(a["command"], a["accepted"], a["reason"]) for a in acks] == [
-        ("disengage", False, "the press is not engaged")]
-    # at the step whose state was going out or one of the next
+    assert [(a["command"], a["accepted"], a["reason"]) for a in acks] == expected
+    # at the step whose state was going out or one of the next, all at the same one
     t = acks[0]["t"]
+    assert {a["t"] for a in acks} == {t}
     assert sent["t_ns"] * 1e-9 <= t + 1e-12 and min(abs(t - tw.time_of(k)) for k in
                                                       range(tw.n + 1)) < 1e-12
-    # the same run as fast as possible, the command given at that boundary, in an interpreter
-    # as fresh as the stepping process (a reaction kernel is generated at the first state
-    # that needs it in a process, and one generated elsewhere can differ in the last bit)
+    # the same run as fast as possible, the commands given at that boundary, in an
+    # interpreter as fresh as the stepping process (a reaction kernel is generated at the
+    # first state that needs it in a process, and one generated elsewhere can differ in the
+    # last bit)
     done = Sink(True)
     done.got = list(got)
-    assert _comparable(done) == _afap_with(round(t * 1e9), "disengage", fresh=split)
+    assert _comparable(done) == _afap_with(round(t * 1e9), words, fresh=split)
 
 
 _AFAP = """
@@ -323,11 +339,12 @@ import pickle, sys
 sys.path.insert(0, {here!r})
 from test_paced_runner import Sink, _comparable, DT, T_END
 from mps_ros.twin import Command, Runner, Twin
-j_ns, word = {j_ns!r}, {word!r}
+j_ns, words = {j_ns!r}, {words!r}
 def at_j(t_ns, box=[]):
     if not box and t_ns >= j_ns:
         box.append(1)
-        afap.inbox.put(Command(word))
+        for w in words:
+            afap.inbox.put(Command(w))
 same = Sink(True, at_j)
 afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
               pacing="as_fast_as_possible", warm_up=0.0)
@@ -336,8 +353,8 @@ sys.stdout.buffer.write(pickle.dumps(_comparable(same)))
 """
 
 
-def _afap_with(j_ns: int, word: str, fresh: bool) -> list:
-    """:func:`_comparable` of the run as fast as possible with ``word`` at step time ``j_ns``
+def _afap_with(j_ns: int, words: list, fresh: bool) -> list:
+    """:func:`_comparable` of the run as fast as possible with ``words`` at step time ``j_ns``
     (``fresh``: in a new interpreter)."""
     import os
     import pickle
@@ -345,7 +362,7 @@ def _afap_with(j_ns: int, word: str, fresh: bool) -> list:
     import sys
 
     if fresh:
-        code = _AFAP.format(here=os.path.dirname(__file__), j_ns=j_ns, word=word)
+        code = _AFAP.format(here=os.path.dirname(__file__), j_ns=j_ns, words=words)
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True,
                              timeout=300)
         return pickle.loads(out.stdout)
@@ -353,7 +370,8 @@ def _afap_with(j_ns: int, word: str, fresh: bool) -> list:
     def at_j(t_ns, box=[]):
         if not box and t_ns >= j_ns:
             box.append(1)
-            afap.inbox.put(Command(word))
+            for w in words:
+                afap.inbox.put(Command(w))
 
     same = Sink(True, at_j)
     afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
