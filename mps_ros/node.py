@@ -10,65 +10,9 @@ recorder, signals. ROS callbacks run in a background executor thread and only qu
 the run loop applies them at the next step boundary and answers on ``~/mode/status`` (and to
 the service caller).
 
-Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin.yaml``):
-
-==========================  ==========================================================================
-``scene``                   preset name or scene file (default: the command line's SCENE, else
-                            ``press-cycle``)
-``pacing``                  ``realtime`` (default) or ``as_fast_as_possible``
-``real_time_factor``        simulated seconds per wall second in realtime pacing (default 1.0)
-``dt``, ``t_end``           step and end time (s); 0 (default): the scene's
-``derivatives``             the Lagrange equations' derivatives: ``central`` (the seed's finite
-                            differences) or ``autodiff`` (exact); empty (default): the scene's
-``publish_every``           publish (and record) every N-th step (default 1); commands and events
-                            are taken at every step
-``outputs``                 what to compute and publish, a subset of joint_states, reactions,
-                            foundation, clock, structure, events, diagnostics (default: all); the
-                            reactions are solved only if reactions or foundation is asked for
-``recording``               MCAP path (never an existing file); ``auto`` (default):
-                            recordings/SCENE-DATE-TIME-MS.mcap, created exclusively;
-                            ``none`` or empty: no recording. Written by a process of its own
-                            (:class:`~mps_ros.recording.BackgroundRecorder`), off the steps' time
-``recording_flush_period``  wall seconds after which a chunk is written even if not full (1.0)
-``scene_commands``          apply the scene's own [[commands]] (default true); false: an operator
-                            sends them on ``~/mode``
-``qos_depth``               history depth of every publisher (keep last, reliable; 1000) but
-                            ``~/structure``, which is latched (transient local, depth 1) and
-                            published when the structure changes
-``wait_for_subscribers``    start stepping when every published topic has this many subscribers
-``wait_for_commanders``     ... and ``~/mode`` has this many publishers (default 0, 0)
-``wait_timeout``            start anyway after this many seconds (10.0)
-``start_delay``             then wait this many wall seconds more, e.g. for discovery to settle
-                            both ways (0.0)
-``command_burst``,          flood limit: at most ``command_burst`` commands at once, then
-``command_rate``            ``command_rate`` a second (10, 20.0); the rest are refused
-``diagnostics_period``      wall seconds between /diagnostics messages (1.0)
-``realtime_priority``       SCHED_FIFO priority of the stepping and publishing work (40,
-                            default: below the kernel's threaded interrupts at 50); where the
-                            system refuses it, one warning and normal scheduling. 0: normal
-``markers_hz``              ``~/markers`` (the press drawn for RViz2 and Foxglove) this many times a
-                            simulated second at most, never more often than the steps (30.0)
-``markers_scale``           their arrows: newtons a metre of arrow (2e6; in the arrows' namespace)
-``lead``                    realtime: steps are computed up to this many wall seconds ahead of
-                            their deadlines and released at them (0.1, at most 1). 0: one
-                            step's period, none banked
-``command_delay``           realtime, steps banked: a command takes effect at the first step
-                            boundary at least this many wall seconds after it arrives (at most
-                            1): time to redo the steps after it, whose first cost more, with
-                            steps still banked. 0 (default): the first boundary after it arrives
-``release_period``          realtime: the publishing thread wakes about once per this many wall
-                            seconds and sends every step whose deadline has passed: a step goes
-                            out at most this less one step's period after its deadline. 0
-                            (default), or up to one step's period: each step at its deadline, one
-                            wake-up a step; 0.002 at 1 kHz: steps in pairs, each up to 1 ms
-                            late, for less CPU (docs/ros.md has both measured)
-``stepping_process``        realtime: step the twin in a process of its own (true, default:
-                            :mod:`mps_ros.stepping`); false: in this process, a thread beside
-                            the publishing one (docs/ros.md compares both)
-``release_slice``           realtime: the scheduler slice (s) the publishing thread asks for
-                            (0.0001; Linux 6.12 on, no privilege needed): the subscribers'
-                            threads its messages wake preempt it less often. 0: none asked
-==========================  ==========================================================================
+Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin.yaml``): the
+table :data:`mps_ros.parameters.PARAMETERS` (docs/ros.md lists it; ``ros2 param describe``
+gives each one's description and range).
 """
 
 from __future__ import annotations
@@ -106,15 +50,15 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rcl_interfaces.msg import ParameterDescriptor  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from .topics import LATCHED, MODE, NODE_NAME, OUTPUTS, TOPICS, offered_qos, qos_yaml  # noqa: E402
-from .twin import (PACINGS, Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
+from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
+from .topics import LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml  # noqa: E402
+from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
                    to_json)
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
@@ -287,24 +231,24 @@ class PressTwin(Node):
                                p["realtime_priority"])
 
     # -- parameters -----------------------------------------------------------------------
-    _DEFAULTS = {
-        "scene": None, "pacing": "realtime", "real_time_factor": 1.0, "dt": 0.0, "t_end": 0.0,
-        "derivatives": "",
-        "publish_every": 1, "outputs": list(OUTPUTS), "recording": "auto",
-        "recording_flush_period": 1.0, "scene_commands": True, "qos_depth": 1000,
-        "wait_for_subscribers": 0, "wait_for_commanders": 0, "wait_timeout": 10.0,
-        "start_delay": 0.0,
-        "command_burst": 10, "command_rate": 20.0, "diagnostics_period": 1.0,
-        "realtime_priority": 40, "lead": 0.1, "command_delay": 0.0,
-        "release_period": 0.0, "release_slice": 1e-4,
-        "markers_hz": 30.0, "markers_scale": 2e6, "stepping_process": True,
-    }
-
     def _declare(self, scene: str):
-        for name, default in self._DEFAULTS.items():
-            value = scene if name == "scene" else default
-            self.declare_parameter(name, value, ParameterDescriptor(
-                name=name, read_only=True, dynamic_typing=True))
+        """Every parameter of :data:`~mps_ros.parameters.PARAMETERS`, typed and read-only, its
+        range enforced by rclpy: a value of the wrong type or out of range ends the node."""
+        from rclpy.exceptions import (InvalidParameterTypeException,
+                                      InvalidParameterValueException)
+        from rclpy.parameter import Parameter as Given
+
+        given = getattr(self, "_parameter_overrides", None) or {}
+        for p in PARAMETERS:
+            v = given.get(p.name)
+            if p.kind == "double" and v is not None and v.type_ == Given.Type.INTEGER:
+                # an integer where a real number is expected: taken as one (-p t_end:=20)
+                given[p.name] = v = Given(p.name, value=float(v.value))
+            try:
+                self.declare_parameter(*descriptor(p, scene))
+            except (InvalidParameterTypeException, InvalidParameterValueException):
+                raise ParameterError(f"parameter {p.name}: {v.value!r}: expected "
+                                     f"{p.expected()}") from None
 
     def _params(self) -> dict:
         # a parameter given (-p, a parameters file for this node) that the node does not have:
@@ -315,87 +259,20 @@ class PressTwin(Node):
         if unknown:
             raise ParameterError(f"unknown parameter{'s' if len(unknown) > 1 else ''} "
                                  f"{', '.join(unknown)}: expected one of "
-                                 f"{', '.join(sorted(self._DEFAULTS))}")
-        raw = {n: self.get_parameter(n).value for n in self._DEFAULTS}
-        out = {}
-
-        def number(n, lo=0.0, strict=False):
-            v = raw[n]
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ParameterError(f"parameter {n}: {v!r} is not a number")
-            v = float(v)
-            if not (v > lo if strict else v >= lo) or v != v or v == float("inf"):
-                raise ParameterError(f"parameter {n}: {v!r} must be {'>' if strict else '>='} "
-                                     f"{lo:g}")
-            return v
-
-        def integer(n, lo):
-            v = raw[n]
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise ParameterError(f"parameter {n}: {v!r} must be an integer >= {lo}")
-            return v
-
-        out["scene"] = str(raw["scene"])
-        if raw["pacing"] not in PACINGS:
-            raise ParameterError(f"parameter pacing: {raw['pacing']!r}, expected one of "
-                                 f"{', '.join(PACINGS)}")
-        out["pacing"] = raw["pacing"]
-        out["real_time_factor"] = number("real_time_factor", strict=True)
-        out["dt"] = number("dt")
-        from mps_core.engine import SCHEMES
-
-        if raw["derivatives"] not in ("", *SCHEMES):
-            raise ParameterError(f"parameter derivatives: {raw['derivatives']!r}, expected "
-                                 f"'' (the scene's) or one of {', '.join(SCHEMES)}")
-        out["derivatives"] = raw["derivatives"]
-        out["t_end"] = number("t_end")
-        out["publish_every"] = integer("publish_every", 1)
-        o = raw["outputs"]
-        if isinstance(o, str):
-            o = [x for x in o.replace(",", " ").split()]
+                                 f"{', '.join(sorted(BY_NAME))}")
+        out = {p.name: self.get_parameter(p.name).value for p in PARAMETERS}
+        for p in PARAMETERS:
+            if p.choices and out[p.name] not in p.choices:
+                raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected "
+                                     f"{p.expected()}")
         try:
-            out["outputs"] = check_outputs(o)
+            out["outputs"] = check_outputs(out["outputs"])
         except ValueError as exc:
             raise ParameterError(f"parameter outputs: {exc}") from None
-        out["recording"] = str(raw["recording"]).strip()
-        out["recording_flush_period"] = number("recording_flush_period", strict=True)
-        if not isinstance(raw["scene_commands"], bool):
-            raise ParameterError(f"parameter scene_commands: {raw['scene_commands']!r}, "
-                                 "expected true or false")
-        out["scene_commands"] = raw["scene_commands"]
-        if not isinstance(raw["stepping_process"], bool):
-            raise ParameterError(f"parameter stepping_process: {raw['stepping_process']!r}, "
-                                 "expected true or false")
-        out["stepping_process"] = raw["stepping_process"]
-        out["qos_depth"] = integer("qos_depth", 1)
-        out["wait_for_subscribers"] = integer("wait_for_subscribers", 0)
-        out["wait_for_commanders"] = integer("wait_for_commanders", 0)
-        out["wait_timeout"] = number("wait_timeout")
-        out["start_delay"] = number("start_delay")
-        out["command_burst"] = integer("command_burst", 1)
-        out["command_rate"] = number("command_rate", strict=True)
-        out["diagnostics_period"] = number("diagnostics_period", strict=True)
-        out["realtime_priority"] = integer("realtime_priority", 0)
-        out["lead"] = number("lead")
-        out["command_delay"] = number("command_delay")
-        out["release_period"] = number("release_period")
-        out["release_slice"] = number("release_slice")
-        out["markers_hz"] = number("markers_hz", strict=True)
-        out["markers_scale"] = number("markers_scale", strict=True)
-        if out["lead"] > 1.0:
-            raise ParameterError(f"parameter lead: {out['lead']!r} must be from 0 to 1 s")
-        if out["command_delay"] > 1.0:
-            raise ParameterError(f"parameter command_delay: {out['command_delay']!r} must be "
-                                 "from 0 to 1 s")
-        if out["release_slice"] and not 1e-4 <= out["release_slice"] <= 0.1:
+        out["recording"] = out["recording"].strip()
+        if 0.0 < out["release_slice"] < 1e-4:
             raise ParameterError(f"parameter release_slice: {out['release_slice']!r} must be 0 "
                                  "(the system's) or from 0.0001 to 0.1 s")
-        if out["release_period"] > 0.1:
-            raise ParameterError(f"parameter release_period: {out['release_period']!r} must be "
-                                 "from 0 to 0.1 s")
-        if out["realtime_priority"] > 99:
-            raise ParameterError(f"parameter realtime_priority: {out['realtime_priority']!r} "
-                                 "must be an integer from 0 (off) to 99")
         return out
 
     # -- callbacks (executor thread): queue only ------------------------------------------

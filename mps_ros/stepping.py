@@ -34,8 +34,9 @@ milliseconds, and is taken then, in the order they came.) Otherwise the steps he
 it are dropped, the steps that follow are numbered with a new *generation*, and the command
 goes to the stepping process with its boundary and generation: that process comes back to the
 boundary's checkpoint (or steps on to it), applies the command there and computes on. Whatever
-it had sent of the old generation beyond the boundary is dropped on arrival. So the run is the one that stepped in time, as in
-one process, and what the node publishes is what it records, byte for byte, in the same order.
+it had sent of the old generation beyond the boundary is dropped on arrival. So the run is the
+one that stepped in time, as in one process, and what the node publishes is what it records,
+byte for byte, in the same order.
 
 **Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
 stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a

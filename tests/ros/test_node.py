@@ -601,7 +601,11 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"release_period": 0.5}, "parameter release_period: 0.5"),
              ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
              ({"release_slice": 0.5}, "parameter release_slice: 0.5"),
-             ({"command_delay": 2.0}, "parameter command_delay: 2.0"),
+             ({"command_delay": 2.0}, "parameter command_delay: 2.0: expected a number from "
+                                      "0 to 1"),
+             ({"t_end": -1.0}, "parameter t_end: -1.0: expected a number from 0 to 1e9"),
+             ({"scene_commands": 3}, "parameter scene_commands: 3: expected true or false"),
+             ({"outputs": "clock"}, "parameter outputs: 'clock': expected a list of words"),
              ({"no_such": 1}, "unknown parameter no_such: expected one of command_burst, ")]
     for params, message in cases:
         with NodeProcess(tmp_path, params, name="bad") as node:
