@@ -58,8 +58,8 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
 from .topics import LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml  # noqa: E402
-from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
-                   to_json)
+from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs,  # noqa: E402
+                   hardware_id, shown, to_json)
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
 from mps_core import MpsError  # noqa: E402
@@ -225,7 +225,7 @@ class PressTwin(Node):
                       name=self.get_fully_qualified_name().lstrip("/"))
         tw = self.twin
         spec = {"scene": p["scene"], "twin": twin, "runner": runner,
-                "grid": [tw.t0, tw.t_end, tw.n]}
+                "grid": [tw.t0, tw.t_end, tw.n], "hardware_id": hardware_id(tw.scene.name)}
         return SteppingProcess(spec, self.ros_sink, self._log,
                                Gate(p["command_burst"], p["command_rate"]),
                                p["realtime_priority"])

@@ -884,8 +884,8 @@ class SteppingProcess:
 
         t_ns = msgs[0][2] if msgs else 0
         name = self.spec["runner"].get("name", "press_twin")
-        data = encoder(BY_KEY["/diagnostics"].msgtype)(recording_alarm(name, t_ns,
-                                                                        self._failure))
+        data = encoder(BY_KEY["/diagnostics"].msgtype)(recording_alarm(
+            name, t_ns, self._failure, self.spec.get("hardware_id", "mps")))
         self.sink.publish_pairs([("/diagnostics", data)])
 
     def _priority_said(self, got: dict) -> None:

@@ -61,14 +61,19 @@ def to_ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
-def recording_alarm(name: str, t_ns: int, failure: str) -> dict:
+def hardware_id(scene_name: str) -> str:
+    """The /diagnostics statuses' ``hardware_id``: the twin of the scene's press."""
+    return f"mps {scene_name}"
+
+
+def recording_alarm(name: str, t_ns: int, failure: str, hardware: str = "mps") -> dict:
     """The /diagnostics message that says a run's recording has stopped (level ERROR, status
     ``NAME: recording``): sent at once and again with each diagnostics period while the run
-    goes on without its recording."""
+    goes on without its recording (``hardware``: :func:`hardware_id`)."""
     return {"header": {"stamp": {"sec": t_ns // 1_000_000_000,
                                  "nanosec": t_ns % 1_000_000_000}, "frame_id": ""},
             "status": [{"level": 2, "name": f"{name}: recording",
-                        "message": f"recording stopped: {failure}", "hardware_id": "mps",
+                        "message": f"recording stopped: {failure}", "hardware_id": hardware,
                         "values": [{"key": "error", "value": failure}]}]}
 
 
@@ -676,6 +681,7 @@ class Runner:
         self.latencies = Timings()              # realtime: publish done - deadline (s)
         self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
         self.misses = 0
+        self._misses_said = 0           # the deadline misses the last /diagnostics counted
         self.messages = 0
         self.steps_recomputed = 0               # realtime: computed ahead, dropped for a command
         self.commands_accepted = 0
@@ -883,17 +889,22 @@ class Runner:
         if "diagnostics" not in self.twin.outputs:
             return
         s = self.stats()
-        late = self.pacing == "realtime" and s["deadline_misses"] > 0
+        # WARN while deadlines are being missed: since the last message, not since the start
+        new = s["deadline_misses"] - self._misses_said
+        self._misses_said = s["deadline_misses"]
+        late = self.pacing == "realtime" and new > 0
         values = [{"key": k, "value": (f"{v:.6g}" if isinstance(v, float) else str(v))}
                   for k, v in s.items()]
         msg = (f"rtf {s['real_time_factor']:.3g}, step p50 {s['step_time_p50_ms']:.3g} ms "
-               f"p99 {s['step_time_p99_ms']:.3g} ms, {s['deadline_misses']} deadline misses")
+               f"p99 {s['step_time_p99_ms']:.3g} ms, {new} deadline misses since the last "
+               f"report, {s['deadline_misses']} in all")
+        hw = hardware_id(self.twin.scene.name)
         status = [{"level": 1 if late else 0, "name": f"{self.name}: pacing",
-                   "message": msg, "hardware_id": "mps", "values": values}]
+                   "message": msg, "hardware_id": hw, "values": values}]
         failure = next((f for f in (getattr(x, "failure", None) for x in self.sinks) if f),
                        None)
         if failure:         # the recording stopped: said with every period (not recorded)
-            status += recording_alarm(self.name, t_ns, failure)["status"]
+            status += recording_alarm(self.name, t_ns, failure, hw)["status"]
         self._emit("/diagnostics", {
             "header": {"stamp": stamp(self.twin.t), "frame_id": ""}, "status": status}, t_ns)
 
@@ -1286,5 +1297,5 @@ class Runner:
                 cond.notify_all()
 
 
-__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "COMMAND_INDEX", "stamp",
-           "to_ns", "to_json", "check_outputs", "BY_KEY"]
+__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "COMMAND_INDEX",
+           "hardware_id", "stamp", "to_ns", "to_json", "check_outputs", "BY_KEY"]

@@ -378,3 +378,21 @@ def _afap_with(j_ns: int, words: list, fresh: bool) -> list:
                   pacing="as_fast_as_possible", warm_up=0.0)
     afap.run()
     return _comparable(same)
+
+
+def test_the_pacing_status_warns_while_deadlines_are_missed_and_clears_after():
+    """/diagnostics' pacing status is WARN where deadlines were missed since the last message,
+    OK again once a period passes without; its hardware_id names the scene's press."""
+    tw = Twin("press-cycle", dt=DT, t_end=T_END)
+    runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0)
+    sent = []
+    runner._emit = lambda key, msg, t_ns: sent.append(msg)     # the message before encoding
+    said = []
+    for misses in (0, 3, 3, 5, 5):
+        runner.misses = misses
+        runner._diagnostics(0)
+        status = sent[-1]["status"][0]
+        said.append(status["level"])
+    assert said == [0, 1, 0, 1, 0]
+    assert status["hardware_id"] == "mps press-cycle"
+    assert "0 deadline misses since the last report, 5 in all" in status["message"]
