@@ -107,7 +107,7 @@ def _recover(args) -> int:
     try:
         # whole or not at all: a disk that fills up leaves no half-written file behind
         with written_whole(dst) as tmp:
-            rep = recover(src, tmp)
+            rep = recover(src, tmp, name=dst.name)
     except OSError as exc:          # the disk full: nothing of OUT is left behind
         print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written",
               file=sys.stderr)

@@ -189,6 +189,11 @@ class McapWriter:
         self._chunk_start = self._chunk_end = 0
         self._index = {}
 
+    def written(self) -> tuple[int, int, int, dict[int, int]]:
+        """What the closed chunks hold: (messages, the first and the last log time, messages
+        by channel id); after :meth:`flush`, every message."""
+        return self.message_count, self._start, self._end, dict(self._per_channel)
+
     def flush(self) -> None:
         """Close the chunk in progress (if it holds a message) and flush the stream."""
         self._close_chunk()

@@ -32,7 +32,7 @@ from pathlib import Path
 from .cdr import encoder, generic_encoder, msgdef
 from .mcap_writer import MAGIC, McapWriter
 from .os_threads import widen_pipe
-from .topics import BY_KEY, DEPTH, NODE_NAME, offered_qos, qos_yaml, resolve
+from .topics import BY_KEY, DEPTH, NODE_NAME, TYPE_HASHES, offered_qos, qos_yaml, resolve
 
 PROFILE = "ros2"
 
@@ -94,7 +94,29 @@ class _Direct:
 @dataclass
 class _Channel:
     id: int
+    msgtype: str = ""
+    qos: str = ""
     count: int = 0
+
+
+def channel_metadata(msgtype: str, qos: str | None = None) -> dict[str, str]:
+    """A channel's metadata as Jazzy's rosbag2 writes it: its offered QoS profiles (YAML) and
+    its type's description hash."""
+    meta = {"offered_qos_profiles": qos or qos_yaml()}
+    if msgtype in TYPE_HASHES:
+        meta["topic_type_hash"] = TYPE_HASHES[msgtype]
+    return meta
+
+
+def rosbag2_record(file_name: str, writer: McapWriter, channels: dict) -> dict[str, str]:
+    """The ``rosbag2`` metadata record of what ``writer`` has written (flushed): ``channels``,
+    by channel id, as (topic, type, offered QoS YAML)."""
+    from .bag_metadata import TopicCount, record
+
+    _total, start, end, per = writer.written()
+    topics = [TopicCount(topic, msgtype, qos, TYPE_HASHES.get(msgtype, ""), per.get(cid, 0))
+              for cid, (topic, msgtype, qos) in sorted(channels.items())]
+    return record(file_name, topics, start, end)
 
 
 class Recorder:
@@ -132,9 +154,8 @@ class Recorder:
             if sid is None:
                 sid = self._schemas[msgtype] = self._w.register_schema(
                     msgtype, "ros2msg", msgdef(msgtype).encode())
-            cid = self._w.register_channel(topic, "cdr", sid,
-                                           {"offered_qos_profiles": qos or qos_yaml()})
-            ch = self._channels[topic] = _Channel(cid)
+            cid = self._w.register_channel(topic, "cdr", sid, channel_metadata(msgtype, qos))
+            ch = self._channels[topic] = _Channel(cid, msgtype, qos or qos_yaml())
         return ch
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
@@ -160,10 +181,16 @@ class Recorder:
         return {t: c.count for t, c in self._channels.items()}
 
     def finish(self) -> None:
+        """The last chunk, the ``rosbag2`` metadata record (as Jazzy's rosbag2 writes it on
+        closing a bag: :mod:`~mps_ros.bag_metadata`), the summary."""
         if self.finished:
             return
         self.finished = True
         try:
+            self._w.flush()
+            self._w.add_metadata("rosbag2", rosbag2_record(
+                self.path.name, self._w, {c.id: (t, c.msgtype, c.qos)
+                                          for t, c in self._channels.items()}))
             self._w.finish()
         finally:
             self._stream.close()
@@ -637,10 +664,12 @@ def _records(path: Path, report: Recovered | None = None):
         report.truncated_at = pos
 
 
-def recover(src, dst) -> Recovered:
+def recover(src, dst, name: str | None = None) -> Recovered:
     """Copy what is intact in ``src`` (e.g. a recording whose writer was killed: no footer, the
     last chunk cut short) into a complete MCAP file ``dst``: header, metadata, schemas, channels
-    and every message of every whole chunk, in their order."""
+    and every message of every whole chunk, in their order; and the ``rosbag2`` metadata
+    record of what it holds where ``src`` has none (``name``: the file's name it gives, where
+    ``dst`` is a temporary one)."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ValueError("recover writes a new file: give an output path other than the input")
@@ -650,8 +679,11 @@ def recover(src, dst) -> Recovered:
         w = McapWriter(fh)
         started = False
         schemas: dict[int, int] = {}
+        schema_names: dict[int, str] = {}
         channels: dict[int, int] = {}
         topics: dict[int, str] = {}
+        described: dict[int, tuple] = {}    # new channel id: (topic, type, offered QoS)
+        rosbag2 = False
         for kind, r in _records(src, report):
             if kind == "header":
                 w.start(profile=r.profile, library=r.library)
@@ -662,12 +694,17 @@ def recover(src, dst) -> Recovered:
                 started = True
             if kind == "metadata":
                 w.add_metadata(r.name, dict(r.metadata))
+                rosbag2 = rosbag2 or r.name == "rosbag2"
             elif kind == "schema" and r.id not in schemas:
                 schemas[r.id] = w.register_schema(r.name, r.encoding, r.data)
+                schema_names[r.id] = r.name
             elif kind == "channel" and r.id not in channels:
                 channels[r.id] = w.register_channel(r.topic, r.message_encoding,
                                                     schemas.get(r.schema_id, 0), dict(r.metadata))
                 topics[r.id] = r.topic
+                described[channels[r.id]] = (r.topic, schema_names.get(r.schema_id, ""),
+                                             dict(r.metadata).get("offered_qos_profiles",
+                                                                  qos_yaml()))
             elif kind == "message" and r.channel_id in channels:
                 w.add_message(channels[r.channel_id], log_time=r.log_time, data=r.data,
                               publish_time=r.publish_time, sequence=r.sequence)
@@ -676,6 +713,9 @@ def recover(src, dst) -> Recovered:
                 report.topics[t] = report.topics.get(t, 0) + 1
         if not started:
             w.start(profile=PROFILE, library="mps recover")
+        if not rosbag2:                 # written as the file closes: cut off with its end
+            w.flush()
+            w.add_metadata("rosbag2", rosbag2_record(name or dst.name, w, described))
         w.finish()
     return report
 

@@ -123,6 +123,24 @@ BY_KEY = {t.key: t for t in (*TOPICS, MODE)}
 
 MSGTYPES = sorted({t.msgtype for t in (*TOPICS, MODE)})
 
+#: each message type's type description hash (REP 2011) in Jazzy, which a recording's channel
+#: carries as ``topic_type_hash`` as rosbag2 writes it (a test checks them against rclpy's
+#: and rosbags')
+TYPE_HASHES = {
+    "diagnostic_msgs/msg/DiagnosticArray":
+        "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
+    "geometry_msgs/msg/WrenchStamped":
+        "RIHS01_8dc3deaf06b2ab281f9f9a742a8961c328ca7cec16e3fd6586d3a5c83fa78f77",
+    "rosgraph_msgs/msg/Clock":
+        "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
+    "sensor_msgs/msg/JointState":
+        "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
+    "std_msgs/msg/String":
+        "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    "visualization_msgs/msg/MarkerArray":
+        "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf",
+}
+
 
 def resolve(key: str, node: str = NODE_NAME, namespace: str = "/") -> str:
     """The full topic name of ``key`` for a node called ``node`` in ``namespace``."""
