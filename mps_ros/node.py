@@ -114,12 +114,26 @@ class RosSink:
             except Exception:       # a publisher destroyed at shutdown: nothing to send to
                 pass
 
-    def emit_all(self, msgs) -> None:
+    def emit_all(self, msgs) -> int:
         """A released step's messages, ``(key, data, t_ns, received)`` each, in order (the
-        commands as received are not published again). Each goes straight to its publisher's
-        ``publish_raw`` (what ``Publisher.publish`` calls for bytes, without its checks: the
-        run's publishers live until the releasing thread has ended)."""
-        self.publish_pairs([(key, data) for key, data, _t, received in msgs if not received])
+        commands as received are not published again); how many were to go out. Each goes
+        straight to its publisher's ``publish_raw`` (what ``Publisher.publish`` calls for
+        bytes, without its checks: the run's publishers live until the releasing thread has
+        ended)."""
+        raw = self._raw
+        n = 0
+        for key, data, _t, received in msgs:
+            if received:
+                continue
+            n += 1
+            f = raw.get(key) or self._publisher(key)
+            if f is None:
+                continue
+            try:
+                f(data)
+            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+                pass
+        return n
 
     def tick(self, deadline: float | None = None):
         pass

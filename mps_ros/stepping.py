@@ -488,7 +488,7 @@ class SteppingProcess:
     ``stop_reason``, ``error``, ``commands_lost``, ``inbox``, ``sinks``).
 
     It holds the steps the stepping process has computed ahead and releases each at its
-    deadline: to ``sink.publish_pairs`` (the ROS publishers) at once, then to the other
+    deadline: to ``sink.emit_all`` (the ROS publishers) at once, then to the other
     ``sinks`` (the recorder). A command is taken as it arrives: the gate (a flood, an empty,
     overlong or unknown word) answers here, at the boundary, without disturbing the stepping;
     any other command's boundary is chosen here (the first step whose deadline is not before
@@ -840,15 +840,12 @@ class SteppingProcess:
 
     def _release(self, head: _Entry, clock) -> None:
         msgs = head.msgs
-        pairs = [(key, data) for key, data, _t, received in msgs if not received]
         p0 = clock()
-        if pairs:
-            self.sink.publish_pairs(pairs)
+        self.messages += self.sink.emit_all(msgs)
         p1 = clock()
         if self._first is None:
             self._first = head.deadline
         self._last = p1
-        self.messages += len(pairs)
         self.k_released, self.structure = head.k, head.structure
         if head.state:
             self.publish_times.add(p1 - p0)
@@ -871,7 +868,7 @@ class SteppingProcess:
                     self._failure = s.failure
                     said = True
         if said or (self._failure is not None
-                    and any(key == "/diagnostics" for key, _d in pairs)):
+                    and any(m[0] == "/diagnostics" and not m[3] for m in msgs)):
             self._alarm(msgs)
 
     def _alarm(self, msgs: list) -> None:

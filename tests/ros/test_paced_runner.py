@@ -241,14 +241,22 @@ class _Publishers:
         self.got: list = []
         self.on_clock = on_clock
 
-    def publish_pairs(self, pairs):
+    def emit_all(self, msgs):
         import struct
 
-        for key, data in pairs:
+        n = 0
+        for key, data, _t, received in msgs:
+            if received:
+                continue
+            n += 1
             self.got.append((key, data))
             if key == "/clock":
                 sec, nsec = struct.unpack_from("<iI", data, 4)
                 self.on_clock(sec * 1_000_000_000 + nsec)
+        return n
+
+    def publish_pairs(self, pairs):
+        self.got.extend(pairs)
 
 
 class _Recorder:
