@@ -50,7 +50,7 @@ DELTA_STUDY_DEG = tuple(10.0 ** -k for k in range(0, 7))
 COLUMNS = ("case", "solver", "scheme", "delta_deg", "iterations", "dt", "rtol", "steps",
            "evaluations", "position_points", "cpu_s", "cpu_per_sim_s", "repeats", "err_end_phi",
            "max_err_phi", "max_err_phi_dot", "max_err_phi_ddot", "max_err_event_t", "horizon_s",
-           "closure_m")
+           "closure_m", "bare_cpu_s")
 
 
 def _schemes(full: bool):
@@ -143,16 +143,28 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
            "iterations": s.iterations if s.solver == "linear-acceleration" else "",
            "dt": dt if not s.adaptive else "", "rtol": s.rtol if s.adaptive else ""}
     if s.solver == "mujoco":
+        import statistics
+
         from .common import cpu_median
-        from .mujoco_peer import run_mujoco
+        from .mujoco_peer import bare_loop, run_mujoco
 
         every = max(dt, GRID)              # outputs on the error grid, at whole steps
         t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
-        cpu, run, n = cpu_median(
-            lambda: run_mujoco(case.scene, case.t_end, t_grid, dt), repeats, budget)
+        # the stepping's CPU, as the engine's runs count theirs (not the model's compilation,
+        # as the engine's do not count its build), beside the bare mj_step loop's, interleaved
+        cpus, bares = [], []
+
+        def once():
+            r = run_mujoco(case.scene, case.t_end, t_grid, dt)
+            cpus.append(r.cpu)
+            bares.append(bare_loop(case.scene, case.t_end, dt)[0])
+            return r
+
+        _, run, n = cpu_median(once, repeats, budget)
+        cpu = statistics.median(cpus)
         row.update(steps=int(round(case.t_end / dt)), evaluations=run.nfev, position_points="",
                    cpu_s=cpu, cpu_per_sim_s=cpu / case.t_end, repeats=n,
-                   closure_m=run.closure)
+                   closure_m=run.closure, bare_cpu_s=statistics.median(bares))
         row.update(errors(run.t, run.phi, run.phi_dot, run.phi_ddot, ref))
         return row
     if s.solver == "peer":
@@ -358,16 +370,21 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
             log(f"\n-- {name}: against MuJoCo (RK4 from Python, motor torque at every stage; "
                 "CPU s per simulated s) --")
             log(f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
-                f"  {'ratio mps/MuJoCo':>16}")
+                f"  {'ratio mps/MuJoCo':>16}  {'MuJoCo/bare mj_step':>19}")
             for p, best, ratio in vs:
                 mj = f"dt {p['dt'] * 1e3:.4g} ms: {p['cpu_per_sim_s']:.3g}"
                 b = "-" if best is None else f"{describe(best)}: {best['cpu_per_sim_s']:.3g}"
                 rt = "-" if ratio is None else f"{ratio:.2f}"
-                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}")
+                bare = p.get("bare_cpu_s")
+                br = f"{p['cpu_s'] / bare:.2f}" if bare else "-"
+                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {br:>19}")
             closure = max(p.get("closure_m", 0.0) for p, _, _ in vs)
             log("   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
                 "with solref (2 dt, 1), solimp (0.9999, 0.9999, 0.001): its soft constraint "
-                f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py)")
+                f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py); "
+                "its CPU is the stepping's (mj_RungeKutta, then mj_forward for the new state's "
+                "accelerations), against a bare mj_step loop of the same model in the last "
+                "column")
     if out_dir is None:
         return
     out_dir = Path(out_dir)

@@ -28,7 +28,7 @@ import numpy as np
 
 from .peers import PeerRun, exact_model, supports
 
-__all__ = ["available", "press_xml", "run_mujoco"]
+__all__ = ["available", "press_xml", "run_mujoco", "bare_loop"]
 
 
 def available() -> tuple[bool, str]:
@@ -96,10 +96,9 @@ def press_xml(scene, dt: float) -> str:
 </mujoco>"""
 
 
-def run_mujoco(scene, t_end: float, t_eval, dt: float) -> PeerRun:
-    """Step the scene's free press with MuJoCo's RK4 at ``dt`` to ``t_end``; φ, φ̇, φ̈ at
-    ``t_eval`` (each a whole number of steps from 0). The CPU counts the stepping, the control
-    callback and the reading of the outputs, not the model's compilation."""
+def _model(scene, dt: float):
+    """The compiled model, its data in the scene's initial state, the crank's indices and the
+    control callback (the motor's torque from the crank's rate) with its call count."""
     import mujoco
 
     model = exact_model(scene)
@@ -118,31 +117,80 @@ def run_mujoco(scene, t_end: float, t_eval, dt: float) -> PeerRun:
     qc = m.joint("crank").qposadr[0]
     d.qvel[jc], d.qvel[jr], d.qvel[js], d.qvel[jk] = phid0, rod_rate - phid0, xcd0, psid0
     motor = model.motor
+    calls = [0]
 
     def control(m_, d_):
+        calls[0] += 1
         d_.ctrl[0] = motor.torque(d_.qvel[jc]) if motor is not None else 0.0
 
+    return m, d, qc, jc, phi0, control, calls
+
+
+def run_mujoco(scene, t_end: float, t_eval, dt: float) -> PeerRun:
+    """Step the scene's free press with MuJoCo's RK4 at ``dt`` to ``t_end``; φ, φ̇, φ̈ at
+    ``t_eval`` (each a whole number of steps from 0). The CPU counts the stepping, the control
+    callback and the reading of the outputs, not the model's compilation.
+
+    The loop is what a MuJoCo user who wants the accelerations at the outputs writes: ``mj_step``
+    with the RK4 integrator is ``mj_forward`` (the state's accelerations: RK4's first stage)
+    then ``mj_RungeKutta``; here each step is ``mj_RungeKutta`` then ``mj_forward`` at the new
+    state, whose accelerations are both what the output reports and the next step's first
+    stage. So the outputs cost no forward pass more than a bare ``mj_step`` loop (one in all,
+    the first state's): four a step, the torque callback at each (``nfev`` counts its calls).
+    :func:`bare_loop` is that bare loop, for the bench to print the ratio."""
+    import mujoco
+
+    m, d, qc, jc, phi0, control, calls = _model(scene, dt)
     t_eval = np.asarray(t_eval, float)
     steps = np.rint(t_eval / dt).astype(int)
     if np.any(np.abs(steps * dt - t_eval) > 1e-9 * max(1.0, float(t_end))):
         raise ValueError(f"dt = {dt!r}: the outputs are not whole numbers of steps")
     phi, phid, phidd = (np.empty(t_eval.size) for _ in range(3))
     closure = 0.0
+    rk, forward = mujoco.mj_RungeKutta, mujoco.mj_forward
+    qpos, qvel, qacc = d.qpos, d.qvel, d.qacc     # views of the data, made once
+    hypot = math.hypot
     mujoco.set_mjcb_control(control)
     try:
-        mujoco.mj_forward(m, d)
         c0 = time.process_time()
+        forward(m, d)                       # the first state's accelerations
         k = 0
-        for i, s in enumerate(steps):
+        for i, s in enumerate(steps.tolist()):
             while k < s:
-                mujoco.mj_step(m, d)
+                rk(m, d, 4)
+                forward(m, d)
                 k += 1
-            mujoco.mj_forward(m, d)             # q̈ at the output (what a run reports)
-            phi[i] = phi0 + d.qpos[qc]
-            phid[i] = d.qvel[jc]
-            phidd[i] = d.qacc[jc]
-            closure = max(closure, float(np.linalg.norm(d.efc_pos[:3])) if d.nefc else 0.0)
+            phi[i] = phi0 + qpos[qc]
+            phid[i] = qvel[jc]
+            phidd[i] = qacc[jc]
+            if d.nefc:                      # the connect's three rows: B's gap
+                e = d.efc_pos
+                gap = hypot(e[0], e[1], e[2])
+                if gap > closure:
+                    closure = gap
         cpu = time.process_time() - c0
     finally:
         mujoco.set_mjcb_control(None)
-    return PeerRun(t_eval, phi, phid, phidd, cpu, int(k * 4), closure)
+    return PeerRun(t_eval, phi, phid, phidd, cpu, calls[0], closure)
+
+
+def bare_loop(scene, t_end: float, dt: float) -> tuple[float, int]:
+    """The plainest MuJoCo loop of the same model: ``mj_step`` to ``t_end``, the crank's angle
+    and rate read after each step, the same torque callback at every stage; (its CPU s, the
+    callback's calls)."""
+    import mujoco
+
+    m, d, qc, jc, phi0, control, calls = _model(scene, dt)
+    n = int(round(t_end / dt))
+    step = mujoco.mj_step
+    qpos, qvel = d.qpos, d.qvel
+    mujoco.set_mjcb_control(control)
+    try:
+        c0 = time.process_time()
+        for _ in range(n):
+            step(m, d)
+            phi0 + qpos[qc], qvel[jc]
+        cpu = time.process_time() - c0
+    finally:
+        mujoco.set_mjcb_control(None)
+    return cpu, calls[0]

@@ -131,6 +131,38 @@ def test_mujoco_model_matches_the_scene():
     assert d.nefc == 3 and np.abs(d.efc_pos[:3]).max() < 1e-12
 
 
+def test_the_mujoco_peer_steps_as_a_bare_mj_step_loop_does():
+    """The peer's outputs, its accelerations included, cost no forward pass more than a bare
+    mj_step loop of the same model: four torque callbacks a step (RK4's stages), and one for
+    the first state; its φ is the bare loop's, step for step."""
+    mujoco = pytest.importorskip("mujoco")
+    from mps_core.bench.mujoco_peer import bare_loop, run_mujoco
+
+    dt, t_end = 2.5e-3, 0.05
+    steps = int(round(t_end / dt))
+    t = np.arange(steps + 1) * dt
+    run = run_mujoco(PAPER, t_end, t, dt)
+    _cpu, calls = bare_loop(PAPER, t_end, dt)
+    assert calls == 4 * steps and run.nfev == calls + 1
+    # the same trajectory as mj_step's (the accelerations read where mj_step would compute
+    # them at its next step's start)
+    from mps_core.bench.mujoco_peer import _model
+
+    m, d, qc, jc, phi0, control, _n = _model(PAPER, dt)
+    mujoco.set_mjcb_control(control)
+    try:
+        phis = [phi0 + d.qpos[qc]]
+        for _ in range(steps):
+            mujoco.mj_step(m, d)
+            phis.append(phi0 + d.qpos[qc])
+        mujoco.mj_forward(m, d)
+        qdd_end = d.qacc[jc]
+    finally:
+        mujoco.set_mjcb_control(None)
+    assert np.allclose(run.phi, phis, rtol=0, atol=1e-12)
+    assert run.phi_ddot[-1] == pytest.approx(qdd_end, rel=1e-9)
+
+
 def test_central_differences_are_second_order_until_round_off():
     """Per evaluation, q̈ by central differences against exact derivatives: error ∝ Δ² from 1°
     to 0.01°, then round-off (∝ ε/Δ²) takes over: smaller Δ stops helping."""
