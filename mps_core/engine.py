@@ -316,8 +316,9 @@ class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
     __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
-                 "inline", "exact", "exact_traced", "fused", "fused_at", "fused_tries", "fused_others",
-                 "tail", "tail_at", "tail_tries", "tail_others")
+                 "inline", "exact", "exact_traced", "exact_others", "branch_tries", "fused",
+                 "fused_at", "fused_tries", "fused_others", "tail", "tail_at", "tail_tries",
+                 "tail_others")
 
     def __init__(self, view: ChartView, delta: float, central: bool = True):
         n = view.n
@@ -330,6 +331,11 @@ class _Plan:
         #: exact derivatives (:mod:`mps_core.exact_kernels`); ``exact_traced`` as ``traced``
         self.exact = None
         self.exact_traced = False
+        #: the kernels of the position function's other branches met (``exact`` is the
+        #: last one that held); ``branch_tries``: how often a branch had none of its own (the
+        #: jets answer there; a few times a view at most)
+        self.exact_others = []
+        self.branch_tries = 0
         #: q̈ alone with the effects traced in (:mod:`mps_core.fused_kernels`), made for the
         #: effects' and controls' state ``fused_at`` (:data:`STATE_VERSION`); ``fused_others``:
         #: up to six made at other states for the same (other branches of a force law);
@@ -679,7 +685,7 @@ class PartialSystems:
             plan.fused_others = []          # made for other parameters or controls
         try:
             fused = reuse_or_make(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
-        except (ArithmeticError, ValueError):
+        except (ArithmeticError, ValueError, BranchChanged):
             fused = None
         plan.fused = fused
         plan.fused_at = STATE_VERSION[0]
@@ -1169,6 +1175,38 @@ class PartialSystems:
             _FIRST.clear()
         _FIRST[view, _tables_number(self), fp] = (plan.exact, plan.fused)
 
+    def _other_branch(self, view, plan, ql) -> bool:
+        """Make the view's exact kernel the one of the branch its position function takes at
+        ``ql`` (one of the view's whose guards hold there, else one made before for the same
+        position function, else traced there; six kept a view), its fused function to be
+        made again; False where there is none (the jets answer)."""
+        others = plan.exact_others
+        zeros = [0.0] * view.n
+        kernel = None
+        for k in others:                    # the guards of a branch met before
+            try:
+                k(*ql, *zeros)
+            except (BranchChanged, ArithmeticError, ValueError):
+                continue
+            others.remove(k)
+            kernel = k
+            break
+        if kernel is None:
+            if plan.branch_tries >= 16:
+                return False
+            try:
+                kernel = exact_kernel(self, view, ql)
+            except (ChartDomainError, ArithmeticError, ValueError, BranchChanged):
+                kernel = None
+            if kernel is None or kernel is plan.exact:
+                plan.branch_tries += 1
+                return False
+        others.insert(0, plan.exact)
+        del others[6:]
+        plan.exact = kernel
+        plan.fused, plan.fused_others, plan.fused_at = None, [], -1
+        return True
+
     def _exact_kernel_evaluate(self, view, t, q, qd, plan):
         """The autodiff evaluation on floats, by the view's exact kernel."""
         vl = qd.tolist()
@@ -1191,6 +1229,8 @@ class PartialSystems:
                 out = fused.full(t, *ql, *vl)
             except ForceLawBranch:
                 out = None                  # the kinematics hold: the kernel below
+            except BranchChanged:
+                out = None                  # the kinematics' branch: the kernel below
             except (ArithmeticError, ValueError):
                 out = None                  # the kernel below says what is wrong
             if out is not None:             # (None: q̈ not finite, the kernel below says so)
@@ -1199,7 +1239,14 @@ class PartialSystems:
                                  lists=(xl, jl, wl), conv=conv, v=vl)
                 return kin, A, h, Q, Qnc, qdd
         try:
-            xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
+            try:
+                xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
+            except BranchChanged:
+                # the position function takes another branch here (a continuation chart's
+                # sign, a root that touches zero): that branch's kernel, made once
+                if not self._other_branch(view, plan, ql):
+                    raise
+                xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
         kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),

@@ -255,9 +255,8 @@ class PressMechanism(Mechanism):
             return {"O": (0.0, 0.0), "A": (ax, ay), "B": (bx, by), "C": (q[1], 0.0)}
 
         def flat(phi, xc, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
-            # core's formulas written out on floats (a test holds them equal)
-            if continuation:
-                return (0.0, 0.0, *core(_FLOATS, phi, xc), xc, 0.0)
+            # core's formulas written out on floats, on the functions given (so that the
+            # exact kernels can trace them; a test holds them equal)
             ax, ay = l1 * cos(phi), l1 * sin(phi)
             dx, dy = xc - ax, -ay
             d2 = dx * dx + dy * dy
@@ -266,10 +265,17 @@ class PressMechanism(Mechanism):
             d = sqrt(d2)
             a = (l2 * l2 - l3 * l3 + d2) / (2.0 * d)
             h2 = l2 * l2 - a * a
+            ux, uy = dx / d, dy / d
+            if continuation:
+                # the branch's sign flips with sin(φ/2); h² touches zero at the change point
+                s = sin(0.5 * phi)
+                k = kappa * (1.0 if s > 0.0 else (-1.0 if s < 0.0 else 0.0))
+                h = sqrt(h2) if h2 > 0.0 else 0.0
+                return (0.0, 0.0, ax, ay, ax + a * ux - k * h * uy, ay + a * uy + k * h * ux,
+                        xc, 0.0)
             if not h2 > 0.0:
                 _positive(name, h2, "B (rod and rocker in line)")
             h = kappa * sqrt(h2)
-            ux, uy = dx / d, dy / d
             return (0.0, 0.0, ax, ay, ax + a * ux - h * uy, ay + a * uy + h * ux, xc, 0.0)
 
         def regularity(pose):

@@ -96,9 +96,12 @@ def test_a_domain_error_at_the_first_point_builds_nothing_yet():
         eng.evaluate(view, 0.0, np.array([-1.5708, 1.5708]), np.array([1.0, 0.0]))
 
 
-def test_another_branch_goes_back_to_the_jets():
-    """A position function that branches: where the traced comparison comes out otherwise the
-    kernel hands the point to the jets (same numbers either way here)."""
+def test_another_branch_gets_a_kernel_of_its_own(monkeypatch):
+    """A position function that branches: where the traced comparison comes out otherwise, that
+    branch's kernel is traced there (once) and taken; back on the first branch the first kernel
+    is taken again; the same numbers as the jets everywhere, and the jets never run."""
+    from mps_core.engine import PartialSystems
+
     mech, controls, eng, jets = _scene_engines("paper")
     view = mech.views("free")[0]
     flat = view.chart.flat
@@ -112,15 +115,26 @@ def test_another_branch_goes_back_to_the_jets():
 
     v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
     qd = np.array([10.0, 1.0])
-    e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)       # traced with phi <= 0.5
-    assert eng._plans[v2].exact is not None
-    n = len(calls)
-    for phi in (0.2, 0.9, 0.4):
+    eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)       # traced with phi <= 0.5
+    plan = eng._plans[v2]
+    first = plan.exact
+    assert first is not None
+    ran_jets = []
+    original = PartialSystems._jets_evaluate
+    monkeypatch.setattr(PartialSystems, "_jets_evaluate",
+                        lambda self, *a: (self is eng and ran_jets.append(a))
+                        or original(self, *a))
+    kernels = []
+    for phi in (0.2, 0.9, 0.4, 0.95, 0.1):
         e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
         a = jets.evaluate(view, 0.0, np.array([phi, -0.1]), qd)
         assert _close(e.qdd, a.qdd, np.abs(a.qdd).max() + 1.0)
-    # only the point on the other branch called the position function (to check its domain)
-    assert len(calls) == n + 1
+        kernels.append(plan.exact)
+    assert not ran_jets
+    assert kernels[0] is first and kernels[2] is first and kernels[4] is first
+    assert kernels[1] is not first and kernels[3] is kernels[1]
+    # one trace a branch
+    assert sum(1 for c in calls if not isinstance(c, float)) == 2
 
 
 def test_an_untraceable_chart_keeps_the_jets():
@@ -176,3 +190,31 @@ def test_kernels_are_shared_between_equal_mechanisms_only():
     a.engine.kernels = False
     other = a.engine.evaluate(a.view, 0.0, a.solver.q, qd)
     assert not _close(other.qdd, ref.qdd, np.abs(ref.qdd).max() + 1.0)
+
+
+#: at the change point (x_top = l2 - l3 + l1): the held four-bar passes φ = 2πk with ψ = 0, on
+#: the continuation chart, whose branch flips with sin(φ/2) each turn (tests/core/test_structures.py)
+CHANGE_POINT = ("idle at the change point",
+                lambda: load_scene("idle").text.replace("x_top_mm = 25.5", "x_top_mm = 25.0")
+                .replace('model = "rigid"', 'model = "clamp"'))
+
+
+@pytest.mark.parametrize("name", [*__import__("mps_core").preset_names(), CHANGE_POINT[0]])
+def test_every_chart_of_every_preset_takes_the_exact_kernels(name, monkeypatch):
+    """With exact derivatives, no evaluation of a preset's run (every chart it enters, the
+    continuation charts and both branches of theirs included) falls back to the jets."""
+    from mps_core import scene_from_text
+    from mps_core.engine import PartialSystems
+
+    scene = (scene_from_text(CHANGE_POINT[1]()) if name == CHANGE_POINT[0]
+             else load_scene(name))
+    scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3),
+                                 dt=max(scene.dt, 1e-4))
+    sim = build(scene)
+    jets = []
+    original = PartialSystems._jets_evaluate
+    monkeypatch.setattr(PartialSystems, "_jets_evaluate",
+                        lambda self, view, *a: jets.append(view.name) or original(self, view, *a))
+    traj = sim.run(scene.t_end, scene.dt)
+    assert sim.engine.counts["evaluations"] >= len(traj) - 1
+    assert not jets, f"{len(jets)} evaluations by the jets, in {sorted(set(jets))}"
