@@ -95,17 +95,6 @@ class RosSink:
                                          None) or p.publish
         return f
 
-    def publish_pairs(self, pairs) -> None:
-        """A released step's messages from the stepping process: (key, CDR bytes) each."""
-        for key, data in pairs:
-            f = self._publisher(key)
-            if f is None:
-                continue
-            try:
-                f(data)
-            except Exception:       # a publisher destroyed at shutdown: nothing to send to
-                pass
-
     def emit(self, key, data, t_ns):
         p = self.pubs.get(key)
         if p is not None:

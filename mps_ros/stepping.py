@@ -883,7 +883,7 @@ class SteppingProcess:
         name = self.spec["runner"].get("name", "press_twin")
         data = encoder(BY_KEY["/diagnostics"].msgtype)(recording_alarm(
             name, t_ns, self._failure, self.spec.get("hardware_id", "mps")))
-        self.sink.publish_pairs([("/diagnostics", data)])
+        self.sink.emit_all([("/diagnostics", data, t_ns, False)])
 
     def _priority_said(self, got: dict) -> None:
         prio = self.priority

@@ -79,24 +79,23 @@ def _holds_what_the_file_holds(path, name):
     return bag
 
 
-def test_a_recording_says_what_it_holds_as_rosbag2_does(tmp_path):
-    path = tmp_path / "bag.mcap"
-    twin = Twin("press-cycle", dt=0.001, t_end=0.1)
+def _recorded(path, t_end: float):
+    """press-cycle at 1 kHz to ``t_end`` recorded to ``path`` (small chunks)."""
+    twin = Twin("press-cycle", dt=0.001, t_end=t_end)
     rec = Recorder(path, scene_name="press-cycle", scene_text=twin.scene.text,
                    chunk_size=16 * 1024)
     Runner(twin, sinks=[RecordingSink(rec)]).run()
     rec.finish()
-    bag = _holds_what_the_file_holds(path, "bag.mcap")
+    return path
+
+
+def test_a_recording_says_what_it_holds_as_rosbag2_does(tmp_path):
+    bag = _holds_what_the_file_holds(_recorded(tmp_path / "bag.mcap", 0.1), "bag.mcap")
     assert bag["message_count"] > 1000
 
 
 def test_a_recovered_recording_says_what_it_recovered(tmp_path):
-    full = tmp_path / "full.mcap"
-    twin = Twin("press-cycle", dt=0.001, t_end=0.2)
-    rec = Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text,
-                   chunk_size=16 * 1024)
-    Runner(twin, sinks=[RecordingSink(rec)]).run()
-    rec.finish()
+    full = _recorded(tmp_path / "full.mcap", 0.2)
     data = full.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[:len(data) // 2])

@@ -255,9 +255,6 @@ class _Publishers:
                 self.on_clock(sec * 1_000_000_000 + nsec)
         return n
 
-    def publish_pairs(self, pairs):
-        self.got.extend(pairs)
-
 
 class _Recorder:
     """A split run's other sink: each released step's messages, as handed over."""
@@ -342,35 +339,18 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     assert _comparable(done) == _afap_with(round(t * 1e9), words, fresh=split)
 
 
-_AFAP = """
-import pickle, sys
-sys.path.insert(0, {here!r})
-from test_paced_runner import Sink, _comparable, DT, T_END
-from mps_ros.twin import Command, Runner, Twin
-j_ns, words = {j_ns!r}, {words!r}
-def at_j(t_ns, box=[]):
-    if not box and t_ns >= j_ns:
-        box.append(1)
-        for w in words:
-            afap.inbox.put(Command(w))
-same = Sink(True, at_j)
-afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
-              pacing="as_fast_as_possible", warm_up=0.0)
-afap.run()
-sys.stdout.buffer.write(pickle.dumps(_comparable(same)))
-"""
-
-
 def _afap_with(j_ns: int, words: list, fresh: bool) -> list:
     """:func:`_comparable` of the run as fast as possible with ``words`` at step time ``j_ns``
-    (``fresh``: in a new interpreter)."""
-    import os
-    import pickle
-    import subprocess
-    import sys
-
+    (``fresh``: in a new interpreter, this same function)."""
     if fresh:
-        code = _AFAP.format(here=os.path.dirname(__file__), j_ns=j_ns, words=words)
+        import os
+        import pickle
+        import subprocess
+        import sys
+
+        code = (f"import pickle, sys; sys.path.insert(0, {os.path.dirname(__file__)!r}); "
+                "from test_paced_runner import _afap_with; "
+                f"sys.stdout.buffer.write(pickle.dumps(_afap_with({j_ns!r}, {words!r}, False)))")
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True,
                              timeout=300)
         return pickle.loads(out.stdout)
