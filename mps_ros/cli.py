@@ -79,7 +79,7 @@ def _record(args) -> int:
             args.scene, args.out, dt=args.dt, t_end=args.t_end, outputs=_outputs(args.outputs),
             publish_every=args.publish_every, pacing=args.pacing,
             real_time_factor=args.real_time_factor, scene_commands=not args.no_scene_commands,
-            log=log, progress=not args.quiet)
+            log=log, progress=not args.quiet, compression=args.compression)
     except ValueError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
@@ -195,6 +195,9 @@ def register(sub) -> None:
     r.add_argument("--real-time-factor", type=_positive, default=1.0)
     r.add_argument("--no-scene-commands", action="store_true",
                    help="ignore the scene's [[commands]]")
+    r.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                   help="the chunks' compression (default zstd; the node's "
+                        "recording_compression)")
     r.add_argument("-v", "--verbose", action="store_true", help="print every command applied")
     r.add_argument("-q", "--quiet", action="store_true",
                    help="no progress line while it runs (there is one on a terminal only)")

@@ -370,7 +370,8 @@ class PressTwin(Node):
         meta["fastdds_profiles_file"] = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
         self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
                                            scene_text=self.twin.scene.text, metadata=meta,
-                                           flush_period=self.p["recording_flush_period"])
+                                           flush_period=self.p["recording_flush_period"],
+                                           compression=self.p["recording_compression"])
         self.recording_sink = RecordingSink(self.recorder, names=dict(self.names),
                                             qos=offered_qos(self.p["qos_depth"]), log=self._log)
         self.runner.sinks.append(self.recording_sink)

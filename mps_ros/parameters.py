@@ -82,6 +82,9 @@ PARAMETERS: tuple[Parameter, ...] = (
     P("recording", "auto", "MCAP path, never an existing file (one line and exit status 2); "
       "`auto`: `recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: "
       "no recording. Written by a process of its own, off the steps' time"),
+    P("recording_compression", "zstd", "the recording's chunks compressed with `zstd`, "
+      "`lz4` (faster, larger) or not at all (`none`); readers take all three",
+      choices=("zstd", "lz4", "none")),
     P("recording_flush_period", 1.0, "wall seconds after which a chunk is written even if "
       "not full", lo=0.01, hi=3600.0),
     P("scene_commands", True, "apply the scene's own `[[commands]]`; false: an operator sends "

@@ -723,13 +723,13 @@ def recover(src, dst, name: str | None = None) -> Recovered:
 def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
            pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
            scene_commands: bool = True, flush_period: float = 1.0, log=None,
-           stop_on_signals: bool = True, background: bool = True,
+           stop_on_signals: bool = True, background: bool = True, compression: str = "zstd",
            progress: bool = False) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
     :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
-    line on standard error where it is a terminal (:class:`~mps_core.progress.Progress`).
-    Returns (path, stats, counts)."""
+    line on standard error where it is a terminal (:class:`~mps_core.progress.Progress`);
+    ``compression``: the chunks' (``zstd``, ``lz4``, ``none``). Returns (path, stats, counts)."""
     import signal
 
     from .topics import OUTPUTS
@@ -743,7 +743,7 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
     rec = (BackgroundRecorder if background else Recorder)(
         out, scene_name=twin.scene.name, scene_text=twin.scene.text,
         metadata=_run_metadata(twin, "mps record", pacing, real_time_factor, publish_every),
-        flush_period=flush_period)
+        flush_period=flush_period, compression=compression)
     sink = RecordingSink(rec, qos=offered_qos(DEPTH))
     runner = Runner(twin, sinks=[sink, _ProgressSink(twin, shown)], pacing=pacing,
                     real_time_factor=real_time_factor, publish_every=publish_every, log=log)

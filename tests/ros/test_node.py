@@ -642,7 +642,8 @@ def test_no_process_left(tmp_path):
 
 def test_node_and_mps_record_write_the_same_messages(tmp_path):
     """One recording module: a node run and ``mps record`` of the same scene hold the same
-    messages, byte for byte (the pacing diagnostics aside). Each runs in a fresh process of
+    messages, byte for byte (the pacing diagnostics aside), whatever their chunks'
+    compression (here lz4 and none, each as asked). Each runs in a fresh process of
     its own, as a user runs them. (Called inside this test process, after the hundreds of
     scenes the suite runs before, ``record`` gives values that differ from a fresh process's
     in their last bits, from t = 6 ms on, relative 1e-16 to 2e-15: the generated kernels a
@@ -651,11 +652,20 @@ def test_node_and_mps_record_write_the_same_messages(tmp_path):
 
     a = tmp_path / "node.mcap"
     with NodeProcess(tmp_path, dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05,
-                                    recording=str(a))) as node:
+                                    recording=str(a), recording_compression="lz4")) as node:
         assert node.wait(60) == 0, node.log()
     b = tmp_path / "record.mcap"
     subprocess.run(mps_cmd("record", "press-cycle", "--out", str(b), "--dt", str(DT),
-                           "--t-end", "0.05"), check=True, capture_output=True, timeout=120)
+                           "--t-end", "0.05", "--compression", "none"), check=True,
+                   capture_output=True, timeout=120)
+
+    def compressions(path):
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as f:
+            return {c.compression for c in make_reader(f).get_summary().chunk_indexes}
+
+    assert compressions(a) == {"lz4"} and compressions(b) == {""}
 
     def raw(path):
         from rosbags.highlevel import AnyReader
