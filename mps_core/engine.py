@@ -1180,17 +1180,8 @@ class PartialSystems:
         ``ql`` (one of the view's whose guards hold there, else one made before for the same
         position function, else traced there; six kept a view), its fused function to be
         made again; False where there is none (the jets answer)."""
-        others = plan.exact_others
-        zeros = [0.0] * view.n
-        kernel = None
-        for k in others:                    # the guards of a branch met before
-            try:
-                k(*ql, *zeros)
-            except (BranchChanged, ArithmeticError, ValueError):
-                continue
-            others.remove(k)
-            kernel = k
-            break
+        zeros = [0.0] * view.n              # the guards are the positions' alone
+        kernel, _ = _other_that_holds(plan.exact_others, plan.exact, lambda k: k(*ql, *zeros))
         if kernel is None:
             if plan.branch_tries >= 16:
                 return False
@@ -1201,8 +1192,7 @@ class PartialSystems:
             if kernel is None or kernel is plan.exact:
                 plan.branch_tries += 1
                 return False
-        others.insert(0, plan.exact)
-        del others[6:]
+            plan.exact_others = ([plan.exact] + plan.exact_others)[:6]
         plan.exact = kernel
         plan.fused, plan.fused_others, plan.fused_at = None, [], -1
         return True
