@@ -315,6 +315,8 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
 
             published = recorded_counts(tmp / "rt.mcap")
             published.pop(resolve(MODE.key), None)  # recorded as received, not published
+            for topic in got.get("unknown", []):     # recorded, not published here
+                published.pop(topic, None)
             st["lost_by_topic"] = lost_by_topic(published, got.get("by_topic", {}))
         except (OSError, RuntimeError) as exc:     # the other figures still stand
             st["lost_by_topic"], st["recording_error"] = None, str(exc)
@@ -488,9 +490,12 @@ def probe() -> int:
         return on_clock
 
     raw = "--deserialize" not in sys.argv
+    unknown = []            # topics of a type not importable here (the node records them only)
     for t in TOPICS:
         topic = resolve(t.key)
-        if t.key == "/clock":       # deserialized: simulated against wall time (the drift)
+        if t.msgtype not in MSG_CLASSES:
+            unknown.append(topic)
+        elif t.key == "/clock":       # deserialized: simulated against wall time (the drift)
             node.create_subscription(MSG_CLASSES[t.msgtype], topic, clock(topic), qos)
         elif t.key == "~/events":
             node.create_subscription(MSG_CLASSES[t.msgtype], topic, events(topic), qos)
@@ -523,7 +528,7 @@ def probe() -> int:
         executor.spin_once(timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
     out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0,
-           "by_topic": by_topic, "flood_s": state.get("flood_s")}
+           "by_topic": by_topic, "flood_s": state.get("flood_s"), "unknown": unknown}
     if state["clock0"] and state["clock1"]:
         (s0, w0), (s1, w1) = state["clock0"], state["clock1"]
         # first message against last: their own delivery delays are in it

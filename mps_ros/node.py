@@ -57,7 +57,8 @@ from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
-from .topics import LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml  # noqa: E402
+from .topics import (BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml,  # noqa: E402
+                     resolve)
 from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs,  # noqa: E402
                    hardware_id, shown, to_json)
 
@@ -68,6 +69,12 @@ MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": J
                "visualization_msgs/msg/MarkerArray": MarkerArray,
                "geometry_msgs/msg/WrenchStamped": WrenchStamped, "std_msgs/msg/String": String,
                "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
+try:        # in a full ROS install; not among the wheels from PyPI
+    from tf2_msgs.msg import TFMessage  # noqa: E402
+
+    MSG_CLASSES["tf2_msgs/msg/TFMessage"] = TFMessage
+except ImportError:
+    pass
 
 
 class RosSink:
@@ -105,19 +112,19 @@ class RosSink:
 
     def emit_all(self, msgs) -> int:
         """A released step's messages, ``(key, data, t_ns, received)`` each, in order (the
-        commands as received are not published again); how many were to go out. Each goes
-        straight to its publisher's ``publish_raw`` (what ``Publisher.publish`` calls for
-        bytes, without its checks: the run's publishers live until the releasing thread has
-        ended)."""
+        commands as received are not published again); how many were to go out (a key
+        with no publisher, recorded only, is not counted). Each goes straight to its
+        publisher's ``publish_raw`` (what ``Publisher.publish`` calls for bytes, without its
+        checks: the run's publishers live until the releasing thread has ended)."""
         raw = self._raw
         n = 0
         for key, data, _t, received in msgs:
             if received:
                 continue
-            n += 1
             f = raw.get(key) or self._publisher(key)
             if f is None:
                 continue
+            n += 1
             try:
                 f(data)
             except Exception:       # a publisher destroyed at shutdown: nothing to send to
@@ -169,8 +176,14 @@ class PressTwin(Node):
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        #: topics recorded but not published: their type cannot be imported here
+        self.unpublished: list[str] = []
         for t in TOPICS:
             if t.output and t.output not in outputs:
+                continue
+            if t.msgtype not in MSG_CLASSES:
+                self.unpublished.append(t.key)
+                self.names[t.key] = resolve(t.key, self.get_name(), self.get_namespace())
                 continue
             # no QoS event handlers (rclpy's default: two a publisher, each one more entity
             # that the executor goes through for every command it takes; a subscriber that
@@ -386,6 +399,12 @@ class PressTwin(Node):
             + f", outputs {', '.join(tw.outputs)}"
             + ("" if self.p["scene_commands"] else ", scene commands off (listening on "
                f"{self.names[MODE.key]})"))
+        if self.unpublished:
+            types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in self.unpublished})
+            self.get_logger().warning(
+                f"{', '.join(self.names[k] for k in self.unpublished)}: recorded, not "
+                f"published ({', '.join(types)} cannot be imported here; a full ROS install "
+                "has it)")
         # the kernels built and the channels registered while the peers are awaited
         self.runner.prepare()
         self._refuse_a_second_of_my_name(self._created + DISCOVERY_S, stop)

@@ -95,7 +95,7 @@ class Topic:
 
 #: outputs a run can be asked for; reactions are solved only if "reactions" or "foundation" is
 OUTPUTS = ("joint_states", "reactions", "foundation", "clock", "structure", "events",
-           "diagnostics", "markers")
+           "diagnostics", "markers", "tf")
 
 TOPICS: tuple[Topic, ...] = (
     Topic("joint_states", "sensor_msgs/msg/JointState", "joint_states",
@@ -113,6 +113,11 @@ TOPICS: tuple[Topic, ...] = (
     Topic("~/markers", "visualization_msgs/msg/MarkerArray", "markers",
           "the press drawn for RViz2 and Foxglove's 3D panel (frame press), its reaction forces "
           "as arrows; at a display rate (markers_hz)"),
+    Topic("/tf", "tf2_msgs/msg/TFMessage", "tf",
+          "the moving frames (press_A, press_B, press_C, press_slider) in press, every step; "
+          "published where tf2_msgs can be imported, always recorded"),
+    Topic("/tf_static", "tf2_msgs/msg/TFMessage", "tf",
+          "the fixed frames: press in the z-up press_base, press_O in press; once, latched"),
     Topic("~/mode/status", "std_msgs/msg/String", "",
           "one JSON object a command received: accepted or refused, why, at which time"),
 )
@@ -137,6 +142,8 @@ TYPE_HASHES = {
         "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
     "std_msgs/msg/String":
         "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    "tf2_msgs/msg/TFMessage":
+        "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
     "visualization_msgs/msg/MarkerArray":
         "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf",
 }
@@ -173,7 +180,7 @@ def qos_yaml(*, depth: int = DEPTH, reliable: bool = True, transient_local: bool
 
 #: the latched topics: offered transient-local, depth 1 (a subscriber that joins late still
 #: gets the last message), published when their value changes
-LATCHED = ("~/structure",)
+LATCHED = ("~/structure", "/tf_static")
 
 
 def offered_qos(depth: int = DEPTH) -> dict[str, str]:

