@@ -59,8 +59,9 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
 from .topics import (BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml,  # noqa: E402
                      resolve)
-from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs,  # noqa: E402
-                   hardware_id, shown, to_json)
+from .diagnostics import hardware_id  # noqa: E402
+from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
+                   to_json)
 
 from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
 from mps_core import MpsError  # noqa: E402

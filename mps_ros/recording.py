@@ -522,6 +522,7 @@ class RecordingSink:
         self.log = log
         #: why the recording stopped (the disk full...); the run goes on without it
         self.failure: str | None = None
+        self.dropped = 0             # messages not recorded since it stopped
         self._t_ns = 0
 
     def _failed(self, exc: Exception) -> None:
@@ -547,6 +548,7 @@ class RecordingSink:
 
     def emit(self, key, data, t_ns):
         if self.failure is not None:
+            self.dropped += 1
             return
         self._t_ns = t_ns
         try:
@@ -561,6 +563,7 @@ class RecordingSink:
         commands as received are recorded like the others (:meth:`received` is :meth:`emit`).
         A recorder with ``write_steps`` takes the list as it is."""
         if self.failure is not None:
+            self.dropped += len(msgs)
             return
         write_steps = getattr(self.rec, "write_steps", None)
         if write_steps is None:
@@ -586,6 +589,19 @@ class RecordingSink:
             self.rec.tick()
         except OSError as exc:
             self._failed(exc)
+
+    def status(self, name: str, hardware: str) -> dict:
+        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`): the
+        file's bytes on disk so far (the chunks written), the messages handed to it."""
+        from .diagnostics import recording
+
+        path = getattr(self.rec, "path", "")
+        try:
+            size = os.stat(path).st_size
+        except (OSError, TypeError, ValueError):
+            size = 0
+        return recording(name, hardware, path, size, self.rec.messages, self.failure,
+                         self.dropped)
 
 
 # -- reading back and recovering --------------------------------------------------------------

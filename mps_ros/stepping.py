@@ -40,8 +40,9 @@ byte for byte, in the same order.
 
 **Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
 stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
-command (marshal: reply id or None, word, source, wall, boundary step, generation), ``S`` stop
-(the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
+command (marshal: reply id or None, word, source, wall, boundary step, generation), ``N`` the
+commands refused here, of which as floods, and lost (marshal: three counts, for its
+/diagnostics), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
 (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
 holds the step's state, the structure, why the machine would refuse each command word
 there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
@@ -70,8 +71,8 @@ import time
 
 from .os_threads import widen_pipe
 from .topics import BY_KEY
-from .twin import (COMMAND_INDEX, Command, Gate, RefusalLog, Runner, Timings, Twin,
-                   recording_alarm, shown, to_json, to_ns)
+from .twin import (COMMAND_INDEX, Command, Gate, RefusalLog, Runner, Timings, Twin, shown,
+                   to_json, to_ns)
 
 _HEAD = struct.Struct("<cI")
 
@@ -408,6 +409,8 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         elif kind == b"G":
             asked.update(json.loads(payload))
             go.set()
+        elif kind == b"N":
+            runner.elsewhere = marshal.loads(payload)
 
     def listen() -> None:
         for kind, payload in pending:
@@ -517,7 +520,7 @@ class SteppingProcess:
         self.stop_reason: str | None = None
         self.error: str | None = None
         self.error_kind: str | None = None
-        self.commands_lost = 0
+        self._lost = 0
         self.commands_refused = 0
         self.pid: int | None = None
         self.priority_got: int | None = None
@@ -551,6 +554,25 @@ class SteppingProcess:
         self._ended = False
         self._this_refused: str | None = None
         self._failure: str | None = None        # why the recording stopped, where it did
+        self._next_status = 0.0                 # the recording's next status (wall s)
+        self._diagnostics_encoder = None
+
+    @property
+    def commands_lost(self) -> int:
+        """Commands lost on the way to the node (the node's QoS events count them)."""
+        return self._lost
+
+    @commands_lost.setter
+    def commands_lost(self, n: int) -> None:
+        self._lost = n
+        self._tell_counts()
+
+    def _tell_counts(self) -> None:
+        """This process's command counts (refused here, of which as floods; lost) to the
+        stepping process, whose /diagnostics say them."""
+        if self._out is not None:
+            self._out.frame(b"N", marshal.dumps((self.commands_refused, self.gate.floods,
+                                                 self._lost)))
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -571,6 +593,12 @@ class SteppingProcess:
         for s in self.sinks:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
+        if "diagnostics" in self.spec["twin"]["outputs"]:
+            from .cdr import encoder
+
+            # the recording's status: its encoder made now, not at the first release (a
+            # quarter of a second here, holding this interpreter's lock)
+            self._diagnostics_encoder = encoder(BY_KEY["/diagnostics"].msgtype)
         while True:
             got = self._reader.read()
             if not got:
@@ -720,6 +748,7 @@ class SteppingProcess:
             i = next((n for n, e in enumerate(queue) if e.k > k), len(queue))
             queue.insert(i, entry)
         self._refusals.refused(word, cmd.source, t, reason, cmd.wall)
+        self._tell_counts()
         if cmd.reply is not None:
             try:
                 cmd.reply(ack)
@@ -867,23 +896,35 @@ class SteppingProcess:
                 if self._failure is None and getattr(s, "failure", None):
                     self._failure = s.failure
                     said = True
-        if said or (self._failure is not None
-                    and any(m[0] == "/diagnostics" and not m[3] for m in msgs)):
-            self._alarm(msgs)
+        if said or p1 >= self._next_status:
+            self._next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
+            self._recording_status(msgs)
 
-    def _alarm(self, msgs: list) -> None:
-        """The recording has stopped: an ERROR status on /diagnostics, at once and again with
-        each of the run's diagnostics (where the run publishes diagnostics), stamped with the
-        step released."""
+    def _recording_status(self, msgs: list) -> None:
+        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
+        diagnostics period and at once where it has stopped, stamped with the step released:
+        published and recorded (where the recording goes on) after the step's messages. None
+        where the run publishes no diagnostics or records nothing."""
         if "diagnostics" not in self.spec["twin"]["outputs"]:
             return
-        from .cdr import encoder
+        from . import diagnostics
 
-        t_ns = msgs[0][2] if msgs else 0
         name = self.spec["runner"].get("name", "press_twin")
-        data = encoder(BY_KEY["/diagnostics"].msgtype)(recording_alarm(
-            name, t_ns, self._failure, self.spec.get("hardware_id", "mps")))
-        self.sink.emit_all([("/diagnostics", data, t_ns, False)])
+        hw = self.spec.get("hardware_id", "mps")
+        statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
+        if self._failure is not None and not any(x["level"] == diagnostics.ERROR
+                                                 for x in statuses):
+            # the sink itself gave up (dropped): its failure said all the same
+            statuses.append(diagnostics.recording(name, hw, "", 0, 0, self._failure))
+        if not statuses:
+            return
+        t_ns = msgs[0][2] if msgs else 0
+        out = [("/diagnostics", self._diagnostics_encoder(diagnostics.array(t_ns, statuses)),
+                t_ns, False)]
+        self.messages += self.sink.emit_all(out)
+        for s in self.sinks:
+            if getattr(s, "failure", None) is None:
+                s.emit_all(out)
 
     def _priority_said(self, got: dict) -> None:
         prio = self.priority

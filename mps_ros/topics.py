@@ -109,7 +109,9 @@ TOPICS: tuple[Topic, ...] = (
           "one JSON object an event (the core's event log: commands, impacts, chart changes; "
           "run-start and run-end)"),
     Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "diagnostics",
-          "pacing: achieved real-time factor, step time and latency p50/p99, deadline misses"),
+          "statuses pacing (real-time factor, step time and latency p50/p99, deadline "
+          "misses), commands (accepted, refused, floods, lost) and the recording (bytes, "
+          "messages; stopped)"),
     Topic("~/markers", "visualization_msgs/msg/MarkerArray", "markers",
           "the press drawn for RViz2 and Foxglove's 3D panel (frame press), its reaction forces "
           "as arrows; at a display rate (markers_hz)"),

@@ -37,6 +37,8 @@ import numpy as np
 from mps_core.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.simulation import COMMANDS
 
+from . import diagnostics
+from .diagnostics import hardware_id
 from .os_threads import name_thread, short_slice
 from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
 
@@ -59,22 +61,6 @@ def stamp(t: float) -> dict:
 
 def to_ns(t: float) -> int:
     return int(round(t * 1e9))
-
-
-def hardware_id(scene_name: str) -> str:
-    """The /diagnostics statuses' ``hardware_id``: the twin of the scene's press."""
-    return f"mps {scene_name}"
-
-
-def recording_alarm(name: str, t_ns: int, failure: str, hardware: str = "mps") -> dict:
-    """The /diagnostics message that says a run's recording has stopped (level ERROR, status
-    ``NAME: recording``): sent at once and again with each diagnostics period while the run
-    goes on without its recording (``hardware``: :func:`hardware_id`)."""
-    return {"header": {"stamp": {"sec": t_ns // 1_000_000_000,
-                                 "nanosec": t_ns % 1_000_000_000}, "frame_id": ""},
-            "status": [{"level": 2, "name": f"{name}: recording",
-                        "message": f"recording stopped: {failure}", "hardware_id": hardware,
-                        "values": [{"key": "error", "value": failure}]}]}
 
 
 def _jsonable(v):
@@ -543,12 +529,14 @@ class Gate:
         self.clock = clock
         self.tokens = float(self.burst)
         self.last = clock()
+        self.floods = 0                 # commands refused as part of a flood
 
     def check(self, word: str) -> str | None:
         now = self.clock()
         self.tokens = min(self.burst, self.tokens + (now - self.last) * self.rate)
         self.last = now
         if self.tokens < 1.0:
+            self.floods += 1
             return (f"flood: more than {self.burst} commands at once or {self.rate:g} a second; "
                     "this one is dropped")
         self.tokens -= 1.0
@@ -714,7 +702,10 @@ class Runner:
         self.latencies = Timings()              # realtime: publish done - deadline (s)
         self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
         self.misses = 0
-        self._misses_said = 0           # the deadline misses the last /diagnostics counted
+        self._window = diagnostics.Window()     # the counters the last /diagnostics saw
+        #: commands refused (of which as floods) and lost in the node's process, where the
+        #: run steps in a process of its own (its gate answers there): said in /diagnostics
+        self.elsewhere = (0, 0, 0)
         self.messages = 0
         self.steps_recomputed = 0               # realtime: computed ahead, dropped for a command
         self.commands_accepted = 0
@@ -919,27 +910,25 @@ class Runner:
         return out
 
     def _diagnostics(self, t_ns: int) -> None:
+        """/diagnostics (:mod:`mps_ros.diagnostics`): pacing, commands, and the status of each
+        sink that has one (the recording), about the window since the last."""
         if "diagnostics" not in self.twin.outputs:
             return
         s = self.stats()
-        # WARN while deadlines are being missed: since the last message, not since the start
-        new = s["deadline_misses"] - self._misses_said
-        self._misses_said = s["deadline_misses"]
-        late = self.pacing == "realtime" and new > 0
-        values = [{"key": k, "value": (f"{v:.6g}" if isinstance(v, float) else str(v))}
-                  for k, v in s.items()]
-        msg = (f"rtf {s['real_time_factor']:.3g}, step p50 {s['step_time_p50_ms']:.3g} ms "
-               f"p99 {s['step_time_p99_ms']:.3g} ms, {new} deadline misses since the last "
-               f"report, {s['deadline_misses']} in all")
+        refused, floods, lost = self.elsewhere
+        refused += self.commands_refused
+        floods += self.gate.floods
+        lost += self.commands_lost
+        new = self._window.since(misses=s["deadline_misses"], steps=self.twin.k, floods=floods,
+                                 lost=lost)
         hw = hardware_id(self.twin.scene.name)
-        status = [{"level": 1 if late else 0, "name": f"{self.name}: pacing",
-                   "message": msg, "hardware_id": hw, "values": values}]
-        failure = next((f for f in (getattr(x, "failure", None) for x in self.sinks) if f),
-                       None)
-        if failure:         # the recording stopped: said with every period (not recorded)
-            status += recording_alarm(self.name, t_ns, failure, hw)["status"]
-        self._emit("/diagnostics", {
-            "header": {"stamp": stamp(self.twin.t), "frame_id": ""}, "status": status}, t_ns)
+        statuses = [
+            diagnostics.pacing(self.name, hw, s, new["misses"], new["steps"],
+                               self.pacing == "realtime"),
+            diagnostics.commands(self.name, hw, self.commands_accepted, refused, floods, lost,
+                                 new["floods"], new["lost"])]
+        statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
+        self._emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
 
     # -- the loop -------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -1331,4 +1320,4 @@ class Runner:
 
 
 __all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "COMMAND_INDEX",
-           "hardware_id", "stamp", "to_ns", "to_json", "check_outputs", "BY_KEY"]
+           "stamp", "to_ns", "to_json", "check_outputs", "BY_KEY"]

@@ -252,6 +252,20 @@ def test_recording_read_back_by_rosbags(commanded):
     assert [ns(a.clock) for _, a in rec["/clock"]] == STAMPS
     for key in ("~/events", "~/mode/status", "~/structure"):
         assert [a.data for _, a in rec[names[key]]] == [b.data for b in got[key]]
+    # the statuses the diagnostics aggregator reads, recorded as published: pacing, the
+    # commands (both accepted), the recording (OK, its bytes on disk)
+    statuses = [st for _, m in rec["/diagnostics"] for st in m.status]
+    by_name: dict = {}
+    for st in statuses:
+        assert st.hardware_id == "mps press-cycle"
+        by_name.setdefault(st.name, []).append(st)
+    assert {"press_twin: pacing", "press_twin: commands", "press_twin: recording"} <= set(
+        by_name), [st.name for st in statuses]
+    last = {v.key: v.value for v in by_name["press_twin: commands"][-1].values}
+    assert last["commands_accepted"] == "2" and last["commands_refused"] == "0", last
+    for st in by_name["press_twin: recording"]:
+        values = {v.key: v.value for v in st.values}
+        assert st.level == 0 and values["path"] == str(commanded["rec"]), st
     # the commands it received, at the simulated times it applied them
     acks = commanded["acks"]
     assert [(t, m.data) for t, m in rec["/press_twin/mode"]] == [

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from mps_ros.twin import Command, Runner, Twin
+from mps_ros.twin import Command, Gate, Runner, Twin
 
 DT = 1e-3
 T_END = 0.2
@@ -283,7 +283,6 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     the run is the one that stepped in time."""
     from mps_ros.stepping import SteppingProcess
     from mps_ros.topics import OUTPUTS
-    from mps_ros.twin import Gate
 
     K = 60
     words = words.split(", ")
@@ -376,11 +375,48 @@ def test_the_pacing_status_warns_while_deadlines_are_missed_and_clears_after():
     sent = []
     runner._emit = lambda key, msg, t_ns: sent.append(msg)     # the message before encoding
     said = []
-    for misses in (0, 3, 3, 5, 5):
+    for misses in (0, 3, 3, 5, 5, 11, 11):      # ten steps a report
+        tw.k += 10
         runner.misses = misses
         runner._diagnostics(0)
         status = sent[-1]["status"][0]
+        assert status["name"] == "press_twin: pacing"
         said.append(status["level"])
-    assert said == [0, 1, 0, 1, 0]
+    # WARN where deadlines were missed since the last report, ERROR where more than half of
+    # its steps were late (it cannot keep up), OK again after
+    assert said == [0, 1, 0, 1, 0, 2, 0]
     assert status["hardware_id"] == "mps press-cycle"
-    assert "0 deadline misses since the last report, 5 in all" in status["message"]
+    assert "0 deadline misses since the last report, 11 in all" in status["message"]
+    assert "cannot keep up: 6 of 10 steps late" in sent[-2]["status"][0]["message"]
+
+
+def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
+    """/diagnostics' commands status counts what was accepted, refused (as floods) and lost,
+    the node's process's own counts included (a split run's gate answers there); WARN where a
+    flood was refused or a command lost since the last report."""
+    tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+    runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0,
+                    gate=Gate(burst=2, rate=1e-9))
+    sent = []
+    runner._emit = lambda key, msg, t_ns: sent.append(msg)
+
+    def status():
+        runner._diagnostics(0)
+        st = next(x for x in sent[-1]["status"] if x["name"] == "press_twin: commands")
+        return st["level"], {v["key"]: v["value"] for v in st["values"]}
+
+    assert status() == (0, {"commands_accepted": "0", "commands_refused": "0",
+                            "commands_refused_as_floods": "0", "commands_lost": "0"})
+    for w in ("engage", "disengage", "engage", "stop"):     # the last two: a flood
+        runner.inbox.put(Command(w))
+    runner._take_commands()
+    level, v = status()
+    assert level == 1 and v["commands_refused_as_floods"] == "2", v
+    assert status()[0] == 0
+    runner.elsewhere = (4, 3, 0)        # the node's process: 4 refused there, 3 as floods
+    level, v = status()
+    assert level == 1 and (v["commands_refused"], v["commands_refused_as_floods"]) == ("6", "5")
+    runner.commands_lost = 1
+    level, v = status()
+    assert level == 1 and v["commands_lost"] == "1"
+    assert status()[0] == 0
