@@ -53,10 +53,13 @@ from .input_files import read_text  # noqa: E402
 
 
 def is_mcap(src: str) -> bool:
-    """An MCAP recording: named .mcap, or a file that starts with MCAP's magic."""
+    """An MCAP recording: named .mcap, a file that starts with MCAP's magic, or a bag (a
+    directory with a metadata.yaml or .mcap files)."""
     if src.lower().endswith(".mcap"):
         return True
     p = Path(src)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file() or any(p.glob("*.mcap"))
     try:
         with p.open("rb") as fh:
             return fh.read(8) == MCAP_MAGIC

@@ -25,11 +25,14 @@ class OutputFileError(MpsError, ValueError):
 
 
 def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
-                  force: bool = False) -> dict[str, Path]:
+                  force: bool = False, folders: Iterable[str] = ()) -> dict[str, Path]:
     """The outputs a command was given (``{what: path or None}``), checked before anything runs;
     their paths, or :class:`OutputFileError` for the first that cannot be used. ``inputs``: the
     files the command reads (a path that is not a file, such as a preset's name, is ignored);
-    ``force``: an existing file may be replaced."""
+    ``force``: an existing file may be replaced; ``folders``: the outputs that are a new
+    directory (a bag of files): one that exists may only be an empty directory, whatever
+    ``force`` says (a directory of files is never replaced)."""
+    folders = set(folders)
     ins = {}
     for i in inputs:
         if i is not None and Path(str(i)).is_file():
@@ -42,20 +45,25 @@ def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
         p = Path(str(path))
         if str(path) == "" or p.name in ("", ".", ".."):
             raise OutputFileError(p, what, "not a file name")
-        if p.is_dir():
+        real = p.resolve()
+        if real in ins:
+            raise OutputFileError(p, what, f"the command's input ({ins[real]!r}); writing it "
+                                           "would destroy it: expected another path")
+        if what in folders:
+            if p.exists() and not (p.is_dir() and not any(p.iterdir())):
+                raise OutputFileError(p, what, "exists; expected a new directory (or an empty "
+                                               "one): a directory of files is never written "
+                                               "over")
+        elif p.is_dir():
             raise OutputFileError(p, what, "a directory, expected a file path")
         parent = p.parent
         if not parent.is_dir():
             raise OutputFileError(p, what, f"no directory {str(parent)!r} to write it in")
         if not os.access(parent, os.W_OK | os.X_OK):
             raise OutputFileError(p, what, f"the directory {str(parent)!r} is not writable")
-        real = p.resolve()
-        if real in ins:
-            raise OutputFileError(p, what, f"the command's input ({ins[real]!r}); writing it "
-                                           "would destroy it: expected another path")
         if real in seen:
             raise OutputFileError(p, what, f"also the {seen[real]}: expected another path")
-        if p.exists() and not force:
+        if p.exists() and not force and what not in folders:
             raise OutputFileError(p, what, "exists; expected a new path, or --force to "
                                            "replace it")
         seen[real] = what

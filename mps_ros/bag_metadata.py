@@ -39,11 +39,12 @@ def _indented(block: str, spaces: int) -> str:
     return "\n".join(pad + line for line in block.splitlines())
 
 
-def serialized_metadata(file_name: str, topics: list[TopicCount], start_ns: int, end_ns: int,
+def serialized_metadata(files, topics: list[TopicCount], start_ns: int, end_ns: int,
                         compression: str = "") -> str:
-    """``BagMetadata`` as YAML: one file ``file_name`` holding ``topics``, its messages from
-    ``start_ns`` to ``end_ns`` (log times); ``compression``: the chunks' (rosbag2 says ``""``
-    for chunk compression done by the storage)."""
+    """``BagMetadata`` as YAML: the bag's ``files`` (a file's name, where it is the one file;
+    else (name, first and last log time in ns, message count) each, in order) holding
+    ``topics``, its messages from ``start_ns`` to ``end_ns`` (log times); ``compression``: the
+    chunks' (rosbag2 says ``""`` for chunk compression done by the storage)."""
     total = sum(t.count for t in topics)
     duration = max(0, end_ns - start_ns) if total else 0
     start = start_ns if total else 0
@@ -67,18 +68,21 @@ def serialized_metadata(file_name: str, topics: list[TopicCount], start_ns: int,
                       f"    message_count: {t.count}"]
     else:
         lines.append("topics_with_message_count: []")
+    if isinstance(files, str):
+        files = [(files, start_ns, end_ns, total)]
     lines += [f"compression_format: {_quoted(compression)}",
               'compression_mode: ""',
               "relative_file_paths:",
-              f"  - {_quoted(file_name)}",
-              "files:",
-              f"  - path: {_quoted(file_name)}",
-              "    starting_time:",
-              f"      nanoseconds_since_epoch: {start}",
-              "    duration:",
-              f"      nanoseconds: {duration}",
-              f"    message_count: {total}",
-              "custom_data: {}",
+              *(f"  - {_quoted(name)}" for name, *_ in files),
+              "files:"]
+    for name, t0, t1, n in files:
+        lines += [f"  - path: {_quoted(name)}",
+                  "    starting_time:",
+                  f"      nanoseconds_since_epoch: {t0 if n else 0}",
+                  "    duration:",
+                  f"      nanoseconds: {max(0, t1 - t0) if n else 0}",
+                  f"    message_count: {n}"]
+    lines += ["custom_data: {}",
               f"ros_distro: {ROS_DISTRO}"]
     return "\n".join(lines) + "\n"
 

@@ -3,8 +3,8 @@
     mps node [SCENE] [--ros-args ...]             the ROS 2 node press_twin (needs rclpy)
     mps operator [SCENE] [--at T:WORD ...]        send mode commands at simulated times
     mps demo [SCENE]                              node + operator, realtime, recorded (make run)
-    mps record SCENE --out FILE.mcap              the node's recording without ROS
-    mps recover IN.mcap [OUT.mcap]                complete a recording cut short (SIGKILL)
+    mps record SCENE --out FILE.mcap|BAG          the node's recording without ROS
+    mps recover IN.mcap|BAG [OUT]                 complete a recording cut short (SIGKILL)
 
 Nothing here is imported before its subcommand runs: ``mps`` starts fast and works without
 rclpy (``node``, ``operator`` and ``demo`` then say what to install).
@@ -66,9 +66,16 @@ def _outputs(text):
 def _record(args) -> int:
     from mps_core.output_files import check_outputs
 
+    from .bag import is_bag
     from .recording import record
 
-    check_outputs({"recording": args.out}, inputs=[args.scene], force=args.force)
+    bag = is_bag(args.out)
+    check_outputs({"recording": args.out}, inputs=[args.scene], force=args.force,
+                  folders={"recording"} if bag else ())
+    if not bag and (args.max_mb or args.max_s):
+        print(f"mps: error: --max-mb and --max-s split a bag: {args.out!r} ends in .mcap (one "
+              "file); expected a directory path", file=sys.stderr)
+        return 2
 
     def log(level, text):
         if level != "info" or args.verbose:
@@ -79,7 +86,8 @@ def _record(args) -> int:
             args.scene, args.out, dt=args.dt, t_end=args.t_end, outputs=_outputs(args.outputs),
             publish_every=args.publish_every, pacing=args.pacing,
             real_time_factor=args.real_time_factor, scene_commands=not args.no_scene_commands,
-            log=log, progress=not args.quiet, compression=args.compression)
+            log=log, progress=not args.quiet, compression=args.compression,
+            max_bytes=int(args.max_mb * 1e6), max_s=args.max_s)
     except ValueError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
@@ -101,6 +109,8 @@ def _recover(args) -> int:
 
     from .recording import recover
 
+    if Path(args.input).is_dir():
+        return _recover_bag(args)
     src = check_file(args.input, "recording", MCAP_MAGIC, "an MCAP file")
     dst = Path(args.output) if args.output else src.with_name(src.stem + "-recovered.mcap")
     check_outputs({"output": dst}, inputs=[src], force=args.force)
@@ -117,6 +127,39 @@ def _recover(args) -> int:
         return 2
     state = "complete" if rep.complete else (f"cut short at byte {rep.truncated_at} of "
                                              f"{src.stat().st_size}")
+    print(f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
+          f"{len(rep.topics)} topics -> {dst}")
+    return 0
+
+
+def _recover_bag(args) -> int:
+    """``mps recover BAG [OUT]``: every file of a bag recovered into a new bag, written under
+    a temporary name beside it and renamed once whole."""
+    import shutil
+    from pathlib import Path
+
+    from mps_core.output_files import check_outputs, partial_name
+
+    from .recording import recover_bag
+
+    src = Path(args.input)
+    dst = Path(args.output) if args.output else src.with_name(src.name + "-recovered")
+    check_outputs({"output": dst}, inputs=[src], folders={"output"})
+    tmp = partial_name(dst)
+    try:
+        rep = recover_bag(src, tmp, name=dst.name)
+        tmp.replace(dst)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written",
+                  file=sys.stderr)
+            return 2
+        if isinstance(exc, ValueError):
+            print(f"mps: error: {exc}", file=sys.stderr)
+            return 2
+        raise
+    state = "complete" if rep.complete else "cut short"
     print(f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
           f"{len(rep.topics)} topics -> {dst}")
     return 0
@@ -182,7 +225,10 @@ def register(sub) -> None:
                                    "every message the node would publish to an MCAP file: same "
                                    "topics, types, values and metadata, no ROS needed.")
     r.add_argument("scene", help="preset name or scene file")
-    r.add_argument("--out", required=True, metavar="FILE.mcap")
+    r.add_argument("--out", required=True, metavar="FILE.mcap|BAG",
+                   help="an .mcap file, or a new directory: a bag (rosbag2's layout: "
+                        "BAG/metadata.yaml and BAG/BAG_0.mcap, _1, ... split by --max-mb, "
+                        "--max-s)")
     r.add_argument("--dt", type=_positive, help="step (s); default the scene's")
     r.add_argument("--t-end", type=_positive, help="end time (s); default the scene's")
     r.add_argument("--publish-every", type=_count, default=1, metavar="N",
@@ -198,6 +244,12 @@ def register(sub) -> None:
     r.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
                    help="the chunks' compression (default zstd; the node's "
                         "recording_compression)")
+    r.add_argument("--max-mb", type=float, default=0.0, metavar="MB",
+                   help="a bag: a new file once one holds this many MB (default 0: never; "
+                        "the node's recording_max_mb)")
+    r.add_argument("--max-s", type=float, default=0.0, metavar="S",
+                   help="a bag: a new file once one spans this many simulated seconds "
+                        "(default 0: never; the node's recording_max_s)")
     r.add_argument("-v", "--verbose", action="store_true", help="print every command applied")
     r.add_argument("-q", "--quiet", action="store_true",
                    help="no progress line while it runs (there is one on a terminal only)")
@@ -209,7 +261,8 @@ def register(sub) -> None:
                        description="Copy every whole chunk of IN (a recording whose writer was "
                                    "killed: no summary, no footer) into a complete file OUT "
                                    "(default IN-recovered.mcap).")
-    c.add_argument("input", metavar="IN.mcap")
-    c.add_argument("output", nargs="?", metavar="OUT.mcap")
+    c.add_argument("input", metavar="IN.mcap|BAG", help="a recording, or a bag directory")
+    c.add_argument("output", nargs="?", metavar="OUT.mcap|OUT",
+                   help="default IN-recovered.mcap; for a bag, a new directory IN-recovered")
     c.add_argument("--force", action="store_true", help="replace OUT.mcap where it exists")
     c.set_defaults(func=_recover)

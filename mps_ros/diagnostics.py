@@ -84,11 +84,11 @@ def commands(name: str, hardware: str, accepted: int, refused: int, floods: int,
 
 
 def recording(name: str, hardware: str, path, size: int, messages: int,
-              failure: str | None = None, dropped: int = 0) -> dict:
-    """The recording status: OK while it records (``size``: the file's bytes on disk so far,
-    ``messages`` handed to it); ERROR once it has stopped (``failure``: why; ``dropped``: the
-    messages not recorded since)."""
-    values = {"path": str(path), "files": 1, "bytes": size, "messages": messages,
+              failure: str | None = None, dropped: int = 0, files: int = 1) -> dict:
+    """The recording status: OK while it records (``size``: its ``files``' bytes on disk so
+    far, ``messages`` handed to it); ERROR once it has stopped (``failure``: why; ``dropped``:
+    the messages not recorded since)."""
+    values = {"path": str(path), "files": files, "bytes": size, "messages": messages,
               "dropped": dropped}
     if failure:
         return status(ERROR, f"{name}: recording", f"recording stopped: {failure}", hardware,

@@ -189,6 +189,20 @@ class McapWriter:
         self._chunk_start = self._chunk_end = 0
         self._index = {}
 
+    @property
+    def size(self) -> int:
+        """Bytes written to the stream so far (the chunk in progress not among them)."""
+        return self._pos
+
+    def span(self) -> tuple[int, int]:
+        """The first and the last log time of the messages so far, the chunk in progress
+        included ((0, 0) before the first)."""
+        if not self.message_count:
+            return self._chunk_start, self._chunk_end
+        if not self._chunk_messages:
+            return self._start, self._end
+        return min(self._start, self._chunk_start), max(self._end, self._chunk_end)
+
     def written(self) -> tuple[int, int, int, dict[int, int]]:
         """What the closed chunks hold: (messages, the first and the last log time, messages
         by channel id); after :meth:`flush`, every message."""

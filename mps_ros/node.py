@@ -385,7 +385,9 @@ class PressTwin(Node):
         self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
                                            scene_text=self.twin.scene.text, metadata=meta,
                                            flush_period=self.p["recording_flush_period"],
-                                           compression=self.p["recording_compression"])
+                                           compression=self.p["recording_compression"],
+                                           max_bytes=int(self.p["recording_max_mb"] * 1e6),
+                                           max_s=self.p["recording_max_s"])
         self.recording_sink = RecordingSink(self.recorder, names=dict(self.names),
                                             qos=offered_qos(self.p["qos_depth"]), log=self._log)
         self.runner.sinks.append(self.recording_sink)
@@ -478,7 +480,18 @@ def claim_recording(path) -> tuple[Path, bool]:
 
     from .recording import reserve
 
+    from .bag import is_bag
+
     p = Path(path)
+    if is_bag(p):       # a new directory, or an empty one
+        check_paths({"parameter recording": p}, folders={"parameter recording"})
+        existed = p.is_dir()
+        try:
+            p.mkdir(exist_ok=existed)
+        except FileExistsError:
+            raise OutputFileError(p, "parameter recording", "exists; expected a new directory "
+                                                            "(or an empty one)") from None
+        return p, existed
     if p.is_file() and p.stat().st_size == 0:
         return p, True
     exists = OutputFileError(p, "parameter recording", "exists; a recording never replaces a "
@@ -490,6 +503,20 @@ def claim_recording(path) -> tuple[Path, bool]:
         return reserve(p), False
     except FileExistsError:
         raise exists from None
+
+
+def discard_recording(path: Path, reserved: bool) -> None:
+    """A recording begun by a node that did not run: gone, but for what was there before it (an
+    empty file or directory reserved for it stays, empty)."""
+    if path.is_dir():           # a bag: its files
+        for f in path.iterdir():
+            f.unlink(missing_ok=True)
+        if not reserved:
+            path.rmdir()
+    elif reserved:
+        path.write_bytes(b"")
+    else:
+        path.unlink(missing_ok=True)
 
 
 def _split_argv(argv):
@@ -592,10 +619,7 @@ def main(argv=None) -> int:
                 node.runner.close()
         if taken is not None:       # nothing ran: the recording begun is not one
             if node.recorder is not None:
-                if node._recording_reserved:
-                    node.recorder.path.write_bytes(b"")
-                else:
-                    node.recorder.path.unlink(missing_ok=True)
+                discard_recording(node.recorder.path, node._recording_reserved)
             print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
             return 2
         node.drain()

@@ -79,9 +79,15 @@ PARAMETERS: tuple[Parameter, ...] = (
     P("outputs", list(OUTPUTS), "what to compute and publish, a list of "
       + ", ".join(f"`{o}`" for o in OUTPUTS) + "; the reactions are solved only if "
       "`reactions` or `foundation` is asked for", shown="all"),
-    P("recording", "auto", "MCAP path, never an existing file (one line and exit status 2); "
-      "`auto`: `recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: "
-      "no recording. Written by a process of its own, off the steps' time"),
+    P("recording", "auto", "an MCAP path (`….mcap`), never an existing file (one line and "
+      "exit status 2), or a new (or empty) directory: a bag as rosbag2 writes one "
+      "(`metadata.yaml`, its files split by `recording_max_mb`, `recording_max_s`); `auto`: "
+      "`recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: no "
+      "recording. Written by a process of its own, off the steps' time"),
+    P("recording_max_mb", 0.0, "a bag: a new file once one holds this many MB (0: never)",
+      lo=0.0, hi=1e6),
+    P("recording_max_s", 0.0, "a bag: a new file once one spans this many simulated seconds "
+      "(0: never)", lo=0.0, hi=1e9),
     P("recording_compression", "zstd", "the recording's chunks compressed with `zstd`, "
       "`lz4` (faster, larger) or not at all (`none`); readers take all three",
       choices=("zstd", "lz4", "none")),

@@ -71,8 +71,8 @@ class _Direct:
     """A file written straight through to the OS: what the MCAP writer has written is in the
     file even if the process is killed the next instant (no user-space buffer to lose)."""
 
-    def __init__(self, path):
-        self._f = open(path, "wb", buffering=0)
+    def __init__(self, path, exclusive: bool = False):
+        self._f = open(path, "xb" if exclusive else "wb", buffering=0)
 
     def write(self, data) -> int:
         view = memoryview(data)
@@ -121,41 +121,78 @@ def rosbag2_record(file_name: str, writer: McapWriter, channels: dict) -> dict[s
 
 class Recorder:
     """An MCAP recording being written. ``metadata``: extra key/values for the ``mps`` record;
-    ``scene_text``: the scene's TOML (the ``scene`` record)."""
+    ``scene_text``: the scene's TOML (the ``scene`` record).
+
+    A ``path`` that does not end in ``.mcap`` is a bag directory (:mod:`mps_ros.bag`): its
+    files are split at the first :meth:`tick` (a step's end) where one holds ``max_bytes`` in
+    whole chunks or spans ``max_s`` of simulated time (0: never), and :meth:`finish` writes
+    its ``metadata.yaml``."""
 
     def __init__(self, path, *, scene_name: str = "", scene_text: str = "",
                  metadata: dict | None = None, chunk_size: int = 512 * 1024,
-                 flush_period: float = 1.0, compression: str = "zstd"):
+                 flush_period: float = 1.0, compression: str = "zstd", max_bytes: int = 0,
+                 max_s: float = 0.0):
         from mps_core import __version__
 
+        from .bag import is_bag
+
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream = _Direct(self.path)
-        self._w = McapWriter(self._stream, chunk_size=chunk_size,
-                             compression="" if compression == "none" else compression)
-        self._w.start(profile=PROFILE, library=f"mps {__version__} (mcap writer)")
+        self.bag = is_bag(self.path)
+        self.max_bytes = int(max_bytes) if self.bag else 0
+        self.max_ns = int(round(float(max_s) * 1e9)) if self.bag else 0
+        if self.bag:
+            self.path.mkdir(parents=True, exist_ok=True)
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.chunk_size = chunk_size
+        self.compression = "" if compression == "none" else compression
         meta = {"software": "mps", "version": __version__, "scene": scene_name,
                 "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
-        self._w.add_metadata("mps", meta)
-        self._w.add_metadata("scene", {"name": scene_name, "toml": scene_text})
-        self._schemas: dict[str, int] = {}
+        self._records = (("mps", meta), ("scene", {"name": scene_name, "toml": scene_text}))
+        self._library = f"mps {__version__} (mcap writer)"
         self._channels: dict[str, _Channel] = {}
+        #: the bag's files written so far (:class:`~mps_ros.bag.FileSpan`), and their topics'
+        #: counts (topic -> (type, QoS, messages))
+        self.spans: list = []
+        self._bag_topics: dict[str, list] = {}
         self.flush_period = float(flush_period)
         self._last_flush = time.monotonic()
         self._pending = 0
         self.finished = False
         self.messages = 0
+        self._open(0)
+
+    def _open(self, index: int) -> None:
+        """Start file ``index`` (the recording's one file, or the bag's next), the channels
+        known so far registered in it."""
+        from .bag import file_name
+
+        self.file = self.path / file_name(self.path, index) if self.bag else self.path
+        self._stream = _Direct(self.file, exclusive=self.bag)
+        self._w = McapWriter(self._stream, chunk_size=self.chunk_size,
+                             compression=self.compression)
+        self._w.start(profile=PROFILE, library=self._library)
+        for name, data in self._records:
+            self._w.add_metadata(name, data)
+        self._schemas: dict[str, int] = {}
+        for topic, ch in self._channels.items():
+            ch.id = self._register(topic, ch.msgtype, ch.qos)
+        self._opened_at = self.messages     # a file holds a message before it is split
+
+    def _register(self, topic: str, msgtype: str, qos: str) -> int:
+        sid = self._schemas.get(msgtype)
+        if sid is None:
+            sid = self._schemas[msgtype] = self._w.register_schema(
+                msgtype, "ros2msg", msgdef(msgtype).encode())
+        return self._w.register_channel(topic, "cdr", sid, channel_metadata(msgtype, qos))
 
     def channel(self, topic: str, msgtype: str, qos: str | None = None) -> _Channel:
         ch = self._channels.get(topic)
         if ch is None:
-            sid = self._schemas.get(msgtype)
-            if sid is None:
-                sid = self._schemas[msgtype] = self._w.register_schema(
-                    msgtype, "ros2msg", msgdef(msgtype).encode())
-            cid = self._w.register_channel(topic, "cdr", sid, channel_metadata(msgtype, qos))
-            ch = self._channels[topic] = _Channel(cid, msgtype, qos or qos_yaml())
+            qos = qos or qos_yaml()
+            ch = self._channels[topic] = _Channel(self._register(topic, msgtype, qos), msgtype,
+                                                  qos)
         return ch
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
@@ -168,9 +205,16 @@ class Recorder:
                             sequence=ch.count)
 
     def tick(self) -> None:
-        """Close the chunk in progress if it is older than ``flush_period`` (wall time)."""
+        """Close the chunk in progress if it is older than ``flush_period`` (wall time); in a
+        bag, go on in a new file where this one is full."""
         if self._pending and time.monotonic() - self._last_flush >= self.flush_period:
             self.flush()
+        if (self.max_bytes or self.max_ns) and self.messages > self._opened_at:
+            start, end = self._w.span()
+            if ((self.max_bytes and self._w.size >= self.max_bytes)
+                    or (self.max_ns and end - start >= self.max_ns)):
+                self._close_file()
+                self._open(len(self.spans))
 
     def flush(self) -> None:
         self._w.flush()
@@ -180,20 +224,44 @@ class Recorder:
     def counts(self) -> dict[str, int]:
         return {t: c.count for t, c in self._channels.items()}
 
-    def finish(self) -> None:
-        """The last chunk, the ``rosbag2`` metadata record (as Jazzy's rosbag2 writes it on
-        closing a bag: :mod:`~mps_ros.bag_metadata`), the summary."""
-        if self.finished:
-            return
-        self.finished = True
+    def _close_file(self) -> None:
+        """The file's last chunk, its ``rosbag2`` metadata record (as Jazzy's rosbag2 writes
+        it on closing a bag: :mod:`~mps_ros.bag_metadata`), its summary; a bag's file among
+        its spans, its topics' counts added."""
+        from .bag import FileSpan
+
         try:
             self._w.flush()
-            self._w.add_metadata("rosbag2", rosbag2_record(
-                self.path.name, self._w, {c.id: (t, c.msgtype, c.qos)
-                                          for t, c in self._channels.items()}))
+            by_id = {c.id: (t, c.msgtype, c.qos) for t, c in self._channels.items()}
+            self._w.add_metadata("rosbag2", rosbag2_record(self.file.name, self._w, by_id))
             self._w.finish()
         finally:
             self._stream.close()
+        if self.bag:
+            n, start, end, per = self._w.written()
+            self.spans.append(FileSpan(self.file.name, start, end, n))
+            for cid, (topic, msgtype, qos) in by_id.items():
+                got = self._bag_topics.setdefault(topic, [msgtype, qos, 0])
+                got[2] += per.get(cid, 0)
+
+    def finish(self) -> None:
+        """The last file closed; a bag's ``metadata.yaml`` (a last file without a message,
+        where a split fell at the very end, removed)."""
+        if self.finished:
+            return
+        self.finished = True
+        self._close_file()
+        if not self.bag:
+            return
+        from .bag import write_metadata
+        from .bag_metadata import TopicCount
+
+        if len(self.spans) > 1 and not self.spans[-1].count:
+            self.spans.pop()
+            self.file.unlink()
+        write_metadata(self.path, self.spans,
+                       [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n)
+                        for t, (m, q, n) in self._bag_topics.items()])
 
 
 class BackgroundRecorder:
@@ -224,7 +292,7 @@ class BackgroundRecorder:
     def __init__(self, path, *, batch_period: float = 0.02, scene_name: str = "",
                  scene_text: str = "", metadata: dict | None = None,
                  chunk_size: int = 512 * 1024, flush_period: float = 1.0,
-                 compression: str = "zstd"):
+                 compression: str = "zstd", max_bytes: int = 0, max_s: float = 0.0):
         import json
         import subprocess
         import sys
@@ -239,7 +307,8 @@ class BackgroundRecorder:
         settings = {"path": str(path), "scene_name": scene_name, "scene_text": scene_text,
                     "metadata": {k: str(v) for k, v in (metadata or {}).items()},
                     "chunk_size": int(chunk_size), "flush_period": float(flush_period),
-                    "compression": compression}
+                    "compression": compression, "max_bytes": int(max_bytes),
+                    "max_s": float(max_s)}
         self._frame(b"I", json.dumps(settings).encode())
         reply = self._reply()
         if not reply.get("ready"):
@@ -595,13 +664,14 @@ class RecordingSink:
         file's bytes on disk so far (the chunks written), the messages handed to it."""
         from .diagnostics import recording
 
-        path = getattr(self.rec, "path", "")
+        path = Path(getattr(self.rec, "path", ""))
         try:
-            size = os.stat(path).st_size
-        except (OSError, TypeError, ValueError):
-            size = 0
+            parts = list(path.glob("*.mcap")) if path.is_dir() else [path]
+            size = sum(p.stat().st_size for p in parts)
+        except OSError:
+            parts, size = [], 0
         return recording(name, hardware, path, size, self.rec.messages, self.failure,
-                         self.dropped)
+                         self.dropped, files=len(parts))
 
 
 # -- reading back and recovering --------------------------------------------------------------
@@ -621,6 +691,10 @@ class Recovered:
     complete: bool = False
     truncated_at: int | None = None
     topics: dict = field(default_factory=dict)
+    #: the messages' first and last log time (ns), and each topic's (type, offered QoS)
+    start_ns: int = 0
+    end_ns: int = 0
+    types: dict = field(default_factory=dict)
 
 
 def _records(path: Path, report: Recovered | None = None):
@@ -680,12 +754,13 @@ def _records(path: Path, report: Recovered | None = None):
         report.truncated_at = pos
 
 
-def recover(src, dst, name: str | None = None) -> Recovered:
+def recover(src, dst, name: str | None = None, renamed: bool = False) -> Recovered:
     """Copy what is intact in ``src`` (e.g. a recording whose writer was killed: no footer, the
     last chunk cut short) into a complete MCAP file ``dst``: header, metadata, schemas, channels
     and every message of every whole chunk, in their order; and the ``rosbag2`` metadata
     record of what it holds where ``src`` has none (``name``: the file's name it gives, where
-    ``dst`` is a temporary one)."""
+    ``dst`` is a temporary one; ``renamed``: a new record in any case, as the file is now
+    another bag's)."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ValueError("recover writes a new file: give an output path other than the input")
@@ -709,6 +784,8 @@ def recover(src, dst, name: str | None = None) -> Recovered:
                 w.start(profile=PROFILE, library="mps recover")
                 started = True
             if kind == "metadata":
+                if r.name == "rosbag2" and renamed:
+                    continue
                 w.add_metadata(r.name, dict(r.metadata))
                 rosbag2 = rosbag2 or r.name == "rosbag2"
             elif kind == "schema" and r.id not in schemas:
@@ -733,19 +810,57 @@ def recover(src, dst, name: str | None = None) -> Recovered:
             w.flush()
             w.add_metadata("rosbag2", rosbag2_record(name or dst.name, w, described))
         w.finish()
+    _n, report.start_ns, report.end_ns, _per = w.written()
+    report.types = {topic: (msgtype, qos) for topic, msgtype, qos in described.values()}
     return report
+
+
+def recover_bag(src, dst, name: str | None = None) -> Recovered:
+    """:func:`recover` of each file of the bag ``src`` (:func:`mps_ros.bag.files`: those its
+    ``metadata.yaml`` lists, else the files a killed writer left) into a new bag ``dst``:
+    its files named after it (or ``name``, where ``dst`` is a temporary directory), in their
+    order, and its ``metadata.yaml``. The report sums the files' (``complete``: every one
+    was)."""
+    from .bag import FileSpan, file_name, files, write_metadata
+    from .bag_metadata import TopicCount
+
+    src, dst = Path(src), Path(dst)
+    parts = files(src)
+    if not parts:
+        raise ValueError(f"{src}: no .mcap files in it: expected a bag")
+    dst.mkdir(exist_ok=True)
+    total = Recovered(complete=True)
+    spans, topics = [], {}
+    for i, part in enumerate(parts):
+        part_name = file_name(name or dst, i)
+        rep = recover(part, dst / part_name, renamed=True)
+        total.messages += rep.messages
+        total.chunks += rep.chunks
+        total.complete = total.complete and rep.complete
+        spans.append(FileSpan(part_name, rep.start_ns, rep.end_ns, rep.messages))
+        for topic, (msgtype, qos) in rep.types.items():
+            n = rep.topics.get(topic, 0)
+            if n:
+                total.topics[topic] = total.topics.get(topic, 0) + n
+            topics.setdefault(topic, [msgtype, qos, 0])[2] += n
+    write_metadata(dst, spans, [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n)
+                                for t, (m, q, n) in topics.items()])
+    return total
 
 
 def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
            pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
            scene_commands: bool = True, flush_period: float = 1.0, log=None,
            stop_on_signals: bool = True, background: bool = True, compression: str = "zstd",
-           progress: bool = False) -> tuple[Path, dict, dict]:
+           progress: bool = False, max_bytes: int = 0,
+           max_s: float = 0.0) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
     :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
     line on standard error where it is a terminal (:class:`~mps_core.progress.Progress`);
-    ``compression``: the chunks' (``zstd``, ``lz4``, ``none``). Returns (path, stats, counts)."""
+    ``compression``: the chunks' (``zstd``, ``lz4``, ``none``); ``out`` a bag directory (not
+    ending in ``.mcap``): its files split at ``max_bytes`` or ``max_s`` (:class:`Recorder`).
+    Returns (path, stats, counts)."""
     import signal
 
     from .topics import OUTPUTS
@@ -759,7 +874,7 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
     rec = (BackgroundRecorder if background else Recorder)(
         out, scene_name=twin.scene.name, scene_text=twin.scene.text,
         metadata=_run_metadata(twin, "mps record", pacing, real_time_factor, publish_every),
-        flush_period=flush_period, compression=compression)
+        flush_period=flush_period, compression=compression, max_bytes=max_bytes, max_s=max_s)
     sink = RecordingSink(rec, qos=offered_qos(DEPTH))
     runner = Runner(twin, sinks=[sink, _ProgressSink(twin, shown)], pacing=pacing,
                     real_time_factor=real_time_factor, publish_every=publish_every, log=log)

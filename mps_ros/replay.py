@@ -330,26 +330,59 @@ def _stamped(times: list) -> np.ndarray:
     return np.asarray(times, dtype=np.int64)
 
 
+def _parts(path: Path) -> list[Path]:
+    """The MCAP files of a recording: the file itself, or a bag directory's files in order."""
+    if not path.is_dir():
+        return [path]
+    from .bag import files
+
+    parts = files(path)
+    if not parts:
+        raise ReplayError(f"{path}: a directory without a recording in it (expected a bag: "
+                          "metadata.yaml and its .mcap files, as the node writes where its "
+                          "recording path does not end in .mcap; or an .mcap file)")
+    return parts
+
+
+def _scan_all(parts: list[Path]):
+    """:func:`_scan` of each file, in order, their channels joined by topic and type (a
+    bag's files number them each their own way): (metadata of the first, channels,
+    library of the first, whether every file is complete, messages, sha256 of all)."""
+    digest = hashlib.sha256()
+    joined: dict[tuple, _Channel] = {}
+    first = None
+    complete, nmsg = True, 0
+    for part in parts:
+        head = _head(part)
+        if head[:8] != MAGIC:
+            what = "empty" if not head else f"it starts with {head[:8]!r}"
+            raise ReplayError(f"{part}: not an MCAP file ({what}): expected a recording made by "
+                              "`mps record SCENE --out FILE.mcap` or the node's recorder")
+        data = part.read_bytes()
+        digest.update(data)
+        meta, channels, _schemas, library, done, n = _scan(part, data)
+        first = first or (meta, library)
+        complete, nmsg = complete and done, nmsg + n
+        for ch in channels.values():
+            into = joined.setdefault((ch.topic, ch.schema, ch.encoding),
+                                     _Channel(len(joined), ch.topic, ch.schema, ch.encoding))
+            into.times += ch.times
+            into.datas += ch.datas
+    channels = {ch.id: ch for ch in joined.values()}
+    return first[0], channels, first[1], complete, nmsg, digest.hexdigest()
+
+
 def read_recording(path, *, check_version: bool = True) -> Replay:
-    """Read a recording of the twin (see the module's doc)."""
+    """Read a recording of the twin (see the module's doc): an MCAP file, or a bag directory
+    (:mod:`mps_ros.bag`) whose files are read in order as one."""
     path = Path(path)
     if not path.exists():
         raise ReplayError(f"{path}: no such file")
-    if path.is_dir():
-        raise ReplayError(f"{path}: a directory, not a recording (expected an .mcap file from "
-                          "`mps record` or the node)")
     if importlib.util.find_spec("mcap") is None:
         raise ReplayError("reading a recording needs the mcap package, which is not "
                           "installed: pip install -e '.[view]'")
-    head = _head(path)
-    if head[:8] != MAGIC:
-        what = "empty" if not head else f"it starts with {head[:8]!r}"
-        raise ReplayError(f"{path}: not an MCAP file ({what}): expected a recording made by "
-                          "`mps record SCENE --out FILE.mcap` or the node's recorder")
-    data = path.read_bytes()
-    meta, channels, schemas, library, complete, nmsg = _scan(path, data)
-    rep = Replay(path=path, columns={}, metadata=meta,
-                 digest=hashlib.sha256(data).hexdigest())
+    meta, channels, library, complete, nmsg, digest = _scan_all(_parts(path))
+    rep = Replay(path=path, columns={}, metadata=meta, digest=digest)
     rep.topics = {ch.topic: len(ch.times) for ch in channels.values()}
     if not complete:
         rep.warnings.append("the file has no footer (its summary is missing or cut short); "

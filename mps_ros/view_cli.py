@@ -14,7 +14,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "view", help="show a recording (MCAP) in the Rerun viewer, or save it as .rrd")
     p.add_argument("recording", metavar="RECORDING.mcap", nargs="?",
-                   help="a recording from mps record or the node (not with --live)")
+                   help="a recording from mps record or the node, a file or a bag directory "
+                        "(not with --live)")
     p.add_argument("--live", action="store_true",
                    help="follow the running node instead: its topics streamed to the viewer "
                         "(or --save FILE.rrd, or --connect URL) at the display rate")
