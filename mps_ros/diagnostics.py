@@ -5,7 +5,8 @@ time since the status before: a status clears once its trouble is over), its fig
 key/values.
 
 - ``pacing``: OK; WARN where deadlines were missed in the window; ERROR where more than half
-  of the window's steps missed theirs (the node cannot keep up).
+  of the window's steps missed theirs (the node cannot keep up); STALE while the node is
+  paused (its lifecycle's inactive state: simulated time holds).
 - ``commands``: accepted, refused (of which as floods), lost on the way; WARN where a flood was
   refused or commands were lost in the window.
 - ``recording``: the file, its bytes on disk so far, the messages handed to it; ERROR once it
@@ -14,7 +15,7 @@ key/values.
 
 from __future__ import annotations
 
-OK, WARN, ERROR = 0, 1, 2
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
 
 def hardware_id(scene_name: str) -> str:
@@ -66,6 +67,12 @@ def pacing(name: str, hardware: str, stats: dict, misses: int, steps: int,
     return status(level, f"{name}: pacing", msg, hardware, stats)
 
 
+def paused(name: str, hardware: str, t: float) -> dict:
+    """The pacing status while the run is paused at simulated time ``t``: STALE."""
+    return status(STALE, f"{name}: pacing", f"paused at t = {t:.6f} s (the node is inactive)",
+                  hardware, {"paused_at_s": t})
+
+
 def commands(name: str, hardware: str, accepted: int, refused: int, floods: int, lost: int,
              new_floods: int, new_lost: int) -> dict:
     """The commands status: the run's counts so far; WARN where ``new_floods`` were refused as
@@ -97,5 +104,5 @@ def recording(name: str, hardware: str, path, size: int, messages: int,
                                              f"{messages} messages", hardware, values)
 
 
-__all__ = ["OK", "WARN", "ERROR", "hardware_id", "status", "array", "Window", "pacing",
-           "commands", "recording"]
+__all__ = ["OK", "WARN", "ERROR", "STALE", "hardware_id", "status", "array", "Window",
+           "pacing", "paused", "commands", "recording"]

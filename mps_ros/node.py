@@ -17,6 +17,7 @@ gives each one's description and range).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -48,7 +49,7 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks  # noqa: E402
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -149,18 +150,80 @@ class NameTaken(RuntimeError):
 DISCOVERY_S = 2.5
 
 
-class PressTwin(Node):
-    """The node. Construct, then :meth:`run` (blocks until the run ends or is stopped)."""
+class PressTwin(LifecycleNode):
+    """The node, a managed one (``rclpy.lifecycle``). Construct (its parameters declared and
+    checked), configure (:meth:`configure`: the scene, the publishers, the kernels, the
+    stepping process, the recording), activate (the run may start: :meth:`run` blocks until it
+    ends or is stopped), deactivate and activate again (pause and go on), cleanup or shutdown
+    (the run ends, its recording finished)."""
 
     def __init__(self, default_scene: str | None = None, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self._created = time.monotonic()
         self._recording_reserved = False
         self._declare(default_scene or DEFAULT_SCENE)
-        p = self._params()
-        self.p = p
-        from mps_core import MpsError
+        self.p = self._params()
+        self.twin = self.runner = self.recorder = self.recording_sink = None
+        self.pubs: dict[str, object] = {}
+        self.names: dict[str, str] = {}
+        self.closed = False
+        self.priority_got = 0
+        self.split = False
+        #: why configure failed (the node then ends)
+        self.configure_error: Exception | None = None
+        #: the run may start (the first activate); the node is to end (cleanup, shutdown)
+        self.activated = threading.Event()
+        self.ending = threading.Event()
 
+    # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        if self.runner is not None:     # configured once: a node runs one run
+            return TransitionCallbackReturn.SUCCESS
+        try:
+            self.configure()
+        except (ParameterError, MpsError, OSError) as exc:
+            self.configure_error = exc
+            if not self.p["autostart"]:     # autostart: the node's last line says it
+                self.get_logger().error(f"configure failed: {exc}")
+            self.ending.set()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        if not self.activated.is_set():
+            self.activated.set()
+        else:
+            self.runner.resume()
+            self.get_logger().info("activated: the run goes on")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        why = self.runner.pause() if self.activated.is_set() else None
+        if why is not None:
+            self.get_logger().error(f"cannot pause: {why}")
+            return TransitionCallbackReturn.FAILURE
+        self.get_logger().info("deactivated: paused (simulated time holds; commands are taken "
+                               "at the next step)")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._end("cleanup")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._end("shutdown")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _end(self, reason: str) -> None:
+        self.ending.set()
+        if self.runner is not None:
+            self.runner.resume()
+            self.runner.request_stop(reason)
+
+    def configure(self) -> None:
+        """The scene, the publishers, the command subscription and services, the runner (or
+        the stepping process, started and its kernels built), the recording opened."""
+        p = self.p
         try:
             self.twin = Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
                              outputs=p["outputs"], scene_commands=p["scene_commands"],
@@ -172,8 +235,6 @@ class PressTwin(Node):
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         outputs = set(self.twin.outputs)
-        self.pubs: dict[str, object] = {}
-        self.names: dict[str, str] = {}
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -196,7 +257,6 @@ class PressTwin(Node):
             self.pubs[t.key] = pub
             self.names[t.key] = pub.topic_name
         self.inbox = Inbox()
-        self.closed = False
         # every command is kept until the run loop answers it (a flood is refused, one answer
         # each); what a sender's middleware loses on the way is counted (message-lost events)
         mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL,
@@ -207,9 +267,6 @@ class PressTwin(Node):
         self.names[MODE.key] = self.mode_sub.topic_name
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                          for w in COMMAND_WORDS]
-        self.recorder = None
-        self.recording_sink = None
-        self.priority_got = 0
         self.ros_sink = RosSink(self.pubs)
         #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
         #: process publishes what it releases and forwards the commands
@@ -217,16 +274,23 @@ class PressTwin(Node):
         if self.split:
             self.runner = self._stepping_process(p)
             self.inbox = self.runner.inbox
-            return
-        self.runner = Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
-                             real_time_factor=p["real_time_factor"], lead=p["lead"],
-                             command_delay=p["command_delay"],
-                             release_period=p["release_period"],
-                             release_slice=p["release_slice"], freeze_gc=True,
-                             publish_every=p["publish_every"],
-                             diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
-                             gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
-                             name=self.get_fully_qualified_name().lstrip("/"))
+        else:
+            self.runner = self._runner(p)
+        rec = self.open_recording()
+        if rec is not None:
+            self.get_logger().info(f"recording to {rec.path}")
+        # the kernels built (and the stepping process started) before the run may start
+        self.runner.prepare()
+
+    def _runner(self, p: dict) -> Runner:
+        return Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
+                      real_time_factor=p["real_time_factor"], lead=p["lead"],
+                      command_delay=p["command_delay"], release_period=p["release_period"],
+                      release_slice=p["release_slice"], freeze_gc=True,
+                      publish_every=p["publish_every"],
+                      diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
+                      gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
+                      name=self.get_fully_qualified_name().lstrip("/"))
 
     def _stepping_process(self, p: dict):
         from .stepping import SteppingProcess
@@ -305,7 +369,8 @@ class PressTwin(Node):
 
     def _on_lost(self, info) -> None:
         n = int(info.total_count_change)
-        self.runner.commands_lost += n
+        if self.runner is not None:
+            self.runner.commands_lost += n
         self.get_logger().warning(f"{n} command(s) lost on the way to {self.names[MODE.key]} "
                                   f"({info.total_count} in all)")
 
@@ -548,9 +613,10 @@ def main(argv=None) -> int:
     def on_signal(signum, _frame):
         name = signal.Signals(signum).name
         stop.set()
-        r = runner_box.get("runner")
-        if r is not None:
-            r.request_stop(name)
+        node = runner_box.get("node")
+        if node is not None and node.runner is not None:
+            node.runner.resume()
+            node.runner.request_stop(name)
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     rclpy.init(args=[NODE_NAME, *ros],
@@ -565,7 +631,7 @@ def main(argv=None) -> int:
         except ParameterError as exc:
             print(f"press_twin: error: {exc}", file=sys.stderr, flush=True)
             return 2
-        runner_box["runner"] = node.runner
+        runner_box["node"] = node
         executor = SingleThreadedExecutor()
         executor.add_node(node)
 
@@ -575,18 +641,33 @@ def main(argv=None) -> int:
             except ExternalShutdownException:
                 pass
             except Exception as exc:  # a callback failed: the run must not go on deaf
-                if node.runner.stop_reason is None:
+                if node.runner is None or node.runner.stop_reason is None:
                     node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
-                    node.runner.request_stop("error")
+                    node._end("error")
         thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
         thread.start()
-        try:
-            rec = node.open_recording()
-        except (MpsError, OSError) as exc:
-            print(f"press_twin: error: {exc}", file=sys.stderr, flush=True)
-            return 2
-        if rec is not None:
-            node.get_logger().info(f"recording to {rec.path}")
+        if node.p["autostart"]:
+            node.trigger_configure()
+            if node.configure_error is None:
+                node.trigger_activate()
+        else:
+            node.get_logger().info(
+                "autostart false: unconfigured, waiting for a lifecycle manager "
+                f"({node.get_fully_qualified_name()}/change_state: configure, activate)")
+        while not (node.activated.is_set() or node.ending.is_set() or stop.is_set()):
+            stop.wait(0.05)
+        if not node.activated.is_set():     # never activated: what was begun is not a run
+            if node.split:
+                node.runner.close()
+            if node.recorder is not None:
+                with contextlib.suppress(OSError):
+                    node.recorder.finish()
+                discard_recording(node.recorder.path, node._recording_reserved)
+            if node.configure_error is not None:
+                print(f"press_twin: error: {node.configure_error}", file=sys.stderr, flush=True)
+                return 2
+            node.get_logger().info("ended before its run started")
+            return 0
 
         recording_error = None
         taken = None

@@ -62,6 +62,9 @@ P = Parameter
 PARAMETERS: tuple[Parameter, ...] = (
     P("scene", "press-cycle", "preset name or scene file", shown="the command line's SCENE, "
       "else `press-cycle`"),
+    P("autostart", True, "configure and activate at start, and run; false: wait unconfigured "
+      "for a lifecycle manager (`~/change_state`: configure, activate; deactivate pauses, "
+      "activate goes on; cleanup or shutdown ends the run)"),
     P("pacing", "realtime", "how the steps are paced: at their simulated times on the wall "
       "clock (scaled by `real_time_factor`), or as fast as the machine goes",
       choices=PACINGS),

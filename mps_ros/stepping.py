@@ -42,7 +42,9 @@ byte for byte, in the same order.
 stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
 command (marshal: reply id or None, word, source, wall, boundary step, generation), ``N`` the
 commands refused here, of which as floods, and lost (marshal: three counts, for its
-/diagnostics), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
+/diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
+applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
+deadline moves), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
 (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
 holds the step's state, the structure, why the machine would refuse each command word
 there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
@@ -177,6 +179,16 @@ def fifo_for_the_others(priority: int) -> int:
 
 
 # -- the stepping process's side --------------------------------------------------------------
+class Hold:
+    """The node's pause, as the stepping process knows it: ``paused`` (frame ``Z``), and
+    ``shift``, the wall seconds the schedule has moved on by for the pauses so far (frame
+    ``O``: each pause's length, added as it ends)."""
+
+    def __init__(self):
+        self.paused = False
+        self.shift = 0.0
+
+
 class _Ahead:
     """The stepping process's loop: the twin stepped up to ``lead`` wall seconds ahead of the
     steps' deadlines, each step's messages written down the pipe as soon as the lead is full
@@ -187,9 +199,11 @@ class _Ahead:
     #: steps written at once at most; a step due within this (wall s) goes at once
     BATCH, NEAR = 16, 0.002
 
-    def __init__(self, runner: Runner, out: FrameWriter, commands, wake: threading.Event):
+    def __init__(self, runner: Runner, out: FrameWriter, commands, wake: threading.Event,
+                 hold: "Hold | None" = None):
         self.runner, self.twin, self.out = runner, runner.twin, out
         self.commands, self.wake = commands, wake
+        self.hold = hold or Hold()
         self.gen = 0
         self.cps: dict[int, tuple] = {}
         self.pending: list[bytes] = []
@@ -197,7 +211,7 @@ class _Ahead:
 
     def deadline(self, k: int) -> float:
         tw = self.twin
-        return self.wall_start + (tw.time_of(k) - tw.t0) / self.runner.rtf
+        return self.wall_start + self.hold.shift + (tw.time_of(k) - tw.t0) / self.runner.rtf
 
     def _entry(self, k: int, deadline: float, state: bool, msgs: list) -> None:
         twin = self.twin
@@ -242,6 +256,11 @@ class _Ahead:
             while not twin.done and not stop.is_set():
                 if commands and twin.k >= commands[0][4]:
                     self._command(commands.popleft(), ahead)
+                    continue
+                if self.hold.paused:        # the node is inactive: nothing computed ahead
+                    self.flush()
+                    self.wake.wait(0.05)
+                    self.wake.clear()
                     continue
                 deadline = self.deadline(twin.k + 1)
                 if not commands:
@@ -382,6 +401,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         return 2
     commands: collections.deque = collections.deque()
     wake = threading.Event()
+    hold = Hold()
 
     def stop(reason: str) -> None:
         runner.request_stop(reason)
@@ -411,6 +431,14 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
             go.set()
         elif kind == b"N":
             runner.elsewhere = marshal.loads(payload)
+        elif kind == b"Z":
+            hold.paused = True
+            wake.set()
+        elif kind == b"O":
+            hold.shift += marshal.loads(payload)
+            runner.wall_start += marshal.loads(payload)
+            hold.paused = False
+            wake.set()
 
     def listen() -> None:
         for kind, payload in pending:
@@ -441,7 +469,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     name_thread("mps-step")
     error_kind = None
     try:
-        _Ahead(runner, out, commands, wake).run()
+        _Ahead(runner, out, commands, wake, hold).run()
     except Exception as exc:
         from mps_core import MpsError
 
@@ -555,6 +583,8 @@ class SteppingProcess:
         self._this_refused: str | None = None
         self._failure: str | None = None        # why the recording stopped, where it did
         self._next_status = 0.0                 # the recording's next status (wall s)
+        self._paused_at: float | None = None    # paused (the node inactive) since (wall s)
+        self.paused_s = 0.0                     # wall seconds paused so far
         self._diagnostics_encoder = None
 
     @property
@@ -620,6 +650,10 @@ class SteppingProcess:
     def command(self, cmd: Command) -> None:
         word = cmd.word if isinstance(cmd.word, str) else str(cmd.word)
         with self._lock:
+            if self._paused_at is not None and self._released is not None:
+                # paused: simulated time holds at the last step released; the command is
+                # taken at the next boundary, as if it had come then
+                cmd.wall = self._released.deadline
             refusal = "the run has ended" if self._ended else self.gate.check(word)
             if self._waiting or (refusal is None and self._gen != self._received_gen):
                 # a command sent on is still unanswered: this one is taken once it is (what
@@ -762,6 +796,34 @@ class SteppingProcess:
         t0, t_end, n = tw
         return t_end if k == n else t0 + k * (t_end - t0) / n
 
+    def pause(self) -> str | None:
+        """Hold the run (the node's lifecycle: deactivate): nothing more is released or
+        computed ahead, simulated time holds at the last step released; commands are still
+        taken (at the next boundary). None, or why not."""
+        with self._lock:
+            if self._ended:
+                return "the run has ended"
+            if self._paused_at is None:
+                self._paused_at = time.perf_counter()
+                self._out.frame(b"Z", b"")
+        return None
+
+    def resume(self) -> None:
+        """Go on after :meth:`pause`: every deadline (held, and in the stepping process) moves
+        on by the pause's length."""
+        with self._lock:
+            if self._paused_at is None:
+                return
+            d = time.perf_counter() - self._paused_at
+            self._paused_at = None
+            self.paused_s += d
+            for e in self._queue:
+                e.deadline += d
+            for held in self._held.values():
+                for e in held:
+                    e.deadline += d
+            self._out.frame(b"O", marshal.dumps(d))
+
     def request_stop(self, reason: str) -> None:
         if self.stop_reason is None:
             self.stop_reason = reason
@@ -809,10 +871,13 @@ class SteppingProcess:
             now = clock()
             while True:             # every held step whose deadline has passed
                 with lock:
-                    if not queue or (queue[0].deadline > now and not flush):
+                    if not queue or (queue[0].deadline > now and not flush) or (
+                            self._paused_at is not None and not flush):
                         break
                     head = self._released = queue.popleft()
                 self._release(head, clock)
+            if self._paused_at is not None and now >= self._next_status:
+                self._stale(now)
             if (end is not None or eof) and not queue:
                 break
             if eof:
@@ -821,7 +886,7 @@ class SteppingProcess:
                     if wait > 0:
                         time.sleep(min(wait, 0.05))
                 continue
-            wait = (queue[0].deadline - clock()) if queue else 0.5
+            wait = (queue[0].deadline - clock()) if queue and self._paused_at is None else 0.05
             # the next deadline, or what the stepping process sends, whichever comes first
             if not select.select([fd], [], [], wait if wait > 0.0 else 0.0)[0]:
                 continue
@@ -899,6 +964,28 @@ class SteppingProcess:
         if said or p1 >= self._next_status:
             self._next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
             self._recording_status(msgs)
+
+    def _stale(self, now: float) -> None:
+        """Paused: the diagnostics say so (pacing STALE, the recording's status), once a
+        diagnostics period, stamped with the step released last; published and recorded."""
+        self._next_status = now + float(self.spec["runner"].get("diagnostics_period", 1.0))
+        if "diagnostics" not in self.spec["twin"]["outputs"] or self._released is None:
+            return
+        from . import diagnostics
+
+        name = self.spec["runner"].get("name", "press_twin")
+        hw = self.spec.get("hardware_id", "mps")
+        k = self._released.k
+        t_ns = to_ns(self._time_of(k))
+        statuses = [diagnostics.paused(name, hw, self._time_of(k))]
+        statuses += [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
+        out = [("/diagnostics", self._diagnostics_encoder(diagnostics.array(t_ns, statuses)),
+                t_ns, False)]
+        self.messages += self.sink.emit_all(out)
+        for s in self.sinks:
+            if getattr(s, "failure", None) is None:
+                s.emit_all(out)
+                s.tick(None)
 
     def _recording_status(self, msgs: list) -> None:
         """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
@@ -989,8 +1076,9 @@ class SteppingProcess:
             s["process_cpu_per_step_us"] = (step_cpu + ros) / steps * 1e6
         s["messages"] = self.messages
         if self._first is not None and "sim_time" in s and self._last > self._first:
-            # from the schedule's start to the last release (the steps were computed ahead)
-            s["wall_time"] = self._last - self._first
+            # from the schedule's start to the last release (the steps were computed ahead),
+            # the pauses left out
+            s["wall_time"] = self._last - self._first - self.paused_s
             s["real_time_factor"] = s["sim_time"] / s["wall_time"]
         s["commands_lost"] = self.commands_lost
         s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused

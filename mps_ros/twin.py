@@ -697,6 +697,7 @@ class Runner:
         self.name = name
         self.stop_reason: str | None = None
         self._stop = threading.Event()
+        self._paused = threading.Event()        # as fast as possible: held (pause())
         # measurements
         self.step_times = Timings()             # compute: advance + messages (s)
         self.latencies = Timings()              # realtime: publish done - deadline (s)
@@ -1012,6 +1013,9 @@ class Runner:
         try:
             self._begin()
             while not twin.done and not self._stop.is_set():
+                if self._paused.is_set():
+                    self._hold()
+                    continue
                 _k, msgs, p0 = self._timed_step(math.inf, clock)     # no deadline: no miss
                 t_ns = to_ns(twin.t)
                 if msgs is not None:
@@ -1032,6 +1036,37 @@ class Runner:
         finally:
             self._end()
         return self.stats()
+
+    def pause(self) -> str | None:
+        """Hold the run at its present step until :meth:`resume` (the node's lifecycle:
+        deactivate, activate): None, or why it cannot."""
+        if self.pacing == "realtime":
+            return ("a realtime run pauses in its stepping process (stepping_process:=true, "
+                    "the default)")
+        self._paused.set()
+        return None
+
+    def resume(self) -> None:
+        self._paused.clear()
+        self.inbox.wake()
+
+    def _hold(self) -> None:
+        """Paused: simulated time holds; commands are taken at this step; the diagnostics say
+        STALE once a period (with the sinks' statuses), nothing else goes out."""
+        t_ns = to_ns(self.twin.t)
+        hw = hardware_id(self.twin.scene.name)
+        next_diag = 0.0
+        while self._paused.is_set() and not self._stop.is_set():
+            self._take_commands()
+            now = time.perf_counter()
+            if now >= next_diag and "diagnostics" in self.twin.outputs:
+                next_diag = now + self.period
+                statuses = [diagnostics.paused(self.name, hw, self.twin.t)]
+                statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
+                self._emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
+                for s in self.sinks:
+                    s.tick(None)
+            self.inbox.wait(0.05)
 
     # -- the loop: realtime, steps computed ahead -----------------------------------------
     def _run_paced(self) -> dict:

@@ -627,7 +627,7 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"t_end": -1.0}, "parameter t_end: -1.0: expected a number from 0 to 1e9"),
              ({"scene_commands": 3}, "parameter scene_commands: 3: expected true or false"),
              ({"outputs": "clock"}, "parameter outputs: 'clock': expected a list of words"),
-             ({"no_such": 1}, "unknown parameter no_such: expected one of command_burst, ")]
+             ({"no_such": 1}, "unknown parameter no_such: expected one of autostart, command_burst, ")]
     for params, message in cases:
         with NodeProcess(tmp_path, params, name="bad") as node:
             rc = node.wait(60)

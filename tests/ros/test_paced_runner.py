@@ -420,3 +420,60 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
     level, v = status()
     assert level == 1 and v["commands_lost"] == "1"
     assert status()[0] == 0
+
+
+def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
+    """pause() holds the run at its step (the node's deactivate): nothing goes out but the
+    diagnostics, which say it is paused (STALE), and a command is taken at that step; resume()
+    goes on, and the run is the one never paused but for that command."""
+    import threading
+
+    from twin_probe import wait_until
+
+    def run(pause_at: int | None):
+        tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+        sink = Sink(True)
+        runner = Runner(tw, sinks=[sink], pacing="as_fast_as_possible",
+                        diagnostics_period=0.01)
+        box = {}
+
+        def on_clock(t_ns):
+            if pause_at is not None and t_ns == pause_at * 1_000_000 and not box:
+                box["why"] = runner.pause()
+                box["n"] = len(sink.got)
+
+        sink.on_clock = on_clock
+        thread = threading.Thread(target=runner.run)
+        thread.start()
+        if pause_at is not None:
+            def stale():
+                return [d for k, d, *_ in sink.got[box["n"]:] if k == "/diagnostics"
+                        and b"paused at t = 0.030000 s" in d] if box else []
+
+            wait_until(lambda: len(stale()) >= 2, 30, "two STALE statuses")
+            assert box["why"] is None
+            # the paused step's own messages, then nothing but diagnostics
+            assert all(t == pause_at * 1_000_000 for _k, _d, t, _r in sink.got[box["n"]:])
+            assert sink.got[-1][0] == "/diagnostics"
+            runner.inbox.put(Command("engage"))
+            wait_until(lambda: any(k == "~/mode/status" for k, *_ in sink.got[box["n"]:]),
+                       30, "the engage answered while paused")
+            runner.resume()
+        else:
+            runner.inbox.put(Command("engage"))     # taken at the first boundary: step 0
+        thread.join(60)
+        assert not thread.is_alive()
+        return [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
+
+    paused = run(30)
+    ack_step = 30
+    plain_twin = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+    sink = Sink(True)
+    runner = Runner(plain_twin, sinks=[sink], pacing="as_fast_as_possible")
+    # the same run never paused: the engage at step 30, from its first boundary after it
+    runner.sinks[0].on_clock = (lambda t_ns: runner.inbox.put(Command("engage"))
+                                if t_ns == ack_step * 1_000_000 else None)
+    runner.run()
+    plain = [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
+    assert paused == plain
+    assert len(paused) == 2 * (round(T_END / DT) + 1)

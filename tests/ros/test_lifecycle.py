@@ -1,0 +1,111 @@
+"""The node is a managed (lifecycle) node: with ``autostart:=false`` it waits unconfigured;
+driven through its lifecycle services it configures, runs when activated, pauses when
+deactivated (nothing but diagnostics go out, saying STALE; simulated time holds), goes on when
+activated again (the run the same, bit for bit, as one never paused), and ends with a finished
+recording on shutdown."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("mcap")
+pytest.importorskip("rosbags")
+
+from test_recording import read_all  # noqa: E402
+from twin_probe import Listener, NodeProcess, ns, wait_until  # noqa: E402
+
+from mps_ros.recording import record  # noqa: E402
+
+
+def _change(node, client, transition_id: int, timeout: float = 60.0) -> bool:
+    from lifecycle_msgs.srv import ChangeState
+
+    assert client.wait_for_service(timeout_sec=timeout), "no ~/change_state service"
+    req = ChangeState.Request()
+    req.transition.id = transition_id
+    fut = client.call_async(req)
+    wait_until(fut.done, timeout, f"an answer to transition {transition_id}")
+    return fut.result().success
+
+
+def _state(client) -> str:
+    from lifecycle_msgs.srv import GetState
+
+    fut = client.call_async(GetState.Request())
+    wait_until(fut.done, 30, "the lifecycle state")
+    return fut.result().current_state.label
+
+
+def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_path):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    rec = tmp_path / "managed.mcap"
+    params = dict(autostart=False, pacing="realtime", dt=0.001, t_end=3.0, recording=str(rec),
+                  diagnostics_period=0.2)
+    lis = Listener(keys=("/clock", "/diagnostics", "joint_states"))
+    change = lis.node.create_client(ChangeState, "/press_twin/change_state")
+    get = lis.node.create_client(GetState, "/press_twin/get_state")
+    try:
+        with NodeProcess(tmp_path, params, name="managed") as node:
+            assert get.wait_for_service(timeout_sec=60)
+            assert _state(get) == "unconfigured"
+            assert not lis.get("/clock")
+            assert _change(lis.node, change, Transition.TRANSITION_CONFIGURE)
+            assert _state(get) == "inactive" and not lis.get("/clock")
+            assert _change(lis.node, change, Transition.TRANSITION_ACTIVATE)
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.3, 60, "/clock >= 0.3")
+            assert _change(lis.node, change, Transition.TRANSITION_DEACTIVATE)
+
+            def stale():
+                return [m for m in lis.get("/diagnostics") for s in m.status
+                        if s.name == "press_twin: pacing" and s.level == b"\x03"]
+
+            # paused: two STALE reports (two diagnostics periods at least), and no step beyond
+            # the one they say simulated time holds at
+            lis.wait_for(lambda: len(stale()) >= 2, 30, "two STALE pacing statuses")
+            held = ns(stale()[0].header.stamp)
+            assert all(ns(m.clock) <= held for m in lis.get("/clock"))
+            assert ns(lis.get("/clock")[-1].clock) == held
+            assert _change(lis.node, change, Transition.TRANSITION_ACTIVATE)
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= held * 1e-9 + 0.3, 60,
+                         "/clock going on after the pause")
+            assert _change(lis.node, change, Transition.TRANSITION_ACTIVE_SHUTDOWN)
+            assert node.wait(60) == 0, node.log()
+            log = node.log()
+    finally:
+        lis.close()
+    assert "deactivated: paused" in log and "activated: the run goes on" in log
+    assert "run stopped (shutdown)" in log and f"recording finished: {rec}" in log
+    # the recording: finished (rosbags reads it), every step once, the same as a run never
+    # paused (mps record, as fast as possible) up to where it stopped
+    got = read_all(rec)
+    stamps = [t for t, _m, _raw in got["/joint_states"]]
+    assert stamps == [k * 1_000_000 for k in range(len(stamps))] and len(stamps) > 600
+    plain = tmp_path / "plain.mcap"
+    record("press-cycle", plain, dt=0.001, t_end=3.0, stop_on_signals=False)
+    want = read_all(plain)
+    for topic in ("/joint_states", "/press_twin/foundation", "/tf"):
+        n = len(got[topic])
+        assert [(t, raw) for t, _m, raw in got[topic]] == [
+            (t, raw) for t, _m, raw in want[topic][:n]], topic
+
+
+def test_shut_down_before_it_is_configured(ros, tmp_path):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    rec = tmp_path / "never.mcap"
+    lis = Listener(keys=("/clock",))
+    change = lis.node.create_client(ChangeState, "/press_twin/change_state")
+    try:
+        with NodeProcess(tmp_path, dict(autostart=False, recording=str(rec)),
+                         name="never") as node:
+            assert _change(lis.node, change, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
+            assert node.wait(60) == 0, node.log()
+            log = node.log()
+    finally:
+        lis.close()
+    assert "ended before its run started" in log
+    assert not rec.exists() and not lis.get("/clock")
