@@ -202,8 +202,8 @@ class PressTwin(LifecycleNode):
         if why is not None:
             self.get_logger().error(f"cannot pause: {why}")
             return TransitionCallbackReturn.FAILURE
-        self.get_logger().info("deactivated: paused (simulated time holds; commands are taken "
-                               "at the next step)")
+        self.get_logger().info("deactivated: paused (simulated time holds; a command is applied "
+                               "where it holds)")
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:

@@ -44,8 +44,8 @@ command (marshal: reply id or None, word, source, wall, boundary step, generatio
 commands refused here, of which as floods, and lost (marshal: three counts, for its
 /diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
 applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
-deadline moves), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got
-(JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
+deadline moves), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error),
+``P`` the priority it got (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
 holds the step's state, the structure, why the machine would refuse each command word
 there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
 command's answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text),
@@ -435,8 +435,9 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
             hold.paused = True
             wake.set()
         elif kind == b"O":
-            hold.shift += marshal.loads(payload)
-            runner.wall_start += marshal.loads(payload)
+            paused = marshal.loads(payload)
+            hold.shift += paused
+            runner.wall_start += paused
             hold.paused = False
             wake.set()
 
@@ -886,7 +887,10 @@ class SteppingProcess:
                     if wait > 0:
                         time.sleep(min(wait, 0.05))
                 continue
-            wait = (queue[0].deadline - clock()) if queue and self._paused_at is None else 0.05
+            if self._paused_at is not None:
+                wait = 0.05                 # paused: awake for the diagnostics' STALE
+            else:
+                wait = (queue[0].deadline - clock()) if queue else 0.5
             # the next deadline, or what the stepping process sends, whichever comes first
             if not select.select([fd], [], [], wait if wait > 0.0 else 0.0)[0]:
                 continue
