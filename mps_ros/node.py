@@ -266,7 +266,8 @@ class PressTwin(LifecycleNode):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
         self.names[MODE.key] = self.mode_sub.topic_name
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
-                         for w in COMMAND_WORDS]
+                                 for w in COMMAND_WORDS]
+        self.step_service = self.create_service(Trigger, "~/step", self._on_step)
         self.ros_sink = RosSink(self.pubs)
         #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
         #: process publishes what it releases and forwards the commands
@@ -389,6 +390,25 @@ class PressTwin(LifecycleNode):
                     pass
             return
         self.inbox.put(Command(msg.data, "topic"))
+
+    def _on_step(self, request, response):
+        """``~/step``: one step while the node is deactivated (paused)."""
+        done = threading.Event()
+        box = {}
+
+        def reply(t):
+            box["t"] = t
+            done.set()
+
+        why = self.runner.step_paused(reply) if self.activated.is_set() else (
+            "the run has not started: ~/step takes a step while it is deactivated")
+        if why is not None:
+            response.success, response.message = False, f"refused: {why}"
+        elif not done.wait(10.0):
+            response.success, response.message = False, "no answer: the step did not come"
+        else:
+            response.success, response.message = True, f"stepped to t = {box['t']:.6f} s"
+        return response
 
     def _service(self, word: str):
         def callback(request, response):

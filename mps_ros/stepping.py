@@ -44,7 +44,7 @@ command (marshal: reply id or None, word, source, wall, boundary step, generatio
 commands refused here, of which as floods, and lost (marshal: three counts, for its
 /diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
 applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
-deadline moves), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error),
+deadline moves), ``T`` one step while paused (the node's ``~/step``), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error),
 ``P`` the priority it got (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
 holds the step's state, the structure, why the machine would refuse each command word
 there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
@@ -180,13 +180,15 @@ def fifo_for_the_others(priority: int) -> int:
 
 # -- the stepping process's side --------------------------------------------------------------
 class Hold:
-    """The node's pause, as the stepping process knows it: ``paused`` (frame ``Z``), and
+    """The node's pause, as the stepping process knows it: ``paused`` (frame ``Z``);
     ``shift``, the wall seconds the schedule has moved on by for the pauses so far (frame
-    ``O``: each pause's length, added as it ends)."""
+    ``O``: each pause's length, added as it ends); ``steps``, one token a step asked for while
+    paused (frame ``T``, the node's ``~/step``)."""
 
     def __init__(self):
         self.paused = False
         self.shift = 0.0
+        self.steps: collections.deque = collections.deque()
 
 
 class _Ahead:
@@ -257,13 +259,17 @@ class _Ahead:
                 if commands and twin.k >= commands[0][4]:
                     self._command(commands.popleft(), ahead)
                     continue
+                one = False                 # a step asked for while paused
                 if self.hold.paused:        # the node is inactive: nothing computed ahead
-                    self.flush()
-                    self.wake.wait(0.05)
-                    self.wake.clear()
-                    continue
+                    if not self.hold.steps:
+                        self.flush()
+                        self.wake.wait(0.05)
+                        self.wake.clear()
+                        continue
+                    self.hold.steps.popleft()
+                    one = True
                 deadline = self.deadline(twin.k + 1)
-                if not commands:
+                if not commands and not one:
                     wait = deadline - lead - clock()
                     if wait > 0.0:
                         self.flush()
@@ -292,7 +298,7 @@ class _Ahead:
                     self.cps[k] = twin.checkpoint()
                     self.cps.pop(k - keep, None)
                 self._entry(k, deadline, msgs is not None, staged)
-                if len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
+                if one or len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
                     self.flush()
         except Exception as exc:
             runner._failed(exc)
@@ -433,6 +439,9 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
             runner.elsewhere = marshal.loads(payload)
         elif kind == b"Z":
             hold.paused = True
+            wake.set()
+        elif kind == b"T":
+            hold.steps.append(1)
             wake.set()
         elif kind == b"O":
             paused = marshal.loads(payload)
@@ -586,6 +595,8 @@ class SteppingProcess:
         self._next_status = 0.0                 # the recording's next status (wall s)
         self._paused_at: float | None = None    # paused (the node inactive) since (wall s)
         self.paused_s = 0.0                     # wall seconds paused so far
+        #: the replies of the steps asked for while paused (~/step), in order
+        self._step_replies: collections.deque = collections.deque()
         self._diagnostics_encoder = None
 
     @property
@@ -809,13 +820,30 @@ class SteppingProcess:
                 self._out.frame(b"Z", b"")
         return None
 
+    def step_paused(self, reply) -> str | None:
+        """One step while paused (the node's ``~/step``): the next step held is released, or
+        the stepping process computes one; ``reply(t)`` once it is out. None, or why not."""
+        with self._lock:
+            if self._ended:
+                return "the run has ended"
+            if self._paused_at is None:
+                return "the node is active: ~/step takes a step while it is deactivated"
+            self._step_replies.append(reply)
+            if len(self._step_replies) > sum(1 for e in self._queue if e.state):
+                self._out.frame(b"T", b"")
+        return None
+
     def resume(self) -> None:
         """Go on after :meth:`pause`: every deadline (held, and in the stepping process) moves
-        on by the pause's length."""
+        on by the time since the pause (or since the deadline of the last step taken with
+        ``~/step``, where that is later)."""
         with self._lock:
             if self._paused_at is None:
                 return
-            d = time.perf_counter() - self._paused_at
+            since = self._paused_at
+            if self._released is not None and self._released.deadline > since:
+                since = self._released.deadline
+            d = time.perf_counter() - since
             self._paused_at = None
             self.paused_s += d
             for e in self._queue:
@@ -871,12 +899,25 @@ class SteppingProcess:
             flush = end is not None and (end.get("stop_reason") or end.get("error"))
             now = clock()
             while True:             # every held step whose deadline has passed
+                reply = None
                 with lock:
-                    if not queue or (queue[0].deadline > now and not flush) or (
-                            self._paused_at is not None and not flush):
+                    if not queue:
                         break
+                    if not flush:
+                        if self._paused_at is not None:     # paused: the steps asked for
+                            if not self._step_replies:
+                                break
+                        elif queue[0].deadline > now:
+                            break
                     head = self._released = queue.popleft()
+                    if head.state and self._paused_at is not None and self._step_replies:
+                        reply = self._step_replies.popleft()
                 self._release(head, clock)
+                if reply is not None:
+                    try:
+                        reply(self._time_of(head.k))
+                    except Exception:       # a reply must never take the run down
+                        pass
             if self._paused_at is not None and now >= self._next_status:
                 self._stale(now)
             if (end is not None or eof) and not queue:

@@ -698,6 +698,7 @@ class Runner:
         self.stop_reason: str | None = None
         self._stop = threading.Event()
         self._paused = threading.Event()        # as fast as possible: held (pause())
+        self._step_replies: collections.deque = collections.deque()    # step_paused()
         # measurements
         self.step_times = Timings()             # compute: advance + messages (s)
         self.latencies = Timings()              # realtime: publish done - deadline (s)
@@ -1012,10 +1013,12 @@ class Runner:
         next_diag = self.wall_start + self.period
         try:
             self._begin()
+            reply = None
             while not twin.done and not self._stop.is_set():
                 if self._paused.is_set():
-                    self._hold()
-                    continue
+                    reply = self._hold()
+                    if reply is None:
+                        continue
                 _k, msgs, p0 = self._timed_step(math.inf, clock)     # no deadline: no miss
                 t_ns = to_ns(twin.t)
                 if msgs is not None:
@@ -1030,6 +1033,9 @@ class Runner:
                 if now >= next_diag:
                     next_diag = now + self.period
                     self._diagnostics(t_ns)
+                if reply is not None:           # a step taken while paused: said
+                    reply, done = None, reply
+                    done(twin.t)
         except Exception as exc:
             self._failed(exc)
             raise
@@ -1050,14 +1056,26 @@ class Runner:
         self._paused.clear()
         self.inbox.wake()
 
-    def _hold(self) -> None:
+    def step_paused(self, reply) -> str | None:
+        """One step while paused (the node's ``~/step``); ``reply(t)`` once it is out. None,
+        or why not."""
+        if not self._paused.is_set():
+            return "the node is active: ~/step takes a step while it is deactivated"
+        self._step_replies.append(reply)
+        self.inbox.wake()
+        return None
+
+    def _hold(self):
         """Paused: simulated time holds; commands are taken at this step; the diagnostics say
-        STALE once a period (with the sinks' statuses), nothing else goes out."""
+        STALE once a period (with the sinks' statuses), nothing else goes out. Returns when
+        resumed or stopped (None), or with the reply of a step asked for meanwhile."""
         t_ns = to_ns(self.twin.t)
         hw = hardware_id(self.twin.scene.name)
         next_diag = 0.0
         while self._paused.is_set() and not self._stop.is_set():
             self._take_commands()
+            if self._step_replies:
+                return self._step_replies.popleft()
             now = time.perf_counter()
             if now >= next_diag and "diagnostics" in self.twin.outputs:
                 next_diag = now + self.period

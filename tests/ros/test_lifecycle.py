@@ -40,6 +40,7 @@ def _state(client) -> str:
 def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_path):
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState, GetState
+    from std_srvs.srv import Trigger
 
     rec = tmp_path / "managed.mcap"
     params = dict(autostart=False, pacing="realtime", dt=0.001, t_end=3.0, recording=str(rec),
@@ -47,6 +48,14 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
     lis = Listener(keys=("/clock", "/diagnostics", "joint_states"))
     change = lis.node.create_client(ChangeState, "/press_twin/change_state")
     get = lis.node.create_client(GetState, "/press_twin/get_state")
+    step = lis.node.create_client(Trigger, "/press_twin/step")
+
+    def one_step():
+        assert step.wait_for_service(timeout_sec=30)
+        fut = step.call_async(Trigger.Request())
+        wait_until(fut.done, 30, "~/step's answer")
+        return fut.result()
+
     try:
         with NodeProcess(tmp_path, params, name="managed") as node:
             assert get.wait_for_service(timeout_sec=60)
@@ -56,6 +65,8 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
             assert _state(get) == "inactive" and not lis.get("/clock")
             assert _change(lis.node, change, Transition.TRANSITION_ACTIVATE)
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.3, 60, "/clock >= 0.3")
+            active = one_step()
+            assert not active.success and "the node is active" in active.message
             assert _change(lis.node, change, Transition.TRANSITION_DEACTIVATE)
 
             def stale():
@@ -68,6 +79,16 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
             held = ns(stale()[0].header.stamp)
             assert all(ns(m.clock) <= held for m in lis.get("/clock"))
             assert ns(lis.get("/clock")[-1].clock) == held
+            # ~/step while paused: one step each, published, then held again
+            for i in (1, 2, 3):
+                answer = one_step()
+                t = (held + i * 1_000_000) * 1e-9
+                assert answer.success and answer.message == f"stepped to t = {t:.6f} s", answer
+                lis.wait_for(lambda: ns(lis.get("/clock")[-1].clock) == held + i * 1_000_000,
+                             30, f"/clock at the step {i} taken")
+            n = len(stale())
+            lis.wait_for(lambda: len(stale()) >= n + 1, 30, "STALE after the steps")
+            assert ns(lis.get("/clock")[-1].clock) == held + 3_000_000
             assert _change(lis.node, change, Transition.TRANSITION_ACTIVATE)
             lis.wait_for(lambda: (lis.clock() or 0.0) >= held * 1e-9 + 0.3, 60,
                          "/clock going on after the pause")
@@ -76,7 +97,7 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
             log = node.log()
     finally:
         lis.close()
-    assert "deactivated: paused" in log and "activated: the run goes on" in log
+    assert log.count("deactivated: paused") == 1 and "activated: the run goes on" in log
     assert "run stopped (shutdown)" in log and f"recording finished: {rec}" in log
     # the recording: finished (rosbags reads it), every step once, the same as a run never
     # paused (mps record, as fast as possible) up to where it stopped

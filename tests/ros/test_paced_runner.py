@@ -458,6 +458,11 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
             runner.inbox.put(Command("engage"))
             wait_until(lambda: any(k == "~/mode/status" for k, *_ in sink.got[box["n"]:]),
                        30, "the engage answered while paused")
+            stepped = []
+            assert runner.step_paused(stepped.append) is None      # ~/step: one step
+            wait_until(lambda: stepped, 30, "the step taken while paused")
+            assert stepped == [pytest.approx((pause_at + 1) * DT, abs=1e-12)]
+            assert max(t for _k, _d, t, _r in sink.got) == (pause_at + 1) * 1_000_000
             runner.resume()
         else:
             runner.inbox.put(Command("engage"))     # taken at the first boundary: step 0
