@@ -174,6 +174,10 @@ class PressTwin(LifecycleNode):
         #: the run may start (the first activate); the node is to end (cleanup, shutdown)
         self.activated = threading.Event()
         self.ending = threading.Event()
+        self.inactive = False           # deactivated (paused)
+        self.runs = 0                   # runs begun (a reset begins another)
+        self.reset_wanted = False
+        self.run_started = threading.Event()    # the run after a reset has begun
 
     # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -190,6 +194,7 @@ class PressTwin(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
+        self.inactive = False
         if not self.activated.is_set():
             self.activated.set()
         else:
@@ -202,6 +207,7 @@ class PressTwin(LifecycleNode):
         if why is not None:
             self.get_logger().error(f"cannot pause: {why}")
             return TransitionCallbackReturn.FAILURE
+        self.inactive = True
         self.get_logger().info("deactivated: paused (simulated time holds; a command is applied "
                                "where it holds)")
         return TransitionCallbackReturn.SUCCESS
@@ -221,16 +227,10 @@ class PressTwin(LifecycleNode):
             self.runner.request_stop(reason)
 
     def configure(self) -> None:
-        """The scene, the publishers, the command subscription and services, the runner (or
-        the stepping process, started and its kernels built), the recording opened."""
+        """The scene, the publishers, the command subscription and services, the run
+        (:meth:`new_run`)."""
         p = self.p
-        try:
-            self.twin = Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
-                             outputs=p["outputs"], scene_commands=p["scene_commands"],
-                             markers_hz=p["markers_hz"], markers_scale=p["markers_scale"],
-                             derivatives=p["derivatives"] or None)
-        except (MpsError, OSError, ValueError) as exc:
-            raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
+        self.twin = self._twin()
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
@@ -268,7 +268,30 @@ class PressTwin(LifecycleNode):
         self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
                                  for w in COMMAND_WORDS]
         self.step_service = self.create_service(Trigger, "~/step", self._on_step)
+        self.reset_service = self.create_service(Trigger, "~/reset", self._on_reset)
         self.ros_sink = RosSink(self.pubs)
+        self.new_run(self.twin)
+
+    def _twin(self) -> Twin:
+        p = self.p
+        try:
+            return Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
+                        outputs=p["outputs"], scene_commands=p["scene_commands"],
+                        markers_hz=p["markers_hz"], markers_scale=p["markers_scale"],
+                        derivatives=p["derivatives"] or None)
+        except (MpsError, OSError, ValueError) as exc:
+            raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
+
+    def new_run(self, twin: Twin | None = None) -> None:
+        """A run of the scene from its start: the twin (``twin``, or a new one), the runner (or
+        the stepping process, started and its kernels built), the recording opened (after a
+        reset, a new file beside the last: :func:`next_recording`). Paused from its start
+        where the node is inactive."""
+        p = self.p
+        self.runs += 1
+        if twin is None:
+            self.twin = self._twin()
+        self.closed = False
         #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
         #: process publishes what it releases and forwards the commands
         self.split = p["pacing"] == "realtime" and p["stepping_process"]
@@ -282,6 +305,8 @@ class PressTwin(LifecycleNode):
             self.get_logger().info(f"recording to {rec.path}")
         # the kernels built (and the stepping process started) before the run may start
         self.runner.prepare()
+        if self.inactive:
+            self.runner.pause()
 
     def _runner(self, p: dict) -> Runner:
         return Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
@@ -391,6 +416,26 @@ class PressTwin(LifecycleNode):
             return
         self.inbox.put(Command(msg.data, "topic"))
 
+    def _on_reset(self, request, response):
+        """``~/reset``: this run ends (its recording finished) and a new one begins at the
+        scene's start, recorded to a new file (paused where the node is inactive)."""
+        if not self.activated.is_set() or self.runner is None:
+            response.success, response.message = False, "refused: the run has not started"
+            return response
+        runs = self.runs
+        self.run_started.clear()
+        self.reset_wanted = True
+        self.runner.resume()
+        self.runner.request_stop("reset")
+        if not self.run_started.wait(120.0) or self.runs == runs:
+            response.success, response.message = False, "no new run: the node is ending"
+            return response
+        where = f"recording to {self.recorder.path}" if self.recorder is not None else \
+            "not recording"
+        response.success = True
+        response.message = f"reset: a new run from t = {self.twin.t0:g} s, {where}"
+        return response
+
     def _on_step(self, request, response):
         """``~/step``: one step while the node is deactivated (paused)."""
         done = threading.Event()
@@ -455,10 +500,13 @@ class PressTwin(LifecycleNode):
         from .recording import BackgroundRecorder, RecordingSink, _run_metadata, new_recording
 
         path = self.p["recording"]
+        self.recorder = self.recording_sink = None
         if path.lower() in ("", "none", "off", "false"):
             return None
         if path == "auto":
             path = new_recording(self.twin.scene.name)
+        elif self.runs > 1:             # after a reset: a new file (or bag) beside the first
+            path, self._recording_reserved = next_recording(path), False
         else:
             path, self._recording_reserved = claim_recording(path)
         meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
@@ -590,6 +638,24 @@ def claim_recording(path) -> tuple[Path, bool]:
         raise exists from None
 
 
+def next_recording(path) -> Path:
+    """The recording of the run after a reset: beside ``path``, ``NAME-2.mcap``, ``-3``…
+    (a bag: ``NAME-2``…), the first that is free, claimed at once."""
+    p = Path(path)
+    for i in range(2, 1_000_000):
+        q = p.with_name(f"{p.stem}-{i}{p.suffix}")
+        try:
+            if q.suffix.lower() == ".mcap":
+                from .recording import reserve
+
+                return reserve(q)
+            q.mkdir()
+            return q
+        except FileExistsError:
+            continue
+    raise OSError(f"recording {str(p)!r}: no free name beside it")
+
+
 def discard_recording(path: Path, reserved: bool) -> None:
     """A recording begun by a node that did not run: gone, but for what was there before it (an
     empty file or directory reserved for it stays, empty)."""
@@ -616,6 +682,85 @@ def _split_argv(argv):
     if len(plain) > 1:
         raise SystemExit(f"press_twin: one scene at most, got {plain}")
     return (plain[0] if plain else None), ros
+
+
+def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
+    """The node's run, from its start to its end, its recording finished and its last lines
+    said: (the exit status, whether another run follows: a reset, its run begun)."""
+    code = 0
+    recording_error = None
+    taken = None
+    try:
+        stats = node.run(stop)
+        if node.split and node.runner.error_kind == "simulation":
+            code = 2            # the stepping process said why (its log line)
+        elif node.split and node.runner.error:
+            node.get_logger().error(f"the run failed: {node.runner.error}")
+            code = 1
+    except NameTaken as exc:
+        taken = exc
+    except MpsError as exc:
+        node.get_logger().error(f"the simulation stopped: {exc}")
+        stats = node.runner.stats()
+        code = 2
+    except OSError as exc:      # the stepping process could not start its run
+        if not node.split:
+            raise
+        node.get_logger().error(f"the run could not start: {exc}")
+        return 2, False
+    finally:
+        node.closed = True
+        if node.recorder is not None:
+            try:
+                node.recorder.finish()
+            except OSError as exc:      # said when it happened (the sink's line)
+                recording_error = str(exc)
+        if node.split:
+            node.runner.close()
+    if taken is not None:       # nothing ran: the recording begun is not one
+        if node.recorder is not None:
+            discard_recording(node.recorder.path, node._recording_reserved)
+        print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
+        return 2, False
+    node.drain()
+    why = node.runner.stop_reason or "end"
+    node.get_logger().info(
+        f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
+        f"{stats.get('t', node.twin.t):.6g} s after {stats['steps']} steps: real-time factor "
+        f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
+        f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
+        f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
+        + (f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 "
+           f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
+        + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
+        f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
+        f"process CPU {stats['process_cpu_per_step_us']:.0f} us a step, "
+        + (f"stepping process {stats['stepping_process_cpu_per_step_us']:.0f} us and ROS "
+           f"process {stats['ros_process_cpu_per_step_us']:.0f} us of it, "
+           if "ros_process_cpu_per_step_us" in stats else "")
+        + f"realtime priority {stats.get('realtime_priority', node.priority_got)}, "
+        + (f"publishing thread's slice {stats['release_slice_ms']:.3g} ms, "
+           if "release_slice_ms" in stats else "")
+        + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
+        f"{stats['commands_lost']} lost")
+    if node.recorder is not None:
+        failure = node.recording_sink.failure or recording_error
+        if failure is None:
+            node.get_logger().info(f"recording finished: {node.recorder.path} "
+                                   f"({node.recorder.messages} messages)")
+        else:
+            node.get_logger().error(f"recording incomplete ({failure})")
+            code = code or 1
+    again = node.reset_wanted and not (stop.is_set() or node.ending.is_set())
+    if again:
+        node.reset_wanted = False
+        try:
+            node.new_run()
+        except (ParameterError, MpsError, OSError) as exc:
+            node.get_logger().error(f"reset: no new run: {exc}")
+            again, code = False, 2
+    node.run_started.set()              # a reset waiting for its answer: the new run, or none
+    return code, again
 
 
 def main(argv=None) -> int:
@@ -689,69 +834,11 @@ def main(argv=None) -> int:
             node.get_logger().info("ended before its run started")
             return 0
 
-        recording_error = None
-        taken = None
-        try:
-            stats = node.run(stop)
-            if node.split and node.runner.error_kind == "simulation":
-                code = 2            # the stepping process said why (its log line)
-            elif node.split and node.runner.error:
-                node.get_logger().error(f"the run failed: {node.runner.error}")
-                code = 1
-        except NameTaken as exc:
-            taken = exc
-        except MpsError as exc:
-            node.get_logger().error(f"the simulation stopped: {exc}")
-            stats = node.runner.stats()
-            code = 2
-        except OSError as exc:      # the stepping process could not start its run
-            if not node.split:
-                raise
-            node.get_logger().error(f"the run could not start: {exc}")
-            return 2
-        finally:
-            node.closed = True
-            if node.recorder is not None:
-                try:
-                    node.recorder.finish()
-                except OSError as exc:      # said when it happened (the sink's line)
-                    recording_error = str(exc)
-            if node.split:
-                node.runner.close()
-        if taken is not None:       # nothing ran: the recording begun is not one
-            if node.recorder is not None:
-                discard_recording(node.recorder.path, node._recording_reserved)
-            print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
-            return 2
-        node.drain()
-        why = node.runner.stop_reason or "end"
-        node.get_logger().info(
-            f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
-            f"{stats.get('t', node.twin.t):.6g} s after {stats['steps']} steps: real-time factor "
-            f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
-            f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
-            f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
-            + (f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 "
-               f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
-            + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
-            f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
-            f"process CPU {stats['process_cpu_per_step_us']:.0f} us a step, "
-            + (f"stepping process {stats['stepping_process_cpu_per_step_us']:.0f} us and ROS "
-               f"process {stats['ros_process_cpu_per_step_us']:.0f} us of it, "
-               if "ros_process_cpu_per_step_us" in stats else "")
-            + f"realtime priority {stats.get('realtime_priority', node.priority_got)}, "
-            + (f"publishing thread's slice {stats['release_slice_ms']:.3g} ms, "
-               if "release_slice_ms" in stats else "")
-            + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
-            f"{stats['commands_lost']} lost")
-        if node.recorder is not None:
-            failure = node.recording_sink.failure or recording_error
-            if failure is None:
-                node.get_logger().info(f"recording finished: {node.recorder.path} "
-                                       f"({node.recorder.messages} messages)")
-            else:
-                node.get_logger().error(f"recording incomplete ({failure})")
-                code = code or 1
+        code = 0
+        again = True
+        while again:
+            status, again = _one_run(node, stop)
+            code = max(code, status)
         return code
     finally:
         if executor is not None:

@@ -130,3 +130,48 @@ def test_shut_down_before_it_is_configured(ros, tmp_path):
         lis.close()
     assert "ended before its run started" in log
     assert not rec.exists() and not lis.get("/clock")
+
+
+def test_a_reset_begins_a_new_run_recorded_beside_the_first(ros, tmp_path):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    from std_srvs.srv import Trigger
+
+    rec = tmp_path / "first.mcap"
+    params = dict(pacing="realtime", dt=0.001, t_end=5.0, recording=str(rec))
+    lis = Listener(keys=("/clock",))
+    change = lis.node.create_client(ChangeState, "/press_twin/change_state")
+    reset = lis.node.create_client(Trigger, "/press_twin/reset")
+    try:
+        with NodeProcess(tmp_path, params, name="reset") as node:
+            lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "/clock >= 0.2")
+            assert reset.wait_for_service(timeout_sec=30)
+            fut = reset.call_async(Trigger.Request())
+            wait_until(fut.done, 120, "~/reset's answer")
+            answer = fut.result()
+            second = tmp_path / "first-2.mcap"
+            assert answer.success, answer.message
+            assert answer.message == f"reset: a new run from t = 0 s, recording to {second}"
+
+            def restarted():
+                ts = [ns(m.clock) for m in lis.get("/clock")]
+                back = next((i for i in range(1, len(ts)) if ts[i] < ts[i - 1]), None)
+                return back is not None and ts[-1] >= 200_000_000 and ts[back] == 0
+
+            lis.wait_for(restarted, 60, "/clock from 0 again, then to 0.2 s")
+            assert _change(lis.node, change, Transition.TRANSITION_ACTIVE_SHUTDOWN)
+            assert node.wait(60) == 0, node.log()
+            log = node.log()
+    finally:
+        lis.close()
+    assert "run stopped (reset)" in log and "run stopped (shutdown)" in log
+    assert f"recording finished: {rec}" in log and f"recording finished: {second}" in log
+    plain = tmp_path / "plain.mcap"
+    record("press-cycle", plain, dt=0.001, t_end=5.0, stop_on_signals=False)
+    want = read_all(plain)
+    for path in (rec, second):         # each a run from the start, as the same run unpaused
+        got = read_all(path)
+        n = len(got["/joint_states"])
+        assert n > 150
+        assert [(t, raw) for t, _m, raw in got["/joint_states"]] == [
+            (t, raw) for t, _m, raw in want["/joint_states"][:n]], path
