@@ -482,3 +482,39 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
     plain = [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
     assert paused == plain
     assert len(paused) == 2 * (round(T_END / DT) + 1)
+
+
+def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
+    """A sink that holds the stepping thread 0.4 s (a stalled disk, the machine busy) makes the
+    steps due meanwhile late: the pacing status says so (WARN, or ERROR where most of a
+    window's steps were late), then OK again once the run has caught up."""
+    class Stall:
+        live = False
+        stalled = False
+
+        def emit(self, key, data, t_ns):
+            if t_ns >= 100_000_000 and not self.stalled:
+                self.stalled = True
+                time.sleep(0.4)
+
+        def tick(self, deadline=None):
+            pass
+
+    tw = Twin("press-cycle", dt=DT, t_end=0.8, scene_commands=False)
+    runner = Runner(tw, sinks=[Sink(True), Stall()], pacing="realtime", real_time_factor=0.5,
+                    diagnostics_period=0.05, warm_up=0.0)
+    levels = []
+    emit = runner._emit
+
+    def keep(key, msg, t_ns):
+        if key == "/diagnostics":
+            levels.append(next(s["level"] for s in msg["status"]
+                               if s["name"].endswith(": pacing")))
+        emit(key, msg, t_ns)
+
+    runner._emit = keep
+    runner.run()
+    assert runner.misses > 0
+    last_trouble = max(i for i, lv in enumerate(levels) if lv != 0)
+    assert levels[last_trouble] in (1, 2)
+    assert 0 in levels[last_trouble + 1:], levels
