@@ -598,6 +598,8 @@ class SteppingProcess:
         #: the replies of the steps asked for while paused (~/step), in order
         self._step_replies: collections.deque = collections.deque()
         self._diagnostics_encoder = None
+        #: the statuses' name prefix (the node's) and hardware_id
+        self._named = (spec["runner"].get("name", "press_twin"), spec.get("hardware_id", "mps"))
 
     @property
     def commands_lost(self) -> int:
@@ -1018,19 +1020,11 @@ class SteppingProcess:
             return
         from . import diagnostics
 
-        name = self.spec["runner"].get("name", "press_twin")
-        hw = self.spec.get("hardware_id", "mps")
-        k = self._released.k
-        t_ns = to_ns(self._time_of(k))
-        statuses = [diagnostics.paused(name, hw, self._time_of(k))]
-        statuses += [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
-        out = [("/diagnostics", self._diagnostics_encoder(diagnostics.array(t_ns, statuses)),
-                t_ns, False)]
-        self.messages += self.sink.emit_all(out)
-        for s in self.sinks:
-            if getattr(s, "failure", None) is None:
-                s.emit_all(out)
-                s.tick(None)
+        name, hw = self._named
+        t = self._time_of(self._released.k)
+        self._statuses_out([diagnostics.paused(name, hw, t)]
+                           + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
+                           to_ns(t))
 
     def _recording_status(self, msgs: list) -> None:
         """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
@@ -1041,22 +1035,26 @@ class SteppingProcess:
             return
         from . import diagnostics
 
-        name = self.spec["runner"].get("name", "press_twin")
-        hw = self.spec.get("hardware_id", "mps")
+        name, hw = self._named
         statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
         if self._failure is not None and not any(x["level"] == diagnostics.ERROR
                                                  for x in statuses):
             # the sink itself gave up (dropped): its failure said all the same
             statuses.append(diagnostics.recording(name, hw, "", 0, 0, self._failure))
-        if not statuses:
-            return
-        t_ns = msgs[0][2] if msgs else 0
-        out = [("/diagnostics", self._diagnostics_encoder(diagnostics.array(t_ns, statuses)),
-                t_ns, False)]
+        if statuses:
+            self._statuses_out(statuses, msgs[0][2] if msgs else 0)
+
+    def _statuses_out(self, statuses: list, t_ns: int) -> None:
+        """A /diagnostics message of ``statuses`` (stamped ``t_ns``) after the step released:
+        published, and recorded where the recording goes on."""
+        from .diagnostics import array
+
+        out = [("/diagnostics", self._diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
         self.messages += self.sink.emit_all(out)
         for s in self.sinks:
             if getattr(s, "failure", None) is None:
                 s.emit_all(out)
+                s.tick(None)
 
     def _priority_said(self, got: dict) -> None:
         prio = self.priority
