@@ -89,19 +89,17 @@ class RosSink:
 
     def __init__(self, publishers: dict):
         self.pubs = publishers     # key -> publisher
-        self._raw: dict = {}       # key -> the publisher's own publish_raw
+        self._raw: dict = {}       # key -> the publisher's own publish_raw, or False
 
     def _publisher(self, key):
         """The publisher's own ``publish_raw`` for ``key`` (what ``Publisher.publish`` calls
-        for bytes, without its checks: the run's publishers outlive its releases); None
-        where the key is not published."""
+        for bytes, without its checks: the run's publishers outlive its releases); False
+        where the key is not published (recorded only), kept so."""
         f = self._raw.get(key)
         if f is None:
             p = self.pubs.get(key)
-            if p is None:
-                return None
-            f = self._raw[key] = getattr(getattr(p, "handle", None), "publish_raw",
-                                         None) or p.publish
+            f = self._raw[key] = False if p is None else getattr(
+                getattr(p, "handle", None), "publish_raw", None) or p.publish
         return f
 
     def emit(self, key, data, t_ns):
@@ -123,8 +121,10 @@ class RosSink:
         for key, data, _t, received in msgs:
             if received:
                 continue
-            f = raw.get(key) or self._publisher(key)
+            f = raw.get(key)
             if f is None:
+                f = self._publisher(key)
+            if not f:
                 continue
             n += 1
             try:
