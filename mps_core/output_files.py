@@ -30,8 +30,8 @@ def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
     their paths, or :class:`OutputFileError` for the first that cannot be used. ``inputs``: the
     files the command reads (a path that is not a file, such as a preset's name, is ignored);
     ``force``: an existing file may be replaced; ``folders``: the outputs that are a new
-    directory (a bag of files): one that exists may only be an empty directory, whatever
-    ``force`` says (a directory of files is never replaced)."""
+    directory (a bag of files): one that exists is refused, whatever ``force`` says (a
+    directory is never written into)."""
     folders = set(folders)
     ins = {}
     for i in inputs:
@@ -50,10 +50,9 @@ def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
             raise OutputFileError(p, what, f"the command's input ({ins[real]!r}); writing it "
                                            "would destroy it: expected another path")
         if what in folders:
-            if p.exists() and not (p.is_dir() and not any(p.iterdir())):
-                raise OutputFileError(p, what, "exists; expected a new directory (or an empty "
-                                               "one): a directory of files is never written "
-                                               "over")
+            if p.exists():
+                raise OutputFileError(p, what, "exists; expected a new directory (a bag is "
+                                               "never written into one that is there)")
         elif p.is_dir():
             raise OutputFileError(p, what, "a directory, expected a file path")
         parent = p.parent

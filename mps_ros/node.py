@@ -616,15 +616,14 @@ def claim_recording(path) -> tuple[Path, bool]:
     from .bag import is_bag
 
     p = Path(path)
-    if is_bag(p):       # a new directory, or an empty one
+    if is_bag(p):       # a new directory
         check_paths({"parameter recording": p}, folders={"parameter recording"})
-        existed = p.is_dir()
         try:
-            p.mkdir(exist_ok=existed)
+            p.mkdir()
         except FileExistsError:
-            raise OutputFileError(p, "parameter recording", "exists; expected a new directory "
-                                                            "(or an empty one)") from None
-        return p, existed
+            raise OutputFileError(p, "parameter recording", "exists; expected a new "
+                                                            "directory") from None
+        return p, False
     if p.is_file() and p.stat().st_size == 0:
         return p, True
     exists = OutputFileError(p, "parameter recording", "exists; a recording never replaces a "

@@ -83,7 +83,7 @@ PARAMETERS: tuple[Parameter, ...] = (
       + ", ".join(f"`{o}`" for o in OUTPUTS) + "; the reactions are solved only if "
       "`reactions` or `foundation` is asked for", shown="all"),
     P("recording", "auto", "an MCAP path (`….mcap`), never an existing file (one line and "
-      "exit status 2), or a new (or empty) directory: a bag as rosbag2 writes one "
+      "exit status 2), or a new directory: a bag as rosbag2 writes one "
       "(`metadata.yaml`, its files split by `recording_max_mb`, `recording_max_s`); `auto`: "
       "`recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: no "
       "recording. Written by a process of its own, off the steps' time"),

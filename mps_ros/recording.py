@@ -827,7 +827,8 @@ def recover_bag(src, dst, name: str | None = None) -> Recovered:
     src, dst = Path(src), Path(dst)
     parts = files(src)
     if not parts:
-        raise ValueError(f"{src}: no .mcap files in it: expected a bag")
+        raise ValueError(f"{src}: a directory without a recording in it (expected a bag: "
+                         "metadata.yaml and its .mcap files)")
     dst.mkdir(exist_ok=True)
     total = Recovered(complete=True)
     spans, topics = [], {}

@@ -119,17 +119,17 @@ def test_a_bag_is_never_written_over_and_a_file_is_not_split(tmp_path, capsys):
     (bag / "x.txt").write_text("keep")
     assert mps_main(["record", "press-cycle", "--out", str(bag), "--t-end", "0.01",
                      "--force"]) == 2
-    assert "a directory of files is never written over" in capsys.readouterr().err
+    assert "a bag is never written into one that is there" in capsys.readouterr().err
     assert [p.name for p in bag.iterdir()] == ["x.txt"]
     assert mps_main(["record", "press-cycle", "--out", str(tmp_path / "f.mcap"),
                      "--max-s", "1"]) == 2
     assert "--max-mb and --max-s split a bag" in capsys.readouterr().err
     assert not (tmp_path / "f.mcap").exists()
     empty = tmp_path / "empty"
-    empty.mkdir()                   # an empty directory is taken
-    assert mps_main(["record", "press-cycle", "--out", str(empty), "--dt", "0.001",
-                     "--t-end", "0.01", "-q"]) == 0
-    assert (empty / "metadata.yaml").is_file()
+    empty.mkdir()                   # an empty directory too, as rosbag2 refuses it
+    assert mps_main(["record", "press-cycle", "--out", str(empty), "--t-end", "0.01"]) == 2
+    assert "exists; expected a new directory" in capsys.readouterr().err
+    assert not any(empty.iterdir())
 
 
 def test_a_bag_cut_short_is_recovered(tmp_path, capsys):
@@ -153,7 +153,7 @@ def test_a_bag_cut_short_is_recovered(tmp_path, capsys):
     assert count == len(got) and [t for _, t, _ in got] == sorted(t for _, t, _ in got)
     assert math.isclose(read_recording(out).columns["t"][-1], 0.8, abs_tol=0.2)
     assert mps_main(["recover", str(bag)]) == 2           # never over the first
-    assert "never written over" in capsys.readouterr().err
+    assert "exists; expected a new directory" in capsys.readouterr().err
 
 
 def test_the_node_records_a_bag(ros, tmp_path):
