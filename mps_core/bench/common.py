@@ -39,6 +39,9 @@ CASE_NOTES = {
     "paper": "the seed's scene over 0.1 s (passes the (phi, psi) chart's branch point)",
     "paper-long": "the seed's scene over 1 s (seven branch points)",
     "press-cycle": "the press's working cycle with its events",
+    "idle-change-point": "the idle press held at its change point (x_top 25.0 mm, the stop a "
+                         "clamp): the four-bar passes phi = 2 pi k with psi = 0 on the "
+                         "continuation chart, both of its branches",
 }
 
 
@@ -58,8 +61,26 @@ def available_cases() -> list[str]:
     return out
 
 
+def change_point_scene() -> Scene:
+    """The ``idle`` preset held at its change point: x_top = l2 - l3 + l1 (25.0 mm), the top
+    stop a clamp (a run on the continuation chart ``phi-xc~``, which turns branch each turn)."""
+    from ..scene import scene_from_text
+
+    text = load_scene("idle").text
+    for old, new in (("x_top_mm = 25.5", "x_top_mm = 25.0"),
+                     ('model = "rigid"', 'model = "clamp"')):
+        if old not in text:
+            raise ValueError(f"the idle preset no longer has {old!r}: the change-point case "
+                             "needs updating")
+        text = text.replace(old, new)
+    return scene_from_text(text)
+
+
 def resolve_case(name: str) -> Case:
     """A built-in case, or any preset name or scene file over its own t_end."""
+    if name == "idle-change-point":
+        return Case(name, change_point_scene().with_overrides(scheme="autodiff"), 0.5,
+                    CASE_NOTES[name])
     if name == "paper":
         return Case(name, load_scene("paper"), 0.1, CASE_NOTES[name])
     if name == "paper-long":

@@ -194,20 +194,17 @@ def test_kernels_are_shared_between_equal_mechanisms_only():
 
 #: at the change point (x_top = l2 - l3 + l1): the held four-bar passes φ = 2πk with ψ = 0, on
 #: the continuation chart, whose branch flips with sin(φ/2) each turn (tests/core/test_structures.py)
-CHANGE_POINT = ("idle at the change point",
-                lambda: load_scene("idle").text.replace("x_top_mm = 25.5", "x_top_mm = 25.0")
-                .replace('model = "rigid"', 'model = "clamp"'))
+CHANGE_POINT = "idle at the change point"
 
 
-@pytest.mark.parametrize("name", [*__import__("mps_core").preset_names(), CHANGE_POINT[0]])
+@pytest.mark.parametrize("name", [*__import__("mps_core").preset_names(), CHANGE_POINT])
 def test_every_chart_of_every_preset_takes_the_exact_kernels(name, monkeypatch):
     """With exact derivatives, no evaluation of a preset's run (every chart it enters, the
     continuation charts and both branches of theirs included) falls back to the jets."""
-    from mps_core import scene_from_text
+    from mps_core.bench.common import change_point_scene
     from mps_core.engine import PartialSystems
 
-    scene = (scene_from_text(CHANGE_POINT[1]()) if name == CHANGE_POINT[0]
-             else load_scene(name))
+    scene = change_point_scene() if name == CHANGE_POINT else load_scene(name)
     scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3),
                                  dt=max(scene.dt, 1e-4))
     sim = build(scene)

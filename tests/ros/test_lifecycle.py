@@ -15,7 +15,18 @@ pytest.importorskip("rosbags")
 from test_recording import read_all  # noqa: E402
 from twin_probe import Listener, NodeProcess, ns, wait_until  # noqa: E402
 
-from mps_ros.recording import record  # noqa: E402
+
+
+def _uninterrupted(tmp_path, t_end: float) -> dict:
+    """The same run never paused or reset: a node of its own, realtime at ten times real time
+    (the same steps: the pacing changes no value), read back. Made the same way as the run it
+    is compared with, so that the kernels its stepping process traces are the same (a
+    long-lived process, or one that warms up otherwise, may differ in the last bits)."""
+    ref = tmp_path / "uninterrupted.mcap"
+    with NodeProcess(tmp_path, dict(pacing="realtime", real_time_factor=10.0, dt=0.001,
+                                    t_end=t_end, recording=str(ref)), name="ref") as node:
+        assert node.wait(120) == 0, node.log()
+    return read_all(ref)
 
 
 def _change(node, client, transition_id: int, timeout: float = 60.0) -> bool:
@@ -100,13 +111,11 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
     assert log.count("deactivated: paused") == 1 and "activated: the run goes on" in log
     assert "run stopped (shutdown)" in log and f"recording finished: {rec}" in log
     # the recording: finished (rosbags reads it), every step once, the same as a run never
-    # paused (mps record, as fast as possible) up to where it stopped
+    # paused up to where it stopped
     got = read_all(rec)
     stamps = [t for t, _m, _raw in got["/joint_states"]]
     assert stamps == [k * 1_000_000 for k in range(len(stamps))] and len(stamps) > 600
-    plain = tmp_path / "plain.mcap"
-    record("press-cycle", plain, dt=0.001, t_end=3.0, stop_on_signals=False)
-    want = read_all(plain)
+    want = _uninterrupted(tmp_path, 3.0)
     for topic in ("/joint_states", "/press_twin/foundation", "/tf"):
         n = len(got[topic])
         assert [(t, raw) for t, _m, raw in got[topic]] == [
@@ -166,9 +175,7 @@ def test_a_reset_begins_a_new_run_recorded_beside_the_first(ros, tmp_path):
         lis.close()
     assert "run stopped (reset)" in log and "run stopped (shutdown)" in log
     assert f"recording finished: {rec}" in log and f"recording finished: {second}" in log
-    plain = tmp_path / "plain.mcap"
-    record("press-cycle", plain, dt=0.001, t_end=5.0, stop_on_signals=False)
-    want = read_all(plain)
+    want = _uninterrupted(tmp_path, 5.0)
     for path in (rec, second):         # each a run from the start, as the same run unpaused
         got = read_all(path)
         n = len(got["/joint_states"])
