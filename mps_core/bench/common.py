@@ -79,7 +79,7 @@ def change_point_scene() -> Scene:
 def resolve_case(name: str) -> Case:
     """A built-in case, or any preset name or scene file over its own t_end."""
     if name == "idle-change-point":
-        return Case(name, change_point_scene().with_overrides(scheme="autodiff"), 0.5,
+        return Case(name, change_point_scene().with_overrides(scheme="autodiff"), 0.3,
                     CASE_NOTES[name])
     if name == "paper":
         return Case(name, load_scene("paper"), 0.1, CASE_NOTES[name])
