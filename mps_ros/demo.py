@@ -56,7 +56,9 @@ def summary(path: Path) -> str:
     with AnyReader([path]) as r:
         n = sum(c.msgcount for c in r.connections)
         topics = sorted({c.topic for c in r.connections})
-    return f"{n} messages on {len(topics)} topics, {path.stat().st_size / 1e6:.2f} MB"
+    size = sum(p.stat().st_size for p in path.iterdir()) if path.is_dir() else \
+        path.stat().st_size
+    return f"{n} messages on {len(topics)} topics, {size / 1e6:.2f} MB"
 
 
 def view_help(path: Path) -> str:
@@ -88,8 +90,11 @@ def main(args) -> int:
     scene = load_scene(args.scene)
     if args.out:
         # before the node starts: a path it could not write, or an existing file, is refused
+        from .bag import is_bag
+
         out = Path(args.out)
-        check_outputs({"--out": out}, inputs=[args.scene])
+        check_outputs({"--out": out}, inputs=[args.scene],
+                      folders={"--out"} if is_bag(out) else ())
     else:
         out = new_recording(scene.name)     # created empty, this run's own
     env = ros_env()
