@@ -58,7 +58,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
-from .topics import (BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, qos_yaml,  # noqa: E402
+from .topics import (BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos,  # noqa: E402
                      resolve)
 from .diagnostics import hardware_id  # noqa: E402
 from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402

@@ -44,12 +44,13 @@ command (marshal: reply id or None, word, source, wall, boundary step, generatio
 commands refused here, of which as floods, and lost (marshal: three counts, for its
 /diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
 applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
-deadline moves), ``T`` one step while paused (the node's ``~/step``), ``S`` stop (the reason, UTF-8). From it: ``R`` ready (JSON: or the error),
-``P`` the priority it got (JSON), ``M`` a step or a command's answers (marshal: step, generation, deadline, whether it
-holds the step's state, the structure, why the machine would refuse each command word
-there (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a
-command's answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text),
-``E`` the run's end (JSON: statistics, stop reason, error).
+deadline moves), ``T`` one step while paused (the node's ``~/step``), ``S`` stop (the reason,
+UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a
+step or a command's answers (marshal: step, generation, deadline, whether it holds the step's
+state, the structure, why the machine would refuse each command word there
+(:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a command's
+answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text), ``E`` the
+run's end (JSON: statistics, stop reason, error).
 
 **Faults.** The stepping process asks the system for SIGTERM when the node's process dies
 (``PR_SET_PDEATHSIG``) and stops as on a stop frame when its pipe closes. Where the stepping
