@@ -15,7 +15,24 @@ from .scene import Scene, load_scene, preset_names, scene_from_dict, scene_from_
 from .simulation import ChartPolicy, Simulation, SolverSettings
 from .trajectory import Trajectory
 
-__version__ = "0.1.0"
+
+
+def _version() -> str:
+    """The installed distribution's version: pyproject.toml's, the one place it is written
+    (from that file itself where the tree runs without being installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mps")
+    except PackageNotFoundError:
+        import tomllib
+        from pathlib import Path
+
+        text = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+        return tomllib.loads(text)["project"]["version"]
+
+
+__version__ = _version()
 
 
 def build(scene: Scene | str) -> Simulation:
