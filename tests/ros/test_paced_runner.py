@@ -485,9 +485,12 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
 
 
 def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
-    """A sink that holds the stepping thread 0.4 s (a stalled disk, the machine busy) makes the
-    steps due meanwhile late: the pacing status says so (WARN, or ERROR where most of a
-    window's steps were late), then OK again once the run has caught up."""
+    """A sink that holds the stepping thread (a stalled disk, the machine busy) until the
+    deadline of a step 0.2 simulated s after the one it holds has passed makes the steps due
+    meanwhile late: the pacing status says so (WARN, or ERROR where most of a window's steps
+    were late), then OK again once the run has caught up."""
+    from twin_probe import wait_until
+
     class Stall:
         live = False
         stalled = False
@@ -495,7 +498,9 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
         def emit(self, key, data, t_ns):
             if t_ns >= 100_000_000 and not self.stalled:
                 self.stalled = True
-                time.sleep(0.4)
+                due = runner.wall_start + (t_ns * 1e-9 + 0.2) / runner.rtf
+                wait_until(lambda: time.perf_counter() >= due, 30,
+                           "the deadline 0.2 simulated s past the stalled step")
 
         def tick(self, deadline=None):
             pass
