@@ -640,19 +640,9 @@ def claim_recording(path) -> tuple[Path, bool]:
 def next_recording(path) -> Path:
     """The recording of the run after a reset: beside ``path``, ``NAME-2.mcap``, ``-3``…
     (a bag: ``NAME-2``…), the first that is free, claimed at once."""
-    p = Path(path)
-    for i in range(2, 1_000_000):
-        q = p.with_name(f"{p.stem}-{i}{p.suffix}")
-        try:
-            if q.suffix.lower() == ".mcap":
-                from .recording import reserve
+    from .recording import reserve_free
 
-                return reserve(q)
-            q.mkdir()
-            return q
-        except FileExistsError:
-            continue
-    raise OSError(f"recording {str(p)!r}: no free name beside it")
+    return reserve_free(Path(path), start=2)
 
 
 def discard_recording(path: Path, reserved: bool) -> None:

@@ -49,11 +49,22 @@ def new_recording(scene_name: str, directory: str | os.PathLike = "recordings") 
     ``-2``, ``-3``... where that exists. The folder is made where missing."""
     first = default_path(scene_name, directory)
     first.parent.mkdir(parents=True, exist_ok=True)
-    for i in range(1, 1000):
+    return reserve_free(first)
+
+
+def reserve_free(first: Path, start: int = 1) -> Path:
+    """The first free one of ``first`` (``start`` 1) and ``first`` with ``-2``, ``-3``... before
+    its suffix, claimed at once: a file created empty (:func:`reserve`), or, for a name not
+    ending in ``.mcap`` (a bag), a directory created."""
+    from .bag import is_bag
+
+    for i in range(start, start + 1000):
         path = first if i == 1 else first.with_name(f"{first.stem}-{i}{first.suffix}")
         try:
-            reserve(path)
-            return path
+            if is_bag(path):
+                path.mkdir()
+                return path
+            return reserve(path)
         except FileExistsError:
             continue
     raise FileExistsError(f"no free recording name like {str(first)!r}")
