@@ -5,6 +5,7 @@ and recovery; loopback only; nothing left running."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -628,11 +629,14 @@ def test_bad_parameters_are_refused_not_crashed(tmp_path):
              ({"scene_commands": 3}, "parameter scene_commands: 3: expected true or false"),
              ({"outputs": "clock"}, "parameter outputs: 'clock': expected a list of words"),
              ({"no_such": 1}, "unknown parameter no_such: expected one of autostart, command_burst, ")]
-    for params, message in cases:
-        with NodeProcess(tmp_path, params, name="bad") as node:
-            rc = node.wait(60)
+    # started side by side: each refuses before it joins the graph
+    with contextlib.ExitStack() as stack:
+        nodes = [stack.enter_context(NodeProcess(tmp_path, params, name=f"bad{i}"))
+                 for i, (params, _message) in enumerate(cases)]
+        for node, (_params, message) in zip(nodes, cases):
+            rc = node.wait(120)
             log = node.log()
-        assert rc == 2 and message in log and "Traceback" not in log, log
+            assert rc == 2 and message in log and "Traceback" not in log, log
 
 
 def test_a_recording_never_replaces_a_file(tmp_path):

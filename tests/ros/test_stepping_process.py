@@ -54,7 +54,7 @@ def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
     params = dict(pacing="realtime", dt=DT, t_end=30.0, recording=str(rec),
                   recording_flush_period=0.2, wait_for_subscribers=1, wait_timeout=30.0,
                   outputs="[joint_states, clock, events]")
-    lis = Listener(keys=["joint_states", "/clock", "~/events"])
+    lis = Listener(keys=["joint_states", "/clock", "~/events", "~/mode/status"])
     try:
         with NodeProcess(tmp_path, params, name="killed") as node:
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.5, 60, "/clock >= 0.5 s")

@@ -61,6 +61,11 @@ class NodeProcess:
         self._log.close()
         if exc_type is not None:      # shown by pytest with the failure
             print(f"--- {self.cmd}\n{self.log()[-6000:]}")
+        elif "starting without all peers" in self.log():
+            # the node waited out wait_timeout: the test's subscriber missed a topic the node
+            # publishes (a test that waits for nothing sets wait_for_subscribers 0)
+            raise AssertionError(f"{self.log_path.name}: the node waited for peers in vain:\n"
+                                 + self.log()[-3000:])
         return False
 
 
