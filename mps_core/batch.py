@@ -31,7 +31,7 @@ from .effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
 from .stencil import stencil
 from .names import COLUMNS
 from .scene import Scene, load_scene
-from .simulation import LA_LIMIT, RK4_LIMIT
+from .solvers import SOLVERS
 from .trajectory import Trajectory
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
@@ -290,7 +290,7 @@ class _Batch:
             k = self.springs[0]
             j = self._last_J[:, self.rows["C"], 0]                   # (m, n)
             w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
-            lim = (LA_LIMIT if self.settings.name == "linear-acceleration" else RK4_LIMIT)
+            lim = SOLVERS[self.settings.name].stability_limit
             t_min = 2.0 * math.pi / np.sqrt(np.maximum(w2, 1e-300))
             if np.any(self.dt > 0.9 * lim * t_min):
                 raise NotVectorisable("a step would be subdivided")

@@ -25,8 +25,8 @@ from .effects import (MOTOR_PRESETS, Blanking, DisengageCylinder, EngageCylinder
 from .engine import SCHEMES
 from .errors import SceneError
 from .mechanisms.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
-from .simulation import ADAPTIVE_SOLVERS, COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
-from .solvers import SOLVERS
+from .simulation import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
+from .solvers import ADAPTIVE_SOLVERS, SOLVERS
 
 BODY_NAMES = ("crank", "rod", "rocker", "slider")
 STRUCTURES = ("free", "locked", "held")

@@ -69,28 +69,13 @@ from .errors import (ChartBreakdown, ChartDomainError, MpsError, NumericalError,
                      SimulationError, SingularConfiguration, config_in_degrees)
 from .mechanism import ChartView, unwrap_to
 from .names import COLUMNS
-from .solvers import make_solver
-from .solvers.rk6 import IMAGINARY_LIMIT as RK6_IMAGINARY_LIMIT
-from .solvers.rk8 import IMAGINARY_LIMIT as RK8_IMAGINARY_LIMIT
+from .solvers import ADAPTIVE_SOLVERS, FIXED_STEP_LIMITS, make_solver
 from .structure_layer import COMMANDS, CommandRefused, StructureLayer, _Event  # noqa: F401
 from .trajectory import Trajectory
 
 #: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
 _ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", "T", "V", "W",
         "E_impact", "structure", "chart")
-#: stability limits as fractions of the shortest period T_min, from the amplification matrix of
-#: each method on q̈ = −ω²q. The seed's explicit predictor-corrector (one correction) is stable
-#: for ω·Δt ≤ 2, i.e. Δt ≤ T_min/π ≈ 0.318 T_min (the implicit linear acceleration method's
-#: √3/π ≈ 0.551 T_min does not apply to it); RK4 for ω·Δt ≤ 2√2 (Δt ≤ 0.450 T_min).
-LA_LIMIT = 1.0 / math.pi
-RK4_LIMIT = 2.0 * math.sqrt(2.0) / (2.0 * math.pi)
-RK6_LIMIT = RK6_IMAGINARY_LIMIT / (2.0 * math.pi)
-RK8_LIMIT = RK8_IMAGINARY_LIMIT / (2.0 * math.pi)
-#: the fixed-step solvers' stability limits as a share of the shortest period, and how the
-#: error message writes them
-FIXED_STEP_LIMITS = {"linear-acceleration": (LA_LIMIT, "1/π"), "rk4": (RK4_LIMIT, "2√2/2π"),
-                     "rk6": (RK6_LIMIT, f"{RK6_IMAGINARY_LIMIT:.3g}/2π"),
-                     "rk8": (RK8_LIMIT, f"{RK8_IMAGINARY_LIMIT:.4g}/2π")}
 
 
 class StabilityError(SimulationError):
@@ -144,8 +129,6 @@ class SolverSettings:
 
 #: the choices of :attr:`SolverSettings.switch_points`
 SWITCH_POINTS = ("auto", "locate", "step-over")
-#: the solvers with error control (the others take the steps they are given)
-ADAPTIVE_SOLVERS = ("dop853", "radau")
 
 
 #: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)

@@ -24,6 +24,7 @@ _METHODS = {"dop853": DOP853, "radau": Radau}
 
 class AdaptiveSolver(Solver):
     order = None
+    adaptive = True
     #: scipy's solver object changes in place as it steps: no state to come back to
     rewindable = False
 
@@ -119,3 +120,21 @@ class AdaptiveSolver(Solver):
             y = sol(t)
             return y[:n], y[n:]
         return dense
+
+
+class Radau(AdaptiveSolver):
+    """scipy's Radau IIA (order 5, implicit): the scenes' ``radau``."""
+
+    name = "radau"
+
+    def __init__(self, fun, t0, q0, qd0, current=None, rtol=1e-9, atol=1e-12, scales=None,
+                 t_bound=np.inf, max_step=np.inf, first_step=None):
+        super().__init__(fun, t0, q0, qd0, current, method="radau", rtol=rtol, atol=atol,
+                         scales=scales, t_bound=t_bound, max_step=max_step,
+                         first_step=first_step)
+
+    @classmethod
+    def create(cls, fun, t0, q0, qd0, current=None, *, rtol=1e-9, atol=1e-12, scales=None,
+               first_step=None, **_):
+        return cls(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales,
+                   first_step=first_step)

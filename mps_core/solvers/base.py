@@ -32,6 +32,12 @@ class Solver:
     name = "solver"
     #: order of convergence of the global error in the step
     order = 0
+    #: controls its error (takes the steps it chooses); the others take the steps given
+    adaptive = False
+    #: a fixed step's stability limit as a share of the shortest period of an oscillation
+    #: q̈ = −ω²q (None: not a fixed-step method), and how an error message writes it
+    stability_limit: float | None = None
+    stability_text = ""
     #: calls of ``fun`` per fixed step (None for adaptive solvers)
     evaluations_per_step: int | None = None
     #: :meth:`state` and :meth:`set_state` bring a step's state back
@@ -48,6 +54,14 @@ class Solver:
         self.nsteps = 0
         self._dense = None
         self.current = current if current is not None else self._call(self.t, self.q, self.qd)
+
+    @classmethod
+    def create(cls, fun: Callable, t0: float, q0, qd0, current=None, *, iterations: int = 1,
+               rtol: float = 1e-9, atol: float = 1e-12, scales=None, first_step=None,
+               accel: Callable | None = None) -> "Solver":
+        """The solver from the run's settings, each taking those it has (a fixed-step method
+        no tolerances, an adaptive one no corrector iterations)."""
+        return cls(fun, t0, q0, qd0, current, accel=accel)
 
     def _call(self, t, q, qd):
         self.nfev += 1

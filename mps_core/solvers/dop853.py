@@ -148,6 +148,13 @@ class DOP853(Solver):
 
     name = "dop853"
     order = None
+    adaptive = True
+
+    @classmethod
+    def create(cls, fun, t0, q0, qd0, current=None, *, rtol=1e-9, atol=1e-12, scales=None,
+               first_step=None, accel=None, **_):
+        return cls(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales,
+                   first_step=first_step, accel=accel)
 
     def __init__(self, fun, t0, q0, qd0, current=None, rtol=1e-9, atol=1e-12, scales=None,
                  max_step=math.inf, first_step=None, accel=None):

@@ -10,12 +10,15 @@ From the accelerations q̈_i at the step's start:
 One correction is the seed's scheme; ``iterations = k`` re-evaluates at the corrected state and
 corrects again, k corrections in all. The step ends with an evaluation at the accepted state (the
 seed's step 1 of the next step), so a step costs ``1 + iterations`` evaluations. The dense output
-is the step's cubic (43). Global error O(Δt²) (Newmark β = 1/6, γ = 1/2); as an explicit
-predictor-corrector it is stable for Δt < √3/π · T_min ≈ 0.551 T_min on a linear oscillator of
-shortest period T_min.
+is the step's cubic (43). Global error O(Δt²) (Newmark β = 1/6, γ = 1/2). With one correction,
+as an explicit predictor-corrector, it is stable on q̈ = −ω²q for ω·Δt ≤ 2, i.e. Δt ≤ T_min/π ≈
+0.318 T_min of the shortest period T_min (from its amplification matrix; the implicit linear
+acceleration method's √3/π ≈ 0.551 T_min does not apply to it).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -25,6 +28,11 @@ from .base import Solver
 class LinearAcceleration(Solver):
     name = "linear-acceleration"
     order = 2
+    stability_limit, stability_text = 1.0 / math.pi, "1/π"
+
+    @classmethod
+    def create(cls, fun, t0, q0, qd0, current=None, *, iterations=1, accel=None, **_):
+        return cls(fun, t0, q0, qd0, current, iterations=iterations, accel=accel)
 
     def __init__(self, fun, t0, q0, qd0, current=None, iterations: int = 1, accel=None):
         if int(iterations) != iterations or iterations < 1:

@@ -8,11 +8,15 @@ Dense output: cubic Hermite of (q, q̇) and of (q̇, q̈) at the step's ends.
 
 from __future__ import annotations
 
+import math
+
 from .base import GeneratedStep, stage_lines
 
 class RK4(GeneratedStep):
     name = "rk4"
     order = 4
+    #: stable on the imaginary axis for ω·Δt ≤ 2√2
+    stability_limit, stability_text = 2.0 * math.sqrt(2.0) / (2.0 * math.pi), "2√2/2π"
     evaluations_per_step = 4
     inner_stages = 3
 

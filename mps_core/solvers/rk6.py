@@ -19,6 +19,7 @@ computed from the tableau as RK8's is (:func:`~mps_core.solvers.rk8.imaginary_li
 
 from __future__ import annotations
 
+import math
 from fractions import Fraction as _F
 
 import numpy as np
@@ -79,6 +80,8 @@ class QuinticHermite(CubicHermite):
 
 class RK6(GeneratedStep):
     name = "rk6"
+    stability_limit = IMAGINARY_LIMIT / (2.0 * math.pi)
+    stability_text = f"{IMAGINARY_LIMIT:.3g}/2π"
     order = 6
     evaluations_per_step = STAGES
     inner_stages = STAGES - 1

@@ -20,6 +20,8 @@ stable for ω·Δt up to :data:`IMAGINARY_LIMIT`, computed from the tableau
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
@@ -97,6 +99,8 @@ def tableau_step_source(A, b, c, n: int, direct: bool = False, stages: bool = Fa
 
 class RK8(GeneratedStep):
     name = "rk8"
+    stability_limit = IMAGINARY_LIMIT / (2.0 * math.pi)
+    stability_text = f"{IMAGINARY_LIMIT:.4g}/2π"
     order = 8
     evaluations_per_step = STAGES
     inner_stages = STAGES - 1
