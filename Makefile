@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 
-.PHONY: run test test-fast venv clean
+.PHONY: run test test-fast lint venv clean
 
 venv: $(STAMP)
 
@@ -21,8 +21,13 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/mps demo press-cycle
 
-test: $(STAMP)
+test: lint
 	$(PY) -m pytest -q
+
+# the house's habits: lint (ruff, its rules in pyproject.toml) and types (mypy on mps_core)
+lint: $(STAMP)
+	$(VENV)/bin/ruff check mps_core mps_ros tests
+	$(VENV)/bin/mypy
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -m 'not slow'

@@ -9,12 +9,19 @@ Pure Python on numpy and scipy; no ROS. The entry point for library users::
 
 from __future__ import annotations
 
-from .errors import (ChartBreakdown, MpsError, NumericalError, SceneError, SimulationError,
-                     SingularConfiguration)
+from .errors import (
+    ChartBreakdown,
+    MpsError,
+    NumericalError,
+    SceneError,
+    SimulationError,
+    SingularConfiguration,
+)
+from .run.build import build, simulate
+from .run.simulation import Simulation
+from .run.trajectory import Trajectory
 from .scene import Scene, load_scene, preset_names, scene_from_dict, scene_from_text
-from .simulation import ChartPolicy, Simulation, SolverSettings
-from .trajectory import Trajectory
-
+from .scene.settings import ChartPolicy, SolverSettings
 
 
 def _version() -> str:
@@ -33,32 +40,6 @@ def _version() -> str:
 
 
 __version__ = _version()
-
-
-def build(scene: Scene | str) -> Simulation:
-    """A ready-to-run simulation of a scene (a Scene, a preset name or a path)."""
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
-    mech = scene.mechanism()
-    observers = []
-    if scene.reactions:
-        from .reactions import ReactionObserver
-
-        observers.append(ReactionObserver())
-    return Simulation(mech, scene.structure, scene.build_effects(mech), scene.initial_state(mech),
-                      solver=scene.solver, charts=scene.charts, commands=scene.commands,
-                      observers=observers, change_point=scene.change_point)
-
-
-def simulate(scene: Scene | str, **overrides) -> Trajectory:
-    """Run a scene to its end; keyword overrides as :meth:`Scene.with_overrides`."""
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
-    if overrides:
-        scene = scene.with_overrides(**overrides)
-    traj = build(scene).run(scene.t_end, scene.dt)
-    traj.settings["scene"] = scene.name
-    return traj
 
 
 __all__ = ["simulate", "build", "load_scene", "scene_from_dict", "scene_from_text",

@@ -73,11 +73,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
-PLUGINS = ("mps_core.loads_cli", "mps_core.bench.cli", "mps_ros.cli", "mps_ros.view_cli")
+PLUGINS = ("mps_core.analysis.loads_cli", "mps_core.bench.cli", "mps_ros.cli", "mps_ros.view_cli")
 
 
 def _run(args) -> int:
-    from .output_files import check_outputs
+    from .files.outputs import check_outputs
 
     # before anything runs: a results path that cannot be written, or that would destroy the
     # scene or an existing file, is refused now, not after the run
@@ -89,15 +89,15 @@ def _run(args) -> int:
         delta=None if args.delta_deg is None else math.radians(args.delta_deg),
         scheme=args.derivatives, iterations=args.iterations, rtol=args.rtol, atol=args.atol,
         chart_switching=False if args.no_chart_switching else None, step=args.step)
-    from . import build
+    from .run.build import build
 
     sim = build(scene)
     if args.reactions:
-        from .reactions import ReactionObserver
+        from .dynamics.reactions import ReactionObserver
 
         observer = ReactionObserver()
         sim.observers.append(observer)
-    from .progress import Progress
+    from .run.progress import Progress
 
     progress = Progress(sim.solver.t, scene.t_end, label=scene.name, quiet=args.quiet)
     c0 = time.process_time()
@@ -161,8 +161,8 @@ def _run(args) -> int:
 
 def _say_coarse(traj, scene) -> None:
     """One warning (stderr) where the fixed-step solver's step is coarse for the run's
-    fastest motion (see :func:`mps_core.trajectory.coarse_step`)."""
-    from .trajectory import coarse_step
+    fastest motion (see :func:`mps_core.run.trajectory.coarse_step`)."""
+    from .run.trajectory import coarse_step
 
     s = scene.solver
     if s.name in ("dop853", "radau"):       # their steps follow their error estimates
@@ -178,14 +178,14 @@ def _write_outputs(args, traj, failure: str | None = None) -> None:
     comment, the event log's last row a ``run-failed`` event)."""
     import json
 
-    from .output_files import written_whole
+    from .files.outputs import written_whole
 
     t_last = float(traj.t[-1])
     note = "" if failure is None else f" (partial: up to t = {t_last:.6g} s, where the run stopped)"
     if args.csv:
         with written_whole(args.csv) as tmp:
             if args.reactions:
-                from .reactions import write_csv
+                from .dynamics.reactions import write_csv
 
                 write_csv(traj, tmp)
             else:

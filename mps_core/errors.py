@@ -27,7 +27,7 @@ class MpsError(Exception):
 class SceneError(MpsError, ValueError):
     """A scene is malformed: names the field, the value found and what was expected."""
 
-    def __init__(self, field: str, value, expected: str, source: str | None = None):
+    def __init__(self, field: str, value: object, expected: str, source: str | None = None):
         self.field = field
         self.value = value
         self.expected = expected

@@ -145,7 +145,8 @@ def _rss_mb(pid: int) -> float:
 
 def _final_stats(log: str) -> dict:
     m = re.search(r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
-                  r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, (?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
+                  r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
+                  r"(?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
                   r"(\d+) messages, stepping thread CPU ([\d.e+-]+) us a step"
                   r"(?:, process CPU ([\d.e+-]+) us a step)?"
                   r"(?:, stepping process ([\d.e+-]+) us and ROS process ([\d.e+-]+) us of it)?"
@@ -809,7 +810,8 @@ def main(argv=None) -> int:
             res["soak"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "soak", r)
-            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), {a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
+            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), "
+                  f"{a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
                   f"every output, one external subscriber:\n"
                   f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
                   f"{r['rss_end_mb']:.1f} MB at the end "

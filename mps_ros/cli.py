@@ -64,7 +64,7 @@ def _outputs(text):
 
 
 def _record(args) -> int:
-    from mps_core.output_files import check_outputs
+    from mps_core.files.outputs import check_outputs
 
     from .bag import is_bag
     from .recording import record
@@ -103,9 +103,9 @@ def _record(args) -> int:
 def _recover(args) -> int:
     from pathlib import Path
 
-    from mps_core.input_files import check_file
-    from mps_core.loads_cli import MCAP_MAGIC
-    from mps_core.output_files import check_outputs, written_whole
+    from mps_core.analysis.loads_cli import MCAP_MAGIC
+    from mps_core.files.inputs import check_file
+    from mps_core.files.outputs import check_outputs, written_whole
 
     from .recording import recover
 
@@ -138,7 +138,7 @@ def _recover_bag(args) -> int:
     import shutil
     from pathlib import Path
 
-    from mps_core.output_files import check_outputs, partial_name
+    from mps_core.files.outputs import check_outputs, partial_name
 
     from .recording import recover_bag
 
@@ -217,7 +217,8 @@ def register(sub) -> None:
     d.add_argument("scene", nargs="?", default="press-cycle")
     d.add_argument("--dt", type=_positive, default=1e-3, help="step (s), default 0.001 (1 kHz)")
     d.add_argument("--real-time-factor", type=_positive, default=1.0)
-    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME-MS.mcap; never an existing file)")
+    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME-MS.mcap; "
+                   "never an existing file)")
     d.set_defaults(func=_demo)
 
     r = sub.add_parser("record", help="write the node's MCAP recording without ROS",

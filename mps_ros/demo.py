@@ -82,8 +82,7 @@ r = AnyReader([Path('{p}')]); r.open(); [print(c.topic, c.msgtype, c.msgcount) f
 
 def main(args) -> int:
     from mps_core import load_scene
-
-    from mps_core.output_files import check_outputs
+    from mps_core.files.outputs import check_outputs
 
     from .recording import new_recording
 

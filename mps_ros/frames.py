@@ -51,7 +51,7 @@ class TfLayout:
         self.l1, self.l3 = float(l1), float(l3)
 
     @classmethod
-    def of_scene(cls, scene) -> "TfLayout":
+    def of_scene(cls, scene) -> TfLayout:
         return cls(scene.geometry.l1, scene.geometry.l3)
 
     #: the floats of :meth:`values`

@@ -155,11 +155,10 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
     # the node's module first: loopback-only discovery unless set, before rclpy starts
-    from .node import MSG_CLASSES
-
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    from .node import MSG_CLASSES
     from .view import FAMILIES, _rr, blueprint, convert
 
     if log is None:

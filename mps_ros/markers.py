@@ -17,7 +17,7 @@ message and packs only those.
 
 from __future__ import annotations
 
-from mps_core.reactions import REACTION_COLUMNS
+from mps_core.dynamics.reactions import REACTION_COLUMNS
 
 from .drawing import COLORS, SLIDER, arrow_anchor, joint_points, latch_point
 from .topics import FOUNDATION, FRAME_ID, WRENCHES
@@ -74,7 +74,7 @@ class MarkerLayout:
         """The floats that change, in the order :meth:`message` takes them: the links' A, A, B,
         B and C's x; the joints' A, B and C's x; the slider's, the latch's and its label's x;
         then each arrow's start and end. ``rx``: the reactions, a list in
-        :data:`~mps_core.reactions.REACTION_COLUMNS` order (None: every arrow of zero
+        :data:`~mps_core.dynamics.reactions.REACTION_COLUMNS` order (None: every arrow of zero
         length)."""
         pts = joint_points(phi, psi, x_c, self.l1, self.l3)
         (ax, ay), (bx, by) = pts["A"], pts["B"]

@@ -57,22 +57,20 @@ from std_msgs.msg import String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
-from .topics import (BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos,  # noqa: E402
-                     resolve)
-from .diagnostics import hardware_id  # noqa: E402
-from .twin import (Command, Gate, Inbox, Runner, Twin, check_outputs, shown,  # noqa: E402
-                   to_json)
-
-from mps_core.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
 from mps_core import MpsError  # noqa: E402
+from mps_core.run.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
+
+from .diagnostics import hardware_id  # noqa: E402
+from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
+from .topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve  # noqa: E402
+from .twin import Command, Gate, Inbox, Runner, Twin, check_outputs, shown, to_json  # noqa: E402
 
 MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": JointState,
                "visualization_msgs/msg/MarkerArray": MarkerArray,
                "geometry_msgs/msg/WrenchStamped": WrenchStamped, "std_msgs/msg/String": String,
                "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
 try:        # in a full ROS install; not among the wheels from PyPI
-    from tf2_msgs.msg import TFMessage  # noqa: E402
+    from tf2_msgs.msg import TFMessage
 
     MSG_CLASSES["tf2_msgs/msg/TFMessage"] = TFMessage
 except ImportError:
@@ -341,8 +339,7 @@ class PressTwin(LifecycleNode):
     def _declare(self, scene: str):
         """Every parameter of :data:`~mps_ros.parameters.PARAMETERS`, typed and read-only, its
         range enforced by rclpy: a value of the wrong type or out of range ends the node."""
-        from rclpy.exceptions import (InvalidParameterTypeException,
-                                      InvalidParameterValueException)
+        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
         from rclpy.parameter import Parameter as Given
 
         given = getattr(self, "_parameter_overrides", None) or {}
@@ -606,14 +603,13 @@ class PressTwin(LifecycleNode):
 def claim_recording(path) -> tuple[Path, bool]:
     """The recording path a user named, made this run's own: created empty where it is new;
     an empty file (one reserved for it, e.g. by ``mps demo``) is taken; anything else is
-    :class:`~mps_core.output_files.OutputFileError` (a recording never replaces a file).
+    :class:`~mps_core.files.outputs.OutputFileError` (a recording never replaces a file).
     Returns (the path, whether it was an empty file reserved for it)."""
-    from mps_core.output_files import OutputFileError
-    from mps_core.output_files import check_outputs as check_paths
-
-    from .recording import reserve
+    from mps_core.files.outputs import OutputFileError
+    from mps_core.files.outputs import check_outputs as check_paths
 
     from .bag import is_bag
+    from .recording import reserve
 
     p = Path(path)
     if is_bag(p):       # a new directory

@@ -36,7 +36,8 @@ def schedule_of(args) -> list[tuple[float, str]]:
             try:
                 out.append((float(t), word.strip()))
             except ValueError:
-                raise SystemExit(f"mps operator: --at {item!r}: expected T:WORD, e.g. 0.008:engage")
+                raise SystemExit(f"mps operator: --at {item!r}: expected T:WORD, "
+                                 "e.g. 0.008:engage") from None
         return sorted(out)
     from mps_core import load_scene
 

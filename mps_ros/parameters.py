@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mps_core.engine import SCHEMES
+from mps_core.dynamics.engine import SCHEMES
 
 from .topics import OUTPUTS
 from .twin import PACINGS
@@ -150,8 +150,7 @@ BY_NAME = {p.name: p for p in PARAMETERS}
 def descriptor(p: Parameter, scene: str | None = None):
     """The rclpy ``(name, default, ParameterDescriptor)`` to declare ``p`` with (``scene``:
     the default scene, the command line's)."""
-    from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                    ParameterType)
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
     kind = {"bool": ParameterType.PARAMETER_BOOL, "integer": ParameterType.PARAMETER_INTEGER,
             "double": ParameterType.PARAMETER_DOUBLE,

@@ -26,7 +26,7 @@ import os
 import struct
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from .cdr import encoder, generic_encoder, msgdef
@@ -158,7 +158,7 @@ class Recorder:
         self.chunk_size = chunk_size
         self.compression = "" if compression == "none" else compression
         meta = {"software": "mps", "version": __version__, "scene": scene_name,
-                "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+                "created": datetime.now(UTC).isoformat(timespec="seconds")}
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
         self._records = (("mps", meta), ("scene", {"name": scene_name, "toml": scene_text}))
         self._library = f"mps {__version__} (mcap writer)"
@@ -869,7 +869,7 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
     :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
-    line on standard error where it is a terminal (:class:`~mps_core.progress.Progress`);
+    line on standard error where it is a terminal (:class:`~mps_core.run.progress.Progress`);
     ``compression``: the chunks' (``zstd``, ``lz4``, ``none``); ``out`` a bag directory (not
     ending in ``.mcap``): its files split at ``max_bytes`` or ``max_s`` (:class:`Recorder`).
     Returns (path, stats, counts)."""
@@ -880,7 +880,7 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
 
     twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS,
                 scene_commands=scene_commands)
-    from mps_core.progress import Progress
+    from mps_core.run.progress import Progress
 
     shown = Progress(twin.t0, twin.t_end, label=twin.scene.name, quiet=not progress)
     rec = (BackgroundRecorder if background else Recorder)(

@@ -7,7 +7,7 @@ of a type this module does not parse itself).
     rep.scene, rep.scene_text, rep.version, rep.events, rep.commands
 
 **Columns.** One row a ``joint_states`` message (a published step), named as
-:mod:`mps_core.names` and :data:`mps_core.reactions.REACTION_COLUMNS` name them: ``t`` (the
+:mod:`mps_core.names` and :data:`mps_core.dynamics.reactions.REACTION_COLUMNS` name them: ``t`` (the
 message's log time, s), ``phi``, ``psi``, ``x_C`` and their rates from the joints of
 :data:`~mps_ros.topics.JOINTS`, ``rod``/``rod_dot`` (the rod's angle), ``structure`` from
 ``~/structure``, and every reaction column that a wrench of :data:`~mps_ros.topics.WRENCHES` or
@@ -261,7 +261,7 @@ def _head(path: Path) -> bytes:
 def _scan(path: Path, data: bytes):
     """(metadata, channels by id, schemas by id, library, complete) of an MCAP file's bytes."""
     from mcap.exceptions import McapError
-    from mcap.records import (Channel, DataEnd, Footer, Header, Message, Metadata, Schema)
+    from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
 
     meta: dict[str, dict[str, str]] = {}
@@ -503,7 +503,7 @@ def _wrench_columns(rep: Replay, channels: dict) -> None:
         n = len(ch.datas)
         force = np.full((n, 3), np.nan)
         torque = np.full((n, 3), np.nan)
-        for lay, idx, vals in _numbers("geometry_msgs/msg/WrenchStamped", ch.datas):
+        for _lay, idx, vals in _numbers("geometry_msgs/msg/WrenchStamped", ch.datas):
             force[idx] = vals["force"]
             torque[idx] = vals["torque"]
         series = {}

@@ -74,8 +74,7 @@ import time
 
 from .os_threads import widen_pipe
 from .topics import BY_KEY
-from .twin import (COMMAND_INDEX, Command, Gate, RefusalLog, Runner, Timings, Twin, shown,
-                   to_json, to_ns)
+from .twin import COMMAND_INDEX, Command, Gate, RefusalLog, Runner, Timings, Twin, shown, to_json, to_ns
 
 _HEAD = struct.Struct("<cI")
 
@@ -203,7 +202,7 @@ class _Ahead:
     BATCH, NEAR = 16, 0.002
 
     def __init__(self, runner: Runner, out: FrameWriter, commands, wake: threading.Event,
-                 hold: "Hold | None" = None):
+                 hold: Hold | None = None):
         self.runner, self.twin, self.out = runner, runner.twin, out
         self.commands, self.wake = commands, wake
         self.hold = hold or Hold()
@@ -508,7 +507,7 @@ class _Entry:
 class ForwardingInbox:
     """The node's inbox in a split run: each command is taken at once (:meth:`put`)."""
 
-    def __init__(self, stepper: "SteppingProcess"):
+    def __init__(self, stepper: SteppingProcess):
         self.stepper = stepper
 
     def put(self, cmd: Command) -> None:

@@ -58,7 +58,7 @@ class Wrench:
         return tuple(c for c in (*self.force, self.torque) if c is not None)
 
 
-#: one wrench a joint reaction (contract §7; signs as ``mps_core.reactions``: what the
+#: one wrench a joint reaction (contract §7; signs as ``mps_core.dynamics.reactions``: what the
 #: *receiving* body gets), then the foundation resultant
 WRENCHES: tuple[Wrench, ...] = (
     Wrench("O", "press", "O", ("F_O_x", "F_O_y"), None,

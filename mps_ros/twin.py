@@ -29,18 +29,18 @@ import math
 import struct
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
-from typing import Callable, Iterable
 
 import numpy as np
 
-from mps_core.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
-from mps_core.simulation import COMMANDS
+from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
+from mps_core.run.simulation import COMMANDS
 
 from . import diagnostics
 from .diagnostics import hardware_id
 from .os_threads import name_thread, short_slice
-from .topics import (BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES)
+from .topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES
 
 _RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
 _CLOCK_HEAD = b"\x00\x01\x00\x00"      # CDR, little endian
@@ -122,7 +122,7 @@ class Twin:
         if self.solve_reactions and not any(hasattr(o, "impact") for o in self.sim.observers):
             # impulses per joint at each plastic impact, logged as "impulse" events (only the
             # impact hook is used: the twin solves the per-step reactions itself)
-            from mps_core.reactions import ReactionObserver
+            from mps_core.dynamics.reactions import ReactionObserver
 
             self.sim.observers.append(ReactionObserver(defer_impacts=True))
         self.t0 = self.sim.t
@@ -231,7 +231,7 @@ class Twin:
     # -- commands -------------------------------------------------------------------------
     def command(self, word: str) -> tuple[bool, str | None]:
         """Apply a command now (at the present step's time) or say why not."""
-        from mps_core.simulation import CommandRefused
+        from mps_core.run.simulation import CommandRefused
 
         if self.done:
             return False, "the run has ended"
@@ -243,7 +243,7 @@ class Twin:
 
     def refusals(self) -> tuple:
         """Why :meth:`command` would refuse each of the machine's words now, in
-        :data:`~mps_core.simulation.COMMANDS` order (None: it would apply it): what a step
+        :data:`~mps_core.run.simulation.COMMANDS` order (None: it would apply it): what a step
         carries, so that a command refused at its boundary is answered there without coming
         back to it."""
         key = (self.done, self.sim.structures.command_state())
@@ -253,7 +253,7 @@ class Twin:
         return got
 
     def _why_not(self, word: str) -> str | None:
-        from mps_core.simulation import CommandRefused
+        from mps_core.run.simulation import CommandRefused
 
         if self.done:
             return "the run has ended"
@@ -265,7 +265,7 @@ class Twin:
 
     # -- messages -------------------------------------------------------------------------
     def reaction_list(self) -> list | None:
-        """The reactions of the present state, in :data:`~mps_core.reactions.REACTION_COLUMNS`
+        """The reactions of the present state, in :data:`~mps_core.dynamics.reactions.REACTION_COLUMNS`
         order (None unless asked for): the view's reaction kernel where it holds, the general
         Newton–Euler solution elsewhere (the same numbers to round-off)."""
         if not self.solve_reactions:
@@ -1293,7 +1293,7 @@ class Runner:
             for s in sinks:
                 s.tick(entry.deadline)
 
-    def _boundary(self, wall: float, ahead: bool) -> "_Release":
+    def _boundary(self, wall: float, ahead: bool) -> _Release:
         """The release a command that arrived at ``wall`` follows (call with the queue's
         lock held): the first step whose deadline is not before ``wall`` (its last release:
         the step's, or a command's applied there), among the last one released and those

@@ -46,12 +46,12 @@ import sys
 import tempfile
 import uuid
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
-from mps_core.reactions import REACTION_COLUMNS
+from mps_core.dynamics.reactions import REACTION_COLUMNS
 
 from .drawing import BEARING, COLORS, SLIDER, arrow_anchor
 from .replay import DERIVED, Replay, ReplayError, read_recording
@@ -162,7 +162,7 @@ def positions(columns: dict, l1: float, l3: float) -> dict[str, np.ndarray]:
     """Points O, A, B, C (n, 2) in the press frame (m) from the joint states."""
     phi, psi, xc = (np.asarray(columns[c], dtype=float) for c in ("phi", "psi", "x_C"))
     n = phi.size
-    O = np.zeros((n, 2))
+    O = np.zeros((n, 2))  # noqa: E741 (the paper's point O, the crank bearing)
     A = l1 * np.column_stack([np.cos(phi), np.sin(phi)])
     C = np.column_stack([xc, np.zeros(n)])
     B = C + l3 * np.column_stack([np.cos(psi), np.sin(psi)])
@@ -358,24 +358,24 @@ def _reactions(rr, log, cols, t, pts, scene, scale=None) -> float:
         path = f"mechanism/reactions/{w.name}"
         # the magnitude is each arrow's label, shown on hover (not drawn: the joints' labels
         # would lie on top of each other)
-        log.static(path, lambda: rr.Arrows2D.from_fields(colors=[color], radii=[-1.5],
-                                                         show_labels=False, draw_order=20.0))
+        log.static(path, lambda color=color: rr.Arrows2D.from_fields(
+            colors=[color], radii=[-1.5], show_labels=False, draw_order=20.0))
         log.columns(path, t, rr.Arrows2D.columns(origins=at, vectors=vec,
                                                  labels=list(labels)))
     return scale
 
 
 def _plots(rr, log, cols, t) -> None:
-    for fam, title, series in FAMILIES:
+    for fam, _title, series in FAMILIES:
         k = 0
         for col, name in series:
             if col not in cols:
                 continue
             y = np.asarray(cols[col], dtype=float)
             path = f"plots/{fam}/{col}"
-            log.static(path, lambda: rr.SeriesLines(names=name,
-                                            colors=[_SERIES_COLORS[k % len(_SERIES_COLORS)]],
-                                            widths=[1.5]))
+            color = _SERIES_COLORS[k % len(_SERIES_COLORS)]
+            log.static(path, lambda name=name, color=color: rr.SeriesLines(
+                names=name, colors=[color], widths=[1.5]))
             log.columns(path, t, rr.Scalars.columns(scalars=y))
             k += 1
 
@@ -445,8 +445,8 @@ def _events(rr, log, rep: Replay, t) -> None:
         if te.size == 0:
             continue
         path = f"plots/crank_speed/events/{fam}"
-        log.static(path, lambda: rr.SeriesPoints(names=f"{fam} events", markers=[marker],
-                                         colors=[color], marker_sizes=[6.0]))
+        log.static(path, lambda fam=fam, marker=marker, color=color: rr.SeriesPoints(
+            names=f"{fam} events", markers=[marker], colors=[color], marker_sizes=[6.0]))
         log.columns(path, te, rr.Scalars.columns(scalars=np.interp(te, t, w)))
     # state lanes: the structure, the latch
     st = np.asarray(rep.columns.get("structure", np.full(t.size, "")), dtype=str)

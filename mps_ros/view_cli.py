@@ -37,9 +37,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from mps_core.files.outputs import check_outputs
     from mps_core.scene import load_scene
-
-    from mps_core.output_files import check_outputs
 
     if args.live:
         if args.recording:

@@ -14,7 +14,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", "43")
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from reference import press_exact as pe  # noqa: E402
+from reference import press_exact as pe
 
 
 @pytest.fixture(scope="session")

@@ -23,9 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import PartialSystems
-from .common import (COARSE_STEPS, DT_LADDER, evaluations_along, Case, Reference, Setting, available_cases, reference_for,
-                     resolve_case, run_setting)
+from ..dynamics.engine import PartialSystems
+from .common import (
+    COARSE_STEPS,
+    DT_LADDER,
+    Case,
+    Reference,
+    Setting,
+    available_cases,
+    evaluations_along,
+    reference_for,
+    resolve_case,
+    run_setting,
+)
 
 FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer",
             "mujoco")
@@ -392,7 +402,8 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
     log(f"\nwrote {write_csv(allrows, out_dir / 'accuracy.csv')}")
     drows = [dict(d, case=n) for n, res in results.items() for d in res["delta"]]
     if drows:
-        log(f"wrote {write_csv(drows, out_dir / 'accuracy-delta.csv', ('case',) + tuple(k for k in drows[0] if k != 'case'))}")
+        cols = ("case",) + tuple(k for k in drows[0] if k != "case")
+        log(f"wrote {write_csv(drows, out_dir / 'accuracy-delta.csv', cols)}")
     if plot:
         from .plot import plot_accuracy
 

@@ -86,7 +86,7 @@ def _speed(args) -> int:
 
 
 def _batch(args) -> int:
-    from ..batch import throughput
+    from ..run.batch import throughput
 
     sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
     print("batch mode: working (locked), slider mass swept, linear acceleration, central "

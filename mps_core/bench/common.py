@@ -26,8 +26,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .. import build, load_scene, preset_names
-from ..scene import Scene
+from ..run.build import build
+from ..scene import Scene, load_scene, preset_names
 
 #: the step-size ladder: the paper's 1.25 ms halved down to about 1e-5 s
 DT_LADDER = tuple(1.25e-3 / 2 ** k for k in range(8))

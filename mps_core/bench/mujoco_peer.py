@@ -11,7 +11,8 @@ defined), so its joint coordinates are offsets from the initial angles and posit
 constraint with ``solref = (2·dt, 1)`` (the stiffest MuJoCo allows without turning its safety
 off: a time constant of two steps, critically damped) and ``solimp = (0.9999, 0.9999, 0.001)``
 (the most impedance: on ``paper`` at dt = 2 ms, 2.3e-4 rad off against 7.2e-3 with (0.99,
-0.999); a time constant of one step, safety off, does worse); the solver's defaults otherwise. A soft constraint has an error of its own: the closure |B_rod − B_rocker| is reported
+0.999); a time constant of one step, safety off, does worse); the solver's defaults otherwise.
+A soft constraint has an error of its own: the closure |B_rod − B_rocker| is reported
 (``closure``), and the run's φ against an exact reference says what it costs.
 
 The ``bench`` extra installs the ``mujoco`` wheel; :func:`available` says whether it is there.

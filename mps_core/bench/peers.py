@@ -150,7 +150,7 @@ def _derive(p: _Params):
         J = r.jacobian(z)
         return J, (J * zd).jacobian(z) * zd
 
-    for name, m, inertia, origin, toward, a, b, length in p.bodies:
+    for _name, m, inertia, origin, toward, a, b, length in p.bodies:
         m, inertia = sp.Float(m), sp.Float(inertia)
         po = pts[origin]
         if toward is None:

@@ -20,11 +20,22 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import MpsError, build
-from ..engine import PartialSystems
+from ..dynamics.engine import PartialSystems
+from ..errors import MpsError
+from ..run.build import build
 from ..solvers import make_solver
-from .common import (Case, evaluations_along, Setting, available_cases, cpu_median, reference_for, resolve_case,
-                     run_setting, scene_for, with_effects)
+from .common import (
+    Case,
+    Setting,
+    available_cases,
+    cpu_median,
+    evaluations_along,
+    reference_for,
+    resolve_case,
+    run_setting,
+    scene_for,
+    with_effects,
+)
 
 DT = 1e-3                          # 1 kHz
 
@@ -166,7 +177,7 @@ def evaluation_costs(case: Case, number: int = 2000):
             if plan is not None and plan.fused is not None:
                 # the same evaluation without the fused function: the exact kernel, the
                 # effects one by one and the solve (what the fused function replaces)
-                from ..effects.base import STATE_VERSION
+                from ..model.effects.base import STATE_VERSION
 
                 fused = plan.fused
                 plan.fused, plan.fused_at = None, STATE_VERSION[0]
@@ -186,7 +197,7 @@ def reaction_costs(case: Case, number: int = 200, limit: int = 60, scheme: str =
     least squares; medians over the states, one row for all of them and one for each number
     of free coordinates n (a structure's charts: n = 1 held or locked, n = 2 free in the
     press)."""
-    from ..reactions import compute_reactions, reaction_values
+    from ..dynamics.reactions import compute_reactions, reaction_values
 
     scene = scene_for(case, Setting("linear-acceleration", scheme,
                                     0.1 if scheme == "central" else 0.0), DT)

@@ -2,6 +2,11 @@
 their scene/CLI name in :data:`SOLVERS`: each class says whether it controls its error
 (``adaptive``) and, for a fixed step, its stability limit (``stability_limit``)."""
 
+from collections.abc import Callable
+from typing import Any
+
+from numpy.typing import ArrayLike
+
 from .adaptive import AdaptiveSolver, Radau
 from .base import Solver
 from .dop853 import DOP853
@@ -21,8 +26,10 @@ FIXED_STEP_LIMITS = {name: (cls.stability_limit, cls.stability_text)
                      for name, cls in SOLVERS.items() if cls.stability_limit is not None}
 
 
-def make_solver(name: str, fun, t0, q0, qd0, current=None, *, iterations=1, rtol=1e-9,
-                atol=1e-12, scales=None, first_step=None, accel=None) -> Solver:
+def make_solver(name: str, fun: Callable, t0: float, q0: ArrayLike, qd0: ArrayLike,
+                current: Any = None, *, iterations: int = 1, rtol: float = 1e-9,
+                atol: float = 1e-12, scales: ArrayLike | None = None,
+                first_step: float | None = None, accel: Callable | None = None) -> Solver:
     """A solver by its scene/CLI name. ``first_step`` (adaptive solvers): the first internal
     step to try, e.g. the ``step_size`` of the solver this one carries on from. ``accel``: q̈
     alone on floats (see :class:`~mps_core.solvers.base.Solver`)."""

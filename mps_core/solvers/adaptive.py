@@ -14,12 +14,13 @@ component, scaled by the chart's coordinate scales where given.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import DOP853, Radau
+from scipy.integrate import DOP853 as ScipyDOP853
+from scipy.integrate import Radau as ScipyRadau
 
 from ..errors import ChartDomainError, NumericalError
 from .base import Solver
 
-_METHODS = {"dop853": DOP853, "radau": Radau}
+_METHODS = {"dop853": ScipyDOP853, "radau": ScipyRadau}
 
 
 class AdaptiveSolver(Solver):

@@ -21,17 +21,17 @@ A solver advances a second-order system ``q̈ = f(t, q, q̇)``:
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from ..tracing import BranchChanged
+from ..derivatives.tracing import BranchChanged
 
 
 class Solver:
     name = "solver"
-    #: order of convergence of the global error in the step
-    order = 0
+    #: order of convergence of the global error in the step (None: adaptive, as asked)
+    order: int | None = 0
     #: controls its error (takes the steps it chooses); the others take the steps given
     adaptive = False
     #: a fixed step's stability limit as a share of the shortest period of an oscillation
@@ -58,7 +58,7 @@ class Solver:
     @classmethod
     def create(cls, fun: Callable, t0: float, q0, qd0, current=None, *, iterations: int = 1,
                rtol: float = 1e-9, atol: float = 1e-12, scales=None, first_step=None,
-               accel: Callable | None = None) -> "Solver":
+               accel: Callable | None = None) -> Solver:
         """The solver from the run's settings, each taking those it has (a fixed-step method
         no tolerances, an adaptive one no corrector iterations)."""
         return cls(fun, t0, q0, qd0, current, accel=accel)
@@ -114,9 +114,9 @@ class GeneratedStep(Solver):
     Subclasses give :meth:`step_source` (the step on floats for n coordinates) and
     :attr:`inner_stages`; a step runs it (its stages calling the fused function directly where
     ``accel`` offers one, :func:`stage_lines`, else ``accel``; counted in ``nfev``), then
-    evaluates the new state (the kept evaluation, the next step's first stage). Dense output: cubic Hermite of the step's
-    ends unless a subclass has a better one, made when asked for (an event, a cut, an output
-    inside the step)."""
+    evaluates the new state (the kept evaluation, the next step's first stage). Dense output:
+    cubic Hermite of the step's ends unless a subclass has a better one, made when asked for
+    (an event, a cut, an output inside the step)."""
 
     #: the calls of ``accel`` a step makes (the stages but the first)
     inner_stages = 0
@@ -159,7 +159,7 @@ class GeneratedStep(Solver):
 
     def _direct(self):
         """The fused function to call from the generated stages, where ``accel`` has one that
-        holds now (:meth:`~mps_core.engine.PartialSystems.accelerator`), else None."""
+        holds now (:meth:`~mps_core.dynamics.engine.PartialSystems.accelerator`), else None."""
         direct = getattr(self.accel, "direct", None)
         return direct() if direct is not None else None
 

@@ -12,6 +12,7 @@ import math
 
 from .base import GeneratedStep, stage_lines
 
+
 class RK4(GeneratedStep):
     name = "rk4"
     order = 4

@@ -26,7 +26,8 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from .base import GeneratedStep, stage_lines
-from .dop853 import _DenseOutput, _generated as _dop853_code
+from .dop853 import _DenseOutput
+from .dop853 import _generated as _dop853_code
 
 STAGES = _coef.N_STAGES
 _A = np.asarray(_coef.A[:STAGES, :STAGES], dtype=float)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from mps_core import load_scene
-from mps_core.effects.controls import Controls
-from mps_core.engine import PartialSystems
+from mps_core.dynamics.engine import PartialSystems
+from mps_core.model.effects.controls import Controls
 
 
 def scene_engines(name: str, scheme: str):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mps_core import load_scene, scene_from_text, simulate
-from mps_core.batch import simulate_many
-from mps_core.mechanisms import BodyData
+from mps_core.model import BodyData
+from mps_core.run.batch import simulate_many
 
 COLS = ("phi", "phi_dot", "phi_ddot", "psi", "x_C", "T", "V", "W")
 

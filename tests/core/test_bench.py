@@ -11,9 +11,9 @@ from mps_core import build, load_scene, simulate
 from mps_core.bench import accuracy
 from mps_core.bench.common import Case, Setting, resolve_case
 from mps_core.bench.peers import exact_model, run_peer, supports
-from mps_core.effects import Gravity, Motor
-from mps_core.engine import PartialSystems
-from mps_core.jet import Jet, ScalarJet, seed
+from mps_core.derivatives.jet import Jet, ScalarJet, seed
+from mps_core.dynamics.engine import PartialSystems
+from mps_core.model.effects import Gravity, Motor
 
 PAPER = load_scene("paper")
 
@@ -268,7 +268,7 @@ def test_effects_fast_path_equals_virtual_work_of_their_loads(scheme):
     assert g.potential(e_fast.kin) == pytest.approx(
         -sum(b.mass * (g.g @ e_fast.kin.position(f"G_{b.name}")) for b in sim.mechanism.bodies),
         rel=1e-14)
-    from mps_core.effects import Effect
+    from mps_core.model.effects import Effect
 
     assert m.power(0.0, e_fast.kin) == pytest.approx(Effect.power(m, 0.0, e_fast.kin),
                                                       rel=1e-14)

@@ -74,7 +74,7 @@ def test_progress_line_on_a_terminal_only():
     terminal, cleared at the end; nothing on a file or pipe, or when quiet."""
     import io
 
-    from mps_core.progress import Progress
+    from mps_core.run.progress import Progress
 
     class Tty(io.StringIO):
         def isatty(self):

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from mps_core import build, load_scene, scene_from_text
-from mps_core.effects import RetentionSprings, TopStop
-from mps_core.effects.base import stiffness_x_bound
-from mps_core.mechanisms import PressMechanism
+from mps_core.model import PressMechanism
+from mps_core.model.effects import RetentionSprings, TopStop
+from mps_core.model.effects.base import stiffness_x_bound
 from mps_core.solvers import LinearAcceleration
 
 
@@ -195,7 +195,7 @@ def test_linear_acceleration_on_floats_is_the_vector_formula(n, iterations):
         dt = t1 - t0
         s.step_to(t1)
         a1 = fun(t1, q + qd * dt + a0 * (0.5 * dt * dt), qd + a0 * dt).qdd
-        for i in range(iterations):
+        for _ in range(iterations):
             qd1 = qd + (a0 + a1) * (0.5 * dt)
             q1 = q + qd * dt + (2.0 * a0 + a1) * (dt * dt / 6.0)
             a1 = fun(t1, q1, qd1).qdd

@@ -4,17 +4,20 @@ import math
 
 import numpy as np
 import pytest
-
-from mps_core.effects import MOTOR_PRESETS, Gravity, Motor
-from mps_core.engine import PartialSystems, stencil
-from mps_core.mechanism import ChartView
-from mps_core.mechanisms import PressMechanism
 from reference import press_exact as pe
+
+from mps_core.dynamics.engine import PartialSystems, stencil
+from mps_core.model import PressMechanism
+from mps_core.model.effects import MOTOR_PRESETS, Gravity, Motor
+from mps_core.model.mechanism import ChartView
 
 STATES = [(-1.1187560505, -0.8087855754), (0.3, -1.0), (2.0, -0.4), (-2.5, -1.3)]
 
 
-def engine(scheme, delta=math.radians(0.1), effects=None):
+DELTA = math.radians(0.1)
+
+
+def engine(scheme, delta=DELTA, effects=None):
     m = PressMechanism()
     eff = effects if effects is not None else [
         Gravity((-9.81, 0.0)), Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)]
@@ -114,9 +117,9 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
     kernel and fused function the first one used there: one call, the same numbers as the
     lookups give, the same functions in its plan; where that pair does not hold (a failed
     guard: another branch) the lookups answer, with the same numbers."""
-    import mps_core.engine as engine_module
+    import mps_core.dynamics.engine as engine_module
     from mps_core import build, load_scene
-    from mps_core.tracing import BranchChanged
+    from mps_core.derivatives.tracing import BranchChanged
 
     scene = load_scene("paper").with_overrides(solver="rk6", scheme="autodiff", dt=5e-3,
                                                t_end=0.1)
@@ -142,7 +145,7 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
             calls = []
             full = pair[1].full
 
-            def counted(*a, _full=full, _fails=fails):
+            def counted(*a, _full=full, _fails=fails, calls=calls, view=view):
                 calls.append(a)
                 if _fails:
                     raise BranchChanged(view.name)

@@ -1,4 +1,4 @@
-"""Exact kernels (mps_core.exact_kernels): the jets' numbers, on floats."""
+"""Exact kernels (mps_core.codegen.exact_kernels): the jets' numbers, on floats."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from kernel_cases import close, scene_engines, state
+
 from mps_core import build, load_scene
 from mps_core.errors import ChartDomainError
-from mps_core.mechanism import ChartView
+from mps_core.model.mechanism import ChartView
 
 
 def _scene_engines(name="press-cycle"):
@@ -100,7 +100,7 @@ def test_another_branch_gets_a_kernel_of_its_own(monkeypatch):
     """A position function that branches: where the traced comparison comes out otherwise, that
     branch's kernel is traced there (once) and taken; back on the first branch the first kernel
     is taken again; the same numbers as the jets everywhere, and the jets never run."""
-    from mps_core.engine import PartialSystems
+    from mps_core.dynamics.engine import PartialSystems
 
     mech, controls, eng, jets = _scene_engines("paper")
     view = mech.views("free")[0]
@@ -170,7 +170,7 @@ def test_a_run_with_exact_kernels_follows_the_jets():
 def test_kernels_are_shared_between_equal_mechanisms_only():
     """A second engine of the same scene takes the first one's kernel (no trace); a press
     with another rod length gets its own, whose numbers are its jets'."""
-    from mps_core.kernels import function_key
+    from mps_core.codegen.kernels import function_key
 
     scene = load_scene("paper").with_overrides(scheme="autodiff")
     a, b = build(scene), build(scene)
@@ -202,7 +202,7 @@ def test_every_chart_of_every_preset_takes_the_exact_kernels(name, monkeypatch):
     """With exact derivatives, no evaluation of a preset's run (every chart it enters, the
     continuation charts and both branches of theirs included) falls back to the jets."""
     from mps_core.bench.common import change_point_scene
-    from mps_core.engine import PartialSystems
+    from mps_core.dynamics.engine import PartialSystems
 
     scene = change_point_scene() if name == CHANGE_POINT else load_scene(name)
     scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3),

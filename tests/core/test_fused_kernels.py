@@ -5,12 +5,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 import pytest
 
 from mps_core import build, load_scene, preset_names
-from mps_core.effects import Effect, JointFriction
-from mps_core.effects.base import STATE_VERSION
+from mps_core.model.effects import Effect, JointFriction
+from mps_core.model.effects.base import STATE_VERSION
 
 
 def _spy(eng, sim=None):
@@ -53,9 +52,9 @@ def _spy(eng, sim=None):
 def _check_whole_evaluation(eng, view, plan, t, ql, vl):
     """The fused evaluation (kinematics, A, h, θ̈, Q, Q_nc, q̈ in one call) against the exact
     kernel, the effects one by one and the solve: the same numbers."""
-    from mps_core.engine import Kinematics
-    from mps_core.fused_kernels import ForceLawBranch
-    from mps_core.kernels import solve_given_h
+    from mps_core.codegen.fused_kernels import ForceLawBranch
+    from mps_core.codegen.kernels import solve_given_h
+    from mps_core.dynamics.engine import Kinematics
 
     try:
         got = plan.fused.full(t, *ql, *vl)
@@ -222,9 +221,9 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
     kernel are one traced call (fused_kernels.central_tail): along a run of each preset
     through its structures, charts, impacts and commands, Q, Q_nc and q̈ are those of the
     effects called one by one and the solve, bit for bit, and the tails answer most calls."""
-    from mps_core.engine import Kinematics
-    from mps_core.kernels import solve_given_h
-    from mps_core.tracing import BranchChanged
+    from mps_core.codegen.kernels import solve_given_h
+    from mps_core.derivatives.tracing import BranchChanged
+    from mps_core.dynamics.engine import Kinematics
 
     scene = load_scene(name).with_overrides(scheme="central", solver="linear-acceleration")
     sim = build(scene)

@@ -83,3 +83,51 @@ def test_the_core_imports_no_ros():
             lines = [ln for ln in text.splitlines()
                      if ln.strip().startswith(("import", "from")) and word in ln]
             assert not lines, (m, lines)
+
+
+#: mps_core's layers, lowest first: a module imports (at its top or inside a function) from its
+#: own layer and the layers below only. The shared vocabulary (errors, names) is below all;
+#: ``mps_core`` itself (the public facade) is imported by the commands only.
+LAYERS = (
+    ("mps_core.errors", "mps_core.names"),
+    ("mps_core.files",),
+    ("mps_core.derivatives",),
+    ("mps_core.solvers",),
+    ("mps_core.model",),
+    ("mps_core.scene",),
+    ("mps_core.codegen",),
+    ("mps_core.dynamics",),
+    ("mps_core.run",),
+    ("mps_core.analysis",),
+    ("mps_core", "mps_core.cli", "mps_core.bench"),
+)
+
+
+def _layer(module: str) -> int:
+    best, found = -1, -1
+    for i, names in enumerate(LAYERS):
+        for n in names:
+            if (module == n or module.startswith(n + ".")) and len(n) > best:
+                best, found = len(n), i
+    assert found >= 0, f"{module} is in no layer of LAYERS"
+    return found
+
+
+def test_the_layers_import_downwards_only():
+    modules = _modules()
+    upward = []
+    for m, p in modules.items():
+        if not m.startswith("mps_core"):
+            continue
+        here = _layer(m)
+        for t in sorted(_imports(m, p, modules)):
+            if t.startswith("mps_core") and _layer(t) > here:
+                upward.append(f"{m} (layer {here}) imports {t} (layer {_layer(t)})")
+    assert not upward, "imports against the layers:\n" + "\n".join(upward)
+
+
+def test_every_layer_is_a_package_of_the_tree():
+    for names in LAYERS:
+        for n in names:
+            path = ROOT / Path(*n.split("."))
+            assert path.with_suffix(".py").is_file() or (path / "__init__.py").is_file(), n

@@ -4,7 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mps_core.jet import Jet, seed
+from mps_core.derivatives.jet import Jet, seed
 
 
 def f(q):

@@ -1,4 +1,4 @@
-"""Scalar kernels (mps_core.kernels): the same numbers as the engine's array code."""
+"""Scalar kernels (mps_core.codegen.kernels): the same numbers as the engine's array code."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from kernel_cases import close, scene_engines, state
+
 from mps_core import build, load_scene
 from mps_core.errors import ChartDomainError
-from mps_core.mechanisms.press import PressMechanism
+from mps_core.model.press import PressMechanism
 
 
 def _scene_engines(name="press-cycle"):
@@ -107,7 +107,7 @@ def test_no_flat_positions_means_the_array_code():
     mech, controls, eng, _ = _scene_engines("paper")
     view = mech.views("free")[0]
     chart = dataclasses.replace(view.chart, flat=None)
-    from mps_core.mechanism import ChartView
+    from mps_core.model.mechanism import ChartView
 
     v2 = ChartView(chart)
     e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
@@ -125,7 +125,7 @@ def test_the_inlined_kernel_equals_the_calling_kernel(k, u, w):
     CONTROLS.structure = structure
     q = state(view, u, w)
     plan = KERNEL._plan(view)
-    from mps_core.kernels import central_kernel
+    from mps_core.codegen.kernels import central_kernel
     try:
         calling = plan.kernel(*q, *[3.0, -1.0][:view.n])
     except (ChartDomainError, ValueError, ZeroDivisionError):
@@ -152,7 +152,7 @@ def test_an_inlined_kernel_on_another_branch_hands_over_to_the_calling_one():
             return flat(phi, psi, cos, sin, sqrt)
         return flat(phi, psi, cos=cos, sin=sin, sqrt=sqrt)
 
-    from mps_core.mechanism import ChartView
+    from mps_core.model.mechanism import ChartView
 
     v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
     qd = np.array([10.0, 1.0])

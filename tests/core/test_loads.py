@@ -6,9 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from mps_core.analysis.loads import LoadReportError, harmonics, last_cycle, load_report, quantity, resample
 from mps_core.cli import main
-from mps_core.loads import (LoadReportError, harmonics, last_cycle, load_report, quantity,
-                            resample)
 
 AMPS = [3.0, 1.5, 0.0, 0.25, 0.125, 0.0625]
 PHASES = [0.3, -2.0, 0.0, 1.0, 3.0, -0.5]

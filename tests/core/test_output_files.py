@@ -6,14 +6,13 @@ from importlib import resources
 import pytest
 
 from mps_core.cli import main
-from mps_core.output_files import (OutputFileError, check_outputs, partial_name,
-                                   written_whole)
+from mps_core.files.outputs import OutputFileError, check_outputs, partial_name, written_whole
 
 
 @pytest.fixture
 def scene_copy(tmp_path):
     s = tmp_path / "s.toml"
-    s.write_bytes(resources.files("mps_core.scenes").joinpath("paper.toml").read_bytes())
+    s.write_bytes(resources.files("mps_core.scene.presets").joinpath("paper.toml").read_bytes())
     return s
 
 
@@ -77,7 +76,7 @@ def test_check_outputs_ignores_absent_ones_and_preset_names(tmp_path):
 def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys):
     import json
 
-    from mps_core.reactions import read_csv
+    from mps_core.dynamics.reactions import read_csv
 
     csv, ev = tmp_path / "p.csv", tmp_path / "p.jsonl"
     assert main(["run", "press-cycle", "--no-chart-switching", "--dt", "0.001", "--reactions",

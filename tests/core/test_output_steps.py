@@ -61,7 +61,7 @@ def test_outputs_inside_steps_through_events_carry_their_steps_structure():
     scene = load_scene("press-cycle").with_overrides(
         scheme="autodiff", solver="rk4", dt=1e-3, step=2e-3, t_end=0.6)
     sim = build(scene)
-    from mps_core.reactions import ReactionObserver
+    from mps_core.dynamics.reactions import ReactionObserver
 
     sim.observers.append(ReactionObserver())
     traj = sim.run(0.6, 1e-3)

@@ -1,5 +1,5 @@
-"""Reaction kernels (mps_core.reaction_kernels) against the general Newton–Euler solution of
-mps_core.reactions: the same reactions, residuals and balance on every structure, at every
+"""Reaction kernels (mps_core.codegen.reaction_kernels) against the general Newton–Euler solution of
+mps_core.dynamics.reactions: the same reactions, residuals and balance on every structure, at every
 step of a press cycle (impacts and chart changes among them), with exact and with the seed's
 central derivatives; the general path wherever the kernel does not hold."""
 
@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 from mps_core import build, load_scene
-from mps_core.reaction_kernels import Fallback, PIVOT_GUARD
-from mps_core.tracing import BranchChanged
-from mps_core.reactions import (REACTION_COLUMNS, compute_reactions, kernels_of,
-                                reaction_values)
+from mps_core.codegen.reaction_kernels import PIVOT_GUARD, Fallback
+from mps_core.derivatives.tracing import BranchChanged
+from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, kernels_of, reaction_values
 
 FORCES = [c for c in REACTION_COLUMNS if not c.startswith(("residual", "balance"))]
 DT = 1e-3
@@ -206,7 +205,7 @@ def test_traced_load_sums_are_the_loads_summed_one_by_one(fixture, request):
 def test_the_kernel_with_its_loads_is_the_two_one_after_the_other(fixture, request):
     """The traced load sums and the reaction kernel as one function (with_loads): the kernel
     on the sums, bit for bit, at every step of the cycle; it answers nearly all of them."""
-    from mps_core.reaction_kernels import with_loads
+    from mps_core.codegen.reaction_kernels import with_loads
 
     sim, states = request.getfixturevalue(fixture)
     ks = kernels_of(sim.mechanism)

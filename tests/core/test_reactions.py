@@ -7,17 +7,22 @@ import math
 
 import numpy as np
 import pytest
+from reference import press_exact as pe
 
 from mps_core import build, load_scene
 from mps_core.cli import main
-from mps_core.effects import MOTOR_PRESETS, Gravity, Motor
-from mps_core.engine import PartialSystems
-from mps_core.mechanism import ChartView
-from mps_core.mechanisms.press import PressMechanism
+from mps_core.dynamics.engine import PartialSystems
+from mps_core.dynamics.reactions import (
+    REACTION_COLUMNS,
+    ReactionObserver,
+    compute_reactions,
+    impulses,
+    plastic_impact,
+)
+from mps_core.model.effects import MOTOR_PRESETS, Gravity, Motor
+from mps_core.model.mechanism import ChartView
+from mps_core.model.press import PressMechanism
 from mps_core.names import COLUMNS
-from mps_core.reactions import (REACTION_COLUMNS, ReactionObserver, compute_reactions, impulses,
-                                plastic_impact)
-from reference import press_exact as pe
 
 G = (-9.81, 0.0)
 L1, L2, L3 = 0.015, 0.040, 0.030
@@ -149,8 +154,8 @@ def test_balanced_crank_slider_shaking_force_harmonics():
     m = m2 + m3 + m4 moving with B, x_B = r cos(phi) + l sqrt(1 - (r/l)^2 sin^2(phi)). Its first
     harmonic is exactly m r w^2; the second is (r/l) m r w^2 (1 + l^2/4 + 15 l^4/128 + ...),
     l = r/l = 0.375: the classical (r/l) m r w^2 is 3.7 % low, the three-term series 0.03 %."""
-    from mps_core.loads import harmonics
-    from mps_core.mechanisms.press import BodyData
+    from mps_core.analysis.loads import harmonics
+    from mps_core.model.press import BodyData
 
     mech = PressMechanism(bodies={"crank": BodyData(M1, J1, (0.0, 0.0))})
     grav = Gravity(G)
@@ -240,7 +245,7 @@ def test_the_residual_is_the_equation_of_motion_left_over():
     """J_b^T r = A q_ddot + h - Q with the exact A, h, Q: at the end of the seed's run (central
     differences) the residual projected on the analogs is the exact mass matrix times the step's
     acceleration error."""
-    from mps_core.reactions import body_motion
+    from mps_core.dynamics.reactions import body_motion
 
     scene = load_scene("paper")
     sim = build(scene)
@@ -279,7 +284,7 @@ def test_stop_force_from_newton_euler_equals_the_constraint_force_of_the_lagrang
     """Two formulations of the held slider's top-stop force: Newton–Euler per body (least
     squares) and the multiplier of x_C = x_top from the unfrozen chart's Lagrange equations."""
     from mps_core import build, load_scene
-    from mps_core.reactions import compute_reactions
+    from mps_core.dynamics.reactions import compute_reactions
 
     sim = build(load_scene("idle").with_overrides(t_end=0.02, scheme="autodiff"))
     pairs = []

@@ -5,10 +5,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from mps_core import (ChartBreakdown, SingularConfiguration, build, load_scene,
-                      scene_from_text, simulate)
 from reference import press_exact as pe
+
+from mps_core import ChartBreakdown, SingularConfiguration, build, load_scene, scene_from_text, simulate
 
 PAPER = load_scene("paper")
 

@@ -4,13 +4,13 @@ import math
 
 import numpy as np
 import pytest
+from reference import press_exact as pe
 from scipy.optimize import brentq
 
 from mps_core import SceneError, build, load_scene, scene_from_text, simulate
-from mps_core.effects import Controls, Gravity, Latch
-from mps_core.mechanisms import PressMechanism
-from mps_core.simulation import (CommandRefused, Simulation, SolverSettings, StabilityError)
-from reference import press_exact as pe
+from mps_core.model import PressMechanism
+from mps_core.model.effects import Controls, Gravity, Latch
+from mps_core.run.simulation import CommandRefused, Simulation, SolverSettings, StabilityError
 
 SWITCHES = ("latch-closes", "stop-contact", "stop-release", "latch-opens")
 
@@ -97,7 +97,7 @@ def exact_mass_matrix(state):
 
 
 def pe_motor():
-    from mps_core.effects import MOTOR_PRESETS, Motor
+    from mps_core.model.effects import MOTOR_PRESETS, Motor
     return Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)
 
 

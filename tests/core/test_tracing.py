@@ -1,4 +1,4 @@
-"""Tracing position functions into tapes (mps_core.tracing)."""
+"""Tracing position functions into tapes (mps_core.derivatives.tracing)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from mps_core.tracing import Tape, TracingError, trace_at
+from mps_core.derivatives.tracing import Tape, TracingError, trace_at
 
 
 def _run(tape: Tape, outputs, inputs):

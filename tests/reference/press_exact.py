@@ -37,9 +37,9 @@ with phi; the slider does not rotate.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
-from typing import Callable, Optional, Sequence
+from functools import cache
 
 import numpy as np
 import sympy as sp
@@ -181,25 +181,25 @@ class Trajectory:
     psi_dot: np.ndarray
     phi_ddot: np.ndarray
     psi_ddot: np.ndarray
-    x_C: Optional[np.ndarray] = None
-    x_C_dot: Optional[np.ndarray] = None
-    x_C_ddot: Optional[np.ndarray] = None
-    theta2: Optional[np.ndarray] = None
-    theta2_dot: Optional[np.ndarray] = None
-    T: Optional[np.ndarray] = None
-    V: Optional[np.ndarray] = None
+    x_C: np.ndarray | None = None
+    x_C_dot: np.ndarray | None = None
+    x_C_ddot: np.ndarray | None = None
+    theta2: np.ndarray | None = None
+    theta2_dot: np.ndarray | None = None
+    T: np.ndarray | None = None
+    V: np.ndarray | None = None
     # Constraint residuals (redundant formulation): Euclidean norms of
     # g(z) [m] and G(z) z' [m/s] at every sample.
-    constraint_pos: Optional[np.ndarray] = None
-    constraint_vel: Optional[np.ndarray] = None
+    constraint_pos: np.ndarray | None = None
+    constraint_vel: np.ndarray | None = None
     nfev: int = 0
     # Dense interpolant of the state vector (scipy OdeSolution).
-    dense: Optional[object] = field(default=None, repr=False)
+    dense: object | None = field(default=None, repr=False)
     # Time at which a terminal event stopped the integration, if any.
-    t_event: Optional[float] = None
+    t_event: float | None = None
 
     @property
-    def E(self) -> Optional[np.ndarray]:
+    def E(self) -> np.ndarray | None:
         """Total mechanical energy ``T + V`` (``None`` if not available)."""
         if self.T is None or self.V is None:
             return None
@@ -371,7 +371,7 @@ class PhiPsiModel:
         return np.linalg.solve(np.array([[m00, m01], [m01, m11]]), np.array([h0, h1]))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _phi_psi_cached(params: PressParams, sigma: int) -> PhiPsiModel:
     return PhiPsiModel(params, sigma)
 
@@ -389,7 +389,7 @@ def integrate_phi_psi(
     atol: float = 1e-12,
     *,
     gravity=GRAVITY,
-    state0: Optional[Sequence[float]] = None,
+    state0: Sequence[float] | None = None,
     params: PressParams = DEFAULT_PARAMS,
     min_cos_theta2: float = 1e-3,
     sigma: int = 1,
@@ -585,7 +585,7 @@ class RedundantModel:
         return self._V_np(*z, gx, gy)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _redundant_cached(params: PressParams) -> RedundantModel:
     return RedundantModel(params)
 
@@ -641,7 +641,7 @@ def integrate_redundant(
     t_eval,
     motor: bool = True,
     gravity=GRAVITY,
-    state0: Optional[Sequence[float]] = None,
+    state0: Sequence[float] | None = None,
     rtol: float = 1e-12,
     atol: float = 1e-12,
     *,
@@ -838,7 +838,7 @@ class LockedModel:
         return (Q - 0.5 * dJ * phi_dot * phi_dot) / J
 
 
-@lru_cache(maxsize=None)
+@cache
 def _locked_cached(params: PressParams) -> LockedModel:
     return LockedModel(params)
 

@@ -256,7 +256,8 @@ def test_locked_kinematics_and_inertia():
     h = 1e-5
     np.testing.assert_allclose(lm.x_C_d1(phi), (lm.x_C(phi + h) - lm.x_C(phi - h)) / (2 * h), atol=1e-10)
     np.testing.assert_allclose(lm.x_C_d2(phi), (lm.x_C_d1(phi + h) - lm.x_C_d1(phi - h)) / (2 * h), atol=1e-9)
-    np.testing.assert_allclose(lm.theta2_d1(phi), (lm.theta2(phi + h) - lm.theta2(phi - h)) / (2 * h), atol=1e-9)
+    np.testing.assert_allclose(lm.theta2_d1(phi),
+                               (lm.theta2(phi + h) - lm.theta2(phi - h)) / (2 * h), atol=1e-9)
     np.testing.assert_allclose(lm.dJ(phi), (lm.J(phi + h) - lm.J(phi - h)) / (2 * h), atol=1e-9)
     for f in phi:
         # closed-form geometry

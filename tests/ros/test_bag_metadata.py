@@ -71,7 +71,7 @@ def _holds_what_the_file_holds(path, name):
     assert bag["files"][0]["message_count"] == bag["message_count"]
     topics = {t["topic_metadata"]["name"]: t for t in bag["topics_with_message_count"]}
     assert {n: t["message_count"] for n, t in topics.items()} == counts
-    for cid, ch in s.channels.items():
+    for ch in s.channels.values():
         meta = topics[ch.topic]["topic_metadata"]
         msgtype = s.schemas[ch.schema_id].name
         assert meta["type"] == msgtype and meta["serialization_format"] == "cdr"

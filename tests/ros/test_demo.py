@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from twin_probe import mps_cmd  # noqa: E402
+from twin_probe import mps_cmd
 
 
 def test_demo_runs_the_default_scene_with_an_operator(tmp_path):

@@ -12,9 +12,8 @@ pytest.importorskip("rclpy")
 pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 
-from test_recording import read_all  # noqa: E402
-from twin_probe import Listener, NodeProcess, ns, wait_until  # noqa: E402
-
+from test_recording import read_all
+from twin_probe import Listener, NodeProcess, ns, wait_until
 
 
 def _uninterrupted(tmp_path, t_end: float) -> dict:
@@ -95,7 +94,7 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
                 answer = one_step()
                 t = (held + i * 1_000_000) * 1e-9
                 assert answer.success and answer.message == f"stepped to t = {t:.6f} s", answer
-                lis.wait_for(lambda: ns(lis.get("/clock")[-1].clock) == held + i * 1_000_000,
+                lis.wait_for(lambda i=i: ns(lis.get("/clock")[-1].clock) == held + i * 1_000_000,
                              30, f"/clock at the step {i} taken")
             n = len(stale())
             lis.wait_for(lambda: len(stale()) >= n + 1, 30, "STALE after the steps")

@@ -18,11 +18,11 @@ pytest.importorskip("rerun")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "view"))
 
-from twin_probe import NodeProcess, mps_cmd, stop_group  # noqa: E402
-from view_helpers import read_rrd  # noqa: E402
+from twin_probe import NodeProcess, mps_cmd, stop_group
+from view_helpers import read_rrd
 
-from mps_ros.topics import FOUNDATION, WRENCHES  # noqa: E402
-from mps_ros.view import FAMILIES  # noqa: E402
+from mps_ros.topics import FOUNDATION, WRENCHES
+from mps_ros.view import FAMILIES
 
 DT = 1e-3
 T_END = 0.5

@@ -12,10 +12,10 @@ import pytest
 
 pytest.importorskip("mcap")
 
-from mcap.reader import make_reader  # noqa: E402
-from mcap.writer import CompressionType, Writer  # noqa: E402
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
-from mps_ros.mcap_writer import McapWriter  # noqa: E402
+from mps_ros.mcap_writer import McapWriter
 
 LIBRARY_KINDS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                  "": CompressionType.NONE}
@@ -36,7 +36,8 @@ def _script(seed: int, n: int = 3000) -> list[tuple]:
         cid = rnd.choice((1, 1, 2))
         seq[cid] += 1
         at = max(0, t - rnd.randrange(5_000_000)) if rnd.random() < 0.05 else t
-        calls.append(("message", cid, at, bytes(rnd.randrange(256) for _ in range(rnd.randrange(1, 300))), at, seq[cid]))
+        data = bytes(rnd.randrange(256) for _ in range(rnd.randrange(1, 300)))
+        calls.append(("message", cid, at, data, at, seq[cid]))
         if i == n // 3:
             calls.append(("schema", "std_msgs/msg/String", "ros2msg", b"string data"))
             calls.append(("channel", "/c", "cdr", 2, {"k": "v"}))

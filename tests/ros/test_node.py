@@ -23,12 +23,13 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from mps_core import __version__, build, load_scene  # noqa: E402
-from mps_core.reactions import compute_reactions  # noqa: E402
-from mps_ros.node import FASTDDS_PROFILE  # noqa: E402
-from mps_ros.recording import read_metadata  # noqa: E402
-from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve  # noqa: E402
-from twin_probe import Listener, NodeProcess, mps_cmd, ns  # noqa: E402
+from twin_probe import Listener, NodeProcess, mps_cmd, ns
+
+from mps_core import __version__, build, load_scene
+from mps_core.dynamics.reactions import compute_reactions
+from mps_ros.node import FASTDDS_PROFILE
+from mps_ros.recording import read_metadata
+from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve
 
 DT = 1e-3
 T_END = 0.12
@@ -72,7 +73,8 @@ def commanded(ros, tmp_path_factory):
                          "the node's ~/mode subscription")
             sent = []
             for t_cmd, word in ((0.008, "engage"), (0.06, "disengage")):
-                lis.wait_for(lambda: (lis.clock() or -1.0) >= t_cmd, 30, f"/clock >= {t_cmd}")
+                lis.wait_for(lambda t_cmd=t_cmd: (lis.clock() or -1.0) >= t_cmd, 30,
+                             f"/clock >= {t_cmd}")
                 sent.append((lis.clock(), word))
                 lis.send(word)
             lis.wait_for(lis.ended, 30, "the run's end")
@@ -378,7 +380,7 @@ def test_recording_format(commanded):
 
 # -- SIGKILL and recovery ------------------------------------------------------------------------
 def test_sigkill_then_recover(ros, tmp_path):
-    from rosbags.highlevel import AnyReader
+    from rosbags.highlevel import AnyReader, AnyReaderError
 
     rec = tmp_path / "killed.mcap"
     params = dict(pacing="realtime", dt=DT, t_end=20.0, recording=str(rec),
@@ -394,7 +396,7 @@ def test_sigkill_then_recover(ros, tmp_path):
         names = dict(lis.topics)
     finally:
         lis.close()
-    with pytest.raises(Exception):
+    with pytest.raises(AnyReaderError):
         with AnyReader([rec]):
             pass
     out = tmp_path / "recovered.mcap"

@@ -116,7 +116,9 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     # the same run as fast as possible, the command applied at that boundary
     tw2 = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
 
-    def at_j(t_ns, box=[]):
+    box: list = []           # the command sent once
+
+    def at_j(t_ns):
         if not box and t_ns >= round(j * DT * 1e9):
             box.append(1)
             afap.inbox.put(Command("engage"))
@@ -354,7 +356,9 @@ def _afap_with(j_ns: int, words: list, fresh: bool) -> list:
                              timeout=300)
         return pickle.loads(out.stdout)
 
-    def at_j(t_ns, box=[]):
+    box: list = []           # the commands sent once
+
+    def at_j(t_ns):
         if not box and t_ns >= j_ns:
             box.append(1)
             for w in words:

@@ -10,8 +10,9 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from mps_ros.parameters import BY_NAME, PARAMETERS, markdown_table  # noqa: E402
-from twin_probe import NodeProcess, wait_until  # noqa: E402
+from twin_probe import NodeProcess, wait_until
+
+from mps_ros.parameters import BY_NAME, PARAMETERS, markdown_table
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,7 +9,6 @@ import math
 import random
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,15 +18,15 @@ pytest.importorskip("mcap")
 pytest.importorskip("mcap_ros2")
 pytest.importorskip("rosbags")
 
-from mps_core import __version__, build, load_scene  # noqa: E402
-from mps_core.cli import main as mps_main  # noqa: E402
-from mps_ros import twin as twin_mod  # noqa: E402
-from mps_ros.cdr import ENCODERS  # noqa: E402
-from mps_ros.recording import (Recorder, generic_encoder, read_metadata, record,  # noqa: E402
-                               recover)
-from mps_ros.topics import FOUNDATION, WRENCHES  # noqa: E402
-from mps_ros.twin import Gate, Twin  # noqa: E402
-from twin_probe import mps_cmd, wait_until  # noqa: E402
+from twin_probe import mps_cmd, wait_until
+
+from mps_core import __version__, build, load_scene
+from mps_core.cli import main as mps_main
+from mps_ros import twin as twin_mod
+from mps_ros.cdr import ENCODERS
+from mps_ros.recording import Recorder, generic_encoder, read_metadata, record, recover
+from mps_ros.topics import FOUNDATION, WRENCHES
+from mps_ros.twin import Gate, Twin
 
 
 def read_all(path):
@@ -71,9 +70,9 @@ def test_cdr_encoders_give_the_generic_encoders_bytes():
 
 def test_cdr_bytes_are_what_ros_deserializes():
     pytest.importorskip("rclpy")
+    from geometry_msgs.msg import WrenchStamped
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import JointState
-    from geometry_msgs.msg import WrenchStamped
 
     rng = random.Random(7)
     for _ in range(50):
@@ -166,7 +165,7 @@ def _frames_are_the_joints(back, geometry):
 
 
 def test_only_the_outputs_asked_for(tmp_path, monkeypatch):
-    import mps_core.reactions as R
+    import mps_core.dynamics.reactions as R
 
     def no(*a, **k):
         raise AssertionError("reactions solved though nobody asked")

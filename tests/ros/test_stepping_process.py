@@ -17,9 +17,11 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from mps_ros.bench import _children as _kids, _cmdline  # noqa: E402
-from mps_ros.stepping import FrameReader, FrameWriter  # noqa: E402
-from twin_probe import Listener, NodeProcess, ns, wait_until  # noqa: E402
+from twin_probe import Listener, NodeProcess, ns, wait_until
+
+from mps_ros.bench import _children as _kids
+from mps_ros.bench import _cmdline
+from mps_ros.stepping import FrameReader, FrameWriter
 
 DT = 1e-3
 

@@ -17,12 +17,12 @@ import pytest
 pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 
-from mps_core import build, load_scene  # noqa: E402
-from mps_core.reactions import ReactionObserver  # noqa: E402
-from mps_ros.cdr import encoder  # noqa: E402
-from mps_ros.recording import BackgroundRecorder, RecordingSink  # noqa: E402
-from mps_ros.topics import BY_KEY  # noqa: E402
-from mps_ros.twin import Runner, Timings, Twin  # noqa: E402
+from mps_core import build, load_scene
+from mps_core.dynamics.reactions import ReactionObserver
+from mps_ros.cdr import encoder
+from mps_ros.recording import BackgroundRecorder, RecordingSink
+from mps_ros.topics import BY_KEY
+from mps_ros.twin import Runner, Timings, Twin
 
 
 def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():

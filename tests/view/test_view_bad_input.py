@@ -6,7 +6,6 @@ from __future__ import annotations
 import sys
 
 import pytest
-
 from view_helpers import cut_before_end, foreign_mcap
 
 from mps_core.cli import main
@@ -82,9 +81,8 @@ def test_a_directory(tmp_path):
 
 def test_damaged_message(tmp_path, capsys):
     """A channel of the right type whose payload is not that type's CDR."""
-    from mcap.writer import Writer
-
     import view_helpers as vh
+    from mcap.writer import Writer
 
     p = tmp_path / "damaged.mcap"
     with open(p, "wb") as fh:

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from mps_core import loads
+from mps_core.analysis import loads
 from mps_core.cli import main
 
 
@@ -56,7 +56,7 @@ def test_mcap_sniffed_by_its_magic(working_mcap, tmp_path, capsys):
 
 
 def test_missing_package_says_what_to_install(monkeypatch, capsys):
-    from mps_core import loads_cli
+    from mps_core.analysis import loads_cli
 
     real = loads_cli.importlib.import_module
 
@@ -72,7 +72,7 @@ def test_missing_package_says_what_to_install(monkeypatch, capsys):
 
 
 def test_core_imports_no_mcap_rerun_or_ros():
-    code = ("import sys, mps_core, mps_core.loads_cli, mps_core.cli, mps_core.reactions\n"
+    code = ("import sys, mps_core, mps_core.analysis.loads_cli, mps_core.cli, mps_core.dynamics.reactions\n"
             "from mps_core.cli import _parser\n_parser()\n"
             "bad = [m for m in ('mcap', 'mcap_ros2', 'rerun', 'rclpy', 'pyarrow') "
             "if m in sys.modules]\nprint(bad)\n")

@@ -83,9 +83,8 @@ def test_accelerations_are_derived_and_said_so(cycle_mcap):
 
 def test_topics_by_suffix_under_another_namespace(tmp_path):
     """A node run in a namespace (/line1/press_twin/...) is still recognised."""
-    from mcap.writer import Writer
-
     import view_helpers as vh
+    from mcap.writer import Writer
 
     p = tmp_path / "ns.mcap"
     with open(p, "wb") as fh:

@@ -10,13 +10,13 @@ import pytest
 
 pytest.importorskip("rerun")
 
-from test_view_replay import rosbags_read  # noqa: E402
-from view_helpers import read_blueprint, read_rrd  # noqa: E402
+from test_view_replay import rosbags_read
+from view_helpers import read_blueprint, read_rrd
 
-from mps_core.cli import main  # noqa: E402
-from mps_ros.replay import read_recording  # noqa: E402
-from mps_ros.topics import FOUNDATION, WRENCHES, resolve  # noqa: E402
-from mps_ros.view import BEARING, FAMILIES, MARKERS, positions, to_view  # noqa: E402
+from mps_core.cli import main
+from mps_ros.replay import read_recording
+from mps_ros.topics import FOUNDATION, WRENCHES, resolve
+from mps_ros.view import BEARING, FAMILIES, MARKERS, positions, to_view
 
 
 @pytest.fixture(scope="module")

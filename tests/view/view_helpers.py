@@ -11,6 +11,7 @@ speed (exact positions); its forces are smooth functions of the crank angle.
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 from pathlib import Path
@@ -127,8 +128,9 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
         rows.append((channel("~/structure"), _patch(st, n, t_ns, None, {})))
         ev = channel("~/events")
         wr.add_message(ev, log_time=0, publish_time=0, sequence=0, data=_encode(
-            "std_msgs/msg/String", {"data": '{"t":0.0,"kind":"run-start","scene":"%s"}'
-                                    % sc.name}))
+            "std_msgs/msg/String",
+            {"data": json.dumps({"t": 0.0, "kind": "run-start", "scene": sc.name},
+                                separators=(",", ":"))}))
         for i in range(n):
             ti = int(t_ns[i])
             for cid, M in rows:
@@ -136,8 +138,9 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
                                data=M[i].tobytes())
         wr.add_message(ev, log_time=int(t_ns[-1]), publish_time=int(t_ns[-1]), sequence=1,
                        data=_encode("std_msgs/msg/String",
-                                    {"data": '{"t":%r,"kind":"run-end","reason":"end"}'
-                                     % float(t[-1])}))
+                                    {"data": json.dumps({"t": float(t[-1]), "kind": "run-end",
+                                                         "reason": "end"},
+                                                        separators=(",", ":"))}))
         wr.finish()
     return cols
 

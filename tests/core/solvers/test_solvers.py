@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-
 from scipy.integrate import DOP853 as ScipyDOP853
 
 from mps_core.errors import ChartDomainError
@@ -241,6 +240,7 @@ def test_rk6_tableau_has_order_six_and_its_stability_polynomial():
     exp(z) plus z⁷/−2160, whose modulus exceeds 1 on the imaginary axis near 0 (growth
     ≈ 3.5e-4·(ωΔt)⁸ a step): the limit the driver uses is where it passes 1e-12."""
     from fractions import Fraction as F
+
     from mps_core.solvers.rk6 import A_EXACT, B_EXACT, C_EXACT, IMAGINARY_LIMIT
 
     A, b, c = A_EXACT, B_EXACT, C_EXACT

@@ -1,0 +1,2 @@
+"""What a run means for the building: the load report (:mod:`.loads`) and its command
+``mps loads`` (:mod:`.loads_cli`)."""

@@ -1,0 +1,530 @@
+"""Scalar kernels: the central-difference evaluation of one chart view as generated Python code.
+
+For the small charts a linkage integrates (one or two free coordinates) the arithmetic of an
+evaluation is a few hundred floating-point operations; numpy's per-call cost, not the
+arithmetic, is what the array code of :mod:`mps_core.dynamics.engine` pays. A kernel does the same
+computation on Python floats, in straight-line code written once per (mechanism, chart view,
+Δ) from the engine's own tables, so nothing in it is specific to a mechanism:
+
+* the chart's ``flat`` position function at each point of the stencil (the same stencil, with
+  the same displacements);
+* the analogs at the stencil's base points as differences ``(r(q + Δe_i) − r(q − Δe_i))/2Δ_i``
+  of the points' coordinates, mapped to the centres of mass and the rotating bodies' link
+  vectors by the nonzero entries of the engine's linear map (terms with a zero coefficient, and
+  the fixed points' coordinates, are left out of the code);
+* the angular analogs ω* = (r × v*)/|r|² of the rotating bodies;
+* the mass matrix at every base point: A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j.
+
+Written from a trace of ``flat`` (:mod:`mps_core.derivatives.tracing`) the kernel also has the position
+function's program inline at each stencil point, with its constant outputs folded in, instead
+of calling it; the calling kernel remains for points where the trace does not hold.
+
+``kernel(q…, q̇…)`` returns the positions, analogs and angular analogs at q (flat lists, the
+layout of :class:`~mps_core.dynamics.engine.Kinematics`), A at q (n = 1: a; n = 2: (a00, a01, a11)),
+the velocity terms h by central differences of A (the array code's formulas, written out) and
+the angular analogs at the other base points (for the bodies' convective angular
+accelerations by the same central differences, which reports use); the engine adds the
+generalized forces and the solve. The
+numbers are those of the array code up to the order of floating-point operations (a test
+compares them to round-off).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import types
+import weakref
+
+import numpy as np
+
+from ..derivatives.stencil import stencil
+from ..derivatives.tracing import BranchChanged, TracingError, trace_at
+
+#: charts with at most this many free coordinates get a kernel (the stencil grows as 2n²)
+MAX_N = 2
+
+
+class _Writer:
+    """Straight-line code with one local per distinct expression."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+        self.names: dict = {}
+
+    def let(self, expr: str) -> str:
+        if expr in self.names:
+            return self.names[expr]
+        if _is_name(expr):
+            return expr
+        name = f"v{len(self.names)}"
+        self.lines.append(f"    {name} = {expr}")
+        self.names[expr] = name
+        return name
+
+
+def _is_name(expr: str) -> bool:
+    return expr.replace("_", "a").isalnum() and not expr[0].isdigit()
+
+
+def _lin(coefs, var) -> str | None:
+    """Σ coef·var(k) over the nonzero coefficients, as code (None when all are zero)."""
+    terms = []
+    for k, c in enumerate(coefs):
+        if c == 0.0:
+            continue
+        v = var(k)
+        if v is None:
+            continue
+        if c == 1.0:
+            terms.append(("+", v))
+        elif c == -1.0:
+            terms.append(("-", v))
+        else:
+            terms.append(("+", f"{float(c)!r} * {v}"))
+    if not terms:
+        return None
+    out = terms[0][1] if terms[0][0] == "+" else f"-{terms[0][1]}"
+    for sign, v in terms[1:]:
+        out += f" {sign} {v}"
+    return out
+
+
+def central_kernel(engine, view, plan, q=None):
+    """The kernel of a chart view for ``engine`` (central differences), or None where the chart
+    has no ``flat`` positions or too many free coordinates.
+
+    Without ``q`` the kernel calls ``flat`` at each stencil point. With ``q`` (a point of the
+    chart's domain) ``flat`` is traced there (:mod:`mps_core.derivatives.tracing`) and its program written
+    out at each stencil point instead: the same operations without the calls, the constant
+    outputs (fixed points) folded in. Where a stencil point fails one of the trace's guards,
+    that kernel calls ``flat`` there (its own domain error) or raises
+    :class:`~mps_core.derivatives.tracing.BranchChanged` (the caller then uses the calling kernel).
+    None where ``flat`` cannot be traced."""
+    flat = getattr(view.chart, "flat", None)
+    n = view.n
+    if flat is None or n > MAX_N:
+        return None
+    traced = None
+    if q is not None:
+        args, free = view_arguments(view, q)
+        try:
+            traced = trace_at(flat, args, free)
+        except TracingError:
+            return None
+        key = (_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
+    else:
+        key = _key(engine, view, plan)
+    return load(key, lambda: _source(engine, view, plan, traced), f"<kernel {view.name}>",
+                flat, view.name)
+
+
+#: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
+#: an equal mechanism, view and Δ, or traced program, is the same)
+_CODE: dict = {}
+_SERIAL = [0]
+
+
+def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
+    """The function ``kernel`` of generated code, compiled once per ``key`` (``source()`` gives
+    the code). Its namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``,
+    and ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
+    raises its own error where the point is outside its domain; otherwise
+    :class:`~mps_core.derivatives.tracing.BranchChanged`; and what ``extra`` adds."""
+    code = _CODE.get(key)
+    if code is None:
+        src = source()
+        if len(_CODE) > 1024:
+            _CODE.clear()
+        _SERIAL[0] += 1
+        code = _CODE[key] = (compile(src, label, "exec"), src, _SERIAL[0])
+
+    def miss(*a):
+        flat(*a)
+        raise BranchChanged(chart)
+
+    namespace = {"F": flat, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
+    namespace.update(extra or {})
+    exec(code[0], namespace)
+    kernel = namespace["kernel"]
+    kernel.source = code[1]
+    #: a number of its own for each code made (never given twice): a short key for tables
+    kernel.serial = code[2]
+    return kernel
+
+
+_FUNCTION_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def function_key(fn, _depth: int = 0):
+    """:func:`_function_key`, kept per function object."""
+    try:
+        return _FUNCTION_KEYS[fn]
+    except (KeyError, TypeError):
+        pass
+    key = _function_key(fn, _depth)
+    try:
+        _FUNCTION_KEYS[fn] = key
+    except TypeError:
+        pass
+    return key
+
+
+def _function_key(fn, _depth: int = 0):
+    """What a position function computes, as a hashable value: its code, module, defaults and
+    the values its closure holds (numbers, strings, functions of the same kind; its module's
+    globals are taken as fixed); None where the closure holds anything else (its generated
+    code is then not shared between mechanisms)."""
+    def value(x):
+        if x is None or isinstance(x, (bool, int, float, str)):
+            return x
+        if isinstance(x, tuple):
+            return tuple(value(y) for y in x)
+        if isinstance(x, types.FunctionType):
+            if _depth > 4:
+                raise TypeError
+            k = function_key(x, _depth + 1)
+            if k is None:
+                raise TypeError
+            return k
+        if isinstance(x, types.BuiltinFunctionType):
+            return x
+        raise TypeError
+    try:
+        cells = tuple(value(c.cell_contents) for c in fn.__closure__ or ())
+        defaults = tuple(value(d) for d in fn.__defaults__ or ())
+    except (TypeError, ValueError):       # ValueError: an empty cell
+        return None
+    return (_code_number(fn.__code__), fn.__module__, cells, defaults)
+
+
+#: code objects by identity -> (the object, kept alive so that its id is not reused; a number)
+_CODES: dict = {}
+
+
+def _code_number(code) -> int:
+    """A number of a code object's own (hashing the object itself walks its bytecode)."""
+    hit = _CODES.get(id(code))
+    if hit is None:                 # kept: its id is not given to another object
+        hit = _CODES[id(code)] = (code, len(_CODES) + 1)
+    return hit[1]
+
+
+_LOCAL = re.compile(r"\b[A-Za-z_][A-Za-z_0-9]*\b")
+
+
+def live_lines(lines: list[str], ret: str) -> list[str]:
+    """The lines of straight-line code that the return line and the guards need: an
+    assignment whose local nothing later reads is left out (the forward pass computes every
+    derivative of every node; the reactions read a part of them)."""
+    needed = set(_LOCAL.findall(ret))
+    keep = []
+    for line in reversed(lines):
+        body = line.strip()
+        target, eq, expr = body.partition(" = ")
+        if eq and not body.startswith("if ") and "," not in target:
+            if target not in needed:
+                continue
+            needed.update(_LOCAL.findall(expr))
+        else:                           # a guard or an unpacking: always kept
+            needed.update(_LOCAL.findall(body))
+        keep.append(line)
+    return keep[::-1]
+
+
+def inline_once(lines: list[str]) -> list[str]:
+    """Straight-line code with each local that is read once written into the line that reads
+    it, in parentheses: the same operations in the same order, without storing and loading it.
+    ``lines``: assignments ``    name = expr``, unpackings (``    a, b = x``: their targets
+    stay), guards (``    if …``) and a last ``    return …``. Only later lines read a local,
+    so an expression only moves forward (past guards, never before one)."""
+    uses: dict = {}
+    for line in lines:
+        text = line.strip()
+        target, eq, expr = text.partition(" = ")
+        if not eq or text.startswith(("if ", "return ")) or "," in target:
+            expr = text if not eq or text.startswith(("if ", "return ")) else expr
+        for name in _LOCAL.findall(expr):
+            uses[name] = uses.get(name, 0) + 1
+    subst: dict = {}
+
+    def put(expr: str) -> str:
+        return _LOCAL.sub(lambda m: subst.pop(m.group(0), m.group(0)), expr)
+
+    out = []
+    for line in lines:
+        text = line.strip()
+        target, eq, expr = text.partition(" = ")
+        if not eq or text.startswith(("if ", "return ")) or "," in target:
+            if eq and "," in target and not text.startswith(("if ", "return ")):
+                out.append(f"    {target} = {put(expr)}")
+            else:
+                out.append("    " + put(text))
+            continue
+        expr = put(expr)
+        if uses.get(target, 0) == 1:
+            subst[target] = expr if _LOCAL.fullmatch(expr) else f"({expr})"
+        else:
+            out.append(f"    {target} = {expr}")
+    return out
+
+
+def view_arguments(view, q):
+    """(the position function's arguments at q: the view's template values and q,
+    {argument position: traced input number})."""
+    args, free = [], {}
+    k_of = {ci: k for k, ci in enumerate(view.free)}
+    for ci in range(view.chart.size):
+        if ci in k_of:
+            free[ci] = k_of[ci]
+            args.append(float(q[k_of[ci]]))
+        else:
+            args.append(float(view._template[ci]))
+    return args, free
+
+
+_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+_CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
+
+
+def _unit(x) -> bool:
+    """x is the constant 1.0 (an operand: a node's index, int, or a constant, float)."""
+    return isinstance(x, float) and x == 1.0
+
+
+def _inline(w: _Writer, tape, outputs, inputs: list, call: list) -> list:
+    """Code for one call of a traced function: ``inputs`` the traced arguments as code (by input
+    number), ``call`` the whole argument list as code (for a failed guard's call). Returns the
+    outputs, each a local's name or a float."""
+    vals: list = []
+    pending: dict = {}
+    for g in tape.guards:
+        last = max([x for x in (g[0], g[2]) if isinstance(x, int)], default=-1)
+        pending.setdefault(last, []).append(g)
+
+    def code(x):
+        v = vals[x] if isinstance(x, int) else x
+        return repr(v) if isinstance(v, float) else v
+
+    for i, node in enumerate(tape.nodes):
+        op = node[0]
+        if op == "input":
+            vals.append(inputs[node[1]])
+        elif op == "mul" and _unit(node[1]) and isinstance(node[2], int):
+            vals.append(vals[node[2]])          # 1.0·x is x, bit for bit (NaN, ±inf too)
+        elif op == "mul" and _unit(node[2]) and isinstance(node[1], int):
+            vals.append(vals[node[1]])
+        elif op in _INFIX:
+            vals.append(w.let(f"{code(node[1])} {_INFIX[op]} {code(node[2])}"))
+        elif op == "neg":
+            vals.append(w.let(f"-{code(node[1])}"))
+        else:
+            vals.append(w.let(f"{op}({code(node[1])})"))
+        for a, cmp, b, outcome in pending.get(i, ()):
+            test = f"{code(a)} {_CMP[cmp]} {code(b)}"
+            # "not (a > b)" also catches NaN
+            w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
+    return [vals[o] if isinstance(o, int) else o for o in outputs]
+
+
+
+
+def _key(engine, view, plan=None) -> tuple:
+    """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
+    return (_tables_number(engine), view.chart.name, view.chart.size, tuple(view.free),
+            tuple(view._template), None if plan is None else plan.d.tobytes())
+
+
+#: the engines' tables (linear map, masses, inertias, rotating bodies, points) by a number
+_TABLES: dict = {}
+
+
+def _tables_number(engine) -> int:
+    """A number for the engine's tables, equal for equal tables (worked out once an engine)."""
+    number = engine.__dict__.get("_tables_number")
+    if number is None:
+        mech = engine.mechanism
+        off = None if engine._offset is None else engine._offset.tobytes()
+        tables = (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
+                  engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
+                  tuple(getattr(mech, "fixed_points", ())))
+        number = _TABLES.get(tables)
+        if number is None:
+            number = _TABLES[tables] = len(_TABLES) + 1       # never cleared: one per kind
+        engine._tables_number = number
+    return number
+
+
+def _source(engine, view, plan, traced=None) -> str:
+    """The kernel's Python source (see the module's docstring).
+
+    The differences are left unscaled inside: ω̃ = (r × Δr)/|r|² and A_ij = Σ m ΔG_i·ΔG_j +
+    J ω̃_i ω̃_j are scaled once by 1/2Δ_i (1/(4Δ_iΔ_j) for A); equal products (centres of mass
+    at the same point) are summed with their masses added."""
+    n = view.n
+    offsets, plus, minus = stencil(n)
+    d = plan.d.tolist()
+    inv2d = plan.inv2d
+    M = engine._MT.T                        # rows: pairs (x, y) of names, links, check
+    npts, NP = engine._npts, engine._np
+    mech = engine.mechanism
+    fixed = {engine._names[p] for p in getattr(mech, "fixed_points", ())}
+    moving = {k for k in range(2 * npts) if k // 2 not in fixed}
+    w = _Writer()
+    qs = [f"q{k}" for k in range(n)]
+    # the stencil's positions: P[s][k] the point coordinate k at stencil point s (a local's
+    # name, or a float where the position function gives a constant)
+    args_free = {i: k for k, i in enumerate(view.free)}
+    P = []
+    for s, off in enumerate(offsets.tolist()):
+        args, inputs = [], []
+        for ci in range(view.chart.size):
+            if ci in args_free:
+                k = args_free[ci]
+                o = off[k] * d[k]
+                a = qs[k] if o == 0.0 else f"{qs[k]} + {o!r}"
+                if traced is not None:
+                    a = w.let(a)
+                    inputs.append(a)
+                args.append(a)
+            else:
+                args.append(repr(float(view._template[ci])))
+        if traced is None:
+            names = [f"p{s}_{k}" for k in range(2 * npts)]
+            w.lines.append(f"    {', '.join(names)}, = F({', '.join(args)})")
+            P.append(names)
+        else:
+            P.append(_inline(w, traced[0], traced[1], inputs, args))
+
+    def diff(b, i, row):
+        """Unscaled analog 2Δ_i·∂r/∂q_i of M's row at base b (a local's name, or None)."""
+        def var(k):
+            a, c = P[plus[b, i]][k], P[minus[b, i]][k]
+            if k not in moving:
+                return None
+            if isinstance(a, float) and isinstance(c, float):
+                return None if a == c else repr(a - c)
+            return w.let(f"{a!r} - {c}" if isinstance(a, float) else
+                         f"{a} - {c!r}" if isinstance(c, float) else f"{a} - {c}")
+        e = _lin(M[row], var)
+        return None if e is None else w.let(e)
+
+    def value(b, row):
+        def var(k):
+            a = P[b][k]
+            if isinstance(a, float):
+                return None if a == 0.0 else repr(a)
+            return a
+        e = _lin(M[row], var)
+        return None if e is None else w.let(e)
+
+    def scaled(x, i):
+        return "0.0" if x is None else w.let(f"{x} * {inv2d[i]!r}")
+
+    B = 1 + 2 * n
+    rot = engine._rot
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    com_rows = [engine._names[f"G_{b.name}"] for b in mech.bodies]
+    out_A = []
+    omegas = []
+    for b in range(B):
+        om = {}                                 # (body, i): ω̃ (unscaled)
+        for j, k in enumerate(rot):
+            r = 2 * NP + 2 * j
+            rx, ry = value(b, r) or "0.0", value(b, r + 1) or "0.0"
+            irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
+            for i in range(n):
+                jx, jy = diff(b, i, r), diff(b, i, r + 1)
+                if jx is None and jy is None:
+                    continue
+                if jx is None:
+                    cross = f"{rx} * {jy}"
+                elif jy is None:
+                    cross = f"-{ry} * {jx}"
+                else:
+                    cross = f"{rx} * {jy} - {ry} * {jx}"
+                om[k, i] = w.let(f"({cross}) * {irr}")
+        omegas.append(om)
+        entries = []
+        for i in range(n):
+            for jj in range(i, n):
+                terms: dict = {}
+                for k in range(len(mech.bodies)):
+                    r = 2 * com_rows[k]
+                    if mass[k] != 0.0:
+                        for c in (0, 1):
+                            a1, a2 = diff(b, i, r + c), diff(b, jj, r + c)
+                            if a1 is not None and a2 is not None:
+                                key = (a1, a2)
+                                terms[key] = terms.get(key, 0.0) + mass[k]
+                    if k in rot and inertia[k] != 0.0:
+                        w1, w2 = om.get((k, i)), om.get((k, jj))
+                        if w1 is not None and w2 is not None:
+                            terms[w1, w2] = terms.get((w1, w2), 0.0) + inertia[k]
+                body = " + ".join(f"{c!r} * {x} * {y}" for (x, y), c in terms.items())
+                entries.append(w.let(f"({body or '0.0'}) * {inv2d[i] * inv2d[jj]!r}"))
+        out_A.append(entries)
+    # positions, analogs and angular analogs at q
+    xl = []
+    offset = engine._offset.tolist() if engine._offset is not None else None
+    for r in range(2 * NP):
+        e = value(0, r) or "0.0"
+        if offset is not None and offset[r] != 0.0:
+            e = f"{e} + {offset[r]!r}"
+        xl.append(e)
+    jl = [scaled(diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1) for i in range(n)]
+
+    def omega_list(om):
+        return "[" + ", ".join(scaled(om.get((k, i)), i) if k in rot else "0.0"
+                               for k in range(len(mech.bodies)) for i in range(n)) + "]"
+
+    wls = [omega_list(om) for om in omegas]
+    # the velocity terms from A's central differences: h_i = Σ_jk ∂_k A_ij q̇_j q̇_k −
+    # ½ Σ_jk ∂_i A_jk q̇_j q̇_k, r_kj = Σ_l ∂_k A_jl q̇_l
+    c = [repr(x) for x in inv2d]
+    L = w.lines
+    if n == 1:
+        A_out = out_A[0][0]
+        L.append(f"    _d = ({out_A[1][0]} - {out_A[2][0]}) * {c[0]}")
+        L.append("    _h = [0.5 * _d * vd0 * vd0]")
+    else:
+        A_out = f"({', '.join(out_A[0])})"
+        for k in range(2):
+            p, m = out_A[1 + 2 * k], out_A[2 + 2 * k]
+            L.append(f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
+                     f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}")
+        L += ["    _r00 = _d000 * vd0 + _d001 * vd1",
+              "    _r01 = _d001 * vd0 + _d011 * vd1",
+              "    _r10 = _d100 * vd0 + _d101 * vd1",
+              "    _r11 = _d101 * vd0 + _d111 * vd1",
+              "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
+              "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
+    vds = [f"vd{k}" for k in range(n)]
+    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
+           f"[{', '.join(wls[1:])}]")
+    return (f"def kernel({', '.join(qs + vds)}):\n"
+            + "\n".join(inline_once(live_lines(L, ret) + [ret])) + "\n")
+
+
+def solve_given_h(A, h, Q) -> list:
+    """q̈ from A (n = 1: a; n = 2: (a00, a01, a11)), h and Q, on floats; NaN where A is
+    singular."""
+    if len(h) == 1:
+        try:
+            return [(Q[0] - h[0]) / A]
+        except ZeroDivisionError:
+            return [math.nan]
+    a00, a01, a11 = A
+    r0, r1 = Q[0] - h[0], Q[1] - h[1]
+    det = a00 * a11 - a01 * a01
+    try:
+        return [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a01 * r0) / det]
+    except ZeroDivisionError:
+        return [math.nan, math.nan]
+
+
+def as_matrix(A, n: int) -> np.ndarray:
+    if n == 1:
+        return np.array([[A]])
+    a00, a01, a11 = A
+    return np.array([[a00, a01], [a01, a11]])

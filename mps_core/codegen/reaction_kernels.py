@@ -1,0 +1,670 @@
+"""Reaction kernels: the joint reactions of one chart view as generated float code.
+
+:func:`mps_core.dynamics.reactions.compute_reactions` builds, at every state, the exact kinematics on
+jets, a Newton–Euler system ``E u = b`` (3 rows a body) in numpy and solves it by a constrained
+least squares (an SVD and ``lstsq``). Everything in that system but the numbers is fixed by the
+chart view and the structure: which joints carry load, where every entry of ``E`` sits, which
+entries are ±1 and which are moment arms. A reaction kernel is that computation written out
+once per (mechanism, chart view, traced program, length scale) as straight-line code on floats,
+with known zeros and constants folded away:
+
+1. the exact kinematics of the traced position function (the forward pass of
+   :mod:`mps_core.codegen.exact_kernels`): the centres of mass, their analogs J_G and convective
+   accelerations, the angular analogs ω* and θ̈ at q̈ = 0, the joints' points;
+2. ``b`` per body from ``m a_G``, ``J α`` and the known loads (summed per body by
+   :class:`LoadSums`);
+3. the least squares' leftover in closed form. Reactions do no work on admissible motions, so
+   the columns of ``E`` span exactly the vectors r with ``J_bᵀ r = 0`` when E has full column
+   rank and as many columns as rows less the degrees of freedom (J_b: the bodies' exact analogs,
+   3 rows a body). The general path minimises ``|S r|`` (S: moment rows divided by the length
+   scale) over r = b − E u under the whole-system balance ``C r = 0``; that is ``min |S r|``
+   under ``J_bᵀ r = J_bᵀ b`` and ``C r = 0``, whose solution is ``r = S⁻² Mᵀ λ`` with
+   ``(M S⁻² Mᵀ) λ = (0, J_bᵀ b)``, M = (C; J_bᵀ): a symmetric positive definite system of
+   n + 3 unknowns, eliminated without pivoting;
+4. u from ``E u = b − r`` (consistent by construction) by Gaussian elimination on the rows and
+   in the pivot order that partial pivoting picks at the state the kernel is built at, with the
+   sparsity of E folded in;
+5. the frame's share, the foundation load, the residual norms and the balance check, as the
+   general path computes them.
+
+A kernel is built only where its premises hold at the building state (every unknown a joint
+force or moment, no drive torque, columns + degrees of freedom = rows, ``J_bᵀ E = 0`` to
+round-off, full column rank). At run time every pivot is guarded: one that falls below 10⁻⁶ of
+its size at the building state (a singular position: the reactions are not unique there) raises
+:class:`Fallback`, and so does a failed guard of the trace; the caller then takes the general
+path, which reports the rank.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+
+from ..derivatives.tracing import BranchChanged, Tape, Traced
+from ..model.effects.base import STATE_VERSION
+from ..model.mechanism import FRAME
+from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
+from .fused_kernels import emit_tape, fingerprint, input_slot
+from .kernels import _key, _Writer, inline_once, live_lines, load
+
+
+class Fallback(ArithmeticError):
+    """The kernel does not hold at this state: take the general path."""
+
+
+def _fallback(*_):
+    raise Fallback("reaction kernel: a pivot fell below its guard")
+
+
+class _Folding(_Forward):
+    """:class:`~mps_core.codegen.exact_kernels._Forward` that also folds x − x to zero: every value
+    a reaction kernel subtracts from itself is finite where the kernel holds (a position)."""
+
+    def sub(self, a, b):
+        if isinstance(a, str) and a == b:
+            return None
+        return super().sub(a, b)
+
+
+#: relative size below which a pivot sends the state to the general path
+PIVOT_GUARD = 1e-6
+
+
+def reaction_kernel(engine, view, q, system, motion, columns, scale: float,
+                    from_kinematics: bool = False):
+    """The reaction kernel of ``view`` (traced at ``q``), or None where its premises do not
+    hold. ``engine``: a :class:`~mps_core.dynamics.engine.PartialSystems` of the mechanism (its maps);
+    ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
+    joints and the numbers the pivot order is chosen from) and the bodies' motion there;
+    ``columns``: the output columns in order.
+
+    ``from_kinematics``: the kernel reads the motion from an exact evaluation's kinematics
+    (``fn(q…, q̇…, q̈…, xl, jl, wl, cv, loads)``: positions, analogs, angular analogs and
+    ``cv``, θ̈ and the centres of mass' accelerations at q̈ = 0, as
+    :class:`~mps_core.dynamics.engine.Kinematics` keeps them from an exact kernel) instead of running
+    the traced position function forward itself; what the trace folds (zeros, constants) is
+    folded the same. Only for exact kinematics: from central differences they would carry
+    the scheme's error into every reaction."""
+    traced = trace_view(view, q)
+    if traced is None:
+        return None
+    flat, tape, outputs, args, free = traced
+    n = view.n
+    mech = engine.mechanism
+    sysm = system
+    E = sysm.E
+    nb = len(mech.bodies)
+    m = E.shape[1]
+    if m + n != 3 * nb:
+        return None
+    rows = motion.com_rows(mech)
+    Jb = np.zeros((3 * nb, n))
+    Jb[0::3] = motion.J[rows, 0]
+    Jb[1::3] = motion.J[rows, 1]
+    Jb[2::3] = motion.W
+    s = np.ones(3 * nb)
+    s[2::3] = 1.0 / scale
+    if np.linalg.norm(Jb.T @ E) > 1e-9 * np.linalg.norm(Jb) * np.linalg.norm(E):
+        return None                 # a joint that does work: not this kernel's system
+    sv = np.linalg.svd(s[:, None] * E, compute_uv=False)
+    if sv[-1] <= 1e-9 * sv[0]:
+        return None                 # not unique at the building state
+    order, pivots = _pivot_order(s[:, None] * E)
+    key = ("reactions from kinematics" if from_kinematics else "reactions",
+           _key(engine, view), tape.key(), tuple(outputs),
+           tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
+           tuple(columns), float(scale), tuple(order))
+    kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
+                                       scale, order, [float(abs(p) / s[r])
+                                                      for p, r in zip(pivots, order)],
+                                       from_kinematics),
+                  f"<reaction kernel{' from kinematics' if from_kinematics else ''} "
+                  f"{view.name}>", flat, view.name, {"_fallback": _fallback})
+    kernel.flat, kernel.chart = flat, view.name
+    return kernel
+
+
+_ASSIGNED = re.compile(r"^    ([A-Za-z_][A-Za-z_0-9]*) = ")
+
+
+def with_loads(kernel, sums):
+    """One function ``fn(t, q…, q̇…, q̈…, xl, jl, wl, vl)`` (a kernel from kinematics:
+    ``fn(t, q…, q̇…, q̈…, xl, jl, wl, cv, vl)``) that is the traced load sums
+    ``sums`` (:func:`traced_sums`) followed by the reaction kernel ``kernel`` on what they
+    return: the two generated bodies one after the other (the sums' locals renamed), so the
+    same operations on the same numbers, without the call, the list and its unpacking between
+    them. Made once per pair. It raises what either raises."""
+    key = ("reactions with loads", kernel.serial, sums.serial)
+    made = _WITH_LOADS.get(key)
+    if made is not None:
+        return made
+    head, unpack, *body = kernel.source.rstrip("\n").split("\n")
+    targets, eq, rhs = unpack.strip().partition(" = ")
+    if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq
+            and rhs == "loads"):
+        raise ValueError("with_loads: not a reaction kernel's source")
+    s_lines = sums.source.rstrip("\n").split("\n")[1:]
+    ret = s_lines.pop()
+    if not (ret.startswith("    return [") and ret.endswith("]")):
+        raise ValueError("with_loads: not a load sums' source")
+    local = {m.group(1) for line in s_lines if (m := _ASSIGNED.match(line))}
+    rename = re.compile(r"\b(" + "|".join(sorted(local, key=len, reverse=True)) + r")\b") \
+        if local else None
+
+    def renamed(line: str) -> str:
+        return rename.sub(r"s_\1", line) if rename is not None else line
+
+    params = head[len("def kernel("):-len(", loads):")]
+    names = [x.strip() for x in targets.split(",")]
+    items = _top_level_items(renamed(ret[len("    return ["):-1]))
+    if len(names) != len(items):
+        raise ValueError("with_loads: the sums do not give the kernel's loads")
+    ret = body.pop()
+    # a load that is a number (gravity's, a zero) is written where it is read
+    numbers = {a: x for a, x in zip(names, items) if _NUMBER.fullmatch(x)}
+    if numbers:
+        sub = re.compile(r"\b(" + "|".join(numbers) + r")\b")
+        body = [sub.sub(lambda m: f"({numbers[m.group(1)]})", line) for line in body]
+        ret = sub.sub(lambda m: f"({numbers[m.group(1)]})", ret)
+    lines = [*(renamed(line) for line in s_lines),
+             *(f"    {a} = {x}" for a, x in zip(names, items) if a not in numbers), *body]
+    given = {x.strip() for x in params.split(",")}
+    lists = ", ".join(x for x in ("xl", "jl", "wl", "vl") if x not in given)
+    src = "\n".join([f"def kernel(t, {params}, {lists}):",
+                     *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
+    made = load(key, lambda: src, f"<reaction kernel with loads {kernel.chart}>", kernel.flat,
+                kernel.chart, {"_fallback": _fallback, "tanh": math.tanh,
+                               "_Branch": BranchChanged})
+    if len(_WITH_LOADS) > 256:
+        _WITH_LOADS.clear()
+    _WITH_LOADS[key] = made
+    return made
+
+
+_WITH_LOADS: dict = {}
+_NUMBER = re.compile(r"-?(\d+\.\d*(e-?\d+)?|inf|nan)")
+
+
+def _top_level_items(text: str) -> list[str]:
+    """The comma-separated items of ``text`` outside parentheses and brackets."""
+    items, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        if ch in "([":
+            depth += 1
+        elif ch in ")]":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            items.append(text[start:i].strip())
+            start = i + 1
+    items.append(text[start:].strip())
+    return items
+
+
+def _pivot_order(A: np.ndarray) -> tuple[list, list]:
+    """Rows picked by partial pivoting, column by column, and the pivots (of A as given)."""
+    A = A.copy()
+    left = list(range(A.shape[0]))
+    order, pivots = [], []
+    for j in range(A.shape[1]):
+        p = max(left, key=lambda i: abs(A[i, j]))
+        order.append(p)
+        pivots.append(A[p, j])
+        left.remove(p)
+        for i in left:
+            if A[i, j] != 0.0:
+                A[i] -= (A[i, j] / A[p, j]) * A[p]
+    return order, pivots
+
+
+def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order,
+            pivot_sizes, from_kinematics: bool = False) -> str:
+    n = view.n
+    w = _Writer()
+    mech = engine.mechanism
+    names = engine._names
+    nb = len(mech.bodies)
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
+    if from_kinematics:
+        fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(engine, view, tape, outputs,
+                                                                    args, free, w)
+    else:
+        fw, outs = forward(w, n, tape, outputs, args, free, _Folding)
+        parts = linear_parts(engine, fw, outs)
+        val, grad, _d1, d2 = parts
+        omega, theta2 = angular(engine, fw, n, parts)
+        unpack = None
+
+        def pos(name):
+            r = 2 * names[name]
+            return (fw.add(val(r), offset[r] or None),
+                    fw.add(val(r + 1), offset[r + 1] or None))
+    add, sub, mul, neg = fw.add, fw.sub, fw.mul, fw.neg
+
+    def guard(p, size):
+        if isinstance(p, float):
+            if not abs(p) > PIVOT_GUARD * size:
+                raise ValueError("reaction kernel: a constant pivot below its guard")
+            return
+        w.lines.append(f"    if not abs({p}) > {PIVOT_GUARD * size!r}: _fallback()")
+
+    def div(a, p):
+        return mul(a, fw.recip(p))
+
+    def code(x):
+        return "0.0" if x is None else fw._s(x)
+
+    qs = [f"q{k}" for k in range(n)]
+    vs = [f"vd{k}" for k in range(n)]
+    accs = [f"a{k}" for k in range(n)]
+    ox, oy = pos("O") if "O" in names else (None, None)
+    load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + [
+        "ffx", "ffy", "fmo", "mmot"]
+    w.lines.insert(0, f"    {', '.join(load_names)} = loads")
+    # -- the bodies' motion and b -------------------------------------------------------------
+    G, g, JG, aG, alpha, W = [], [], [], [], [], []
+    b = []
+    for k, body in enumerate(mech.bodies):
+        r = 2 * names[f"G_{body.name}"]
+        Gx, Gy = pos(f"G_{body.name}")
+        G.append((Gx, Gy))
+        g.append((sub(Gx, ox), sub(Gy, oy)))
+        jg = [[grad(r + c, i) for i in range(n)] for c in (0, 1)]
+        JG.append(jg)
+        a = []
+        for c in (0, 1):
+            acc = d2(r + c)
+            for i in range(n):
+                acc = add(acc, mul(jg[c][i], accs[i]))
+            a.append(acc)
+        aG.append(a)
+        wk = [omega.get((k, i)) for i in range(n)]
+        W.append(wk)
+        al = theta2.get(k)
+        for i in range(n):
+            al = add(al, mul(wk[i], accs[i]))
+        alpha.append(al)
+        lx, ly, lm = f"lx{k}", f"ly{k}", f"lm{k}"
+        # the loads' moment about G from theirs about O: M_G = M_O − (G − O) × F
+        mG = sub(lm, sub(mul(g[k][0], ly), mul(g[k][1], lx)))
+        b += [sub(mul(mass[k], a[0]), lx), sub(mul(mass[k], a[1]), ly),
+              sub(mul(inertia[k], al), mG)]
+    # -- E, column by column (the general path's _System, written as code) -------------------
+    nrow = 3 * nb
+    body_row = {bd.name: 3 * k for k, bd in enumerate(mech.bodies)}
+    cols = sysm.cols
+    m = len(cols)
+    E = [[None] * m for _ in range(nrow)]
+    for c, (j, comp, _col) in enumerate(cols):
+        for body, sign in ((j.receiver, 1.0), (j.giver, -1.0)):
+            if body == FRAME:
+                continue
+            r0 = body_row[body]
+            if comp == "m":
+                E[r0 + 2][c] = add(E[r0 + 2][c], sign)
+                continue
+            px, py = pos(j.point)
+            Gx, Gy = G[r0 // 3]
+            dx, dy = sub(px, Gx), sub(py, Gy)
+            if comp == "x":
+                E[r0][c] = add(E[r0][c], sign)
+                E[r0 + 2][c] = add(E[r0 + 2][c], mul(-sign, dy))
+            else:
+                E[r0 + 1][c] = add(E[r0 + 1][c], sign)
+                E[r0 + 2][c] = add(E[r0 + 2][c], mul(sign, dx))
+    # -- the leftover r = S⁻² Mᵀ λ, (M S⁻² Mᵀ) λ = (0, 0, 0, J_bᵀ b) ---------------------------
+    wt = [1.0, 1.0, scale * scale] * nb
+    Mrows = []
+    Mrows.append([1.0 if r % 3 == 0 else None for r in range(nrow)])
+    Mrows.append([1.0 if r % 3 == 1 else None for r in range(nrow)])
+    Mrows.append([x for k in range(nb) for x in (neg(g[k][1]), g[k][0], 1.0)])
+    for i in range(n):
+        Mrows.append([x for k in range(nb) for x in (JG[k][0][i], JG[k][1][i], W[k][i])])
+    K = len(Mrows)
+
+    def dot(u, v, weights=None):
+        acc = None
+        for r in range(nrow):
+            x = mul(u[r], v[r])
+            if weights is not None:
+                x = mul(weights[r], x)
+            acc = add(acc, x)
+        return acc
+
+    Gm = [[dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)]
+          for i in range(K)]
+    rhs = [None, None, None] + [dot(Mrows[3 + i], b) for i in range(n)]
+    diag = [Gm[i][i] for i in range(K)]
+    for k in range(K):
+        p = Gm[k][k]
+        if not (isinstance(p, float) and isinstance(diag[k], float)):
+            w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
+        elif not p > 1e-12 * diag[k]:
+            raise ValueError("reaction kernel: a constant pivot below its guard")
+        ip = fw.recip(p)
+        for i in range(k + 1, K):
+            f = mul(Gm[k][i], ip)               # symmetric: G[i][k] = G[k][i]
+            if f is None:
+                continue
+            for jj in range(i, K):
+                Gm[i][jj] = sub(Gm[i][jj], mul(f, Gm[k][jj]))
+            rhs[i] = sub(rhs[i], mul(f, rhs[k]))
+    lam = [None] * K
+    for k in reversed(range(K)):
+        acc = rhs[k]
+        for jj in range(k + 1, K):
+            acc = sub(acc, mul(Gm[k][jj], lam[jj]))
+        lam[k] = div(acc, Gm[k][k]) if acc is not None else None
+    res = []
+    for r in range(nrow):
+        acc = None
+        for a in range(K):
+            acc = add(acc, mul(Mrows[a][r], lam[a]))
+        res.append(mul(wt[r], acc))
+    # -- u from E u = b − r: the pivot rows, in the building state's order --------------------
+    Ew = [list(row) for row in E]
+    y = [sub(b[r], res[r]) for r in range(nrow)]
+    later = list(order)
+    for jcol, p in enumerate(order):
+        later.remove(p)
+        piv = Ew[p][jcol]
+        guard(piv, pivot_sizes[jcol])
+        ip = fw.recip(piv)
+        for i in later:
+            f = mul(Ew[i][jcol], ip)
+            if f is None:
+                continue
+            for c in range(jcol + 1, m):
+                Ew[i][c] = sub(Ew[i][c], mul(f, Ew[p][c]))
+            y[i] = sub(y[i], mul(f, y[p]))
+    u = [None] * m
+    for jcol in reversed(range(m)):
+        p = order[jcol]
+        acc = y[p]
+        for c in range(jcol + 1, m):
+            acc = sub(acc, mul(Ew[p][c], u[c]))
+        u[jcol] = div(acc, Ew[p][jcol]) if acc is not None else None
+    # -- what the frame receives, the foundation load, the checks -----------------------------
+    out = dict.fromkeys(columns, None)
+    RFx = RFy = RM = None
+    for (j, comp, col), val_u in zip(cols, u):
+        out[col] = val_u
+        sign = 1.0 if j.receiver == FRAME else (-1.0 if j.giver == FRAME else 0.0)
+        if sign == 0.0:
+            continue
+        if comp == "m":
+            RM = add(RM, mul(sign, val_u))
+            continue
+        px, py = pos(j.point)
+        px, py = sub(px, ox), sub(py, oy)
+        f = mul(sign, val_u)
+        if comp == "x":
+            RFx = add(RFx, f)
+            RM = sub(RM, mul(py, f))
+        else:
+            RFy = add(RFy, f)
+            RM = add(RM, mul(px, f))
+    out["M_motor"] = "mmot"
+    out["F_found_x"] = add(RFx, "ffx")
+    out["F_found_y"] = add(RFy, "ffy")
+    out["M_found_O"] = add(RM, "fmo")
+
+    def norm(xs):
+        acc = None
+        for x in xs:
+            acc = add(acc, mul(x, x))
+        return None if acc is None else fw.call("sqrt", acc)
+
+    out["residual_force_N"] = norm([res[r] for r in range(nrow) if r % 3 != 2])
+    out["residual_moment_Nm"] = norm([res[r] for r in range(2, nrow, 3)])
+    pdx = pdy = hdot = None
+    ex = ey = emo = None
+    for k in range(nb):
+        mx, my = mul(mass[k], aG[k][0]), mul(mass[k], aG[k][1])
+        pdx, pdy = add(pdx, mx), add(pdy, my)
+        hdot = add(hdot, sub(mul(g[k][0], my), mul(g[k][1], mx)))
+        hdot = add(hdot, mul(inertia[k], alpha[k]))
+        ex, ey, emo = add(ex, f"lx{k}"), add(ey, f"ly{k}"), add(emo, f"lm{k}")
+    bx, by = sub(pdx, sub(ex, RFx)), sub(pdy, sub(ey, RFy))
+    out["balance_residual_N"] = norm([bx, by])
+    bm = sub(hdot, sub(emo, RM))
+    out["balance_residual_Nm"] = (None if bm is None else abs(bm) if isinstance(bm, float)
+                                  else w.let(f"abs({bm})"))
+    ret = (f"    return [{', '.join(code(out[c]) for c in columns)}], "
+           f"[{', '.join(code(x) for x in res)}]")
+    if unpack is not None:              # the lists' numbers the code above reads
+        w.lines[1:1] = unpack()
+    lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
+    return (f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
+            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+
+
+def _from_kinematics(engine, view, tape, outputs, args, free, w):
+    """What :func:`_source` reads of the bodies' motion, as code reading an exact evaluation's
+    kinematics lists (unpacked into locals ``kx…``, ``kj…``, ``kw…``, ``kc…``): (fw, pos,
+    grad, d2, omega, theta2, ``unpack()``: the unpacking lines of the numbers read so far).
+    The trace runs forward once, here, into code that is thrown away: where it gives a zero
+    or a constant, so does this; elsewhere the list's number, the same to round-off."""
+    n = view.n
+    mech = engine.mechanism
+    names = engine._names
+    nb = len(mech.bodies)
+    NP = engine._np
+    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * NP)
+    fw0, outs = forward(_Writer(), n, tape, outputs, args, free, _Folding)
+    parts0 = linear_parts(engine, fw0, outs)
+    val0, grad0, _d10, d20 = parts0
+    omega0, theta20 = angular(engine, fw0, n, parts0)
+    com = {2 * names[f"G_{b.name}"]: k for k, b in enumerate(mech.bodies)}
+    used: dict = {"kx": set(), "kj": set(), "kw": set(), "kc": set()}
+
+    def read(traced, prefix, i):
+        if traced is None or isinstance(traced, float):
+            return traced                   # a zero or a constant of the trace
+        used[prefix].add(i)
+        return f"{prefix}{i}"
+
+    def pos(name):
+        r = 2 * names[name]
+        return tuple(read(fw0.add(val0(r + c), offset[r + c] or None), "kx", r + c)
+                     for c in (0, 1))
+
+    def grad(row, i):
+        return read(grad0(row, i), "kj", row * n + i)
+
+    def d2(row):
+        k = com.get(row - row % 2)
+        if k is None:
+            raise ValueError("reaction kernel from kinematics: a convective acceleration "
+                             "other than a centre of mass's")
+        return read(d20(row), "kc", nb + 2 * k + row % 2)
+
+    omega = {key: read(x, "kw", key[0] * n + key[1]) for key, x in omega0.items()}
+    theta2 = {k: read(x, "kc", k) for k, x in theta20.items()}
+
+    def unpack():
+        """The lists into locals (one statement each: the unused ones are ``_``)."""
+        sizes = {"kx": ("xl", 2 * NP), "kj": ("jl", 2 * NP * n), "kw": ("wl", nb * n),
+                 "kc": ("cv", 3 * nb)}
+        out = []
+        for prefix, (arg, size) in sizes.items():
+            if used[prefix]:
+                targets = [f"{prefix}{i}" if i in used[prefix] else "_" for i in range(size)]
+                out.append(f"    {', '.join(targets)} = {arg}")
+        return out
+    return _Folding(w, n), pos, grad, d2, omega, theta2, unpack
+
+
+class LoadSums:
+    """The known loads a reaction kernel takes, as floats: per body (in the mechanism's order)
+    the force (x, y) and the moment about O of every effect's forces and torques on it; then
+    the frame's own entries (force x, y, moment about O) and the motor's torque. The general
+    path's sums, taken with the step's kinematics (``kin``'s positions).
+
+    Made once per list of effects: effects that apply no force of their own (a rigid stop, the
+    latch) are left out, and the loads of effects whose loads do not depend on the state
+    (``constant_loads``, e.g. gravity) are read once."""
+
+    def __init__(self, effects, mechanism):
+        self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
+        self.nb = nb = len(self.bodies)
+        self.effects = []
+        self.constant = []              # (point, body row, fx, fy) of constant forces
+        base = [0.0] * (3 * nb + 4)
+        for e in effects:
+            if not getattr(e, "applies_forces", True):
+                continue
+            if getattr(e, "constant_loads", False):
+                ld = e.loads(0.0, None)
+                for body, point, fx, fy in ld.forces:
+                    if not isinstance(point, str):
+                        raise ValueError(f"effect {e.name!r}: constant loads at named points only")
+                    self.constant.append((point, 3 * self.bodies[body], float(fx), float(fy)))
+                for body, mz in ld.torques:
+                    base[3 * self.bodies[body] + 2] += mz
+                if ld.frame:
+                    raise ValueError(f"effect {e.name!r}: constant loads on the frame")
+                continue
+            self.effects.append((e, e.kind == "motor"))
+        for _p, k, fx, fy in self.constant:
+            base[k] += fx
+            base[k + 1] += fy
+        self.base = base
+        self._names = None              # the kinematics' names the rows below are read from
+        self._rows = None
+        #: the sums as generated code per number of coordinates (:func:`traced_sums`):
+        #: [functions, most recent first], for the effects' state ``_traced_at``; kept per
+        #: state of their parameters and controls (a command, a change of structure, and back)
+        self._traced: dict = {}
+        self._traced_at = -1
+        self._by_state: dict = {}
+        self._traces = 0
+
+    def _refresh(self) -> None:
+        """The traced sums of the effects' present state (parameters and controls)."""
+        if self._traced_at != STATE_VERSION[0]:
+            self._traced_at = STATE_VERSION[0]
+            state = fingerprint([e for e, _motor in self.effects])
+            if state is None:
+                self._traced = {}
+            else:
+                if len(self._by_state) > 64:
+                    self._by_state.clear()
+                self._traced = self._by_state.setdefault(state, {})
+
+    def first(self, n: int):
+        """The traced sums for n coordinates that held last (``fn(t, xl, jl, wl, vl)``), or
+        None where there is none yet."""
+        self._refresh()
+        made = self._traced.get(n)
+        return made[0] if made else None
+
+    def __call__(self, t: float, kin) -> list:
+        """The sums at a state: by generated code where it holds (the same operations on the
+        same numbers of ``kin``), else :meth:`sums`."""
+        xl, jl, wl = kin._xl, kin._jl, kin._wl
+        if xl is not None and jl is not None and wl is not None:
+            self._refresh()
+            vl = kin._vl if kin._vl is not None else kin._v()
+            made = self._traced.get(kin.n)
+            if made is None and self._traces < 64:
+                self._traces += 1
+                fn = traced_sums(self, t, kin)
+                made = self._traced[kin.n] = [fn] if fn is not None else []
+            for k, fn in enumerate(made or ()):
+                try:
+                    out = fn(t, xl, jl, wl, vl)
+                except (BranchChanged, ArithmeticError, ValueError):
+                    continue
+                if k:
+                    made.insert(0, made.pop(k))
+                return out
+            if made and len(made) < 6 and self._traces < 64:   # another branch of a law
+                self._traces += 1
+                fn = traced_sums(self, t, kin)
+                if fn is not None:
+                    made.insert(0, fn)
+        return self.sums(t, kin)
+
+    def sums(self, t: float, kin) -> list:
+        """The sums by the effects' ``loads``, one by one (the general path)."""
+        out = self.base[:]
+        names = kin.names
+        if self._rows is None or self._names is not names:
+            self._names = names
+            self._rows = [(2 * names[p], k, fx, fy) for p, k, fx, fy in self.constant]
+            self._o = 2 * names["O"] if "O" in names else None
+        xl = kin._xl if kin._xl is not None else kin._lists()[0]
+        r = self._o
+        ox, oy = (xl[r], xl[r + 1]) if r is not None else (0.0, 0.0)
+        for r, k, fx, fy in self._rows:
+            out[k + 2] += (xl[r] - ox) * fy - (xl[r + 1] - oy) * fx
+        fr = 3 * self.nb
+        bodies = self.bodies
+        for e, motor in self.effects:
+            ld = e.loads(t, kin)
+            # a force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)
+            for body, point, fx, fy in ld.forces:
+                k = 3 * bodies[body]
+                px, py = _arm(point, names, xl, ox, oy)
+                out[k] += fx
+                out[k + 1] += fy
+                out[k + 2] += px * fy - py * fx
+            for body, mz in ld.torques:
+                out[3 * bodies[body] + 2] += mz
+                if motor:
+                    out[fr + 3] += mz
+            for entry in ld.frame:
+                if len(entry) == 4:
+                    _, point, fx, fy = entry
+                    px, py = _arm(point, names, xl, ox, oy)
+                    out[fr] += fx
+                    out[fr + 1] += fy
+                    out[fr + 2] += px * fy - py * fx
+                else:
+                    out[fr + 2] += entry[1]
+        return out
+
+
+def traced_sums(sums: LoadSums, t: float, kin):
+    """``fn(t, xl, jl, wl, vl) -> list``: :meth:`LoadSums.sums` traced at (t, ``kin``) into
+    generated code reading the kinematics' lists by index, the effects' parameters and the
+    controls folded in, their comparisons guards (a failed one raises
+    :class:`~mps_core.derivatives.tracing.BranchChanged`); None where a law cannot be traced."""
+    tape = Tape()
+    slots: list[str] = []
+    slot = input_slot(tape, slots)
+    vl = kin._vl if kin._vl is not None else kin._v()
+    tl = {name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
+          for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))}
+    tkin = type(kin)(slot("t", t), None, None, kin.names, bodies=kin.bodies,
+                     lists=(tl["xl"], tl["jl"], tl["wl"]), v=tl["vl"])
+    try:
+        out = sums.sums(tkin.t, tkin)
+        values = [x.value if isinstance(x, Traced) else float(x) for x in out]
+        if not all(math.isfinite(v) for v in values):
+            return None
+    except Exception:
+        return None
+    body: list = []
+    code = emit_tape(body, tape, slots)
+    items = [code(x.index) if isinstance(x, Traced) else repr(float(x)) for x in out]
+    ret = f"    return [{', '.join(items)}]"
+    src = ("def kernel(t, xl, jl, wl, vl):\n"
+           + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n")
+    key = ("load sums", src)
+    return load(key, lambda: src, "<load sums>", None, "", {
+        "tanh": math.tanh, "_Branch": BranchChanged})
+
+
+def _arm(point, names, xl, ox, oy) -> tuple[float, float]:
+    """A point (a name or (x, y)) relative to O."""
+    if point.__class__ is str:
+        r = 2 * names[point]
+        return xl[r] - ox, xl[r + 1] - oy
+    return float(point[0]) - ox, float(point[1]) - oy
+
+
+__all__ = ["Fallback", "reaction_kernel", "LoadSums", "PIVOT_GUARD"]

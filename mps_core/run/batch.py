@@ -1,0 +1,419 @@
+"""Batch mode: many scenes, one numpy pass per step for all of them (parameter sweeps).
+
+``simulate_many(scenes)`` groups scenes that can share one vectorised pass and steps each group
+together: the central-difference stencils of all its scenes go through the chart's position
+function in one call (arrays of shape (scenes, stencil)), the mass matrices, velocity terms and
+generalized forces of all scenes are formed and solved at once, and the fixed-step solver
+advances all of them. What a group shares: the mechanism's geometry and centres of mass, the
+structure and its chart, the set of effect kinds, the solver, step, end time and derivative
+scheme. What may differ scene by scene: masses and inertias, the initial state, and every effect
+parameter (gravity, motor data and ratio, spring stiffness and preload, blanking force…).
+
+Vectorised here: fixed-step solvers (linear acceleration, RK4) with central differences, on
+scenes without events or commands (no latch, no rigid stop, no cylinders) whose chart stays
+regular over the run (e.g. ``locked`` sweeps of ``working``), with the effects gravity, motor,
+springs (and their damping) and blanking. Every other scene, and any scene of a group that would
+need a change of chart or a subdivided step, is run by :func:`mps_core.simulate` on its own: the
+result is the same, only not vectorised. ``BatchResult.vectorised`` says which were.
+
+For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
+cluster (``dask.distributed.Client``), one vectorised batch a task.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..derivatives.stencil import stencil
+from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
+from ..names import COLUMNS
+from ..scene import Scene, load_scene
+from ..solvers import SOLVERS
+from .trajectory import Trajectory
+
+VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
+VECTOR_SOLVERS = ("linear-acceleration", "rk4")
+
+
+class NotVectorisable(Exception):
+    """A group of scenes cannot (or can no longer) share one vectorised pass."""
+
+
+@dataclass
+class BatchResult:
+    """Trajectories in the order of the scenes given, and which of them ran vectorised."""
+
+    trajectories: list
+    vectorised: list = field(default_factory=list)
+
+    def __iter__(self):
+        return iter(self.trajectories)
+
+    def __len__(self):
+        return len(self.trajectories)
+
+    def __getitem__(self, i):
+        return self.trajectories[i]
+
+
+def _group_key(scene: Scene):
+    """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
+    s = scene.solver
+    if s.name not in VECTOR_SOLVERS or s.scheme != "central" or scene.commands or \
+            s.step is not None:         # a step apart from the outputs: the scene's own run
+        return None
+    mech = scene.mechanism()
+    effects = scene.build_effects(mech)
+    if any(not isinstance(e, VECTOR_EFFECTS) for e in effects):
+        return None
+    if scene.structure == "held":
+        return None
+    bodies = tuple((b.name, b.origin, b.toward, b.length, b.com) for b in mech.bodies)
+    return (scene.geometry, scene.assembly, bodies, scene.x_top, scene.structure, scene.psi_lock,
+            tuple(sorted(type(e).__name__ for e in effects)), s.name, s.delta, s.iterations,
+            scene.t_end, scene.dt, scene.charts)
+
+
+def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult:
+    """Run many scenes; vectorised where they can share a pass (see the module's notes)."""
+    scenes = [sc if isinstance(sc, Scene) else load_scene(sc) for sc in scenes]
+    out: list = [None] * len(scenes)
+    vec = [False] * len(scenes)
+    groups: dict = {}
+    for i, sc in enumerate(scenes):
+        groups.setdefault(_group_key(sc), []).append(i)
+    tasks = []
+    for key, idx in groups.items():
+        if key is None:
+            tasks.extend(("single", [i]) for i in idx)
+        else:
+            tasks.extend(("batch", idx[k:k + batch_size]) for k in range(0, len(idx), batch_size))
+    if client is not None:
+        futures = [client.submit(_run_task, kind, [scenes[i] for i in idx], pure=False)
+                   for kind, idx in tasks]
+        results = client.gather(futures)
+    else:
+        results = [_run_task(kind, [scenes[i] for i in idx]) for kind, idx in tasks]
+    for (_kind, idx), (trajs, flags) in zip(tasks, results):
+        for i, tr, f in zip(idx, trajs, flags):
+            out[i], vec[i] = tr, f
+    return BatchResult(out, vec)
+
+
+def _run_task(kind, scenes):
+    """One task: (trajectories, vectorised flags)."""
+    from .build import simulate
+
+    if kind == "batch":
+        try:
+            return _Batch(scenes).run(), [True] * len(scenes)
+        except NotVectorisable:
+            pass
+    return [simulate(sc) for sc in scenes], [False] * len(scenes)
+
+
+class _Batch:
+    """Scenes of one group stepped together."""
+
+    def __init__(self, scenes):
+        self.scenes = scenes
+        first = scenes[0]
+        self.mech = first.mechanism()
+        self.m = len(scenes)
+        views = []
+        q0, qd0 = [], []
+        for sc in scenes:
+            view, q, qd = sc.initial_state(self.mech)
+            views.append(view.name)
+            q0.append(q)
+            qd0.append(qd)
+        if len(set(views)) != 1:
+            raise NotVectorisable("the scenes start in different charts")
+        self.view, _, _ = first.initial_state(self.mech)
+        self.q0, self.qd0 = np.array(q0), np.array(qd0)
+        self.settings = first.solver
+        self.policy = first.charts
+        self.structure = first.structure
+        bodies = self.mech.bodies
+        per = [sc.mechanism().bodies for sc in scenes]
+        self.mass = np.array([[b.mass for b in bs] for bs in per])          # (m, nb)
+        self.inertia = np.array([[b.inertia for b in bs] for bs in per])
+        self.rot = [k for k, b in enumerate(bodies) if b.rotates]
+        self.point_names = list(self.mech.points)
+        self.rows = {p: k for k, p in enumerate(self.point_names)}
+        for b in bodies:
+            self.rows[f"G_{b.name}"] = len(self.rows)
+        self._effects([sc.build_effects(sc.mechanism()) for sc in scenes])
+        self.evaluations = 0
+        self.points = 0
+
+    # -- effects, as parameter arrays ------------------------------------------------------
+    def _effects(self, lists):
+        def take(cls):
+            found = [[e for e in lst if type(e) is cls] for lst in lists]
+            return [f[0] for f in found] if all(found) else None
+
+        g = take(Gravity)
+        self.g = None if g is None else np.array([e.g for e in g])
+        mo = take(Motor)
+        if mo is not None:
+            self.motor_body = mo[0].body
+            self.motor = {
+                "ratio": np.array([e.ratio for e in mo]),
+                "eff": np.array([e.efficiency for e in mo]),
+                "wsync": np.array([e.data.omega_sync for e in mo]),
+                "mk": np.array([e.data.breakdown_torque for e in mo]),
+                "sk": np.array([e.data.breakdown_slip for e in mo]),
+                "on": np.array([1.0 if e.enabled else 0.0 for e in mo]),
+            }
+        else:
+            self.motor = None
+        sp = take(RetentionSprings)
+        self.springs = None if sp is None else (np.array([e.k for e in sp]),
+                                                np.array([e.f0 for e in sp]),
+                                                np.array([e.x_top for e in sp]))
+        da = take(SliderDamper)
+        self.damper = None if da is None else np.array([e.c for e in da])
+        bl = take(Blanking)
+        self.blanking = None if bl is None else (np.array([e.f for e in bl]),
+                                                 np.array([e.x_contact for e in bl]),
+                                                 np.array([e.pb for e in bl]))
+
+    # -- the vectorised engine ------------------------------------------------------------------
+    def evaluate(self, t, q, qd):
+        """q̈ and what a step records, for all scenes: q, q̇ of shape (m, n)."""
+        n = q.shape[1]
+        offsets, plus, minus = stencil(n)
+        d = self.settings.delta * self.view.scales
+        pts = q[:, None, :] + offsets[None] * d                      # (m, S, n)
+        pose = self.view.positions([pts[..., i] for i in range(n)])
+        S = pts.shape[1]
+        shape = (self.m, S)
+        rows = [np.broadcast_to(np.asarray(pose[p][k], float), shape)
+                for p in self.point_names for k in (0, 1)]
+        for b in self.mech.bodies:
+            gx, gy = b.com_of(pose)
+            rows += [np.broadcast_to(np.asarray(gx, float), shape),
+                     np.broadcast_to(np.asarray(gy, float), shape)]
+        X = np.stack(rows, axis=1).reshape(self.m, -1, 2, S)          # (m, NP, 2, S)
+        if not np.all(np.isfinite(X)):
+            raise NotVectorisable("a stencil point left the chart")
+        V = (X[..., plus] - X[..., minus]) / (2.0 * d)                # (m, NP, 2, nbase, n)
+        base = np.array([0] + [k for i in range(n) for k in (1 + 2 * i, 2 + 2 * i)])
+        nb = len(self.mech.bodies)
+        W = np.zeros((self.m, nb, len(base), n))
+        for k in self.rot:
+            b = self.mech.bodies[k]
+            p, qq = self.rows[b.origin], self.rows[b.toward]
+            R = X[:, qq][..., base] - X[:, p][..., base]              # (m, 2, nbase)
+            VR = V[:, qq] - V[:, p]                                   # (m, 2, nbase, n)
+            r2 = R[:, 0] ** 2 + R[:, 1] ** 2
+            W[:, k] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
+        com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
+        VG = V[:, com]                                                # (m, nb, 2, nbase, n)
+        Ab = (np.einsum("mb,mbkci,mbkcj->mcij", self.mass, VG, VG)
+              + np.einsum("mb,mbci,mbcj->mcij", self.inertia, W, W))
+        A = Ab[:, 0]
+        dA = (Ab[:, 1::2] - Ab[:, 2::2]) / (2.0 * d)[None, :, None, None]
+        h = (np.einsum("mkij,mj,mk->mi", dA, qd, qd)
+             - 0.5 * np.einsum("mijk,mj,mk->mi", dA, qd, qd))
+        J = V[:, :, :, 0, :]                                          # (m, NP, 2, n) at q
+        W0 = W[:, :, 0, :]                                            # (m, nb, n)
+        X0 = X[..., 0]                                                # (m, NP, 2)
+        Q, power = self._forces(t, X0, J, W0, qd)
+        self._last_J = J
+        qdd = np.linalg.solve(A, (Q - h)[..., None])[..., 0]
+        if not np.all(np.isfinite(qdd)):
+            raise NotVectorisable("non-finite accelerations")
+        self.evaluations += 1
+        self.points += self.m * S
+        return qdd, A, X0, power
+
+    def _forces(self, t, X0, J, W0, qd):
+        """Generalized forces of the effects and the power of the non-conservative ones."""
+        m, n = qd.shape
+        Q = np.zeros((m, n))
+        power = np.zeros(m)
+        com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
+        c = self.rows["C"]
+        if self.g is not None:
+            JG = J[:, com]                                            # (m, nb, 2, n)
+            Q += np.einsum("mb,mk,mbkn->mn", self.mass, self.g, JG)
+        vC = np.einsum("mkn,mn->mk", J[:, c], qd)[:, 0]
+        if self.motor is not None:
+            mo = self.motor
+            kb = [b.name for b in self.mech.bodies].index(self.motor_body)
+            w = np.einsum("mn,mn->m", W0[:, kb], qd)
+            s = 1.0 - mo["ratio"] * w / mo["wsync"]
+            torque = mo["on"] * mo["ratio"] * mo["eff"] * (
+                2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
+            Q += torque[:, None] * W0[:, kb]
+            power += torque * w
+        xC = X0[:, c, 0]
+        if self.springs is not None:
+            k, f0, xt = self.springs
+            f = f0 + k * (xt - xC)
+            Q += f[:, None] * J[:, c, 0]
+        if self.damper is not None:
+            f = -self.damper * vC
+            Q += f[:, None] * J[:, c, 0]
+            power += f * vC
+        if self.blanking is not None and self.structure == "locked":
+            fmax, xcon, pb = self.blanking
+            p = xcon - xC
+            on = (vC < 0.0) & (p > 0.0) & (p < pb)
+            f = np.where(on, fmax * np.sin(np.pi * np.clip(p, 0.0, None) / pb), 0.0)
+            Q += f[:, None] * J[:, c, 0]
+            power += f * vC
+        return Q, power
+
+    def _potential(self, X0):
+        V = np.zeros(self.m)
+        if self.g is not None:
+            com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
+            V -= np.einsum("mb,mk,mbk->m", self.mass, self.g, X0[:, com])
+        if self.springs is not None:
+            k, f0, xt = self.springs
+            s = xt - X0[:, self.rows["C"], 0]
+            V += f0 * s + 0.5 * k * s * s
+        return V
+
+    def _check(self, X0, A):
+        """The chart must stay regular and the step stable, for every scene."""
+        pose = {p: (X0[:, k, 0], X0[:, k, 1]) for p, k in self.rows.items()}
+        if np.any(np.asarray(self.view.chart.regularity(pose)) < self.policy.switch_below):
+            raise NotVectorisable("a scene would change chart")
+        if self.springs is not None:
+            k = self.springs[0]
+            j = self._last_J[:, self.rows["C"], 0]                   # (m, n)
+            w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
+            lim = SOLVERS[self.settings.name].stability_limit
+            t_min = 2.0 * math.pi / np.sqrt(np.maximum(w2, 1e-300))
+            if np.any(self.dt > 0.9 * lim * t_min):
+                raise NotVectorisable("a step would be subdivided")
+
+    # -- the run ----------------------------------------------------------------------------------
+    def run(self):
+        sc = self.scenes[0]
+        t0, t_end = 0.0, sc.t_end
+        n_steps = max(1, int(round((t_end - t0) / sc.dt)))
+        self.dt = (t_end - t0) / n_steps
+        q, qd = self.q0.copy(), self.qd0.copy()
+        name, its = self.settings.name, self.settings.iterations
+        rows = {k: [] for k in COLUMNS}
+        work = np.zeros(self.m)
+
+        ev = self.evaluate
+        qdd, A, X0, p_now = ev(t0, q, qd)
+        self._record(rows, t0, q, qd, qdd, A, X0, work)
+        t = t0
+        for k in range(1, n_steps + 1):
+            self._check(X0, A)                 # as the driver does at each step's start
+            t1 = t_end if k == n_steps else t0 + k * (t_end - t0) / n_steps
+            dt = t1 - t
+            if name == "linear-acceleration":
+                a0 = qdd
+                qdp = qd + a0 * dt
+                qp = q + qd * dt + a0 * (0.5 * dt * dt)
+                a1 = ev(t1, qp, qdp)[0]
+                for it in range(its):
+                    qd1 = qd + (a0 + a1) * (0.5 * dt)
+                    q1 = q + qd * dt + (2.0 * a0 + a1) * (dt * dt / 6.0)
+                    out = ev(t1, q1, qd1)
+                    if it + 1 < its:
+                        a1 = out[0]
+            else:
+                h = dt
+                v0, a1_ = qd, qdd
+                v2 = v0 + 0.5 * h * a1_
+                a2 = ev(t + 0.5 * h, q + 0.5 * h * v0, v2)[0]
+                v3 = v0 + 0.5 * h * a2
+                a3 = ev(t + 0.5 * h, q + 0.5 * h * v2, v3)[0]
+                v4 = v0 + h * a3
+                a4 = ev(t1, q + h * v3, v4)[0]
+                q1 = q + (h / 6.0) * (v0 + 2.0 * v2 + 2.0 * v3 + v4)
+                qd1 = v0 + (h / 6.0) * (a1_ + 2.0 * a2 + 2.0 * a3 + a4)
+                out = ev(t1, q1, qd1)
+            qdd, A, X0, p_new = out
+            work = work + 0.5 * (p_now + p_new) * (t1 - t)
+            p_now = p_new
+            q, qd, t = q1, qd1, t1
+            self._record(rows, t, q, qd, qdd, A, X0, work)
+        return self._trajectories(rows)
+
+    def _record(self, rows, t, q, qd, qdd, A, X0, work):
+        # the structure's coordinates: phi free (locked), psi frozen; free: phi and psi free
+        names = [c.name for c in self.view.coordinates]
+        frozen = self.view.frozen
+        rows["t"].append(np.full(self.m, t))
+        for nm in ("phi", "psi"):
+            if nm in names:
+                k = names.index(nm)
+                rows[nm].append(q[:, k].copy())
+                rows[nm + "_dot"].append(qd[:, k].copy())
+                rows[nm + "_ddot"].append(qdd[:, k].copy())
+            else:
+                rows[nm].append(np.full(self.m, frozen[nm]))
+                rows[nm + "_dot"].append(np.zeros(self.m))
+                rows[nm + "_ddot"].append(np.zeros(self.m))
+        rows["x_C"].append(X0[:, self.rows["C"], 0].copy())
+        rows["T"].append(0.5 * np.einsum("mi,mij,mj->m", qd, A, qd))
+        rows["V"].append(self._potential(X0))
+        rows["W"].append(work.copy())
+        rows["E_impact"].append(np.zeros(self.m))
+        rows["structure"].append(self.structure)
+        rows["chart"].append(self.view.name)
+
+    def _trajectories(self, rows):
+        out = []
+        nsteps = len(rows["t"]) - 1
+        per_step = (1 + self.settings.iterations) if self.settings.name == "linear-acceleration" \
+            else 4
+        for i, sc in enumerate(self.scenes):
+            cols = {}
+            for k, v in rows.items():
+                if k in ("structure", "chart"):
+                    cols[k] = np.array(v)
+                else:
+                    cols[k] = np.array([r[i] for r in v], dtype=float)
+            counts = {"evaluations": 1 + per_step * nsteps, "steps": nsteps,
+                      "batch_evaluations": self.evaluations, "batch_size": self.m}
+            s = sc.solver
+            settings = {"solver": s.name, "scheme": s.scheme, "delta": s.delta,
+                        "iterations": s.iterations, "rtol": s.rtol, "atol": s.atol,
+                        "chart_switching": sc.charts.switching, "scene": sc.name,
+                        "vectorised": True}
+            out.append(Trajectory(cols, [], counts, settings))
+        return out
+
+
+def throughput(sizes=(1, 10, 100, 1000), steps: int = 200) -> list[dict]:
+    """Mechanism-steps per second of the vectorised pass for each number of scenes (working,
+    slider mass swept), and of ``simulate`` for one scene (``scenes`` = 0)."""
+    import time
+    from dataclasses import replace
+
+    from ..model import BodyData
+    from .build import build
+
+    base = load_scene("working").with_overrides(t_end=steps * 1e-4, dt=1e-4)
+    sim = build(base)
+    c0 = time.process_time()
+    sim.run(base.t_end, base.dt)
+    rows = [{"scenes": 0, "steps_per_s": steps / (time.process_time() - c0),
+             "cpu_s": time.process_time() - c0}]
+    for n in sizes:
+        scenes = []
+        for i in range(n):
+            b = dict(base.bodies)
+            b["slider"] = BodyData(80.0 + 40.0 * i / max(1, n - 1), 0.0, b["slider"].com)
+            scenes.append(replace(base, bodies=b))
+        batch = _Batch(scenes)
+        c0 = time.process_time()
+        batch.run()
+        cpu = time.process_time() - c0
+        rows.append({"scenes": n, "steps_per_s": n * steps / cpu, "cpu_s": cpu})
+    return rows

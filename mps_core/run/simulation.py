@@ -1,0 +1,989 @@
+"""The run driver: steps a solver on the engine through structures, events, commands and charts.
+
+The loop and its bookkeeping live here (steps, event location in the step, charts, stiffness,
+energy, records); the switches between structures, their impacts and the commands are the
+structure layer's (:mod:`mps_core.run.structure_layer`), which the loop calls at located events and
+at the commands' times.
+
+**Structures** (contract §5): ``free`` (φ, ψ), ``locked`` (ψ frozen at ψ_lock: the latch closed),
+``held`` (x_C frozen at x_top: the slider on its top stop). Switches:
+
+* latch closes (latch armed, ψ reaches ψ_lock): perfectly plastic impact,
+  ``q̇⁺ = q̇⁻ − A⁻¹g (gᵀq̇⁻)/(gᵀA⁻¹g)`` with g = ∇ψ, then ``locked``;
+* slider reaches its top stop moving up: the same impact with g = ∇x_C, then ``held``;
+* slider leaves its top stop: where the stop's reaction λ (the generalized force along x_C the
+  stop must give the slider, from the unfrozen chart's equations) turns tensile, then ``free``;
+* latch opens at a ``disengage`` command: ``free`` with ψ̇ = 0, no jump.
+
+**Events** are located inside the step: after each step the event functions are compared with
+their values at the step's start; at a sign change the root of the function along the step's dense
+output is found (Brent, |Δt| ≤ 1e-13 s), the step is cut there, the solver restarted from the
+interpolated state at the root, and the event's action applied. Each event is logged (time, kind,
+velocities before and after, kinetic energy lost, impulse). **Commands** (``engage``,
+``disengage``, ``stop``, ``start``) are applied at their exact time by cutting the step there.
+
+**Change point** (held four-bar at x_top = l1 + l2 − l3): by default the smooth continuation
+(the continuation chart passes it, each passage logged); ``change_point="keep-side"`` keeps the
+rocker on its side with a plastic impact onto that branch.
+
+**Charts** (see :mod:`mps_core.model.mechanism`): after every step the current chart's regularity is
+read; below ``switch_below`` the driver moves to the most regular chart of the structure that
+owns the configuration, mapping q and q̇ exactly through jets. A step that leaves its chart's
+domain is retaken in another chart. No regular chart: :class:`SingularConfiguration`; switching
+off: :class:`ChartBreakdown`.
+
+**Stiff effects**: before each fixed step the shortest period T_min of the stiff effects
+(generalized eigenproblem K v = ω² A v) is compared with the method's stability limit: the
+seed's linear acceleration predictor-corrector ω·Δt ≤ 2 (Δt ≤ T_min/π ≈ 0.318·T_min; the
+implicit method's √3/π·T_min ≈ 0.551·T_min is not this explicit scheme's), RK4 ω·Δt ≤ 2√2
+(≈ 0.450·T_min). Policy ``subdivide`` cuts the step into stable substeps; ``error`` raises
+:class:`StabilityError` saying why. (With an even number of corrections the predictor-corrector
+is weakly unstable at any step: its amplification exceeds 1 by about (ω·Δt)⁶/10⁴ per step for
+2 corrections; one or three corrections are stable and slightly dissipative.) Where every stiff
+effect bounds its ω² over all states (``stiffness_bound``, e.g. k/M for a spring at a centre of
+mass M), steps well inside the limit of those bounds skip the per-step estimate: it would keep
+them whole.
+
+**Per step** the driver does only what the step needs: what depends on a chart view alone (where
+each reported observable comes from, the event functions) is worked out once per view, the
+recorded rows are tuples made into columns at the end, and the reported angles read for unwrapping
+after a step are reused by its record.
+
+**Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
+their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
+``T + V − (T0 + V0) − W + E_impact`` closes to the integration error.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+from ..dynamics.engine import PartialSystems
+from ..errors import (
+    ChartBreakdown,
+    ChartDomainError,
+    MpsError,
+    NumericalError,
+    SimulationError,
+    SingularConfiguration,
+    config_in_degrees,
+)
+from ..model.effects import Controls, Latch, Motor, TopStop
+from ..model.effects.controls import ControlledEffect
+from ..model.mechanism import ChartView, unwrap_to
+from ..names import COLUMNS
+from ..scene.settings import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings  # noqa: F401
+from ..solvers import ADAPTIVE_SOLVERS, FIXED_STEP_LIMITS, make_solver
+from .structure_layer import CommandRefused, StructureLayer, _Event
+from .trajectory import Trajectory
+
+#: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
+_ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", "T", "V", "W",
+        "E_impact", "structure", "chart")
+
+
+#: the defaults of a simulation built by hand (frozen: shared safely)
+_DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
+
+class StabilityError(SimulationError):
+    """A fixed step exceeds the solver's stability limit for a stiff effect."""
+
+
+
+
+#: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
+_COORD, _FROZEN, _POSE, _BODY, _JETS = range(5)
+
+
+class _ViewPlan:
+    """What the driver reads of one chart view at every step, worked out once per view.
+
+    ``report``: for each reported observable (the mechanism's ``report``, in order)
+    ``(name, how, observable, arg)``: ``_COORD`` (a free coordinate, arg its index), ``_FROZEN``
+    (arg its value), ``_POSE`` (position only, from the evaluation's pose), ``_BODY`` (a body's
+    angle: rates from the body's analogs, arg the body's name), ``_JETS`` (exact, through jets).
+    """
+
+    __slots__ = ("report",)
+
+    def __init__(self, sim: Simulation, view: ChartView):
+        report = []
+        for name, order in sim._report.items():
+            obs = sim.mechanism.observables[name]
+            k = view.coordinate_index(name)
+            if k is not None:
+                report.append((name, _COORD, obs, k))
+            elif name in view.frozen:
+                report.append((name, _FROZEN, obs, float(view.frozen[name])))
+            elif order == 0:
+                report.append((name, _POSE, obs, None))
+            elif name in sim._angle_body:
+                report.append((name, _BODY, obs, sim._angle_body[name]))
+            else:
+                report.append((name, _JETS, obs, None))
+        self.report = tuple(report)
+
+
+class Simulation:
+    """One run of a mechanism: structures, events, commands, charts."""
+
+    def __init__(self, mechanism, structure: str, effects, initial, *,
+                 solver: SolverSettings = _DEFAULT_SOLVER, charts: ChartPolicy = _DEFAULT_CHARTS,
+                 t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None,
+                 change_point: str = "continue"):
+        if change_point not in ("continue", "keep-side"):
+            raise ValueError(f"change_point = {change_point!r}: expected 'continue' or 'keep-side'")
+        if change_point == "keep-side" and solver.scheme != "central":
+            # the run restarts exactly at the change point, where √h² has no derivative: jets
+            # are undefined there, central stencils straddle it on the smooth chart
+            raise ValueError("change_point = 'keep-side' needs central differences "
+                             "(solver.derivatives = 'central')")
+        self.mechanism = mechanism
+        #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
+        #: or the rocker kept on its side with a plastic impact
+        self.change_point = change_point
+        self._exact_engine = None
+        self.settings = solver
+        self.policy = charts
+        self.effects = list(effects)
+        self.controls = controls or Controls(structure=structure)
+        self.controls.structure = structure
+        for e in self.effects:
+            if isinstance(e, ControlledEffect):
+                e.use(self.controls)
+        self.engine = PartialSystems(mechanism, self.effects, solver.scheme, solver.delta,
+                                     kernels=solver.kernels)
+        #: called at every recorded step: ``observe(simulation, evaluation)``; their
+        #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
+        self.observers = list(observers)
+        #: the switches between structures, the impacts and the commands
+        self.structures = StructureLayer(self)
+        self.latch = next((e for e in self.effects if isinstance(e, Latch)), None)
+        self.stop = next((e for e in self.effects if isinstance(e, TopStop) and e.rigid), None)
+        self.motor = next((e for e in self.effects if isinstance(e, Motor)), None)
+        if self.motor is not None:
+            self.controls.motor_on = self.motor.enabled
+        self.engage = next((e for e in self.effects if e.kind == "engage_cylinder"), None)
+        self.disengage = next((e for e in self.effects if e.kind == "disengage_cylinder"), None)
+        self._nc = [e for e in self.effects if not e.conservative]
+        self._potentials = [e.potential for e in self.effects if e.conservative]
+        self._stiff = [e for e in self.effects if hasattr(e, "stiffness")]
+        self._dt_stable = self._always_stable()
+        self._views: dict[str, list[ChartView]] = {}
+        self._events_by_state: dict[tuple, list[_Event]] = {}
+        self._full: dict[str, ChartView] = {}
+        #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates)
+        self._held: dict[ChartView, tuple] = {}
+        view, q, qd = initial
+        self.view: ChartView = view
+        self.events: list[dict] = []
+        self.pending: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
+        #: the driver's own control changes due at a known time, (t, name), sorted: step
+        #: boundaries like commands (the disengage cylinder's end)
+        self._timers: list[tuple[float, str]] = []
+        #: switching points of the effects' force laws crossed (a step ended at each)
+        self.switch_points = 0
+        self._kin_last = None
+        self._switch_last: dict = {}
+        #: the effects whose switching points are located (none where steps step over them)
+        self._switching = [e for e in self.effects if e.switches] \
+            if solver.locates_switch_points() else []
+        self.solver_nfev = 0
+        self.solver_steps = 0
+        self.work = 0.0
+        self.impact_loss = 0.0
+        self._report = getattr(mechanism, "report", {"phi": 2, "psi": 2, "x_C": 0})
+        self._report_at = {name: k for k, name in enumerate(self._report)}
+        #: the body whose angle an angle observable is (its rates come from the body's analogs)
+        self._angle_body = {
+            o.name: b.name for o in mechanism.observables.values() if o.is_angle
+            for b in mechanism.bodies if (b.origin, b.toward) == tuple(o.points)}
+        self.phys: dict[str, float] = {}
+        self._phys_of = None            # the evaluation phys was last read from
+        self._plans: dict[ChartView, _ViewPlan] = {}
+        #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
+        self._spans = None
+        if solver.step is not None:
+            if not (solver.step > 0.0 and math.isfinite(solver.step)):
+                raise ValueError(f"step = {solver.step!r}: expected a positive number of seconds")
+            if solver.name in ADAPTIVE_SOLVERS:
+                raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
+                                 "chooses its own steps (a step is for linear-acceleration, "
+                                 "rk4, rk6, rk8)")
+        self.solver = self._new_solver(t0, q, qd)
+        self._update_phys(self.solver.current)
+        self._power_now = self._power(self.solver.current)
+        self._chart_due = False
+        self._check_chart()
+        self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
+        self._seg_start = self.solver.t
+        if self._ev_prev.get("stop-release", -1.0) > 0.0:
+            self.structures.release_stop(self.solver.t)
+
+    # -- state ----------------------------------------------------------------------------
+    @property
+    def structure(self) -> str:
+        return self.controls.structure
+
+    @property
+    def t(self) -> float:
+        return self.solver.t
+
+    # -- checkpoints ----------------------------------------------------------------------
+    @property
+    def rewindable(self) -> bool:
+        """Whether :meth:`checkpoint` works here: the solver keeps its state (scipy's Radau
+        does not) and every observer has ``checkpoint`` and ``restore``."""
+        return self.solver.rewindable and all(
+            hasattr(ob, "checkpoint") and hasattr(ob, "restore") for ob in self.observers)
+
+    def checkpoint(self) -> tuple:
+        """The run's state now, for :meth:`restore`: a driver that took steps ahead comes back
+        to a step boundary (a command arrived for it) and goes on from there exactly as if it
+        had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
+        changed, by a step, except the containers copied here (the controls, the event log,
+        the pending commands and timers, the unwrapping references, the observers' own
+        ``checkpoint``). Caches (kernels, views, plans) are shared, not kept."""
+        if not self.rewindable:
+            raise NotImplementedError(
+                f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
+                "without checkpoint/restore cannot be rewound")
+        return (dict(self.__dict__), self.solver.state(), dict(vars(self.controls)),
+                list(self.events), list(self.pending), list(self._timers), dict(self.phys),
+                [ob.checkpoint() if hasattr(ob, "checkpoint") else None
+                 for ob in self.observers])
+
+    def restore(self, cp: tuple) -> None:
+        """Come back to a :meth:`checkpoint` of this run."""
+        state, solver, controls, events, pending, timers, phys, observers = cp
+        exact = self._exact_engine
+        d = self.__dict__
+        d.clear()
+        d.update(state)
+        if self._exact_engine is None:
+            self._exact_engine = exact              # built since: a cache
+        self.solver.set_state(dict(solver))
+        vars(self.controls).update(controls)
+        self.events[:] = events
+        self.pending[:] = pending
+        self._timers = list(timers)
+        self.phys.clear()
+        self.phys.update(phys)
+        for ob, st in zip(self.observers, observers):
+            if st is not None:
+                ob.restore(st)
+
+    def views(self, structure: str) -> list[ChartView]:
+        if structure not in self._views:
+            self._views[structure] = self.mechanism.views(structure)
+        return self._views[structure]
+
+    # -- solver management ----------------------------------------------------------------
+    def _fun(self, view):
+        return self.engine.evaluator(view)
+
+    def _new_solver(self, t, q, qd):
+        s = self.settings
+        old = getattr(self, "solver", None)
+        first = None
+        if old is not None:
+            self.solver_nfev += old.nfev
+            self.solver_steps += old.nsteps
+            first = getattr(old, "step_size", None)   # an adaptive solver carries on its step
+        view = self.view
+        return make_solver(s.name, self._fun(view), t, q, qd, iterations=s.iterations,
+                           rtol=s.rtol, atol=s.atol, scales=view.scales, first_step=first,
+                           accel=self.engine.accelerator(view))
+
+    def _restart(self, view, t, q, qd):
+        self.view = view
+        self.solver = self._new_solver(t, q, qd)
+        self._power_now = self._power(self.solver.current)
+        self._ev_prev = self._event_values(t, self.solver.q, self.solver.qd)
+        self._seg_start = t
+        # the forces may have changed (a command, an impact): a stop that would now pull lets go
+        if self._ev_prev.get("stop-release", -1.0) > 0.0:
+            self.structures.release_stop(t)
+
+    # -- physical observables -------------------------------------------------------------
+    def _plan(self, view) -> _ViewPlan:
+        """The view's :class:`_ViewPlan` (built on first use, kept by the view object)."""
+        plan = self._plans.get(view)
+        if plan is None:
+            plan = self._plans[view] = _ViewPlan(self, view)
+        return plan
+
+    def _observe(self, e):
+        """Reported observables (value, rate, acceleration) from an evaluation, any chart."""
+        return dict(zip(self._report, self._observations(e)))
+
+    def _observations(self, e) -> list:
+        """(value, rate, acceleration) of each reported observable, in the report's order."""
+        view = e.view
+        out = []
+        jets = q = qdd = None           # floats of q, q̇ (q̈) and the jets, made on first use
+        phys = self.phys
+        # right after _update_phys(e) an observable read from the pose is already in phys (an
+        # angle unwrapped to its reference): the same number as reading it again
+        same = self._phys_of is e
+        for name, how, obs, arg in self._plan(view).report:
+            if how == _COORD:
+                if q is None:
+                    q, qd = e.q.tolist(), e.qd.tolist()
+                    if qdd is None:
+                        qdd = e.qdd.tolist()
+                out.append((q[arg], qd[arg], qdd[arg]))
+                continue
+            if how == _FROZEN:
+                out.append((arg, 0.0, 0.0))
+                continue
+            if how == _POSE:
+                out.append((phys[name] if same and not obs.is_angle else obs.value(e.kin.pose),
+                            math.nan, math.nan))
+                continue
+            kin = e.kin
+            if how == _BODY and (conv := kin.angular_convective(arg)) is not None:
+                # the body's angle: rate ω*·q̇, acceleration ω*·q̈ + Σ ∂ω*/∂q q̇ q̇ by the
+                # evaluation's own central differences (the scheme's accuracy, no jets)
+                if same:
+                    v = phys[name]
+                else:
+                    v = obs.value(kin.pose)
+                    if name in phys:
+                        v = unwrap_to(v, phys[name])
+                if qdd is None:
+                    qdd = e.qdd.tolist()
+                acc = conv
+                for wi, ai in zip(kin.omega(arg), qdd):
+                    acc += wi * ai
+                out.append((v, kin.rate(arg), acc))
+                continue
+            if jets is None:
+                jets = view.pose_jets(e.q, e.qd)
+            j = obs.jet(jets, view.n)
+            v = float(j.val)
+            if obs.is_angle and name in phys:
+                v = unwrap_to(v, phys[name])
+            out.append((v, float(j.d1), float(j.grad @ e.qdd + j.d2)))
+        return out
+
+    def _update_phys(self, e):
+        """The current values of the reported angles: references for unwrapping (positions only)."""
+        phys = self.phys
+        q = None
+        for name, how, obs, arg in self._plan(e.view).report:
+            if how == _COORD:
+                if q is None:
+                    q = e.q.tolist()
+                phys[name] = q[arg]
+            elif how == _FROZEN:
+                phys[name] = arg
+            else:
+                v = obs.value(e.kin.pose)
+                phys[name] = unwrap_to(v, phys[name]) if (
+                    obs.is_angle and name in phys) else v
+        self._phys_of = e
+
+    def _physical_rates(self, view, q, qd) -> dict:
+        """Physical φ, ψ, x_C and their rates at a chart state (exact, through jets)."""
+        jets = view.pose_jets(q, qd)
+        out = {}
+        for name in ("phi", "psi", "x_C"):
+            j = self.mechanism.observables[name].jet(jets, view.n)
+            v = float(j.val)
+            if name in self.phys and self.mechanism.observables[name].is_angle:
+                v = unwrap_to(v, self.phys[name])
+            out[name] = v
+            out[name + "_dot"] = float(j.d1)
+        return out
+
+    def config(self, e=None) -> dict:
+        e = e or self.solver.current
+        vals = {k: v for k, (v, _, _) in self._observe(e).items()}
+        return config_in_degrees(vals) | {"structure": self.structure, "chart": self.view.name}
+
+    # -- charts ---------------------------------------------------------------------------
+    def _check_chart(self):
+        e = self.solver.current
+        reg = self.view.regularity(e.kin.pose)
+        if reg >= self.policy.switch_below:
+            return
+        if not self.policy.switching:
+            if reg < self.policy.fail_below:
+                raise ChartBreakdown(
+                    f"chart {self.view.name} degenerates (regularity {reg:.3g}) and chart "
+                    "switching is off", e.t, self.config(e))
+            return
+        self._switch(reg, forced=False)
+
+    def _candidates(self, structure, pose, exclude=None) -> list[tuple[float, ChartView]]:
+        """Views of a structure that own the configuration, most regular first."""
+        out = []
+        for v in self.views(structure):
+            if (exclude is not None and v.chart is exclude) or not v.owns(pose):
+                continue
+            out.append((v.regularity(pose), v))
+        out.sort(key=lambda rv: -rv[0])
+        return out
+
+    def _map_first(self, candidates, q, qd, kin=None):
+        """The first candidate view into which the state maps exactly: (view, q, q̇, regularity).
+
+        A chart's branch test sees only the configuration; a chart whose branch depends on how
+        often the crank has turned (the change-point continuation) is confirmed by the mapping.
+        ``kin``: the state's kinematics where they are exact (see :meth:`_map_state`).
+        """
+        for reg, v in candidates:
+            try:
+                q2, qd2 = self._map_state(self.view, q, qd, v, kin)
+            except (NumericalError, ChartDomainError):
+                continue
+            return v, q2, qd2, reg
+        return None, None, None, -1.0
+
+    def _switch(self, reg_now: float, forced: bool):
+        e = self.solver.current
+        cands = [c for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
+                 if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)]
+        exact = e.kin if self.settings.scheme == "autodiff" else None
+        best, q, qd, best_reg = self._map_first(cands, e.q, e.qd, exact)
+        if best is None:
+            if forced or reg_now < self.policy.fail_below:
+                raise SingularConfiguration(
+                    f"no chart of structure {self.structure!r} is regular here (best "
+                    f"regularity {reg_now:.3g}): a singular position of the machine",
+                    e.t, self.config(e))
+            return
+        self.events.append({"t": e.t, "kind": "chart", "from": self.view.name, "to": best.name,
+                            "regularity_from": reg_now, "regularity_to": best_reg,
+                            "forced": forced})
+        self._restart(best, e.t, q, qd)
+
+    def _map_state(self, view, q, qd, target, kin=None):
+        """(q, q̇) of ``target`` for the state (q, q̇) of ``view``: exact, through jets, or from
+        ``kin``, the state's exact kinematics (positions and velocities of the points, from an
+        exact kernel: the same numbers to round-off, without the jets)."""
+        if kin is not None and kin._xl is not None:
+            q2, qd2 = self._state_from_kinematics(target, kin)
+            pose = {p: kin.xy(p) for p in self.mechanism.points}
+        else:
+            jets = view.pose_jets(q, qd)
+            q2, qd2 = target.state_from(jets, self.phys)
+            pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
+                        float(y.val) if hasattr(y, "val") else float(y))
+                    for k, (x, y) in jets.items()}
+        check = target.positions(list(q2))
+        for p, (x, y) in pose.items():
+            cx, cy = check[p]
+            if abs(cx - x) + abs(cy - y) > 1e-9 * (1.0 + abs(x) + abs(y)):
+                raise NumericalError(f"changing to chart {target.name} does not reproduce point "
+                                     f"{p}", self.solver.t, self.config())
+        return q2, qd2
+
+    def _state_from_kinematics(self, target, kin) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`~mps_core.model.mechanism.ChartView.state_from` from exact kinematics: each
+        coordinate's value (angles unwrapped to ``phys``) and rate, the angle of P→Q's as
+        (d × ḋ)/|d|² with d = Q − P."""
+        q = np.empty(target.n)
+        qd = np.empty(target.n)
+        phys = self.phys
+        for k, obs in enumerate(target.coordinates):
+            if obs.kind == "angle":
+                (px, py), (qx, qy) = kin.xy(obs.points[0]), kin.xy(obs.points[1])
+                (pu, pv), (qu, qv) = kin.vxy(obs.points[0]), kin.vxy(obs.points[1])
+                dx, dy, du, dv = qx - px, qy - py, qu - pu, qv - pv
+                v = math.atan2(dy, dx)
+                if obs.name in phys:
+                    v = unwrap_to(v, phys[obs.name])
+                q[k] = v
+                qd[k] = (dx * dv - dy * du) / (dx * dx + dy * dy)
+            else:
+                c = 0 if obs.kind == "x" else 1
+                q[k] = kin.xy(obs.points[0])[c]
+                qd[k] = kin.vxy(obs.points[0])[c]
+        return q, qd
+
+    # -- events ---------------------------------------------------------------------------
+    def _observable(self, name, view, q, kin=None) -> float:
+        """An observable's value at q in a view (``kin``: that state's kinematics, if known)."""
+        k = view.coordinate_index(name)
+        if k is not None:
+            return float(q[k])
+        if name in view.frozen:
+            return float(view.frozen[name])
+        if kin is not None:
+            pose = kin.pose
+        else:
+            pose = view.positions(list(q))
+            pose = {p: (float(x), float(y)) for p, (x, y) in pose.items()}
+        v = self.mechanism.observables[name].value(pose)
+        if self.mechanism.observables[name].is_angle and name in self.phys:
+            v = unwrap_to(v, self.phys[name])
+        return v
+
+    def _reader(self, name, view):
+        """``read(q, kin=None)``: the observable's value at q in ``view``, as :meth:`_observable`
+        gives it, with the lookups that depend on the view alone done once."""
+        k = view.coordinate_index(name)
+        if k is not None:
+            return lambda q, kin=None: float(q[k])
+        if name in view.frozen:
+            value = float(view.frozen[name])
+            return lambda q, kin=None: value
+        obs = self.mechanism.observables[name]
+        angle = obs.is_angle
+
+        def read(q, kin=None):
+            if kin is None:
+                return self._observable(name, view, q)
+            v = obs.value(kin.pose)
+            if angle and name in self.phys:
+                v = unwrap_to(v, self.phys[name])
+            return v
+        return read
+
+    def _event_list(self) -> list[_Event]:
+        """The events that can happen now (they depend on the structure, the latch's arming and
+        the chart view only; kept by those)."""
+        key = (self.controls.structure, self.controls.latch_armed, self.view)
+        ev = self._events_by_state.get(key)
+        if ev is None:
+            ev = self._events_by_state[key] = self.structures.make_event_list()
+        return ev
+
+    def _switch_fn(self, effect, i, view):
+        """``fn(t, q, q̇, kin=None)``: the effect's i-th switching function in ``view``."""
+        state_kin = self._state_kin
+        last = self._switch_last          # the effect's values at the last state asked for
+
+        def fn(t, q, qd, kin=None):
+            if kin is None:
+                kin = state_kin(view, t, q, qd)
+            hit = last.get(effect)
+            if hit is None or hit[0] is not kin:
+                hit = last[effect] = (kin, effect.switch_values(t, kin))
+            return hit[1][i]
+        return fn
+
+    def _state_kin(self, view, t, q, qd):
+        """The kinematics of a state between evaluations (event location), the last one kept:
+        the switching functions of one state share it."""
+        ql, vl = [float(x) for x in q], [float(x) for x in qd]
+        key = (view, t, *ql, *vl)
+        last = self._kin_last
+        if last is not None and last[0] == key:
+            return last[1]
+        kin = self.engine.state_kinematics(view, t, ql, vl)
+        self._kin_last = (key, kin)
+        return kin
+
+    def _count_switch(self, t):
+        self.switch_points += 1
+
+    def _event_values(self, t, q, qd, kin=None) -> dict:
+        return {e.name: e.fn(t, q, qd, kin) for e in self._event_list()}
+
+    @staticmethod
+    def _crossed(a: float, b: float, direction: int) -> bool:
+        if direction > 0:
+            return a < 0.0 <= b
+        if direction < 0:
+            return a > 0.0 >= b
+        return (a < 0.0 <= b) or (a > 0.0 >= b)
+
+    def _interrupt(self, t, q, qd) -> bool:
+        """Called by adaptive solvers after each internal step: stop for an event or a chart."""
+        try:
+            pose = self.view.positions(list(q))
+        except ChartDomainError:
+            return True
+        reg = self.view.regularity({k: (float(x), float(y)) for k, (x, y) in pose.items()})
+        limit = self.policy.switch_below if self.policy.switching else self.policy.fail_below
+        if reg < limit:
+            return True
+        vals = self._event_values(t, q, qd)
+        for e in self._event_list():
+            if e.name in self._ev_prev and self._crossed(self._ev_prev[e.name], vals[e.name],
+                                                           e.direction):
+                return True
+        self._ev_prev = vals
+        self._seg_start = t
+        return False
+
+    def _locate_event(self):
+        """(earliest event root inside the last step or None, event values at the step's end)."""
+        events = self._event_list()
+        if not events:
+            return None, {}
+        s = self.solver
+        t1, q1, qd1, kin = s.t, s.q, s.qd, s.current.kin
+        vals = {e.name: e.fn(t1, q1, qd1, kin) for e in events}
+        prev = self._ev_prev
+        first = None
+        for e in events:
+            a, b = prev.get(e.name), vals[e.name]
+            if a is None or not self._crossed(a, b, e.direction):
+                continue
+            dense = s.dense_output()
+            t_a = self._seg_start
+
+            def g(t, fn=e.fn, dense=dense):
+                q, qd = dense(t)
+                return fn(t, q, qd)
+
+            if a == 0.0:
+                root = t_a
+            else:
+                ga = g(t_a)
+                if ga * b > 0.0:
+                    # the recorded sign was set at an event's root: no bracket in this step
+                    continue
+                root = brentq(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+            if first is None or root < first[0]:
+                first = (root, e, b)
+        return first, vals
+
+    def _cut_at(self, t_e: float):
+        """Restart the solver from the last step's interpolant at t_e (same chart)."""
+        q, qd = self.solver.dense_output()(t_e)
+        self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
+
+    # -- actions --------------------------------------------------------------------------
+
+    # -- commands -------------------------------------------------------------------------
+
+    # -- commands (the structure layer's) -------------------------------------------------
+    def check_command(self, name) -> None:
+        """Raise :class:`CommandRefused` if ``name`` makes no sense now."""
+        self.structures.check_command(name)
+
+    def command(self, name: str, t: float | None = None) -> None:
+        """Take a command now (t None) or at a later simulated time; refused ones raise."""
+        self.structures.command(name, t)
+
+    # -- stability ------------------------------------------------------------------------
+    def _always_stable(self) -> float:
+        """A step up to which :meth:`_stable_step` keeps every step whole, in any state: half of
+        0.9 × the stability limit for ω² = the sum of the stiff effects' bounds
+        (``stiffness_bound``: ω²_max of their summed K is at most the sum of theirs); 0 where one
+        has no bound. Half, so that the round-off of the per-step estimate (a few ulps, more
+        on a badly conditioned A) can never reach the bound's factor of 4 in ω²."""
+        name = self.settings.name
+        if not self._stiff or name not in FIXED_STEP_LIMITS:
+            return math.inf
+        w2 = 0.0
+        for s in self._stiff:
+            bound = getattr(s, "stiffness_bound", None)
+            b = bound(self.mechanism) if bound is not None else None
+            if b is None or not (b >= 0.0) or math.isinf(b):
+                return 0.0
+            w2 += b
+        if w2 == 0.0:
+            return math.inf
+        limit = FIXED_STEP_LIMITS[name][0] * (2.0 * math.pi / math.sqrt(w2))
+        return 0.5 * 0.9 * limit
+
+    def _omega2(self, e) -> float | None:
+        """The stiff effects' ω²_max at evaluation ``e``, estimated from above by trace(A⁻¹K)
+        (A SPD, K PSD: at most n times too large, and no eigensolver); None where their K is
+        zero."""
+        K = None
+        for s in self._stiff:
+            k = s.stiffness(e.kin)
+            if k is not None:
+                K = k if K is None else [[a + b for a, b in zip(r, s_)] for r, s_ in zip(K, k)]
+        if K is None or not any(any(r) for r in K):
+            return None
+        n = len(K)
+        if n == 1:
+            return K[0][0] / float(e.A[0, 0] if isinstance(e._A, np.ndarray) else e._A)
+        if n == 2:
+            (a00, a01), (a10, a11) = e.A.tolist()
+            det = a00 * a11 - a01 * a10
+            return (a11 * K[0][0] - a01 * K[1][0] - a10 * K[0][1] + a00 * K[1][1]) / det
+        return float(np.trace(np.linalg.solve(e.A, np.array(K))))
+
+    def _stable_step(self, dt: float) -> float:
+        """The largest step not beyond the solver's stability limit for the stiff effects.
+
+        Steps up to :meth:`_always_stable`'s bound (computed once) are returned at once: the
+        per-step estimate below would keep them whole too."""
+        if dt <= self._dt_stable:
+            return dt
+        name = self.settings.name
+        if not self._stiff or name not in FIXED_STEP_LIMITS:
+            return dt
+        e = self.solver.current
+        w2 = self._omega2(e)
+        if w2 is None or w2 <= 0.0:
+            return dt
+        t_min = 2.0 * math.pi / math.sqrt(w2)
+        limit = FIXED_STEP_LIMITS[name][0] * t_min
+        if dt <= 0.9 * limit:
+            return dt
+        if self.settings.stiff == "error":
+            which = ", ".join(s.name for s in self._stiff)
+            raise StabilityError(
+                f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
+                f"({FIXED_STEP_LIMITS[name][1]} of the shortest "
+                f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
+                "or solver.stiff = 'subdivide'", e.t, self.config(e))
+        m = math.ceil(dt / (0.5 * limit))
+        return dt / m
+
+    # -- work and energy ------------------------------------------------------------------
+    def _power(self, e) -> float:
+        if e.Q_nc is not None:
+            # Σ F·v + M·ω of the non-conservative loads is their virtual work along q̇
+            p = 0.0
+            for a, b in zip(e.Q_nc, e.kin._v()):
+                p += a * b
+            return p
+        p = 0.0
+        for eff in self._nc:
+            p += eff.power(e.t, e.kin)
+        return p
+
+    def _potential(self, kin) -> float:
+        """V: the engine's ``potential_energy`` (the conservative effects' sum, in their order)
+        over the list of those effects kept by the driver (a test holds the two equal)."""
+        v = 0
+        for potential in self._potentials:
+            v += potential(kin)
+        return float(v)
+
+    # -- the state, for sinks ---------------------------------------------------------------
+    def joint_state(self) -> tuple:
+        """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
+        gives under those names, without the energies."""
+        e = self.solver.current
+        obs = self._observe(e)
+        phi, psi, x = obs["phi"], obs["psi"], obs["x_C"]
+        return (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
+
+    def snapshot(self) -> dict:
+        """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,
+        energies, structure, chart), plus ``x_C_dot`` and the controls."""
+        e = self.solver.current
+        obs = self._observe(e)
+        out = {"t": e.t}
+        for name in ("phi", "psi"):
+            v, vd, vdd = obs[name]
+            out[name], out[name + "_dot"], out[name + "_ddot"] = v, vd, vdd
+        out["x_C"] = obs["x_C"][0]
+        out["x_C_dot"] = float(e.kin.velocity("C")[0])
+        out["T"] = e.kinetic_energy
+        out["V"] = self.engine.potential_energy(e.kin)
+        out["W"] = self.work
+        out["E_impact"] = self.impact_loss
+        out["structure"] = self.structure
+        out["chart"] = self.view.name
+        c = self.controls
+        out["motor_on"], out["engage_on"], out["latch_armed"] = c.motor_on, c.engage_on, \
+            c.latch_armed
+        return out
+
+    # -- the run --------------------------------------------------------------------------
+    def advance_to(self, t_target: float) -> None:
+        """Integrate to t_target, through commands, events and chart changes on the way."""
+        tol = 1e-12 * max(1.0, abs(t_target))
+        failures = 0
+        while self.solver.t < t_target - tol:
+            if self._chart_due:
+                # the chart's regularity at the last step's end, looked at when the next step
+                # is about to start (a run that ends there changes no chart for nothing)
+                self._chart_due = False
+                self._check_chart()
+            t0 = self.solver.t
+            if self.pending and self.pending[0][0] <= t0 + tol:
+                t_cmd, name = self.pending.pop(0)
+                try:
+                    self.structures.check_command(name)
+                except CommandRefused as exc:
+                    self.events.append({"t": t0, "kind": "command-refused", "command": name,
+                                        "reason": exc.reason})
+                    continue
+                self.structures.apply_command(name, t0)
+                continue
+            if self._timers and self._timers[0][0] <= t0 + tol:
+                self.structures.apply_timer(self._timers.pop(0)[1], t0)
+                continue
+            t_next = t_target
+            if self.pending and self.pending[0][0] < t_next:
+                t_next = self.pending[0][0]
+            if self._timers and self._timers[0][0] < t_next:
+                t_next = self._timers[0][0]
+            dt = t_next - t0
+            step = self.settings.step
+            if step is not None and dt > step * (1.0 + 1e-9):
+                dt = step
+            if dt > self._dt_stable:         # else stable in any state: no estimate needed
+                dt = self._stable_step(dt)
+            t_next = t0 + dt
+            p_a = self._power_now
+            self._seg_start = t0
+            try:
+                self.solver.step_to(t_next, interrupt=self._interrupt)
+            except ChartDomainError as exc:
+                failures += 1
+                e = self.solver.current
+                if not self.policy.switching:
+                    raise ChartBreakdown(
+                        f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
+                        "chart switching is off", e.t, self.config(e)) from None
+                if failures > len(self.views(self.structure)):
+                    raise SingularConfiguration(
+                        f"every chart of structure {self.structure!r} fails in the step "
+                        f"from here ({exc.detail})", e.t, self.config(e)) from None
+                self._switch(self.view.regularity(e.kin.pose), forced=True)
+                continue
+            failures = 0
+            spans = self._spans
+            if spans is not None:           # outputs inside the step: its interpolant
+                spans.append([t0, self.solver.t, self.solver.dense_output(), self.view,
+                              self.controls.structure, self.work, p_a, self.impact_loss])
+            hit, vals = self._locate_event()
+            if hit is not None and hit[1].name == "change-point" and \
+                    self.change_point != "keep-side":
+                # the continuation chart is smooth through the change point: the step stands,
+                # the passage is logged at its root
+                q_e, qd_e = self.solver.dense_output()(hit[0])
+                self.structures.record_change_point(hit[0], np.array(q_e, float),
+                                                    np.array(qd_e, float))
+                hit = None
+            if hit is not None:
+                t_e, ev, after_value = hit
+                if spans is not None:
+                    spans[-1][1] = t_e
+                self._cut_at(t_e)
+                self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
+                ev.action(t_e)
+                if ev.restart or ev.name == "change-point":
+                    self._ev_prev[ev.name] = after_value
+                self._update_phys(self.solver.current)
+                continue
+            # the step stands: its work (trapezoid on the power at its ends), the event values
+            # and unwrap references at its end, and the chart's regularity there
+            solver = self.solver
+            e = solver.current
+            p_b = self._power(e)
+            self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
+            self._power_now = p_b
+            self._ev_prev = vals
+            self._update_phys(e)
+            self._chart_due = True
+
+    def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
+        """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
+        ``dt``, or by the settings' ``step`` where given: shorter, several steps an output;
+        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`).
+        ``progress``: called with the simulated time after each output (e.g. a
+        :class:`~mps_core.run.progress.Progress`)."""
+        t0 = self.solver.t
+        if not (t_end > t0):
+            raise ValueError(f"t_end = {t_end!r}: expected a time after the start {t0!r}")
+        if not (dt > 0):
+            raise ValueError(f"dt = {dt!r}: expected a positive step")
+        n = max(1, int(round((t_end - t0) / dt)))
+        rows: list[tuple] = []
+        self._record(rows, self.solver.current)
+        step = self.settings.step
+        try:
+            if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
+                    self.settings.name not in ADAPTIVE_SOLVERS:
+                return self._run_long_steps(rows, t0, t_end, n, step, progress)
+            for k in range(1, n + 1):
+                tk = t_end if k == n else t0 + k * (t_end - t0) / n
+                self.advance_to(tk)                 # keeps the unwrap references current
+                self._record(rows, self.solver.current)
+                if progress is not None:
+                    progress(tk)
+            return self._trajectory(rows)
+        except MpsError as exc:
+            # what was computed up to the failure, for a caller that writes it (marked partial)
+            try:
+                exc.partial = self._trajectory(rows)
+            except Exception:
+                exc.partial = None
+            raise
+
+    def _run_long_steps(self, rows, t0, t_end, n, step, progress=None) -> Trajectory:
+        """Steps longer than the output interval. Each output inside a step is the step's
+        interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
+        structure, work (trapezoid from the step's start) and impact loss of that step; an
+        output at a step's end is that step's own evaluation. The steps keep the grid
+        t0 + m·step; events still end steps at their roots, and commands and charts change
+        between steps, as with any step."""
+        times = [t_end if k == n else t0 + k * (t_end - t0) / n for k in range(1, n + 1)]
+        tol = 1e-12 * max(1.0, abs(t_end))
+        k = 0
+        self._spans = spans = []
+        try:
+            while k < n:
+                spans.clear()
+                # the steps keep their grid t0 + m·step: after an event's cut the next step
+                # ends where it would have
+                m = math.floor((self.solver.t - t0) / step + 1e-9) + 1
+                self.advance_to(min(t0 + m * step, t_end))
+                t_now = self.solver.t
+                while k < n and times[k] <= t_now + tol:
+                    tk = times[k]
+                    if abs(tk - t_now) <= tol:
+                        self._record(rows, self.solver.current)
+                    else:
+                        self._record_inside(rows, tk, spans, tol)
+                    k += 1
+                if progress is not None:
+                    progress(t_now)
+        finally:
+            self._spans = None
+        return self._trajectory(rows)
+
+    def _record_inside(self, rows, tk, spans, tol):
+        """Record the output at ``tk`` from the last step that holds it (see
+        :meth:`_run_long_steps`)."""
+        # the span found is read after the loop
+        for t_a, t_b, dense, view, structure, work, p_a, loss in reversed(spans):  # noqa: B007
+            if t_a - tol <= tk <= t_b + tol:
+                break
+        else:
+            raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
+        q, qd = dense(tk)
+        e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
+        self._record(rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a),
+                     loss=loss, structure=structure)
+
+    def _record(self, rows, e, work=None, loss=None, structure=None):
+        """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
+        made once, at the end) and call the observers. ``work``, ``loss``, ``structure``: the
+        run's at ``e`` where they are not the present ones (an output inside a step)."""
+        obs = self._observations(e)
+        at = self._report_at
+        phi, psi = obs[at["phi"]], obs[at["psi"]]
+        rows.append((e.t, phi[0], psi[0], phi[1], psi[1], phi[2], psi[2], obs[at["x_C"]][0],
+                     e.kinetic_energy, self._potential(e.kin),
+                     self.work if work is None else work,
+                     self.impact_loss if loss is None else loss,
+                     self.controls.structure if structure is None else structure, e.view.name))
+        for ob in self.observers:
+            ob.observe(self, e)
+
+    def _trajectory(self, rows) -> Trajectory:
+        data = dict(zip(_ROW, zip(*rows)))
+        cols = {k: (np.array(data.get(k, ()), dtype=float) if k not in ("structure", "chart")
+                    else np.array(data.get(k, ())))
+                for k in COLUMNS}
+        for ob in self.observers:
+            cols.update(ob.columns())
+        counts = dict(self.engine.counts)
+        counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
+        counts["steps"] = self.solver_steps + self.solver.nsteps
+        counts["switch_points"] = self.switch_points
+        s = self.settings
+        settings = {"solver": s.name, "scheme": s.scheme, "delta": s.delta,
+                    "iterations": s.iterations, "rtol": s.rtol, "atol": s.atol,
+                    "chart_switching": self.policy.switching}
+        return Trajectory(cols, list(self.events), counts, settings)
