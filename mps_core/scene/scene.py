@@ -461,8 +461,7 @@ def _commands(raw) -> tuple:
     return tuple(sorted(out))
 
 
-def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
-    top = _Table(raw, "scene file")
+def _meta(top: _Table, name: str) -> tuple[str, str]:
     meta = _Table(top.get("scene", {}), "scene")
     sname = meta.get("name", name)
     if not isinstance(sname, str) or not sname:
@@ -472,7 +471,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
         raise SceneError("scene.description", desc, "a string")
     meta.get("source")
     meta.done()
+    return sname, desc
 
+
+def _mechanism(top: _Table) -> tuple[PressGeometry, int, float | None]:
+    """[mechanism]: the geometry, the assembly, the top stop's position (m, or None)."""
     mt = _Table(top.get("mechanism", {}), "mechanism", _UNIT_HINTS["mechanism"])
     mtype = mt.get("type", "press")
     _choice("mechanism.type", mtype, ("press",))
@@ -493,8 +496,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
                              f"a slider position the links can reach ({lo * 1000:g} to "
                              f"{hi * 1000:g} mm)")
     mt.done()
-    geometry = PressGeometry(l1, l2, l3)
+    return PressGeometry(l1, l2, l3), assembly, x_top
 
+
+def _bodies(top: _Table) -> dict:
+    """[bodies.NAME]: each body's mass, inertia and centre of mass (the seed's by default)."""
     bt = _Table(top.get("bodies", {}), "bodies")
     bodies = {}
     for bname in BODY_NAMES:
@@ -520,7 +526,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
         b.done()
         bodies[bname] = BodyData(mass, inertia, com)
     bt.done()
+    return bodies
 
+
+def _structure(top: _Table) -> tuple[str, float, str]:
+    """[structure]: the initial structure, the lock angle, the change point's rule."""
     stt = _Table(top.get("structure", {}), "structure", _UNIT_HINTS["structure"])
     structure = stt.get("initial", "free")
     _choice("structure.initial", structure, STRUCTURES)
@@ -528,7 +538,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     change_point = stt.get("change_point", "continue")
     _choice("structure.change_point", change_point, ("continue", "keep-side"))
     stt.done()
+    return structure, psi_lock, change_point
 
+
+def _initial(top: _Table, structure: str) -> dict:
+    """[initial]: the initial state, SI."""
     it = _Table(top.get("initial", {}), "initial", _UNIT_HINTS["initial"])
     phi = math.radians(_num("initial.phi_deg", it.get("phi_deg", required=True)))
     phi_dot = _num("initial.phi_dot_rad_s", it.get("phi_dot_rad_s", 0.0))
@@ -536,13 +550,14 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     psi = None if psi_deg is None else math.radians(_num("initial.psi_deg", psi_deg))
     psi_dot = _num("initial.psi_dot_rad_s", it.get("psi_dot_rad_s", 0.0))
     it.done()
-    if structure == "locked":
-        if psi_dot != 0.0:
-            raise SceneError("initial.psi_dot_rad_s", psi_dot, "0 in the locked structure")
-    initial = {"phi": phi, "phi_dot": phi_dot, "psi": psi, "psi_dot": psi_dot}
+    if structure == "locked" and psi_dot != 0.0:
+        raise SceneError("initial.psi_dot_rad_s", psi_dot, "0 in the locked structure")
+    return {"phi": phi, "phi_dot": phi_dot, "psi": psi, "psi_dot": psi_dot}
 
-    commands = _commands(top.get("commands", []))
 
+def _effects(top: _Table, x_top: float | None, structure: str, commands: tuple) -> tuple:
+    """[[effects]]: each once, with what it needs from the mechanism, the structure and the
+    commands that act through it."""
     raw_effects = top.get("effects", [])
     if not isinstance(raw_effects, list):
         raise SceneError("effects", raw_effects, "an array of tables [[effects]]")
@@ -568,7 +583,11 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
             raise SceneError(f"commands[{i}].command", name,
                              "a command whose effects the scene lists (missing: "
                              + ", ".join(missing) + ")")
+    return effects
 
+
+def _solver(top: _Table) -> tuple[SolverSettings, float, float]:
+    """[solver]: the settings, the end time and the output step (s)."""
     sv = _Table(top.get("solver", {}), "solver", _UNIT_HINTS["solver"])
     method = sv.get("method", "linear-acceleration")
     _choice("solver.method", method, SOLVERS)
@@ -600,13 +619,23 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     if step is not None:
         step = _step("solver.step_s", step, t_end)
     sv.done()
+    settings = SolverSettings(method, scheme, delta, iters, rtol, atol, stiff,
+                              switch_points=switch_points, step=step)
+    return settings, t_end, float(dt)
 
+
+def _outputs(top: _Table) -> bool:
+    """[outputs]: whether the reactions (and the foundation load) are computed."""
     ot = _Table(top.get("outputs", {}), "outputs")
     reactions = ot.get("reactions", False)
     if not isinstance(reactions, bool):
         raise SceneError("outputs.reactions", reactions, "true or false")
     ot.done()
+    return reactions
 
+
+def _charts(top: _Table) -> ChartPolicy:
+    """[charts]: when to change chart, and when a configuration is singular."""
     ct = _Table(top.get("charts", {}), "charts")
     switching = ct.get("switching", True)
     if not isinstance(switching, bool):
@@ -617,33 +646,54 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
         raise SceneError("charts.switch_below", switch_below,
                          f"a regularity between charts.fail_below = {fail_below:g} and 1")
     ct.done()
-    top.done()
+    return ChartPolicy(switching, switch_below, fail_below)
 
-    scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
-                  effects, SolverSettings(method, scheme, delta, iters, rtol, atol, stiff,
-                                          switch_points=switch_points, step=step),
-                  t_end, float(dt), ChartPolicy(switching, switch_below, fail_below), commands,
-                  reactions, change_point, text, origin)
-    if step is not None:
+
+def _check_across_tables(scene: Scene) -> None:
+    """What no one table decides: the step against the solver, the change point's rule
+    against the derivatives, the commands' times, and the initial state assembling (on the
+    closure, in held) before anything runs."""
+    if scene.solver.step is not None:
         _check_step_solver(scene.solver)
-    if change_point == "keep-side" and scheme != "central":
-        raise SceneError("structure.change_point", change_point,
+    if scene.change_point == "keep-side" and scene.solver.scheme != "central":
+        raise SceneError("structure.change_point", scene.change_point,
                          "'continue' with solver.derivatives = 'autodiff' (keep-side restarts "
                          "exactly at the change point: it needs central differences)")
-    for i, (ts, _name) in enumerate(commands):
-        if ts > t_end:
-            raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {t_end:g}")
-    # the initial state must assemble (and lie on the closure): checked before anything runs
+    for i, (ts, _name) in enumerate(scene.commands):
+        if ts > scene.t_end:
+            raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {scene.t_end:g}")
     mech = scene.mechanism()
     view, q, _ = scene.initial_state(mech)
-    if structure == "held" and initial["psi"] is not None:
+    psi = scene.initial["psi"]
+    if scene.structure == "held" and psi is not None:
         pose = view.positions(list(q))
         psi0 = math.atan2(pose["B"][1] - pose["C"][1], pose["B"][0] - pose["C"][0])
-        d = (initial["psi"] - psi0 + math.pi) % (2 * math.pi) - math.pi
+        d = (psi - psi0 + math.pi) % (2 * math.pi) - math.pi
         if abs(d) > math.radians(10.0):
-            raise SceneError("initial.psi_deg", math.degrees(initial["psi"]),
+            raise SceneError("initial.psi_deg", math.degrees(psi),
                              f"a rocker angle near the closure's {math.degrees(psi0):.2f}° (in "
                              "held, ψ follows from the closure; psi_deg picks the assembly)")
+
+
+def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
+    """A validated scene from a parsed TOML document: one parser a table, in the order the
+    tables are checked, then what crosses tables."""
+    top = _Table(raw, "scene file")
+    sname, desc = _meta(top, name)
+    geometry, assembly, x_top = _mechanism(top)
+    bodies = _bodies(top)
+    structure, psi_lock, change_point = _structure(top)
+    initial = _initial(top, structure)
+    commands = _commands(top.get("commands", []))
+    effects = _effects(top, x_top, structure, commands)
+    solver, t_end, dt = _solver(top)
+    reactions = _outputs(top)
+    charts = _charts(top)
+    top.done()
+    scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
+                  effects, solver, t_end, dt, charts, commands, reactions, change_point, text,
+                  origin)
+    _check_across_tables(scene)
     return scene
 
 
