@@ -26,7 +26,7 @@ test: lint
 
 # the house's habits: lint (ruff, its rules in pyproject.toml) and types (mypy on mps_core)
 lint: $(STAMP)
-	$(VENV)/bin/ruff check mps_core mps_ros tests
+	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
 
 test-fast: $(STAMP)
