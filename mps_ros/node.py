@@ -58,7 +58,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from mps_core import MpsError  # noqa: E402
-from mps_core.run.simulation import COMMANDS as COMMAND_WORDS  # noqa: E402
+from mps_core.scene.settings import COMMANDS as COMMAND_WORDS  # noqa: E402
 
 from .diagnostics import hardware_id  # noqa: E402
 from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402

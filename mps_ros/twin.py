@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
-from mps_core.run.simulation import COMMANDS
+from mps_core.scene.settings import COMMANDS
 
 from . import diagnostics
 from .diagnostics import hardware_id
@@ -243,7 +243,7 @@ class Twin:
 
     def refusals(self) -> tuple:
         """Why :meth:`command` would refuse each of the machine's words now, in
-        :data:`~mps_core.run.simulation.COMMANDS` order (None: it would apply it): what a step
+        :data:`~mps_core.scene.settings.COMMANDS` order (None: it would apply it): what a step
         carries, so that a command refused at its boundary is answered there without coming
         back to it."""
         key = (self.done, self.sim.structures.command_state())

@@ -75,7 +75,7 @@ from ..model.effects import Controls, Latch, Motor, TopStop
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView, unwrap_to
 from ..names import COLUMNS
-from ..scene.settings import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings  # noqa: F401
+from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, FIXED_STEP_LIMITS, make_solver
 from .structure_layer import CommandRefused, StructureLayer, _Event
 from .trajectory import Trajectory

@@ -9,7 +9,7 @@ import pytest
 
 from mps_core import SceneError, build, load_scene, scene_from_text
 from mps_core.model.effects import Blanking, Controls
-from mps_core.run.simulation import SolverSettings
+from mps_core.scene.settings import SolverSettings
 
 
 def press_cycle(method="linear-acceleration", t_end=None, **solver):
