@@ -9,6 +9,7 @@ Pure Python on numpy and scipy; no ROS. The entry point for library users::
 
 from __future__ import annotations
 
+from .analysis.sweep import sweep
 from .errors import (
     ChartBreakdown,
     MpsError,
@@ -22,27 +23,9 @@ from .run.simulation import Simulation
 from .run.trajectory import Trajectory
 from .scene import Scene, load_scene, preset_names, scene_from_dict, scene_from_text
 from .scene.settings import ChartPolicy, SolverSettings
+from .version import __version__
 
-
-def _version() -> str:
-    """The installed distribution's version: pyproject.toml's, the one place it is written
-    (from that file itself where the tree runs without being installed)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("mps")
-    except PackageNotFoundError:
-        import tomllib
-        from pathlib import Path
-
-        text = (Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
-        return tomllib.loads(text)["project"]["version"]
-
-
-__version__ = _version()
-
-
-__all__ = ["simulate", "build", "load_scene", "scene_from_dict", "scene_from_text",
+__all__ = ["simulate", "build", "sweep", "load_scene", "scene_from_dict", "scene_from_text",
            "preset_names", "Scene", "Simulation", "SolverSettings", "ChartPolicy", "Trajectory",
            "MpsError", "SceneError", "SimulationError", "ChartBreakdown", "SingularConfiguration",
            "NumericalError", "__version__"]

@@ -73,7 +73,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
-PLUGINS = ("mps_core.analysis.loads_cli", "mps_core.bench.cli", "mps_ros.cli", "mps_ros.view_cli")
+PLUGINS = ("mps_core.analysis.loads_cli", "mps_core.analysis.sweep_cli", "mps_core.bench.cli",
+           "mps_ros.cli", "mps_ros.view_cli")
 
 
 def _run(args) -> int:

@@ -1,0 +1,505 @@
+"""The design envelope: one scene run over a grid, a list or a sample of its fields' values,
+each run through the load report (:mod:`.loads`), one row a run, and the envelope over the runs.
+
+A sweep names the fields it varies by their dotted TOML keys. An effect is named by its type
+(``effects.blanking.thickness_mm``), a command by its word (``commands.engage.t_s``), an entry of
+an array also by its index (``effects.3.force_n``); every other key is the path through the
+scene file's tables (``bodies.slider.mass_kg``, ``solver.dt_s``). Values:
+
+* ``a:b:n``, n values from a to b (a grid axis; ``n = 1`` gives a);
+* ``v1,v2,...``, a list (numbers, ``true``/``false`` or words, e.g. ``solver.method=rk4,rk8``);
+* ``a:b``, a range to sample (``samples=N``: a Latin hypercube of N runs over the ranges).
+
+Every run's scene is built and validated before any run starts: a key the scene does not have, a
+value of the wrong type or one the scene refuses fails the sweep at once, naming the key.
+
+Each run is keyed by its scene's content (the varied file, as JSON, with the code version): its
+row is appended to ``runs.jsonl`` as soon as it is done, so that a sweep started again with the
+same arguments after Ctrl-C or a lost worker computes only the runs still missing. A run that
+fails (a scene that cannot be simulated, no steady cycle) is a row with its error.
+
+The table is a list of rows (dicts); :meth:`Sweep.records` gives a numpy record array (numpy
+only: the core depends on nothing heavier, and a record array reads into pandas with
+``pandas.DataFrame.from_records`` where one wants it).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MpsError, SceneError
+from ..scene import Scene, load_scene, scene_from_dict
+from ..version import __version__
+from . import loads
+
+#: what a row holds of each quantity of the load report, beside its harmonics' amplitudes
+FIGURES = ("mean", "peak", "rms", "rms_dynamic")
+#: the rows' file, one JSON object a line, appended as the runs end (the resumable record)
+RUNS_FILE = "runs.jsonl"
+
+
+class SweepError(MpsError, ValueError):
+    """A sweep's specification cannot be run (a key, a value, a range)."""
+
+
+# -- the specification ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class Axis:
+    """One varied field: its dotted key and its values (grid/list), or a range to sample."""
+
+    key: str
+    values: tuple = ()
+    low: float | None = None
+    high: float | None = None
+
+    @property
+    def sampled(self) -> bool:
+        return self.low is not None
+
+
+def _word(text: str) -> Any:
+    """A list entry: a number (int where it is one), true/false, else the word itself."""
+    t = text.strip()
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    try:
+        return int(t)
+    except ValueError:
+        pass
+    try:
+        return float(t)
+    except ValueError:
+        return t
+
+
+def _number(key: str, spec: str, text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise SweepError(f"--vary {key}={spec}: {text!r} is not a number (expected a:b:n, a:b "
+                         "or v1,v2,...)") from None
+    if not math.isfinite(v):
+        raise SweepError(f"--vary {key}={spec}: {text!r}: expected a finite number")
+    return v
+
+
+def parse_axis(text: str) -> Axis:
+    """``KEY=SPEC`` (see the module's notes) as an :class:`Axis`."""
+    key, eq, spec = text.partition("=")
+    key, spec = key.strip(), spec.strip()
+    if not eq or not key or not spec:
+        raise SweepError(f"--vary {text!r}: expected KEY=SPEC, e.g. "
+                         "effects.blanking.thickness_mm=0.5:2.0:7")
+    if ":" in spec:
+        parts = spec.split(":")
+        if len(parts) == 2:
+            lo, hi = (_number(key, spec, p) for p in parts)
+            if not lo < hi:
+                raise SweepError(f"--vary {key}={spec}: expected a range low:high with low < high")
+            return Axis(key, low=lo, high=hi)
+        if len(parts) != 3:
+            raise SweepError(f"--vary {key}={spec}: expected a:b:n, a:b or v1,v2,...")
+        lo, hi = (_number(key, spec, p) for p in parts[:2])
+        try:
+            n = int(parts[2])
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise SweepError(f"--vary {key}={spec}: the count {parts[2]!r}: expected an "
+                             "integer >= 1")
+        vals = [lo] if n == 1 else list(np.linspace(lo, hi, n))
+        if float(lo).is_integer() and float(hi).is_integer() and \
+                all(float(v).is_integer() for v in vals) and \
+                all(p.strip().lstrip("+-").isdigit() for p in parts[:2]):
+            return Axis(key, tuple(int(round(v)) for v in vals))
+        return Axis(key, tuple(float(v) for v in vals))
+    return Axis(key, tuple(_word(p) for p in spec.split(",")))
+
+
+def _points(axes: Sequence[Axis], samples: int | None, seed: int) -> list[tuple]:
+    """The runs' values, one tuple a run in the axes' order."""
+    if samples is None:
+        bad = [a.key for a in axes if a.sampled]
+        if bad:
+            raise SweepError(f"--vary {bad[0]}: a range low:high is sampled: give --samples N "
+                             "(or a:b:n for a grid)")
+        return list(itertools.product(*(a.values for a in axes)))
+    if samples < 1:
+        raise SweepError(f"--samples {samples}: expected an integer >= 1")
+    bad = [a.key for a in axes if not a.sampled]
+    if bad:
+        raise SweepError(f"--vary {bad[0]}: --samples draws from ranges low:high only")
+    from scipy.stats import qmc
+
+    unit = qmc.LatinHypercube(d=len(axes), seed=seed).random(samples)
+    lo = np.array([a.low for a in axes])
+    hi = np.array([a.high for a in axes])
+    return [tuple(float(v) for v in row) for row in lo + unit * (hi - lo)]
+
+
+def _entry(seq: list, key: str, head: str, by: str) -> dict:
+    """The table of an array (``effects``, ``commands``) that ``head`` names: its index, or
+    the one whose ``by`` field is ``head``."""
+    if head.isdigit():
+        i = int(head)
+        if i >= len(seq):
+            raise SweepError(f"--vary {key}: the scene has {len(seq)} entries there")
+        return seq[i]
+    found = [e for e in seq if isinstance(e, dict) and e.get(by) == head]
+    if not found:
+        have = ", ".join(str(e.get(by)) for e in seq if isinstance(e, dict)) or "none"
+        raise SweepError(f"--vary {key}: the scene has no {by} {head!r} (it has: {have})")
+    if len(found) > 1:
+        raise SweepError(f"--vary {key}: the scene has {len(found)} of {by} {head!r}: name one "
+                         "by its index instead")
+    return found[0]
+
+
+def set_field(raw: dict, key: str, value: Any) -> None:
+    """Set the dotted ``key`` in a parsed scene file (see the module's notes)."""
+    parts = key.split(".")
+    if len(parts) < 2 or not all(parts):
+        raise SweepError(f"--vary {key}: expected a dotted key TABLE.FIELD, e.g. "
+                         "bodies.slider.mass_kg")
+    if parts[0] in ("effects", "commands"):
+        if len(parts) != 3:
+            raise SweepError(f"--vary {key}: expected {parts[0]}.NAME.FIELD")
+        by = "type" if parts[0] == "effects" else "command"
+        table = _entry(raw.get(parts[0], []), key, parts[1], by)
+        if parts[2] == by:
+            raise SweepError(f"--vary {key}: the {by} names the entry; it is not varied")
+        table[parts[2]] = value
+        return
+    table = raw
+    for p in parts[:-1]:
+        nxt = table.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise SweepError(f"--vary {key}: {p!r} is not a table in the scene")
+        table = nxt
+    table[parts[-1]] = value
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a sweep: its index, the values it varies, its scene and its key."""
+
+    index: int
+    values: dict
+    scene: Scene
+    key: str
+
+
+def _base_raw(scene: Scene) -> dict:
+    import tomllib
+
+    if not scene.text:
+        raise SweepError(f"scene {scene.name!r} has no file text to vary (load it from a preset "
+                         "or a file)")
+    return tomllib.loads(scene.text)
+
+
+def plan(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None = None,
+         seed: int = 0, t_end: float | None = None, dt: float | None = None) -> list[Run]:
+    """Every run of a sweep, each scene built and validated (nothing is run)."""
+    base = scene if isinstance(scene, Scene) else load_scene(scene)
+    axes = [a if isinstance(a, Axis) else parse_axis(a) for a in vary]
+    if not axes:
+        raise SweepError("a sweep varies at least one field: give --vary KEY=SPEC")
+    keys = [a.key for a in axes]
+    if len(set(keys)) != len(keys):
+        raise SweepError(f"--vary: a key is given twice ({', '.join(keys)})")
+    raw0 = _base_raw(base)
+    solver = raw0.setdefault("solver", {})
+    if t_end is not None:
+        solver["t_end_s"] = float(t_end)
+    if dt is not None:
+        solver.pop("steps", None)
+        solver["dt_s"] = float(dt)
+    raw0.setdefault("outputs", {})["reactions"] = True
+    runs = []
+    for i, point in enumerate(_points(axes, samples, seed)):
+        raw = copy.deepcopy(raw0)
+        values = dict(zip(keys, point))
+        for k, v in values.items():
+            set_field(raw, k, v)
+        try:
+            sc = scene_from_dict(raw, name=base.name, origin=base.origin)
+        except SceneError as exc:
+            shown = ", ".join(f"{k}={v!r}" for k, v in values.items())
+            raise SweepError(f"run {i} ({shown}): {exc}") from None
+        text = json.dumps(raw, sort_keys=True, default=str)
+        key = hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:16]
+        runs.append(Run(i, values, sc, key))
+    return runs
+
+
+# -- one run --------------------------------------------------------------------------------
+def figures(report: dict) -> dict:
+    """A load report as one row's figures: each quantity's mean, peak, RMS, dynamic RMS and
+    harmonic amplitudes (``|F_found|.peak``, ``|F_found|.A1``…), the cycle's period and mean
+    crank speed, and the impacts' count and largest foundation impulse."""
+    row: dict = {"period_s": report["cycle"]["period_s"],
+                 "crank_speed_rad_s": report["cycle"]["crank_speed_mean_rad_s"]}
+    for q in report["quantities"]:
+        for f in FIGURES:
+            row[f"{q['name']}.{f}"] = q[f]
+        for h in q["harmonics"]:
+            row[f"{q['name']}.A{h['k']}"] = h["amplitude"]
+    found = [math.hypot(ev.get("impulses_Ns", {}).get("F_found_x", 0.0),
+                        ev.get("impulses_Ns", {}).get("F_found_y", 0.0))
+             for ev in report["transients"]]
+    row["impacts"] = len(found)
+    row["impulse_found_max_Ns"] = max(found) if found else 0.0
+    return row
+
+
+def run_one(scene: Scene, structure: str = "locked") -> tuple[dict, float]:
+    """The figures of one run (or its error: any exception of the run or its report), and the
+    CPU seconds the simulation took."""
+    from ..run.build import build
+
+    c0 = time.process_time()
+    try:
+        traj = build(scene).run(scene.t_end, scene.dt)
+        cpu = time.process_time() - c0
+        report = loads.load_report(traj.columns, mode=structure, events=traj.events,
+                                   source=scene.name)
+        return {"status": "ok", "error": "", **figures(report)}, cpu
+    except Exception as exc:        # a run that cannot be simulated is a row, not the end
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}, \
+            time.process_time() - c0
+
+
+def _task(scene: Scene, structure: str) -> tuple[dict, float, float]:
+    c0 = time.process_time()
+    row, sim_cpu = run_one(scene, structure)
+    return row, sim_cpu, time.process_time() - c0
+
+
+# -- the sweep ------------------------------------------------------------------------------
+@dataclass
+class Sweep:
+    """A sweep's rows (in the runs' order), what it varied, and what this call computed."""
+
+    keys: list
+    rows: list
+    computed: int = 0
+    cpu_s: float = 0.0
+    simulation_cpu_s: float = 0.0
+    spec: dict = field(default_factory=dict)
+
+    def columns(self) -> list[str]:
+        cols = ["run", "key", *self.keys, "status", "error"]
+        for r in self.rows:
+            cols += [c for c in r if c not in cols]
+        return cols
+
+    def records(self) -> np.recarray:
+        """The table as a numpy record array (NaN where a failed run has no figure)."""
+        cols = self.columns()
+        data = []
+        for c in cols:
+            vals = [r.get(c) for r in self.rows]
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None
+                   for v in vals):
+                data.append(np.array([math.nan if v is None else v for v in vals], float))
+            else:
+                data.append(np.array(["" if v is None else str(v) for v in vals]))
+        names = [c.replace("|", "").replace(".", "_") for c in cols]
+        return np.rec.fromarrays(data, dtype=np.dtype([(n, a.dtype) for n, a in zip(names, data)]))
+
+    def envelope(self) -> list[dict]:
+        """For each figure, its value of largest magnitude over the runs that ended (a mean
+        that is negative, e.g. the weight in ``F_found_x.mean``, by its size), and the run
+        reaching it."""
+        out = []
+        ok = [r for r in self.rows if r.get("status") == "ok"]
+        for c in self.columns():
+            if c in ("run", "key", "status", "error") or c in self.keys:
+                continue
+            best = None
+            for r in ok:
+                v = r.get(c)
+                if isinstance(v, (int, float)) and math.isfinite(v) and \
+                        (best is None or abs(v) > abs(best[0])):
+                    best = (v, r)
+            if best is not None:
+                out.append({"figure": c, "value": best[0], "run": best[1]["run"],
+                            **{k: best[1][k] for k in self.keys}})
+        return out
+
+
+def _read_done(path: Path) -> dict:
+    """The rows of earlier calls by run key (a torn last line, from a kill, is left out)."""
+    done: dict = {}
+    if not path.is_file():
+        return done
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(row, dict) and "key" in row:
+            done[row["key"]] = row
+    return done
+
+
+def _end_torn_line(path: Path) -> None:
+    """A record cut mid-line (a kill while a row was written) is ended there, so that the
+    rows appended after it stay lines of their own."""
+    if path.is_file() and path.stat().st_size:
+        with path.open("rb+") as fh:
+            fh.seek(-1, os.SEEK_END)
+            if fh.read(1) != b"\n":
+                fh.write(b"\n")
+
+
+def sweep(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None = None,
+          seed: int = 0, t_end: float | None = None, dt: float | None = None,
+          structure: str = "locked", workers: int | None = None, client: Any = None,
+          out: str | Path | None = None,
+          on_row: Callable[[dict, int, int], None] | None = None) -> Sweep:
+    """Run a sweep (see the module's notes) and return its table.
+
+    ``workers``: local processes (default: the machine's cores; 1 runs here, in this
+    process); ``client``: a ``dask.distributed.Client`` instead. ``out``: a folder whose
+    ``runs.jsonl`` keeps every row as it comes (runs already there are not computed again).
+    ``on_row(row, done, total)`` is called in this process after each row."""
+    vary = list(vary)
+    runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
+    keys = list(runs[0].values)
+    record = Path(out) / RUNS_FILE if out is not None else None
+    done = _read_done(record) if record is not None else {}
+    if record is not None:
+        record.parent.mkdir(parents=True, exist_ok=True)
+        _end_torn_line(record)
+    rows: dict[int, dict] = {}
+    todo = []
+    for r in runs:
+        if r.key in done:
+            rows[r.index] = {**done[r.key], "run": r.index}
+        else:
+            todo.append(r)
+    result = Sweep(keys, [], spec={"vary": [str(v) for v in vary], "samples": samples,
+                                   "seed": seed, "structure": structure})
+
+    def take(r: Run, row: dict, sim_cpu: float, cpu: float) -> None:
+        full = {"run": r.index, "key": r.key, **r.values, **row}
+        rows[r.index] = full
+        result.computed += 1
+        result.cpu_s += cpu
+        result.simulation_cpu_s += sim_cpu
+        if record is not None:
+            with record.open("a") as fh:
+                fh.write(json.dumps(full, default=_json_default) + "\n")
+        if on_row is not None:
+            on_row(full, len(rows), len(runs))
+
+    n = workers if workers is not None else (os.cpu_count() or 1)
+    if client is not None:
+        futures = {client.submit(_task, r.scene, structure, pure=False): r for r in todo}
+        from dask.distributed import as_completed
+
+        for fut in as_completed(list(futures)):
+            take(futures[fut], *fut.result())
+    elif n <= 1 or len(todo) <= 1:
+        for r in todo:
+            take(r, *_task(r.scene, structure))
+    else:
+        # the workers leave Ctrl-C to this process, which ends the sweep with what is done
+        pool = ProcessPoolExecutor(max_workers=min(n, len(todo)), initializer=_ignore_sigint)
+        pending = {pool.submit(_task, r.scene, structure): r for r in todo}
+        try:
+            while pending:
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    take(pending.pop(fut), *fut.result())
+        except KeyboardInterrupt:
+            # the runs not started are dropped; those under way end and are kept
+            running = [f for f in pending if not f.cancel()]
+            for fut in running:
+                if fut.exception() is None:
+                    take(pending.pop(fut), *fut.result())
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    result.rows = [rows[i] for i in sorted(rows)]
+    return result
+
+
+def _ignore_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"{type(o).__name__} is not JSON")
+
+
+# -- outputs --------------------------------------------------------------------------------
+def write_csv(rows: list[dict], columns: list[str], path: str | Path) -> Path:
+    import csv
+
+    path = Path(path)
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({c: ("" if r.get(c) is None else r.get(c)) for c in columns})
+    return path
+
+
+def write_png(result: Sweep, path: str | Path, title: str = "") -> Path:
+    """Peak and RMS of the foundation load against each varied field; the harmonics'
+    envelope (the largest amplitude of each over the runs)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in result.rows if r.get("status") == "ok"]
+    numeric = [k for k in result.keys
+               if all(isinstance(r[k], (int, float)) and not isinstance(r[k], bool) for r in ok)]
+    n = len(numeric) + 1
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.6), squeeze=False)
+    for ax, k in zip(axes[0], numeric):
+        x = [r[k] for r in ok]
+        for fig_name, style in (("|F_found|.peak", "o"), ("|F_found|.rms", "s")):
+            ax.plot(x, [r.get(fig_name, math.nan) / 1e3 for r in ok], style, ms=4,
+                    label=fig_name.replace("|F_found|.", ""))
+        ax.set_xlabel(k)
+        ax.set_ylabel("foundation load |F_found| (kN)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    ax = axes[0][-1]
+    amps = sorted({int(c.rsplit(".A", 1)[1]) for r in ok for c in r
+                   if c.startswith("|F_found|.A")})
+    env = [max(r.get(f"|F_found|.A{k}", 0.0) for r in ok) / 1e3 for k in amps] if ok else []
+    ax.bar(amps, env)
+    ax.set_xlabel("harmonic of the crank frequency")
+    ax.set_ylabel("largest amplitude over the runs (kN)")
+    ax.grid(alpha=0.3, axis="y")
+    failed = len(result.rows) - len(ok)
+    fig.suptitle((title + ": " if title else "") + f"{len(ok)} runs"
+                 + (f", {failed} failed" if failed else ""))
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return path

@@ -1,0 +1,211 @@
+"""mps sweep: the load report over many runs of a scene (mps_core.analysis.sweep)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from mps_core import load_scene, simulate
+from mps_core.analysis import loads
+from mps_core.analysis.sweep import (
+    Axis,
+    SweepError,
+    figures,
+    parse_axis,
+    plan,
+    set_field,
+    sweep,
+)
+
+#: press-cycle at 1 kHz over its first second: three working strokes, a few tenths of a second
+SHORT = dict(t_end=1.0, dt=1e-3)
+THICKNESS = "effects.blanking.thickness_mm=0.5:2.0:3"
+
+
+def _close(a: dict, b: dict, rtol: float = 1e-9) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        if isinstance(a[k], float):
+            assert math.isclose(a[k], b[k], rel_tol=rtol, abs_tol=1e-9), (k, a[k], b[k])
+        else:
+            assert a[k] == b[k], k
+
+
+def _figures_only(row: dict, varied: tuple = ("effects.blanking.thickness_mm",)) -> dict:
+    return {k: v for k, v in row.items()
+            if k not in ("run", "key", "status", "error") and k not in varied}
+
+
+def test_axes_grid_list_range():
+    assert parse_axis("effects.blanking.thickness_mm=0.5:2.0:4").values == (0.5, 1.0, 1.5, 2.0)
+    assert parse_axis("solver.corrector_iterations=1:3:3").values == (1, 2, 3)
+    assert parse_axis("solver.method=rk4,linear-acceleration").values == (
+        "rk4", "linear-acceleration")
+    assert parse_axis("outputs.reactions=true,false").values == (True, False)
+    a = parse_axis("bodies.slider.mass_kg=80:120")
+    assert a.sampled and (a.low, a.high) == (80.0, 120.0)
+    for bad, words in (("thickness", "KEY=SPEC"), ("k=1:x:3", "'x' is not a number"),
+                       ("k=1:2:0", "expected an integer >= 1"), ("k=2:1", "low < high"),
+                       ("k=1:2:3:4", "a:b:n")):
+        with pytest.raises(SweepError, match=words):
+            parse_axis(bad)
+
+
+def test_keys_name_effects_and_commands_by_their_name_or_index():
+    raw = {"effects": [{"type": "motor", "crank_speed_rad_s": 43.5}, {"type": "blanking"}],
+           "commands": [{"t_s": 0.008, "command": "engage"}], "bodies": {}}
+    set_field(raw, "effects.motor.crank_speed_rad_s", 40.0)
+    set_field(raw, "effects.1.thickness_mm", 2.0)
+    set_field(raw, "commands.engage.t_s", 0.01)
+    set_field(raw, "bodies.slider.mass_kg", 90.0)
+    assert raw["effects"][0]["crank_speed_rad_s"] == 40.0
+    assert raw["effects"][1]["thickness_mm"] == 2.0
+    assert raw["commands"][0]["t_s"] == 0.01 and raw["bodies"]["slider"]["mass_kg"] == 90.0
+    with pytest.raises(SweepError, match=r"no type 'springs' \(it has: motor, blanking\)"):
+        set_field(raw, "effects.springs.preload_n", 1.0)
+    with pytest.raises(SweepError, match="the type names the entry"):
+        set_field(raw, "effects.motor.type", "x")
+
+
+def test_bad_specs_fail_before_any_run_naming_the_key():
+    with pytest.raises(SweepError, match="no type 'blankin'"):
+        plan("press-cycle", ["effects.blankin.thickness_mm=1:2:2"])
+    # a value the scene refuses: the run, its values and the scene's own words
+    with pytest.raises(SweepError, match=r"run 1 \(effects.blanking.thickness_mm=-1.0\).*"
+                                          r"effects\[7\].thickness_mm"):
+        plan("press-cycle", ["effects.blanking.thickness_mm=1.0,-1.0"])
+    with pytest.raises(SweepError, match="sampled: give --samples"):
+        plan("press-cycle", ["bodies.slider.mass_kg=80:120"])
+    with pytest.raises(SweepError, match="from ranges low:high only"):
+        plan("press-cycle", ["bodies.slider.mass_kg=80,120"], samples=4)
+
+
+def test_a_grid_is_the_product_and_a_sample_a_latin_hypercube():
+    runs = plan("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], **SHORT)
+    assert [tuple(r.values.values()) for r in runs] == [
+        (t, w) for t in (0.5, 1.25, 2.0) for w in (40, 45)]
+    assert len({r.key for r in runs}) == 6
+    assert runs[0].scene.reactions and runs[0].scene.t_end == 1.0 and runs[0].scene.dt == 1e-3
+    sampled = plan("press-cycle", ["bodies.slider.mass_kg=80:120"], samples=8, seed=3, **SHORT)
+    masses = sorted(r.values["bodies.slider.mass_kg"] for r in sampled)
+    # one sample in each eighth of the range
+    assert [int((m - 80) / 5) for m in masses] == list(range(8))
+    assert [r.scene.bodies["slider"].mass for r in sampled] == [
+        r.values["bodies.slider.mass_kg"] for r in sampled]
+    again = plan("press-cycle", ["bodies.slider.mass_kg=80:120"], samples=8, seed=3, **SHORT)
+    assert [r.key for r in again] == [r.key for r in sampled]
+
+
+def test_each_row_is_the_load_report_of_its_own_run():
+    result = sweep("press-cycle", [THICKNESS], workers=1, **SHORT)
+    assert result.computed == 3 and [r["status"] for r in result.rows] == ["ok"] * 3
+    base = load_scene("press-cycle")
+    for row, run in zip(result.rows, plan(base, [THICKNESS], **SHORT)):
+        traj = simulate(run.scene)
+        report = loads.load_report(traj.columns, events=traj.events, source=run.scene.name)
+        _close(_figures_only(row), figures(report))
+        assert row["effects.blanking.thickness_mm"] == run.values["effects.blanking.thickness_mm"]
+    peaks = [r["|F_found|.peak"] for r in result.rows]
+    assert peaks == sorted(peaks) and peaks[0] < peaks[-1]    # thicker sheet, larger load
+    env = {e["figure"]: e for e in result.envelope()}
+    assert env["|F_found|.peak"]["value"] == max(peaks) and env["|F_found|.peak"]["run"] == 2
+    rec = result.records()
+    assert list(rec["F_found_peak"]) == peaks and list(rec["status"]) == ["ok"] * 3
+
+
+def test_a_run_that_fails_is_a_row_with_its_error():
+    result = sweep("press-cycle", ["charts.switching=true,false"], workers=1, **SHORT)
+    ok, failed = result.rows
+    assert ok["status"] == "ok" and failed["status"] == "failed"
+    assert "ChartBreakdown" in failed["error"] and "|F_found|.peak" not in failed
+    assert [e["run"] for e in result.envelope()] == [0] * len(result.envelope())
+    assert math.isnan(result.records()["F_found_peak"][1])
+
+
+def test_an_interrupted_sweep_computes_only_what_is_missing(tmp_path):
+    out = tmp_path / "s"
+    seen = []
+
+    def stop_after_two(row, done, total):
+        seen.append(row["run"])
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
+              workers=1, on_row=stop_after_two, **SHORT)
+    lines = (out / "runs.jsonl").read_text().splitlines()
+    assert len(lines) == 2
+    # a kill mid-line leaves a torn last line: it is not a row
+    with (out / "runs.jsonl").open("a") as fh:
+        fh.write('{"key": "torn", "run"')
+    again = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
+                  workers=1, **SHORT)
+    assert again.computed == 4 and len(again.rows) == 6
+    whole = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"],
+                  workers=1, **SHORT)
+    for a, b in zip(again.rows, whole.rows):
+        _close(a, b)
+    third = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
+                  workers=1, **SHORT)
+    assert third.computed == 0 and [r["run"] for r in third.rows] == list(range(6))
+
+
+def test_worker_processes_and_a_dask_cluster_give_the_same_rows():
+    distributed = pytest.importorskip("dask.distributed")
+    one = sweep("press-cycle", [THICKNESS], workers=1, **SHORT)
+    two = sweep("press-cycle", [THICKNESS], workers=2, **SHORT)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        dask = sweep("press-cycle", [THICKNESS], client=client, **SHORT)
+    for a, b, c in zip(one.rows, two.rows, dask.rows):
+        _close(a, b)
+        _close(a, c)
+
+
+def _mps(*args):
+    return subprocess.run([sys.executable, "-m", "mps_core.cli", *args], capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
+    out = tmp_path / "sweep"
+    args = ["sweep", "press-cycle", "--vary", "effects.blanking.thickness_mm=0.5,2.0",
+            "--t-end", "1", "--dt", "0.001", "--workers", "2", "--out", str(out)]
+    res = _mps(*args)
+    assert res.returncode == 0, res.stderr
+    assert "2 runs (2 computed now, 0 kept from before), 0 failed" in res.stdout
+    with (out / "sweep.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["effects.blanking.thickness_mm"] for r in rows] == ["0.5", "2.0"]
+    assert all(r["status"] == "ok" for r in rows)
+    with (out / "envelope.csv").open() as fh:
+        env = {r["figure"]: r for r in csv.DictReader(fh)}
+    assert env["|F_found|.peak"]["run"] == "1"
+    assert float(env["|F_found|.peak"]["value"]) == float(rows[1]["|F_found|.peak"])
+    spec = json.loads((out / "sweep.json").read_text())
+    assert spec["scene"] == "press-cycle" and spec["vary"] == [
+        "effects.blanking.thickness_mm=0.5,2.0"] and spec["version"]
+    assert (out / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    again = _mps(*args)
+    assert again.returncode == 0 and "(0 computed now, 2 kept from before)" in again.stdout
+    # another sweep into the same folder is refused; a bad key fails before any run
+    other = _mps("sweep", "press-cycle", "--vary", "effects.blanking.thickness_mm=1.0,3.0",
+                 "--out", str(out))
+    assert other.returncode == 2 and "holds another sweep" in other.stderr
+    bad = _mps("sweep", "press-cycle", "--vary", "effects.blanking.thicknes_mm=1,2",
+               "--out", str(tmp_path / "bad"))
+    lines = bad.stderr.strip().splitlines()
+    assert bad.returncode == 2 and len(lines) == 1 and "thicknes_mm" in lines[0], bad.stderr
+    assert not (tmp_path / "bad").exists()
+
+
+def test_axis_values_are_what_the_scene_receives():
+    runs = plan("press-cycle", [Axis("solver.corrector_iterations", (1, 2))], **SHORT)
+    assert [r.scene.solver.iterations for r in runs] == [1, 2]
