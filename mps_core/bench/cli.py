@@ -3,6 +3,8 @@
     mps bench accuracy [CASE …] [--solvers NAME,…] [--quick] [--rungs N] [--repeats N]
                        [--out DIR] [--no-plot]
     mps bench speed [CASE …] [--quick] [--out DIR]
+    mps bench batch [--sizes N,…] [--steps N]
+    mps bench sweep [--runs N] [--workers N] [--t-end S] [--dt S] [--no-dask]
 
 CASE is ``paper`` (0.1 s), ``paper-long`` (1 s), ``press-cycle`` (where that preset exists) or
 any preset name or scene file (over its own t_end); by default every built-in case.
@@ -52,6 +54,15 @@ def register(subparsers) -> None:
     b.add_argument("--steps", type=int, default=200, help="steps of each run (default 200)")
     b.set_defaults(func=_batch)
 
+    w = sub.add_parser("sweep", help="mps sweep's throughput: one worker, N local worker "
+                                     "processes, a Dask LocalCluster")
+    w.add_argument("--runs", type=int, default=256, help="runs of the sweep (default 256)")
+    w.add_argument("--workers", type=int, help="N (default: the machine's cores)")
+    w.add_argument("--t-end", type=float, default=1.0, help="end time of each run (default 1 s)")
+    w.add_argument("--dt", type=float, default=1e-3, help="output step (default 1 ms)")
+    w.add_argument("--no-dask", action="store_true", help="leave the Dask cluster out")
+    w.set_defaults(func=_sweep)
+
 
 def _accuracy(args) -> int:
     from . import accuracy
@@ -96,4 +107,12 @@ def _batch(args) -> int:
         label = "1 alone" if row["scenes"] == 0 else str(row["scenes"])
         print(f"{label:>7} {row['steps_per_s']:>18,.0f} {row['cpu_s']:>8.3f}")
     print("(1 alone: simulate, the one-scene path)")
+    return 0
+
+
+def _sweep(args) -> int:
+    from . import sweep
+
+    rows = sweep.throughput(args.runs, args.workers, args.t_end, args.dt, dask=not args.no_dask)
+    sweep.report(rows)
     return 0
