@@ -584,7 +584,7 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
 
     from mcap.writer import CompressionType, Writer
 
-    from .mcap_writer import McapWriter
+    from .mcap_writer import ENCODING_CDR, PROFILE_ROS2, SCHEMA_ROS2MSG, McapWriter
     from .topics import OUTPUTS
     from .twin import Twin
 
@@ -598,10 +598,10 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
     def write(w) -> tuple[float, bytes]:
         out = io.BytesIO()
         w = w(out)
-        w.start(profile="ros2", library="bench")
-        sid = w.register_schema("s", "ros2msg", b"")
+        w.start(profile=PROFILE_ROS2, library="bench")
+        sid = w.register_schema("s", SCHEMA_ROS2MSG, b"")
         for key in ids:
-            w.register_channel(str(key), "cdr", sid, {})
+            w.register_channel(str(key), ENCODING_CDR, sid, {})
         seq = dict.fromkeys(ids.values(), 0)
         add = w.add_message
         t0 = time.process_time()

@@ -103,8 +103,7 @@ def _record(args) -> int:
 def _recover(args) -> int:
     from pathlib import Path
 
-    from mps_core.analysis.loads_cli import MCAP_MAGIC
-    from mps_core.files.inputs import check_file
+    from mps_core.files.inputs import MCAP_MAGIC, check_file
     from mps_core.files.outputs import check_outputs, written_whole
 
     from .recording import recover

@@ -17,7 +17,11 @@ from __future__ import annotations
 import struct
 import zlib
 
-MAGIC = b"\x89MCAP0\r\n"
+from mps_core.files.inputs import MCAP_MAGIC as MAGIC
+
+#: the ROS 2 profile's well-known names (the ``mcap`` library's ``mcap.well_known``: Profile.ROS2,
+#: SchemaEncoding.ROS2, MessageEncoding.CDR; tests/ros/test_mcap_writer.py holds them equal)
+PROFILE_ROS2, SCHEMA_ROS2MSG, ENCODING_CDR = "ros2", "ros2msg", "cdr"
 
 # record opcodes (the specification's table)
 HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
@@ -250,4 +254,4 @@ class McapWriter:
                           + _U32.pack(crc)) + MAGIC)
 
 
-__all__ = ["McapWriter", "MAGIC"]
+__all__ = ["McapWriter", "MAGIC", "PROFILE_ROS2", "SCHEMA_ROS2MSG", "ENCODING_CDR"]

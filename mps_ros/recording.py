@@ -30,11 +30,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from .cdr import encoder, generic_encoder, msgdef
-from .mcap_writer import MAGIC, McapWriter
+from .mcap_writer import ENCODING_CDR, MAGIC, PROFILE_ROS2, SCHEMA_ROS2MSG, McapWriter
 from .os_threads import widen_pipe
 from .topics import BY_KEY, DEPTH, NODE_NAME, TYPE_HASHES, offered_qos, qos_yaml, resolve
 
-PROFILE = "ros2"
+PROFILE = PROFILE_ROS2
 
 
 def default_path(scene_name: str, directory: str | os.PathLike = "recordings") -> Path:
@@ -195,8 +195,9 @@ class Recorder:
         sid = self._schemas.get(msgtype)
         if sid is None:
             sid = self._schemas[msgtype] = self._w.register_schema(
-                msgtype, "ros2msg", msgdef(msgtype).encode())
-        return self._w.register_channel(topic, "cdr", sid, channel_metadata(msgtype, qos))
+                msgtype, SCHEMA_ROS2MSG, msgdef(msgtype).encode())
+        return self._w.register_channel(topic, ENCODING_CDR, sid,
+                                        channel_metadata(msgtype, qos))
 
     def channel(self, topic: str, msgtype: str, qos: str | None = None) -> _Channel:
         ch = self._channels.get(topic)

@@ -42,7 +42,7 @@ import numpy as np
 
 from mps_core.errors import MpsError
 
-from .mcap_writer import MAGIC
+from .mcap_writer import ENCODING_CDR, MAGIC
 from .topics import BY_KEY, FOUNDATION, JOINT_NAMES, MODE, NODE_NAME, WRENCHES, resolve
 
 #: the recording's metadata records (as :mod:`mps_ros.recording` writes them)
@@ -401,8 +401,9 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
         raise ReplayError(
             f"{path}: a recording{who} without joint states ({resolve('joint_states')}, "
             f"sensor_msgs/msg/JointState, with messages): nothing to replay; it has: {have}")
-    if js.encoding != "cdr":
-        raise ReplayError(f"{path}: {js.topic} is encoded as {js.encoding!r}: expected cdr")
+    if js.encoding != ENCODING_CDR:
+        raise ReplayError(f"{path}: {js.topic} is encoded as {js.encoding!r}: "
+                          f"expected {ENCODING_CDR}")
     if check_version:
         sw = meta.get(META_SOFTWARE, {})
         from mps_core import __version__
@@ -436,7 +437,7 @@ def replay_of_messages(name: str, messages: dict, node: str = NODE_NAME) -> Repl
         key = next((k for k in BY_KEY if resolve(k, node) == topic), None)
         if key is None or not msgs:
             continue
-        ch = channels[i] = _Channel(i, topic, BY_KEY[key].msgtype, "cdr")
+        ch = channels[i] = _Channel(i, topic, BY_KEY[key].msgtype, ENCODING_CDR)
         ch.times = [t for t, _ in msgs]
         ch.datas = [d for _, d in msgs]
     js = _match(channels, "joint_states", node)

@@ -47,9 +47,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-from ..files.inputs import read_text  # noqa: E402
+from ..files.inputs import MCAP_MAGIC, read_text  # noqa: E402
 
 
 def is_mcap(src: str) -> bool:

@@ -8,6 +8,9 @@ from pathlib import Path
 
 from ..errors import MpsError
 
+#: the first 8 bytes of an MCAP file (and its last 8): the specification's magic
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
 
 class InputFileError(MpsError, ValueError):
     """A named file cannot be used: missing, a directory, unreadable, empty, or not the kind of

@@ -106,3 +106,18 @@ def test_the_recorder_file_reads_in_rosbags(tmp_path):
             reader.deserialize(raw, conn.msgtype)
             n[conn.topic] += 1
     assert n == counts and sum(n.values()) > 50
+
+
+def test_the_ros2_profiles_names_are_the_libraries():
+    from mcap.stream_reader import MAGIC_SIZE
+    from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
+
+    from mps_ros.mcap_writer import ENCODING_CDR, MAGIC, PROFILE_ROS2, SCHEMA_ROS2MSG
+
+    assert (PROFILE_ROS2, SCHEMA_ROS2MSG, ENCODING_CDR) == (
+        Profile.ROS2, SchemaEncoding.ROS2, MessageEncoding.CDR)
+    out = io.BytesIO()
+    w = Writer(out)
+    w.start(profile=Profile.ROS2, library="test")
+    w.finish()
+    assert len(MAGIC) == MAGIC_SIZE and out.getvalue()[:MAGIC_SIZE] == MAGIC
