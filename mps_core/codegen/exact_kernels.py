@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 
+from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, TracingError, trace_at
 from .kernels import MAX_N, _key, _Writer, function_key, inline_once, live_lines, load, view_arguments
 
@@ -51,7 +52,7 @@ def trace_view(view, q):
 
 #: exact kernels by (the engine's tables and the view, the position function's key), for
 #: engines made afresh (a benchmark's repeats, a batch): tried at q before a trace is made
-_MADE: dict = {}
+_MADE = Memo("codegen.exact_kernels.made", 256)
 
 
 def exact_kernel(engine, view, q):
@@ -73,9 +74,9 @@ def exact_kernel(engine, view, q):
             return k
     kernel = _trace_and_load(engine, view, q)
     if kernel is not None and made_key is not None:
-        if len(_MADE) > 256:
-            _MADE.clear()
-        known = _MADE.setdefault(made_key, [])
+        known = _MADE.get(made_key)
+        if known is None:
+            known = _MADE.keep(made_key, [])
         known.insert(0, kernel)
         del known[8:]
     return kernel
@@ -331,7 +332,7 @@ def _source(engine, view, tape, outputs, args, free, key=None) -> str:
 
 
 #: kernel_parts by the exact kernel's key
-_PARTS: dict = {}
+_PARTS = Memo("codegen.exact_kernels.parts", 1024)
 
 
 def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
@@ -344,9 +345,7 @@ def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
         return _PARTS[key]
     parts = _parts(engine, view, tape, outputs, args, free)
     if key is not None:
-        if len(_PARTS) > 1024:
-            _PARTS.clear()
-        _PARTS[key] = parts
+        _PARTS.keep(key, parts)
     return parts
 
 

@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from ..caches import Memo
 from ..derivatives.tracing import OPS, BranchChanged, Tape, Traced
 from .exact_kernels import _HOLD
 from .kernels import inline_once, live_lines, load, solve_given_h
@@ -51,7 +52,7 @@ class ForceLawBranch(BranchChanged):
     """A force law's guard failed (its kinematics held): the exact kernel still holds here."""
 
 
-_CONSTANTS: dict = {}
+_CONSTANTS = Memo("codegen.fused_kernels.constants", 65536)
 
 
 def _constant(code: str):
@@ -64,10 +65,7 @@ def _constant(code: str):
         c = float(code)
     except ValueError:
         c = None
-    if len(_CONSTANTS) > 65536:
-        _CONSTANTS.clear()
-    _CONSTANTS[code] = c
-    return c
+    return _CONSTANTS.keep(code, c)
 
 
 class _Unhashable(Exception):
@@ -97,7 +95,7 @@ def _frozen(x):
     raise _Unhashable(type(x).__name__)
 
 
-_FINGERPRINTS: dict = {}
+_FINGERPRINTS = Memo("codegen.fused_kernels.fingerprints", 4096)
 
 
 def fingerprint(effects):
@@ -118,10 +116,8 @@ def fingerprint(effects):
     key = tuple(out)
     number = _FINGERPRINTS.get(key)
     if number is None:
-        if len(_FINGERPRINTS) > 4096:
-            _FINGERPRINTS.clear()       # numbers already given stay unique: they only grow
-        _FINGERPRINT_SERIAL[0] += 1
-        number = _FINGERPRINTS[key] = _FINGERPRINT_SERIAL[0]
+        _FINGERPRINT_SERIAL[0] += 1     # numbers stay unique past a clear: they only grow
+        number = _FINGERPRINTS.keep(key, _FINGERPRINT_SERIAL[0])
     return number
 
 
@@ -130,7 +126,7 @@ _FINGERPRINT_SERIAL = [0]
 
 #: fused functions by (exact kernel's key, effects' fingerprint), for engines made afresh
 #: (a benchmark's repeats, a batch): tried at the state before a trace is made
-_MADE: dict = {}
+_MADE = Memo("codegen.fused_kernels.made", 256)
 
 
 def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
@@ -143,7 +139,7 @@ def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
                                         virtual_work))
 
 
-def _reused(cache: dict, key, trial, make):
+def _reused(cache: Memo, key, trial, make):
     """A function kept in ``cache`` under ``key`` whose ``trial(fn)`` holds here (no failed
     guard, a result), else ``make()``'s, kept there first (up to eight a key)."""
     for k in cache.get(key, ()) if key is not None else ():
@@ -154,9 +150,9 @@ def _reused(cache: dict, key, trial, make):
             continue
     made = make()
     if made is not None and key is not None:
-        if len(cache) > 256:
-            cache.clear()
-        known = cache.setdefault(key, [])
+        known = cache.get(key)
+        if known is None:
+            known = cache.keep(key, [])
         if all(k.source != made.source for k in known):
             known.insert(0, made)
             del known[8:]
@@ -259,7 +255,7 @@ def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work):
 #: central tails by (the engine's tables and the view, the effects' fingerprint): the ones
 #: made before, tried at the state before a trace is made (a command and back, an engine
 #: made afresh for the same scene)
-_TAILS: dict = {}
+_TAILS = Memo("codegen.fused_kernels.tails", 256)
 
 
 def reuse_or_make_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):

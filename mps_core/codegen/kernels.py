@@ -38,6 +38,7 @@ import weakref
 
 import numpy as np
 
+from ..caches import Memo
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged, TracingError, trace_at
 
@@ -121,7 +122,7 @@ def central_kernel(engine, view, plan, q=None):
 
 #: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
 #: an equal mechanism, view and Δ, or traced program, is the same)
-_CODE: dict = {}
+_CODE = Memo("codegen.kernels.code", 1024)
 _SERIAL = [0]
 
 
@@ -134,10 +135,8 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     code = _CODE.get(key)
     if code is None:
         src = source()
-        if len(_CODE) > 1024:
-            _CODE.clear()
         _SERIAL[0] += 1
-        code = _CODE[key] = (compile(src, label, "exec"), src, _SERIAL[0])
+        code = _CODE.keep(key, (compile(src, label, "exec"), src, _SERIAL[0]))
 
     def miss(*a):
         flat(*a)

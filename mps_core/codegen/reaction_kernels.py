@@ -42,6 +42,7 @@ import re
 
 import numpy as np
 
+from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, Tape, Traced
 from ..model.effects.base import STATE_VERSION
 from ..model.mechanism import FRAME
@@ -177,13 +178,10 @@ def with_loads(kernel, sums):
     made = load(key, lambda: src, f"<reaction kernel with loads {kernel.chart}>", kernel.flat,
                 kernel.chart, {"_fallback": _fallback, "tanh": math.tanh,
                                "_Branch": BranchChanged})
-    if len(_WITH_LOADS) > 256:
-        _WITH_LOADS.clear()
-    _WITH_LOADS[key] = made
-    return made
+    return _WITH_LOADS.keep(key, made)
 
 
-_WITH_LOADS: dict = {}
+_WITH_LOADS = Memo("codegen.reaction_kernels.with_loads", 256)
 _NUMBER = re.compile(r"-?(\d+\.\d*(e-?\d+)?|inf|nan)")
 
 

@@ -55,6 +55,7 @@ import math
 
 import numpy as np
 
+from ..caches import Memo
 from ..codegen.exact_kernels import exact_kernel
 from ..codegen.fused_kernels import ForceLawBranch, fingerprint, reuse_or_make
 from ..codegen.kernels import _tables_number, as_matrix, central_kernel, solve_given_h
@@ -410,7 +411,7 @@ def _fast_path(effect):
 #: per (chart view, the engine's tables, the effects' fingerprint): the (exact kernel, fused
 #: function) an engine last used there, for another engine's first evaluation in that view
 #: (the charts a run changes to, in a fresh simulation of a scene run before)
-_FIRST: dict = {}
+_FIRST = Memo("dynamics.engine.first", 512)
 
 
 class PartialSystems:
@@ -1170,9 +1171,7 @@ class PartialSystems:
         fp = self._fingerprint()
         if fp is None or plan.exact is None or plan.fused is None:
             return
-        if len(_FIRST) > 512:
-            _FIRST.clear()
-        _FIRST[view, _tables_number(self), fp] = (plan.exact, plan.fused)
+        _FIRST.keep((view, _tables_number(self), fp), (plan.exact, plan.fused))
 
     def _other_branch(self, view, plan, ql) -> bool:
         """Make the view's exact kernel the one of the branch its position function takes at

@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
+from ..caches import Memo
 from ..derivatives import SCHEMES
 from ..errors import SceneError
 from ..model.effects import (
@@ -138,10 +139,8 @@ class Scene:
             return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock,
                                   x_top=self.x_top)
         if mech is None:
-            if len(_MECHANISMS) >= 64:
-                _MECHANISMS.clear()
-            mech = _MECHANISMS[key] = PressMechanism(self.geometry, self.bodies,
-                                                     psi_lock=self.psi_lock, x_top=self.x_top)
+            mech = _MECHANISMS.keep(key, PressMechanism(self.geometry, self.bodies,
+                                                        psi_lock=self.psi_lock, x_top=self.x_top))
         return mech
 
     def build_effects(self, mechanism) -> list:
@@ -159,7 +158,7 @@ class Scene:
 
 
 #: mechanisms by what makes them (:meth:`Scene.mechanism`)
-_MECHANISMS: dict = {}
+_MECHANISMS = Memo("scene.mechanisms", 64)
 
 
 # -- field checks -------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..caches import Memo
 from ..derivatives.tracing import BranchChanged
 
 
@@ -94,7 +95,7 @@ class Solver:
         return self._dense
 
 
-_STEPS: dict = {}
+_STEPS = Memo("solvers.base.steps", 64)
 
 
 def _generated(cls, n: int, direct: bool):
@@ -104,7 +105,7 @@ def _generated(cls, n: int, direct: bool):
         namespace: dict = {"_MISSES": misses()}
         exec(compile(cls.step_source(n, direct), f"<{cls.name} step, n = {n}>", "exec"),
              namespace)
-        fn = _STEPS[cls, n, direct] = namespace["step"]
+        fn = _STEPS.keep((cls, n, direct), namespace["step"])
     return fn
 
 

@@ -33,6 +33,7 @@ import math
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _coef
 
+from ..caches import Memo
 from ..errors import ChartDomainError, NumericalError
 from .base import Solver
 
@@ -122,7 +123,7 @@ def _dense_source(n: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-_CODE: dict = {}
+_CODE = Memo("solvers.dop853.code", 64)
 
 
 def _generated(kind: str, n: int):
@@ -132,7 +133,7 @@ def _generated(kind: str, n: int):
         src = (_step_source if kind == "attempt" else _dense_source)(n)
         ns: dict = {}
         exec(compile(src, f"<dop853 {kind}, n = {n}>", "exec"), ns)
-        f = _CODE[(kind, n)] = ns[kind]
+        f = _CODE.keep((kind, n), ns[kind])
         f.source = src
     return f
 

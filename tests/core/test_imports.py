@@ -89,7 +89,7 @@ def test_the_core_imports_no_ros():
 #: own layer and the layers below only. The shared vocabulary (errors, names) is below all;
 #: ``mps_core`` itself (the public facade) is imported by the commands only.
 LAYERS = (
-    ("mps_core.errors", "mps_core.names", "mps_core.version"),
+    ("mps_core.errors", "mps_core.names", "mps_core.version", "mps_core.caches"),
     ("mps_core.files",),
     ("mps_core.derivatives",),
     ("mps_core.solvers",),
