@@ -34,6 +34,7 @@ import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -419,25 +420,46 @@ def sweep(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None
         for r in todo:
             take(r, *_task(r.scene, structure))
     else:
-        # the workers leave Ctrl-C to this process, which ends the sweep with what is done
-        pool = ProcessPoolExecutor(max_workers=min(n, len(todo)), initializer=_ignore_sigint)
-        pending = {pool.submit(_task, r.scene, structure): r for r in todo}
+        _in_processes(todo, n, structure, take)
+    result.rows = [rows[i] for i in sorted(rows)]
+    return result
+
+
+def _in_processes(todo: list[Run], n: int, structure: str, take: Callable) -> None:
+    """The runs on ``n`` local worker processes, each row taken as it comes. A worker that
+    dies (killed, out of memory) breaks its pool: the runs not yet returned go to a new one.
+    Three breaks with no row between them end the sweep (the rows taken are kept). The workers
+    leave Ctrl-C to this process: the runs not started are dropped, those under way end and
+    are kept."""
+    left, breaks = list(todo), 0
+    while left:
+        pool = ProcessPoolExecutor(max_workers=min(n, len(left)), initializer=_ignore_sigint)
+        pending = {pool.submit(_task, r.scene, structure): r for r in left}
         try:
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in finished:
+                    if isinstance(fut.exception(), BrokenProcessPool):
+                        continue
                     take(pending.pop(fut), *fut.result())
+                    breaks = 0
+                if any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
+                    break
         except KeyboardInterrupt:
-            # the runs not started are dropped; those under way end and are kept
-            running = [f for f in pending if not f.cancel()]
-            for fut in running:
+            for fut in [f for f in pending if not f.cancel()]:
                 if fut.exception() is None:
                     take(pending.pop(fut), *fut.result())
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
-    result.rows = [rows[i] for i in sorted(rows)]
-    return result
+        for fut in [f for f in pending if f.done() and f.exception() is None]:
+            take(pending.pop(fut), *fut.result())         # ended as the pool broke
+        left = list(pending.values())
+        if left:
+            breaks += 1
+            if breaks >= 3:
+                raise SweepError(f"the worker processes died three times with no run ending "
+                                 f"between ({len(left)} run(s) left; the rows taken are kept)")
 
 
 def _ignore_sigint() -> None:

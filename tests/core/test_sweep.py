@@ -169,6 +169,27 @@ def test_worker_processes_and_a_dask_cluster_give_the_same_rows():
         _close(a, c)
 
 
+def test_a_worker_killed_mid_sweep_loses_no_row():
+    import multiprocessing
+    import os
+    import signal
+
+    killed = []
+
+    def kill_a_worker(row, done, total):
+        if not killed:
+            pid = multiprocessing.active_children()[0].pid
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    vary = ["effects.blanking.thickness_mm=0.5:2.0:4"]
+    hit = sweep("press-cycle", vary, workers=2, on_row=kill_a_worker, **SHORT)
+    assert killed and len(hit.rows) == 4 and all(r["status"] == "ok" for r in hit.rows)
+    whole = sweep("press-cycle", vary, workers=1, **SHORT)
+    for a, b in zip(hit.rows, whole.rows):
+        _close(a, b)
+
+
 def _mps(*args):
     return subprocess.run([sys.executable, "-m", "mps_core.cli", *args], capture_output=True,
                           text=True, timeout=300)
