@@ -216,14 +216,54 @@ def _pivot_order(A: np.ndarray) -> tuple[list, list]:
     return order, pivots
 
 
+class _Ops:
+    """The arithmetic the steps of :func:`_source` write code with: the forward writer's
+    operations (None a zero, floats folded), and the few built on them."""
+
+    def __init__(self, fw, w):
+        self.fw, self.w = fw, w
+        self.add, self.sub, self.mul, self.neg = fw.add, fw.sub, fw.mul, fw.neg
+
+    def div(self, a, p):
+        return self.mul(a, self.fw.recip(p))
+
+    def code(self, x) -> str:
+        return "0.0" if x is None else self.fw._s(x)
+
+    def guard(self, p, size) -> None:
+        """A pivot's guard: the general path (``_fallback``) where |p| is not above its
+        size's share."""
+        if isinstance(p, float):
+            if not abs(p) > PIVOT_GUARD * size:
+                raise ValueError("reaction kernel: a constant pivot below its guard")
+            return
+        self.w.lines.append(f"    if not abs({p}) > {PIVOT_GUARD * size!r}: _fallback()")
+
+    def dot(self, u, v, weights=None):
+        acc = None
+        for r in range(len(u)):
+            x = self.mul(u[r], v[r])
+            if weights is not None:
+                x = self.mul(weights[r], x)
+            acc = self.add(acc, x)
+        return acc
+
+    def norm(self, xs):
+        acc = None
+        for x in xs:
+            acc = self.add(acc, self.mul(x, x))
+        return None if acc is None else self.fw.call("sqrt", acc)
+
+
 def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order,
             pivot_sizes, from_kinematics: bool = False) -> str:
+    """The reaction kernel's code: the bodies' motion and Newton–Euler's right side b, the
+    joints' columns E, the least squares' leftover r, E u = b − r by the building state's
+    pivots, then what the frame receives and the checks (one step a function below)."""
     n = view.n
     w = _Writer()
-    mech = engine.mechanism
     names = engine._names
-    nb = len(mech.bodies)
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    nb = len(engine.mechanism.bodies)
     offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
     if from_kinematics:
         fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(engine, view, tape, outputs,
@@ -239,32 +279,39 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
             r = 2 * names[name]
             return (fw.add(val(r), offset[r] or None),
                     fw.add(val(r + 1), offset[r + 1] or None))
-    add, sub, mul, neg = fw.add, fw.sub, fw.mul, fw.neg
-
-    def guard(p, size):
-        if isinstance(p, float):
-            if not abs(p) > PIVOT_GUARD * size:
-                raise ValueError("reaction kernel: a constant pivot below its guard")
-            return
-        w.lines.append(f"    if not abs({p}) > {PIVOT_GUARD * size!r}: _fallback()")
-
-    def div(a, p):
-        return mul(a, fw.recip(p))
-
-    def code(x):
-        return "0.0" if x is None else fw._s(x)
-
+    ops = _Ops(fw, w)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
     accs = [f"a{k}" for k in range(n)]
-    ox, oy = pos("O") if "O" in names else (None, None)
+    origin = pos("O") if "O" in names else (None, None)
     load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + [
         "ffx", "ffy", "fmo", "mmot"]
     w.lines.insert(0, f"    {', '.join(load_names)} = loads")
-    # -- the bodies' motion and b -------------------------------------------------------------
+    motion = _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin)
+    E = _joint_columns(ops, engine.mechanism, sysm.cols, pos, motion["G"])
+    res = _leftover(ops, motion, nb, n, scale)
+    u = _solve_by_pivots(ops, E, motion["b"], res, order, pivot_sizes, len(sysm.cols))
+    out, frame = _frame_receives(ops, sysm.cols, u, columns, pos, origin)
+    _checks(ops, out, res, engine, motion, frame)
+    ret = (f"    return [{', '.join(ops.code(out[c]) for c in columns)}], "
+           f"[{', '.join(ops.code(x) for x in res)}]")
+    if unpack is not None:              # the lists' numbers the code above reads
+        w.lines[1:1] = unpack()
+    lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
+    return (f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
+            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+
+
+def _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin) -> dict:
+    """Each body's centre G (and G − O), its Jacobian, accelerations (ẍ_G, ÿ_G, θ̈) and
+    angular rates' rows, and Newton–Euler's right side b = (m a − F, J α − M_G) a body."""
+    add, sub, mul = ops.add, ops.sub, ops.mul
+    names, n = engine._names, len(accs)
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    ox, oy = origin
     G, g, JG, aG, alpha, W = [], [], [], [], [], []
     b = []
-    for k, body in enumerate(mech.bodies):
+    for k, body in enumerate(engine.mechanism.bodies):
         r = 2 * names[f"G_{body.name}"]
         Gx, Gy = pos(f"G_{body.name}")
         G.append((Gx, Gy))
@@ -289,12 +336,16 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
         mG = sub(lm, sub(mul(g[k][0], ly), mul(g[k][1], lx)))
         b += [sub(mul(mass[k], a[0]), lx), sub(mul(mass[k], a[1]), ly),
               sub(mul(inertia[k], al), mG)]
-    # -- E, column by column (the general path's _System, written as code) -------------------
-    nrow = 3 * nb
+    return {"G": G, "g": g, "JG": JG, "aG": aG, "alpha": alpha, "W": W, "b": b}
+
+
+def _joint_columns(ops, mech, cols, pos, G) -> list:
+    """E, column by column: each joint force's components (and moments) in the Newton–Euler
+    rows of the bodies that receive and give it (the general path's _System, as code)."""
+    add, sub, mul = ops.add, ops.sub, ops.mul
+    nrow = 3 * len(mech.bodies)
     body_row = {bd.name: 3 * k for k, bd in enumerate(mech.bodies)}
-    cols = sysm.cols
-    m = len(cols)
-    E = [[None] * m for _ in range(nrow)]
+    E = [[None] * len(cols) for _ in range(nrow)]
     for c, (j, comp, _col) in enumerate(cols):
         for body, sign in ((j.receiver, 1.0), (j.giver, -1.0)):
             if body == FRAME:
@@ -312,7 +363,15 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
             else:
                 E[r0 + 1][c] = add(E[r0 + 1][c], sign)
                 E[r0 + 2][c] = add(E[r0 + 2][c], mul(sign, dx))
-    # -- the leftover r = S⁻² Mᵀ λ, (M S⁻² Mᵀ) λ = (0, 0, 0, J_bᵀ b) ---------------------------
+    return E
+
+
+def _leftover(ops, motion, nb: int, n: int, scale: float) -> list:
+    """The least squares' leftover r = S⁻² Mᵀ λ with (M S⁻² Mᵀ) λ = (0, 0, 0, J_bᵀ b): M's
+    rows the rigid motions of the whole and the mechanism's own, by Cholesky's steps."""
+    add, sub, mul, neg, fw = ops.add, ops.sub, ops.mul, ops.neg, ops.fw
+    g, JG, W, b = motion["g"], motion["JG"], motion["W"], motion["b"]
+    nrow = 3 * nb
     wt = [1.0, 1.0, scale * scale] * nb
     Mrows = []
     Mrows.append([1.0 if r % 3 == 0 else None for r in range(nrow)])
@@ -321,24 +380,14 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     for i in range(n):
         Mrows.append([x for k in range(nb) for x in (JG[k][0][i], JG[k][1][i], W[k][i])])
     K = len(Mrows)
-
-    def dot(u, v, weights=None):
-        acc = None
-        for r in range(nrow):
-            x = mul(u[r], v[r])
-            if weights is not None:
-                x = mul(weights[r], x)
-            acc = add(acc, x)
-        return acc
-
-    Gm = [[dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)]
+    Gm = [[ops.dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)]
           for i in range(K)]
-    rhs = [None, None, None] + [dot(Mrows[3 + i], b) for i in range(n)]
+    rhs = [None, None, None] + [ops.dot(Mrows[3 + i], b) for i in range(n)]
     diag = [Gm[i][i] for i in range(K)]
     for k in range(K):
         p = Gm[k][k]
         if not (isinstance(p, float) and isinstance(diag[k], float)):
-            w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
+            ops.w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
         elif not p > 1e-12 * diag[k]:
             raise ValueError("reaction kernel: a constant pivot below its guard")
         ip = fw.recip(p)
@@ -354,21 +403,27 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
         acc = rhs[k]
         for jj in range(k + 1, K):
             acc = sub(acc, mul(Gm[k][jj], lam[jj]))
-        lam[k] = div(acc, Gm[k][k]) if acc is not None else None
+        lam[k] = ops.div(acc, Gm[k][k]) if acc is not None else None
     res = []
     for r in range(nrow):
         acc = None
         for a in range(K):
             acc = add(acc, mul(Mrows[a][r], lam[a]))
         res.append(mul(wt[r], acc))
-    # -- u from E u = b − r: the pivot rows, in the building state's order --------------------
+    return res
+
+
+def _solve_by_pivots(ops, E, b, res, order, pivot_sizes, m: int) -> list:
+    """u from E u = b − r: elimination down the pivot rows in the building state's order
+    (each pivot guarded), then back substitution."""
+    sub, mul, fw = ops.sub, ops.mul, ops.fw
     Ew = [list(row) for row in E]
-    y = [sub(b[r], res[r]) for r in range(nrow)]
+    y = [sub(b[r], res[r]) for r in range(len(E))]
     later = list(order)
     for jcol, p in enumerate(order):
         later.remove(p)
         piv = Ew[p][jcol]
-        guard(piv, pivot_sizes[jcol])
+        ops.guard(piv, pivot_sizes[jcol])
         ip = fw.recip(piv)
         for i in later:
             f = mul(Ew[i][jcol], ip)
@@ -377,14 +432,21 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
             for c in range(jcol + 1, m):
                 Ew[i][c] = sub(Ew[i][c], mul(f, Ew[p][c]))
             y[i] = sub(y[i], mul(f, y[p]))
-    u = [None] * m
+    u: list = [None] * m
     for jcol in reversed(range(m)):
         p = order[jcol]
         acc = y[p]
         for c in range(jcol + 1, m):
             acc = sub(acc, mul(Ew[p][c], u[c]))
-        u[jcol] = div(acc, Ew[p][jcol]) if acc is not None else None
-    # -- what the frame receives, the foundation load, the checks -----------------------------
+        u[jcol] = ops.div(acc, Ew[p][jcol]) if acc is not None else None
+    return u
+
+
+def _frame_receives(ops, cols, u, columns, pos, origin) -> tuple[dict, tuple]:
+    """The columns' values, and what the frame receives through the joints (force and moment
+    about O), with the foundation load: that plus the effects' own frame reactions."""
+    add, sub, mul = ops.add, ops.sub, ops.mul
+    ox, oy = origin
     out = dict.fromkeys(columns, None)
     RFx = RFy = RM = None
     for (j, comp, col), val_u in zip(cols, u):
@@ -408,35 +470,32 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     out["F_found_x"] = add(RFx, "ffx")
     out["F_found_y"] = add(RFy, "ffy")
     out["M_found_O"] = add(RM, "fmo")
+    return out, (RFx, RFy, RM)
 
-    def norm(xs):
-        acc = None
-        for x in xs:
-            acc = add(acc, mul(x, x))
-        return None if acc is None else fw.call("sqrt", acc)
 
-    out["residual_force_N"] = norm([res[r] for r in range(nrow) if r % 3 != 2])
-    out["residual_moment_Nm"] = norm([res[r] for r in range(2, nrow, 3)])
+def _checks(ops, out, res, engine, motion, frame) -> None:
+    """The checks' columns: the leftover's force and moment norms, and the balance of the
+    whole (the momenta's rates against the loads and what the frame gives)."""
+    add, sub, mul = ops.add, ops.sub, ops.mul
+    nrow = len(res)
+    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    g, aG, alpha = motion["g"], motion["aG"], motion["alpha"]
+    RFx, RFy, RM = frame
+    out["residual_force_N"] = ops.norm([res[r] for r in range(nrow) if r % 3 != 2])
+    out["residual_moment_Nm"] = ops.norm([res[r] for r in range(2, nrow, 3)])
     pdx = pdy = hdot = None
     ex = ey = emo = None
-    for k in range(nb):
+    for k in range(len(mass)):
         mx, my = mul(mass[k], aG[k][0]), mul(mass[k], aG[k][1])
         pdx, pdy = add(pdx, mx), add(pdy, my)
         hdot = add(hdot, sub(mul(g[k][0], my), mul(g[k][1], mx)))
         hdot = add(hdot, mul(inertia[k], alpha[k]))
         ex, ey, emo = add(ex, f"lx{k}"), add(ey, f"ly{k}"), add(emo, f"lm{k}")
     bx, by = sub(pdx, sub(ex, RFx)), sub(pdy, sub(ey, RFy))
-    out["balance_residual_N"] = norm([bx, by])
+    out["balance_residual_N"] = ops.norm([bx, by])
     bm = sub(hdot, sub(emo, RM))
     out["balance_residual_Nm"] = (None if bm is None else abs(bm) if isinstance(bm, float)
-                                  else w.let(f"abs({bm})"))
-    ret = (f"    return [{', '.join(code(out[c]) for c in columns)}], "
-           f"[{', '.join(code(x) for x in res)}]")
-    if unpack is not None:              # the lists' numbers the code above reads
-        w.lines[1:1] = unpack()
-    lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
-    return (f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
-            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+                                  else ops.w.let(f"abs({bm})"))
 
 
 def _from_kinematics(engine, view, tape, outputs, args, free, w):
