@@ -359,20 +359,32 @@ def _source(engine, view, plan, traced=None) -> str:
 
     The differences are left unscaled inside: ω̃ = (r × Δr)/|r|² and A_ij = Σ m ΔG_i·ΔG_j +
     J ω̃_i ω̃_j are scaled once by 1/2Δ_i (1/(4Δ_iΔ_j) for A); equal products (centres of mass
-    at the same point) are summed with their masses added."""
+    at the same point) are summed with their masses added. One step a function: the stencil's
+    positions, each stencil base's angular analogs and A, the lists at q, the velocity terms."""
     n = view.n
-    offsets, plus, minus = stencil(n)
-    d = plan.d.tolist()
-    inv2d = plan.inv2d
-    M = engine._MT.T                        # rows: pairs (x, y) of names, links, check
-    npts, NP = engine._npts, engine._np
-    mech = engine.mechanism
-    fixed = {engine._names[p] for p in getattr(mech, "fixed_points", ())}
-    moving = {k for k in range(2 * npts) if k // 2 not in fixed}
     w = _Writer()
     qs = [f"q{k}" for k in range(n)]
-    # the stencil's positions: P[s][k] the point coordinate k at stencil point s (a local's
-    # name, or a float where the position function gives a constant)
+    st = _Stencil(engine, view, plan, w, _positions(engine, view, plan, w, qs, traced))
+    omegas, out_A = [], []
+    for b in range(1 + 2 * n):
+        om = _angular_analogs(st, b)
+        omegas.append(om)
+        out_A.append(_mass_matrix(st, b, om))
+    xl, jl, wls = _lists_at_q(st, omegas)
+    A_out = _velocity_terms(w.lines, out_A, plan.inv2d, n)
+    vds = [f"vd{k}" for k in range(n)]
+    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
+           f"[{', '.join(wls[1:])}]")
+    return (f"def kernel({', '.join(qs + vds)}):\n"
+            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+
+
+def _positions(engine, view, plan, w, qs, traced) -> list:
+    """The stencil's positions: P[s][k] the point coordinate k at stencil point s (a local's
+    name, or a float where the position function gives a constant)."""
+    n, npts = view.n, engine._npts
+    offsets = stencil(n)[0]
+    d = plan.d.tolist()
     args_free = {i: k for k, i in enumerate(view.free)}
     P = []
     for s, off in enumerate(offsets.tolist()):
@@ -394,115 +406,141 @@ def _source(engine, view, plan, traced=None) -> str:
             P.append(names)
         else:
             P.append(_inline(w, traced[0], traced[1], inputs, args))
+    return P
 
-    def diff(b, i, row):
+
+class _Stencil:
+    """A chart view's stencil written as code: values of M's rows at a stencil point and their
+    unscaled central differences, each a local (or None for a zero)."""
+
+    def __init__(self, engine, view, plan, w, P):
+        self.engine, self.n, self.w, self.P = engine, view.n, w, P
+        _offsets, self.plus, self.minus = stencil(view.n)
+        self.inv2d = plan.inv2d
+        self.M = engine._MT.T                   # rows: pairs (x, y) of names, links, check
+        fixed = {engine._names[p] for p in getattr(engine.mechanism, "fixed_points", ())}
+        self.moving = {k for k in range(2 * engine._npts) if k // 2 not in fixed}
+
+    def diff(self, b, i, row):
         """Unscaled analog 2Δ_i·∂r/∂q_i of M's row at base b (a local's name, or None)."""
+        P, w = self.P, self.w
+
         def var(k):
-            a, c = P[plus[b, i]][k], P[minus[b, i]][k]
-            if k not in moving:
+            a, c = P[self.plus[b, i]][k], P[self.minus[b, i]][k]
+            if k not in self.moving:
                 return None
             if isinstance(a, float) and isinstance(c, float):
                 return None if a == c else repr(a - c)
             return w.let(f"{a!r} - {c}" if isinstance(a, float) else
                          f"{a} - {c!r}" if isinstance(c, float) else f"{a} - {c}")
-        e = _lin(M[row], var)
+        e = _lin(self.M[row], var)
         return None if e is None else w.let(e)
 
-    def value(b, row):
+    def value(self, b, row):
+        P = self.P
+
         def var(k):
             a = P[b][k]
             if isinstance(a, float):
                 return None if a == 0.0 else repr(a)
             return a
-        e = _lin(M[row], var)
-        return None if e is None else w.let(e)
+        e = _lin(self.M[row], var)
+        return None if e is None else self.w.let(e)
 
-    def scaled(x, i):
-        return "0.0" if x is None else w.let(f"{x} * {inv2d[i]!r}")
+    def scaled(self, x, i):
+        return "0.0" if x is None else self.w.let(f"{x} * {self.inv2d[i]!r}")
 
-    B = 1 + 2 * n
-    rot = engine._rot
+
+def _angular_analogs(st: _Stencil, b: int) -> dict:
+    """At stencil base b, each rotating body's unscaled angular analogs ω̃ (body, i)."""
+    w, NP = st.w, st.engine._np
+    om = {}
+    for j, k in enumerate(st.engine._rot):
+        r = 2 * NP + 2 * j
+        rx, ry = st.value(b, r) or "0.0", st.value(b, r + 1) or "0.0"
+        irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
+        for i in range(st.n):
+            jx, jy = st.diff(b, i, r), st.diff(b, i, r + 1)
+            if jx is None and jy is None:
+                continue
+            if jx is None:
+                cross = f"{rx} * {jy}"
+            elif jy is None:
+                cross = f"-{ry} * {jx}"
+            else:
+                cross = f"{rx} * {jy} - {ry} * {jx}"
+            om[k, i] = w.let(f"({cross}) * {irr}")
+    return om
+
+
+def _mass_matrix(st: _Stencil, b: int, om: dict) -> list:
+    """At stencil base b, A's upper entries (row by row), scaled."""
+    engine, n, inv2d = st.engine, st.n, st.inv2d
+    mech, rot = engine.mechanism, engine._rot
     mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
-    com_rows = [engine._names[f"G_{b.name}"] for b in mech.bodies]
-    out_A = []
-    omegas = []
-    for b in range(B):
-        om = {}                                 # (body, i): ω̃ (unscaled)
-        for j, k in enumerate(rot):
-            r = 2 * NP + 2 * j
-            rx, ry = value(b, r) or "0.0", value(b, r + 1) or "0.0"
-            irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
-            for i in range(n):
-                jx, jy = diff(b, i, r), diff(b, i, r + 1)
-                if jx is None and jy is None:
-                    continue
-                if jx is None:
-                    cross = f"{rx} * {jy}"
-                elif jy is None:
-                    cross = f"-{ry} * {jx}"
-                else:
-                    cross = f"{rx} * {jy} - {ry} * {jx}"
-                om[k, i] = w.let(f"({cross}) * {irr}")
-        omegas.append(om)
-        entries = []
-        for i in range(n):
-            for jj in range(i, n):
-                terms: dict = {}
-                for k in range(len(mech.bodies)):
-                    r = 2 * com_rows[k]
-                    if mass[k] != 0.0:
-                        for c in (0, 1):
-                            a1, a2 = diff(b, i, r + c), diff(b, jj, r + c)
-                            if a1 is not None and a2 is not None:
-                                key = (a1, a2)
-                                terms[key] = terms.get(key, 0.0) + mass[k]
-                    if k in rot and inertia[k] != 0.0:
-                        w1, w2 = om.get((k, i)), om.get((k, jj))
-                        if w1 is not None and w2 is not None:
-                            terms[w1, w2] = terms.get((w1, w2), 0.0) + inertia[k]
-                body = " + ".join(f"{c!r} * {x} * {y}" for (x, y), c in terms.items())
-                entries.append(w.let(f"({body or '0.0'}) * {inv2d[i] * inv2d[jj]!r}"))
-        out_A.append(entries)
-    # positions, analogs and angular analogs at q
+    com_rows = [engine._names[f"G_{body.name}"] for body in mech.bodies]
+    entries = []
+    for i in range(n):
+        for jj in range(i, n):
+            terms: dict = {}
+            for k in range(len(mech.bodies)):
+                r = 2 * com_rows[k]
+                if mass[k] != 0.0:
+                    for c in (0, 1):
+                        a1, a2 = st.diff(b, i, r + c), st.diff(b, jj, r + c)
+                        if a1 is not None and a2 is not None:
+                            key = (a1, a2)
+                            terms[key] = terms.get(key, 0.0) + mass[k]
+                if k in rot and inertia[k] != 0.0:
+                    w1, w2 = om.get((k, i)), om.get((k, jj))
+                    if w1 is not None and w2 is not None:
+                        terms[w1, w2] = terms.get((w1, w2), 0.0) + inertia[k]
+            body = " + ".join(f"{c!r} * {x} * {y}" for (x, y), c in terms.items())
+            entries.append(st.w.let(f"({body or '0.0'}) * {inv2d[i] * inv2d[jj]!r}"))
+    return entries
+
+
+def _lists_at_q(st: _Stencil, omegas: list) -> tuple[list, list, list]:
+    """Positions, analogs and angular analogs at q (the stencil's base 0), and the angular
+    analogs' lists of every base."""
+    engine, n, NP = st.engine, st.n, st.engine._np
+    rot, nbodies = engine._rot, len(engine.mechanism.bodies)
     xl = []
     offset = engine._offset.tolist() if engine._offset is not None else None
     for r in range(2 * NP):
-        e = value(0, r) or "0.0"
+        e = st.value(0, r) or "0.0"
         if offset is not None and offset[r] != 0.0:
             e = f"{e} + {offset[r]!r}"
         xl.append(e)
-    jl = [scaled(diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1) for i in range(n)]
+    jl = [st.scaled(st.diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1)
+          for i in range(n)]
 
     def omega_list(om):
-        return "[" + ", ".join(scaled(om.get((k, i)), i) if k in rot else "0.0"
-                               for k in range(len(mech.bodies)) for i in range(n)) + "]"
+        return "[" + ", ".join(st.scaled(om.get((k, i)), i) if k in rot else "0.0"
+                               for k in range(nbodies) for i in range(n)) + "]"
 
-    wls = [omega_list(om) for om in omegas]
-    # the velocity terms from A's central differences: h_i = Σ_jk ∂_k A_ij q̇_j q̇_k −
-    # ½ Σ_jk ∂_i A_jk q̇_j q̇_k, r_kj = Σ_l ∂_k A_jl q̇_l
+    return xl, jl, [omega_list(om) for om in omegas]
+
+
+def _velocity_terms(L: list, out_A: list, inv2d, n: int) -> str:
+    """The velocity terms from A's central differences, written to ``L``: h_i = Σ_jk ∂_k A_ij
+    q̇_j q̇_k − ½ Σ_jk ∂_i A_jk q̇_j q̇_k, r_kj = Σ_l ∂_k A_jl q̇_l; A at q, as returned."""
     c = [repr(x) for x in inv2d]
-    L = w.lines
     if n == 1:
-        A_out = out_A[0][0]
         L.append(f"    _d = ({out_A[1][0]} - {out_A[2][0]}) * {c[0]}")
         L.append("    _h = [0.5 * _d * vd0 * vd0]")
-    else:
-        A_out = f"({', '.join(out_A[0])})"
-        for k in range(2):
-            p, m = out_A[1 + 2 * k], out_A[2 + 2 * k]
-            L.append(f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
-                     f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}")
-        L += ["    _r00 = _d000 * vd0 + _d001 * vd1",
-              "    _r01 = _d001 * vd0 + _d011 * vd1",
-              "    _r10 = _d100 * vd0 + _d101 * vd1",
-              "    _r11 = _d101 * vd0 + _d111 * vd1",
-              "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
-              "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
-    vds = [f"vd{k}" for k in range(n)]
-    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
-           f"[{', '.join(wls[1:])}]")
-    return (f"def kernel({', '.join(qs + vds)}):\n"
-            + "\n".join(inline_once(live_lines(L, ret) + [ret])) + "\n")
+        return out_A[0][0]
+    for k in range(2):
+        p, m = out_A[1 + 2 * k], out_A[2 + 2 * k]
+        L.append(f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
+                 f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}")
+    L += ["    _r00 = _d000 * vd0 + _d001 * vd1",
+          "    _r01 = _d001 * vd0 + _d011 * vd1",
+          "    _r10 = _d100 * vd0 + _d101 * vd1",
+          "    _r11 = _d101 * vd0 + _d111 * vd1",
+          "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
+          "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
+    return f"({', '.join(out_A[0])})"
 
 
 def solve_given_h(A, h, Q) -> list:
