@@ -798,83 +798,104 @@ class Simulation:
                 self._chart_due = False
                 self._check_chart()
             t0 = self.solver.t
-            if self.pending and self.pending[0][0] <= t0 + tol:
-                t_cmd, name = self.pending.pop(0)
-                try:
-                    self.structures.check_command(name)
-                except CommandRefused as exc:
-                    self.events.append({"t": t0, "kind": "command-refused", "command": name,
-                                        "reason": exc.reason})
-                    continue
-                self.structures.apply_command(name, t0)
+            if self._at_boundary(t0, tol):
                 continue
-            if self._timers and self._timers[0][0] <= t0 + tol:
-                self.structures.apply_timer(self._timers.pop(0)[1], t0)
-                continue
-            t_next = t_target
-            if self.pending and self.pending[0][0] < t_next:
-                t_next = self.pending[0][0]
-            if self._timers and self._timers[0][0] < t_next:
-                t_next = self._timers[0][0]
-            dt = t_next - t0
-            step = self.settings.step
-            if step is not None and dt > step * (1.0 + 1e-9):
-                dt = step
-            if dt > self._dt_stable:         # else stable in any state: no estimate needed
-                dt = self._stable_step(dt)
-            t_next = t0 + dt
             p_a = self._power_now
             self._seg_start = t0
             try:
-                self.solver.step_to(t_next, interrupt=self._interrupt)
+                self.solver.step_to(t0 + self._step_size(t0, t_target),
+                                    interrupt=self._interrupt)
             except ChartDomainError as exc:
                 failures += 1
-                e = self.solver.current
-                if not self.policy.switching:
-                    raise ChartBreakdown(
-                        f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
-                        "chart switching is off", e.t, self.config(e)) from None
-                if failures > len(self.views(self.structure)):
-                    raise SingularConfiguration(
-                        f"every chart of structure {self.structure!r} fails in the step "
-                        f"from here ({exc.detail})", e.t, self.config(e)) from None
-                self._switch(self.view.regularity(e.kin.pose), forced=True)
+                self._leave_failing_chart(exc, failures)
                 continue
             failures = 0
-            spans = self._spans
-            if spans is not None:           # outputs inside the step: its interpolant
-                spans.append([t0, self.solver.t, self.solver.dense_output(), self.view,
-                              self.controls.structure, self.work, p_a, self.impact_loss])
-            hit, vals = self._locate_event()
-            if hit is not None and hit[1].name == "change-point" and \
-                    self.change_point != "keep-side":
-                # the continuation chart is smooth through the change point: the step stands,
-                # the passage is logged at its root
-                q_e, qd_e = self.solver.dense_output()(hit[0])
-                self.structures.record_change_point(hit[0], np.array(q_e, float),
-                                                    np.array(qd_e, float))
-                hit = None
-            if hit is not None:
-                t_e, ev, after_value = hit
-                if spans is not None:
-                    spans[-1][1] = t_e
-                self._cut_at(t_e)
-                self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
-                ev.action(t_e)
-                if ev.restart or ev.name == "change-point":
-                    self._ev_prev[ev.name] = after_value
-                self._update_phys(self.solver.current)
-                continue
-            # the step stands: its work (trapezoid on the power at its ends), the event values
-            # and unwrap references at its end, and the chart's regularity there
-            solver = self.solver
-            e = solver.current
-            p_b = self._power(e)
-            self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
-            self._power_now = p_b
-            self._ev_prev = vals
-            self._update_phys(e)
-            self._chart_due = True
+            self._after_step(t0, p_a)
+
+    def _at_boundary(self, t0: float, tol: float) -> bool:
+        """A command or a timer due at t0 applied (or the command refused, logged): True."""
+        if self.pending and self.pending[0][0] <= t0 + tol:
+            _t_cmd, name = self.pending.pop(0)
+            try:
+                self.structures.check_command(name)
+            except CommandRefused as exc:
+                self.events.append({"t": t0, "kind": "command-refused", "command": name,
+                                    "reason": exc.reason})
+                return True
+            self.structures.apply_command(name, t0)
+            return True
+        if self._timers and self._timers[0][0] <= t0 + tol:
+            self.structures.apply_timer(self._timers.pop(0)[1], t0)
+            return True
+        return False
+
+    def _step_size(self, t0: float, t_target: float) -> float:
+        """The next step from t0: to the target, the next command or timer, at most the
+        solver's own step, within the stability limit of the stiff effects."""
+        t_next = t_target
+        if self.pending and self.pending[0][0] < t_next:
+            t_next = self.pending[0][0]
+        if self._timers and self._timers[0][0] < t_next:
+            t_next = self._timers[0][0]
+        dt = t_next - t0
+        step = self.settings.step
+        if step is not None and dt > step * (1.0 + 1e-9):
+            dt = step
+        if dt > self._dt_stable:         # else stable in any state: no estimate needed
+            dt = self._stable_step(dt)
+        return dt
+
+    def _leave_failing_chart(self, exc: ChartDomainError, failures: int) -> None:
+        """A step that left its chart's domain: another chart of the structure (or a clear
+        error where chart switching is off or every chart has failed from here)."""
+        e = self.solver.current
+        if not self.policy.switching:
+            raise ChartBreakdown(
+                f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
+                "chart switching is off", e.t, self.config(e)) from None
+        if failures > len(self.views(self.structure)):
+            raise SingularConfiguration(
+                f"every chart of structure {self.structure!r} fails in the step "
+                f"from here ({exc.detail})", e.t, self.config(e)) from None
+        self._switch(self.view.regularity(e.kin.pose), forced=True)
+
+    def _after_step(self, t0: float, p_a: float) -> None:
+        """A step taken from t0: cut at its first event (the event's action taken), or kept
+        whole with its work, its event values and the chart to look at."""
+        spans = self._spans
+        if spans is not None:           # outputs inside the step: its interpolant
+            spans.append([t0, self.solver.t, self.solver.dense_output(), self.view,
+                          self.controls.structure, self.work, p_a, self.impact_loss])
+        hit, vals = self._locate_event()
+        if hit is not None and hit[1].name == "change-point" and \
+                self.change_point != "keep-side":
+            # the continuation chart is smooth through the change point: the step stands,
+            # the passage is logged at its root
+            q_e, qd_e = self.solver.dense_output()(hit[0])
+            self.structures.record_change_point(hit[0], np.array(q_e, float),
+                                                np.array(qd_e, float))
+            hit = None
+        if hit is not None:
+            t_e, ev, after_value = hit
+            if spans is not None:
+                spans[-1][1] = t_e
+            self._cut_at(t_e)
+            self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
+            ev.action(t_e)
+            if ev.restart or ev.name == "change-point":
+                self._ev_prev[ev.name] = after_value
+            self._update_phys(self.solver.current)
+            return
+        # the step stands: its work (trapezoid on the power at its ends), the event values
+        # and unwrap references at its end, and the chart's regularity there
+        solver = self.solver
+        e = solver.current
+        p_b = self._power(e)
+        self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
+        self._power_now = p_b
+        self._ev_prev = vals
+        self._update_phys(e)
+        self._chart_due = True
 
     def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
