@@ -127,6 +127,25 @@ class _ViewPlan:
         self.report = tuple(report)
 
 
+def _check_settings(solver: SolverSettings, change_point: str) -> None:
+    """The settings a simulation refuses: an unknown change-point rule, keep-side without
+    central differences, a step that is not a positive time or given to an adaptive solver."""
+    if change_point not in ("continue", "keep-side"):
+        raise ValueError(f"change_point = {change_point!r}: expected 'continue' or 'keep-side'")
+    if change_point == "keep-side" and solver.scheme != "central":
+        # the run restarts exactly at the change point, where √h² has no derivative: jets
+        # are undefined there, central stencils straddle it on the smooth chart
+        raise ValueError("change_point = 'keep-side' needs central differences "
+                         "(solver.derivatives = 'central')")
+    if solver.step is not None:
+        if not (solver.step > 0.0 and math.isfinite(solver.step)):
+            raise ValueError(f"step = {solver.step!r}: expected a positive number of seconds")
+        if solver.name in ADAPTIVE_SOLVERS:
+            raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
+                             "chooses its own steps (a step is for linear-acceleration, "
+                             "rk4, rk6, rk8)")
+
+
 class Simulation:
     """One run of a mechanism: structures, events, commands, charts."""
 
@@ -134,13 +153,7 @@ class Simulation:
                  solver: SolverSettings = _DEFAULT_SOLVER, charts: ChartPolicy = _DEFAULT_CHARTS,
                  t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None,
                  change_point: str = "continue"):
-        if change_point not in ("continue", "keep-side"):
-            raise ValueError(f"change_point = {change_point!r}: expected 'continue' or 'keep-side'")
-        if change_point == "keep-side" and solver.scheme != "central":
-            # the run restarts exactly at the change point, where √h² has no derivative: jets
-            # are undefined there, central stencils straddle it on the smooth chart
-            raise ValueError("change_point = 'keep-side' needs central differences "
-                             "(solver.derivatives = 'central')")
+        _check_settings(solver, change_point)
         self.mechanism = mechanism
         #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
         #: or the rocker kept on its side with a plastic impact
@@ -161,16 +174,7 @@ class Simulation:
         self.observers = list(observers)
         #: the switches between structures, the impacts and the commands
         self.structures = StructureLayer(self)
-        self.latch = next((e for e in self.effects if isinstance(e, Latch)), None)
-        self.stop = next((e for e in self.effects if isinstance(e, TopStop) and e.rigid), None)
-        self.motor = next((e for e in self.effects if isinstance(e, Motor)), None)
-        if self.motor is not None:
-            self.controls.motor_on = self.motor.enabled
-        self.engage = next((e for e in self.effects if e.kind == "engage_cylinder"), None)
-        self.disengage = next((e for e in self.effects if e.kind == "disengage_cylinder"), None)
-        self._nc = [e for e in self.effects if not e.conservative]
-        self._potentials = [e.potential for e in self.effects if e.conservative]
-        self._stiff = [e for e in self.effects if hasattr(e, "stiffness")]
+        self._sort_effects()
         self._dt_stable = self._always_stable()
         self._views: dict[str, list[ChartView]] = {}
         self._events_by_state: dict[tuple, list[_Event]] = {}
@@ -206,13 +210,6 @@ class Simulation:
         self._plans: dict[ChartView, _ViewPlan] = {}
         #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
         self._spans = None
-        if solver.step is not None:
-            if not (solver.step > 0.0 and math.isfinite(solver.step)):
-                raise ValueError(f"step = {solver.step!r}: expected a positive number of seconds")
-            if solver.name in ADAPTIVE_SOLVERS:
-                raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
-                                 "chooses its own steps (a step is for linear-acceleration, "
-                                 "rk4, rk6, rk8)")
         self.solver = self._new_solver(t0, q, qd)
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
@@ -222,6 +219,22 @@ class Simulation:
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
             self.structures.release_stop(self.solver.t)
+
+    def _sort_effects(self) -> None:
+        """The effects the driver acts through (latch, rigid stop, motor, cylinders) and those
+        its bookkeeping reads (non-conservative: work; conservative: potentials; stiff: the
+        stability limit)."""
+        eff = self.effects
+        self.latch = next((e for e in eff if isinstance(e, Latch)), None)
+        self.stop = next((e for e in eff if isinstance(e, TopStop) and e.rigid), None)
+        self.motor = next((e for e in eff if isinstance(e, Motor)), None)
+        if self.motor is not None:
+            self.controls.motor_on = self.motor.enabled
+        self.engage = next((e for e in eff if e.kind == "engage_cylinder"), None)
+        self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
+        self._nc = [e for e in eff if not e.conservative]
+        self._potentials = [e.potential for e in eff if e.conservative]
+        self._stiff = [e for e in eff if hasattr(e, "stiffness")]
 
     # -- state ----------------------------------------------------------------------------
     @property
