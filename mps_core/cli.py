@@ -20,7 +20,7 @@ import time
 from . import __version__
 from .errors import MpsError
 from .scene import load_scene, preset_names
-from .solvers import SOLVERS
+from .solvers import ADAPTIVE_SOLVERS, SOLVERS
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -115,6 +115,17 @@ def _run(args) -> int:
     finally:
         progress.done()
     cpu = time.process_time() - c0
+    _summary(scene, traj, cpu)
+    if args.reactions:
+        _reactions_summary(traj, observer)
+    _write_outputs(args, traj)
+    _say_coarse(traj, scene)
+    return 0
+
+
+def _summary(scene, traj, cpu: float) -> None:
+    """What ``mps run`` prints of a run: the scene and solver, the last state, the energy,
+    the charts and the work done."""
     s = scene.solver
     print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
           f"{scene.steps} steps of {scene.dt:.6g} s"
@@ -124,7 +135,7 @@ def _run(args) -> int:
         detail += f", delta = {math.degrees(s.delta):g} deg"
     if s.name == "linear-acceleration":
         detail += f", {s.iterations} correction(s) a step"
-    if s.name in ("dop853", "radau"):
+    if s.name in ADAPTIVE_SOLVERS:
         detail += f", rtol = {s.rtol:g}, atol = {s.atol:g}"
     print(f"solver {s.name} ({detail})")
     i = -1
@@ -144,20 +155,20 @@ def _run(args) -> int:
     print(f"work: {c['evaluations']} evaluations, {c['position_points']} position points in "
           f"{c['position_calls']} calls; CPU {cpu * 1e3:.1f} ms "
           f"({cpu / max(1, c['steps']) * 1e6:.1f} us a step)")
-    if args.reactions:
-        import numpy as np
 
-        f = np.hypot(traj["F_found_x"], traj["F_found_y"])
-        print(f"reactions: foundation force peak {f.max():.6g} N, M_found_O peak "
-              f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
-              f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
-              f"N*m, balance {traj['balance_residual_N'].max():.3g} N")
-        if observer.max_rank_deficiency:
-            print(f"reactions: not unique at some steps (rank short by "
-                  f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
-    _write_outputs(args, traj)
-    _say_coarse(traj, scene)
-    return 0
+
+def _reactions_summary(traj, observer) -> None:
+    """``mps run --reactions``: the foundation load's peaks and the largest residuals."""
+    import numpy as np
+
+    f = np.hypot(traj["F_found_x"], traj["F_found_y"])
+    print(f"reactions: foundation force peak {f.max():.6g} N, M_found_O peak "
+          f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
+          f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
+          f"N*m, balance {traj['balance_residual_N'].max():.3g} N")
+    if observer.max_rank_deficiency:
+        print(f"reactions: not unique at some steps (rank short by "
+              f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
 
 
 def _say_coarse(traj, scene) -> None:
@@ -166,7 +177,7 @@ def _say_coarse(traj, scene) -> None:
     from .run.trajectory import coarse_step
 
     s = scene.solver
-    if s.name in ("dop853", "radau"):       # their steps follow their error estimates
+    if s.name in ADAPTIVE_SOLVERS:       # their steps follow their error estimates
         return
     said = coarse_step(traj, s.step if s.step is not None else scene.dt)
     if said:

@@ -344,7 +344,31 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     kn = lambda a: np.asarray(a, dtype=float)[sel] / 1e3  # noqa: E731  (kN)
 
     fig, ax = plt.subplots(2, 2, figsize=(13, 8.5), constrained_layout=True)
-    a = ax[0, 0]
+    _foundation_panel(ax[0, 0], report, columns, ang, kn)
+    _joints_panel(ax[0, 1], columns, ang, kn)
+    for a in ax[0]:
+        a.set_xlabel("crank angle within the cycle (deg, 0 = top dead centre)")
+        a.set_xlim(0, 360)
+        a.set_xticks(range(0, 361, 45))
+        a.grid(alpha=0.3)
+    k = np.arange(1, len(report["quantities"][0]["harmonics"]) + 1)
+    _force_harmonics_panel(ax[1, 0], report, k)
+    _moment_harmonics_panel(ax[1, 1], report, k)
+
+    fx = quantity(report, "|F_found|") if _has(report, "|F_found|") else None
+    head = title or f"Load report: {report['source']}"
+    sub = (f"steady cycle t = {c['t0_s']:.4g}..{c['t1_s']:.4g} s, crank "
+           f"{c['crank_speed_mean_rad_s']:.4g} rad/s")
+    if fx:
+        sub += f"; |F_found| peak {fx['peak'] / 1e3:.3g} kN, RMS {fx['rms'] / 1e3:.3g} kN"
+    fig.suptitle(f"{head}\n{sub}", fontsize=12)
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return path
+
+
+def _foundation_panel(a, report: dict, columns, ang, kn) -> None:
+    """The foundation force over the cycle: its components, magnitude and static mean."""
     a.plot(ang, kn(columns["F_found_x"]), label="F_found_x (vertical, along the guide, up)",
            color="tab:blue", lw=2)
     a.plot(ang, kn(columns["F_found_y"]), label="F_found_y (across the guide)", color="tab:orange",
@@ -360,7 +384,9 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     _headroom(a)
     a.legend(loc="upper center", fontsize=8, ncol=2)
 
-    a = ax[0, 1]
+
+def _joints_panel(a, columns, ang, kn) -> None:
+    """The joint forces' magnitudes over the cycle, and the guide's normal force."""
     for name, cx, cy in (("|F_O| crank bearing", "F_O_x", "F_O_y"),
                          ("|F_A| crank-rod", "F_A_x", "F_A_y"),
                          ("|F_B| rod-rocker", "F_B_x", "F_B_y"),
@@ -374,16 +400,11 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     a.set_ylabel("force (kN)")
     _headroom(a)
     a.legend(loc="upper center", fontsize=8, ncol=3)
-    for a in ax[0]:
-        a.set_xlabel("crank angle within the cycle (deg, 0 = top dead centre)")
-        a.set_xlim(0, 360)
-        a.set_xticks(range(0, 361, 45))
-        a.grid(alpha=0.3)
 
-    a = ax[1, 0]
+
+def _force_harmonics_panel(a, report: dict, k) -> None:
+    """The foundation force's harmonic amplitudes, one bar a component and harmonic."""
     names = [q for q in ("F_found_x", "F_found_y") if _has(report, q)]
-    n = len(report["quantities"][0]["harmonics"])
-    k = np.arange(1, n + 1)
     w = 0.8 / max(1, len(names))
     amps = [np.array([h["amplitude"] for h in quantity(report, q)["harmonics"]]) / 1e3
             for q in names]
@@ -392,14 +413,16 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
         bars = a.bar(k + (j - (len(names) - 1) / 2) * w, amp, w, label=name)
         _labels(a, bars, amp, top)
     a.set_title("Foundation force: harmonics of the crank frequency "
-                f"({c['crank_frequency_hz']:.3g} Hz)")
+                f"({report['cycle']['crank_frequency_hz']:.3g} Hz)")
     a.set_xlabel("harmonic k (frequency k x crank frequency)")
     a.set_ylabel("amplitude (kN)")
     a.set_xticks(k)
     a.legend(fontsize=9)
     a.grid(alpha=0.3, axis="y")
 
-    a = ax[1, 1]
+
+def _moment_harmonics_panel(a, report: dict, k) -> None:
+    """The foundation moment's harmonic amplitudes."""
     if _has(report, "M_found_O"):
         amp = np.array([h["amplitude"] for h in quantity(report, "M_found_O")["harmonics"]])
         bars = a.bar(k, amp, 0.6, color="tab:green", label="M_found_O")
@@ -409,17 +432,6 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     a.set_ylabel("amplitude (N*m)")
     a.set_xticks(k)
     a.grid(alpha=0.3, axis="y")
-
-    fx = quantity(report, "|F_found|") if _has(report, "|F_found|") else None
-    head = title or f"Load report: {report['source']}"
-    sub = (f"steady cycle t = {c['t0_s']:.4g}..{c['t1_s']:.4g} s, crank "
-           f"{c['crank_speed_mean_rad_s']:.4g} rad/s")
-    if fx:
-        sub += f"; |F_found| peak {fx['peak'] / 1e3:.3g} kN, RMS {fx['rms'] / 1e3:.3g} kN"
-    fig.suptitle(f"{head}\n{sub}", fontsize=12)
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
-    return path
 
 
 def _headroom(ax, frac: float = 0.3) -> None:

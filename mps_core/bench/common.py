@@ -28,6 +28,7 @@ import numpy as np
 
 from ..run.build import build
 from ..scene import Scene, load_scene, preset_names
+from ..solvers import ADAPTIVE_SOLVERS
 
 #: the step-size ladder: the paper's 1.25 ms halved down to about 1e-5 s
 DT_LADDER = tuple(1.25e-3 / 2 ** k for k in range(8))
@@ -130,7 +131,7 @@ class Setting:
 
     @property
     def adaptive(self) -> bool:
-        return self.solver in ("dop853", "radau", "peer")
+        return self.solver in ADAPTIVE_SOLVERS or self.solver == "peer"
 
 
 def scene_for(case: Case, s: Setting, dt: float) -> Scene:
