@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -300,7 +300,6 @@ class Sweep:
     computed: int = 0
     cpu_s: float = 0.0
     simulation_cpu_s: float = 0.0
-    spec: dict = field(default_factory=dict)
 
     def columns(self) -> list[str]:
         cols = ["run", "key", *self.keys, "status", "error"]
@@ -343,7 +342,7 @@ class Sweep:
         return out
 
 
-def _read_done(path: Path) -> dict:
+def read_runs(path: Path) -> dict:
     """The rows of earlier calls by run key (a torn last line, from a kill, is left out)."""
     done: dict = {}
     if not path.is_file():
@@ -383,7 +382,7 @@ def sweep(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None
     runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
     keys = list(runs[0].values)
     record = Path(out) / RUNS_FILE if out is not None else None
-    done = _read_done(record) if record is not None else {}
+    done = read_runs(record) if record is not None else {}
     if record is not None:
         record.parent.mkdir(parents=True, exist_ok=True)
         _end_torn_line(record)
@@ -394,8 +393,7 @@ def sweep(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None
             rows[r.index] = {**done[r.key], "run": r.index}
         else:
             todo.append(r)
-    result = Sweep(keys, [], spec={"vary": [str(v) for v in vary], "samples": samples,
-                                   "seed": seed, "structure": structure})
+    result = Sweep(keys, [])
 
     def take(r: Run, row: dict, sim_cpu: float, cpu: float) -> None:
         full = {"run": r.index, "key": r.key, **r.values, **row}

@@ -142,7 +142,7 @@ def run(args) -> int:
                           workers=args.workers, client=client, out=out, on_row=progress)
     except KeyboardInterrupt:
         progress.done()
-        kept = len(sw._read_done(out / sw.RUNS_FILE))
+        kept = len(sw.read_runs(out / sw.RUNS_FILE))
         print(f"sweep interrupted: {kept} run(s) kept in {out / sw.RUNS_FILE}; the same "
               "command again computes the rest", file=sys.stderr)
         return 130
