@@ -574,19 +574,24 @@ def test_one_node_a_name(ros, tmp_path):
     try:
         with NodeProcess(tmp_path, params, name="first") as first:
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "the first node's /clock")
-            second = subprocess.run(
+            # side by side: a second of the first's name, and one of another name
+            second = subprocess.Popen(
                 mps_cmd("node", "press-cycle", "--ros-args", "-p", f"recording:={second_rec}",
-                        "-p", "t_end:=1.0"), capture_output=True, text=True, timeout=120)
-            assert second.returncode == 2, second.stdout + second.stderr
-            err = [ln for ln in second.stderr.splitlines() if "error" in ln]
-            assert len(err) == 1 and "a node /press_twin is already running in ROS domain" \
-                in err[0] and "__node:=NAME" in err[0], second.stderr
-            assert not second_rec.exists()
-            other = subprocess.run(
+                        "-p", "t_end:=1.0"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                text=True)
+            other = subprocess.Popen(
                 mps_cmd("node", "press-cycle", "--ros-args", "-r", "__node:=press_twin_2",
                         "-p", "recording:=none", "-p", "pacing:=as_fast_as_possible",
-                        "-p", "t_end:=0.05"), capture_output=True, text=True, timeout=120)
-            assert other.returncode == 0, other.stdout + other.stderr
+                        "-p", "t_end:=0.05"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                text=True)
+            second_out, second_err = second.communicate(timeout=120)
+            other_out, other_err = other.communicate(timeout=120)
+            assert second.returncode == 2, second_out + second_err
+            err = [ln for ln in second_err.splitlines() if "error" in ln]
+            assert len(err) == 1 and "a node /press_twin is already running in ROS domain" \
+                in err[0] and "__node:=NAME" in err[0], second_err
+            assert not second_rec.exists()
+            assert other.returncode == 0, other_out + other_err
             assert first.alive()
             t = lis.clock()
             lis.wait_for(lambda: lis.clock() > t, 30, "the first node still stepping")
