@@ -256,6 +256,14 @@ class Recorder:
                 got = self._bag_topics.setdefault(topic, [msgtype, qos, 0])
                 got[2] += per.get(cid, 0)
 
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """``with Recorder(path) as rec:``: the file finished however the block ends (an
+        error included: what was written reads back)."""
+        self.finish()
+
     def finish(self) -> None:
         """The last file closed; a bag's ``metadata.yaml`` (a last file without a message,
         where a split fell at the very end, removed)."""
@@ -429,6 +437,14 @@ class BackgroundRecorder:
         if self._written_counts is not None:
             return dict(self._written_counts)
         return {t: self._counts[c] for t, c in self._ids.items()}
+
+    def __enter__(self) -> BackgroundRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """``with BackgroundRecorder(path) as rec:``: the file finished however the block
+        ends."""
+        self.finish()
 
     def finish(self, timeout: float = 60.0) -> None:
         """Hand over what is left, have the file finished, wait for the writing process."""

@@ -184,12 +184,11 @@ def test_only_the_outputs_asked_for(tmp_path, monkeypatch):
 def test_recover_a_file_cut_short(tmp_path):
     full = tmp_path / "full.mcap"
     twin = Twin("press-cycle", dt=0.001, t_end=0.2)
-    rec = Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text,
-                   chunk_size=16 * 1024)
     from mps_ros.recording import RecordingSink
 
-    twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
-    rec.finish()
+    with Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text,
+                  chunk_size=16 * 1024) as rec:
+        twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
     whole = read_all(full)
     data = full.read_bytes()
     # a complete file recovers to the same messages
@@ -422,3 +421,18 @@ def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing, ros):
     assert mps_main(["recover", str(rec), str(out)]) == 0
     clock = read_all(out)["/clock"]
     assert 1000 < len(clock) < 8001
+
+
+@pytest.mark.parametrize("background", [False, True], ids=["recorder", "background"])
+def test_a_recorder_used_with_with_finishes_the_file_also_on_an_error(tmp_path, background):
+    from mps_ros.recording import BackgroundRecorder, RecordingSink
+
+    path = tmp_path / "with.mcap"
+    twin = Twin("press-cycle", dt=0.001, t_end=0.05, outputs=["joint_states", "clock"])
+    make = BackgroundRecorder if background else Recorder
+    with pytest.raises(RuntimeError, match="the caller's own"):
+        with make(path, scene_name="press-cycle") as rec:
+            twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
+            raise RuntimeError("the caller's own error")
+    back = read_all(path)           # finished: it reads back without recovery
+    assert [t for t, _m, _raw in back["/clock"]][-1] == 50_000_000
