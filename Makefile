@@ -21,8 +21,12 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/mps demo press-cycle
 
+# two pytest workers (pytest-xdist), a test file to each at a time: the ROS tests mostly wait on
+# their nodes, so two at once halve the suite's time on two cores
+PYTEST := $(PY) -m pytest -q -n 2 --dist loadfile
+
 test: lint
-	$(PY) -m pytest -q
+	$(PYTEST)
 
 # the house's habits: lint (ruff, its rules in pyproject.toml) and types (mypy on mps_core)
 lint: $(STAMP)
@@ -30,7 +34,7 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m 'not slow'
+	$(PYTEST) -m 'not slow'
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -3,7 +3,18 @@ this machine (Fast DDS: unicast metatraffic port of participant 0 = 7400 + 250·
 
 from __future__ import annotations
 
+import os
 import socket
+
+
+def session_base() -> int:
+    """Where this test session starts looking for a domain: from its pid, or, in a worker of
+    pytest-xdist (``make test`` runs two), from the workers' common parent, 23 apart by worker,
+    so that two workers started at once never pick the same domain."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if worker.startswith("gw") and worker[2:].isdigit():
+        return (os.getppid() + 23 * int(worker[2:])) % 101
+    return os.getpid() % 101
 
 
 def udp_port_free(port: int) -> bool:

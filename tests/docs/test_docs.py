@@ -102,16 +102,16 @@ def python_marked(block: Block) -> bool:
 
 # -- the environment of the commands ------------------------------------------------------------
 def pick_domain_id() -> int:
-    """A ROS domain for these commands: MPS_DOCS_ROS_DOMAIN_ID, else one in 1..101 from the pid,
-    not 42 (make's), 43 (the tests' default) or the session's own, whose first participant
-    ports are free here."""
-    from ros_domains import free_domain
+    """A ROS domain for these commands: MPS_DOCS_ROS_DOMAIN_ID, else one in 1..101 from the
+    session's base (``ros_domains.session_base``) plus 50, not 42 (make's), 43 (the tests'
+    default) or the session's own, whose first participant ports are free here."""
+    from ros_domains import free_domain, session_base
 
     given = os.environ.get("MPS_DOCS_ROS_DOMAIN_ID")
     if given:
         return int(given)
     taken = {42, 43, int(os.environ.get("ROS_DOMAIN_ID", "43") or 43)}
-    return free_domain((os.getpid() + 50) % 101, taken)
+    return free_domain((session_base() + 50) % 101, taken)
 
 
 DOMAIN_ID = pick_domain_id()

@@ -12,16 +12,16 @@ from pathlib import Path
 import pytest
 
 
-def pick_domain_id(pid: int) -> int:
-    """A ROS domain in 1..101 for this session, from the pid, skipping 42 and 43 (make's and the
-    default test domain) and any domain whose first participant port is taken here (a
-    session or a node already on it)."""
-    from ros_domains import free_domain
+def pick_domain_id() -> int:
+    """A ROS domain in 1..101 for this session (see ``ros_domains.session_base``), skipping 42
+    and 43 (make's and the default test domain) and any domain whose first participant port is
+    taken here (a session or a node already on it)."""
+    from ros_domains import free_domain, session_base
 
-    return free_domain(pid % 101)
+    return free_domain(session_base())
 
 
-DOMAIN_ID = pick_domain_id(os.getpid())
+DOMAIN_ID = pick_domain_id()
 LOG_DIR = tempfile.mkdtemp(prefix="mps-ros-test-log-")
 os.environ["ROS_DOMAIN_ID"] = str(DOMAIN_ID)
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
