@@ -1,0 +1,65 @@
+"""An exact kernel's code run on arrays: the kinematics of many scenes in one call.
+
+An exact kernel (:mod:`mps_core.codegen.exact_kernels`) is straight-line arithmetic on floats
+with ``cos``, ``sin`` and ``sqrt`` and, where the position function branches, a guard that
+calls ``_miss``. The same text, its guards made to test every element, runs on numpy arrays
+of one value per scene: ``kernel(q…, q̇…)`` then returns, element by element, what the float
+kernel returns for each scene (a float where a number is the same for all, e.g. a fixed
+point's coordinate). What a batch reads of it is the kinematics (positions, analogs, angular
+analogs, and the bodies' θ̈ and the centres of mass's accelerations at q̈ = 0): A and h in
+the kernel's return hold the first scene's masses, folded in as constants, so a batch whose
+scenes differ in their masses forms A and h itself from the kinematics.
+
+A guard that fails for any scene raises :class:`ArrayBranchChanged`: some scene left the
+branch the kernel was traced on (the caller runs the scenes another way).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..caches import Memo
+from ..derivatives.tracing import BranchChanged
+
+__all__ = ["ArrayBranchChanged", "array_kernel"]
+
+
+class ArrayBranchChanged(BranchChanged):
+    """A guard of an array kernel failed for at least one scene."""
+
+
+#: ``    if [not ]test: _miss(args)``, the guard line of the kernels' writers
+_GUARD = re.compile(r"^(\s*)if (not )?(.+): _miss\(.*\)$")
+
+_CODE = Memo("codegen.array_kernels.code", 256)
+
+
+def _array_source(source: str) -> str:
+    out = []
+    for line in source.splitlines():
+        m = _GUARD.match(line)
+        if m is None:
+            out.append(line)
+        elif m.group(2):            # the test must hold everywhere (a NaN fails it)
+            out.append(f"{m.group(1)}if not _all({m.group(3)}): _miss()")
+        else:                       # the test must fail everywhere
+            out.append(f"{m.group(1)}if _any({m.group(3)}): _miss()")
+    return "\n".join(out) + "\n"
+
+
+def _miss():
+    raise ArrayBranchChanged("a scene left the branch of the kernel")
+
+
+def array_kernel(kernel):
+    """The array form of an exact kernel (see the module's docstring)."""
+    code = _CODE.get(kernel.source)
+    if code is None:
+        code = _CODE.keep(kernel.source, compile(_array_source(kernel.source),
+                                                 "<array kernel>", "exec"))
+    namespace = {"cos": np.cos, "sin": np.sin, "sqrt": np.sqrt, "_all": np.all,
+                 "_any": np.any, "_miss": _miss}
+    exec(code, namespace)
+    return namespace["kernel"]
