@@ -49,9 +49,12 @@ def register(subparsers) -> None:
 
     b = sub.add_parser("batch", help="batch mode: mechanism-steps per second against the "
                                      "number of scenes stepped together")
-    b.add_argument("--sizes", default="1,10,100,1000", help="numbers of scenes (default: "
-                                                              "1,10,100,1000)")
+    b.add_argument("--sizes", default="1,10,100,1000,10000",
+                   help="numbers of scenes (default: 1,10,100,1000,10000)")
     b.add_argument("--steps", type=int, default=200, help="steps of each run (default 200)")
+    b.add_argument("--scheme", choices=("central", "autodiff", "both"), default="both",
+                   help="derivatives: central differences, exact, or both side by side "
+                        "(default both)")
     b.set_defaults(func=_batch)
 
     w = sub.add_parser("sweep", help="mps sweep's throughput: one worker, N local worker "
@@ -100,13 +103,16 @@ def _batch(args) -> int:
     from ..run.batch import throughput
 
     sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
-    print("batch mode: working (locked), slider mass swept, linear acceleration, central "
-          "differences, dt = 1e-4 s; CPU of the stepping (scenes built beforehand)")
-    print(f"{'scenes':>7} {'mechanism-steps/s':>18} {'CPU s':>8}")
-    for row in throughput(sizes, steps=args.steps):
+    schemes = ("central", "autodiff") if args.scheme == "both" else (args.scheme,)
+    print("batch mode: working (locked), slider mass swept, linear acceleration, "
+          "dt = 1e-4 s; CPU of the stepping (scenes built beforehand), mechanism-steps a second")
+    table = {s: throughput(sizes, steps=args.steps, scheme=s) for s in schemes}
+    print(f"{'scenes':>7}" + "".join(f" {s:>14}" for s in schemes))
+    for k, row in enumerate(table[schemes[0]]):
         label = "1 alone" if row["scenes"] == 0 else str(row["scenes"])
-        print(f"{label:>7} {row['steps_per_s']:>18,.0f} {row['cpu_s']:>8.3f}")
-    print("(1 alone: simulate, the one-scene path)")
+        print(f"{label:>7}" + "".join(f" {table[s][k]['steps_per_s']:>14,.0f}" for s in schemes))
+    print("(1 alone: simulate, the one-scene path; central: central differences; autodiff: "
+          "exact derivatives)")
     return 0
 
 

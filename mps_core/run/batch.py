@@ -9,12 +9,21 @@ structure and its chart, the set of effect kinds, the solver, step, end time and
 scheme. What may differ scene by scene: masses and inertias, the initial state, and every effect
 parameter (gravity, motor data and ratio, spring stiffness and preload, blanking force…).
 
-Vectorised here: fixed-step solvers (linear acceleration, RK4) with central differences, on
-scenes without events or commands (no latch, no rigid stop, no cylinders) whose chart stays
-regular over the run (e.g. ``locked`` sweeps of ``working``), with the effects gravity, motor,
-springs (and their damping) and blanking. Every other scene, and any scene of a group that would
-need a change of chart or a subdivided step, is run by :func:`mps_core.simulate` on its own: the
+Vectorised here: fixed-step solvers (linear acceleration, RK4) with central differences or
+exact derivatives, on scenes without events or commands (no latch, no rigid stop, no
+cylinders) whose chart stays regular over the run (e.g. ``locked`` sweeps of ``working``), with
+the effects gravity, motor, springs (and their damping) and blanking. Every other scene, and
+any scene of a group that would need a change of chart or a subdivided step, is run by
+:func:`mps_core.simulate` on its own: the
 result is the same, only not vectorised. ``BatchResult.vectorised`` says which were.
+
+With central differences a pass evaluates the chart's positions on the stencils of all scenes
+(arrays of shape (scenes, stencil)) and forms A and h by differences, as the engine's array
+code does. With exact derivatives it runs the chart's exact kernel
+(:mod:`mps_core.codegen.exact_kernels`) on arrays of one value per scene
+(:mod:`mps_core.codegen.array_kernels`): the kinematics and their derivatives in one call of
+straight-line numpy code, A and h formed from them with each scene's masses. A scene that
+leaves the kernel's branch sends its group back to the one-by-one runs.
 
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
 cluster (``dask.distributed.Client``), one vectorised batch a task.
@@ -36,6 +45,7 @@ from .trajectory import Trajectory
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
 VECTOR_SOLVERS = ("linear-acceleration", "rk4")
+VECTOR_SCHEMES = ("central", "autodiff")
 
 
 class NotVectorisable(Exception):
@@ -62,7 +72,7 @@ class BatchResult:
 def _group_key(scene: Scene):
     """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
     s = scene.solver
-    if s.name not in VECTOR_SOLVERS or s.scheme != "central" or scene.commands or \
+    if s.name not in VECTOR_SOLVERS or s.scheme not in VECTOR_SCHEMES or scene.commands or \
             s.step is not None:         # a step apart from the outputs: the scene's own run
         return None
     mech = scene.mechanism()
@@ -73,7 +83,8 @@ def _group_key(scene: Scene):
         return None
     bodies = tuple((b.name, b.origin, b.toward, b.length, b.com) for b in mech.bodies)
     return (scene.geometry, scene.assembly, bodies, scene.x_top, scene.structure, scene.psi_lock,
-            tuple(sorted(type(e).__name__ for e in effects)), s.name, s.delta, s.iterations,
+            tuple(sorted(type(e).__name__ for e in effects)), s.name, s.scheme, s.delta,
+            s.iterations,
             scene.t_end, scene.dt, scene.charts)
 
 
@@ -149,6 +160,30 @@ class _Batch:
         self._effects([sc.build_effects(sc.mechanism()) for sc in scenes])
         self.evaluations = 0
         self.points = 0
+        self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
+        # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
+        self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
+        self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
+        self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
+        if self.g is not None:
+            self.weight_of = [[self.mass[:, b] * self.g[:, c] for c in (0, 1)]
+                              for b in range(len(bodies))]
+        if self.motor is not None:
+            self.motor_index = [b.name for b in bodies].index(self.motor_body)
+
+    def _array_kernel(self, first: Scene):
+        """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
+        chart has none)."""
+        from ..codegen.array_kernels import array_kernel
+        from ..codegen.exact_kernels import exact_kernel
+        from .build import build
+
+        engine = build(first).engine
+        view, q, _ = first.initial_state(engine.mechanism)
+        kernel = exact_kernel(engine, view, q)
+        if kernel is None:
+            raise NotVectorisable("the chart has no exact kernel")
+        return array_kernel(kernel)
 
     # -- effects, as parameter arrays ------------------------------------------------------
     def _effects(self, lists):
@@ -185,6 +220,8 @@ class _Batch:
     # -- the vectorised engine ------------------------------------------------------------------
     def evaluate(self, t, q, qd):
         """q̈ and what a step records, for all scenes: q, q̇ of shape (m, n)."""
+        if self._kernel is not None:
+            return self._evaluate_exact(t, q, qd)
         n = q.shape[1]
         offsets, plus, minus = stencil(n)
         d = self.settings.delta * self.view.scales
@@ -223,72 +260,128 @@ class _Batch:
         J = V[:, :, :, 0, :]                                          # (m, NP, 2, n) at q
         W0 = W[:, :, 0, :]                                            # (m, nb, n)
         X0 = X[..., 0]                                                # (m, NP, 2)
-        Q, power = self._forces(t, X0, J, W0, qd)
-        self._last_J = J
-        qdd = np.linalg.solve(A, (Q - h)[..., None])[..., 0]
+        kin = _Kinematics.of_tables(X0, J, W0)
+        self.points += self.m * S
+        return self._solve(t, kin, qd, A, h)
+
+    def _evaluate_exact(self, t, q, qd):
+        """:meth:`evaluate` with exact derivatives: the kinematics from the array kernel, A
+        and h from them with each scene's masses and inertias."""
+        from ..codegen.array_kernels import ArrayBranchChanged
+
+        m, n = q.shape
+        try:
+            xl, jl, wl, _, _, conv = self._kernel(*q.T, *qd.T)
+        except ArrayBranchChanged as exc:
+            raise NotVectorisable(str(exc)) from None
+        kin = _Kinematics(xl, jl, wl, n, m)
+        nb = len(self.mech.bodies)
+        A = np.empty((m, n, n))
+        h = np.empty((m, n))
+        for i in range(n):
+            # h_i = Σ m v*_G,i·G̈ + J ω*_i θ̈ (at q̈ = 0); A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j
+            terms = []
+            for b, row in enumerate(self.com_rows):
+                for c in (0, 1):
+                    terms.append((self.mass_of[b], kin.jac(row, c)[i], conv[nb + 2 * b + c]))
+                terms.append((self.inertia_of[b], kin.omega(b)[i], conv[b]))
+            h[:, i] = _weighted(terms, m)
+            for j in range(i, n):
+                terms = []
+                for b, row in enumerate(self.com_rows):
+                    for c in (0, 1):
+                        terms.append((self.mass_of[b], kin.jac(row, c)[i], kin.jac(row, c)[j]))
+                    terms.append((self.inertia_of[b], kin.omega(b)[i], kin.omega(b)[j]))
+                A[:, i, j] = A[:, j, i] = _weighted(terms, m)
+        return self._solve(t, kin, qd, A, h)
+
+    def _solve(self, t, kin, qd, A, h):
+        """q̈ = A⁻¹(Q − h) with the effects' Q: (q̈, A, the kinematics, the power)."""
+        Q, power = self._forces(t, kin, list(qd.T))
+        n = qd.shape[1]
+        r = [Q[i] - h[:, i] for i in range(n)]
+        if n == 1:
+            qdd = (r[0] / A[:, 0, 0])[:, None]
+        elif n == 2:
+            a00, a01, a11 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
+            det = a00 * a11 - a01 * a01
+            qdd = np.stack([(a11 * r[0] - a01 * r[1]) / det, (a00 * r[1] - a01 * r[0]) / det],
+                           axis=1)
+        else:
+            qdd = np.linalg.solve(A, np.stack(r, axis=1)[..., None])[..., 0]
         if not np.all(np.isfinite(qdd)):
             raise NotVectorisable("non-finite accelerations")
+        self._last_kin = kin
         self.evaluations += 1
-        self.points += self.m * S
-        return qdd, A, X0, power
+        return qdd, A, kin, power
 
-    def _forces(self, t, X0, J, W0, qd):
-        """Generalized forces of the effects and the power of the non-conservative ones."""
-        m, n = qd.shape
-        Q = np.zeros((m, n))
+    def _forces(self, t, kin, v):
+        """Generalized forces of the effects (one array a coordinate) and the power of the
+        non-conservative ones; ``v``: q̇, one array a coordinate."""
+        n, m = len(v), self.m
+        Q = [np.zeros(m) for _ in range(n)]
         power = np.zeros(m)
-        com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
         c = self.rows["C"]
+        jc = kin.jac(c, 0)                                            # ∂x_C/∂q
+        vC = sum(jc[i] * v[i] for i in range(n))
         if self.g is not None:
-            JG = J[:, com]                                            # (m, nb, 2, n)
-            Q += np.einsum("mb,mk,mbkn->mn", self.mass, self.g, JG)
-        vC = np.einsum("mkn,mn->mk", J[:, c], qd)[:, 0]
+            for b, row in enumerate(self.com_rows):
+                for cc in (0, 1):
+                    jg, mg = kin.jac(row, cc), self.weight_of[b][cc]
+                    for i in range(n):
+                        Q[i] += mg * jg[i]
         if self.motor is not None:
             mo = self.motor
-            kb = [b.name for b in self.mech.bodies].index(self.motor_body)
-            w = np.einsum("mn,mn->m", W0[:, kb], qd)
+            wk = kin.omega(self.motor_index)
+            w = sum(wk[i] * v[i] for i in range(n))
             s = 1.0 - mo["ratio"] * w / mo["wsync"]
             torque = mo["on"] * mo["ratio"] * mo["eff"] * (
                 2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
-            Q += torque[:, None] * W0[:, kb]
+            for i in range(n):
+                Q[i] += torque * wk[i]
             power += torque * w
-        xC = X0[:, c, 0]
+        xC = kin.x(c, 0)
+        forces = []                                                   # along the guide, at C
         if self.springs is not None:
             k, f0, xt = self.springs
-            f = f0 + k * (xt - xC)
-            Q += f[:, None] * J[:, c, 0]
+            forces.append(f0 + k * (xt - xC))
         if self.damper is not None:
             f = -self.damper * vC
-            Q += f[:, None] * J[:, c, 0]
+            forces.append(f)
             power += f * vC
         if self.blanking is not None and self.structure == "locked":
             fmax, xcon, pb = self.blanking
             p = xcon - xC
             on = (vC < 0.0) & (p > 0.0) & (p < pb)
             f = np.where(on, fmax * np.sin(np.pi * np.clip(p, 0.0, None) / pb), 0.0)
-            Q += f[:, None] * J[:, c, 0]
+            forces.append(f)
             power += f * vC
+        for f in forces:
+            for i in range(n):
+                Q[i] += f * jc[i]
         return Q, power
 
-    def _potential(self, X0):
+    def _potential(self, kin):
         V = np.zeros(self.m)
         if self.g is not None:
-            com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
-            V -= np.einsum("mb,mk,mbk->m", self.mass, self.g, X0[:, com])
+            for b, row in enumerate(self.com_rows):
+                for cc in (0, 1):
+                    V -= self.weight_of[b][cc] * kin.x(row, cc)
         if self.springs is not None:
             k, f0, xt = self.springs
-            s = xt - X0[:, self.rows["C"], 0]
+            s = xt - kin.x(self.rows["C"], 0)
             V += f0 * s + 0.5 * k * s * s
         return V
 
-    def _check(self, X0, A):
+    def _check(self, kin, A):
         """The chart must stay regular and the step stable, for every scene."""
-        pose = {p: (X0[:, k, 0], X0[:, k, 1]) for p, k in self.rows.items()}
+        pose = {p: (kin.x(k, 0), kin.x(k, 1)) for p, k in self.rows.items()}
         if np.any(np.asarray(self.view.chart.regularity(pose)) < self.policy.switch_below):
             raise NotVectorisable("a scene would change chart")
         if self.springs is not None:
             k = self.springs[0]
-            j = self._last_J[:, self.rows["C"], 0]                   # (m, n)
+            j = np.stack([np.broadcast_to(x, (self.m,))
+                          for x in self._last_kin.jac(self.rows["C"], 0)], axis=1)  # (m, n)
             w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
             lim = SOLVERS[self.settings.name].stability_limit
             t_min = 2.0 * math.pi / np.sqrt(np.maximum(w2, 1e-300))
@@ -307,11 +400,11 @@ class _Batch:
         work = np.zeros(self.m)
 
         ev = self.evaluate
-        qdd, A, X0, p_now = ev(t0, q, qd)
-        self._record(rows, t0, q, qd, qdd, A, X0, work)
+        qdd, A, kin, p_now = ev(t0, q, qd)
+        self._record(rows, t0, q, qd, qdd, A, kin, work)
         t = t0
         for k in range(1, n_steps + 1):
-            self._check(X0, A)                 # as the driver does at each step's start
+            self._check(kin, A)                # as the driver does at each step's start
             t1 = t_end if k == n_steps else t0 + k * (t_end - t0) / n_steps
             dt = t1 - t
             if name == "linear-acceleration":
@@ -337,14 +430,14 @@ class _Batch:
                 q1 = q + (h / 6.0) * (v0 + 2.0 * v2 + 2.0 * v3 + v4)
                 qd1 = v0 + (h / 6.0) * (a1_ + 2.0 * a2 + 2.0 * a3 + a4)
                 out = ev(t1, q1, qd1)
-            qdd, A, X0, p_new = out
+            qdd, A, kin, p_new = out
             work = work + 0.5 * (p_now + p_new) * (t1 - t)
             p_now = p_new
             q, qd, t = q1, qd1, t1
-            self._record(rows, t, q, qd, qdd, A, X0, work)
+            self._record(rows, t, q, qd, qdd, A, kin, work)
         return self._trajectories(rows)
 
-    def _record(self, rows, t, q, qd, qdd, A, X0, work):
+    def _record(self, rows, t, q, qd, qdd, A, kin, work):
         # the structure's coordinates: phi free (locked), psi frozen; free: phi and psi free
         names = [c.name for c in self.view.coordinates]
         frozen = self.view.frozen
@@ -359,9 +452,11 @@ class _Batch:
                 rows[nm].append(np.full(self.m, frozen[nm]))
                 rows[nm + "_dot"].append(np.zeros(self.m))
                 rows[nm + "_ddot"].append(np.zeros(self.m))
-        rows["x_C"].append(X0[:, self.rows["C"], 0].copy())
-        rows["T"].append(0.5 * np.einsum("mi,mij,mj->m", qd, A, qd))
-        rows["V"].append(self._potential(X0))
+        rows["x_C"].append(np.array(np.broadcast_to(kin.x(self.rows["C"], 0), (self.m,))))
+        n = qd.shape[1]
+        rows["T"].append(0.5 * sum(qd[:, i] * A[:, i, j] * qd[:, j]
+                                   for i in range(n) for j in range(n)))
+        rows["V"].append(self._potential(kin))
         rows["W"].append(work.copy())
         rows["E_impact"].append(np.zeros(self.m))
         rows["structure"].append(self.structure)
@@ -372,13 +467,11 @@ class _Batch:
         nsteps = len(rows["t"]) - 1
         per_step = (1 + self.settings.iterations) if self.settings.name == "linear-acceleration" \
             else 4
+        # each column once as (scene, step): a scene's column is then one row of it
+        table = {k: np.array(v) if k in ("structure", "chart") else
+                 np.array(v, dtype=float).T.copy() for k, v in rows.items()}
         for i, sc in enumerate(self.scenes):
-            cols = {}
-            for k, v in rows.items():
-                if k in ("structure", "chart"):
-                    cols[k] = np.array(v)
-                else:
-                    cols[k] = np.array([r[i] for r in v], dtype=float)
+            cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
             counts = {"evaluations": 1 + per_step * nsteps, "steps": nsteps,
                       "batch_evaluations": self.evaluations, "batch_size": self.m}
             s = sc.solver
@@ -390,9 +483,47 @@ class _Batch:
         return out
 
 
-def throughput(sizes=(1, 10, 100, 1000), steps: int = 200) -> list[dict]:
+class _Kinematics:
+    """The kinematics of all scenes at their q, one array (or a float shared by all) a number,
+    in the engine's layout: positions ``x(row, c)``, analogs ``jac(row, c)`` (one a
+    coordinate) and angular analogs ``omega(body)`` (one a coordinate)."""
+
+    def __init__(self, xl, jl, wl, n: int, m: int):
+        self.xl, self.jl, self.wl, self.n, self.m = xl, jl, wl, n, m
+
+    @classmethod
+    def of_tables(cls, X0, J, W0):
+        """From arrays (m, NP, 2), (m, NP, 2, n) and (m, nb, n)."""
+        m, n = J.shape[0], J.shape[-1]
+        return cls(list(X0.reshape(m, -1).T), list(J.reshape(m, -1).T),
+                   list(W0.reshape(m, -1).T), n, m)
+
+    def x(self, row: int, c: int):
+        return self.xl[2 * row + c]
+
+    def jac(self, row: int, c: int) -> list:
+        k = (2 * row + c) * self.n
+        return self.jl[k:k + self.n]
+
+    def omega(self, body: int) -> list:
+        return self.wl[body * self.n:(body + 1) * self.n]
+
+
+def _weighted(terms, m: int):
+    """Σ w·x·y over (w, x, y), the terms where x or y is the float 0.0 left out."""
+    acc = np.zeros(m)
+    for w, x, y in terms:
+        if (isinstance(x, float) and x == 0.0) or (isinstance(y, float) and y == 0.0):
+            continue
+        acc += w * (x * y)
+    return acc
+
+
+def throughput(sizes=(1, 10, 100, 1000), steps: int = 200,
+               scheme: str = "central") -> list[dict]:
     """Mechanism-steps per second of the vectorised pass for each number of scenes (working,
-    slider mass swept), and of ``simulate`` for one scene (``scenes`` = 0)."""
+    slider mass swept, derivatives by ``scheme``), and of ``simulate`` for one scene
+    (``scenes`` = 0)."""
     import time
     from dataclasses import replace
 
@@ -400,6 +531,7 @@ def throughput(sizes=(1, 10, 100, 1000), steps: int = 200) -> list[dict]:
     from .build import build
 
     base = load_scene("working").with_overrides(t_end=steps * 1e-4, dt=1e-4)
+    base = replace(base, solver=replace(base.solver, scheme=scheme))
     sim = build(base)
     c0 = time.process_time()
     sim.run(base.t_end, base.dt)

@@ -49,6 +49,29 @@ def test_batch_equals_one_by_one_to_round_off():
     assert res[1].phi[-1] != res[0].phi[-1]
 
 
+def _exact(scene):
+    return replace(scene, solver=replace(scene.solver, scheme="autodiff"))
+
+
+def test_exact_derivatives_are_vectorised_and_equal_one_by_one_to_round_off():
+    """With exact derivatives a pass runs the chart's exact kernel on arrays: the locked
+    working press (one coordinate) and the free one (two, the seed's free fall before it
+    reaches its chart's branch point), masses differing scene by scene."""
+    scenes = [_exact(sc) for sc in sweep(4)]
+    base = _exact(load_scene("free-fall").with_overrides(t_end=0.004))
+    for i in range(3):
+        b = dict(base.bodies)
+        b["rod"] = BodyData(20.0 + 2.0 * i, 0.036 + 0.004 * i, b["rod"].com)
+        scenes.append(replace(base, bodies=b, name=f"free-{i}"))
+    res = simulate_many(scenes)
+    assert res.vectorised == [True] * len(scenes)
+    for sc, tr in zip(scenes, res):
+        ref = simulate(sc)
+        assert_same(tr, ref)
+        assert np.abs(tr.psi - ref.psi).max() <= 1e-9 * np.abs(ref.psi).max()
+    assert res[5].phi[-1] != res[4].phi[-1]
+
+
 def test_one_vectorised_pass_per_stage_whatever_the_number_of_scenes():
     for n in (1, 6):
         res = simulate_many(sweep(n, t_end=0.01))
