@@ -28,9 +28,11 @@ PYTEST := $(PY) -m pytest -q -n 2 --dist loadfile
 test: lint
 	$(PYTEST)
 
-# the house's habits: lint (ruff, its rules in pyproject.toml) and types (mypy on mps_core)
+# the house's habits: lint and layout (ruff, its rules in pyproject.toml) and types (mypy on
+# mps_core); `ruff format .` lays a file out as the check wants it
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
 
 test-fast: $(STAMP)

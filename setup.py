@@ -25,11 +25,13 @@ if not (here / "pyproject.toml").exists():
     project = tomllib.loads((Path(__file__).resolve().parent / "pyproject.toml").read_text())
     p = project["project"]
     kwargs = dict(
-        name=p["name"], version=p["version"], description=p["description"],
-        python_requires=p["requires-python"], install_requires=p["dependencies"],
+        name=p["name"],
+        version=p["version"],
+        description=p["description"],
+        python_requires=p["requires-python"],
+        install_requires=p["dependencies"],
         packages=find_packages(str(here), include=["mps_core*", "mps_ros*"]),
-        package_data={k: list(v) for k, v in
-                      project["tool"]["setuptools"]["package-data"].items()},
+        package_data={k: list(v) for k, v in project["tool"]["setuptools"]["package-data"].items()},
         entry_points={"console_scripts": [f"{k} = {v}" for k, v in p["scripts"].items()]},
     )
 

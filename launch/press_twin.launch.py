@@ -16,15 +16,24 @@ from launch_ros.actions import Node
 
 def generate_launch_description():
     config = os.path.join(get_package_share_directory("mps_ros"), "config", "press_twin.yaml")
-    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE":
-           os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")}
-    return LaunchDescription([
-        DeclareLaunchArgument("scene", default_value="press-cycle",
-                              description="preset name or scene file"),
-        DeclareLaunchArgument("params_file", default_value=config,
-                              description="the node's parameters (YAML)"),
-        Node(package="mps_ros", executable="mps", name="press_twin",
-             arguments=["node", LaunchConfiguration("scene")],
-             parameters=[LaunchConfiguration("params_file")],
-             additional_env=env, output="screen", emulate_tty=True),
-    ])
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")}
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "scene", default_value="press-cycle", description="preset name or scene file"
+            ),
+            DeclareLaunchArgument(
+                "params_file", default_value=config, description="the node's parameters (YAML)"
+            ),
+            Node(
+                package="mps_ros",
+                executable="mps",
+                name="press_twin",
+                arguments=["node", LaunchConfiguration("scene")],
+                parameters=[LaunchConfiguration("params_file")],
+                additional_env=env,
+                output="screen",
+                emulate_tty=True,
+            ),
+        ]
+    )

@@ -25,7 +25,24 @@ from .scene import Scene, load_scene, preset_names, scene_from_dict, scene_from_
 from .scene.settings import ChartPolicy, SolverSettings
 from .version import __version__
 
-__all__ = ["simulate", "build", "sweep", "load_scene", "scene_from_dict", "scene_from_text",
-           "preset_names", "Scene", "Simulation", "SolverSettings", "ChartPolicy", "Trajectory",
-           "MpsError", "SceneError", "SimulationError", "ChartBreakdown", "SingularConfiguration",
-           "NumericalError", "__version__"]
+__all__ = [
+    "simulate",
+    "build",
+    "sweep",
+    "load_scene",
+    "scene_from_dict",
+    "scene_from_text",
+    "preset_names",
+    "Scene",
+    "Simulation",
+    "SolverSettings",
+    "ChartPolicy",
+    "Trajectory",
+    "MpsError",
+    "SceneError",
+    "SimulationError",
+    "ChartBreakdown",
+    "SingularConfiguration",
+    "NumericalError",
+    "__version__",
+]

@@ -33,32 +33,54 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--t-end", type=float, metavar="S", help="end time (s)")
     g = r.add_mutually_exclusive_group()
     g.add_argument("--steps", type=int, metavar="N", help="number of steps")
-    g.add_argument("--dt", type=float, metavar="S",
-                   help="step (s); the output grid for the adaptive solvers")
+    g.add_argument("--dt", type=float, metavar="S", help="step (s); the output grid for the adaptive solvers")
     r.add_argument("--solver", choices=SOLVERS)
-    r.add_argument("--step", type=float, metavar="S",
-                   help="the fixed-step solvers' own step (s), where it is not the output "
-                        "step: shorter, several steps an output; longer, outputs from the "
-                        "step's interpolant")
-    r.add_argument("--delta-deg", type=float, metavar="D",
-                   help="virtual displacement of the central differences (degrees)")
-    r.add_argument("--derivatives", choices=("central", "autodiff"),
-                   help="derivative scheme: the seed's central differences or exact jets")
-    r.add_argument("--iterations", type=int, metavar="K",
-                   help="corrections per step of the linear acceleration method")
+    r.add_argument(
+        "--step",
+        type=float,
+        metavar="S",
+        help="the fixed-step solvers' own step (s), where it is not the output "
+        "step: shorter, several steps an output; longer, outputs from the "
+        "step's interpolant",
+    )
+    r.add_argument(
+        "--delta-deg",
+        type=float,
+        metavar="D",
+        help="virtual displacement of the central differences (degrees)",
+    )
+    r.add_argument(
+        "--derivatives",
+        choices=("central", "autodiff"),
+        help="derivative scheme: the seed's central differences or exact jets",
+    )
+    r.add_argument(
+        "--iterations", type=int, metavar="K", help="corrections per step of the linear acceleration method"
+    )
     r.add_argument("--rtol", type=float, help="relative tolerance (dop853, radau)")
     r.add_argument("--atol", type=float, help="absolute tolerance (dop853, radau)")
-    r.add_argument("--no-chart-switching", action="store_true",
-                   help="stay in the initial chart; stop with an error where it degenerates")
-    r.add_argument("--reactions", action="store_true",
-                   help="compute the joint reactions and the foundation load at every step "
-                        "(adds their columns to --csv)")
+    r.add_argument(
+        "--no-chart-switching",
+        action="store_true",
+        help="stay in the initial chart; stop with an error where it degenerates",
+    )
+    r.add_argument(
+        "--reactions",
+        action="store_true",
+        help="compute the joint reactions and the foundation load at every step "
+        "(adds their columns to --csv)",
+    )
     r.add_argument("--csv", metavar="FILE", help="write one row per step to FILE")
     r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
-    r.add_argument("--force", action="store_true",
-                   help="replace an output file that exists (never the scene itself)")
-    r.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress line while it runs (there is one on a terminal only)")
+    r.add_argument(
+        "--force", action="store_true", help="replace an output file that exists (never the scene itself)"
+    )
+    r.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress line while it runs (there is one on a terminal only)",
+    )
 
     sub.add_parser("scenes", help="list the preset scenes")
     for name in PLUGINS:
@@ -73,8 +95,13 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
-PLUGINS = ("mps_core.analysis.loads_cli", "mps_core.analysis.sweep_cli", "mps_core.bench.cli",
-           "mps_ros.cli", "mps_ros.view_cli")
+PLUGINS = (
+    "mps_core.analysis.loads_cli",
+    "mps_core.analysis.sweep_cli",
+    "mps_core.bench.cli",
+    "mps_ros.cli",
+    "mps_ros.view_cli",
+)
 
 
 def _run(args) -> int:
@@ -82,14 +109,21 @@ def _run(args) -> int:
 
     # before anything runs: a results path that cannot be written, or that would destroy the
     # scene or an existing file, is refused now, not after the run
-    check_outputs({"--csv": args.csv, "--events": args.events}, inputs=[args.scene],
-                  force=args.force)
+    check_outputs({"--csv": args.csv, "--events": args.events}, inputs=[args.scene], force=args.force)
     scene = load_scene(args.scene)
     scene = scene.with_overrides(
-        t_end=args.t_end, steps=args.steps, dt=args.dt, solver=args.solver,
+        t_end=args.t_end,
+        steps=args.steps,
+        dt=args.dt,
+        solver=args.solver,
         delta=None if args.delta_deg is None else math.radians(args.delta_deg),
-        scheme=args.derivatives, iterations=args.iterations, rtol=args.rtol, atol=args.atol,
-        chart_switching=False if args.no_chart_switching else None, step=args.step)
+        scheme=args.derivatives,
+        iterations=args.iterations,
+        rtol=args.rtol,
+        atol=args.atol,
+        chart_switching=False if args.no_chart_switching else None,
+        step=args.step,
+    )
     from .run.build import build
 
     sim = build(scene)
@@ -127,9 +161,11 @@ def _summary(scene, traj, cpu: float) -> None:
     """What ``mps run`` prints of a run: the scene and solver, the last state, the energy,
     the charts and the work done."""
     s = scene.solver
-    print(f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
-          f"{scene.steps} steps of {scene.dt:.6g} s"
-          + (f" (outputs; the solver's steps {s.step:.6g} s)" if s.step is not None else ""))
+    print(
+        f"scene {scene.name}: {scene.structure} structure, t_end = {scene.t_end:g} s, "
+        f"{scene.steps} steps of {scene.dt:.6g} s"
+        + (f" (outputs; the solver's steps {s.step:.6g} s)" if s.step is not None else "")
+    )
     detail = f"{s.scheme} derivatives"
     if s.scheme == "central":
         detail += f", delta = {math.degrees(s.delta):g} deg"
@@ -139,10 +175,14 @@ def _summary(scene, traj, cpu: float) -> None:
         detail += f", rtol = {s.rtol:g}, atol = {s.atol:g}"
     print(f"solver {s.name} ({detail})")
     i = -1
-    print(f"at t = {traj.t[i]:.6g} s: phi = {traj.phi[i]:.10g} rad ({math.degrees(traj.phi[i]):.6g} deg), "
-          f"phi_dot = {traj.phi_dot[i]:.10g} rad/s, phi_ddot = {traj.phi_ddot[i]:.10g} rad/s^2")
-    print(f"               psi = {traj.psi[i]:.10g} rad ({math.degrees(traj.psi[i]):.6g} deg), "
-          f"psi_dot = {traj.psi_dot[i]:.10g} rad/s, x_C = {traj.x_C[i] * 1000:.6g} mm")
+    print(
+        f"at t = {traj.t[i]:.6g} s: phi = {traj.phi[i]:.10g} rad ({math.degrees(traj.phi[i]):.6g} deg), "
+        f"phi_dot = {traj.phi_dot[i]:.10g} rad/s, phi_ddot = {traj.phi_ddot[i]:.10g} rad/s^2"
+    )
+    print(
+        f"               psi = {traj.psi[i]:.10g} rad ({math.degrees(traj.psi[i]):.6g} deg), "
+        f"psi_dot = {traj.psi_dot[i]:.10g} rad/s, x_C = {traj.x_C[i] * 1000:.6g} mm"
+    )
     e = traj.energy
     print(f"energy T + V: {e[0]:.6g} J -> {e[-1]:.6g} J")
     charts = [ev for ev in traj.events if ev["kind"] == "chart"]
@@ -152,9 +192,11 @@ def _summary(scene, traj, cpu: float) -> None:
     else:
         print(f"chart: {traj.chart[0]} throughout")
     c = traj.counts
-    print(f"work: {c['evaluations']} evaluations, {c['position_points']} position points in "
-          f"{c['position_calls']} calls; CPU {cpu * 1e3:.1f} ms "
-          f"({cpu / max(1, c['steps']) * 1e6:.1f} us a step)")
+    print(
+        f"work: {c['evaluations']} evaluations, {c['position_points']} position points in "
+        f"{c['position_calls']} calls; CPU {cpu * 1e3:.1f} ms "
+        f"({cpu / max(1, c['steps']) * 1e6:.1f} us a step)"
+    )
 
 
 def _reactions_summary(traj, observer) -> None:
@@ -162,13 +204,17 @@ def _reactions_summary(traj, observer) -> None:
     import numpy as np
 
     f = np.hypot(traj["F_found_x"], traj["F_found_y"])
-    print(f"reactions: foundation force peak {f.max():.6g} N, M_found_O peak "
-          f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
-          f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
-          f"N*m, balance {traj['balance_residual_N'].max():.3g} N")
+    print(
+        f"reactions: foundation force peak {f.max():.6g} N, M_found_O peak "
+        f"{np.abs(traj['M_found_O']).max():.6g} N*m; largest residuals: least squares "
+        f"{traj['residual_force_N'].max():.3g} N, {traj['residual_moment_Nm'].max():.3g} "
+        f"N*m, balance {traj['balance_residual_N'].max():.3g} N"
+    )
     if observer.max_rank_deficiency:
-        print(f"reactions: not unique at some steps (rank short by "
-              f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events")
+        print(
+            f"reactions: not unique at some steps (rank short by "
+            f"{observer.max_rank_deficiency}): see the 'reactions-not-unique' events"
+        )
 
 
 def _say_coarse(traj, scene) -> None:
@@ -177,7 +223,7 @@ def _say_coarse(traj, scene) -> None:
     from .run.trajectory import coarse_step
 
     s = scene.solver
-    if s.name in ADAPTIVE_SOLVERS:       # their steps follow their error estimates
+    if s.name in ADAPTIVE_SOLVERS:  # their steps follow their error estimates
         return
     said = coarse_step(traj, s.step if s.step is not None else scene.dt)
     if said:
@@ -211,8 +257,7 @@ def _write_outputs(args, traj, failure: str | None = None) -> None:
             traj.events_to_jsonl(tmp)
             if failure is not None:
                 with tmp.open("a") as fh:
-                    fh.write(json.dumps({"t": t_last, "kind": "run-failed",
-                                         "error": failure}) + "\n")
+                    fh.write(json.dumps({"t": t_last, "kind": "run-failed", "error": failure}) + "\n")
         print(f"wrote {len(traj.events)} events to {args.events}{note}")
 
 
@@ -230,7 +275,7 @@ def main(argv=None) -> int:
     except MpsError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
-    except OSError as exc:              # a file named on the command line (an output's folder)
+    except OSError as exc:  # a file named on the command line (an output's folder)
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"mps: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2

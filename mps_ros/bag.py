@@ -61,21 +61,23 @@ def files(bag) -> list[Path]:
         m = re.fullmatch(r"(.*)_(\d+)\.mcap", p.name)
         return (0, int(m.group(2)), p.name) if m else (1, 0, p.name)
 
-    return sorted((p for p in bag.iterdir() if p.suffix.lower() == ".mcap" and p.is_file()),
-                  key=order)
+    return sorted((p for p in bag.iterdir() if p.suffix.lower() == ".mcap" and p.is_file()), key=order)
 
 
-def write_metadata(bag, spans: list[FileSpan], topics: list[TopicCount],
-                   compression: str = "") -> Path:
+def write_metadata(bag, spans: list[FileSpan], topics: list[TopicCount], compression: str = "") -> Path:
     """``metadata.yaml`` of a bag of ``spans`` holding ``topics`` (their counts over all
     files), written to a temporary name and renamed (a reader never meets half of it)."""
     bag = Path(bag)
     starts = [s.start_ns for s in spans if s.count]
     ends = [s.end_ns for s in spans if s.count]
-    body = serialized_metadata([(s.name, s.start_ns, s.end_ns, s.count) for s in spans], topics,
-                               min(starts, default=0), max(ends, default=0), compression)
-    text = "rosbag2_bagfile_information:\n" + "".join(
-        "  " + line + "\n" for line in body.splitlines())
+    body = serialized_metadata(
+        [(s.name, s.start_ns, s.end_ns, s.count) for s in spans],
+        topics,
+        min(starts, default=0),
+        max(ends, default=0),
+        compression,
+    )
+    text = "rosbag2_bagfile_information:\n" + "".join("  " + line + "\n" for line in body.splitlines())
     path = bag / METADATA
     tmp = bag / f".{METADATA}.{os.getpid()}.partial"
     tmp.write_text(text)

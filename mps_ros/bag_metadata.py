@@ -39,8 +39,9 @@ def _indented(block: str, spaces: int) -> str:
     return "\n".join(pad + line for line in block.splitlines())
 
 
-def serialized_metadata(files, topics: list[TopicCount], start_ns: int, end_ns: int,
-                        compression: str = "") -> str:
+def serialized_metadata(
+    files, topics: list[TopicCount], start_ns: int, end_ns: int, compression: str = ""
+) -> str:
     """``BagMetadata`` as YAML: the bag's ``files`` (a file's name, where it is the one file;
     else (name, first and last log time in ns, message count) each, in order) holding
     ``topics``, its messages from ``start_ns`` to ``end_ns`` (log times); ``compression``: the
@@ -48,50 +49,57 @@ def serialized_metadata(files, topics: list[TopicCount], start_ns: int, end_ns: 
     total = sum(t.count for t in topics)
     duration = max(0, end_ns - start_ns) if total else 0
     start = start_ns if total else 0
-    lines = [f"version: {VERSION}",
-             "storage_identifier: mcap",
-             "duration:",
-             f"  nanoseconds: {duration}",
-             "starting_time:",
-             f"  nanoseconds_since_epoch: {start}",
-             f"message_count: {total}"]
+    lines = [
+        f"version: {VERSION}",
+        "storage_identifier: mcap",
+        "duration:",
+        f"  nanoseconds: {duration}",
+        "starting_time:",
+        f"  nanoseconds_since_epoch: {start}",
+        f"message_count: {total}",
+    ]
     if topics:
         lines.append("topics_with_message_count:")
         for t in topics:
-            lines += ["  - topic_metadata:",
-                      f"      name: {_quoted(t.name)}",
-                      f"      type: {t.msgtype}",
-                      "      serialization_format: cdr",
-                      "      offered_qos_profiles:",
-                      _indented(t.qos, 8),
-                      f"      type_description_hash: {t.type_hash}",
-                      f"    message_count: {t.count}"]
+            lines += [
+                "  - topic_metadata:",
+                f"      name: {_quoted(t.name)}",
+                f"      type: {t.msgtype}",
+                "      serialization_format: cdr",
+                "      offered_qos_profiles:",
+                _indented(t.qos, 8),
+                f"      type_description_hash: {t.type_hash}",
+                f"    message_count: {t.count}",
+            ]
     else:
         lines.append("topics_with_message_count: []")
     if isinstance(files, str):
         files = [(files, start_ns, end_ns, total)]
-    lines += [f"compression_format: {_quoted(compression)}",
-              'compression_mode: ""',
-              "relative_file_paths:",
-              *(f"  - {_quoted(name)}" for name, *_ in files),
-              "files:"]
+    lines += [
+        f"compression_format: {_quoted(compression)}",
+        'compression_mode: ""',
+        "relative_file_paths:",
+        *(f"  - {_quoted(name)}" for name, *_ in files),
+        "files:",
+    ]
     for name, t0, t1, n in files:
-        lines += [f"  - path: {_quoted(name)}",
-                  "    starting_time:",
-                  f"      nanoseconds_since_epoch: {t0 if n else 0}",
-                  "    duration:",
-                  f"      nanoseconds: {max(0, t1 - t0) if n else 0}",
-                  f"    message_count: {n}"]
-    lines += ["custom_data: {}",
-              f"ros_distro: {ROS_DISTRO}"]
+        lines += [
+            f"  - path: {_quoted(name)}",
+            "    starting_time:",
+            f"      nanoseconds_since_epoch: {t0 if n else 0}",
+            "    duration:",
+            f"      nanoseconds: {max(0, t1 - t0) if n else 0}",
+            f"    message_count: {n}",
+        ]
+    lines += ["custom_data: {}", f"ros_distro: {ROS_DISTRO}"]
     return "\n".join(lines) + "\n"
 
 
-def record(file_name: str, topics: list[TopicCount], start_ns: int, end_ns: int,
-           compression: str = "") -> dict[str, str]:
+def record(
+    file_name: str, topics: list[TopicCount], start_ns: int, end_ns: int, compression: str = ""
+) -> dict[str, str]:
     """The ``rosbag2`` metadata record's key/values."""
-    return {"serialized_metadata": serialized_metadata(file_name, topics, start_ns, end_ns,
-                                                       compression)}
+    return {"serialized_metadata": serialized_metadata(file_name, topics, start_ns, end_ns, compression)}
 
 
 __all__ = ["ROS_DISTRO", "VERSION", "TopicCount", "serialized_metadata", "record"]

@@ -62,11 +62,14 @@ def _threads(pid: int) -> dict:
             status = (task / "status").read_text()
         except (FileNotFoundError, ProcessLookupError):
             continue
-        name = stat[stat.index("(") + 1:stat.rindex(")")]
+        name = stat[stat.index("(") + 1 : stat.rindex(")")]
         sw = dict(line.split(":", 1) for line in status.splitlines() if "ctxt_switches" in line)
-        out[int(task.name)] = (name, _stat_cpu(stat),
-                               int(sw["voluntary_ctxt_switches"]),
-                               int(sw["nonvoluntary_ctxt_switches"]))
+        out[int(task.name)] = (
+            name,
+            _stat_cpu(stat),
+            int(sw["voluntary_ctxt_switches"]),
+            int(sw["nonvoluntary_ctxt_switches"]),
+        )
     return out
 
 
@@ -78,13 +81,13 @@ def _thread_table(a: dict, b: dict, wall: float) -> list[dict]:
     rows: dict = {}
     for tid, (name, cpu, vol, inv) in b.items():
         _, cpu0, vol0, inv0 = a.get(tid, (name, 0.0, 0, 0))
-        r = rows.setdefault(name, {"thread": name, "cpu_us": 0.0, "voluntary": 0.0,
-                                   "involuntary": 0.0})
+        r = rows.setdefault(name, {"thread": name, "cpu_us": 0.0, "voluntary": 0.0, "involuntary": 0.0})
         r["cpu_us"] += (cpu - cpu0) / steps * 1e6
         r["voluntary"] += (vol - vol0) / steps
         r["involuntary"] += (inv - inv0) / steps
-    return sorted((r for r in rows.values() if r["cpu_us"] > 0.5 or r["voluntary"] > 0.01),
-                  key=lambda r: -r["cpu_us"])
+    return sorted(
+        (r for r in rows.values() if r["cpu_us"] > 0.5 or r["voluntary"] > 0.01), key=lambda r: -r["cpu_us"]
+    )
 
 
 def _children(pid: int) -> list[int]:
@@ -132,8 +135,10 @@ def _all_threads(pids: list[int]) -> dict:
 def neighbours(n: int) -> list[subprocess.Popen]:
     """``n`` pure-Python busy loops, each a process of its own session (what a user's machine
     also runs beside the node); end them with :func:`stop_group`."""
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"],
-                             start_new_session=True) for _ in range(max(0, n))]
+    return [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+        for _ in range(max(0, n))
+    ]
 
 
 def _rss_mb(pid: int) -> float:
@@ -144,30 +149,39 @@ def _rss_mb(pid: int) -> float:
 
 
 def _final_stats(log: str) -> dict:
-    m = re.search(r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
-                  r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
-                  r"(?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
-                  r"(\d+) messages, stepping thread CPU ([\d.e+-]+) us a step"
-                  r"(?:, process CPU ([\d.e+-]+) us a step)?"
-                  r"(?:, stepping process ([\d.e+-]+) us and ROS process ([\d.e+-]+) us of it)?"
-                  r"(?:, realtime priority (\d+))?"
-                  r"(?:, publishing thread's slice ([\d.e+-]+) ms)?", log)
+    m = re.search(
+        r"real-time factor ([\d.e+-]+), step p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
+        r"publish p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, "
+        r"(?:latency p50 ([\d.e+-]+) ms, p99 ([\d.e+-]+) ms, )?(\d+) deadline misses, "
+        r"(\d+) messages, stepping thread CPU ([\d.e+-]+) us a step"
+        r"(?:, process CPU ([\d.e+-]+) us a step)?"
+        r"(?:, stepping process ([\d.e+-]+) us and ROS process ([\d.e+-]+) us of it)?"
+        r"(?:, realtime priority (\d+))?"
+        r"(?:, publishing thread's slice ([\d.e+-]+) ms)?",
+        log,
+    )
     if not m:
         raise RuntimeError("no final statistics in the node's log:\n" + log[-3000:])
     g = m.groups()
-    out = {"rtf": float(g[0]), "step_p50_ms": float(g[1]), "step_p99_ms": float(g[2]),
-           "publish_p50_ms": float(g[3]), "publish_p99_ms": float(g[4]),
-           "misses": int(g[7]), "messages": int(g[8]), "step_thread_cpu_us": float(g[9]),
-           "process_cpu_us": float(g[10]) if g[10] is not None else float("nan"),
-           "stepping_process_cpu_us": float(g[11]) if g[11] is not None else float("nan"),
-           "ros_process_cpu_us": float(g[12]) if g[12] is not None else float("nan"),
-           "priority": int(g[13]) if g[13] is not None else 0,
-           "release_slice_ms": float(g[14]) if g[14] is not None else float("nan")}
+    out = {
+        "rtf": float(g[0]),
+        "step_p50_ms": float(g[1]),
+        "step_p99_ms": float(g[2]),
+        "publish_p50_ms": float(g[3]),
+        "publish_p99_ms": float(g[4]),
+        "misses": int(g[7]),
+        "messages": int(g[8]),
+        "step_thread_cpu_us": float(g[9]),
+        "process_cpu_us": float(g[10]) if g[10] is not None else float("nan"),
+        "stepping_process_cpu_us": float(g[11]) if g[11] is not None else float("nan"),
+        "ros_process_cpu_us": float(g[12]) if g[12] is not None else float("nan"),
+        "priority": int(g[13]) if g[13] is not None else 0,
+        "release_slice_ms": float(g[14]) if g[14] is not None else float("nan"),
+    }
     if g[5] is not None:
         out["latency_p50_ms"], out["latency_p99_ms"] = float(g[5]), float(g[6])
     c = re.search(r"(\d+) commands applied, (\d+) refused", log)
-    out["commands_applied"], out["commands_refused"] = (
-        (int(c.group(1)), int(c.group(2))) if c else (0, 0))
+    out["commands_applied"], out["commands_refused"] = (int(c.group(1)), int(c.group(2))) if c else (0, 0)
     return out
 
 
@@ -175,15 +189,17 @@ def _node(params: dict, env, log_path: Path) -> subprocess.Popen:
     args = []
     for k, v in params.items():
         args += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-    prefix = os.environ.get("MPS_BENCH_NODE_PREFIX", "").split()     # e.g. a profiler
-    return subprocess.Popen([*prefix, sys.executable, "-m", "mps_core.cli", "node",
-                             "press-cycle", "--ros-args", *args], env=env,
-                            stdout=open(log_path, "wb"), stderr=subprocess.STDOUT,
-                            start_new_session=True)
+    prefix = os.environ.get("MPS_BENCH_NODE_PREFIX", "").split()  # e.g. a profiler
+    return subprocess.Popen(
+        [*prefix, sys.executable, "-m", "mps_core.cli", "node", "press-cycle", "--ros-args", *args],
+        env=env,
+        stdout=open(log_path, "wb"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
 
 
-def loop_cost(steps: int = 3000, outputs: str | None = None,
-              derivatives: str | None = None) -> float:
+def loop_cost(steps: int = 3000, outputs: str | None = None, derivatives: str | None = None) -> float:
     """CPU µs a step of the node's own work done in a plain loop in this process (no ROS, no
     threads, no waiting): press-cycle at 1 kHz, each step stepped, its messages made, its
     checkpoint taken and its events collected, over the run's first ``steps`` steps. Measured
@@ -194,8 +210,7 @@ def loop_cost(steps: int = 3000, outputs: str | None = None,
     from .twin import Twin
 
     outs = outputs.split(",") if outputs else OUTPUTS
-    tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=outs,
-              derivatives=derivatives)
+    tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=outs, derivatives=derivatives)
     tw.warm_up(1.0)
     t0 = time.thread_time()
     while not tw.done:
@@ -210,17 +225,35 @@ def loop_cost(steps: int = 3000, outputs: str | None = None,
 PROBE_EXECUTOR = os.environ.get("MPS_BENCH_EXECUTOR", "events")
 
 
-def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
-             outputs: str | None = None, publish_every: int = 1, priority: int | None = None,
-             lead: float | None = None, release_period: float | None = None,
-             derivatives: str | None = None, release_slice: float | None = None,
-             n_neighbours: int = 0, in_process: bool = False,
-             commands_every: float | None = None, command_delay: float | None = None,
-             flood: int = 0) -> dict:
+def realtime(
+    steps: int,
+    env,
+    tmp: Path,
+    deserialize: bool = False,
+    outputs: str | None = None,
+    publish_every: int = 1,
+    priority: int | None = None,
+    lead: float | None = None,
+    release_period: float | None = None,
+    derivatives: str | None = None,
+    release_slice: float | None = None,
+    n_neighbours: int = 0,
+    in_process: bool = False,
+    commands_every: float | None = None,
+    command_delay: float | None = None,
+    flood: int = 0,
+) -> dict:
     t_end = steps * 1e-3
-    params = dict(pacing="realtime", dt=0.001, t_end=t_end, recording=tmp / "rt.mcap",
-                  wait_for_subscribers=1, wait_timeout=30.0, start_delay=0.5,
-                  publish_every=publish_every)
+    params = dict(
+        pacing="realtime",
+        dt=0.001,
+        t_end=t_end,
+        recording=tmp / "rt.mcap",
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+        start_delay=0.5,
+        publish_every=publish_every,
+    )
     if commands_every or flood:
         # an operator instead of the scene's schedule: the subscriber sends the commands
         params.update(scene_commands=False, wait_for_commanders=1)
@@ -238,31 +271,34 @@ def realtime(steps: int, env, tmp: Path, deserialize: bool = False,
         params["release_slice"] = release_slice
     if derivatives is not None:
         params["derivatives"] = derivatives
-    busy = neighbours(n_neighbours)       # for the whole run, the plain loop's too
+    busy = neighbours(n_neighbours)  # for the whole run, the plain loop's too
     try:
-        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
-                         commands_every, flood)
+        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives, commands_every, flood)
     finally:
         for b in busy:
             stop_group(b)
 
 
-def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
-              commands_every=None, flood=0) -> dict:
+def _realtime(
+    steps, env, tmp, deserialize, outputs, params, derivatives, commands_every=None, flood=0
+) -> dict:
     t_end = steps * 1e-3
     loop = loop_cost(min(steps, 3000), outputs, derivatives)
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
-    probe = subprocess.Popen([sys.executable, "-m", "mps_ros.bench", "probe"]
-                             + (["--deserialize"] if deserialize else [])
-                             + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
-                             + ([f"--commands-every={commands_every}"] if commands_every
-                                else [])
-                             + ([f"--flood={flood}"] if flood else []),
-                             env=env,
-                             stdout=subprocess.PIPE, stderr=open(tmp / "probe.log", "wb"),
-                             text=True, start_new_session=True)
+    probe = subprocess.Popen(
+        [sys.executable, "-m", "mps_ros.bench", "probe"]
+        + (["--deserialize"] if deserialize else [])
+        + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
+        + ([f"--commands-every={commands_every}"] if commands_every else [])
+        + ([f"--flood={flood}"] if flood else []),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=open(tmp / "probe.log", "wb"),
+        text=True,
+        start_new_session=True,
+    )
     try:
         cpu0 = wall0 = None
         log = tmp / "rt.log"
@@ -271,12 +307,12 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
             time.sleep(0.01)
         # from the run's start (its kernels already built), after its first lead is banked
         time.sleep(0.2)
-        mine, kids = _node_processes(node.pid)      # the node's; the recording process
+        mine, kids = _node_processes(node.pid)  # the node's; the recording process
         cpu0, wall0 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
         kid0 = sum(_cpu_seconds(k) for k in kids)
         sub0 = _cpu_seconds(probe.pid)
         threads0 = _all_threads(mine)
-        threads1, wall_t = dict(threads0), wall0    # the last reading of each thread
+        threads1, wall_t = dict(threads0), wall0  # the last reading of each thread
         cpu1 = wall1 = kid1 = sub1 = None
         rss0 = rss1 = None
         ended = False
@@ -288,7 +324,7 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
                 cpu1, wall1 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
                 kid1 = sum(_cpu_seconds(k) for k in kids)
                 sub1 = _cpu_seconds(probe.pid)
-                if not ended:       # a thread that ends keeps its last reading
+                if not ended:  # a thread that ends keeps its last reading
                     threads1.update(_all_threads(mine))
                     wall_t = time.monotonic()
                 rss1 = _rss_mb(node.pid)
@@ -302,11 +338,10 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
         got = json.loads(out.strip().splitlines()[-1])
         st = _final_stats(log.read_text())
         st["cpu_share"] = (cpu1 - cpu0) / (wall1 - wall0) if wall1 else float("nan")
-        st["recorder_cpu_share"] = ((kid1 - kid0) / (wall1 - wall0) if wall1 and kids
-                                    else float("nan"))
+        st["recorder_cpu_share"] = (kid1 - kid0) / (wall1 - wall0) if wall1 and kids else float("nan")
         st["subscriber_cpu_share"] = (sub1 - sub0) / (wall1 - wall0) if wall1 else float("nan")
         st["node_processes"] = len(mine)
-        st["cpu_per_step_us"] = st["cpu_share"] * 1e3       # at 1 kHz, realtime x1
+        st["cpu_per_step_us"] = st["cpu_share"] * 1e3  # at 1 kHz, realtime x1
         st["rss_start_mb"], st["rss_end_mb"] = rss0, rss1
         st["subscriber_msgs_per_s"] = got["rate"]
         st["subscriber_received"] = got["received"]
@@ -316,17 +351,16 @@ def _realtime(steps, env, tmp, deserialize, outputs, params, derivatives,
 
             published = recorded_counts(tmp / "rt.mcap")
             published.pop(resolve(MODE.key), None)  # recorded as received, not published
-            for topic in got.get("unknown", []):     # recorded, not published here
+            for topic in got.get("unknown", []):  # recorded, not published here
                 published.pop(topic, None)
             st["lost_by_topic"] = lost_by_topic(published, got.get("by_topic", {}))
-        except (OSError, RuntimeError) as exc:     # the other figures still stand
+        except (OSError, RuntimeError) as exc:  # the other figures still stand
             st["lost_by_topic"], st["recording_error"] = None, str(exc)
         st["drift_ms"] = got.get("drift_ms")
         st["flood_s"] = got.get("flood_s")
         st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
-        st["threads"] = _thread_table(threads0, threads1, wall_t - wall0) if wall_t > wall0 \
-            else []
+        st["threads"] = _thread_table(threads0, threads1, wall_t - wall0) if wall_t > wall0 else []
         st["loop_us"] = loop
         return st
     finally:
@@ -347,8 +381,10 @@ def recorded_counts(path) -> dict[str, int]:
         except McapError as exc:
             summary, why = None, f"{type(exc).__name__}: {exc}"
     if summary is None or summary.statistics is None:
-        raise RuntimeError(f"recording {str(path)!r}: no summary to count its messages by "
-                           f"({why}; an unfinished recording has none)")
+        raise RuntimeError(
+            f"recording {str(path)!r}: no summary to count its messages by "
+            f"({why}; an unfinished recording has none)"
+        )
     counts = summary.statistics.channel_message_counts
     return {ch.topic: counts.get(c, 0) for c, ch in summary.channels.items()}
 
@@ -373,8 +409,12 @@ def keep_logs(tmp: Path, keep: Path, what: str, result: dict) -> None:
 
 
 def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None) -> dict:
-    params = dict(pacing="as_fast_as_possible", dt=0.001, t_end=steps * 1e-3,
-                  recording=(tmp / "afap.mcap") if recording else "none")
+    params = dict(
+        pacing="as_fast_as_possible",
+        dt=0.001,
+        t_end=steps * 1e-3,
+        recording=(tmp / "afap.mcap") if recording else "none",
+    )
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "afap.log")
@@ -388,10 +428,12 @@ def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None
 def record_only(tmp: Path, steps: int) -> dict:
     from .recording import record
 
-    _, st, _ = record("press-cycle", tmp / "rec.mcap", dt=0.001, t_end=steps * 1e-3,
-                      stop_on_signals=False)
-    return {"rtf": st["real_time_factor"], "step_p50_ms": st["step_time_p50_ms"],
-            "step_p99_ms": st["step_time_p99_ms"]}
+    _, st, _ = record("press-cycle", tmp / "rec.mcap", dt=0.001, t_end=steps * 1e-3, stop_on_signals=False)
+    return {
+        "rtf": st["real_time_factor"],
+        "step_p50_ms": st["step_time_p50_ms"],
+        "step_p99_ms": st["step_time_p99_ms"],
+    }
 
 
 #: what the benchmark's operator sends, in turn
@@ -410,8 +452,9 @@ def _operator(node, every: float | None, state: dict, flood: int = 0) -> None:
 
     from .topics import MODE, resolve
 
-    pub = node.create_publisher(String, resolve(MODE.key),
-                                QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    pub = node.create_publisher(
+        String, resolve(MODE.key), QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    )
 
     def send():
         while state["first"] is None:
@@ -448,11 +491,10 @@ def probe() -> int:
 
     rclpy.init()
     node = Node("press_twin_probe")
-    state = {"n": 0, "first": None, "last": None, "ended": False, "clock0": None,
-             "clock1": None}
+    state = {"n": 0, "first": None, "last": None, "ended": False, "clock0": None, "clock1": None}
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
-    by_topic: dict[str, int] = {}       # topic -> messages received on it
+    by_topic: dict[str, int] = {}  # topic -> messages received on it
 
     def counter(topic: str):
         by_topic[topic] = 0
@@ -463,6 +505,7 @@ def probe() -> int:
             by_topic[topic] += 1
             state["first"] = state["first"] or now
             state["last"] = now
+
         return count
 
     def events(topic: str):
@@ -472,9 +515,10 @@ def probe() -> int:
             count(msg)
             if '"kind":"run-end"' in msg.data:
                 state["ended"] = True
+
         return on_event
 
-    lowest: dict = {}       # whole simulated seconds -> the lowest (wall − simulated) in it
+    lowest: dict = {}  # whole simulated seconds -> the lowest (wall − simulated) in it
 
     def clock(topic: str):
         count = counter(topic)
@@ -488,21 +532,21 @@ def probe() -> int:
             off = at[1] - at[0]
             if off < lowest.get(k, math.inf):
                 lowest[k] = off
+
         return on_clock
 
     raw = "--deserialize" not in sys.argv
-    unknown = []            # topics of a type not importable here (the node records them only)
+    unknown = []  # topics of a type not importable here (the node records them only)
     for t in TOPICS:
         topic = resolve(t.key)
         if t.msgtype not in MSG_CLASSES:
             unknown.append(topic)
-        elif t.key == "/clock":       # deserialized: simulated against wall time (the drift)
+        elif t.key == "/clock":  # deserialized: simulated against wall time (the drift)
             node.create_subscription(MSG_CLASSES[t.msgtype], topic, clock(topic), qos)
         elif t.key == "~/events":
             node.create_subscription(MSG_CLASSES[t.msgtype], topic, events(topic), qos)
-        else:       # counted as delivered, serialized (raw) unless --deserialize
-            node.create_subscription(MSG_CLASSES[t.msgtype], topic, counter(topic), qos,
-                                     raw=raw)
+        else:  # counted as delivered, serialized (raw) unless --deserialize
+            node.create_subscription(MSG_CLASSES[t.msgtype], topic, counter(topic), qos, raw=raw)
     # one executor for the whole run (rclpy.spin_once(node) adds and removes the node at every
     # call: a subscriber that did so would spend most of its time there, not in its callbacks)
     # rclpy's events executor (C++, Jazzy's wheels have it) where the subscriber asks for it
@@ -515,8 +559,7 @@ def probe() -> int:
 
         executor = SingleThreadedExecutor()
     executor.add_node(node)
-    every = next((float(a.split("=", 1)[1]) for a in sys.argv
-                  if a.startswith("--commands-every=")), None)
+    every = next((float(a.split("=", 1)[1]) for a in sys.argv if a.startswith("--commands-every=")), None)
     flood = next((int(a.split("=", 1)[1]) for a in sys.argv if a.startswith("--flood=")), 0)
     if every or flood:
         _operator(node, every, state, flood)
@@ -524,19 +567,24 @@ def probe() -> int:
     while not state["ended"] and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.1)
         if state["last"] is not None and time.monotonic() - state["last"] > 5.0:
-            break                              # the node is gone without its run-end event
-    while time.monotonic() - (state["last"] or 0.0) < 2.0:     # until 2 s without a message
+            break  # the node is gone without its run-end event
+    while time.monotonic() - (state["last"] or 0.0) < 2.0:  # until 2 s without a message
         executor.spin_once(timeout_sec=0.05)
     span = (state["last"] or 0) - (state["first"] or 0)
-    out = {"received": state["n"], "rate": state["n"] / span if span > 0 else 0.0,
-           "by_topic": by_topic, "flood_s": state.get("flood_s"), "unknown": unknown}
+    out = {
+        "received": state["n"],
+        "rate": state["n"] / span if span > 0 else 0.0,
+        "by_topic": by_topic,
+        "flood_s": state.get("flood_s"),
+        "unknown": unknown,
+    }
     if state["clock0"] and state["clock1"]:
         (s0, w0), (s1, w1) = state["clock0"], state["clock1"]
         # first message against last: their own delivery delays are in it
         out["drift_end_to_end_ms"] = ((w1 - w0) - (s1 - s0)) * 1e3
         # the drift: the lowest wall − simulated offset (a message that met no delay) over
         # the last whole 5 simulated seconds against that over the first 5 (wall behind: > 0)
-        whole = sorted(lowest)[:-1]             # the last second is not whole
+        whole = sorted(lowest)[:-1]  # the last second is not whole
         if len(whole) >= 10:
             first = min(lowest[k] for k in whole[:5])
             last = min(lowest[k] for k in whole[-5:])
@@ -563,11 +611,12 @@ def wakeup_costs(n: int = 2000) -> dict:
             cond.wait(0.001)
 
     out = {}
-    for name, wait in (("threading.Condition.wait(0.001)", cond_wait),
-                       ("threading.Event.wait(0.001)", lambda: event.wait(0.001)),
-                       ("threading.Lock.acquire(timeout=0.001)",
-                        lambda: lock.acquire(timeout=0.001)),
-                       ("time.sleep(0.001)", lambda: time.sleep(0.001))):
+    for name, wait in (
+        ("threading.Condition.wait(0.001)", cond_wait),
+        ("threading.Event.wait(0.001)", lambda: event.wait(0.001)),
+        ("threading.Lock.acquire(timeout=0.001)", lambda: lock.acquire(timeout=0.001)),
+        ("time.sleep(0.001)", lambda: time.sleep(0.001)),
+    ):
         t0 = time.thread_time()
         for _ in range(n):
             wait()
@@ -612,9 +661,12 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
         w.finish()
         return (time.process_time() - t0) / len(msgs) * 1e6, out.getvalue()
 
-    ours = lambda out: McapWriter(out, chunk_size=512 * 1024)             # noqa: E731
-    theirs = lambda out: Writer(out, chunk_size=512 * 1024,               # noqa: E731
-                                compression=CompressionType.ZSTD)
+    def ours(out):
+        return McapWriter(out, chunk_size=512 * 1024)
+
+    def theirs(out):
+        return Writer(out, chunk_size=512 * 1024, compression=CompressionType.ZSTD)
+
     best = {"mps": math.inf, "mcap": math.inf}
     same = True
     for _ in range(rounds):
@@ -622,8 +674,13 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
         b, fb = write(theirs)
         best["mps"], best["mcap"] = min(best["mps"], a), min(best["mcap"], b)
         same = same and fa == fb
-    return {"messages": len(msgs), "per_step": len(msgs) / steps, "mps_us": best["mps"],
-            "mcap_us": best["mcap"], "same_bytes": same}
+    return {
+        "messages": len(msgs),
+        "per_step": len(msgs) / steps,
+        "mps_us": best["mps"],
+        "mcap_us": best["mcap"],
+        "same_bytes": same,
+    }
 
 
 def _lost_line(r: dict) -> str:
@@ -632,66 +689,136 @@ def _lost_line(r: dict) -> str:
     lost = r.get("lost_by_topic")
     if not lost:
         return ""
-    return ("  published less received     "
-            + ", ".join(f"{t} {n}" for t, n in lost.items()) + "\n")
+    return "  published less received     " + ", ".join(f"{t} {n}" for t, n in lost.items()) + "\n"
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m mps_ros.bench", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", nargs="?", default="all",
-                   choices=("all", "realtime", "afap", "table", "soak", "wakeup", "writer",
-                            "probe"))
-    p.add_argument("--minutes", type=float, default=10.0,
-                   help="length of the soak run (default 10): realtime, every output, a "
-                        "subscriber; RSS at 5 s and at the end, drift, messages lost")
+    p = argparse.ArgumentParser(
+        prog="python -m mps_ros.bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "what",
+        nargs="?",
+        default="all",
+        choices=("all", "realtime", "afap", "table", "soak", "wakeup", "writer", "probe"),
+    )
+    p.add_argument(
+        "--minutes",
+        type=float,
+        default=10.0,
+        help="length of the soak run (default 10): realtime, every output, a "
+        "subscriber; RSS at 5 s and at the end, drift, messages lost",
+    )
     p.add_argument("--steps", type=int, default=10_000, help="steps of the realtime run")
     p.add_argument("--afap-steps", type=int, default=5_000, help="steps of each AFAP run")
     p.add_argument("--json", help="write the figures to this file")
-    p.add_argument("--keep", metavar="DIR", type=Path,
-                   help="keep the realtime or soak run's logs (the node's, the subscriber's) "
-                        "and figures in DIR")
-    p.add_argument("--outputs", metavar="LIST",
-                   help="the realtime run's outputs, comma-separated (default: all)")
-    p.add_argument("--publish-every", type=int, default=1, metavar="N",
-                   help="the realtime run publishes every N-th step (default 1)")
-    p.add_argument("--priority", type=int, default=None, metavar="P",
-                   help="the node's realtime_priority (default: the node's; 0: normal "
-                        "scheduling; 1-99: its stepping process and publishing thread under "
-                        "SCHED_FIFO, where allowed)")
-    p.add_argument("--lead", type=float, default=None, metavar="S",
-                   help="the node's lead: steps computed up to S wall seconds ahead of their "
-                        "deadlines (default: the node's, 0.1; 0: one step's period, none "
-                        "banked)")
-    p.add_argument("--release-period", type=float, default=None, metavar="S",
-                   help="the node's release_period: the steps due go out together about once "
-                        "per S wall seconds, each at most S less one step's period late (default: "
-                        "the node's, 0: each step at its deadline, one wake-up a step)")
-    p.add_argument("--release-slice", type=float, default=None, metavar="S",
-                   help="the node's release_slice: the publishing thread's scheduler slice "
-                        "(default: the node's, 0.0001; 0: none asked)")
-    p.add_argument("--derivatives", choices=("central", "autodiff"), default=None,
-                   help="the node's derivatives (default: the scene's, central)")
-    p.add_argument("--in-process", action="store_true",
-                   help="the node steps in its own process (stepping_process:=false) instead "
-                        "of a stepping process of its own")
-    p.add_argument("--neighbours", type=int, default=0, metavar="N",
-                   help="run N pure-Python busy loops beside the node for the whole realtime "
-                        "or soak run (default 0)")
-    p.add_argument("--commands-every", type=float, default=None, metavar="S",
-                   help="realtime: the subscriber also sends engage, disengage, stop, start in "
-                        "turn on ~/mode, one every S wall seconds (the scene's own commands off)")
-    p.add_argument("--flood", type=int, default=0, metavar="N",
-                   help="realtime: the subscriber sends N engage at once, 2 s into the run "
-                        "(the scene's own commands off)")
-    p.add_argument("--command-delay", type=float, default=None, metavar="S",
-                   help="the node's command_delay (default: the node's, 0)")
-    p.add_argument("--events-executor", action="store_true",
-                   help="probe: spin rclpy's events executor (the realtime run's subscriber "
-                        "does unless MPS_BENCH_EXECUTOR=single)")
-    p.add_argument("--deserialize", action="store_true",
-                   help="the subscriber deserializes every message into a Python object "
-                        "(default: it takes them serialized, as delivered)")
+    p.add_argument(
+        "--keep",
+        metavar="DIR",
+        type=Path,
+        help="keep the realtime or soak run's logs (the node's, the subscriber's) and figures in DIR",
+    )
+    p.add_argument(
+        "--outputs", metavar="LIST", help="the realtime run's outputs, comma-separated (default: all)"
+    )
+    p.add_argument(
+        "--publish-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="the realtime run publishes every N-th step (default 1)",
+    )
+    p.add_argument(
+        "--priority",
+        type=int,
+        default=None,
+        metavar="P",
+        help="the node's realtime_priority (default: the node's; 0: normal "
+        "scheduling; 1-99: its stepping process and publishing thread under "
+        "SCHED_FIFO, where allowed)",
+    )
+    p.add_argument(
+        "--lead",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the node's lead: steps computed up to S wall seconds ahead of their "
+        "deadlines (default: the node's, 0.1; 0: one step's period, none "
+        "banked)",
+    )
+    p.add_argument(
+        "--release-period",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the node's release_period: the steps due go out together about once "
+        "per S wall seconds, each at most S less one step's period late (default: "
+        "the node's, 0: each step at its deadline, one wake-up a step)",
+    )
+    p.add_argument(
+        "--release-slice",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the node's release_slice: the publishing thread's scheduler slice "
+        "(default: the node's, 0.0001; 0: none asked)",
+    )
+    p.add_argument(
+        "--derivatives",
+        choices=("central", "autodiff"),
+        default=None,
+        help="the node's derivatives (default: the scene's, central)",
+    )
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="the node steps in its own process (stepping_process:=false) instead "
+        "of a stepping process of its own",
+    )
+    p.add_argument(
+        "--neighbours",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run N pure-Python busy loops beside the node for the whole realtime or soak run (default 0)",
+    )
+    p.add_argument(
+        "--commands-every",
+        type=float,
+        default=None,
+        metavar="S",
+        help="realtime: the subscriber also sends engage, disengage, stop, start in "
+        "turn on ~/mode, one every S wall seconds (the scene's own commands off)",
+    )
+    p.add_argument(
+        "--flood",
+        type=int,
+        default=0,
+        metavar="N",
+        help="realtime: the subscriber sends N engage at once, 2 s into the run "
+        "(the scene's own commands off)",
+    )
+    p.add_argument(
+        "--command-delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the node's command_delay (default: the node's, 0)",
+    )
+    p.add_argument(
+        "--events-executor",
+        action="store_true",
+        help="probe: spin rclpy's events executor (the realtime run's subscriber "
+        "does unless MPS_BENCH_EXECUTOR=single)",
+    )
+    p.add_argument(
+        "--deserialize",
+        action="store_true",
+        help="the subscriber deserializes every message into a Python object "
+        "(default: it takes them serialized, as delivered)",
+    )
     a = p.parse_args(argv)
     if a.what == "probe":
         return probe()
@@ -701,146 +828,206 @@ def main(argv=None) -> int:
         return 0
     if a.what == "writer":
         r = writer_costs()
-        print(f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
-              f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
-              f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
-              f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
-              f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
-              f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}")
+        print(
+            f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
+            f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
+            f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
+            f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
+            f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
+            f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}"
+        )
         return 0 if r["same_bytes"] else 1
     env = ros_env()
-    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR",
-                                           "RMW_IMPLEMENTATION")})
-    res = {"machine": f"{os.cpu_count()} cores, load average "
-                      f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"}
+    os.environ.update(
+        {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR", "RMW_IMPLEMENTATION")}
+    )
+    res = {
+        "machine": f"{os.cpu_count()} cores, load average "
+        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"
+    }
     with tempfile.TemporaryDirectory(prefix="mps-bench-") as d:
         tmp = Path(d)
         if a.what in ("all", "realtime"):
-            r = realtime(a.steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
-                         a.neighbours, a.in_process, a.commands_every, a.command_delay,
-                         a.flood)
+            r = realtime(
+                a.steps,
+                env,
+                tmp,
+                a.deserialize,
+                a.outputs,
+                a.publish_every,
+                a.priority,
+                a.lead,
+                a.release_period,
+                a.derivatives,
+                a.release_slice,
+                a.neighbours,
+                a.in_process,
+                a.commands_every,
+                a.command_delay,
+                a.flood,
+            )
             res["realtime_1kHz"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "realtime", r)
             how = "deserializing" if a.deserialize else "taking them serialized"
             scheme = a.derivatives or "the scene's (autodiff)"
-            print(f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
-                  f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
-                  f"subscriber ({how}, rclpy's {PROBE_EXECUTOR} executor), "
-                  f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
-                  f", {a.neighbours} busy neighbour process(es), "
-                  f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
-                  f"{'0.1 (default)' if a.lead is None else a.lead} s, release_period "
-                  f"{'0 (default)' if a.release_period is None else a.release_period} s, "
-                  f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
-                  f" s, derivatives {scheme}"
-                  + (f", an operator command every {a.commands_every:g} s"
-                     if a.commands_every else "")
-                  + (f", a flood of {a.flood} engage at once 2 s in (sent in "
-                     f"{r.get('flood_s') or float('nan'):.3f} s)" if a.flood else "")
-                  + (f", command_delay "
-                     f"{'0 (default)' if a.command_delay is None else a.command_delay} s"
-                     if a.commands_every or a.flood else "") + ":\n"
-                  f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
-                  f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
-                  f"  achieved real-time factor   {r['rtf']:.3f}\n"
-                  f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
-                  f"{r['step_p99_ms']:.3f} ms\n"
-                  f"  publish p50 / p99           {r['publish_p50_ms']:.3f} / "
-                  f"{r['publish_p99_ms']:.3f} ms\n"
-                  f"  latency p50 / p99           {r.get('latency_p50_ms', float('nan')):.3f} / "
-                  f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
-                  f"step's deadline)\n"
-                  f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
-                  + (f"  commands                    {r['commands_applied']} applied, "
-                     f"{r['commands_refused']} refused\n" if a.commands_every or a.flood
-                     else "") +
-                  f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
-                  f"({r['subscriber_received']} of {r['messages']} published)\n"
-                  + _lost_line(r) +
-                  f"  the subscriber's CPU        {100 * r['subscriber_cpu_share']:.0f} % of one core\n"
-                  f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
-                  f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
-                  f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
-                  f"(0: the system's own)\n"
-                  f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
-                  f"the run's steps (the node's own count: every thread of its "
-                  f"{r['node_processes']} process(es); not the recording process)"
-                  + (f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
-                     f"{r['ros_process_cpu_us']:.0f} us"
-                     if r['stepping_process_cpu_us'] == r['stepping_process_cpu_us'] else "")
-                  + "\n"
-                  f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
-                  f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
-                  f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
-                  f"                              {r['cpu_per_step_us']:.0f} us a step from "
-                  f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
-                  f"the start to the run's end); the recording process "
-                  f"{100 * r['recorder_cpu_share']:.0f} %\n"
-                  f"  the node's threads (/proc; CPU a step, context switches a step: "
-                  f"voluntary, involuntary):\n"
-                  + "".join(f"    {t['thread']:<22s}{t['cpu_us']:6.0f} us  {t['voluntary']:5.2f}  "
-                            f"{t['involuntary']:5.2f}\n" for t in r["threads"]).rstrip("\n"),
-                  flush=True)
+            print(
+                f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
+                f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
+                f"subscriber ({how}, rclpy's {PROBE_EXECUTOR} executor), "
+                f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
+                f", {a.neighbours} busy neighbour process(es), "
+                f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
+                f"{'0.1 (default)' if a.lead is None else a.lead} s, release_period "
+                f"{'0 (default)' if a.release_period is None else a.release_period} s, "
+                f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
+                f" s, derivatives {scheme}"
+                + (f", an operator command every {a.commands_every:g} s" if a.commands_every else "")
+                + (
+                    f", a flood of {a.flood} engage at once 2 s in (sent in "
+                    f"{r.get('flood_s') or float('nan'):.3f} s)"
+                    if a.flood
+                    else ""
+                )
+                + (
+                    f", command_delay {'0 (default)' if a.command_delay is None else a.command_delay} s"
+                    if a.commands_every or a.flood
+                    else ""
+                )
+                + ":\n"
+                f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
+                f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
+                f"  achieved real-time factor   {r['rtf']:.3f}\n"
+                f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
+                f"{r['step_p99_ms']:.3f} ms\n"
+                f"  publish p50 / p99           {r['publish_p50_ms']:.3f} / "
+                f"{r['publish_p99_ms']:.3f} ms\n"
+                f"  latency p50 / p99           {r.get('latency_p50_ms', float('nan')):.3f} / "
+                f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
+                f"step's deadline)\n"
+                f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
+                + (
+                    f"  commands                    {r['commands_applied']} applied, "
+                    f"{r['commands_refused']} refused\n"
+                    if a.commands_every or a.flood
+                    else ""
+                )
+                + f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
+                f"({r['subscriber_received']} of {r['messages']} published)\n"
+                + _lost_line(r)
+                + f"  the subscriber's CPU        {100 * r['subscriber_cpu_share']:.0f} % of one core\n"
+                f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
+                f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
+                f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
+                f"(0: the system's own)\n"
+                f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
+                f"the run's steps (the node's own count: every thread of its "
+                f"{r['node_processes']} process(es); not the recording process)"
+                + (
+                    f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
+                    f"{r['ros_process_cpu_us']:.0f} us"
+                    if r["stepping_process_cpu_us"] == r["stepping_process_cpu_us"]
+                    else ""
+                )
+                + "\n"
+                f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
+                f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
+                f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
+                f"                              {r['cpu_per_step_us']:.0f} us a step from "
+                f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
+                f"the start to the run's end); the recording process "
+                f"{100 * r['recorder_cpu_share']:.0f} %\n"
+                f"  the node's threads (/proc; CPU a step, context switches a step: "
+                f"voluntary, involuntary):\n"
+                + "".join(
+                    f"    {t['thread']:<22s}{t['cpu_us']:6.0f} us  {t['voluntary']:5.2f}  "
+                    f"{t['involuntary']:5.2f}\n"
+                    for t in r["threads"]
+                ).rstrip("\n"),
+                flush=True,
+            )
         if a.what == "table":
             rows = []
             from .topics import OUTPUTS
 
             no_markers = ",".join(o for o in OUTPUTS if o != "markers")
-            for label, outs, rec in (("joint_states, clock", "joint_states,clock", False),
-                                     ("every output but markers, recording", no_markers, True),
-                                     ("every output, no recording", None, False),
-                                     ("every output, recording", None, True)):
+            for label, outs, rec in (
+                ("joint_states, clock", "joint_states,clock", False),
+                ("every output but markers, recording", no_markers, True),
+                ("every output, no recording", None, False),
+                ("every output, recording", None, True),
+            ):
                 r = afap(rec, env, tmp, a.afap_steps, outs)
                 rows.append(dict(r, outputs=label))
             res["table"] = rows
-            print(f"the node as fast as possible, no subscriber, {a.afap_steps} steps of "
-                  f"press-cycle at 1 kHz:\n"
-                  f"  | outputs | step p50 | publish p50 | real-time factor |\n"
-                  f"  |---|---|---|---|")
+            print(
+                f"the node as fast as possible, no subscriber, {a.afap_steps} steps of "
+                f"press-cycle at 1 kHz:\n"
+                f"  | outputs | step p50 | publish p50 | real-time factor |\n"
+                f"  |---|---|---|---|"
+            )
             for r in rows:
-                print(f"  | {r['outputs']} | {r['step_p50_ms']:.3f} ms | "
-                      f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |", flush=True)
+                print(
+                    f"  | {r['outputs']} | {r['step_p50_ms']:.3f} ms | "
+                    f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |",
+                    flush=True,
+                )
         if a.what == "soak":
             steps = int(round(a.minutes * 60_000))
-            r = realtime(steps, env, tmp, a.deserialize, a.outputs, a.publish_every,
-                         a.priority, a.lead, a.release_period, a.derivatives, a.release_slice,
-                         a.neighbours, a.in_process)
+            r = realtime(
+                steps,
+                env,
+                tmp,
+                a.deserialize,
+                a.outputs,
+                a.publish_every,
+                a.priority,
+                a.lead,
+                a.release_period,
+                a.derivatives,
+                a.release_slice,
+                a.neighbours,
+                a.in_process,
+            )
             res["soak"] = r
             if a.keep:
                 keep_logs(tmp, a.keep, "soak", r)
-            print(f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), "
-                  f"{a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
-                  f"every output, one external subscriber:\n"
-                  f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
-                  f"{r['rss_end_mb']:.1f} MB at the end "
-                  f"({r['rss_end_mb'] - r['rss_start_mb']:+.1f} MB)\n"
-                  f"  simulated vs wall drift     {r['drift_ms']:.2f} ms (wall behind simulated: "
-                  f"the lowest offset of the subscriber's /clock over the last 5 s against the "
-                  f"first 5 s; first message against last "
-                  f"{r.get('drift_end_to_end_ms', float('nan')):.2f} ms)\n"
-                  f"  messages                    {r['messages']} published, "
-                  f"{r['subscriber_received']} received "
-                  f"({r['messages'] - r['subscriber_received']} lost)\n"
-                  + _lost_line(r) +
-                  f"  real-time factor            {r['rtf']:.4f}, deadline misses "
-                  f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
-                  f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
-                  f"  CPU                         stepping thread {r['step_thread_cpu_us']:.0f} "
-                  f"us a step, node process {r['process_cpu_us']:.0f} us a step (its own "
-                  f"count over the run's steps; {100 * r['cpu_share']:.0f} % of one core from "
-                  f"outside), recording process {100 * r['recorder_cpu_share']:.0f} %",
-                  flush=True)
+            print(
+                f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), "
+                f"{a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
+                f"every output, one external subscriber:\n"
+                f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
+                f"{r['rss_end_mb']:.1f} MB at the end "
+                f"({r['rss_end_mb'] - r['rss_start_mb']:+.1f} MB)\n"
+                f"  simulated vs wall drift     {r['drift_ms']:.2f} ms (wall behind simulated: "
+                f"the lowest offset of the subscriber's /clock over the last 5 s against the "
+                f"first 5 s; first message against last "
+                f"{r.get('drift_end_to_end_ms', float('nan')):.2f} ms)\n"
+                f"  messages                    {r['messages']} published, "
+                f"{r['subscriber_received']} received "
+                f"({r['messages'] - r['subscriber_received']} lost)\n"
+                + _lost_line(r)
+                + f"  real-time factor            {r['rtf']:.4f}, deadline misses "
+                f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
+                f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
+                f"  CPU                         stepping thread {r['step_thread_cpu_us']:.0f} "
+                f"us a step, node process {r['process_cpu_us']:.0f} us a step (its own "
+                f"count over the run's steps; {100 * r['cpu_share']:.0f} % of one core from "
+                f"outside), recording process {100 * r['recorder_cpu_share']:.0f} %",
+                flush=True,
+            )
         if a.what in ("all", "afap"):
             on = afap(True, env, tmp, a.afap_steps)
             off = afap(False, env, tmp, a.afap_steps)
             rec = record_only(tmp, a.afap_steps)
             res["afap"] = {"recording_on": on, "recording_off": off, "mps_record": rec}
-            print(f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
-                  f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
-                  f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
-                  f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}", flush=True)
+            print(
+                f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
+                f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
+                f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
+                f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}",
+                flush=True,
+            )
     print(res["machine"])
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=2))

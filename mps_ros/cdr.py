@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import struct
 
-_HEAD = b"\x00\x01\x00\x00"      # encapsulation: CDR little endian
+_HEAD = b"\x00\x01\x00\x00"  # encapsulation: CDR little endian
 _u32 = struct.Struct("<I").pack
 _time = struct.Struct("<iI").pack
 _vec6 = struct.Struct("<6d").pack
@@ -106,7 +106,7 @@ class Preset:
         marks = [float.fromhex(f"0x1.{k + 1:04x}5a5a5a5a5p-1000") for k in range(nfloats)]
         sec, nsec = 0x5A5A5A5A, 0x3C3C3C3C
         probe = encode(make({"sec": sec, "nanosec": nsec}, marks))
-        stamps = []                     # every header's stamp (a message of several headers)
+        stamps = []  # every header's stamp (a message of several headers)
         at = probe.find(_time(sec, nsec))
         while at >= 0:
             stamps.append(at)
@@ -144,8 +144,7 @@ class Preset:
             fmt += f"{len(probe) - pos}s"
             args.append("_tail")
         namespace = {"_pack": struct.Struct(fmt).pack, **consts}
-        exec(f"def pack(sec, nanosec, floats):\n    return _pack({', '.join(args)})\n",
-             namespace)
+        exec(f"def pack(sec, nanosec, floats):\n    return _pack({', '.join(args)})\n", namespace)
         #: ``pack(sec, nanosec, floats)``: the message's bytes with these values
         self.pack = namespace["pack"]
         self.nfloats = nfloats

@@ -16,8 +16,10 @@ import argparse
 import math
 import sys
 
-ROS_MISSING = ("mps: error: this command needs ROS 2 Jazzy's rclpy: install the ros extra "
-               "(pip install -e '.[ros]', or `make run`)")
+ROS_MISSING = (
+    "mps: error: this command needs ROS 2 Jazzy's rclpy: install the ros extra "
+    "(pip install -e '.[ros]', or `make run`)"
+)
 
 
 def _ros_import(modname):
@@ -37,8 +39,7 @@ def _node(args) -> int:
     mod = _ros_import("mps_ros.node")
     if mod is None:
         return 2
-    argv = ([args.scene] if args.scene else []) + (["--ros-args", *args.ros_args]
-                                                   if args.ros_args else [])
+    argv = ([args.scene] if args.scene else []) + (["--ros-args", *args.ros_args] if args.ros_args else [])
     return mod.main(argv)
 
 
@@ -70,11 +71,15 @@ def _record(args) -> int:
     from .recording import record
 
     bag = is_bag(args.out)
-    check_outputs({"recording": args.out}, inputs=[args.scene], force=args.force,
-                  folders={"recording"} if bag else ())
+    check_outputs(
+        {"recording": args.out}, inputs=[args.scene], force=args.force, folders={"recording"} if bag else ()
+    )
     if not bag and (args.max_mb or args.max_s):
-        print(f"mps: error: --max-mb and --max-s split a bag: {args.out!r} ends in .mcap (one "
-              "file); expected a directory path", file=sys.stderr)
+        print(
+            f"mps: error: --max-mb and --max-s split a bag: {args.out!r} ends in .mcap (one "
+            "file); expected a directory path",
+            file=sys.stderr,
+        )
         return 2
 
     def log(level, text):
@@ -83,18 +88,30 @@ def _record(args) -> int:
 
     try:
         path, stats, counts = record(
-            args.scene, args.out, dt=args.dt, t_end=args.t_end, outputs=_outputs(args.outputs),
-            publish_every=args.publish_every, pacing=args.pacing,
-            real_time_factor=args.real_time_factor, scene_commands=not args.no_scene_commands,
-            log=log, progress=not args.quiet, compression=args.compression,
-            max_bytes=int(args.max_mb * 1e6), max_s=args.max_s)
+            args.scene,
+            args.out,
+            dt=args.dt,
+            t_end=args.t_end,
+            outputs=_outputs(args.outputs),
+            publish_every=args.publish_every,
+            pacing=args.pacing,
+            real_time_factor=args.real_time_factor,
+            scene_commands=not args.no_scene_commands,
+            log=log,
+            progress=not args.quiet,
+            compression=args.compression,
+            max_bytes=int(args.max_mb * 1e6),
+            max_s=args.max_s,
+        )
     except ValueError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
     total = sum(counts.values())
-    print(f"recorded {stats['steps']} steps to t = {stats['sim_time']:g} s in "
-          f"{stats['wall_time']:.3g} s (real-time factor {stats['real_time_factor']:.3g}): "
-          f"{total} messages on {sum(1 for n in counts.values() if n)} topics -> {path}")
+    print(
+        f"recorded {stats['steps']} steps to t = {stats['sim_time']:g} s in "
+        f"{stats['wall_time']:.3g} s (real-time factor {stats['real_time_factor']:.3g}): "
+        f"{total} messages on {sum(1 for n in counts.values() if n)} topics -> {path}"
+    )
     for topic, n in sorted(counts.items()):
         print(f"  {topic:32s} {n}")
     return 0
@@ -117,17 +134,17 @@ def _recover(args) -> int:
         # whole or not at all: a disk that fills up leaves no half-written file behind
         with written_whole(dst) as tmp:
             rep = recover(src, tmp, name=dst.name)
-    except OSError as exc:          # the disk full: nothing of OUT is left behind
-        print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written",
-              file=sys.stderr)
+    except OSError as exc:  # the disk full: nothing of OUT is left behind
+        print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written", file=sys.stderr)
         return 2
     except ValueError as exc:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
-    state = "complete" if rep.complete else (f"cut short at byte {rep.truncated_at} of "
-                                             f"{src.stat().st_size}")
-    print(f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
-          f"{len(rep.topics)} topics -> {dst}")
+    state = "complete" if rep.complete else (f"cut short at byte {rep.truncated_at} of {src.stat().st_size}")
+    print(
+        f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
+        f"{len(rep.topics)} topics -> {dst}"
+    )
     return 0
 
 
@@ -151,16 +168,17 @@ def _recover_bag(args) -> int:
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
-            print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written",
-                  file=sys.stderr)
+            print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written", file=sys.stderr)
             return 2
         if isinstance(exc, ValueError):
             print(f"mps: error: {exc}", file=sys.stderr)
             return 2
         raise
     state = "complete" if rep.complete else "cut short"
-    print(f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
-          f"{len(rep.topics)} topics -> {dst}")
+    print(
+        f"{src}: {state}; {rep.chunks} whole chunks, {rep.messages} messages on "
+        f"{len(rep.topics)} topics -> {dst}"
+    )
     return 0
 
 
@@ -182,87 +200,143 @@ def _count(text):
 
 
 def register(sub) -> None:
-    n = sub.add_parser("node", help="the ROS 2 node press_twin (publishes, records; needs rclpy)",
-                       description="Start the ROS 2 node press_twin on SCENE (default "
-                                   "press-cycle). Parameters as ROS arguments, e.g. --ros-args "
-                                   "-p pacing:=as_fast_as_possible -p dt:=0.001 or "
-                                   "--params-file config/press_twin.yaml.")
-    n.add_argument("scene", nargs="?", help="preset name or scene file (the scene parameter's "
-                                            "default)")
-    n.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
-                   help="ROS 2 arguments (everything after it goes to ROS)")
+    n = sub.add_parser(
+        "node",
+        help="the ROS 2 node press_twin (publishes, records; needs rclpy)",
+        description="Start the ROS 2 node press_twin on SCENE (default "
+        "press-cycle). Parameters as ROS arguments, e.g. --ros-args "
+        "-p pacing:=as_fast_as_possible -p dt:=0.001 or "
+        "--params-file config/press_twin.yaml.",
+    )
+    n.add_argument("scene", nargs="?", help="preset name or scene file (the scene parameter's default)")
+    n.add_argument(
+        "--ros-args",
+        dest="ros_args",
+        nargs=argparse.REMAINDER,
+        default=[],
+        help="ROS 2 arguments (everything after it goes to ROS)",
+    )
     n.set_defaults(func=_node)
 
-    o = sub.add_parser("operator", help="send mode commands to press_twin at simulated times",
-                       description="A small ROS 2 client: watches /clock and sends each command "
-                                   "on /press_twin/mode when the simulated time reaches it "
-                                   "(default: the scene's own [[commands]]), prints the node's "
-                                   "answers, and ends with the run.")
-    o.add_argument("scene", nargs="?", default="press-cycle",
-                   help="scene whose [[commands]] to send (default press-cycle)")
-    o.add_argument("--at", action="append", metavar="T:WORD", default=None,
-                   help="send WORD at simulated time T (s) instead of the scene's commands; "
-                        "repeat")
+    o = sub.add_parser(
+        "operator",
+        help="send mode commands to press_twin at simulated times",
+        description="A small ROS 2 client: watches /clock and sends each command "
+        "on /press_twin/mode when the simulated time reaches it "
+        "(default: the scene's own [[commands]]), prints the node's "
+        "answers, and ends with the run.",
+    )
+    o.add_argument(
+        "scene",
+        nargs="?",
+        default="press-cycle",
+        help="scene whose [[commands]] to send (default press-cycle)",
+    )
+    o.add_argument(
+        "--at",
+        action="append",
+        metavar="T:WORD",
+        default=None,
+        help="send WORD at simulated time T (s) instead of the scene's commands; repeat",
+    )
     o.add_argument("--node", default="/press_twin", help="the node's name (default /press_twin)")
-    o.add_argument("--timeout", type=_positive, default=120.0,
-                   help="give up after this many wall seconds (default 120)")
+    o.add_argument(
+        "--timeout", type=_positive, default=120.0, help="give up after this many wall seconds (default 120)"
+    )
     o.set_defaults(func=_operator)
 
-    d = sub.add_parser("demo", help="node + operator on a scene, realtime, recorded (make run)",
-                       description="Start press_twin on SCENE in realtime with the scene's "
-                                   "commands off, and an operator that sends them on "
-                                   "/press_twin/mode at their simulated times; run to the end; "
-                                   "print where the recording is and how to view it.")
+    d = sub.add_parser(
+        "demo",
+        help="node + operator on a scene, realtime, recorded (make run)",
+        description="Start press_twin on SCENE in realtime with the scene's "
+        "commands off, and an operator that sends them on "
+        "/press_twin/mode at their simulated times; run to the end; "
+        "print where the recording is and how to view it.",
+    )
     d.add_argument("scene", nargs="?", default="press-cycle")
     d.add_argument("--dt", type=_positive, default=1e-3, help="step (s), default 0.001 (1 kHz)")
     d.add_argument("--real-time-factor", type=_positive, default=1.0)
-    d.add_argument("--out", help="recording path (default recordings/SCENE-DATE-TIME-MS.mcap; "
-                   "never an existing file)")
+    d.add_argument(
+        "--out", help="recording path (default recordings/SCENE-DATE-TIME-MS.mcap; never an existing file)"
+    )
     d.set_defaults(func=_demo)
 
-    r = sub.add_parser("record", help="write the node's MCAP recording without ROS",
-                       description="Run SCENE headless (the scene's own commands) and write "
-                                   "every message the node would publish to an MCAP file: same "
-                                   "topics, types, values and metadata, no ROS needed.")
+    r = sub.add_parser(
+        "record",
+        help="write the node's MCAP recording without ROS",
+        description="Run SCENE headless (the scene's own commands) and write "
+        "every message the node would publish to an MCAP file: same "
+        "topics, types, values and metadata, no ROS needed.",
+    )
     r.add_argument("scene", help="preset name or scene file")
-    r.add_argument("--out", required=True, metavar="FILE.mcap|BAG",
-                   help="an .mcap file, or a new directory: a bag (rosbag2's layout: "
-                        "BAG/metadata.yaml and BAG/BAG_0.mcap, _1, ... split by --max-mb, "
-                        "--max-s)")
+    r.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE.mcap|BAG",
+        help="an .mcap file, or a new directory: a bag (rosbag2's layout: "
+        "BAG/metadata.yaml and BAG/BAG_0.mcap, _1, ... split by --max-mb, "
+        "--max-s)",
+    )
     r.add_argument("--dt", type=_positive, help="step (s); default the scene's")
     r.add_argument("--t-end", type=_positive, help="end time (s); default the scene's")
-    r.add_argument("--publish-every", type=_count, default=1, metavar="N",
-                   help="record every N-th step (default 1)")
-    r.add_argument("--outputs", metavar="LIST",
-                   help="comma-separated subset of joint_states,reactions,foundation,clock,"
-                        "structure,events,diagnostics (default all)")
-    r.add_argument("--pacing", choices=("as_fast_as_possible", "realtime"),
-                   default="as_fast_as_possible")
+    r.add_argument(
+        "--publish-every", type=_count, default=1, metavar="N", help="record every N-th step (default 1)"
+    )
+    r.add_argument(
+        "--outputs",
+        metavar="LIST",
+        help="comma-separated subset of joint_states,reactions,foundation,clock,"
+        "structure,events,diagnostics (default all)",
+    )
+    r.add_argument("--pacing", choices=("as_fast_as_possible", "realtime"), default="as_fast_as_possible")
     r.add_argument("--real-time-factor", type=_positive, default=1.0)
-    r.add_argument("--no-scene-commands", action="store_true",
-                   help="ignore the scene's [[commands]]")
-    r.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
-                   help="the chunks' compression (default zstd; the node's "
-                        "recording_compression)")
-    r.add_argument("--max-mb", type=float, default=0.0, metavar="MB",
-                   help="a bag: a new file once one holds this many MB (default 0: never; "
-                        "the node's recording_max_mb)")
-    r.add_argument("--max-s", type=float, default=0.0, metavar="S",
-                   help="a bag: a new file once one spans this many simulated seconds "
-                        "(default 0: never; the node's recording_max_s)")
+    r.add_argument("--no-scene-commands", action="store_true", help="ignore the scene's [[commands]]")
+    r.add_argument(
+        "--compression",
+        choices=("zstd", "lz4", "none"),
+        default="zstd",
+        help="the chunks' compression (default zstd; the node's recording_compression)",
+    )
+    r.add_argument(
+        "--max-mb",
+        type=float,
+        default=0.0,
+        metavar="MB",
+        help="a bag: a new file once one holds this many MB (default 0: never; the node's recording_max_mb)",
+    )
+    r.add_argument(
+        "--max-s",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="a bag: a new file once one spans this many simulated seconds "
+        "(default 0: never; the node's recording_max_s)",
+    )
     r.add_argument("-v", "--verbose", action="store_true", help="print every command applied")
-    r.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress line while it runs (there is one on a terminal only)")
-    r.add_argument("--force", action="store_true",
-                   help="replace FILE.mcap where it exists (never the scene itself)")
+    r.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress line while it runs (there is one on a terminal only)",
+    )
+    r.add_argument(
+        "--force", action="store_true", help="replace FILE.mcap where it exists (never the scene itself)"
+    )
     r.set_defaults(func=_record)
 
-    c = sub.add_parser("recover", help="complete an MCAP recording cut short (e.g. SIGKILL)",
-                       description="Copy every whole chunk of IN (a recording whose writer was "
-                                   "killed: no summary, no footer) into a complete file OUT "
-                                   "(default IN-recovered.mcap).")
+    c = sub.add_parser(
+        "recover",
+        help="complete an MCAP recording cut short (e.g. SIGKILL)",
+        description="Copy every whole chunk of IN (a recording whose writer was "
+        "killed: no summary, no footer) into a complete file OUT "
+        "(default IN-recovered.mcap).",
+    )
     c.add_argument("input", metavar="IN.mcap|BAG", help="a recording, or a bag directory")
-    c.add_argument("output", nargs="?", metavar="OUT.mcap|OUT",
-                   help="default IN-recovered.mcap; for a bag, a new directory IN-recovered")
+    c.add_argument(
+        "output",
+        nargs="?",
+        metavar="OUT.mcap|OUT",
+        help="default IN-recovered.mcap; for a bag, a new directory IN-recovered",
+    )
     c.add_argument("--force", action="store_true", help="replace OUT.mcap where it exists")
     c.set_defaults(func=_recover)

@@ -37,7 +37,7 @@ def stop_group(proc: subprocess.Popen, grace: float = 3.0) -> None:
         except subprocess.TimeoutExpired:
             pass
     try:
-        os.killpg(proc.pid, signal.SIGKILL)     # stragglers of the group, if any
+        os.killpg(proc.pid, signal.SIGKILL)  # stragglers of the group, if any
     except ProcessLookupError:
         pass
     try:
@@ -56,8 +56,7 @@ def summary(path: Path) -> str:
     with AnyReader([path]) as r:
         n = sum(c.msgcount for c in r.connections)
         topics = sorted({c.topic for c in r.connections})
-    size = sum(p.stat().st_size for p in path.iterdir()) if path.is_dir() else \
-        path.stat().st_size
+    size = sum(p.stat().st_size for p in path.iterdir()) if path.is_dir() else path.stat().st_size
     return f"{n} messages on {len(topics)} topics, {size / 1e6:.2f} MB"
 
 
@@ -92,22 +91,43 @@ def main(args) -> int:
         from .bag import is_bag
 
         out = Path(args.out)
-        check_outputs({"--out": out}, inputs=[args.scene],
-                      folders={"--out"} if is_bag(out) else ())
+        check_outputs({"--out": out}, inputs=[args.scene], folders={"--out"} if is_bag(out) else ())
     else:
-        out = new_recording(scene.name)     # created empty, this run's own
+        out = new_recording(scene.name)  # created empty, this run's own
     env = ros_env()
     cmds = ", ".join(f"{w} at {t:g} s" for t, w in scene.commands) or "none"
-    print(f"demo: scene {scene.name}, {scene.t_end:g} s in realtime (x{args.real_time_factor:g}) "
-          f"at {1 / args.dt:g} Hz; the operator sends: {cmds}", flush=True)
-    print(f"demo: ROS_DOMAIN_ID={env.get('ROS_DOMAIN_ID', '0')}, "
-          f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}, "
-          f"logs in {env['ROS_LOG_DIR']}", flush=True)
-    node_cmd = mps("node", args.scene, "--ros-args",
-                   "-p", "pacing:=realtime", "-p", f"real_time_factor:={args.real_time_factor!r}",
-                   "-p", f"dt:={args.dt!r}", "-p", "scene_commands:=false",
-                   "-p", f"recording:={out}", "-p", "wait_for_commanders:=1",
-                   "-p", "wait_timeout:=30.0", "-p", "start_delay:=1.0")
+    print(
+        f"demo: scene {scene.name}, {scene.t_end:g} s in realtime (x{args.real_time_factor:g}) "
+        f"at {1 / args.dt:g} Hz; the operator sends: {cmds}",
+        flush=True,
+    )
+    print(
+        f"demo: ROS_DOMAIN_ID={env.get('ROS_DOMAIN_ID', '0')}, "
+        f"ROS_AUTOMATIC_DISCOVERY_RANGE={env['ROS_AUTOMATIC_DISCOVERY_RANGE']}, "
+        f"logs in {env['ROS_LOG_DIR']}",
+        flush=True,
+    )
+    node_cmd = mps(
+        "node",
+        args.scene,
+        "--ros-args",
+        "-p",
+        "pacing:=realtime",
+        "-p",
+        f"real_time_factor:={args.real_time_factor!r}",
+        "-p",
+        f"dt:={args.dt!r}",
+        "-p",
+        "scene_commands:=false",
+        "-p",
+        f"recording:={out}",
+        "-p",
+        "wait_for_commanders:=1",
+        "-p",
+        "wait_timeout:=30.0",
+        "-p",
+        "start_delay:=1.0",
+    )
     op_cmd = mps("operator", args.scene)
     procs = []
     try:
@@ -137,9 +157,8 @@ def main(args) -> int:
     print(f"Recording: {out.resolve()}")
     try:
         print(f"           {summary(out)}")
-    except Exception as exc:      # a file cut short: say how to recover it
-        print(f"           not readable as it is ({exc}); recover it with "
-              f"`mps recover {out}`")
+    except Exception as exc:  # a file cut short: say how to recover it
+        print(f"           not readable as it is ({exc}); recover it with `mps recover {out}`")
     print(view_help(out))
     if node_rc != 0 or op_rc != 0:
         print(f"demo: node exit code {node_rc}, operator exit code {op_rc}", file=sys.stderr)

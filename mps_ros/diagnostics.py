@@ -28,15 +28,21 @@ def _value(v) -> str:
 
 
 def status(level: int, name: str, message: str, hardware: str, values: dict) -> dict:
-    return {"level": level, "name": name, "message": message, "hardware_id": hardware,
-            "values": [{"key": k, "value": _value(v)} for k, v in values.items()]}
+    return {
+        "level": level,
+        "name": name,
+        "message": message,
+        "hardware_id": hardware,
+        "values": [{"key": k, "value": _value(v)} for k, v in values.items()],
+    }
 
 
 def array(t_ns: int, statuses: list) -> dict:
     """The DiagnosticArray of ``statuses``, stamped with the simulated time ``t_ns``."""
-    return {"header": {"stamp": {"sec": t_ns // 1_000_000_000,
-                                 "nanosec": t_ns % 1_000_000_000}, "frame_id": ""},
-            "status": statuses}
+    return {
+        "header": {"stamp": {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}, "frame_id": ""},
+        "status": statuses,
+    }
 
 
 class Window:
@@ -52,16 +58,17 @@ class Window:
         return out
 
 
-def pacing(name: str, hardware: str, stats: dict, misses: int, steps: int,
-           realtime: bool) -> dict:
+def pacing(name: str, hardware: str, stats: dict, misses: int, steps: int, realtime: bool) -> dict:
     """The pacing status from the run's ``stats`` (:meth:`~mps_ros.twin.Runner.stats`), with
     ``misses`` deadlines missed in the window's ``steps``."""
     level = OK
     if realtime and misses:
         level = ERROR if 2 * misses > steps else WARN
-    msg = (f"rtf {stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms "
-           f"p99 {stats['step_time_p99_ms']:.3g} ms, {misses} deadline misses since the last "
-           f"report, {stats['deadline_misses']} in all")
+    msg = (
+        f"rtf {stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms "
+        f"p99 {stats['step_time_p99_ms']:.3g} ms, {misses} deadline misses since the last "
+        f"report, {stats['deadline_misses']} in all"
+    )
     if level == ERROR:
         msg = f"cannot keep up: {misses} of {steps} steps late since the last report; " + msg
     return status(level, f"{name}: pacing", msg, hardware, stats)
@@ -69,12 +76,25 @@ def pacing(name: str, hardware: str, stats: dict, misses: int, steps: int,
 
 def paused(name: str, hardware: str, t: float) -> dict:
     """The pacing status while the run is paused at simulated time ``t``: STALE."""
-    return status(STALE, f"{name}: pacing", f"paused at t = {t:.6f} s (the node is inactive)",
-                  hardware, {"paused_at_s": t})
+    return status(
+        STALE,
+        f"{name}: pacing",
+        f"paused at t = {t:.6f} s (the node is inactive)",
+        hardware,
+        {"paused_at_s": t},
+    )
 
 
-def commands(name: str, hardware: str, accepted: int, refused: int, floods: int, lost: int,
-             new_floods: int, new_lost: int) -> dict:
+def commands(
+    name: str,
+    hardware: str,
+    accepted: int,
+    refused: int,
+    floods: int,
+    lost: int,
+    new_floods: int,
+    new_lost: int,
+) -> dict:
     """The commands status: the run's counts so far; WARN where ``new_floods`` were refused as
     a flood or ``new_lost`` lost on the way in the window."""
     msg = f"{accepted} accepted, {refused} refused ({floods} as floods), {lost} lost on the way"
@@ -85,24 +105,62 @@ def commands(name: str, hardware: str, accepted: int, refused: int, floods: int,
         trouble.append(f"{new_lost} lost on the way")
     if trouble:
         msg = " and ".join(trouble) + " since the last report; " + msg
-    return status(WARN if trouble else OK, f"{name}: commands", msg, hardware,
-                  {"commands_accepted": accepted, "commands_refused": refused,
-                   "commands_refused_as_floods": floods, "commands_lost": lost})
+    return status(
+        WARN if trouble else OK,
+        f"{name}: commands",
+        msg,
+        hardware,
+        {
+            "commands_accepted": accepted,
+            "commands_refused": refused,
+            "commands_refused_as_floods": floods,
+            "commands_lost": lost,
+        },
+    )
 
 
-def recording(name: str, hardware: str, path, size: int, messages: int,
-              failure: str | None = None, dropped: int = 0, files: int = 1) -> dict:
+def recording(
+    name: str,
+    hardware: str,
+    path,
+    size: int,
+    messages: int,
+    failure: str | None = None,
+    dropped: int = 0,
+    files: int = 1,
+) -> dict:
     """The recording status: OK while it records (``size``: its ``files``' bytes on disk so
     far, ``messages`` handed to it); ERROR once it has stopped (``failure``: why; ``dropped``:
     the messages not recorded since)."""
-    values = {"path": str(path), "files": files, "bytes": size, "messages": messages,
-              "dropped": dropped}
+    values = {"path": str(path), "files": files, "bytes": size, "messages": messages, "dropped": dropped}
     if failure:
-        return status(ERROR, f"{name}: recording", f"recording stopped: {failure}", hardware,
-                      {**values, "error": failure})
-    return status(OK, f"{name}: recording", f"recording to {path}: {size / 1e6:.3g} MB, "
-                                             f"{messages} messages", hardware, values)
+        return status(
+            ERROR,
+            f"{name}: recording",
+            f"recording stopped: {failure}",
+            hardware,
+            {**values, "error": failure},
+        )
+    return status(
+        OK,
+        f"{name}: recording",
+        f"recording to {path}: {size / 1e6:.3g} MB, {messages} messages",
+        hardware,
+        values,
+    )
 
 
-__all__ = ["OK", "WARN", "ERROR", "STALE", "hardware_id", "status", "array", "Window",
-           "pacing", "paused", "commands", "recording"]
+__all__ = [
+    "OK",
+    "WARN",
+    "ERROR",
+    "STALE",
+    "hardware_id",
+    "status",
+    "array",
+    "Window",
+    "pacing",
+    "paused",
+    "commands",
+    "recording",
+]

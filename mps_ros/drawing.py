@@ -12,21 +12,32 @@ import math
 SLIDER = (0.45, 0.5)
 BEARING = 0.35
 
-COLORS = {"crank": (31, 119, 180), "rod": (255, 127, 14), "rocker": (44, 160, 44),
-          "slider": (140, 140, 150), "frame": (90, 90, 90), "joint": (20, 20, 20),
-          "latch_closed": (20, 170, 60), "latch_open": (170, 170, 170),
-          "force": (214, 39, 40), "foundation": (148, 103, 189)}
+COLORS = {
+    "crank": (31, 119, 180),
+    "rod": (255, 127, 14),
+    "rocker": (44, 160, 44),
+    "slider": (140, 140, 150),
+    "frame": (90, 90, 90),
+    "joint": (20, 20, 20),
+    "latch_closed": (20, 170, 60),
+    "latch_open": (170, 170, 170),
+    "force": (214, 39, 40),
+    "foundation": (148, 103, 189),
+}
 
 
 def joint_points(phi: float, psi: float, x_c: float, l1: float, l3: float) -> dict:
     """O, A, B, C (x, y) in the press frame from the joint states: A = l1(cos φ, sin φ),
     C = (x_C, 0), B = C + l3(cos ψ, sin ψ)."""
-    return {"O": (0.0, 0.0), "A": (l1 * math.cos(phi), l1 * math.sin(phi)),
-            "B": (x_c + l3 * math.cos(psi), l3 * math.sin(psi)), "C": (x_c, 0.0)}
+    return {
+        "O": (0.0, 0.0),
+        "A": (l1 * math.cos(phi), l1 * math.sin(phi)),
+        "B": (x_c + l3 * math.cos(psi), l3 * math.sin(psi)),
+        "C": (x_c, 0.0),
+    }
 
 
-def arrow_anchor(name: str, point: str, l1: float, x_top: float | None
-                 ) -> tuple[str | None, float, float]:
+def arrow_anchor(name: str, point: str, l1: float, x_top: float | None) -> tuple[str | None, float, float]:
     """Where a wrench's arrow starts, as (joint or None, dx, dy): that joint's point moved by
     (dx, dy), or the fixed point (dx, dy) (press frame, m). At its joint, except where several
     would overlap: the guide's force on the slider's face against the rail, the stop's on its

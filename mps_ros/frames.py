@@ -38,10 +38,14 @@ FIXED = (("press_O", (0.0, 0.0)),)
 
 
 def _transform(stamp: dict, parent: str, child: str, xyz, q=(0.0, 0.0, 0.0, 1.0)) -> dict:
-    return {"header": {"stamp": stamp, "frame_id": parent}, "child_frame_id": child,
-            "transform": {"translation": {"x": float(xyz[0]), "y": float(xyz[1]),
-                                          "z": float(xyz[2])},
-                          "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}}
+    return {
+        "header": {"stamp": stamp, "frame_id": parent},
+        "child_frame_id": child,
+        "transform": {
+            "translation": {"x": float(xyz[0]), "y": float(xyz[1]), "z": float(xyz[2])},
+            "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+        },
+    }
 
 
 class TfLayout:
@@ -72,15 +76,22 @@ class TfLayout:
     @staticmethod
     def message(stamp: dict, f) -> dict:
         """``/tf`` at ``stamp``: the moving frames at :meth:`values` ``f``."""
-        return {"transforms": [_transform(stamp, FRAME_ID, frame, (f[2 * i], f[2 * i + 1], 0.0))
-                               for i, (frame, _joint) in enumerate(MOVING)]}
+        return {
+            "transforms": [
+                _transform(stamp, FRAME_ID, frame, (f[2 * i], f[2 * i + 1], 0.0))
+                for i, (frame, _joint) in enumerate(MOVING)
+            ]
+        }
 
     @staticmethod
     def static_message(stamp: dict) -> dict:
         """``/tf_static``: ``press`` in ``press_base``, and the fixed frames in ``press``."""
-        return {"transforms": [
-            _transform(stamp, BASE_FRAME, FRAME_ID, (0.0, 0.0, 0.0), PRESS_IN_BASE),
-            *(_transform(stamp, FRAME_ID, frame, (x, y, 0.0)) for frame, (x, y) in FIXED)]}
+        return {
+            "transforms": [
+                _transform(stamp, BASE_FRAME, FRAME_ID, (0.0, 0.0, 0.0), PRESS_IN_BASE),
+                *(_transform(stamp, FRAME_ID, frame, (x, y, 0.0)) for frame, (x, y) in FIXED),
+            ]
+        }
 
 
 __all__ = ["TfLayout", "MSGTYPE", "BASE_FRAME", "PRESS_IN_BASE", "MOVING", "FIXED"]

@@ -37,8 +37,15 @@ from .replay import ReplayError, replay_of_messages
 from .topics import BY_KEY, FOUNDATION, NODE_NAME, WRENCHES, resolve
 
 #: the topics the view reads (the markers are the view's own drawing: not needed)
-KEYS = ("joint_states", *(w.key for w in WRENCHES), FOUNDATION.key, "~/structure", "~/events",
-        "~/mode/status", "/diagnostics")
+KEYS = (
+    "joint_states",
+    *(w.key for w in WRENCHES),
+    FOUNDATION.key,
+    "~/structure",
+    "~/events",
+    "~/mode/status",
+    "/diagnostics",
+)
 _STAMPED = {"sensor_msgs/msg/JointState", "geometry_msgs/msg/WrenchStamped"}
 #: a frame draws the mechanism at this many of its steps at most (a 1 kHz run gives a 30 Hz
 #: view about 33 a frame): a view that has fallen behind thins the drawing, never the plots
@@ -74,10 +81,10 @@ class _Inbox:
         self.node = node_name
         self.topics = {resolve(k, node_name): BY_KEY[k].msgtype for k in KEYS}
         self.msgs: dict[str, list] = {t: [] for t in self.topics}
-        self.last_ns = None             # the newest simulated time seen
-        self.newest: dict[str, int] = {}    # by stamped topic, its newest stamp
+        self.last_ns = None  # the newest simulated time seen
+        self.newest: dict[str, int] = {}  # by stamped topic, its newest stamp
         self.ended = False
-        self.end_ns = None              # the run-end event's simulated time
+        self.end_ns = None  # the run-end event's simulated time
         self.last_arrival = time.monotonic()
 
     def callback(self, topic: str):
@@ -100,6 +107,7 @@ class _Inbox:
                 if events and b'"run-end"' in data:
                     self.ended = True
                     self.end_ns = _end_ns(data)
+
         return cb
 
     def take(self, whole: bool = False) -> dict:
@@ -133,7 +141,7 @@ def _take(subs, stop: threading.Event, period: float = 0.002) -> None:
                         break
                     try:
                         cb(got[0])
-                    except Exception:       # a message the view cannot read: not the run's end
+                    except Exception:  # a message the view cannot read: not the run's end
                         pass
         stop.wait(period)
 
@@ -149,9 +157,18 @@ def _end_ns(data: bytes) -> int | None:
         return None
 
 
-def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | None = None,
-             spawn: bool = True, duration: float | None = None, hz: float = 30.0,
-             arrow_scale_n_per_m: float = 2e6, log=None) -> dict:
+def run_live(
+    *,
+    scene,
+    node_name: str = NODE_NAME,
+    save=None,
+    connect: str | None = None,
+    spawn: bool = True,
+    duration: float | None = None,
+    hz: float = 30.0,
+    arrow_scale_n_per_m: float = 2e6,
+    log=None,
+) -> dict:
     """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
     # the node's module first: loopback-only discovery unless set, before rclpy starts
@@ -162,18 +179,20 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     from .view import FAMILIES, _rr, blueprint, convert
 
     if log is None:
+
         def log(text):
             print(text, flush=True)
+
     if not (hz > 0):
         raise ReplayError(f"--hz {hz!r}: expected a positive number of frames a second")
     if save is None and connect is None:
         from .view import no_display
 
-        no_display()            # before anything is started
+        no_display()  # before anything is started
     rr = _rr()
     import rerun.blueprint as rrb
 
-    scale = arrow_scale_n_per_m / 1e3                       # N per mm
+    scale = arrow_scale_n_per_m / 1e3  # N per mm
     extent = extent_mm(scene)
     _warm_up(rr, scene, node_name, scale, extent)
     rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
@@ -196,24 +215,35 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     node = rclpy.create_node(f"mps_view_live_{os.getpid()}")
     inbox = _Inbox(node_name)
-    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
-                     reliability=ReliabilityPolicy.RELIABLE)
-    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
     subs = []
     for topic, msgtype in inbox.topics.items():
         cb = inbox.callback(topic)
-        subs.append((node.create_subscription(
-            MSG_CLASSES[msgtype], topic, cb, latched if topic.endswith("/structure") else qos,
-            raw=True), cb))
+        subs.append(
+            (
+                node.create_subscription(
+                    MSG_CLASSES[msgtype],
+                    topic,
+                    cb,
+                    latched if topic.endswith("/structure") else qos,
+                    raw=True,
+                ),
+                cb,
+            )
+        )
     taking = threading.Event()
-    taker = threading.Thread(target=_take, args=(subs, taking), name="mps-view-take",
-                             daemon=True)
+    taker = threading.Thread(target=_take, args=(subs, taking), name="mps-view-take", daemon=True)
     taker.start()
-    log(f"following {resolve('joint_states', node_name)}: "
-        + (f"saving to {save}" if save is not None else
-           f"streaming to {connect or 'a viewer on 127.0.0.1'}"))
+    log(
+        f"following {resolve('joint_states', node_name)}: "
+        + (f"saving to {save}" if save is not None else f"streaming to {connect or 'a viewer on 127.0.0.1'}")
+    )
     frames = steps = drawn = thinned = 0
     last_logged = None
     max_lag = 0.0
@@ -230,8 +260,15 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
         # behind the run (a frame holding more steps than DRAW_MAX): the mechanism drawn at
         # every k-th step, the plots and events at every one
         k = max(1, math.ceil(len(rep) / DRAW_MAX))
-        c = convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
-                    statics=frames == 0, draw_every=k)
+        c = convert(
+            rep,
+            scene=scene,
+            recording=rec,
+            arrow_scale=scale,
+            extent=extent,
+            statics=frames == 0,
+            draw_every=k,
+        )
         frames += 1
         steps += len(rep)
         drawn += c.drawn_steps
@@ -255,11 +292,12 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
                 # the run's end came on its own topic: the steps still on their way (other
                 # topics, other queues) are taken too, up to the end's time or a quiet second
                 reached = inbox.end_ns is None or (
-                    last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns)
+                    last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns
+                )
                 if reached:
                     break
                 if time.monotonic() - inbox.last_arrival > 1.0:
-                    log_frame(inbox.take(whole=True))   # what a topic never completed
+                    log_frame(inbox.take(whole=True))  # what a topic never completed
                     break
             if duration is not None and time.monotonic() - t_start >= duration:
                 log_frame(inbox.take(whole=True))
@@ -274,11 +312,17 @@ def run_live(*, scene, node_name: str = NODE_NAME, save=None, connect: str | Non
         rec.flush()
         rr.disconnect(recording=rec)
     work.sort()
-    return {"frames": frames, "steps": steps, "drawn_steps": drawn, "thinned_frames": thinned,
-            "last_t": last_logged, "max_lag_s": max_lag,
-            "frame_work_p50_s": work[len(work) // 2] if work else math.nan,
-            "frame_work_max_s": work[-1] if work else math.nan,
-            "viewer_pid": viewer.pid if viewer is not None else None}
+    return {
+        "frames": frames,
+        "steps": steps,
+        "drawn_steps": drawn,
+        "thinned_frames": thinned,
+        "last_t": last_logged,
+        "max_lag_s": max_lag,
+        "frame_work_p50_s": work[len(work) // 2] if work else math.nan,
+        "frame_work_max_s": work[-1] if work else math.nan,
+        "viewer_pid": viewer.pid if viewer is not None else None,
+    }
 
 
 def _warm_up(rr, scene, node_name, scale, extent) -> None:
@@ -296,11 +340,10 @@ def _warm_up(rr, scene, node_name, scale, extent) -> None:
         if tw.done:
             break
         tw.step()
-    rec = rr.RecordingStream("mps-warm-up")            # no sink: kept in memory, dropped
+    rec = rr.RecordingStream("mps-warm-up")  # no sink: kept in memory, dropped
     rep = replay_of_messages("warm-up", msgs, node_name)
     for statics in (True, False):
-        convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent,
-                statics=statics)
+        convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent, statics=statics)
 
 
 def _bounds(scene, extent):
@@ -321,8 +364,7 @@ def _spawn():
     if exe is None:
         raise ReplayError("no rerun viewer found (pip install -e '.[view]'); use --save FILE.rrd")
     port = _free_port()
-    proc = subprocess.Popen([exe, "--bind", "127.0.0.1", "--port", str(port)],
-                            start_new_session=True)
+    proc = subprocess.Popen([exe, "--bind", "127.0.0.1", "--port", str(port)], start_new_session=True)
     time.sleep(1.0)
     return proc, f"rerun+http://127.0.0.1:{port}/proxy"
 

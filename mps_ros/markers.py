@@ -48,21 +48,21 @@ class MarkerLayout:
     draws (the wrenches with a force, of those the run publishes; none without reactions)
     and their scale ``n_per_m``."""
 
-    def __init__(self, l1: float, l3: float, x_top: float | None, *, arrows=(),
-                 n_per_m: float = N_PER_M):
+    def __init__(self, l1: float, l3: float, x_top: float | None, *, arrows=(), n_per_m: float = N_PER_M):
         if not (n_per_m > 0):
             raise ValueError(f"markers scale {n_per_m!r}: expected a positive number of N/m")
         self.l1, self.l3, self.x_top = float(l1), float(l3), x_top
         self.n_per_m = float(n_per_m)
         #: (wrench, joint or None, dx, dy) of each arrow
-        self.arrows = [(w, *arrow_anchor(w.name, w.point, self.l1, x_top)) for w in arrows
-                       if any(c is not None for c in w.force)]
+        self.arrows = [
+            (w, *arrow_anchor(w.name, w.point, self.l1, x_top))
+            for w in arrows
+            if any(c is not None for c in w.force)
+        ]
         at = {c: i for i, c in enumerate(REACTION_COLUMNS)}
-        self._cols = {w.name: tuple(None if c is None else at[c] for c in w.force)
-                      for w, *_ in self.arrows}
+        self._cols = {w.name: tuple(None if c is None else at[c] for c in w.force) for w, *_ in self.arrows}
         #: each arrow's namespace: its wrench and the scale
-        self.namespaces = [f"reactions/{w.name} (1 m = {self.n_per_m:g} N)"
-                           for w, *_ in self.arrows]
+        self.namespaces = [f"reactions/{w.name} (1 m = {self.n_per_m:g} N)" for w, *_ in self.arrows]
 
     @classmethod
     def of_scene(cls, scene, wrenches=(*WRENCHES, FOUNDATION), n_per_m: float = N_PER_M):
@@ -103,19 +103,45 @@ class MarkerLayout:
         w, h = SLIDER[0] * l1, SLIDER[1] * l1
         markers = []
 
-        def marker(ns, mid, mtype, *, position=(0.0, 0.0), scale=(1.0, 1.0, 1.0),
-                   color=(0, 0, 0), points=(), colors=(), text=""):
-            markers.append({
-                "header": head, "ns": ns, "id": mid, "type": mtype, "action": ADD,
-                "pose": {"position": _p(*position), "orientation": dict(_Q0)},
-                "scale": _p(*scale), "color": _rgba(color), "lifetime": {"sec": 0, "nanosec": 0},
-                "frame_locked": False, "points": [_p(*p) for p in points],
-                "colors": [_rgba(c) for c in colors], "texture_resource": "",
-                "texture": {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
-                            "format": "", "data": b""},
-                "uv_coordinates": [], "text": text, "mesh_resource": "",
-                "mesh_file": {"filename": "", "data": b""},
-                "mesh_use_embedded_materials": False})
+        def marker(
+            ns,
+            mid,
+            mtype,
+            *,
+            position=(0.0, 0.0),
+            scale=(1.0, 1.0, 1.0),
+            color=(0, 0, 0),
+            points=(),
+            colors=(),
+            text="",
+        ):
+            markers.append(
+                {
+                    "header": head,
+                    "ns": ns,
+                    "id": mid,
+                    "type": mtype,
+                    "action": ADD,
+                    "pose": {"position": _p(*position), "orientation": dict(_Q0)},
+                    "scale": _p(*scale),
+                    "color": _rgba(color),
+                    "lifetime": {"sec": 0, "nanosec": 0},
+                    "frame_locked": False,
+                    "points": [_p(*p) for p in points],
+                    "colors": [_rgba(c) for c in colors],
+                    "texture_resource": "",
+                    "texture": {
+                        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
+                        "format": "",
+                        "data": b"",
+                    },
+                    "uv_coordinates": [],
+                    "text": text,
+                    "mesh_resource": "",
+                    "mesh_file": {"filename": "", "data": b""},
+                    "mesh_use_embedded_materials": False,
+                }
+            )
 
         # the frame: the guide's rails, its axis, the bearing at O, the top stop's ledges
         lo, hi = -l1 - h - 0.3 * l1, l1 + (self.x_top or l1) + h + 0.3 * l1
@@ -124,30 +150,57 @@ class MarkerLayout:
         if self.x_top is not None:
             x = self.x_top + h
             lines += [(x, -rail - 0.25 * l1), (x, -w), (x, w), (x, rail + 0.25 * l1)]
-        marker("frame", 0, LINE_LIST, scale=(0.04 * l1, 0.0, 0.0), color=COLORS["frame"],
-               points=lines)
+        marker("frame", 0, LINE_LIST, scale=(0.04 * l1, 0.0, 0.0), color=COLORS["frame"], points=lines)
         # the links: crank O-A, rod A-B, rocker B-C, each in its colour
-        marker("links", 0, LINE_LIST, scale=(0.12 * l1, 0.0, 0.0), color=COLORS["crank"],
-               points=[(0.0, 0.0), (f[0], f[1]), (f[2], f[3]), (f[4], f[5]), (f[6], f[7]),
-                       (f[8], 0.0)],
-               colors=[COLORS["crank"]] * 2 + [COLORS["rod"]] * 2 + [COLORS["rocker"]] * 2)
-        marker("joints", 0, SPHERE_LIST, scale=(0.2 * l1, 0.2 * l1, 0.2 * l1),
-               color=COLORS["joint"], points=[(0.0, 0.0), (f[9], f[10]), (f[11], f[12]),
-                                              (f[13], 0.0)])
-        marker("slider", 0, CUBE, position=(f[14], 0.0), scale=(2 * h, 2 * w, 0.1 * l1),
-               color=COLORS["slider"])
+        marker(
+            "links",
+            0,
+            LINE_LIST,
+            scale=(0.12 * l1, 0.0, 0.0),
+            color=COLORS["crank"],
+            points=[(0.0, 0.0), (f[0], f[1]), (f[2], f[3]), (f[4], f[5]), (f[6], f[7]), (f[8], 0.0)],
+            colors=[COLORS["crank"]] * 2 + [COLORS["rod"]] * 2 + [COLORS["rocker"]] * 2,
+        )
+        marker(
+            "joints",
+            0,
+            SPHERE_LIST,
+            scale=(0.2 * l1, 0.2 * l1, 0.2 * l1),
+            color=COLORS["joint"],
+            points=[(0.0, 0.0), (f[9], f[10]), (f[11], f[12]), (f[13], 0.0)],
+        )
+        marker(
+            "slider", 0, CUBE, position=(f[14], 0.0), scale=(2 * h, 2 * w, 0.1 * l1), color=COLORS["slider"]
+        )
         closed = structure == "locked"
         ly = latch_point(0.0, l1)[1]
-        marker("latch", 0, SPHERE, position=(f[15], ly), scale=(0.3 * l1,) * 3,
-               color=COLORS["latch_closed" if closed else "latch_open"])
-        marker("latch", 1, TEXT, position=(f[16], ly - 0.9 * l1), scale=(0.0, 0.0, 0.3 * l1),
-               color=COLORS["joint"],
-               text=("latch closed" if closed else "latch open") + f" ({structure})")
+        marker(
+            "latch",
+            0,
+            SPHERE,
+            position=(f[15], ly),
+            scale=(0.3 * l1,) * 3,
+            color=COLORS["latch_closed" if closed else "latch_open"],
+        )
+        marker(
+            "latch",
+            1,
+            TEXT,
+            position=(f[16], ly - 0.9 * l1),
+            scale=(0.0, 0.0, 0.3 * l1),
+            color=COLORS["joint"],
+            text=("latch closed" if closed else "latch open") + f" ({structure})",
+        )
         for i, (wr, *_anchor) in enumerate(self.arrows):
-            x0, y0, x1, y1 = f[17 + 4 * i: 21 + 4 * i]
-            marker(self.namespaces[i], 0, ARROW, scale=(0.06 * l1, 0.12 * l1, 0.15 * l1),
-                   color=COLORS["foundation" if wr is FOUNDATION else "force"],
-                   points=[(x0, y0), (x1, y1)])
+            x0, y0, x1, y1 = f[17 + 4 * i : 21 + 4 * i]
+            marker(
+                self.namespaces[i],
+                0,
+                ARROW,
+                scale=(0.06 * l1, 0.12 * l1, 0.15 * l1),
+                color=COLORS["foundation" if wr is FOUNDATION else "force"],
+                points=[(x0, y0), (x1, y1)],
+            )
         return {"markers": markers}
 
 

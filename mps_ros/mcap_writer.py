@@ -57,9 +57,11 @@ def _string_map(items: dict[str, str]) -> bytes:
 def _compressor(compression: str):
     if compression == "zstd":
         import zstandard
+
         return zstandard.compress
     if compression == "lz4":
         import lz4.frame
+
         return lz4.frame.compress
     if compression == "":
         return None
@@ -73,11 +75,11 @@ class McapWriter:
 
     def __init__(self, stream, chunk_size: int = 1024 * 1024, compression: str = "zstd"):
         self._stream = stream
-        self._pos = 0                       # bytes written to the stream
+        self._pos = 0  # bytes written to the stream
         self.chunk_size = int(chunk_size)
         self.compression = compression
         self._compress = _compressor(compression)
-        self._schemas: list[bytes] = []     # records, for the summary
+        self._schemas: list[bytes] = []  # records, for the summary
         self._channels: list[bytes] = []
         self._chunk_indexes: list[bytes] = []
         self._metadata_indexes: list[bytes] = []
@@ -85,12 +87,12 @@ class McapWriter:
         # the statistics, gathered from each chunk as it is closed
         self.message_count = 0
         self._start = self._end = 0
-        self._per_channel: dict[int, int] = {}      # in the order channels first had one
+        self._per_channel: dict[int, int] = {}  # in the order channels first had one
         # the chunk in progress
         self._chunk = bytearray()
         self._chunk_messages = 0
         self._chunk_start = self._chunk_end = 0
-        self._index: dict[int, list[int]] = {}      # channel id -> log time, offset, ...
+        self._index: dict[int, list[int]] = {}  # channel id -> log time, offset, ...
 
     def _out(self, data: bytes) -> None:
         self._stream.write(data)
@@ -103,18 +105,26 @@ class McapWriter:
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """A schema (in the chunk in progress, and in the summary); its id."""
         sid = len(self._schemas) + 1
-        rec = _record(SCHEMA, _U16.pack(sid) + _string(name) + _string(encoding)
-                      + _U32.pack(len(data)) + bytes(data))
+        rec = _record(
+            SCHEMA, _U16.pack(sid) + _string(name) + _string(encoding) + _U32.pack(len(data)) + bytes(data)
+        )
         self._schemas.append(rec)
         self._into_chunk(rec)
         return sid
 
-    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
-                         metadata: dict[str, str] | None = None) -> int:
+    def register_channel(
+        self, topic: str, message_encoding: str, schema_id: int, metadata: dict[str, str] | None = None
+    ) -> int:
         """A channel (in the chunk in progress, and in the summary); its id."""
         cid = len(self._channels) + 1
-        rec = _record(CHANNEL, _U16.pack(cid) + _U16.pack(schema_id) + _string(topic)
-                      + _string(message_encoding) + _string_map(metadata or {}))
+        rec = _record(
+            CHANNEL,
+            _U16.pack(cid)
+            + _U16.pack(schema_id)
+            + _string(topic)
+            + _string(message_encoding)
+            + _string_map(metadata or {}),
+        )
         self._channels.append(rec)
         self._into_chunk(rec)
         return cid
@@ -128,12 +138,14 @@ class McapWriter:
         """A metadata record, written at once (between chunks), and indexed."""
         rec = _record(METADATA, _string(name) + _string_map(data))
         self._metadata_indexes.append(
-            _record(METADATA_INDEX, _U64.pack(self._pos) + _U64.pack(len(rec)) + _string(name)))
+            _record(METADATA_INDEX, _U64.pack(self._pos) + _U64.pack(len(rec)) + _string(name))
+        )
         self._metadata_count += 1
         self._out(rec)
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
-                    sequence: int = 0) -> None:
+    def add_message(
+        self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
+    ) -> None:
         """One message into the chunk in progress (closed once it is full)."""
         chunk = self._chunk
         if self._chunk_messages:
@@ -149,8 +161,9 @@ class McapWriter:
         if index is None:
             index = self._index[channel_id] = []
         index += (log_time, len(chunk))
-        chunk += _MESSAGE.pack(MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence,
-                               log_time, publish_time)
+        chunk += _MESSAGE.pack(
+            MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time, publish_time
+        )
         chunk += data
         if len(chunk) > self.chunk_size:
             self._close_chunk()
@@ -160,17 +173,23 @@ class McapWriter:
             return
         raw = bytes(self._chunk)
         packed = self._compress(raw) if self._compress else raw
-        chunk = _record(CHUNK, _CHUNK_HEAD.pack(self._chunk_start, self._chunk_end, len(raw),
-                                                zlib.crc32(raw))
-                        + _string(self.compression) + _U64.pack(len(packed)) + packed)
+        chunk = _record(
+            CHUNK,
+            _CHUNK_HEAD.pack(self._chunk_start, self._chunk_end, len(raw), zlib.crc32(raw))
+            + _string(self.compression)
+            + _U64.pack(len(packed))
+            + packed,
+        )
         chunk_at = self._pos
         self._out(chunk)
         indexes = bytearray()
         offsets = bytearray()
         for cid, flat in self._index.items():
             offsets += _U16.pack(cid) + _U64.pack(self._pos + len(indexes))
-            indexes += _record(MESSAGE_INDEX, _U16.pack(cid) + _U32.pack(len(flat) * 8)
-                               + struct.pack(f"<{len(flat)}Q", *flat))
+            indexes += _record(
+                MESSAGE_INDEX,
+                _U16.pack(cid) + _U32.pack(len(flat) * 8) + struct.pack(f"<{len(flat)}Q", *flat),
+            )
         self._out(bytes(indexes))
         # the file's statistics: the chunk's range and counts folded in (channels in the
         # order they first had a message, as the chunk's index keeps them)
@@ -183,11 +202,18 @@ class McapWriter:
         per = self._per_channel
         for cid, flat in self._index.items():
             per[cid] = per.get(cid, 0) + len(flat) // 2
-        self._chunk_indexes.append(_record(
-            CHUNK_INDEX, _CHUNK_INDEX_HEAD.pack(self._chunk_start, self._chunk_end, chunk_at,
-                                                len(chunk))
-            + _U32.pack(len(offsets)) + offsets + _U64.pack(len(indexes))
-            + _string(self.compression) + _U64.pack(len(packed)) + _U64.pack(len(raw))))
+        self._chunk_indexes.append(
+            _record(
+                CHUNK_INDEX,
+                _CHUNK_INDEX_HEAD.pack(self._chunk_start, self._chunk_end, chunk_at, len(chunk))
+                + _U32.pack(len(offsets))
+                + offsets
+                + _U64.pack(len(indexes))
+                + _string(self.compression)
+                + _U64.pack(len(packed))
+                + _U64.pack(len(raw)),
+            )
+        )
         self._chunk = bytearray()
         self._chunk_messages = 0
         self._chunk_start = self._chunk_end = 0
@@ -231,14 +257,26 @@ class McapWriter:
             at = len(summary)
             for rec in records:
                 summary.extend(rec)
-            offsets.extend(_record(SUMMARY_OFFSET, _SUMMARY_OFFSET.pack(
-                opcode, summary_start + at, len(summary) - at)))
+            offsets.extend(
+                _record(SUMMARY_OFFSET, _SUMMARY_OFFSET.pack(opcode, summary_start + at, len(summary) - at))
+            )
 
         counts = b"".join(_U16.pack(c) + _U64.pack(n) for c, n in self._per_channel.items())
-        statistics = _record(STATISTICS, _STATISTICS_HEAD.pack(
-            self.message_count, len(self._schemas), len(self._channels), 0,
-            self._metadata_count, len(self._chunk_indexes), self._start, self._end)
-            + _U32.pack(len(counts)) + counts)
+        statistics = _record(
+            STATISTICS,
+            _STATISTICS_HEAD.pack(
+                self.message_count,
+                len(self._schemas),
+                len(self._channels),
+                0,
+                self._metadata_count,
+                len(self._chunk_indexes),
+                self._start,
+                self._end,
+            )
+            + _U32.pack(len(counts))
+            + counts,
+        )
         group(SCHEMA, self._schemas)
         group(CHANNEL, self._channels)
         group(STATISTICS, [statistics])
@@ -250,8 +288,7 @@ class McapWriter:
         start = summary_start if summary else 0
         crc = zlib.crc32(_FOOTER.pack(FOOTER, 20, start, offsets_start), zlib.crc32(summary))
         self._out(bytes(summary))
-        self._out(_record(FOOTER, _U64.pack(start) + _U64.pack(offsets_start)
-                          + _U32.pack(crc)) + MAGIC)
+        self._out(_record(FOOTER, _U64.pack(start) + _U64.pack(offsets_start) + _U32.pack(crc)) + MAGIC)
 
 
 __all__ = ["McapWriter", "MAGIC", "PROFILE_ROS2", "SCHEMA_ROS2MSG", "ENCODING_CDR"]

@@ -65,11 +65,15 @@ from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
 from .topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve  # noqa: E402
 from .twin import Command, Gate, Inbox, Runner, Twin, check_outputs, shown, to_json  # noqa: E402
 
-MSG_CLASSES = {"rosgraph_msgs/msg/Clock": Clock, "sensor_msgs/msg/JointState": JointState,
-               "visualization_msgs/msg/MarkerArray": MarkerArray,
-               "geometry_msgs/msg/WrenchStamped": WrenchStamped, "std_msgs/msg/String": String,
-               "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}
-try:        # in a full ROS install; not among the wheels from PyPI
+MSG_CLASSES = {
+    "rosgraph_msgs/msg/Clock": Clock,
+    "sensor_msgs/msg/JointState": JointState,
+    "visualization_msgs/msg/MarkerArray": MarkerArray,
+    "geometry_msgs/msg/WrenchStamped": WrenchStamped,
+    "std_msgs/msg/String": String,
+    "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,
+}
+try:  # in a full ROS install; not among the wheels from PyPI
     from tf2_msgs.msg import TFMessage
 
     MSG_CLASSES["tf2_msgs/msg/TFMessage"] = TFMessage
@@ -86,8 +90,8 @@ class RosSink:
     live = True
 
     def __init__(self, publishers: dict):
-        self.pubs = publishers     # key -> publisher
-        self._raw: dict = {}       # key -> the publisher's own publish_raw, or False
+        self.pubs = publishers  # key -> publisher
+        self._raw: dict = {}  # key -> the publisher's own publish_raw, or False
 
     def _publisher(self, key):
         """The publisher's own ``publish_raw`` for ``key`` (what ``Publisher.publish`` calls
@@ -96,8 +100,9 @@ class RosSink:
         f = self._raw.get(key)
         if f is None:
             p = self.pubs.get(key)
-            f = self._raw[key] = False if p is None else getattr(
-                getattr(p, "handle", None), "publish_raw", None) or p.publish
+            f = self._raw[key] = (
+                False if p is None else getattr(getattr(p, "handle", None), "publish_raw", None) or p.publish
+            )
         return f
 
     def emit(self, key, data, t_ns):
@@ -105,7 +110,7 @@ class RosSink:
         if p is not None:
             try:
                 p.publish(data)
-            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+            except Exception:  # a publisher destroyed at shutdown: nothing to send to
                 pass
 
     def emit_all(self, msgs) -> int:
@@ -127,7 +132,7 @@ class RosSink:
             n += 1
             try:
                 f(data)
-            except Exception:       # a publisher destroyed at shutdown: nothing to send to
+            except Exception:  # a publisher destroyed at shutdown: nothing to send to
                 pass
         return n
 
@@ -172,20 +177,20 @@ class PressTwin(LifecycleNode):
         #: the run may start (the first activate); the node is to end (cleanup, shutdown)
         self.activated = threading.Event()
         self.ending = threading.Event()
-        self.inactive = False           # deactivated (paused)
-        self.runs = 0                   # runs begun (a reset begins another)
+        self.inactive = False  # deactivated (paused)
+        self.runs = 0  # runs begun (a reset begins another)
         self.reset_wanted = False
-        self.run_started = threading.Event()    # the run after a reset has begun
+        self.run_started = threading.Event()  # the run after a reset has begun
 
     # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
     def on_configure(self, state) -> TransitionCallbackReturn:
-        if self.runner is not None:     # configured once: a node runs one run
+        if self.runner is not None:  # configured once: a node runs one run
             return TransitionCallbackReturn.SUCCESS
         try:
             self.configure()
         except (ParameterError, MpsError, OSError) as exc:
             self.configure_error = exc
-            if not self.p["autostart"]:     # autostart: the node's last line says it
+            if not self.p["autostart"]:  # autostart: the node's last line says it
                 self.get_logger().error(f"configure failed: {exc}")
             self.ending.set()
             return TransitionCallbackReturn.FAILURE
@@ -206,8 +211,9 @@ class PressTwin(LifecycleNode):
             self.get_logger().error(f"cannot pause: {why}")
             return TransitionCallbackReturn.FAILURE
         self.inactive = True
-        self.get_logger().info("deactivated: paused (simulated time holds; a command is applied "
-                               "where it holds)")
+        self.get_logger().info(
+            "deactivated: paused (simulated time holds; a command is applied where it holds)"
+        )
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
@@ -229,13 +235,19 @@ class PressTwin(LifecycleNode):
         (:meth:`new_run`)."""
         p = self.p
         self.twin = self._twin()
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=p["qos_depth"],
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=p["qos_depth"],
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
         outputs = set(self.twin.outputs)
-        latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        latched = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
         #: topics recorded but not published: their type cannot be imported here
         self.unpublished: list[str] = []
         for t in TOPICS:
@@ -248,23 +260,29 @@ class PressTwin(LifecycleNode):
             # no QoS event handlers (rclpy's default: two a publisher, each one more entity
             # that the executor goes through for every command it takes; a subscriber that
             # asks for an incompatible QoS is told so by its own node)
-            pub = self.create_publisher(MSG_CLASSES[t.msgtype], t.key,
-                                        latched if t.key in LATCHED else qos,
-                                        event_callbacks=PublisherEventCallbacks(
-                                            use_default_callbacks=False))
+            pub = self.create_publisher(
+                MSG_CLASSES[t.msgtype],
+                t.key,
+                latched if t.key in LATCHED else qos,
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+            )
             self.pubs[t.key] = pub
             self.names[t.key] = pub.topic_name
         self.inbox = Inbox()
         # every command is kept until the run loop answers it (a flood is refused, one answer
         # each); what a sender's middleware loses on the way is counted (message-lost events)
-        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL,
-                              reliability=ReliabilityPolicy.RELIABLE)
+        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         self.mode_sub = self.create_subscription(
-            String, MODE.key, self._on_mode, mode_qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
+            String,
+            MODE.key,
+            self._on_mode,
+            mode_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost),
+        )
         self.names[MODE.key] = self.mode_sub.topic_name
-        self.trigger_services = [self.create_service(Trigger, f"~/{w}", self._service(w))
-                                 for w in COMMAND_WORDS]
+        self.trigger_services = [
+            self.create_service(Trigger, f"~/{w}", self._service(w)) for w in COMMAND_WORDS
+        ]
         self.step_service = self.create_service(Trigger, "~/step", self._on_step)
         self.reset_service = self.create_service(Trigger, "~/reset", self._on_reset)
         self.ros_sink = RosSink(self.pubs)
@@ -273,10 +291,16 @@ class PressTwin(LifecycleNode):
     def _twin(self) -> Twin:
         p = self.p
         try:
-            return Twin(p["scene"], dt=p["dt"] or None, t_end=p["t_end"] or None,
-                        outputs=p["outputs"], scene_commands=p["scene_commands"],
-                        markers_hz=p["markers_hz"], markers_scale=p["markers_scale"],
-                        derivatives=p["derivatives"] or None)
+            return Twin(
+                p["scene"],
+                dt=p["dt"] or None,
+                t_end=p["t_end"] or None,
+                outputs=p["outputs"],
+                scene_commands=p["scene_commands"],
+                markers_hz=p["markers_hz"],
+                markers_scale=p["markers_scale"],
+                derivatives=p["derivatives"] or None,
+            )
         except (MpsError, OSError, ValueError) as exc:
             raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
 
@@ -307,33 +331,62 @@ class PressTwin(LifecycleNode):
             self.runner.pause()
 
     def _runner(self, p: dict) -> Runner:
-        return Runner(self.twin, sinks=[self.ros_sink], pacing=p["pacing"],
-                      real_time_factor=p["real_time_factor"], lead=p["lead"],
-                      command_delay=p["command_delay"], release_period=p["release_period"],
-                      release_slice=p["release_slice"], freeze_gc=True,
-                      publish_every=p["publish_every"],
-                      diagnostics_period=p["diagnostics_period"], inbox=self.inbox,
-                      gate=Gate(p["command_burst"], p["command_rate"]), log=self._log,
-                      name=self.get_fully_qualified_name().lstrip("/"))
+        return Runner(
+            self.twin,
+            sinks=[self.ros_sink],
+            pacing=p["pacing"],
+            real_time_factor=p["real_time_factor"],
+            lead=p["lead"],
+            command_delay=p["command_delay"],
+            release_period=p["release_period"],
+            release_slice=p["release_slice"],
+            freeze_gc=True,
+            publish_every=p["publish_every"],
+            diagnostics_period=p["diagnostics_period"],
+            inbox=self.inbox,
+            gate=Gate(p["command_burst"], p["command_rate"]),
+            log=self._log,
+            name=self.get_fully_qualified_name().lstrip("/"),
+        )
 
     def _stepping_process(self, p: dict):
         from .stepping import SteppingProcess
 
-        twin = dict(dt=p["dt"] or None, t_end=p["t_end"] or None, outputs=list(p["outputs"]),
-                    scene_commands=p["scene_commands"], markers_hz=p["markers_hz"],
-                    markers_scale=p["markers_scale"], derivatives=p["derivatives"] or None)
-        runner = dict(real_time_factor=p["real_time_factor"], lead=p["lead"],
-                      command_delay=p["command_delay"],
-                      release_period=p["release_period"], release_slice=p["release_slice"],
-                      freeze_gc=True, publish_every=p["publish_every"],
-                      diagnostics_period=p["diagnostics_period"],
-                      name=self.get_fully_qualified_name().lstrip("/"))
+        twin = dict(
+            dt=p["dt"] or None,
+            t_end=p["t_end"] or None,
+            outputs=list(p["outputs"]),
+            scene_commands=p["scene_commands"],
+            markers_hz=p["markers_hz"],
+            markers_scale=p["markers_scale"],
+            derivatives=p["derivatives"] or None,
+        )
+        runner = dict(
+            real_time_factor=p["real_time_factor"],
+            lead=p["lead"],
+            command_delay=p["command_delay"],
+            release_period=p["release_period"],
+            release_slice=p["release_slice"],
+            freeze_gc=True,
+            publish_every=p["publish_every"],
+            diagnostics_period=p["diagnostics_period"],
+            name=self.get_fully_qualified_name().lstrip("/"),
+        )
         tw = self.twin
-        spec = {"scene": p["scene"], "twin": twin, "runner": runner,
-                "grid": [tw.t0, tw.t_end, tw.n], "hardware_id": hardware_id(tw.scene.name)}
-        return SteppingProcess(spec, self.ros_sink, self._log,
-                               Gate(p["command_burst"], p["command_rate"]),
-                               p["realtime_priority"])
+        spec = {
+            "scene": p["scene"],
+            "twin": twin,
+            "runner": runner,
+            "grid": [tw.t0, tw.t_end, tw.n],
+            "hardware_id": hardware_id(tw.scene.name),
+        }
+        return SteppingProcess(
+            spec,
+            self.ros_sink,
+            self._log,
+            Gate(p["command_burst"], p["command_rate"]),
+            p["realtime_priority"],
+        )
 
     # -- parameters -----------------------------------------------------------------------
     def _declare(self, scene: str):
@@ -351,8 +404,7 @@ class PressTwin(LifecycleNode):
             try:
                 self.declare_parameter(*descriptor(p, scene))
             except (InvalidParameterTypeException, InvalidParameterValueException):
-                raise ParameterError(f"parameter {p.name}: {v.value!r}: expected "
-                                     f"{p.expected()}") from None
+                raise ParameterError(f"parameter {p.name}: {v.value!r}: expected {p.expected()}") from None
 
     def _params(self) -> dict:
         # a parameter given (-p, a parameters file for this node) that the node does not have:
@@ -361,22 +413,25 @@ class PressTwin(LifecycleNode):
         given = getattr(self, "_parameter_overrides", {}) or {}
         unknown = sorted(n for n in given if not self.has_parameter(n))
         if unknown:
-            raise ParameterError(f"unknown parameter{'s' if len(unknown) > 1 else ''} "
-                                 f"{', '.join(unknown)}: expected one of "
-                                 f"{', '.join(sorted(BY_NAME))}")
+            raise ParameterError(
+                f"unknown parameter{'s' if len(unknown) > 1 else ''} "
+                f"{', '.join(unknown)}: expected one of "
+                f"{', '.join(sorted(BY_NAME))}"
+            )
         out = {p.name: self.get_parameter(p.name).value for p in PARAMETERS}
         for p in PARAMETERS:
             if p.choices and out[p.name] not in p.choices:
-                raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected "
-                                     f"{p.expected()}")
+                raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected {p.expected()}")
         try:
             out["outputs"] = check_outputs(out["outputs"])
         except ValueError as exc:
             raise ParameterError(f"parameter outputs: {exc}") from None
         out["recording"] = out["recording"].strip()
         if 0.0 < out["release_slice"] < 1e-4:
-            raise ParameterError(f"parameter release_slice: {out['release_slice']!r} must be 0 "
-                                 "(the system's) or from 0.0001 to 0.1 s")
+            raise ParameterError(
+                f"parameter release_slice: {out['release_slice']!r} must be 0 "
+                "(the system's) or from 0.0001 to 0.1 s"
+            )
         return out
 
     # -- callbacks (executor thread): queue only ------------------------------------------
@@ -394,21 +449,27 @@ class PressTwin(LifecycleNode):
         n = int(info.total_count_change)
         if self.runner is not None:
             self.runner.commands_lost += n
-        self.get_logger().warning(f"{n} command(s) lost on the way to {self.names[MODE.key]} "
-                                  f"({info.total_count} in all)")
+        self.get_logger().warning(
+            f"{n} command(s) lost on the way to {self.names[MODE.key]} ({info.total_count} in all)"
+        )
 
     def _on_mode(self, msg: String):
         if self.closed:
             # answered all the same (not recorded: the recording is finished)
             self.get_logger().warning(f"refused command {msg.data[:40]!r}: the run has ended")
-            ack = {"t": self.twin.t, "command": shown(msg.data, 64), "accepted": False,
-                   "reason": "the run has ended", "source": "topic",
-                   "structure": self.twin.sim.structure}
+            ack = {
+                "t": self.twin.t,
+                "command": shown(msg.data, 64),
+                "accepted": False,
+                "reason": "the run has ended",
+                "source": "topic",
+                "structure": self.twin.sim.structure,
+            }
             pub = self.pubs.get("~/mode/status")
             if pub is not None:
                 try:
                     pub.publish(String(data=to_json(ack)))
-                except Exception:       # destroyed at shutdown
+                except Exception:  # destroyed at shutdown
                     pass
             return
         self.inbox.put(Command(msg.data, "topic"))
@@ -427,8 +488,7 @@ class PressTwin(LifecycleNode):
         if not self.run_started.wait(120.0) or self.runs == runs:
             response.success, response.message = False, "no new run: the node is ending"
             return response
-        where = f"recording to {self.recorder.path}" if self.recorder is not None else \
-            "not recording"
+        where = f"recording to {self.recorder.path}" if self.recorder is not None else "not recording"
         response.success = True
         response.message = f"reset: a new run from t = {self.twin.t0:g} s, {where}"
         return response
@@ -442,8 +502,11 @@ class PressTwin(LifecycleNode):
             box["t"] = t
             done.set()
 
-        why = self.runner.step_paused(reply) if self.activated.is_set() else (
-            "the run has not started: ~/step takes a step while it is deactivated")
+        why = (
+            self.runner.step_paused(reply)
+            if self.activated.is_set()
+            else ("the run has not started: ~/step takes a step while it is deactivated")
+        )
         if why is not None:
             response.success, response.message = False, f"refused: {why}"
         elif not done.wait(10.0):
@@ -470,9 +533,11 @@ class PressTwin(LifecycleNode):
                 return response
             ack = box["ack"]
             response.success = bool(ack["accepted"])
-            response.message = (f"{word} applied at t = {ack['t']:.6f} s" if ack["accepted"]
-                                else f"refused: {ack['reason']}")
+            response.message = (
+                f"{word} applied at t = {ack['t']:.6f} s" if ack["accepted"] else f"refused: {ack['reason']}"
+            )
             return response
+
         return callback
 
     # -- the run ----------------------------------------------------------------------------
@@ -489,7 +554,8 @@ class PressTwin(LifecycleNode):
             if time.monotonic() > deadline:
                 self.get_logger().warning(
                     f"starting without all peers after {self.p['wait_timeout']:g} s "
-                    f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd})")
+                    f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd})"
+                )
                 return
             time.sleep(0.01)
 
@@ -502,24 +568,30 @@ class PressTwin(LifecycleNode):
             return None
         if path == "auto":
             path = new_recording(self.twin.scene.name)
-        elif self.runs > 1:             # after a reset: a new file (or bag) beside the first
+        elif self.runs > 1:  # after a reset: a new file (or bag) beside the first
             path, self._recording_reserved = next_recording(path), False
         else:
             path, self._recording_reserved = claim_recording(path)
-        meta = _run_metadata(self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"],
-                             self.p["publish_every"])
+        meta = _run_metadata(
+            self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"], self.p["publish_every"]
+        )
         meta["node"] = self.get_fully_qualified_name()
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
         meta["fastdds_profiles_file"] = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
-        self.recorder = BackgroundRecorder(path, scene_name=self.twin.scene.name,
-                                           scene_text=self.twin.scene.text, metadata=meta,
-                                           flush_period=self.p["recording_flush_period"],
-                                           compression=self.p["recording_compression"],
-                                           max_bytes=int(self.p["recording_max_mb"] * 1e6),
-                                           max_s=self.p["recording_max_s"])
-        self.recording_sink = RecordingSink(self.recorder, names=dict(self.names),
-                                            qos=offered_qos(self.p["qos_depth"]), log=self._log)
+        self.recorder = BackgroundRecorder(
+            path,
+            scene_name=self.twin.scene.name,
+            scene_text=self.twin.scene.text,
+            metadata=meta,
+            flush_period=self.p["recording_flush_period"],
+            compression=self.p["recording_compression"],
+            max_bytes=int(self.p["recording_max_mb"] * 1e6),
+            max_s=self.p["recording_max_s"],
+        )
+        self.recording_sink = RecordingSink(
+            self.recorder, names=dict(self.names), qos=offered_qos(self.p["qos_depth"]), log=self._log
+        )
         self.runner.sinks.append(self.recording_sink)
         return self.recorder
 
@@ -527,17 +599,22 @@ class PressTwin(LifecycleNode):
         tw = self.twin
         self.get_logger().info(
             f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
-            f"{self.p['pacing']}" + (f" x{self.p['real_time_factor']:g}"
-                                     if self.p['pacing'] == 'realtime' else "")
+            f"{self.p['pacing']}"
+            + (f" x{self.p['real_time_factor']:g}" if self.p["pacing"] == "realtime" else "")
             + f", outputs {', '.join(tw.outputs)}"
-            + ("" if self.p["scene_commands"] else ", scene commands off (listening on "
-               f"{self.names[MODE.key]})"))
+            + (
+                ""
+                if self.p["scene_commands"]
+                else f", scene commands off (listening on {self.names[MODE.key]})"
+            )
+        )
         if self.unpublished:
             types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in self.unpublished})
             self.get_logger().warning(
                 f"{', '.join(self.names[k] for k in self.unpublished)}: recorded, not "
                 f"published ({', '.join(types)} cannot be imported here; a full ROS install "
-                "has it)")
+                "has it)"
+            )
         # the kernels built and the channels registered while the peers are awaited
         self.runner.prepare()
         self._refuse_a_second_of_my_name(self._created + DISCOVERY_S, stop)
@@ -563,7 +640,8 @@ class PressTwin(LifecycleNode):
                     f"a node {self.get_fully_qualified_name()} is already running in ROS "
                     f"domain {os.environ.get('ROS_DOMAIN_ID', '0')}; give this one another "
                     "name or namespace (--ros-args -r __node:=NAME or -r __ns:=/NAMESPACE), or "
-                    "another ROS_DOMAIN_ID")
+                    "another ROS_DOMAIN_ID"
+                )
             if time.monotonic() >= until:
                 return
             stop.wait(0.02)
@@ -580,8 +658,10 @@ class PressTwin(LifecycleNode):
 
         why = ask_fifo(prio)
         if why is not None:
-            self.get_logger().warning(f"realtime_priority {prio}: SCHED_FIFO refused here "
-                                      f"({why}); stepping at normal priority; {HOW_TO_ALLOW}")
+            self.get_logger().warning(
+                f"realtime_priority {prio}: SCHED_FIFO refused here "
+                f"({why}); stepping at normal priority; {HOW_TO_ALLOW}"
+            )
             return
         self.priority_got = prio
         self.get_logger().info(f"stepping and publishing threads: SCHED_FIFO, priority {prio}")
@@ -612,18 +692,18 @@ def claim_recording(path) -> tuple[Path, bool]:
     from .recording import reserve
 
     p = Path(path)
-    if is_bag(p):       # a new directory
+    if is_bag(p):  # a new directory
         check_paths({"parameter recording": p}, folders={"parameter recording"})
         try:
             p.mkdir()
         except FileExistsError:
-            raise OutputFileError(p, "parameter recording", "exists; expected a new "
-                                                            "directory") from None
+            raise OutputFileError(p, "parameter recording", "exists; expected a new directory") from None
         return p, False
     if p.is_file() and p.stat().st_size == 0:
         return p, True
-    exists = OutputFileError(p, "parameter recording", "exists; a recording never replaces a "
-                                                       "file: expected a new path")
+    exists = OutputFileError(
+        p, "parameter recording", "exists; a recording never replaces a file: expected a new path"
+    )
     if p.exists() and not p.is_dir():
         raise exists
     check_paths({"parameter recording": p})
@@ -644,7 +724,7 @@ def next_recording(path) -> Path:
 def discard_recording(path: Path, reserved: bool) -> None:
     """A recording begun by a node that did not run: gone, but for what was there before it (an
     empty file or directory reserved for it stays, empty)."""
-    if path.is_dir():           # a bag: its files
+    if path.is_dir():  # a bag: its files
         for f in path.iterdir():
             f.unlink(missing_ok=True)
         if not reserved:
@@ -678,7 +758,7 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
     try:
         stats = node.run(stop)
         if node.split and node.runner.error_kind == "simulation":
-            code = 2            # the stepping process said why (its log line)
+            code = 2  # the stepping process said why (its log line)
         elif node.split and node.runner.error:
             node.get_logger().error(f"the run failed: {node.runner.error}")
             code = 1
@@ -688,7 +768,7 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         node.get_logger().error(f"the simulation stopped: {exc}")
         stats = node.runner.stats()
         code = 2
-    except OSError as exc:      # the stepping process could not start its run
+    except OSError as exc:  # the stepping process could not start its run
         if not node.split:
             raise
         node.get_logger().error(f"the run could not start: {exc}")
@@ -698,11 +778,11 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         if node.recorder is not None:
             try:
                 node.recorder.finish()
-            except OSError as exc:      # said when it happened (the sink's line)
+            except OSError as exc:  # said when it happened (the sink's line)
                 recording_error = str(exc)
         if node.split:
             node.runner.close()
-    if taken is not None:       # nothing ran: the recording begun is not one
+    if taken is not None:  # nothing ran: the recording begun is not one
         if node.recorder is not None:
             discard_recording(node.recorder.path, node._recording_reserved)
         print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
@@ -715,24 +795,35 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
         f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
         f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
-        + (f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 "
-           f"{stats['latency_p99_ms']:.3g} ms, " if "latency_p50_ms" in stats else "")
+        + (
+            f"latency p50 {stats['latency_p50_ms']:.3g} ms, p99 {stats['latency_p99_ms']:.3g} ms, "
+            if "latency_p50_ms" in stats
+            else ""
+        )
         + f"{stats['deadline_misses']} deadline misses, {stats['messages']} messages, "
         f"stepping thread CPU {stats['step_thread_cpu_per_step_us']:.0f} us a step, "
         f"process CPU {stats['process_cpu_per_step_us']:.0f} us a step, "
-        + (f"stepping process {stats['stepping_process_cpu_per_step_us']:.0f} us and ROS "
-           f"process {stats['ros_process_cpu_per_step_us']:.0f} us of it, "
-           if "ros_process_cpu_per_step_us" in stats else "")
+        + (
+            f"stepping process {stats['stepping_process_cpu_per_step_us']:.0f} us and ROS "
+            f"process {stats['ros_process_cpu_per_step_us']:.0f} us of it, "
+            if "ros_process_cpu_per_step_us" in stats
+            else ""
+        )
         + f"realtime priority {stats.get('realtime_priority', node.priority_got)}, "
-        + (f"publishing thread's slice {stats['release_slice_ms']:.3g} ms, "
-           if "release_slice_ms" in stats else "")
+        + (
+            f"publishing thread's slice {stats['release_slice_ms']:.3g} ms, "
+            if "release_slice_ms" in stats
+            else ""
+        )
         + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
-        f"{stats['commands_lost']} lost")
+        f"{stats['commands_lost']} lost"
+    )
     if node.recorder is not None:
         failure = node.recording_sink.failure or recording_error
         if failure is None:
-            node.get_logger().info(f"recording finished: {node.recorder.path} "
-                                   f"({node.recorder.messages} messages)")
+            node.get_logger().info(
+                f"recording finished: {node.recorder.path} ({node.recorder.messages} messages)"
+            )
         else:
             node.get_logger().error(f"recording incomplete ({failure})")
             code = code or 1
@@ -744,7 +835,7 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         except (ParameterError, MpsError, OSError) as exc:
             node.get_logger().error(f"reset: no new run: {exc}")
             again, code = False, 2
-    node.run_started.set()              # a reset waiting for its answer: the new run, or none
+    node.run_started.set()  # a reset waiting for its answer: the new run, or none
     return code, again
 
 
@@ -769,8 +860,7 @@ def main(argv=None) -> int:
             node.runner.request_stop(name)
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=[NODE_NAME, *ros],
-               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    rclpy.init(args=[NODE_NAME, *ros], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
     executor = None
     thread = None
@@ -794,6 +884,7 @@ def main(argv=None) -> int:
                 if node.runner is None or node.runner.stop_reason is None:
                     node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
                     node._end("error")
+
         thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
         thread.start()
         if node.p["autostart"]:
@@ -803,10 +894,11 @@ def main(argv=None) -> int:
         else:
             node.get_logger().info(
                 "autostart false: unconfigured, waiting for a lifecycle manager "
-                f"({node.get_fully_qualified_name()}/change_state: configure, activate)")
+                f"({node.get_fully_qualified_name()}/change_state: configure, activate)"
+            )
         while not (node.activated.is_set() or node.ending.is_set() or stop.is_set()):
             stop.wait(0.05)
-        if not node.activated.is_set():     # never activated: what was begun is not a run
+        if not node.activated.is_set():  # never activated: what was begun is not a run
             if node.split:
                 node.runner.close()
             if node.recorder is not None:

@@ -36,8 +36,7 @@ def schedule_of(args) -> list[tuple[float, str]]:
             try:
                 out.append((float(t), word.strip()))
             except ValueError:
-                raise SystemExit(f"mps operator: --at {item!r}: expected T:WORD, "
-                                 "e.g. 0.008:engage") from None
+                raise SystemExit(f"mps operator: --at {item!r}: expected T:WORD, e.g. 0.008:engage") from None
         return sorted(out)
     from mps_core import load_scene
 
@@ -52,20 +51,30 @@ class Operator(Node):
     def __init__(self, node: str, schedule):
         super().__init__("press_operator")
         node = "/" + node.strip("/")
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                         reliability=ReliabilityPolicy.RELIABLE)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(String, f"{node}/mode", qos)
         # the latest clock only (ROS's clock QoS): never behind, never slowing anyone down
-        self.create_subscription(Clock, "/clock", self._on_clock,
-                                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                            reliability=ReliabilityPolicy.BEST_EFFORT))
-        self.create_subscription(String, f"{node}/mode/status", self._on_status,
-                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-        self.create_subscription(String, f"{node}/events", self._on_event,
-                                 QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        self.create_subscription(
+            Clock,
+            "/clock",
+            self._on_clock,
+            QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT),
+        )
+        self.create_subscription(
+            String,
+            f"{node}/mode/status",
+            self._on_status,
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE),
+        )
+        self.create_subscription(
+            String,
+            f"{node}/events",
+            self._on_event,
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+        )
         self.todo = list(schedule)
         self.t = None
-        self.sent: list[tuple[float, float, str]] = []   # (scheduled, clock when sent, word)
+        self.sent: list[tuple[float, float, str]] = []  # (scheduled, clock when sent, word)
         self.acks: list[dict] = []
         self.ended = False
         self.last_clock_wall = None
@@ -78,7 +87,7 @@ class Operator(Node):
     def send_due(self):
         while self.todo and self.t is not None and self.t >= self.todo[0][0]:
             if self.pub.get_subscription_count() == 0:
-                return                       # the node does not hear us yet: next clock
+                return  # the node does not hear us yet: next clock
             t_s, word = self.todo.pop(0)
             self.pub.publish(String(data=word))
             self.sent.append((t_s, self.t, word))
@@ -91,8 +100,7 @@ class Operator(Node):
             return
         self.acks.append(ack)
         if ack.get("accepted"):
-            say(f"{ack['command']!r} applied at t = {ack['t']:.4f} s "
-                f"(structure {ack.get('structure')})")
+            say(f"{ack['command']!r} applied at t = {ack['t']:.4f} s (structure {ack.get('structure')})")
         else:
             say(f"{ack['command']!r} refused at t = {ack['t']:.4f} s: {ack.get('reason')}")
 
@@ -114,11 +122,13 @@ def run_operator(args) -> int:
         stop["flag"] = True
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=["press_operator"],
-               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    rclpy.init(args=["press_operator"], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     op = Operator(args.node, schedule)
-    say("will send " + (", ".join(f"{w!r} at t = {t:g} s" for t, w in schedule) or "nothing")
-        + f" on {op.pub.topic_name}")
+    say(
+        "will send "
+        + (", ".join(f"{w!r} at t = {t:g} s" for t, w in schedule) or "nothing")
+        + f" on {op.pub.topic_name}"
+    )
     start = time.monotonic()
     code = 0
     try:
@@ -129,8 +139,11 @@ def run_operator(args) -> int:
                 say(f"giving up after {args.timeout:g} s")
                 code = 1
                 break
-            if op.last_clock_wall is not None and now - op.last_clock_wall > 5.0 \
-                    and op.count_publishers("/clock") == 0:
+            if (
+                op.last_clock_wall is not None
+                and now - op.last_clock_wall > 5.0
+                and op.count_publishers("/clock") == 0
+            ):
                 say("the node is gone")
                 break
         # answers to the last commands may still be on their way

@@ -49,9 +49,13 @@ class Parameter:
         """What a value must be, in words (for a refusal)."""
         if self.choices:
             return "one of " + ", ".join(repr(c) for c in self.choices)
-        what = {"bool": "true or false", "integer": "an integer", "double": "a number",
-                "string_array": "a list of words such as [joint_states, clock]",
-                "string": "a string"}[self.kind]
+        what = {
+            "bool": "true or false",
+            "integer": "an integer",
+            "double": "a number",
+            "string_array": "a list of words such as [joint_states, clock]",
+            "string": "a string",
+        }[self.kind]
         if self.lo is not None:
             what += f" from {_number(self.lo)} to {_number(self.hi)}"
         return what
@@ -60,87 +64,197 @@ class Parameter:
 P = Parameter
 #: every parameter of the node, in the order the docs list them
 PARAMETERS: tuple[Parameter, ...] = (
-    P("scene", "press-cycle", "preset name or scene file", shown="the command line's SCENE, "
-      "else `press-cycle`"),
-    P("autostart", True, "configure and activate at start, and run; false: wait unconfigured "
-      "for a lifecycle manager (`~/change_state`: configure, activate; deactivate pauses, "
-      "activate goes on; cleanup or shutdown ends the run)"),
-    P("pacing", "realtime", "how the steps are paced: at their simulated times on the wall "
-      "clock (scaled by `real_time_factor`), or as fast as the machine goes",
-      choices=PACINGS),
-    P("real_time_factor", 1.0, "simulated seconds per wall second, in realtime pacing",
-      lo=1e-3, hi=1e3),
-    P("dt", 0.0, "the step (s); 0: the scene's. press-cycle's own step is 1e-4 s: use "
-      "`dt:=0.001` for real time", lo=0.0, hi=1.0),
+    P(
+        "scene",
+        "press-cycle",
+        "preset name or scene file",
+        shown="the command line's SCENE, else `press-cycle`",
+    ),
+    P(
+        "autostart",
+        True,
+        "configure and activate at start, and run; false: wait unconfigured "
+        "for a lifecycle manager (`~/change_state`: configure, activate; deactivate pauses, "
+        "activate goes on; cleanup or shutdown ends the run)",
+    ),
+    P(
+        "pacing",
+        "realtime",
+        "how the steps are paced: at their simulated times on the wall "
+        "clock (scaled by `real_time_factor`), or as fast as the machine goes",
+        choices=PACINGS,
+    ),
+    P("real_time_factor", 1.0, "simulated seconds per wall second, in realtime pacing", lo=1e-3, hi=1e3),
+    P(
+        "dt",
+        0.0,
+        "the step (s); 0: the scene's. press-cycle's own step is 1e-4 s: use `dt:=0.001` for real time",
+        lo=0.0,
+        hi=1.0,
+    ),
     P("t_end", 0.0, "the end time (s); 0: the scene's", lo=0.0, hi=1e9),
-    P("derivatives", "", "the Lagrange equations' derivatives: `central` (the seed's finite "
-      "differences, the `paper` scene's) or `autodiff` (exact, press-cycle's); empty: the "
-      "scene's. Exact derivatives cost the node less and let the reactions read the step's "
-      "own motion (measured under Performance)", choices=("", *SCHEMES)),
-    P("publish_every", 1, "publish (and record) every N-th step; commands and events are "
-      "taken at every step", lo=1, hi=1_000_000),
-    P("outputs", list(OUTPUTS), "what to compute and publish, a list of "
-      + ", ".join(f"`{o}`" for o in OUTPUTS) + "; the reactions are solved only if "
-      "`reactions` or `foundation` is asked for", shown="all"),
-    P("recording", "auto", "an MCAP path (`….mcap`), never an existing file (one line and "
-      "exit status 2), or a new directory: a bag as rosbag2 writes one "
-      "(`metadata.yaml`, its files split by `recording_max_mb`, `recording_max_s`); `auto`: "
-      "`recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: no "
-      "recording. Written by a process of its own, off the steps' time"),
-    P("recording_max_mb", 0.0, "a bag: a new file once one holds this many MB (0: never)",
-      lo=0.0, hi=1e6),
-    P("recording_max_s", 0.0, "a bag: a new file once one spans this many simulated seconds "
-      "(0: never)", lo=0.0, hi=1e9),
-    P("recording_compression", "zstd", "the recording's chunks compressed with `zstd`, "
-      "`lz4` (faster, larger) or not at all (`none`); readers take all three",
-      choices=("zstd", "lz4", "none")),
-    P("recording_flush_period", 1.0, "wall seconds after which a chunk is written even if "
-      "not full", lo=0.01, hi=3600.0),
-    P("scene_commands", True, "apply the scene's own `[[commands]]`; false: an operator sends "
-      "them on `~/mode`"),
-    P("qos_depth", 1000, "history depth of every publisher (keep last, reliable) but "
-      "`~/structure`, which is latched (see QoS)", lo=1, hi=1_000_000),
-    P("wait_for_subscribers", 0, "start stepping once every published topic has this many "
-      "subscribers ...", lo=0, hi=10_000),
+    P(
+        "derivatives",
+        "",
+        "the Lagrange equations' derivatives: `central` (the seed's finite "
+        "differences, the `paper` scene's) or `autodiff` (exact, press-cycle's); empty: the "
+        "scene's. Exact derivatives cost the node less and let the reactions read the step's "
+        "own motion (measured under Performance)",
+        choices=("", *SCHEMES),
+    ),
+    P(
+        "publish_every",
+        1,
+        "publish (and record) every N-th step; commands and events are taken at every step",
+        lo=1,
+        hi=1_000_000,
+    ),
+    P(
+        "outputs",
+        list(OUTPUTS),
+        "what to compute and publish, a list of "
+        + ", ".join(f"`{o}`" for o in OUTPUTS)
+        + "; the reactions are solved only if "
+        "`reactions` or `foundation` is asked for",
+        shown="all",
+    ),
+    P(
+        "recording",
+        "auto",
+        "an MCAP path (`….mcap`), never an existing file (one line and "
+        "exit status 2), or a new directory: a bag as rosbag2 writes one "
+        "(`metadata.yaml`, its files split by `recording_max_mb`, `recording_max_s`); `auto`: "
+        "`recordings/SCENE-DATE-TIME-MS.mcap`, created exclusively; `none` or empty: no "
+        "recording. Written by a process of its own, off the steps' time",
+    ),
+    P("recording_max_mb", 0.0, "a bag: a new file once one holds this many MB (0: never)", lo=0.0, hi=1e6),
+    P(
+        "recording_max_s",
+        0.0,
+        "a bag: a new file once one spans this many simulated seconds (0: never)",
+        lo=0.0,
+        hi=1e9,
+    ),
+    P(
+        "recording_compression",
+        "zstd",
+        "the recording's chunks compressed with `zstd`, "
+        "`lz4` (faster, larger) or not at all (`none`); readers take all three",
+        choices=("zstd", "lz4", "none"),
+    ),
+    P(
+        "recording_flush_period",
+        1.0,
+        "wall seconds after which a chunk is written even if not full",
+        lo=0.01,
+        hi=3600.0,
+    ),
+    P(
+        "scene_commands",
+        True,
+        "apply the scene's own `[[commands]]`; false: an operator sends them on `~/mode`",
+    ),
+    P(
+        "qos_depth",
+        1000,
+        "history depth of every publisher (keep last, reliable) but "
+        "`~/structure`, which is latched (see QoS)",
+        lo=1,
+        hi=1_000_000,
+    ),
+    P(
+        "wait_for_subscribers",
+        0,
+        "start stepping once every published topic has this many subscribers ...",
+        lo=0,
+        hi=10_000,
+    ),
     P("wait_for_commanders", 0, "... and `~/mode` this many publishers ...", lo=0, hi=10_000),
     P("wait_timeout", 10.0, "... or after this many seconds", lo=0.0, hi=86400.0),
-    P("start_delay", 0.0, "then wait this many wall seconds more, e.g. for discovery to "
-      "settle both ways", lo=0.0, hi=3600.0),
-    P("command_burst", 10, "the flood limit: at most this many commands at once ...", lo=1,
-      hi=1_000_000),
-    P("command_rate", 20.0, "... then this many a second; the rest are refused (see Commands)",
-      lo=1e-3, hi=1e6),
-    P("diagnostics_period", 1.0, "wall seconds between `/diagnostics` messages", lo=0.01,
-      hi=3600.0),
-    P("realtime_priority", 40, "SCHED_FIFO priority of the stepping process and the "
-      "publishing thread (below the kernel's threaded interrupt handlers at 50); where the "
-      "system refuses it, one warning that says how to allow it, and the run goes on at "
-      "normal priority (see Real-time scheduling). 0: normal scheduling", lo=0, hi=99),
-    P("stepping_process", True, "realtime pacing: the twin steps in a process of its own "
-      "(`mps_ros/stepping.py`); false: in the node's process, a thread beside the publishing "
-      "one (both measured under Performance)"),
-    P("markers_hz", 30.0, "`~/markers` (the press drawn for RViz2 and Foxglove) this many "
-      "times a simulated second at most, never more often than the steps", lo=1e-3, hi=1e6),
-    P("markers_scale", 2e6, "the markers' arrows: newtons a metre of arrow", lo=1e-3,
-      hi=1e15),
-    P("lead", 0.1, "realtime pacing: steps are computed up to this many wall seconds ahead "
-      "of their deadlines and released at them (0: one step's period, nothing banked); see "
-      "Steps and pacing", lo=0.0, hi=1.0),
-    P("command_delay", 0.0, "realtime pacing with steps banked: a command takes effect at the "
-      "first step boundary at least this many wall seconds after it arrives (0: the first "
-      "boundary after it arrives), time for the stepping process to redo the steps after it "
-      "with steps still banked; see Steps and pacing", lo=0.0, hi=1.0),
-    P("release_slice", 1e-4, "realtime pacing: the scheduler slice (s) the publishing thread "
-      "asks for, 0.0001 at least, where the system grants one (Linux 6.12 on, no privilege "
-      "needed; its nice value is kept): the subscribers' threads that its messages wake then "
-      "preempt it less often. 0: none asked (the system's). The node's last log line says "
-      "what was granted", lo=0.0, hi=0.1),
-    P("release_period", 0.0, "realtime pacing: the publishing thread wakes about once per "
-      "this many wall seconds and sends every step whose deadline has passed, each at most "
-      "this less one step's period after its deadline. 0, or anything up to one step's "
-      "period: each step at its deadline, one wake-up a step. 0.002 at 1 kHz: the steps go "
-      "out in pairs, the first of each 1 ms late, for less CPU (both measured under "
-      "Performance)", lo=0.0, hi=0.1),
+    P(
+        "start_delay",
+        0.0,
+        "then wait this many wall seconds more, e.g. for discovery to settle both ways",
+        lo=0.0,
+        hi=3600.0,
+    ),
+    P("command_burst", 10, "the flood limit: at most this many commands at once ...", lo=1, hi=1_000_000),
+    P(
+        "command_rate",
+        20.0,
+        "... then this many a second; the rest are refused (see Commands)",
+        lo=1e-3,
+        hi=1e6,
+    ),
+    P("diagnostics_period", 1.0, "wall seconds between `/diagnostics` messages", lo=0.01, hi=3600.0),
+    P(
+        "realtime_priority",
+        40,
+        "SCHED_FIFO priority of the stepping process and the "
+        "publishing thread (below the kernel's threaded interrupt handlers at 50); where the "
+        "system refuses it, one warning that says how to allow it, and the run goes on at "
+        "normal priority (see Real-time scheduling). 0: normal scheduling",
+        lo=0,
+        hi=99,
+    ),
+    P(
+        "stepping_process",
+        True,
+        "realtime pacing: the twin steps in a process of its own "
+        "(`mps_ros/stepping.py`); false: in the node's process, a thread beside the publishing "
+        "one (both measured under Performance)",
+    ),
+    P(
+        "markers_hz",
+        30.0,
+        "`~/markers` (the press drawn for RViz2 and Foxglove) this many "
+        "times a simulated second at most, never more often than the steps",
+        lo=1e-3,
+        hi=1e6,
+    ),
+    P("markers_scale", 2e6, "the markers' arrows: newtons a metre of arrow", lo=1e-3, hi=1e15),
+    P(
+        "lead",
+        0.1,
+        "realtime pacing: steps are computed up to this many wall seconds ahead "
+        "of their deadlines and released at them (0: one step's period, nothing banked); see "
+        "Steps and pacing",
+        lo=0.0,
+        hi=1.0,
+    ),
+    P(
+        "command_delay",
+        0.0,
+        "realtime pacing with steps banked: a command takes effect at the "
+        "first step boundary at least this many wall seconds after it arrives (0: the first "
+        "boundary after it arrives), time for the stepping process to redo the steps after it "
+        "with steps still banked; see Steps and pacing",
+        lo=0.0,
+        hi=1.0,
+    ),
+    P(
+        "release_slice",
+        1e-4,
+        "realtime pacing: the scheduler slice (s) the publishing thread "
+        "asks for, 0.0001 at least, where the system grants one (Linux 6.12 on, no privilege "
+        "needed; its nice value is kept): the subscribers' threads that its messages wake then "
+        "preempt it less often. 0: none asked (the system's). The node's last log line says "
+        "what was granted",
+        lo=0.0,
+        hi=0.1,
+    ),
+    P(
+        "release_period",
+        0.0,
+        "realtime pacing: the publishing thread wakes about once per "
+        "this many wall seconds and sends every step whose deadline has passed, each at most "
+        "this less one step's period after its deadline. 0, or anything up to one step's "
+        "period: each step at its deadline, one wake-up a step. 0.002 at 1 kHz: the steps go "
+        "out in pairs, the first of each 1 ms late, for less CPU (both measured under "
+        "Performance)",
+        lo=0.0,
+        hi=0.1,
+    ),
 )
 del P
 
@@ -152,17 +266,18 @@ def descriptor(p: Parameter, scene: str | None = None):
     the default scene, the command line's)."""
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
-    kind = {"bool": ParameterType.PARAMETER_BOOL, "integer": ParameterType.PARAMETER_INTEGER,
-            "double": ParameterType.PARAMETER_DOUBLE,
-            "string_array": ParameterType.PARAMETER_STRING_ARRAY,
-            "string": ParameterType.PARAMETER_STRING}[p.kind]
-    d = ParameterDescriptor(name=p.name, type=kind, description=p.description,
-                            read_only=True)
+    kind = {
+        "bool": ParameterType.PARAMETER_BOOL,
+        "integer": ParameterType.PARAMETER_INTEGER,
+        "double": ParameterType.PARAMETER_DOUBLE,
+        "string_array": ParameterType.PARAMETER_STRING_ARRAY,
+        "string": ParameterType.PARAMETER_STRING,
+    }[p.kind]
+    d = ParameterDescriptor(name=p.name, type=kind, description=p.description, read_only=True)
     if p.choices:
         d.additional_constraints = "one of " + ", ".join(repr(c) for c in p.choices)
     if p.lo is not None and p.kind == "double":
-        d.floating_point_range = [FloatingPointRange(from_value=float(p.lo),
-                                                     to_value=float(p.hi), step=0.0)]
+        d.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi), step=0.0)]
     elif p.lo is not None and p.kind == "integer":
         d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=0)]
     default = scene if (p.name == "scene" and scene) else p.default
@@ -188,8 +303,11 @@ def markdown_table() -> str:
             shown += "" if ("." in shown or "e" in shown) else ".0"
         else:
             shown = _number(p.default)
-        rng = (f"{_number(p.lo)} to {_number(p.hi)}" if p.lo is not None
-               else ", ".join(f"`{c}`" if c else '""' for c in p.choices))
+        rng = (
+            f"{_number(p.lo)} to {_number(p.hi)}"
+            if p.lo is not None
+            else ", ".join(f"`{c}`" if c else '""' for c in p.choices)
+        )
         rows.append(f"| `{p.name}` | {shown} | {rng} | {p.description} |")
     return "\n".join(rows) + "\n"
 

@@ -125,8 +125,10 @@ def rosbag2_record(file_name: str, writer: McapWriter, channels: dict) -> dict[s
     from .bag_metadata import TopicCount, record
 
     _total, start, end, per = writer.written()
-    topics = [TopicCount(topic, msgtype, qos, TYPE_HASHES.get(msgtype, ""), per.get(cid, 0))
-              for cid, (topic, msgtype, qos) in sorted(channels.items())]
+    topics = [
+        TopicCount(topic, msgtype, qos, TYPE_HASHES.get(msgtype, ""), per.get(cid, 0))
+        for cid, (topic, msgtype, qos) in sorted(channels.items())
+    ]
     return record(file_name, topics, start, end)
 
 
@@ -139,10 +141,19 @@ class Recorder:
     whole chunks or spans ``max_s`` of simulated time (0: never), and :meth:`finish` writes
     its ``metadata.yaml``."""
 
-    def __init__(self, path, *, scene_name: str = "", scene_text: str = "",
-                 metadata: dict | None = None, chunk_size: int = 512 * 1024,
-                 flush_period: float = 1.0, compression: str = "zstd", max_bytes: int = 0,
-                 max_s: float = 0.0):
+    def __init__(
+        self,
+        path,
+        *,
+        scene_name: str = "",
+        scene_text: str = "",
+        metadata: dict | None = None,
+        chunk_size: int = 512 * 1024,
+        flush_period: float = 1.0,
+        compression: str = "zstd",
+        max_bytes: int = 0,
+        max_s: float = 0.0,
+    ):
         from mps_core import __version__
 
         from .bag import is_bag
@@ -157,8 +168,12 @@ class Recorder:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self.chunk_size = chunk_size
         self.compression = "" if compression == "none" else compression
-        meta = {"software": "mps", "version": __version__, "scene": scene_name,
-                "created": datetime.now(UTC).isoformat(timespec="seconds")}
+        meta = {
+            "software": "mps",
+            "version": __version__,
+            "scene": scene_name,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        }
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
         self._records = (("mps", meta), ("scene", {"name": scene_name, "toml": scene_text}))
         self._library = f"mps {__version__} (mcap writer)"
@@ -181,30 +196,28 @@ class Recorder:
 
         self.file = self.path / file_name(self.path, index) if self.bag else self.path
         self._stream = _Direct(self.file, exclusive=self.bag)
-        self._w = McapWriter(self._stream, chunk_size=self.chunk_size,
-                             compression=self.compression)
+        self._w = McapWriter(self._stream, chunk_size=self.chunk_size, compression=self.compression)
         self._w.start(profile=PROFILE, library=self._library)
         for name, data in self._records:
             self._w.add_metadata(name, data)
         self._schemas: dict[str, int] = {}
         for topic, ch in self._channels.items():
             ch.id = self._register(topic, ch.msgtype, ch.qos)
-        self._opened_at = self.messages     # a file holds a message before it is split
+        self._opened_at = self.messages  # a file holds a message before it is split
 
     def _register(self, topic: str, msgtype: str, qos: str) -> int:
         sid = self._schemas.get(msgtype)
         if sid is None:
             sid = self._schemas[msgtype] = self._w.register_schema(
-                msgtype, SCHEMA_ROS2MSG, msgdef(msgtype).encode())
-        return self._w.register_channel(topic, ENCODING_CDR, sid,
-                                        channel_metadata(msgtype, qos))
+                msgtype, SCHEMA_ROS2MSG, msgdef(msgtype).encode()
+            )
+        return self._w.register_channel(topic, ENCODING_CDR, sid, channel_metadata(msgtype, qos))
 
     def channel(self, topic: str, msgtype: str, qos: str | None = None) -> _Channel:
         ch = self._channels.get(topic)
         if ch is None:
             qos = qos or qos_yaml()
-            ch = self._channels[topic] = _Channel(self._register(topic, msgtype, qos), msgtype,
-                                                  qos)
+            ch = self._channels[topic] = _Channel(self._register(topic, msgtype, qos), msgtype, qos)
         return ch
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
@@ -213,8 +226,7 @@ class Recorder:
         ch.count += 1
         self.messages += 1
         self._pending += 1
-        self._w.add_message(ch.id, log_time=t_ns, data=data, publish_time=t_ns,
-                            sequence=ch.count)
+        self._w.add_message(ch.id, log_time=t_ns, data=data, publish_time=t_ns, sequence=ch.count)
 
     def tick(self) -> None:
         """Close the chunk in progress if it is older than ``flush_period`` (wall time); in a
@@ -223,8 +235,9 @@ class Recorder:
             self.flush()
         if (self.max_bytes or self.max_ns) and self.messages > self._opened_at:
             start, end = self._w.span()
-            if ((self.max_bytes and self._w.size >= self.max_bytes)
-                    or (self.max_ns and end - start >= self.max_ns)):
+            if (self.max_bytes and self._w.size >= self.max_bytes) or (
+                self.max_ns and end - start >= self.max_ns
+            ):
                 self._close_file()
                 self._open(len(self.spans))
 
@@ -279,9 +292,11 @@ class Recorder:
         if len(self.spans) > 1 and not self.spans[-1].count:
             self.spans.pop()
             self.file.unlink()
-        write_metadata(self.path, self.spans,
-                       [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n)
-                        for t, (m, q, n) in self._bag_topics.items()])
+        write_metadata(
+            self.path,
+            self.spans,
+            [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n) for t, (m, q, n) in self._bag_topics.items()],
+        )
 
 
 class BackgroundRecorder:
@@ -309,36 +324,56 @@ class BackgroundRecorder:
     ``{"error": …}``) at the end.
     """
 
-    def __init__(self, path, *, batch_period: float = 0.02, scene_name: str = "",
-                 scene_text: str = "", metadata: dict | None = None,
-                 chunk_size: int = 512 * 1024, flush_period: float = 1.0,
-                 compression: str = "zstd", max_bytes: int = 0, max_s: float = 0.0):
+    def __init__(
+        self,
+        path,
+        *,
+        batch_period: float = 0.02,
+        scene_name: str = "",
+        scene_text: str = "",
+        metadata: dict | None = None,
+        chunk_size: int = 512 * 1024,
+        flush_period: float = 1.0,
+        compression: str = "zstd",
+        max_bytes: int = 0,
+        max_s: float = 0.0,
+    ):
         import json
         import subprocess
         import sys
 
         self.path = Path(path)
         self.batch_period = float(batch_period)
-        self._proc = subprocess.Popen([sys.executable, "-m", "mps_ros.recording"],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                      bufsize=0)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "mps_ros.recording"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+        )
         self._out = self._proc.stdin
         widen_pipe(self._out.fileno())
-        settings = {"path": str(path), "scene_name": scene_name, "scene_text": scene_text,
-                    "metadata": {k: str(v) for k, v in (metadata or {}).items()},
-                    "chunk_size": int(chunk_size), "flush_period": float(flush_period),
-                    "compression": compression, "max_bytes": int(max_bytes),
-                    "max_s": float(max_s)}
+        settings = {
+            "path": str(path),
+            "scene_name": scene_name,
+            "scene_text": scene_text,
+            "metadata": {k: str(v) for k, v in (metadata or {}).items()},
+            "chunk_size": int(chunk_size),
+            "flush_period": float(flush_period),
+            "compression": compression,
+            "max_bytes": int(max_bytes),
+            "max_s": float(max_s),
+        }
         self._frame(b"I", json.dumps(settings).encode())
         reply = self._reply()
         if not reply.get("ready"):
             self._proc.wait(10)
-            raise OSError(f"recording {str(self.path)!r}: "
-                          f"{reply.get('error', 'the recording process failed')}")
+            raise OSError(
+                f"recording {str(self.path)!r}: {reply.get('error', 'the recording process failed')}"
+            )
         self._ids: dict[str, int] = {}
         self._counts: list[int] = []
         self._batch: list = []
-        self._steps: list = []          # write_steps(): the steps' message lists, as given
+        self._steps: list = []  # write_steps(): the steps' message lists, as given
         self._ids_of_keys: dict | None = None
         self._ids_sent = 0
         self._written_counts: dict | None = None
@@ -354,9 +389,9 @@ class BackgroundRecorder:
         view = memoryview(data)
         try:
             while view:
-                view = view[self._out.write(view):]
+                view = view[self._out.write(view) :]
         except (BrokenPipeError, ConnectionResetError):
-            self._check()               # its reason, where it gave one
+            self._check()  # its reason, where it gave one
             raise
 
     def _reply(self) -> dict:
@@ -379,7 +414,7 @@ class BackgroundRecorder:
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
         if self._steps:
-            self._send()                # what write_steps() was given goes first
+            self._send()  # what write_steps() was given goes first
         cid = self._ids.get(topic)
         if cid is None:
             cid = self.channel(topic, msgtype, qos)
@@ -394,7 +429,7 @@ class BackgroundRecorder:
         as they are and go down the pipe marshalled with the others of the batch (the work per
         message is then C code's), the map beside them where it grew."""
         if self._batch:
-            self._send()                # what write() was given goes first
+            self._send()  # what write() was given goes first
         self._steps.append(msgs)
         self._ids_of_keys = ids
         self.messages += len(msgs)
@@ -517,7 +552,7 @@ def _write_from_pipe() -> int:
             (n,) = struct.unpack_from("<I", buf, pos + 1)
             if len(buf) - pos - 5 < n:
                 break
-            got.append((bytes(buf[pos:pos + 1]), bytes(buf[pos + 5:pos + 5 + n])))
+            got.append((bytes(buf[pos : pos + 1]), bytes(buf[pos + 5 : pos + 5 + n])))
             pos += 5 + n
         del buf[:pos]
         return got
@@ -541,7 +576,7 @@ def _write_from_pipe() -> int:
             return 2
     answer({"ready": True})
     channels: dict[int, tuple] = {}
-    by_key: dict = {}                   # a step's keys -> channel ids (the "S" frames)
+    by_key: dict = {}  # a step's keys -> channel ids (the "S" frames)
     error = None
     done = False
     try:
@@ -549,7 +584,7 @@ def _write_from_pipe() -> int:
             got = frames(rec.flush_period)
             if not got:
                 rec.tick()
-                if eof:                 # the stepping process is gone: finish the file
+                if eof:  # the stepping process is gone: finish the file
                     break
                 continue
             for kind, payload in got:
@@ -560,7 +595,7 @@ def _write_from_pipe() -> int:
                         cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
                         pos += 14
                         topic, msgtype, qos = channels[cid]
-                        write(topic, msgtype, payload[pos:pos + n], t_ns, qos)
+                        write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
                         pos += n
                     rec.tick()
                 elif kind == b"S":
@@ -582,7 +617,7 @@ def _write_from_pipe() -> int:
                 elif kind == b"E":
                     done = True
                     break
-    except OSError as exc:              # the disk full, the file system gone read-only
+    except OSError as exc:  # the disk full, the file system gone read-only
         error = f"{exc.strerror or exc}"
     except Exception as exc:
         error = f"{type(exc).__name__}: {exc}"
@@ -608,18 +643,24 @@ class RecordingSink:
     name (``names``: key -> topic, e.g. from the node's publishers; default: the node's default
     names) with the QoS it was offered with (``qos``: key -> YAML)."""
 
-    def __init__(self, recorder: Recorder, names: dict | None = None, qos: dict | None = None,
-                 node: str = NODE_NAME, log=None):
+    def __init__(
+        self,
+        recorder: Recorder,
+        names: dict | None = None,
+        qos: dict | None = None,
+        node: str = NODE_NAME,
+        log=None,
+    ):
         self.rec = recorder
         self.names = names or {}
         self.qos = qos or {}
         self.node = node
-        self._ids: dict = {}         # key -> the recorder's channel id (emit_all)
+        self._ids: dict = {}  # key -> the recorder's channel id (emit_all)
         #: ``log(level, text)``: where the recording's failure is said (once); None: raised
         self.log = log
         #: why the recording stopped (the disk full...); the run goes on without it
         self.failure: str | None = None
-        self.dropped = 0             # messages not recorded since it stopped
+        self.dropped = 0  # messages not recorded since it stopped
         self._t_ns = 0
 
     def _failed(self, exc: Exception) -> None:
@@ -627,10 +668,16 @@ class RecordingSink:
             raise exc
         self.failure = str(exc)
         path = getattr(self.rec, "path", None)
-        self.log("error", f"recording stopped at t = {self._t_ns * 1e-9:.6g} s: {exc}; the run "
-                          "goes on without it; the file keeps the whole chunks written before"
-                          + (f" (complete it with `mps recover {path} OUT.mcap` where there "
-                             "is room)" if path is not None else ""))
+        self.log(
+            "error",
+            f"recording stopped at t = {self._t_ns * 1e-9:.6g} s: {exc}; the run "
+            "goes on without it; the file keeps the whole chunks written before"
+            + (
+                f" (complete it with `mps recover {path} OUT.mcap` where there is room)"
+                if path is not None
+                else ""
+            ),
+        )
 
     def _topic(self, key):
         name = self.names.get(key)
@@ -672,9 +719,8 @@ class RecordingSink:
         ids = self._ids
         try:
             for key, _data, _t, _r in msgs:
-                if key not in ids:      # a key met for the first time: its channel first
-                    ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype,
-                                                self.qos.get(key))
+                if key not in ids:  # a key met for the first time: its channel first
+                    ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
             write_steps(msgs, ids)
         except OSError as exc:
             self._failed(exc)
@@ -698,8 +744,9 @@ class RecordingSink:
             size = sum(p.stat().st_size for p in parts)
         except OSError:
             parts, size = [], 0
-        return recording(name, hardware, path, size, self.rec.messages, self.failure,
-                         self.dropped, files=len(parts))
+        return recording(
+            name, hardware, path, size, self.rec.messages, self.failure, self.dropped, files=len(parts)
+        )
 
 
 # -- reading back and recovering --------------------------------------------------------------
@@ -746,12 +793,12 @@ def _records(path: Path, report: Recovered | None = None):
         body_start = pos + 9
         if body_start + length > size:
             break
-        body = data[body_start:body_start + length]
+        body = data[body_start : body_start + length]
         stream = ReadDataStream(io.BytesIO(body))
         try:
             if opcode == 0x01:
                 yield "header", Header.read(stream)
-            elif opcode == 0x02:          # footer: the file is complete
+            elif opcode == 0x02:  # footer: the file is complete
                 if report is not None:
                     report.complete = True
                 yield "end", None
@@ -773,7 +820,7 @@ def _records(path: Path, report: Recovered | None = None):
                         yield kind, r
             elif opcode == 0x0C:
                 yield "metadata", Metadata.read(stream)
-            elif opcode == 0x0F:          # data end
+            elif opcode == 0x0F:  # data end
                 pass
         except Exception:
             break
@@ -801,7 +848,7 @@ def recover(src, dst, name: str | None = None, renamed: bool = False) -> Recover
         schema_names: dict[int, str] = {}
         channels: dict[int, int] = {}
         topics: dict[int, str] = {}
-        described: dict[int, tuple] = {}    # new channel id: (topic, type, offered QoS)
+        described: dict[int, tuple] = {}  # new channel id: (topic, type, offered QoS)
         rosbag2 = False
         for kind, r in _records(src, report):
             if kind == "header":
@@ -820,21 +867,29 @@ def recover(src, dst, name: str | None = None, renamed: bool = False) -> Recover
                 schemas[r.id] = w.register_schema(r.name, r.encoding, r.data)
                 schema_names[r.id] = r.name
             elif kind == "channel" and r.id not in channels:
-                channels[r.id] = w.register_channel(r.topic, r.message_encoding,
-                                                    schemas.get(r.schema_id, 0), dict(r.metadata))
+                channels[r.id] = w.register_channel(
+                    r.topic, r.message_encoding, schemas.get(r.schema_id, 0), dict(r.metadata)
+                )
                 topics[r.id] = r.topic
-                described[channels[r.id]] = (r.topic, schema_names.get(r.schema_id, ""),
-                                             dict(r.metadata).get("offered_qos_profiles",
-                                                                  qos_yaml()))
+                described[channels[r.id]] = (
+                    r.topic,
+                    schema_names.get(r.schema_id, ""),
+                    dict(r.metadata).get("offered_qos_profiles", qos_yaml()),
+                )
             elif kind == "message" and r.channel_id in channels:
-                w.add_message(channels[r.channel_id], log_time=r.log_time, data=r.data,
-                              publish_time=r.publish_time, sequence=r.sequence)
+                w.add_message(
+                    channels[r.channel_id],
+                    log_time=r.log_time,
+                    data=r.data,
+                    publish_time=r.publish_time,
+                    sequence=r.sequence,
+                )
                 report.messages += 1
                 t = topics[r.channel_id]
                 report.topics[t] = report.topics.get(t, 0) + 1
         if not started:
             w.start(profile=PROFILE, library="mps recover")
-        if not rosbag2:                 # written as the file closes: cut off with its end
+        if not rosbag2:  # written as the file closes: cut off with its end
             w.flush()
             w.add_metadata("rosbag2", rosbag2_record(name or dst.name, w, described))
         w.finish()
@@ -855,8 +910,10 @@ def recover_bag(src, dst, name: str | None = None) -> Recovered:
     src, dst = Path(src), Path(dst)
     parts = files(src)
     if not parts:
-        raise ValueError(f"{src}: a directory without a recording in it (expected a bag: "
-                         "metadata.yaml and its .mcap files)")
+        raise ValueError(
+            f"{src}: a directory without a recording in it (expected a bag: "
+            "metadata.yaml and its .mcap files)"
+        )
     dst.mkdir(exist_ok=True)
     total = Recovered(complete=True)
     spans, topics = [], {}
@@ -872,17 +929,32 @@ def recover_bag(src, dst, name: str | None = None) -> Recovered:
             if n:
                 total.topics[topic] = total.topics.get(topic, 0) + n
             topics.setdefault(topic, [msgtype, qos, 0])[2] += n
-    write_metadata(dst, spans, [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n)
-                                for t, (m, q, n) in topics.items()])
+    write_metadata(
+        dst, spans, [TopicCount(t, m, q, TYPE_HASHES.get(m, ""), n) for t, (m, q, n) in topics.items()]
+    )
     return total
 
 
-def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int = 1,
-           pacing: str = "as_fast_as_possible", real_time_factor: float = 1.0,
-           scene_commands: bool = True, flush_period: float = 1.0, log=None,
-           stop_on_signals: bool = True, background: bool = True, compression: str = "zstd",
-           progress: bool = False, max_bytes: int = 0,
-           max_s: float = 0.0) -> tuple[Path, dict, dict]:
+def record(
+    scene,
+    out,
+    *,
+    dt=None,
+    t_end=None,
+    outputs=None,
+    publish_every: int = 1,
+    pacing: str = "as_fast_as_possible",
+    real_time_factor: float = 1.0,
+    scene_commands: bool = True,
+    flush_period: float = 1.0,
+    log=None,
+    stop_on_signals: bool = True,
+    background: bool = True,
+    compression: str = "zstd",
+    progress: bool = False,
+    max_bytes: int = 0,
+    max_s: float = 0.0,
+) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
     :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
@@ -895,22 +967,35 @@ def record(scene, out, *, dt=None, t_end=None, outputs=None, publish_every: int 
     from .topics import OUTPUTS
     from .twin import Runner, Twin
 
-    twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS,
-                scene_commands=scene_commands)
+    twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS, scene_commands=scene_commands)
     from mps_core.run.progress import Progress
 
     shown = Progress(twin.t0, twin.t_end, label=twin.scene.name, quiet=not progress)
     rec = (BackgroundRecorder if background else Recorder)(
-        out, scene_name=twin.scene.name, scene_text=twin.scene.text,
+        out,
+        scene_name=twin.scene.name,
+        scene_text=twin.scene.text,
         metadata=_run_metadata(twin, "mps record", pacing, real_time_factor, publish_every),
-        flush_period=flush_period, compression=compression, max_bytes=max_bytes, max_s=max_s)
+        flush_period=flush_period,
+        compression=compression,
+        max_bytes=max_bytes,
+        max_s=max_s,
+    )
     sink = RecordingSink(rec, qos=offered_qos(DEPTH))
-    runner = Runner(twin, sinks=[sink, _ProgressSink(twin, shown)], pacing=pacing,
-                    real_time_factor=real_time_factor, publish_every=publish_every, log=log)
+    runner = Runner(
+        twin,
+        sinks=[sink, _ProgressSink(twin, shown)],
+        pacing=pacing,
+        real_time_factor=real_time_factor,
+        publish_every=publish_every,
+        log=log,
+    )
     old = {}
     if stop_on_signals:
+
         def stop(signum, _frame):
             runner.request_stop(signal.Signals(signum).name)
+
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, stop)
     try:
@@ -941,16 +1026,39 @@ class _ProgressSink:
 
 def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:
     d = twin.describe()
-    return {"source": source, "scene_origin": d["origin"], "t0_s": repr(d["t0"]),
-            "t_end_s": repr(d["t_end"]), "dt_s": repr(d["dt"]), "steps": str(d["steps"]),
-            "solver": d["solver"], "derivatives": d["derivatives"],
-            "outputs": ",".join(d["outputs"]), "scene_commands": str(d["scene_commands"]).lower(),
-            "pacing": pacing, "real_time_factor": repr(float(rtf)),
-            "publish_every": str(int(publish_every)), "time": "simulated, ns from t = 0"}
+    return {
+        "source": source,
+        "scene_origin": d["origin"],
+        "t0_s": repr(d["t0"]),
+        "t_end_s": repr(d["t_end"]),
+        "dt_s": repr(d["dt"]),
+        "steps": str(d["steps"]),
+        "solver": d["solver"],
+        "derivatives": d["derivatives"],
+        "outputs": ",".join(d["outputs"]),
+        "scene_commands": str(d["scene_commands"]).lower(),
+        "pacing": pacing,
+        "real_time_factor": repr(float(rtf)),
+        "publish_every": str(int(publish_every)),
+        "time": "simulated, ns from t = 0",
+    }
 
 
-__all__ = ["Recorder", "BackgroundRecorder", "RecordingSink", "recover", "record", "read_metadata", "msgdef",
-           "encoder", "generic_encoder", "default_path", "new_recording", "reserve", "Recovered"]
+__all__ = [
+    "Recorder",
+    "BackgroundRecorder",
+    "RecordingSink",
+    "recover",
+    "record",
+    "read_metadata",
+    "msgdef",
+    "encoder",
+    "generic_encoder",
+    "default_path",
+    "new_recording",
+    "reserve",
+    "Recovered",
+]
 
 
 if __name__ == "__main__":

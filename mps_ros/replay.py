@@ -56,8 +56,12 @@ DERIVED = {
 }
 
 #: joint -> (position column, velocity column)
-JOINT_COLUMNS = {"crank": ("phi", "phi_dot"), "rod": ("rod", "rod_dot"),
-                 "rocker": ("psi", "psi_dot"), "slider": ("x_C", "x_C_dot")}
+JOINT_COLUMNS = {
+    "crank": ("phi", "phi_dot"),
+    "rod": ("rod", "rod_dot"),
+    "rocker": ("psi", "psi_dot"),
+    "slider": ("x_C", "x_C_dot"),
+}
 assert set(JOINT_COLUMNS) == set(JOINT_NAMES), "mps_ros.topics.JOINTS changed: update this map"
 
 
@@ -73,11 +77,11 @@ class Replay:
     columns: dict
     metadata: dict
     events: list = field(default_factory=list)
-    commands: list = field(default_factory=list)      # (t, word) received on ~/mode
-    acks: list = field(default_factory=list)          # ~/mode/status: dicts
-    diagnostics: list = field(default_factory=list)   # (t, level, name, message)
-    topics: dict = field(default_factory=dict)        # full topic name -> message count
-    series: dict = field(default_factory=dict)        # topic key -> (t (s), values dict)
+    commands: list = field(default_factory=list)  # (t, word) received on ~/mode
+    acks: list = field(default_factory=list)  # ~/mode/status: dicts
+    diagnostics: list = field(default_factory=list)  # (t, level, name, message)
+    topics: dict = field(default_factory=dict)  # full topic name -> message count
+    series: dict = field(default_factory=dict)  # topic key -> (t (s), values dict)
     warnings: list = field(default_factory=list)
     digest: str = ""
 
@@ -88,8 +92,11 @@ class Replay:
 
     @property
     def scene_name(self) -> str:
-        return (self.metadata.get(META_SCENE, {}).get("name")
-                or self.metadata.get(META_SOFTWARE, {}).get("scene") or self.path.stem)
+        return (
+            self.metadata.get(META_SCENE, {}).get("name")
+            or self.metadata.get(META_SOFTWARE, {}).get("scene")
+            or self.path.stem
+        )
 
     @property
     def version(self) -> str | None:
@@ -105,8 +112,9 @@ class Replay:
             else:
                 from mps_core.scene import scene_from_text
 
-                self._scene = scene_from_text(text, name=self.scene_name,
-                                              origin=f"{self.path.name} (metadata)")
+                self._scene = scene_from_text(
+                    text, name=self.scene_name, origin=f"{self.path.name} (metadata)"
+                )
         return self._scene
 
     def __len__(self) -> int:
@@ -143,7 +151,7 @@ class _Cdr:
 
     def string(self) -> str:
         n = self.u32()
-        s = self.d[self.p:self.p + n]
+        s = self.d[self.p : self.p + n]
         if len(s) != n:
             raise ValueError("string runs past the message")
         self.p += n
@@ -200,20 +208,18 @@ def _numbers(msgtype: str, datas: list) -> list[tuple[dict, np.ndarray, dict]]:
     out = []
     for length, idx in groups.items():
         lay = _layout(msgtype, datas[idx[0]])
-        M = np.frombuffer(b"".join(datas[i] for i in idx), dtype=np.uint8).reshape(len(idx),
-                                                                                    length)
+        M = np.frombuffer(b"".join(datas[i] for i in idx), dtype=np.uint8).reshape(len(idx), length)
         fixed = np.ones(length, dtype=bool)
         for f, v in lay.items():
             if f.startswith("_"):
                 continue
             off, n = v
-            fixed[off:off + 8 * n] = False
+            fixed[off : off + 8 * n] = False
         same = (M[:, fixed] == M[0, fixed]).all(axis=1) if len(idx) > 1 else np.ones(1, bool)
         if not same.all():
             # a different layout hidden behind the same length: take those one by one
             for j in np.nonzero(~same)[0]:
-                out.append(_read_group(msgtype, _layout(msgtype, datas[idx[j]]),
-                                       M[j:j + 1], [idx[j]]))
+                out.append(_read_group(msgtype, _layout(msgtype, datas[idx[j]]), M[j : j + 1], [idx[j]]))
             keep = np.nonzero(same)[0]
             M = M[keep]
             idx = [idx[j] for j in keep]
@@ -229,12 +235,16 @@ def _read_group(msgtype, lay, M, idx):
             continue
         off, n = v
         if f == "stamp":
-            sec = np.ascontiguousarray(M[:, off:off + 4]).view(e + "i4")[:, 0].astype(np.int64)
-            ns = np.ascontiguousarray(M[:, off + 4:off + 8]).view(e + "u4")[:, 0].astype(np.int64)
+            sec = np.ascontiguousarray(M[:, off : off + 4]).view(e + "i4")[:, 0].astype(np.int64)
+            ns = np.ascontiguousarray(M[:, off + 4 : off + 8]).view(e + "u4")[:, 0].astype(np.int64)
             vals[f] = sec * 1_000_000_000 + ns
         else:
-            vals[f] = np.ascontiguousarray(M[:, off:off + 8 * n]).view(e + "f8").reshape(
-                len(idx), n).astype(float)
+            vals[f] = (
+                np.ascontiguousarray(M[:, off : off + 8 * n])
+                .view(e + "f8")
+                .reshape(len(idx), n)
+                .astype(float)
+            )
     return lay, np.asarray(idx), vals
 
 
@@ -302,7 +312,8 @@ def _scan(path: Path, data: bytes):
                 f"{': ' + str(exc) if str(exc) else ''}): its writer was probably stopped "
                 f"hard (killed, power lost) before it wrote the file's end. Recover its whole "
                 f"chunks into a complete file with `mps recover {path} "
-                f"{path.with_name(path.stem + '-recovered.mcap')}`, then open that one") from None
+                f"{path.with_name(path.stem + '-recovered.mcap')}`, then open that one"
+            ) from None
     complete = footer
     return meta, channels, schemas, library, complete, messages
 
@@ -321,7 +332,7 @@ def _match(channels: dict, key: str, node: str = NODE_NAME) -> _Channel | None:
             return ch
     suf = _suffix(key)
     cands = [ch for ch in channels.values() if ch.schema == msgtype and ch.topic.endswith(suf)]
-    if len(cands) > 1:      # prefer the node's own depth (~/x under one namespace level)
+    if len(cands) > 1:  # prefer the node's own depth (~/x under one namespace level)
         cands = [ch for ch in cands if ch.topic.count("/") == want.count("/")]
     return cands[0] if len(cands) == 1 else None
 
@@ -338,9 +349,11 @@ def _parts(path: Path) -> list[Path]:
 
     parts = files(path)
     if not parts:
-        raise ReplayError(f"{path}: a directory without a recording in it (expected a bag: "
-                          "metadata.yaml and its .mcap files, as the node writes where its "
-                          "recording path does not end in .mcap; or an .mcap file)")
+        raise ReplayError(
+            f"{path}: a directory without a recording in it (expected a bag: "
+            "metadata.yaml and its .mcap files, as the node writes where its "
+            "recording path does not end in .mcap; or an .mcap file)"
+        )
     return parts
 
 
@@ -356,16 +369,19 @@ def _scan_all(parts: list[Path]):
         head = _head(part)
         if head[:8] != MAGIC:
             what = "empty" if not head else f"it starts with {head[:8]!r}"
-            raise ReplayError(f"{part}: not an MCAP file ({what}): expected a recording made by "
-                              "`mps record SCENE --out FILE.mcap` or the node's recorder")
+            raise ReplayError(
+                f"{part}: not an MCAP file ({what}): expected a recording made by "
+                "`mps record SCENE --out FILE.mcap` or the node's recorder"
+            )
         data = part.read_bytes()
         digest.update(data)
         meta, channels, _schemas, library, done, n = _scan(part, data)
         first = first or (meta, library)
         complete, nmsg = complete and done, nmsg + n
         for ch in channels.values():
-            into = joined.setdefault((ch.topic, ch.schema, ch.encoding),
-                                     _Channel(len(joined), ch.topic, ch.schema, ch.encoding))
+            into = joined.setdefault(
+                (ch.topic, ch.schema, ch.encoding), _Channel(len(joined), ch.topic, ch.schema, ch.encoding)
+            )
             into.times += ch.times
             into.datas += ch.datas
     channels = {ch.id: ch for ch in joined.values()}
@@ -379,14 +395,16 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
     if not path.exists():
         raise ReplayError(f"{path}: no such file")
     if importlib.util.find_spec("mcap") is None:
-        raise ReplayError("reading a recording needs the mcap package, which is not "
-                          "installed: pip install -e '.[view]'")
+        raise ReplayError(
+            "reading a recording needs the mcap package, which is not installed: pip install -e '.[view]'"
+        )
     meta, channels, library, complete, nmsg, digest = _scan_all(_parts(path))
     rep = Replay(path=path, columns={}, metadata=meta, digest=digest)
     rep.topics = {ch.topic: len(ch.times) for ch in channels.values()}
     if not complete:
-        rep.warnings.append("the file has no footer (its summary is missing or cut short); "
-                            "every message was read")
+        rep.warnings.append(
+            "the file has no footer (its summary is missing or cut short); every message was read"
+        )
 
     js = _match(channels, "joint_states")
     if js is None or not js.times:
@@ -397,13 +415,14 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
             raise ReplayError(
                 f"{path}: an MCAP file{who} with none of the press twin's topics (expected "
                 f"{resolve('joint_states')} of type sensor_msgs/msg/JointState and the others "
-                f"of mps_ros.topics); it has: {have}")
+                f"of mps_ros.topics); it has: {have}"
+            )
         raise ReplayError(
             f"{path}: a recording{who} without joint states ({resolve('joint_states')}, "
-            f"sensor_msgs/msg/JointState, with messages): nothing to replay; it has: {have}")
+            f"sensor_msgs/msg/JointState, with messages): nothing to replay; it has: {have}"
+        )
     if js.encoding != ENCODING_CDR:
-        raise ReplayError(f"{path}: {js.topic} is encoded as {js.encoding!r}: "
-                          f"expected {ENCODING_CDR}")
+        raise ReplayError(f"{path}: {js.topic} is encoded as {js.encoding!r}: expected {ENCODING_CDR}")
     if check_version:
         sw = meta.get(META_SOFTWARE, {})
         from mps_core import __version__
@@ -423,9 +442,11 @@ def _read_channels(rep: Replay, channels: dict, js: _Channel) -> None:
     except (ValueError, KeyError, IndexError, struct.error) as exc:
         if isinstance(exc, ReplayError):
             raise
-        raise ReplayError(f"{rep.path}: a message of the twin's topics cannot be decoded as its "
-                          f"type says ({type(exc).__name__}: {exc}): the file is damaged or "
-                          "was written by another program") from None
+        raise ReplayError(
+            f"{rep.path}: a message of the twin's topics cannot be decoded as its "
+            f"type says ({type(exc).__name__}: {exc}): the file is damaged or "
+            "was written by another program"
+        ) from None
 
 
 def replay_of_messages(name: str, messages: dict, node: str = NODE_NAME) -> Replay | None:
@@ -452,8 +473,9 @@ def _joint_columns(rep: Replay, ch: _Channel) -> None:
     t_ns = _stamped(ch.times)
     order = np.argsort(t_ns, kind="stable")
     if np.any(np.diff(t_ns[order]) == 0):
-        raise ReplayError(f"{rep.path}: {ch.topic} has two messages at the same time: "
-                          "not a recording of one run")
+        raise ReplayError(
+            f"{rep.path}: {ch.topic} has two messages at the same time: not a recording of one run"
+        )
     n = len(ch.datas)
     cols = {"t": t_ns[order] / 1e9}
     pos = {c: np.full(n, np.nan) for c in JOINT_COLUMNS}
@@ -469,15 +491,16 @@ def _joint_columns(rep: Replay, ch: _Channel) -> None:
                     arr[name][idx] = vals[f][:, j]
     missing = [j for j in ("crank", "rocker", "slider") if np.isnan(pos[j]).all()]
     if missing:
-        raise ReplayError(f"{rep.path}: {ch.topic} has no joint {', '.join(missing)} (expected "
-                          f"the joints {', '.join(JOINT_NAMES)})")
+        raise ReplayError(
+            f"{rep.path}: {ch.topic} has no joint {', '.join(missing)} (expected "
+            f"the joints {', '.join(JOINT_NAMES)})"
+        )
     for j, (pc, vc) in JOINT_COLUMNS.items():
         cols[pc] = pos[j][order]
         cols[vc] = vel[j][order]
     t = cols["t"]
     for q in ("phi", "psi"):
-        cols[q + "_ddot"] = (np.gradient(cols[q + "_dot"], t, edge_order=2) if t.size > 2
-                             else np.zeros_like(t))
+        cols[q + "_ddot"] = np.gradient(cols[q + "_dot"], t, edge_order=2) if t.size > 2 else np.zeros_like(t)
     rep.series["joint_states"] = (t, {"effort_" + j: eff[j][order] for j in JOINT_COLUMNS})
     rep.columns = cols
 
@@ -490,8 +513,10 @@ def _align(rep: Replay, key: str, ch: _Channel, t_ns: np.ndarray, values: np.nda
     ok = (pos < base.size) & (base[np.minimum(pos, base.size - 1)] == t_ns)
     out[pos[ok]] = values[ok]
     if not ok.all():
-        rep.warnings.append(f"{ch.topic}: {int((~ok).sum())} messages at times without joint "
-                            "states (kept in the series, not in the columns)")
+        rep.warnings.append(
+            f"{ch.topic}: {int((~ok).sum())} messages at times without joint "
+            "states (kept in the series, not in the columns)"
+        )
     return out
 
 
@@ -508,12 +533,11 @@ def _wrench_columns(rep: Replay, channels: dict) -> None:
             force[idx] = vals["force"]
             torque[idx] = vals["torque"]
         series = {}
-        for col, arr in ((w.force[0], force[:, 0]), (w.force[1], force[:, 1]),
-                         (w.torque, torque[:, 2])):
+        for col, arr in ((w.force[0], force[:, 0]), (w.force[1], force[:, 1]), (w.torque, torque[:, 2])):
             if col is None:
                 continue
             series[col] = arr
-            if col not in rep.columns:       # a column two wrenches carry: the first one's
+            if col not in rep.columns:  # a column two wrenches carry: the first one's
                 rep.columns[col] = _align(rep, w.key, ch, t_ns, arr)
         rep.series[w.key] = (t_ns / 1e9, series)
 
@@ -579,7 +603,7 @@ def _events(rep: Replay, channels: dict) -> None:
                 msg = ts.deserialize_cdr(d, "diagnostic_msgs/msg/DiagnosticArray")
                 for s in msg.status:
                     rep.diagnostics.append((t / 1e9, int(s.level), s.name, s.message))
-        except Exception as exc:    # diagnostics are a nicety: never fail a replay on them
+        except Exception as exc:  # diagnostics are a nicety: never fail a replay on them
             rep.warnings.append(f"/diagnostics not read ({type(exc).__name__}: {exc})")
 
 
@@ -601,5 +625,13 @@ def load_columns(path) -> tuple[dict, list, str]:
     return rep.columns, rep.events, rep.path.name
 
 
-__all__ = ["Replay", "ReplayError", "read_recording", "load_columns", "DERIVED",
-           "JOINT_COLUMNS", "META_SCENE", "META_SOFTWARE"]
+__all__ = [
+    "Replay",
+    "ReplayError",
+    "read_recording",
+    "load_columns",
+    "DERIVED",
+    "JOINT_COLUMNS",
+    "META_SCENE",
+    "META_SOFTWARE",
+]

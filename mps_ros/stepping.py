@@ -99,8 +99,8 @@ class FrameWriter:
             view = memoryview(data)
             try:
                 while view:
-                    view = view[os.write(self.fd, view):]
-            except OSError:         # the other side is gone
+                    view = view[os.write(self.fd, view) :]
+            except OSError:  # the other side is gone
                 self.broken = True
                 return False
         return True
@@ -124,7 +124,7 @@ class FrameReader:
                 kind, n = _HEAD.unpack_from(buf, pos)
                 if n_buf - pos - 5 < n:
                     break
-                got.append((kind, bytes(buf[pos + 5:pos + 5 + n])))
+                got.append((kind, bytes(buf[pos + 5 : pos + 5 + n])))
                 pos += 5 + n
             if pos:
                 del buf[:pos]
@@ -140,9 +140,11 @@ class FrameReader:
 
 
 # -- real-time scheduling ---------------------------------------------------------------------
-HOW_TO_ALLOW = ("to allow it, raise the user's rtprio limit (ulimit -r 99, or a line "
-                "'@realtime - rtprio 99' in /etc/security/limits.conf with the user in group "
-                "realtime) or grant CAP_SYS_NICE; see docs/ros.md, 'Real-time scheduling'")
+HOW_TO_ALLOW = (
+    "to allow it, raise the user's rtprio limit (ulimit -r 99, or a line "
+    "'@realtime - rtprio 99' in /etc/security/limits.conf with the user in group "
+    "realtime) or grant CAP_SYS_NICE; see docs/ros.md, 'Real-time scheduling'"
+)
 
 
 def ask_fifo(priority: int) -> str | None:
@@ -201,15 +203,16 @@ class _Ahead:
     #: steps written at once at most; a step due within this (wall s) goes at once
     BATCH, NEAR = 16, 0.002
 
-    def __init__(self, runner: Runner, out: FrameWriter, commands, wake: threading.Event,
-                 hold: Hold | None = None):
+    def __init__(
+        self, runner: Runner, out: FrameWriter, commands, wake: threading.Event, hold: Hold | None = None
+    ):
         self.runner, self.twin, self.out = runner, runner.twin, out
         self.commands, self.wake = commands, wake
         self.hold = hold or Hold()
         self.gen = 0
         self.cps: dict[int, tuple] = {}
         self.pending: list[bytes] = []
-        self.due = math.inf                 # the earliest deadline among the pending steps
+        self.due = math.inf  # the earliest deadline among the pending steps
 
     def deadline(self, k: int) -> float:
         tw = self.twin
@@ -217,8 +220,9 @@ class _Ahead:
 
     def _entry(self, k: int, deadline: float, state: bool, msgs: list) -> None:
         twin = self.twin
-        self.pending.append(marshal.dumps((k, self.gen, deadline, state, twin.sim.structure,
-                                           twin.refusals(), msgs)))
+        self.pending.append(
+            marshal.dumps((k, self.gen, deadline, state, twin.sim.structure, twin.refusals(), msgs))
+        )
         if deadline < self.due:
             self.due = deadline
 
@@ -236,7 +240,7 @@ class _Ahead:
         step = twin.dt / runner.rtf
         ahead = twin.rewindable and runner.lead > step
         lead = runner.lead if ahead else step
-        keep = int(math.ceil(2.0 * lead / step)) + 100      # checkpoints kept, by step
+        keep = int(math.ceil(2.0 * lead / step)) + 100  # checkpoints kept, by step
         refill = 0.2 * lead if ahead else 0.0
         runner.prepare()
         runner._start_clocks()
@@ -259,8 +263,8 @@ class _Ahead:
                 if commands and twin.k >= commands[0][4]:
                     self._command(commands.popleft(), ahead)
                     continue
-                one = False                 # a step asked for while paused
-                if self.hold.paused:        # the node is inactive: nothing computed ahead
+                one = False  # a step asked for while paused
+                if self.hold.paused:  # the node is inactive: nothing computed ahead
                     if not self.hold.steps:
                         self.flush()
                         self.wake.wait(0.05)
@@ -285,8 +289,7 @@ class _Ahead:
                     warned = True
                     self._say_behind(k, c1 - deadline)
                 t_ns = to_ns(twin.t)
-                staged = [] if msgs is None else [(key, data, t_ns, False)
-                                                  for key, data in msgs]
+                staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
                 runner._staging = staged
                 runner._emit_events(twin.new_events(hold=not ahead), t_ns)
                 if c1 >= next_diag:
@@ -330,12 +333,15 @@ class _Ahead:
         period = twin.dt / runner.rtf
         steps = max(1, k - self.k0)
         rate = steps / (steps * period + late)
-        runner.log("warn", f"cannot keep real time: step {k} (t = {twin.t:.6g} s) came "
-                           f"{late * 1e3:.0f} ms after its deadline; the node makes about "
-                           f"{rate:.0f} steps a wall second where real time needs "
-                           f"{1.0 / period:.0f} (a step every {period * 1e3:.3g} ms): give a "
-                           "larger dt or a smaller real_time_factor (the run goes on, behind "
-                           "its schedule)")
+        runner.log(
+            "warn",
+            f"cannot keep real time: step {k} (t = {twin.t:.6g} s) came "
+            f"{late * 1e3:.0f} ms after its deadline; the node makes about "
+            f"{rate:.0f} steps a wall second where real time needs "
+            f"{1.0 / period:.0f} (a step every {period * 1e3:.3g} ms): give a "
+            "larger dt or a smaller real_time_factor (the run goes on, behind "
+            "its schedule)",
+        )
 
     def _command(self, cmd: tuple, ahead: bool) -> None:
         """A command at its boundary ``k`` (the ROS process chose it, dropped the steps it had
@@ -365,6 +371,7 @@ class _Ahead:
     def _reply(self, cid: int):
         def reply(ack):
             self.out.frame(b"A", marshal.dumps((cid, to_json(ack))))
+
         return reply
 
 
@@ -383,7 +390,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     its end; see the module's docstring."""
     parent = os.getppid()
     _set_parent_death_signal()
-    if fd_out == 1:         # the frames keep the pipe; whatever else prints goes to stderr
+    if fd_out == 1:  # the frames keep the pipe; whatever else prints goes to stderr
         fd_out = os.dup(1)
         os.dup2(2, 1)
     out = FrameWriter(fd_out)
@@ -418,10 +425,9 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
 
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, on_signal)
-    if os.getppid() != parent:          # the node died before the death signal was asked for
+    if os.getppid() != parent:  # the node died before the death signal was asked for
         stop("the node's process ended")
-    out.frame(b"R", json.dumps({"ready": True, "pid": os.getpid(),
-                                "rewindable": twin.rewindable}).encode())
+    out.frame(b"R", json.dumps({"ready": True, "pid": os.getpid(), "rewindable": twin.rewindable}).encode())
     go = threading.Event()
     asked: dict = {}
 
@@ -455,7 +461,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
             take(kind, payload)
         while True:
             got = reader.read()
-            if not got:                 # the node's end of the pipe closed
+            if not got:  # the node's end of the pipe closed
                 stop("the node's process ended")
                 go.set()
                 return
@@ -472,8 +478,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     # a command waits this long at most for the stepping thread to let go of the interpreter
     # (Python's default: 5 ms, five steps)
     sys.setswitchinterval(2e-4)
-    out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio,
-                                "refused": why}).encode())
+    out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio, "refused": why}).encode())
     from .os_threads import name_thread
 
     name_thread("mps-step")
@@ -486,9 +491,18 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         error_kind = "simulation" if isinstance(exc, MpsError) else "error"
     stats = runner.stats()
     stats["structure"] = twin.sim.structure
-    out.frame(b"E", json.dumps({"stats": stats, "stop_reason": runner.stop_reason,
-                                "error": runner.error, "error_kind": error_kind},
-                               default=str).encode())
+    out.frame(
+        b"E",
+        json.dumps(
+            {
+                "stats": stats,
+                "stop_reason": runner.stop_reason,
+                "error": runner.error,
+                "error_kind": error_kind,
+            },
+            default=str,
+        ).encode(),
+    )
     return 0
 
 
@@ -547,7 +561,7 @@ class SteppingProcess:
 
         self.spec = spec
         self.sink = sink
-        self.sinks: list = []               # the others: the recorder
+        self.sinks: list = []  # the others: the recorder
         self.log = log
         self.gate = gate
         self.priority = int(priority)
@@ -571,30 +585,30 @@ class SteppingProcess:
         self._proc: subprocess.Popen | None = None
         self._replies: dict[int, object] = {}
         self._next_id = 0
-        self._lock = threading.Lock()       # the held steps, the generation, the replies
+        self._lock = threading.Lock()  # the held steps, the generation, the replies
         self._out: FrameWriter | None = None
         self._reader: FrameReader | None = None
         self._queue: collections.deque[_Entry] = collections.deque()
         self._released: _Entry | None = None
         self._gen = 0
-        self._limits: dict[int, int] = {}   # an earlier generation: its last valid step
-        self._received_gen = 0              # the last generation received
-        self._last_boundary = -1            # the step of the last command sent on
-        self._held: dict[int, list] = {}    # refusals that follow a command's answers
+        self._limits: dict[int, int] = {}  # an earlier generation: its last valid step
+        self._received_gen = 0  # the last generation received
+        self._last_boundary = -1  # the step of the last command sent on
+        self._held: dict[int, list] = {}  # refusals that follow a command's answers
         #: commands that came while one sent on was unanswered: (command, word, the gate's
         #: refusal or None)
         self._waiting: collections.deque = collections.deque()
         self._stats: dict = {}
         self._refusals = RefusalLog(log)
         self._prepared = False
-        self._first: float | None = None        # the schedule's start (wall s)
-        self._last = 0.0                        # the last release (wall s)
+        self._first: float | None = None  # the schedule's start (wall s)
+        self._last = 0.0  # the last release (wall s)
         self._ended = False
         self._this_refused: str | None = None
-        self._failure: str | None = None        # why the recording stopped, where it did
-        self._next_status = 0.0                 # the recording's next status (wall s)
-        self._paused_at: float | None = None    # paused (the node inactive) since (wall s)
-        self.paused_s = 0.0                     # wall seconds paused so far
+        self._failure: str | None = None  # why the recording stopped, where it did
+        self._next_status = 0.0  # the recording's next status (wall s)
+        self._paused_at: float | None = None  # paused (the node inactive) since (wall s)
+        self.paused_s = 0.0  # wall seconds paused so far
         #: the replies of the steps asked for while paused (~/step), in order
         self._step_replies: collections.deque = collections.deque()
         self._diagnostics_encoder = None
@@ -615,8 +629,7 @@ class SteppingProcess:
         """This process's command counts (refused here, of which as floods; lost) to the
         stepping process, whose /diagnostics say them."""
         if self._out is not None:
-            self._out.frame(b"N", marshal.dumps((self.commands_refused, self.gate.floods,
-                                                 self._lost)))
+            self._out.frame(b"N", marshal.dumps((self.commands_refused, self.gate.floods, self._lost)))
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -625,15 +638,17 @@ class SteppingProcess:
         if self._prepared:
             return
         self._prepared = True
-        self._proc = subprocess.Popen([sys.executable, "-m", "mps_ros.stepping"],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                      bufsize=0)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "mps_ros.stepping"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+        )
         self._out = FrameWriter(self._proc.stdin.fileno())
         widen_pipe(self._proc.stdin.fileno())
         self._reader = FrameReader(self._proc.stdout.fileno())
         self._out.frame(b"I", json.dumps(self.spec).encode())
-        keys = [t.key for t in BY_KEY.values()
-                if not t.output or t.output in self.spec["twin"]["outputs"]]
+        keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.spec["twin"]["outputs"]]
         for s in self.sinks:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
@@ -647,8 +662,9 @@ class SteppingProcess:
             got = self._reader.read()
             if not got:
                 self._proc.wait(10)
-                raise OSError(f"the stepping process ended before it was ready "
-                              f"({_exit_words(self._proc.returncode)})")
+                raise OSError(
+                    f"the stepping process ended before it was ready ({_exit_words(self._proc.returncode)})"
+                )
             for kind, payload in got:
                 if kind == b"L":
                     self.log(*marshal.loads(payload))
@@ -683,8 +699,7 @@ class SteppingProcess:
         wall = cmd.wall + self.command_delay
         kb = None if refusal is not None else self._step_at(wall)
         if kb is None:
-            self._refuse(cmd, word, refusal or "the run has not started",
-                         self._boundary(cmd.wall))
+            self._refuse(cmd, word, refusal or "the run has not started", self._boundary(cmd.wall))
             return
         at = self._settled(wall, kb)
         if at is not None and at.refusals[COMMAND_INDEX[word]] is not None:
@@ -714,7 +729,7 @@ class SteppingProcess:
             if not self._ended and refusal is None:
                 last = self._queue[-1] if self._queue else self._released
                 if last is None or last.deadline < cmd.wall + self.command_delay:
-                    return                  # its boundary's step is still to come
+                    return  # its boundary's step is still to come
             waiting.popleft()
             self._take(cmd, word, "the run has ended" if self._ended else refusal)
 
@@ -780,13 +795,22 @@ class SteppingProcess:
             k = self._last_boundary
         t = self._time_of(k)
         structure = at.structure if at is not None else ""
-        ack = {"t": t, "command": shown(word, 64), "accepted": False, "reason": reason,
-               "source": cmd.source, "structure": structure}
+        ack = {
+            "t": t,
+            "command": shown(word, 64),
+            "accepted": False,
+            "reason": reason,
+            "source": cmd.source,
+            "structure": structure,
+        }
         t_ns = to_ns(t)
-        msgs = [("~/mode", self._string({"data": word}), t_ns, True),
-                ("~/mode/status", self._string({"data": to_json(ack)}), t_ns, False)]
-        entry = _Entry(k, self._gen, deadline, False, structure,
-                       at.refusals if at is not None else None, msgs)
+        msgs = [
+            ("~/mode", self._string({"data": word}), t_ns, True),
+            ("~/mode/status", self._string({"data": to_json(ack)}), t_ns, False),
+        ]
+        entry = _Entry(
+            k, self._gen, deadline, False, structure, at.refusals if at is not None else None, msgs
+        )
         queue = self._queue
         if self._gen > self._received_gen:
             # a command sent on is being applied: this answer follows that one's
@@ -900,13 +924,13 @@ class SteppingProcess:
             # a run stopped early lets go of what it holds at once
             flush = end is not None and (end.get("stop_reason") or end.get("error"))
             now = clock()
-            while True:             # every held step whose deadline has passed
+            while True:  # every held step whose deadline has passed
                 reply = None
                 with lock:
                     if not queue:
                         break
                     if not flush:
-                        if self._paused_at is not None:     # paused: the steps asked for
+                        if self._paused_at is not None:  # paused: the steps asked for
                             if not self._step_replies:
                                 break
                         elif queue[0].deadline > now:
@@ -918,7 +942,7 @@ class SteppingProcess:
                 if reply is not None:
                     try:
                         reply(self._time_of(head.k))
-                    except Exception:       # a reply must never take the run down
+                    except Exception:  # a reply must never take the run down
                         pass
             if self._paused_at is not None and now >= self._next_status:
                 self._stale(now)
@@ -931,7 +955,7 @@ class SteppingProcess:
                         time.sleep(min(wait, 0.05))
                 continue
             if self._paused_at is not None:
-                wait = 0.05                 # paused: awake for the diagnostics' STALE
+                wait = 0.05  # paused: awake for the diagnostics' STALE
             else:
                 wait = (queue[0].deadline - clock()) if queue else 0.5
             # the next deadline, or what the stepping process sends, whichever comes first
@@ -946,9 +970,8 @@ class SteppingProcess:
                     k, gen, deadline, state, structure, refusals, msgs = marshal.loads(payload)
                     with lock:
                         if gen == self._gen or k <= self._limits.get(gen, -1):
-                            queue.append(_Entry(k, gen, deadline, state, structure, refusals,
-                                                msgs))
-                            if gen > self._received_gen:    # a command's answers
+                            queue.append(_Entry(k, gen, deadline, state, structure, refusals, msgs))
+                            if gen > self._received_gen:  # a command's answers
                                 self._received_gen = gen
                                 queue.extend(self._held.pop(gen, ()))
                 elif kind == b"A":
@@ -958,7 +981,7 @@ class SteppingProcess:
                     if reply is not None:
                         try:
                             reply(json.loads(ack))
-                        except Exception:   # a reply must never take the run down
+                        except Exception:  # a reply must never take the run down
                             pass
                 elif kind == b"L":
                     self.log(*marshal.loads(payload))
@@ -992,14 +1015,13 @@ class SteppingProcess:
             self.publish_times.add(p1 - p0)
             late = p1 - head.deadline
             self.latencies.add(late if late > 0.0 else 0.0)
-        said = False                    # the recording's failure, first seen at this step
+        said = False  # the recording's failure, first seen at this step
         for s in self.sinks:
             try:
                 s.emit_all(msgs)
                 s.tick(head.deadline)
-            except Exception as exc:    # a sink that fails: said once, dropped, step on
-                self.log("error", f"recording failed at step {head.k}: "
-                                  f"{type(exc).__name__}: {exc}")
+            except Exception as exc:  # a sink that fails: said once, dropped, step on
+                self.log("error", f"recording failed at step {head.k}: {type(exc).__name__}: {exc}")
                 self.sinks = [x for x in self.sinks if x is not s]
                 if self._failure is None:
                     self._failure = f"{type(exc).__name__}: {exc}"
@@ -1022,9 +1044,11 @@ class SteppingProcess:
 
         name, hw = self._named
         t = self._time_of(self._released.k)
-        self._statuses_out([diagnostics.paused(name, hw, t)]
-                           + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
-                           to_ns(t))
+        self._statuses_out(
+            [diagnostics.paused(name, hw, t)]
+            + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
+            to_ns(t),
+        )
 
     def _recording_status(self, msgs: list) -> None:
         """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
@@ -1037,8 +1061,7 @@ class SteppingProcess:
 
         name, hw = self._named
         statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
-        if self._failure is not None and not any(x["level"] == diagnostics.ERROR
-                                                 for x in statuses):
+        if self._failure is not None and not any(x["level"] == diagnostics.ERROR for x in statuses):
             # the sink itself gave up (dropped): its failure said all the same
             statuses.append(diagnostics.recording(name, hw, "", 0, 0, self._failure))
         if statuses:
@@ -1063,24 +1086,28 @@ class SteppingProcess:
         why = got.get("refused") or self._this_refused
         if why is None:
             self.priority_got = prio
-            self.log("info", f"stepping process and publishing thread: SCHED_FIFO, priority "
-                             f"{prio}")
+            self.log("info", f"stepping process and publishing thread: SCHED_FIFO, priority {prio}")
         else:
             self.priority_got = 0
-            self.log("warn", f"realtime_priority {prio}: SCHED_FIFO refused here ({why}); "
-                             f"stepping at normal priority; {HOW_TO_ALLOW}")
+            self.log(
+                "warn",
+                f"realtime_priority {prio}: SCHED_FIFO refused here ({why}); "
+                f"stepping at normal priority; {HOW_TO_ALLOW}",
+            )
 
     def _finish(self, end: dict | None) -> dict:
         proc = self._proc
         self._refusals.close()
-        if end is None:                 # the stepping process died
+        if end is None:  # the stepping process died
             try:
                 proc.wait(10)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(10)
-            self.error = (f"the stepping process (pid {proc.pid}) ended without finishing "
-                          f"the run ({_exit_words(proc.returncode)})")
+            self.error = (
+                f"the stepping process (pid {proc.pid}) ended without finishing "
+                f"the run ({_exit_words(proc.returncode)})"
+            )
             self.error_kind = "died"
             self.stop_reason = "error"
             k = self.k_released or 0
@@ -1095,8 +1122,16 @@ class SteppingProcess:
             replies, self._replies = self._replies, {}
         for reply in replies.values():
             try:
-                reply({"t": math.nan, "command": "", "accepted": False,
-                       "reason": "the run has ended", "source": "service", "structure": ""})
+                reply(
+                    {
+                        "t": math.nan,
+                        "command": "",
+                        "accepted": False,
+                        "reason": "the run has ended",
+                        "source": "service",
+                        "structure": "",
+                    }
+                )
             except Exception:
                 pass
         return self.stats()
@@ -1126,12 +1161,19 @@ class SteppingProcess:
         s["commands_lost"] = self.commands_lost
         s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused
         s["realtime_priority"] = self.priority_got or 0
-        for k in ("step_time_p50_ms", "step_time_p99_ms", "publish_time_p50_ms",
-                  "publish_time_p99_ms", "real_time_factor", "deadline_misses",
-                  "step_thread_cpu_per_step_us", "process_cpu_per_step_us",
-                  "commands_accepted", "steps"):
-            s.setdefault(k, 0 if k in ("deadline_misses", "steps", "commands_accepted")
-                         else math.nan)
+        for k in (
+            "step_time_p50_ms",
+            "step_time_p99_ms",
+            "publish_time_p50_ms",
+            "publish_time_p99_ms",
+            "real_time_factor",
+            "deadline_misses",
+            "step_thread_cpu_per_step_us",
+            "process_cpu_per_step_us",
+            "commands_accepted",
+            "steps",
+        ):
+            s.setdefault(k, 0 if k in ("deadline_misses", "steps", "commands_accepted") else math.nan)
         return s
 
     def close(self) -> None:

@@ -43,7 +43,7 @@ from .os_threads import name_thread, short_slice
 from .topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES
 
 _RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
-_CLOCK_HEAD = b"\x00\x01\x00\x00"      # CDR, little endian
+_CLOCK_HEAD = b"\x00\x01\x00\x00"  # CDR, little endian
 _time = struct.Struct("<iI").pack
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
@@ -100,17 +100,24 @@ class Twin:
     subset of :data:`~mps_ros.topics.OUTPUTS` to produce; the reactions are solved only when
     ``reactions`` or ``foundation`` is among them."""
 
-    def __init__(self, scene, *, dt: float | None = None, t_end: float | None = None,
-                 outputs: Iterable[str] = OUTPUTS, scene_commands: bool = True,
-                 markers_hz: float = 30.0, markers_scale: float | None = None,
-                 derivatives: str | None = None):
+    def __init__(
+        self,
+        scene,
+        *,
+        dt: float | None = None,
+        t_end: float | None = None,
+        outputs: Iterable[str] = OUTPUTS,
+        scene_commands: bool = True,
+        markers_hz: float = 30.0,
+        markers_scale: float | None = None,
+        derivatives: str | None = None,
+    ):
         from mps_core import build, load_scene
 
         if not hasattr(scene, "with_overrides"):
             scene = load_scene(scene)
         # the scene's step unless told (a new t_end alone keeps the step, not the step count)
-        scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None,
-                                     scheme=derivatives or None)
+        scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None, scheme=derivatives or None)
         self._scene_with_commands = scene
         if not scene_commands:
             scene = replace(scene, commands=())
@@ -139,20 +146,20 @@ class Twin:
             from .markers import N_PER_M, MarkerLayout
 
             self.markers = MarkerLayout.of_scene(
-                scene, self._wrenches() or (), N_PER_M if markers_scale is None
-                else markers_scale)
+                scene, self._wrenches() or (), N_PER_M if markers_scale is None else markers_scale
+            )
         self._marker_presets: dict = {}
         self.frames = None
         if "tf" in self.outputs:
             from .frames import TfLayout
 
             self.frames = TfLayout.of_scene(scene)
-        self._tf = None                 # /tf's kept buffer (state_payloads)
+        self._tf = None  # /tf's kept buffer (state_payloads)
         self._structure_sent: str | None = None
-        self._static_sent = False       # /tf_static has gone out
-        self._holding = False                   # new_events() holds this step's events
-        self._refusals: dict[tuple, tuple] = {}     # refusals(), by what they depend on
-        self._js = None                 # the per-step messages' kept buffers (state_payloads)
+        self._static_sent = False  # /tf_static has gone out
+        self._holding = False  # new_events() holds this step's events
+        self._refusals: dict[tuple, tuple] = {}  # refusals(), by what they depend on
+        self._js = None  # the per-step messages' kept buffers (state_payloads)
 
     def warm_up(self, seconds: float = 1.0, tries: int = 10, trial: float = 0.06) -> None:
         """Do once, before a paced run's clock starts, what its first steps would otherwise do
@@ -177,11 +184,9 @@ class Twin:
                 copy.new_events()
 
         try:
-            copy = Twin(self._scene_with_commands, dt=self.dt, t_end=t_end,
-                        outputs=self.outputs)
+            copy = Twin(self._scene_with_commands, dt=self.dt, t_end=t_end, outputs=self.outputs)
             run(copy, copy.n)
-            copy = Twin(self.scene, dt=self.dt, t_end=min(self.t_end, t_end + trial),
-                        outputs=self.outputs)
+            copy = Twin(self.scene, dt=self.dt, t_end=min(self.t_end, t_end + trial), outputs=self.outputs)
             if not (tries > 0 and copy.rewindable):
                 return
             every = max(1, int(round((t_end - self.t0) / (tries * self.dt))))
@@ -194,7 +199,7 @@ class Twin:
                         run(copy, n_trial)
                     copy.restore(cp)
         except Exception:
-            pass                        # the run itself will meet it, and say so
+            pass  # the run itself will meet it, and say so
 
     # -- stepping -------------------------------------------------------------------------
     @property
@@ -220,8 +225,7 @@ class Twin:
 
     def checkpoint(self) -> tuple:
         """The twin's state at this step boundary (see :meth:`Simulation.checkpoint`)."""
-        return (self.k, self._structure_sent, self._static_sent, self._holding,
-                self.sim.checkpoint())
+        return (self.k, self._structure_sent, self._static_sent, self._holding, self.sim.checkpoint())
 
     def restore(self, cp: tuple) -> None:
         """Back to a :meth:`checkpoint`: the steps computed since are forgotten."""
@@ -272,12 +276,14 @@ class Twin:
             return None
         sim = self.sim
         e = sim.solver.current
-        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
-                               e.qd.tolist(), e.qdd.tolist(), e.kin)
+        fast = reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), e.qdd.tolist(), e.kin
+        )
         if fast is not None:
             return fast[0]
-        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd,
-                               e.qdd, kin=e.kin, kernel=False)
+        rx = compute_reactions(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False
+        )
         return [rx.values[c] for c in REACTION_COLUMNS]
 
     def reactions(self) -> dict | None:
@@ -292,8 +298,7 @@ class Twin:
         kin = sim.solver.current.kin
         xa, ya = kin.xy("A")
         xb, yb = kin.xy("B")
-        return ([phi, math.atan2(yb - ya, xb - xa), psi, x],
-                [phi_dot, kin.rate("rod"), psi_dot, x_dot])
+        return ([phi, math.atan2(yb - ya, xb - xa), psi, x], [phi_dot, kin.rate("rod"), psi_dot, x_dot])
 
     def _effort(self, rx) -> list:
         return [rx[_RX["M_motor"]], math.nan, rx[_RX["M_latch"]], rx[_RX["F_stop"]]]
@@ -327,22 +332,37 @@ class Twin:
         if "joint_states" in o:
             pos, vel = self.joint_values()
             effort = self._effort(rx) if rx is not None else []
-            out.append(("joint_states", {
-                "header": {"stamp": st, "frame_id": FRAME_ID}, "name": list(JOINT_NAMES),
-                "position": [float(v) for v in pos], "velocity": [float(v) for v in vel],
-                "effort": [float(v) for v in effort]}))
+            out.append(
+                (
+                    "joint_states",
+                    {
+                        "header": {"stamp": st, "frame_id": FRAME_ID},
+                        "name": list(JOINT_NAMES),
+                        "position": [float(v) for v in pos],
+                        "velocity": [float(v) for v in vel],
+                        "effort": [float(v) for v in effort],
+                    },
+                )
+            )
         for w in self._wrenches():
             fx, fy = (0.0 if c is None else float(rx[_RX[c]]) for c in w.force)
             mz = 0.0 if w.torque is None else float(rx[_RX[w.torque]])
-            out.append((w.key, {
-                "header": {"stamp": st, "frame_id": w.frame_id},
-                "wrench": {"force": {"x": fx, "y": fy, "z": 0.0},
-                           "torque": {"x": 0.0, "y": 0.0, "z": mz}}}))
+            out.append(
+                (
+                    w.key,
+                    {
+                        "header": {"stamp": st, "frame_id": w.frame_id},
+                        "wrench": {
+                            "force": {"x": fx, "y": fy, "z": 0.0},
+                            "torque": {"x": 0.0, "y": 0.0, "z": mz},
+                        },
+                    },
+                )
+            )
         if "structure" in o and sim.structure != self._structure_sent:
             out.append(("~/structure", {"data": sim.structure}))
         if self.markers is not None and self.k % self.marker_every == 0:
-            out.append(("~/markers", self.markers.message(
-                st, self._marker_values(rx), sim.structure)))
+            out.append(("~/markers", self.markers.message(st, self._marker_values(rx), sim.structure)))
         return out
 
     def _frame_values(self) -> list:
@@ -360,21 +380,39 @@ class Twin:
         effort = 4 if self.solve_reactions else 0
 
         def js(st, f):
-            return {"header": {"stamp": st, "frame_id": FRAME_ID}, "name": list(JOINT_NAMES),
-                    "position": f[0:4], "velocity": f[4:8], "effort": f[8:8 + effort]}
+            return {
+                "header": {"stamp": st, "frame_id": FRAME_ID},
+                "name": list(JOINT_NAMES),
+                "position": f[0:4],
+                "velocity": f[4:8],
+                "effort": f[8 : 8 + effort],
+            }
 
         def wrench(frame_id):
             def make(st, f):
-                return {"header": {"stamp": st, "frame_id": frame_id},
-                        "wrench": {"force": {"x": f[0], "y": f[1], "z": 0.0},
-                                   "torque": {"x": 0.0, "y": 0.0, "z": f[2]}}}
+                return {
+                    "header": {"stamp": st, "frame_id": frame_id},
+                    "wrench": {
+                        "force": {"x": f[0], "y": f[1], "z": 0.0},
+                        "torque": {"x": 0.0, "y": 0.0, "z": f[2]},
+                    },
+                }
+
             return make
 
         self._js = Preset(joint_state, js, 8 + effort)
-        self._wr = [(w.key, Preset(wrench_stamped, wrench(w.frame_id), 3,
-                                   take=[None if c is None else _RX[c]
-                                         for c in (*w.force, w.torque)]).pack)
-                    for w in self._wrenches()]
+        self._wr = [
+            (
+                w.key,
+                Preset(
+                    wrench_stamped,
+                    wrench(w.frame_id),
+                    3,
+                    take=[None if c is None else _RX[c] for c in (*w.force, w.torque)],
+                ).pack,
+            )
+            for w in self._wrenches()
+        ]
 
     def state_payloads(self) -> list[tuple[str, bytes]]:
         """The messages of the present step, encoded (CDR): (topic key, bytes), in publishing
@@ -396,15 +434,18 @@ class Twin:
                 from .cdr import Preset, generic_encoder
                 from .frames import MSGTYPE
 
-                self._tf = Preset(generic_encoder(MSGTYPE), self.frames.message,
-                                  self.frames.nfloats).pack
+                self._tf = Preset(generic_encoder(MSGTYPE), self.frames.message, self.frames.nfloats).pack
             if not self._static_sent:
                 from .cdr import generic_encoder
                 from .frames import MSGTYPE
 
                 self._static_sent = True
-                out.append(("/tf_static", generic_encoder(MSGTYPE)(
-                    self.frames.static_message({"sec": sec, "nanosec": nsec}))))
+                out.append(
+                    (
+                        "/tf_static",
+                        generic_encoder(MSGTYPE)(self.frames.static_message({"sec": sec, "nanosec": nsec})),
+                    )
+                )
             out.append(("/tf", self._tf(sec, nsec, self._frame_values())))
         rx = self.reaction_list()
         if "joint_states" in o:
@@ -431,8 +472,8 @@ class Twin:
 
                 layout = self.markers
                 preset = self._marker_presets[s] = Preset(
-                    generic_encoder(MSGTYPE), lambda st, f: layout.message(st, f, s),
-                    layout.nfloats)
+                    generic_encoder(MSGTYPE), lambda st, f: layout.message(st, f, s), layout.nfloats
+                )
             out.append(("~/markers", preset.pack(sec, nsec, self._marker_values(rx))))
         return out
 
@@ -455,7 +496,7 @@ class Twin:
         self._holding = False
         for ob in self.sim.observers:
             if hasattr(ob, "resolve"):
-                ob.resolve()            # a deferred impact's impulses
+                ob.resolve()  # a deferred impact's impulses
             if hasattr(ob, "impacts"):
                 ob.impacts.clear()
         ev = list(events)
@@ -464,11 +505,20 @@ class Twin:
 
     def describe(self) -> dict:
         s = self.scene
-        return {"scene": s.name, "origin": s.origin, "t0": self.t0, "t_end": self.t_end,
-                "dt": self.dt, "steps": self.n, "structure": s.structure,
-                "solver": s.solver.name, "derivatives": s.solver.scheme,
-                "outputs": list(self.outputs), "scene_commands": self.scene_commands,
-                "commands": [list(c) for c in s.commands]}
+        return {
+            "scene": s.name,
+            "origin": s.origin,
+            "t0": self.t0,
+            "t_end": self.t_end,
+            "dt": self.dt,
+            "steps": self.n,
+            "structure": s.structure,
+            "solver": s.solver.name,
+            "derivatives": s.solver.scheme,
+            "outputs": list(self.outputs),
+            "scene_commands": self.scene_commands,
+            "commands": [list(c) for c in s.commands],
+        }
 
 
 # -- commands in ----------------------------------------------------------------------------
@@ -529,7 +579,7 @@ class Gate:
         self.clock = clock
         self.tokens = float(self.burst)
         self.last = clock()
-        self.floods = 0                 # commands refused as part of a flood
+        self.floods = 0  # commands refused as part of a flood
 
     def check(self, word: str) -> str | None:
         now = self.clock()
@@ -537,8 +587,10 @@ class Gate:
         self.last = now
         if self.tokens < 1.0:
             self.floods += 1
-            return (f"flood: more than {self.burst} commands at once or {self.rate:g} a second; "
-                    "this one is dropped")
+            return (
+                f"flood: more than {self.burst} commands at once or {self.rate:g} a second; "
+                "this one is dropped"
+            )
         self.tokens -= 1.0
         if not word.strip():
             return f"empty command: {EXPECTED}"
@@ -559,8 +611,8 @@ class RefusalLog:
 
     def __init__(self, say: Callable[[str, str], None]):
         self.say = say
-        self.logged = -math.inf         # when a flood's refusal was last logged (wall s)
-        self.quiet = 0                  # refused as a flood since, not logged
+        self.logged = -math.inf  # when a flood's refusal was last logged (wall s)
+        self.quiet = 0  # refused as a flood since, not logged
 
     def refused(self, word: str, source: str, t: float, reason, wall: float) -> None:
         flood = str(reason).startswith("flood")
@@ -568,8 +620,7 @@ class RefusalLog:
             self.quiet += 1
             return
         more = f" ({self.quiet} more refused as a flood before this)" if self.quiet else ""
-        self.say("warn", f"refused command {shown(word)!r} ({source}) at t = {t:.6f} s: "
-                         f"{reason}{more}")
+        self.say("warn", f"refused command {shown(word)!r} ({source}) at t = {t:.6f} s: {reason}{more}")
         self.quiet = 0
         if flood:
             self.logged = wall
@@ -641,13 +692,26 @@ class Runner:
     Step and publish times, and in realtime pacing the latency after each step's deadline, are
     kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
 
-    def __init__(self, twin: Twin, *, sinks=(), pacing: str = "as_fast_as_possible",
-                 real_time_factor: float = 1.0, publish_every: int = 1,
-                 diagnostics_period: float = 1.0, inbox: Inbox | None = None,
-                 gate: Gate | None = None, log: Callable[[str, str], None] | None = None,
-                 name: str = "press_twin", warm_up: float = 1.0, lead: float = 0.1,
-                 command_delay: float = 0.0, release_period: float = 0.0,
-                 release_slice: float = 1e-4, freeze_gc: bool = False):
+    def __init__(
+        self,
+        twin: Twin,
+        *,
+        sinks=(),
+        pacing: str = "as_fast_as_possible",
+        real_time_factor: float = 1.0,
+        publish_every: int = 1,
+        diagnostics_period: float = 1.0,
+        inbox: Inbox | None = None,
+        gate: Gate | None = None,
+        log: Callable[[str, str], None] | None = None,
+        name: str = "press_twin",
+        warm_up: float = 1.0,
+        lead: float = 0.1,
+        command_delay: float = 0.0,
+        release_period: float = 0.0,
+        release_slice: float = 1e-4,
+        freeze_gc: bool = False,
+    ):
         if pacing not in PACINGS:
             raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
         if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
@@ -659,11 +723,9 @@ class Runner:
         if not (0 <= command_delay <= 1.0):
             raise ValueError(f"command_delay {command_delay!r}: expected 0 to 1 s")
         if not (release_slice == 0 or 1e-4 <= release_slice <= 0.1):
-            raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or "
-                             "0.0001 to 0.1 s")
+            raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or 0.0001 to 0.1 s")
         if not (release_period >= 0 and math.isfinite(release_period)):
-            raise ValueError(f"release_period {release_period!r}: expected a number of seconds "
-                             ">= 0")
+            raise ValueError(f"release_period {release_period!r}: expected a number of seconds >= 0")
         self.twin = twin
         #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
         #: step's period; only that where the twin cannot come back to a checkpoint)
@@ -685,7 +747,7 @@ class Runner:
         #: during the run scans only what the run made since (milliseconds, not tens of them,
         #: holding the interpreter); a process-wide choice, the node's
         self.freeze_gc = bool(freeze_gc)
-        self.warm_up = float(warm_up)           # simulated seconds run ahead in prepare()
+        self.warm_up = float(warm_up)  # simulated seconds run ahead in prepare()
         self.sinks = list(sinks)
         self.pacing = pacing
         self.rtf = float(real_time_factor)
@@ -697,22 +759,22 @@ class Runner:
         self.name = name
         self.stop_reason: str | None = None
         self._stop = threading.Event()
-        self._paused = threading.Event()        # as fast as possible: held (pause())
-        self._step_replies: collections.deque = collections.deque()    # step_paused()
+        self._paused = threading.Event()  # as fast as possible: held (pause())
+        self._step_replies: collections.deque = collections.deque()  # step_paused()
         # measurements
-        self.step_times = Timings()             # compute: advance + messages (s)
-        self.latencies = Timings()              # realtime: publish done - deadline (s)
-        self.publish_times = Timings()          # emitting a step's messages to the sinks (s)
+        self.step_times = Timings()  # compute: advance + messages (s)
+        self.latencies = Timings()  # realtime: publish done - deadline (s)
+        self.publish_times = Timings()  # emitting a step's messages to the sinks (s)
         self.misses = 0
-        self._window = diagnostics.Window()     # the counters the last /diagnostics saw
+        self._window = diagnostics.Window()  # the counters the last /diagnostics saw
         #: commands refused (of which as floods) and lost in the node's process, where the
         #: run steps in a process of its own (its gate answers there): said in /diagnostics
         self.elsewhere = (0, 0, 0)
         self.messages = 0
-        self.steps_recomputed = 0               # realtime: computed ahead, dropped for a command
+        self.steps_recomputed = 0  # realtime: computed ahead, dropped for a command
         self.commands_accepted = 0
         self.commands_refused = 0
-        self.commands_lost = 0                  # told by the transport (the node's QoS events)
+        self.commands_lost = 0  # told by the transport (the node's QoS events)
         self.events = 0
         self.wall_start = 0.0
         self.wall_end = 0.0
@@ -723,7 +785,7 @@ class Runner:
         self.release_slice: float | None = None
         self.error: str | None = None
         self._encoders: dict = {}
-        self._staging: list | None = None       # the release being filled (realtime)
+        self._staging: list | None = None  # the release being filled (realtime)
         #: realtime with steps banked: the commands' log lines, written when the lead is full
         #: (a line through rclpy's logger costs about 0.6 ms: not in the steps after a command)
         self._later_logs: list | None = None
@@ -759,7 +821,7 @@ class Runner:
         err = None
         if not received:
             self.messages += 1
-        for s in self.sinks:        # every sink gets it, though another one fails
+        for s in self.sinks:  # every sink gets it, though another one fails
             try:
                 if not received:
                     s.emit(key, data, t_ns)
@@ -781,14 +843,14 @@ class Runner:
     def _publish_step(self, payloads, t_ns):
         """The step's state to every sink, handed over at once (``tick``); then its events,
         whose impulses are worked out now, after the state is out."""
-        if self._staging is not None:          # realtime: into the step's release
+        if self._staging is not None:  # realtime: into the step's release
             self._staging.extend((key, data, t_ns, False) for key, data in payloads)
         else:
             self.messages += len(payloads)
             msgs = None
             for s in self.sinks:
                 emit_all = getattr(s, "emit_all", None)
-                if emit_all is not None:        # the step in one call
+                if emit_all is not None:  # the step in one call
                     if msgs is None:
                         msgs = [(key, data, t_ns, False) for key, data in payloads]
                     emit_all(msgs)
@@ -841,8 +903,14 @@ class Runner:
         """A command as received, and its answer (``~/mode/status``, the log, its reply)."""
         t_ns = to_ns(t)
         self._send("~/mode", self._encode("~/mode")({"data": word}), t_ns, received=True)
-        ack = {"t": t, "command": shown(word, 64), "accepted": ok, "reason": reason,
-               "source": c.source, "structure": structure}
+        ack = {
+            "t": t,
+            "command": shown(word, 64),
+            "accepted": ok,
+            "reason": reason,
+            "source": c.source,
+            "structure": structure,
+        }
         if ok:
             self.commands_accepted += 1
             self._say("info", f"command {word.strip()!r} ({c.source}) applied at t = {t:.6f} s")
@@ -853,14 +921,20 @@ class Runner:
         if c.reply is not None:
             try:
                 c.reply(ack)
-            except Exception:       # a reply must never take the run down
+            except Exception:  # a reply must never take the run down
                 pass
 
     def refuse_pending(self, reason: str) -> None:
         """Answer commands still waiting (the run is over): refused, never silently lost."""
         for c in self.inbox.drain():
-            ack = {"t": self.twin.t, "command": shown(str(c.word), 64), "accepted": False,
-                   "reason": reason, "source": c.source, "structure": self.twin.sim.structure}
+            ack = {
+                "t": self.twin.t,
+                "command": shown(str(c.word), 64),
+                "accepted": False,
+                "reason": reason,
+                "source": c.source,
+                "structure": self.twin.sim.structure,
+            }
             self.commands_refused += 1
             self.log("warn", f"refused command {shown(str(c.word))!r} ({c.source}): {reason}")
             if c.reply is not None:
@@ -878,7 +952,10 @@ class Runner:
             "pacing": self.pacing,
             "real_time_factor_target": self.rtf if self.pacing == "realtime" else math.inf,
             "real_time_factor": sim / wall if wall > 0 else math.nan,
-            "sim_time": sim, "wall_time": wall, "steps": self.twin.k, "t": self.twin.t,
+            "sim_time": sim,
+            "wall_time": wall,
+            "steps": self.twin.k,
+            "t": self.twin.t,
             "step_time_p50_ms": st.percentile(50) * 1e3,
             "step_time_p99_ms": st.percentile(99) * 1e3,
             "step_time_max_ms": st.max * 1e3,
@@ -891,13 +968,18 @@ class Runner:
             "commands_accepted": self.commands_accepted,
             "commands_refused": self.commands_refused,
             "commands_lost": self.commands_lost,
-            "cpu_time": (self.cpu_end if self.cpu_end is not None
-                         else time.process_time()) - self.cpu_start,
+            "cpu_time": (self.cpu_end if self.cpu_end is not None else time.process_time()) - self.cpu_start,
             # the stepping thread's own CPU (steps, messages, commands; not the publishing
             # thread, the middleware's threads or the recording process)
             "step_thread_cpu_per_step_us": (
-                (self.thread_cpu if self.thread_cpu is not None
-                 else time.thread_time() - self.thread_cpu_start) / max(1, self.twin.k) * 1e6),
+                (
+                    self.thread_cpu
+                    if self.thread_cpu is not None
+                    else time.thread_time() - self.thread_cpu_start
+                )
+                / max(1, self.twin.k)
+                * 1e6
+            ),
         }
         # the whole process's CPU over the run (every thread: stepping, releasing, the
         # middleware's; not the recording process), from the clocks' start to the run's end
@@ -921,14 +1003,14 @@ class Runner:
         refused += self.commands_refused
         floods += self.gate.floods
         lost += self.commands_lost
-        new = self._window.since(misses=s["deadline_misses"], steps=self.twin.k, floods=floods,
-                                 lost=lost)
+        new = self._window.since(misses=s["deadline_misses"], steps=self.twin.k, floods=floods, lost=lost)
         hw = hardware_id(self.twin.scene.name)
         statuses = [
-            diagnostics.pacing(self.name, hw, s, new["misses"], new["steps"],
-                               self.pacing == "realtime"),
-            diagnostics.commands(self.name, hw, self.commands_accepted, refused, floods, lost,
-                                 new["floods"], new["lost"])]
+            diagnostics.pacing(self.name, hw, s, new["misses"], new["steps"], self.pacing == "realtime"),
+            diagnostics.commands(
+                self.name, hw, self.commands_accepted, refused, floods, lost, new["floods"], new["lost"]
+            ),
+        ]
         statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
         self._emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
 
@@ -943,8 +1025,7 @@ class Runner:
         self._prepared = True
         if self.pacing == "realtime" and self.warm_up > 0:
             self.twin.warm_up(self.warm_up)
-        keys = [t.key for t in BY_KEY.values()
-                if not t.output or t.output in self.twin.outputs]
+        keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.twin.outputs]
         for k in keys:
             self._encode(k)
         for s in self.sinks:
@@ -969,9 +1050,19 @@ class Runner:
         """The run's start event and the first state, then the commands already waiting."""
         twin = self.twin
         t_ns = to_ns(twin.t)
-        self._emit_events([{"t": twin.t, "kind": "run-start", **twin.describe(),
-                            "pacing": self.pacing, "real_time_factor": self.rtf,
-                            "publish_every": self.every}], t_ns)
+        self._emit_events(
+            [
+                {
+                    "t": twin.t,
+                    "kind": "run-start",
+                    **twin.describe(),
+                    "pacing": self.pacing,
+                    "real_time_factor": self.rtf,
+                    "publish_every": self.every,
+                }
+            ],
+            t_ns,
+        )
         self._publish_step(twin.state_payloads(), t_ns)
         self._take_commands()
 
@@ -993,14 +1084,17 @@ class Runner:
         end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
         if self.error:
             end["error"] = self.error
-        for part in (lambda: self.refuse_pending("the run has ended" if reason == "end"
-                                                 else f"the run is stopping ({reason})"),
-                     lambda: self._emit_events(twin.new_events(), t_ns),
-                     lambda: self._diagnostics(t_ns),
-                     lambda: self._emit_events([end], t_ns)):
+        for part in (
+            lambda: self.refuse_pending(
+                "the run has ended" if reason == "end" else f"the run is stopping ({reason})"
+            ),
+            lambda: self._emit_events(twin.new_events(), t_ns),
+            lambda: self._diagnostics(t_ns),
+            lambda: self._emit_events([end], t_ns),
+        ):
             try:
                 part()
-            except Exception as exc:    # never lose the recording's end over a late message
+            except Exception as exc:  # never lose the recording's end over a late message
                 self.log("error", f"could not emit one of the run's last messages: {exc}")
 
     def run(self) -> dict:
@@ -1019,7 +1113,7 @@ class Runner:
                     reply = self._hold()
                     if reply is None:
                         continue
-                _k, msgs, p0 = self._timed_step(math.inf, clock)     # no deadline: no miss
+                _k, msgs, p0 = self._timed_step(math.inf, clock)  # no deadline: no miss
                 t_ns = to_ns(twin.t)
                 if msgs is not None:
                     self._publish_step(msgs, t_ns)
@@ -1033,7 +1127,7 @@ class Runner:
                 if now >= next_diag:
                     next_diag = now + self.period
                     self._diagnostics(t_ns)
-                if reply is not None:           # a step taken while paused: said
+                if reply is not None:  # a step taken while paused: said
                     reply, done = None, reply
                     done(twin.t)
         except Exception as exc:
@@ -1047,8 +1141,7 @@ class Runner:
         """Hold the run at its present step until :meth:`resume` (the node's lifecycle:
         deactivate, activate): None, or why it cannot."""
         if self.pacing == "realtime":
-            return ("a realtime run pauses in its stepping process (stepping_process:=true, "
-                    "the default)")
+            return "a realtime run pauses in its stepping process (stepping_process:=true, the default)"
         self._paused.set()
         return None
 
@@ -1105,7 +1198,7 @@ class Runner:
         that stepped in time would have given them."""
         twin = self.twin
         clock = time.perf_counter
-        step = twin.dt / self.rtf               # a step's period on the wall clock
+        step = twin.dt / self.rtf  # a step's period on the wall clock
         ahead = twin.rewindable and self.lead > step
         lead = self.lead if ahead else step
         self.prepare()
@@ -1123,15 +1216,15 @@ class Runner:
         # a release goes out this long after the deadline of the first step it sends
         self._release_delay = delay = max(0.0, self.release_period - step)
         refill = 0.2 * lead if ahead else 0.0
-        releaser = threading.Thread(target=self._release_loop, args=(live,),
-                                    name=f"{self.name}-release", daemon=True)
+        releaser = threading.Thread(
+            target=self._release_loop, args=(live,), name=f"{self.name}-release", daemon=True
+        )
         next_diag = self.wall_start + self.period
         try:
             # the run's start, t0's state and the commands already waiting go out at the
             # schedule's start; with steps computed ahead, that is once the first of them are
             # (the schedule's first steps would otherwise find none banked)
-            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure,
-                             twin.refusals())
+            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure, twin.refusals())
             self._staging = first.msgs
             self._begin()
             self._staging = None
@@ -1163,14 +1256,17 @@ class Runner:
                     continue
                 if ahead and queue:
                     with cond:
-                        while (self._releasing
-                               or (queue and queue[0].deadline + delay - clock() < guard)) \
-                                and not self._stop.is_set() and not inbox:
+                        while (
+                            (self._releasing or (queue and queue[0].deadline + delay - clock() < guard))
+                            and not self._stop.is_set()
+                            and not inbox
+                        ):
                             cond.wait(0.002)
                 k, msgs, c1 = self._timed_step(deadline, clock)
                 t_ns = to_ns(twin.t)
-                entry = _Release(k, t_ns, deadline, [], msgs is not None, None,
-                                 twin.sim.structure, twin.refusals())
+                entry = _Release(
+                    k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals()
+                )
                 self._staging = entry.msgs
                 if msgs is not None:
                     entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
@@ -1220,7 +1316,7 @@ class Runner:
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
         delay = self._release_delay
-        due = -math.inf             # the wake-up's time: the steps due by then go out now
+        due = -math.inf  # the wake-up's time: the steps due by then go out now
         while True:
             with cond:
                 while True:
@@ -1258,11 +1354,10 @@ class Runner:
                             s.emit(key, data, t_ns)
                 for s in live:
                     s.tick(head.deadline)
-            except Exception as exc:    # a sink that fails ends the run, never hangs it
+            except Exception as exc:  # a sink that fails ends the run, never hangs it
                 if self.error is None:
                     self.error = f"{type(exc).__name__}: {exc}"
-                    self.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: "
-                                      f"{self.error}")
+                    self.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: {self.error}")
                 self.request_stop("error")
             p1 = clock()
             self.messages += n
@@ -1282,7 +1377,7 @@ class Runner:
             entry = released.popleft()
             for s in sinks:
                 emit_all = getattr(s, "emit_all", None)
-                if emit_all is not None:        # the whole step in one call
+                if emit_all is not None:  # the whole step in one call
                     emit_all(entry.msgs)
                     continue
                 for key, data, t_ns, received in entry.msgs:
@@ -1342,8 +1437,7 @@ class Runner:
                         while queue and queue[-1] is not at:
                             queue.pop()
             if refusal is not None:
-                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure,
-                                 at.refusals)
+                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure, at.refusals)
                 self._staging = entry.msgs
                 try:
                     self._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
@@ -1372,5 +1466,17 @@ class Runner:
                 cond.notify_all()
 
 
-__all__ = ["Twin", "Runner", "Inbox", "Gate", "Command", "PACINGS", "COMMAND_INDEX",
-           "stamp", "to_ns", "to_json", "check_outputs", "BY_KEY"]
+__all__ = [
+    "Twin",
+    "Runner",
+    "Inbox",
+    "Gate",
+    "Command",
+    "PACINGS",
+    "COMMAND_INDEX",
+    "stamp",
+    "to_ns",
+    "to_json",
+    "check_outputs",
+    "BY_KEY",
+]

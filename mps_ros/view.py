@@ -74,22 +74,41 @@ def _unit(col: str) -> str:
 FAMILIES: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
     ("crank_angle", "crank angle φ (rad)", (("phi", "φ (rad)"),)),
     ("crank_speed", "crank speed ω1 = φ̇ (rad/s)", (("phi_dot", "ω1 = φ̇ (rad/s)"),)),
-    ("crank_acceleration", "crank acceleration ε1 = φ̈ (rad/s², from ω1)",
-     (("phi_ddot", "ε1 = φ̈ (rad/s²)"),)),
+    ("crank_acceleration", "crank acceleration ε1 = φ̈ (rad/s², from ω1)", (("phi_ddot", "ε1 = φ̈ (rad/s²)"),)),
     ("rocker_angle", "rocker angle ψ (rad)", (("psi", "ψ (rad)"),)),
     ("slider", "slider position x_C (m)", (("x_C", "x_C (m)"),)),
-    ("motor", f"motor torque on the crank {_MOTOR.torque} (N·m)",
-     ((_MOTOR.torque, f"{_MOTOR.torque} (N·m)"),)),
-    ("joint_forces", "joint forces (N)",
-     tuple((c, f"{c} ({_unit(c)})") for w in WRENCHES for c in w.force if c is not None)),
-    ("joint_moments", "joint moments (N·m)",
-     tuple((w.torque, f"{w.torque} ({_unit(w.torque)})") for w in WRENCHES
-           if w.torque is not None and w is not _MOTOR)),
-    ("foundation_force", "foundation force (N)",
-     ((FOUNDATION.force[0], f"{FOUNDATION.force[0]} (N, along the guide, up)"),
-      (FOUNDATION.force[1], f"{FOUNDATION.force[1]} (N, across)"))),
-    ("foundation_moment", "foundation moment about O (N·m)",
-     ((FOUNDATION.torque, f"{FOUNDATION.torque} (N·m)"),)),
+    (
+        "motor",
+        f"motor torque on the crank {_MOTOR.torque} (N·m)",
+        ((_MOTOR.torque, f"{_MOTOR.torque} (N·m)"),),
+    ),
+    (
+        "joint_forces",
+        "joint forces (N)",
+        tuple((c, f"{c} ({_unit(c)})") for w in WRENCHES for c in w.force if c is not None),
+    ),
+    (
+        "joint_moments",
+        "joint moments (N·m)",
+        tuple(
+            (w.torque, f"{w.torque} ({_unit(w.torque)})")
+            for w in WRENCHES
+            if w.torque is not None and w is not _MOTOR
+        ),
+    ),
+    (
+        "foundation_force",
+        "foundation force (N)",
+        (
+            (FOUNDATION.force[0], f"{FOUNDATION.force[0]} (N, along the guide, up)"),
+            (FOUNDATION.force[1], f"{FOUNDATION.force[1]} (N, across)"),
+        ),
+    ),
+    (
+        "foundation_moment",
+        "foundation moment about O (N·m)",
+        ((FOUNDATION.torque, f"{FOUNDATION.torque} (N·m)"),),
+    ),
 )
 
 #: event kinds marked on ω1, by marker family: (kinds, marker, colour)
@@ -100,21 +119,42 @@ MARKERS = {
     "other": (("change-point", "impulse"), "cross", (120, 120, 120)),
 }
 
-_SERIES_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40),
-                  (148, 103, 189), (140, 86, 75), (227, 119, 194), (127, 127, 127),
-                  (188, 189, 34), (23, 190, 207)]
-LEVELS = {"command": "INFO", "command-refused": "WARN", "latch-closes": "WARN",
-          "latch-opens": "INFO", "stop-contact": "WARN", "stop-release": "INFO",
-          "change-point": "INFO", "impulse": "WARN", "chart": "DEBUG", "run-start": "INFO",
-          "run-end": "INFO", "cylinder-off": "INFO"}
+_SERIES_COLORS = [
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+]
+LEVELS = {
+    "command": "INFO",
+    "command-refused": "WARN",
+    "latch-closes": "WARN",
+    "latch-opens": "INFO",
+    "stop-contact": "WARN",
+    "stop-release": "INFO",
+    "change-point": "INFO",
+    "impulse": "WARN",
+    "chart": "DEBUG",
+    "run-start": "INFO",
+    "run-end": "INFO",
+    "cylinder-off": "INFO",
+}
 
 
 def _rr():
     try:
         import rerun as rr
     except ModuleNotFoundError:
-        raise ReplayError("the viewer needs rerun-sdk, which is not installed: "
-                          f"pip install -e '.[view]' (rerun-sdk=={RERUN_VERSION})") from None
+        raise ReplayError(
+            "the viewer needs rerun-sdk, which is not installed: "
+            f"pip install -e '.[view]' (rerun-sdk=={RERUN_VERSION})"
+        ) from None
     return rr
 
 
@@ -126,10 +166,10 @@ class Converted:
     blueprint: object
     calls: dict = field(default_factory=lambda: {"send_columns": 0, "log": 0})
     rows: int = 0
-    entities: dict = field(default_factory=dict)     # entity -> rows sent
+    entities: dict = field(default_factory=dict)  # entity -> rows sent
     arrow_scale_n_per_mm: float = math.nan
     steps: int = 0
-    drawn_steps: int = 0            # the steps the mechanism was drawn at (draw_every)
+    drawn_steps: int = 0  # the steps the mechanism was drawn at (draw_every)
 
 
 class _Logger:
@@ -142,8 +182,9 @@ class _Logger:
     def columns(self, path: str, t, columns) -> None:
         """Send columns at times t (s), rounded to the nanosecond (the recording's stamps)."""
         t = np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64).astype("timedelta64[ns]")
-        self.rr.send_columns(path, indexes=[self.rr.TimeColumn(TIMELINE, duration=t)],
-                             columns=columns, recording=self.rec)
+        self.rr.send_columns(
+            path, indexes=[self.rr.TimeColumn(TIMELINE, duration=t)], columns=columns, recording=self.rec
+        )
         self.out.calls["send_columns"] += 1
         self.out.rows += int(t.size)
         self.out.entities[path] = self.out.entities.get(path, 0) + int(t.size)
@@ -190,9 +231,17 @@ def _fmt_force(v: float) -> str:
 
 
 # -- the conversion ---------------------------------------------------------------------------
-def convert(rep: Replay, *, scene=None, recording=None, application_id: str = APPLICATION_ID,
-            arrow_scale: float | None = None, extent: tuple | None = None,
-            statics: bool = True, draw_every: int = 1) -> Converted:
+def convert(
+    rep: Replay,
+    *,
+    scene=None,
+    recording=None,
+    application_id: str = APPLICATION_ID,
+    arrow_scale: float | None = None,
+    extent: tuple | None = None,
+    statics: bool = True,
+    draw_every: int = 1,
+) -> Converted:
     """Log a recording into a Rerun recording stream (a new one unless ``recording`` is given);
     the scene's geometry comes from ``scene`` or else from the recording's metadata.
 
@@ -206,8 +255,10 @@ def convert(rep: Replay, *, scene=None, recording=None, application_id: str = AP
 
     scene = scene if scene is not None else rep.scene
     if scene is None:
-        raise ReplayError(f"{rep.path}: the recording holds no scene (metadata record "
-                          "'scene'), so its geometry is unknown: give one with --scene SCENE")
+        raise ReplayError(
+            f"{rep.path}: the recording holds no scene (metadata record "
+            "'scene'), so its geometry is unknown: give one with --scene SCENE"
+        )
     if recording is None:
         rid = uuid.uuid5(uuid.NAMESPACE_URL, "mps-recording:" + (rep.digest or str(rep.path)))
         recording = rr.RecordingStream(application_id, recording_id=str(rid))
@@ -223,8 +274,9 @@ def convert(rep: Replay, *, scene=None, recording=None, application_id: str = AP
     drawn, dcols, dt_, dpts, dview = rep, cols, t, pts, view
     if draw_every > 1 and n > 2:
         idx = np.unique(np.r_[np.arange(0, n, int(draw_every)), n - 1])
-        dcols = {c: (v[idx] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
-                 for c, v in cols.items()}
+        dcols = {
+            c: (v[idx] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v) for c, v in cols.items()
+        }
         drawn = SimpleNamespace(columns=dcols)
         dt_ = t[idx]
         dpts = {k: v[idx] for k, v in pts.items()}
@@ -243,8 +295,8 @@ def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
     g = scene.geometry
     n = t.size
     l1 = g.l1 * 1e3
-    w = SLIDER[0] * l1              # slider half width (across), mm
-    h = SLIDER[1] * l1              # slider half height (along), mm
+    w = SLIDER[0] * l1  # slider half width (across), mm
+    h = SLIDER[1] * l1  # slider half height (along), mm
     xc = np.asarray(cols["x_C"], float) * 1e3
     x_top = None if scene.x_top is None else scene.x_top * 1e3
     if extent is not None:
@@ -254,8 +306,11 @@ def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
         hi = max(float(np.nanmax(xc)), x_top if x_top is not None else -math.inf) + h + 0.3 * l1
     rail = w + 0.1 * l1
     # the frame: static
-    strips = [np.array([[-rail, -lo], [-rail, -hi]]), np.array([[rail, -lo], [rail, -hi]]),
-              np.array([[0.0, -lo], [0.0, -hi]])]                 # the rails, the guide's axis
+    strips = [
+        np.array([[-rail, -lo], [-rail, -hi]]),
+        np.array([[rail, -lo], [rail, -hi]]),
+        np.array([[0.0, -lo], [0.0, -hi]]),
+    ]  # the rails, the guide's axis
     labels = ["guide", "", ""]
     colors = [COLORS["frame"], COLORS["frame"], (205, 205, 205)]
     # the bearing at O: a triangle under O in the press frame (towards −x)
@@ -266,46 +321,72 @@ def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
     if x_top is not None:
         # two ledges on the rails that the slider's top face meets at x_C = x_top
         v = -(x_top + h)
-        strips += [np.array([[-rail - 0.25 * l1, v], [-w, v]]),
-                   np.array([[w, v], [rail + 0.25 * l1, v]])]
+        strips += [np.array([[-rail - 0.25 * l1, v], [-w, v]]), np.array([[w, v], [rail + 0.25 * l1, v]])]
         labels += ["", "top stop"]
         colors += [(60, 60, 60), (60, 60, 60)]
-    log.static("mechanism/frame", lambda: rr.LineStrips2D(strips, colors=colors, labels=labels,
-                                                  radii=[-1.0] * len(strips)))
+    log.static(
+        "mechanism/frame",
+        lambda: rr.LineStrips2D(strips, colors=colors, labels=labels, radii=[-1.0] * len(strips)),
+    )
     # Static styles never carry a component that is sent in time: a static value would hide
     # the temporal one (Rerun's rule), so they are logged with from_fields.
     # links: crank O-A, rod A-B, rocker B-C at every step
-    seg = np.stack([np.stack([view["O"], view["A"]], 1), np.stack([view["A"], view["B"]], 1),
-                    np.stack([view["B"], view["C"]], 1)], axis=1)          # (n, 3, 2, 2)
-    log.static("mechanism/links", lambda: rr.LineStrips2D.from_fields(
-        colors=[COLORS["crank"], COLORS["rod"], COLORS["rocker"]],
-        labels=["crank", "rod", "rocker"], show_labels=False, radii=[-3.0, -3.0, -3.0],
-        draw_order=15.0))
-    log.columns("mechanism/links", t,
-                rr.LineStrips2D.columns(strips=seg.reshape(-1, 2, 2)).partition(np.full(n, 3)))
+    seg = np.stack(
+        [
+            np.stack([view["O"], view["A"]], 1),
+            np.stack([view["A"], view["B"]], 1),
+            np.stack([view["B"], view["C"]], 1),
+        ],
+        axis=1,
+    )  # (n, 3, 2, 2)
+    log.static(
+        "mechanism/links",
+        lambda: rr.LineStrips2D.from_fields(
+            colors=[COLORS["crank"], COLORS["rod"], COLORS["rocker"]],
+            labels=["crank", "rod", "rocker"],
+            show_labels=False,
+            radii=[-3.0, -3.0, -3.0],
+            draw_order=15.0,
+        ),
+    )
+    log.columns(
+        "mechanism/links", t, rr.LineStrips2D.columns(strips=seg.reshape(-1, 2, 2)).partition(np.full(n, 3))
+    )
     # the slider: a block centred on C
-    log.static("mechanism/slider", lambda: rr.Boxes2D.from_fields(
-        half_sizes=[[w, h]], colors=[COLORS["slider"]], radii=[-1.5], draw_order=5.0))
+    log.static(
+        "mechanism/slider",
+        lambda: rr.Boxes2D.from_fields(
+            half_sizes=[[w, h]], colors=[COLORS["slider"]], radii=[-1.5], draw_order=5.0
+        ),
+    )
     log.columns("mechanism/slider", t, rr.Boxes2D.columns(centers=view["C"]))
     # joints
-    log.static("mechanism/joints", lambda: rr.Points2D.from_fields(
-        labels=["O", "A", "B", "C"], colors=[COLORS["joint"]] * 4, radii=[-4.0] * 4,
-        draw_order=40.0))
+    log.static(
+        "mechanism/joints",
+        lambda: rr.Points2D.from_fields(
+            labels=["O", "A", "B", "C"], colors=[COLORS["joint"]] * 4, radii=[-4.0] * 4, draw_order=40.0
+        ),
+    )
     jp = np.stack([view["O"], view["A"], view["B"], view["C"]], axis=1)
-    log.columns("mechanism/joints", t,
-                rr.Points2D.columns(positions=jp.reshape(-1, 2)).partition(np.full(n, 4)))
+    log.columns(
+        "mechanism/joints", t, rr.Points2D.columns(positions=jp.reshape(-1, 2)).partition(np.full(n, 4))
+    )
     # the latch (rocker to slider), on the slider's side: closed while the structure is
     # locked; its label also names the structure
     st = np.asarray(cols.get("structure", np.full(n, "")), dtype=str)
     log.static("mechanism/latch", lambda: rr.Points2D.from_fields(radii=[-6.0], draw_order=30.0))
-    log.columns("mechanism/latch", t,
-                rr.Points2D.columns(positions=view["C"] + np.array([-w, 0.0])))
+    log.columns("mechanism/latch", t, rr.Points2D.columns(positions=view["C"] + np.array([-w, 0.0])))
     ch = _changes(st)
-    log.columns("mechanism/latch", t[ch], rr.Points2D.columns(
-        colors=[COLORS["latch_closed"] if s == "locked" else COLORS["latch_open"]
-                for s in st[ch]],
-        labels=[("latch closed" if s == "locked" else "latch open") + (f" ({s})" if s else "")
-                for s in st[ch]]))
+    log.columns(
+        "mechanism/latch",
+        t[ch],
+        rr.Points2D.columns(
+            colors=[COLORS["latch_closed"] if s == "locked" else COLORS["latch_open"] for s in st[ch]],
+            labels=[
+                ("latch closed" if s == "locked" else "latch open") + (f" ({s})" if s else "") for s in st[ch]
+            ],
+        ),
+    )
     allp = np.concatenate([v for v in view.values()])
     umin = min(float(np.nanmin(allp[:, 0])), -rail) - 0.6 * l1
     umax = max(float(np.nanmax(allp[:, 0])), rail) + 0.6 * l1
@@ -333,35 +414,43 @@ def _reactions(rr, log, cols, t, pts, scene, scale=None) -> float:
             continue
         if any(c is not None and c not in cols for c in (fx, fy)):
             continue
-        F = np.column_stack([np.zeros(n) if fx is None else np.asarray(cols[fx], float),
-                             np.zeros(n) if fy is None else np.asarray(cols[fy], float)])
+        F = np.column_stack(
+            [
+                np.zeros(n) if fx is None else np.asarray(cols[fx], float),
+                np.zeros(n) if fy is None else np.asarray(cols[fy], float),
+            ]
+        )
         at = _arrow_origin(w.name, w.point, pts, scene.geometry.l1, scene.x_top, n)
         arrows.append((w, F, at))
     if not arrows:
         return math.nan
-    length = 1.6 * scene.geometry.l1 * 1e3          # the 99th percentile force: 1.6 l1 long
+    length = 1.6 * scene.geometry.l1 * 1e3  # the 99th percentile force: 1.6 l1 long
     if scale is None:
         mags = np.concatenate([np.hypot(F[:, 0], F[:, 1]) for _, F, _ in arrows])
         mags = mags[np.isfinite(mags)]
         ref = float(np.percentile(mags, 99)) if mags.size else 0.0
         if not ref > 0:
             ref = 1.0
-        scale = ref / length                         # N per mm
+        scale = ref / length  # N per mm
     ref = scale * length
     for w, F, at in arrows:
-        vec = to_view(F) / 1e3 / scale               # to_view multiplies by 1000
+        vec = to_view(F) / 1e3 / scale  # to_view multiplies by 1000
         mag = np.hypot(F[:, 0], F[:, 1])
         name = "foundation" if w is FOUNDATION else f"F_{w.name}"
-        labels = np.where(mag > 0.02 * ref,
-                          np.array([f"{name} {_fmt_force(m)}" for m in mag], dtype=object), "")
+        labels = np.where(
+            mag > 0.02 * ref, np.array([f"{name} {_fmt_force(m)}" for m in mag], dtype=object), ""
+        )
         color = COLORS["foundation"] if w is FOUNDATION else COLORS["force"]
         path = f"mechanism/reactions/{w.name}"
         # the magnitude is each arrow's label, shown on hover (not drawn: the joints' labels
         # would lie on top of each other)
-        log.static(path, lambda color=color: rr.Arrows2D.from_fields(
-            colors=[color], radii=[-1.5], show_labels=False, draw_order=20.0))
-        log.columns(path, t, rr.Arrows2D.columns(origins=at, vectors=vec,
-                                                 labels=list(labels)))
+        log.static(
+            path,
+            lambda color=color: rr.Arrows2D.from_fields(
+                colors=[color], radii=[-1.5], show_labels=False, draw_order=20.0
+            ),
+        )
+        log.columns(path, t, rr.Arrows2D.columns(origins=at, vectors=vec, labels=list(labels)))
     return scale
 
 
@@ -374,8 +463,9 @@ def _plots(rr, log, cols, t) -> None:
             y = np.asarray(cols[col], dtype=float)
             path = f"plots/{fam}/{col}"
             color = _SERIES_COLORS[k % len(_SERIES_COLORS)]
-            log.static(path, lambda name=name, color=color: rr.SeriesLines(
-                names=name, colors=[color], widths=[1.5]))
+            log.static(
+                path, lambda name=name, color=color: rr.SeriesLines(names=name, colors=[color], widths=[1.5])
+            )
             log.columns(path, t, rr.Scalars.columns(scalars=y))
             k += 1
 
@@ -388,9 +478,12 @@ def describe_event(ev: dict) -> str:
     if k == "command-refused":
         return f"command {ev.get('command')!s} refused: {ev.get('reason')}"
     if k in ("latch-closes", "stop-contact", "latch-opens", "stop-release"):
-        what = {"latch-closes": "latch closes", "latch-opens": "latch opens",
-                "stop-contact": "slider hits its top stop", "stop-release":
-                "slider leaves its top stop"}[k]
+        what = {
+            "latch-closes": "latch closes",
+            "latch-opens": "latch opens",
+            "stop-contact": "slider hits its top stop",
+            "stop-release": "slider leaves its top stop",
+        }[k]
         s = f"{what}: {ev.get('from')} -> {ev.get('to')}"
         if ev.get("energy_lost"):
             s += f", kinetic energy lost {ev['energy_lost']:.4g} J"
@@ -408,8 +501,10 @@ def describe_event(ev: dict) -> str:
         big = sorted(imp.items(), key=lambda kv: -abs(kv[1]))[:3]
         return "impulses: " + ", ".join(f"{a} {b:.4g} N*s" for a, b in big)
     if k == "run-start":
-        return (f"run start: scene {ev.get('scene')}, {ev.get('steps')} steps of "
-                f"{ev.get('dt')} s, solver {ev.get('solver')}, pacing {ev.get('pacing')}")
+        return (
+            f"run start: scene {ev.get('scene')}, {ev.get('steps')} steps of "
+            f"{ev.get('dt')} s, solver {ev.get('solver')}, pacing {ev.get('pacing')}"
+        )
     if k == "run-end":
         s = f"run end ({ev.get('reason')}, {ev.get('steps')} steps)"
         return s + (f": {ev['error']}" if ev.get("error") else "")
@@ -418,7 +513,7 @@ def describe_event(ev: dict) -> str:
 
 
 def _events(rr, log, rep: Replay, t) -> None:
-    rows = []                                   # (t, level, text)
+    rows = []  # (t, level, text)
     for ev in rep.events:
         try:
             te = float(ev.get("t"))
@@ -429,24 +524,33 @@ def _events(rr, log, rep: Replay, t) -> None:
         rows.append((te, "INFO", f"received command {word!r}"))
     for ack in rep.acks:
         if not ack.get("accepted", True):
-            rows.append((float(ack["t"]), "WARN",
-                         f"refused command {ack.get('command')!r}: {ack.get('reason')}"))
+            rows.append(
+                (float(ack["t"]), "WARN", f"refused command {ack.get('command')!r}: {ack.get('reason')}")
+            )
     for te, level, name, msg in rep.diagnostics:
         rows.append((te, "WARN" if level else "DEBUG", f"{name}: {msg}"))
     rows.sort(key=lambda r: r[0])
     if rows:
-        log.columns("events", [r[0] for r in rows], rr.TextLog.columns(
-            text=[r[2] for r in rows], level=[r[1] for r in rows]))
+        log.columns(
+            "events",
+            [r[0] for r in rows],
+            rr.TextLog.columns(text=[r[2] for r in rows], level=[r[1] for r in rows]),
+        )
     # markers on ω1
     w = np.asarray(rep.columns["phi_dot"], float)
     for fam, (kinds, marker, color) in MARKERS.items():
-        te = np.array([float(ev["t"]) for ev in rep.events if ev.get("kind") in kinds
-                       and _finite(ev.get("t"))])
+        te = np.array(
+            [float(ev["t"]) for ev in rep.events if ev.get("kind") in kinds and _finite(ev.get("t"))]
+        )
         if te.size == 0:
             continue
         path = f"plots/crank_speed/events/{fam}"
-        log.static(path, lambda fam=fam, marker=marker, color=color: rr.SeriesPoints(
-            names=f"{fam} events", markers=[marker], colors=[color], marker_sizes=[6.0]))
+        log.static(
+            path,
+            lambda fam=fam, marker=marker, color=color: rr.SeriesPoints(
+                names=f"{fam} events", markers=[marker], colors=[color], marker_sizes=[6.0]
+            ),
+        )
         log.columns(path, te, rr.Scalars.columns(scalars=np.interp(te, t, w)))
     # state lanes: the structure, the latch
     st = np.asarray(rep.columns.get("structure", np.full(t.size, "")), dtype=str)
@@ -470,24 +574,32 @@ def blueprint(rrb, bounds, scale, rep: Replay):
     title = "mechanism (x up, mm)"
     if math.isfinite(scale):
         title += f", forces 1 mm = {scale:.3g} N"
-    mech = rrb.Spatial2DView(origin="mechanism", name=title,
-                             visual_bounds=rrb.VisualBounds2D(x_range=[u0, u1], y_range=[v0, v1]),
-                             background=(255, 255, 255))
-    plots = [rrb.TimeSeriesView(origin=f"plots/{fam}", name=title_)
-             for fam, title_, series in FAMILIES
-             if any(c in rep.columns for c, _ in series)]
+    mech = rrb.Spatial2DView(
+        origin="mechanism",
+        name=title,
+        visual_bounds=rrb.VisualBounds2D(x_range=[u0, u1], y_range=[v0, v1]),
+        background=(255, 255, 255),
+    )
+    plots = [
+        rrb.TimeSeriesView(origin=f"plots/{fam}", name=title_)
+        for fam, title_, series in FAMILIES
+        if any(c in rep.columns for c, _ in series)
+    ]
     # the mechanism alone in a tall column (its swept area is taller than wide), the plots and
     # under them the structure's lanes and the events
-    below = rrb.Horizontal(rrb.StateTimelineView(origin="state", name="structure and latch"),
-                           rrb.TextLogView(origin="events", name="events"),
-                           column_shares=[1, 1.6])
+    below = rrb.Horizontal(
+        rrb.StateTimelineView(origin="state", name="structure and latch"),
+        rrb.TextLogView(origin="events", name="events"),
+        column_shares=[1, 1.6],
+    )
     right = rrb.Vertical(rrb.Grid(*plots, grid_columns=2), below, row_shares=[7, 2.2])
-    return rrb.Blueprint(rrb.Horizontal(mech, right, column_shares=[0.75, 2]),
-                         rrb.TimePanel(timeline=TIMELINE, state="collapsed",
-                                       play_state="paused"),
-                         rrb.SelectionPanel(state="collapsed"),
-                         rrb.BlueprintPanel(state="collapsed"),
-                         collapse_panels=False)
+    return rrb.Blueprint(
+        rrb.Horizontal(mech, right, column_shares=[0.75, 2]),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state="paused"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        collapse_panels=False,
+    )
 
 
 # -- files and the viewer ---------------------------------------------------------------------
@@ -519,8 +631,10 @@ def spawn_viewer(rrd: Path) -> subprocess.Popen:
     """Open ``rrd`` in a new native viewer that listens on the loopback interface only."""
     exe = rerun_executable()
     if exe is None:
-        raise ReplayError("no rerun viewer found (pip install -e '.[view]'); the .rrd can be "
-                          f"opened later with: rerun --bind 127.0.0.1 {rrd}")
+        raise ReplayError(
+            "no rerun viewer found (pip install -e '.[view]'); the .rrd can be "
+            f"opened later with: rerun --bind 127.0.0.1 {rrd}"
+        )
     cmd = [exe, "--bind", "127.0.0.1", "--port", "auto", str(rrd)]
     return subprocess.Popen(cmd, start_new_session=True)
 
@@ -543,19 +657,23 @@ def view(path, *, save=None, spawn: bool = True, scene=None, log=print) -> tuple
         save = Path(tempfile.mkdtemp(prefix="mps-view-")) / (Path(path).stem + ".rrd")
     out = save_rrd(rep, save, scene=scene)
     c2 = time.perf_counter()
-    log(f"{path}: {out.steps} steps, {len(rep.events)} events; read in {c1 - c0:.2f} s, "
+    log(
+        f"{path}: {out.steps} steps, {len(rep.events)} events; read in {c1 - c0:.2f} s, "
         f"converted in {c2 - c1:.2f} s ({out.calls['send_columns']} column sends, "
-        f"{out.calls['log']} static logs, {out.rows} rows)")
+        f"{out.calls['log']} static logs, {out.rows} rows)"
+    )
     log(f"wrote {save}")
     if spawn:
         viewer = spawn_viewer(Path(save))
-        try:                # a viewer that cannot start ends at once: say so, not "opened"
+        try:  # a viewer that cannot start ends at once: say so, not "opened"
             code = viewer.wait(1.5)
         except subprocess.TimeoutExpired:
             code = None
         if code is not None:
-            raise ReplayError(f"the viewer ended at once (exit status {code}); the recording "
-                              f"is saved in {save}: open it with rerun --bind 127.0.0.1 {save}")
+            raise ReplayError(
+                f"the viewer ended at once (exit status {code}); the recording "
+                f"is saved in {save}: open it with rerun --bind 127.0.0.1 {save}"
+            )
         log(f"opened the viewer on {save} (listening on 127.0.0.1 only)")
     return Path(save), out
 
@@ -563,13 +681,29 @@ def view(path, *, save=None, spawn: bool = True, scene=None, log=print) -> tuple
 def no_display() -> None:
     """ReplayError where a native viewer has no display to open on (Linux without DISPLAY or
     WAYLAND_DISPLAY), before any work is done."""
-    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
-                                                 or os.environ.get("WAYLAND_DISPLAY")):
-        raise ReplayError("no display to open the viewer on (DISPLAY and WAYLAND_DISPLAY are "
-                          "unset): give --save FILE.rrd --no-spawn and open the file where "
-                          "there is one")
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise ReplayError(
+            "no display to open the viewer on (DISPLAY and WAYLAND_DISPLAY are "
+            "unset): give --save FILE.rrd --no-spawn and open the file where "
+            "there is one"
+        )
 
 
-__all__ = ["convert", "save_rrd", "view", "spawn_viewer", "positions", "to_view", "blueprint",
-           "describe_event", "Converted", "FAMILIES", "MARKERS", "TIMELINE", "RERUN_VERSION",
-           "DERIVED"]
+__all__ = [
+    "convert",
+    "save_rrd",
+    "view",
+    "spawn_viewer",
+    "positions",
+    "to_view",
+    "blueprint",
+    "describe_event",
+    "Converted",
+    "FAMILIES",
+    "MARKERS",
+    "TIMELINE",
+    "RERUN_VERSION",
+    "DERIVED",
+]

@@ -11,28 +11,44 @@ from __future__ import annotations
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "view", help="show a recording (MCAP) in the Rerun viewer, or save it as .rrd")
-    p.add_argument("recording", metavar="RECORDING.mcap", nargs="?",
-                   help="a recording from mps record or the node, a file or a bag directory "
-                        "(not with --live)")
-    p.add_argument("--live", action="store_true",
-                   help="follow the running node instead: its topics streamed to the viewer "
-                        "(or --save FILE.rrd, or --connect URL) at the display rate")
-    p.add_argument("--connect", metavar="URL",
-                   help="--live: stream to a running viewer (rerun+http://127.0.0.1:9876/proxy)")
+    p = subparsers.add_parser("view", help="show a recording (MCAP) in the Rerun viewer, or save it as .rrd")
+    p.add_argument(
+        "recording",
+        metavar="RECORDING.mcap",
+        nargs="?",
+        help="a recording from mps record or the node, a file or a bag directory (not with --live)",
+    )
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="follow the running node instead: its topics streamed to the viewer "
+        "(or --save FILE.rrd, or --connect URL) at the display rate",
+    )
+    p.add_argument(
+        "--connect",
+        metavar="URL",
+        help="--live: stream to a running viewer (rerun+http://127.0.0.1:9876/proxy)",
+    )
     p.add_argument("--node", default="press_twin", help="--live: the node's name")
-    p.add_argument("--duration", type=float, metavar="S",
-                   help="--live: stop after S wall seconds (default: at the run's end)")
-    p.add_argument("--hz", type=float, default=30.0,
-                   help="--live: frames a wall second (default 30)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="--live: stop after S wall seconds (default: at the run's end)",
+    )
+    p.add_argument("--hz", type=float, default=30.0, help="--live: frames a wall second (default 30)")
     p.add_argument("--save", metavar="FILE.rrd", help="write the Rerun recording to FILE.rrd")
-    p.add_argument("--no-spawn", action="store_true",
-                   help="do not open the viewer (with --save: only write the file)")
-    p.add_argument("--scene", metavar="SCENE",
-                   help="preset name or scene file for the geometry, if the recording has none")
-    p.add_argument("--force", action="store_true",
-                   help="replace FILE.rrd where it exists (never the recording)")
+    p.add_argument(
+        "--no-spawn", action="store_true", help="do not open the viewer (with --save: only write the file)"
+    )
+    p.add_argument(
+        "--scene",
+        metavar="SCENE",
+        help="preset name or scene file for the geometry, if the recording has none",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="replace FILE.rrd where it exists (never the recording)"
+    )
     p.set_defaults(func=run)
 
 
@@ -49,16 +65,23 @@ def run(args) -> int:
         # folder that is not there
         check_outputs({"--save": args.save}, force=args.force)
 
-        st = run_live(scene=load_scene(args.scene or "press-cycle"), node_name=args.node,
-                      save=args.save, connect=args.connect, duration=args.duration,
-                      hz=args.hz)
-        print(f"live view: {st['frames']} frames, {st['steps']} steps logged (the mechanism "
-              f"drawn at {st['drawn_steps']}; {st['thinned_frames']} frames behind the run "
-              f"drew it thinned), to t = "
-              f"{st['last_t'] if st['last_t'] is not None else float('nan'):.4g} s; lag "
-              f"(newest simulated time received - newest logged) at most "
-              f"{st['max_lag_s'] * 1e3:.1f} ms; a frame's work p50 "
-              f"{st['frame_work_p50_s'] * 1e3:.2f} ms, max {st['frame_work_max_s'] * 1e3:.2f} ms")
+        st = run_live(
+            scene=load_scene(args.scene or "press-cycle"),
+            node_name=args.node,
+            save=args.save,
+            connect=args.connect,
+            duration=args.duration,
+            hz=args.hz,
+        )
+        print(
+            f"live view: {st['frames']} frames, {st['steps']} steps logged (the mechanism "
+            f"drawn at {st['drawn_steps']}; {st['thinned_frames']} frames behind the run "
+            f"drew it thinned), to t = "
+            f"{st['last_t'] if st['last_t'] is not None else float('nan'):.4g} s; lag "
+            f"(newest simulated time received - newest logged) at most "
+            f"{st['max_lag_s'] * 1e3:.1f} ms; a frame's work p50 "
+            f"{st['frame_work_p50_s'] * 1e3:.2f} ms, max {st['frame_work_max_s'] * 1e3:.2f} ms"
+        )
         return 0
     if not args.recording:
         raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")

@@ -59,10 +59,12 @@ def harmonics(samples, n: int = N_HARMONICS) -> tuple[float, np.ndarray, np.ndar
     y = np.asarray(samples, dtype=float)
     N = y.size
     if y.ndim != 1 or N <= 2 * n:
-        raise LoadReportError(f"harmonics: {N} samples for {n} harmonics: expected a 1-D array "
-                              f"of more than {2 * n} samples of one period")
+        raise LoadReportError(
+            f"harmonics: {N} samples for {n} harmonics: expected a 1-D array "
+            f"of more than {2 * n} samples of one period"
+        )
     c = np.fft.rfft(y) / N
-    return float(c[0].real), 2.0 * np.abs(c[1:n + 1]), np.angle(c[1:n + 1])
+    return float(c[0].real), 2.0 * np.abs(c[1 : n + 1]), np.angle(c[1 : n + 1])
 
 
 def resample(t, y, t0: float, period: float, samples: int) -> np.ndarray:
@@ -71,8 +73,10 @@ def resample(t, y, t0: float, period: float, samples: int) -> np.ndarray:
     y = np.asarray(y, dtype=float)
     tq = t0 + period * np.arange(samples) / samples
     if tq[0] < t[0] - 1e-12 * period or tq[-1] > t[-1] + 1e-12 * period:
-        raise LoadReportError(f"resample: the cycle [{t0:.9g}, {t0 + period:.9g}] s is not "
-                              f"inside the data [{t[0]:.9g}, {t[-1]:.9g}] s")
+        raise LoadReportError(
+            f"resample: the cycle [{t0:.9g}, {t0 + period:.9g}] s is not "
+            f"inside the data [{t[0]:.9g}, {t[-1]:.9g}] s"
+        )
     return CubicSpline(t, y)(tq)
 
 
@@ -107,10 +111,10 @@ def _crossings(t, phi, phi_dot):
     for i in idx:
         level = TWO_PI * max(k[i], k[i + 1])
         if phi_dot is not None:
-            sp = CubicHermiteSpline(t[i:i + 2], phi[i:i + 2], phi_dot[i:i + 2])
+            sp = CubicHermiteSpline(t[i : i + 2], phi[i : i + 2], phi_dot[i : i + 2])
             f = lambda s, sp=sp, level=level: float(sp(s)) - level  # noqa: E731
         else:
-            ts, ps = t[i:i + 2], phi[i:i + 2]
+            ts, ps = t[i : i + 2], phi[i : i + 2]
             f = lambda s, ts=ts, ps=ps, level=level: float(np.interp(s, ts, ps)) - level  # noqa: E731
         fa, fb = f(t[i]), f(t[i + 1])
         if fa == 0.0:
@@ -130,15 +134,17 @@ def last_cycle(t, phi, phi_dot=None, structure=None, mode: str | None = "locked"
     if structure is not None and mode is not None:
         ok = np.asarray(structure) == mode
         if not ok.any():
-            raise LoadReportError(f"no step of the run is in the {mode!r} structure (the "
-                                  "working mode); the load report needs a steady working cycle")
+            raise LoadReportError(
+                f"no step of the run is in the {mode!r} structure (the "
+                "working mode); the load report needs a steady working cycle"
+            )
         # the last run of consecutive steps in the mode
         end = int(np.nonzero(ok)[0][-1])
         start = end
         while start > 0 and ok[start - 1]:
             start -= 1
-        t, phi = t[start:end + 1], phi[start:end + 1]
-        pd = None if pd is None else pd[start:end + 1]
+        t, phi = t[start : end + 1], phi[start : end + 1]
+        pd = None if pd is None else pd[start : end + 1]
     else:
         start = 0
     cross = _crossings(t, phi, pd)
@@ -147,7 +153,8 @@ def last_cycle(t, phi, phi_dot=None, structure=None, mode: str | None = "locked"
         raise LoadReportError(
             f"no full crank revolution between two passages of phi = 0 (mod 360 deg) in the "
             f"{mode or 'whole'} run ({span:.3g} revolutions from t = {t[0]:.6g} s to "
-            f"{t[-1]:.6g} s): run the scene longer (--t-end)")
+            f"{t[-1]:.6g} s): run the scene longer (--t-end)"
+        )
     t0, t1 = cross[-2], cross[-1]
     period = t1 - t0
     change = abs(period - (cross[-2] - cross[-3])) / period if len(cross) >= 3 else math.nan
@@ -160,15 +167,27 @@ def last_cycle(t, phi, phi_dot=None, structure=None, mode: str | None = "locked"
 # -- the report -----------------------------------------------------------------------------
 #: the quantities of the report: (name, columns it is made of, unit); two columns: a magnitude
 QUANTITIES: tuple[tuple[str, tuple[str, ...], str], ...] = (
-    ("F_O_x", ("F_O_x",), "N"), ("F_O_y", ("F_O_y",), "N"), ("|F_O|", ("F_O_x", "F_O_y"), "N"),
-    ("F_A_x", ("F_A_x",), "N"), ("F_A_y", ("F_A_y",), "N"), ("|F_A|", ("F_A_x", "F_A_y"), "N"),
-    ("F_B_x", ("F_B_x",), "N"), ("F_B_y", ("F_B_y",), "N"), ("|F_B|", ("F_B_x", "F_B_y"), "N"),
-    ("F_C_x", ("F_C_x",), "N"), ("F_C_y", ("F_C_y",), "N"), ("|F_C|", ("F_C_x", "F_C_y"), "N"),
-    ("N_guide", ("N_guide",), "N"), ("M_guide", ("M_guide",), "N*m"),
-    ("M_latch", ("M_latch",), "N*m"), ("F_stop", ("F_stop",), "N"),
+    ("F_O_x", ("F_O_x",), "N"),
+    ("F_O_y", ("F_O_y",), "N"),
+    ("|F_O|", ("F_O_x", "F_O_y"), "N"),
+    ("F_A_x", ("F_A_x",), "N"),
+    ("F_A_y", ("F_A_y",), "N"),
+    ("|F_A|", ("F_A_x", "F_A_y"), "N"),
+    ("F_B_x", ("F_B_x",), "N"),
+    ("F_B_y", ("F_B_y",), "N"),
+    ("|F_B|", ("F_B_x", "F_B_y"), "N"),
+    ("F_C_x", ("F_C_x",), "N"),
+    ("F_C_y", ("F_C_y",), "N"),
+    ("|F_C|", ("F_C_x", "F_C_y"), "N"),
+    ("N_guide", ("N_guide",), "N"),
+    ("M_guide", ("M_guide",), "N*m"),
+    ("M_latch", ("M_latch",), "N*m"),
+    ("F_stop", ("F_stop",), "N"),
     ("M_motor", ("M_motor",), "N*m"),
-    ("F_found_x", ("F_found_x",), "N"), ("F_found_y", ("F_found_y",), "N"),
-    ("|F_found|", ("F_found_x", "F_found_y"), "N"), ("M_found_O", ("M_found_O",), "N*m"),
+    ("F_found_x", ("F_found_x",), "N"),
+    ("F_found_y", ("F_found_y",), "N"),
+    ("|F_found|", ("F_found_x", "F_found_y"), "N"),
+    ("M_found_O", ("M_found_O",), "N*m"),
 )
 
 FOUNDATION = ("F_found_x", "F_found_y", "|F_found|", "M_found_O")
@@ -183,9 +202,14 @@ def _meaning(name: str, cols: tuple[str, ...]) -> str:
     return f"magnitude of the {base}"
 
 
-def load_report(columns: Mapping[str, np.ndarray], *, n: int = N_HARMONICS,
-                mode: str | None = "locked", events: Iterable[dict] = (),
-                source: str = "") -> dict:
+def load_report(
+    columns: Mapping[str, np.ndarray],
+    *,
+    n: int = N_HARMONICS,
+    mode: str | None = "locked",
+    events: Iterable[dict] = (),
+    source: str = "",
+) -> dict:
     """The load report (a JSON-ready dict) of a run's columns (a Trajectory's ``columns`` or a
     CSV read back), over its last full crank revolution in structure ``mode``.
 
@@ -196,8 +220,11 @@ def load_report(columns: Mapping[str, np.ndarray], *, n: int = N_HARMONICS,
     """
     missing = [c for c in ("t", "phi", "F_found_x") if c not in columns]
     if missing:
-        raise LoadReportError("load report: the run has no column " + ", ".join(missing)
-                              + " (run with reactions: mps run SCENE --reactions --csv FILE)")
+        raise LoadReportError(
+            "load report: the run has no column "
+            + ", ".join(missing)
+            + " (run with reactions: mps run SCENE --reactions --csv FILE)"
+        )
     t = np.asarray(columns["t"], dtype=float)
     cyc = last_cycle(t, columns["phi"], columns.get("phi_dot"), columns.get("structure"), mode)
     steps = cyc.i1 - cyc.i0
@@ -211,34 +238,53 @@ def load_report(columns: Mapping[str, np.ndarray], *, n: int = N_HARMONICS,
         arr = [np.asarray(columns[c], dtype=float) for c in cols]
         y = arr[0] if len(arr) == 1 else np.hypot(arr[0], arr[1])
         if not np.any(y[sl] != 0.0):
-            continue        # no such joint in this structure
+            continue  # no such joint in this structure
         ys = resample(t[sl], y[sl], cyc.t0, cyc.period, N)
         mean, amp, ph = harmonics(ys, n)
         peak = float(np.max(np.abs(np.concatenate([y[inside], ys]))))
         tiny = 1e-9 * max(peak, 1e-300)
-        quantities.append({
-            "name": name, "unit": unit, "meaning": _meaning(name, cols),
-            "mean": mean, "peak": peak, "rms": float(np.sqrt(np.mean(ys ** 2))),
-            "rms_dynamic": float(np.sqrt(np.mean((ys - mean) ** 2))),
-            "harmonics": [{"k": k + 1, "amplitude": float(amp[k]),
-                           "phase_deg": (float(math.degrees(ph[k])) if amp[k] > tiny else None)}
-                          for k in range(n)],
-        })
+        quantities.append(
+            {
+                "name": name,
+                "unit": unit,
+                "meaning": _meaning(name, cols),
+                "mean": mean,
+                "peak": peak,
+                "rms": float(np.sqrt(np.mean(ys**2))),
+                "rms_dynamic": float(np.sqrt(np.mean((ys - mean) ** 2))),
+                "harmonics": [
+                    {
+                        "k": k + 1,
+                        "amplitude": float(amp[k]),
+                        "phase_deg": (float(math.degrees(ph[k])) if amp[k] > tiny else None),
+                    }
+                    for k in range(n)
+                ],
+            }
+        )
     checks = {}
-    for c in ("residual_force_N", "residual_moment_Nm", "balance_residual_N",
-              "balance_residual_Nm"):
+    for c in ("residual_force_N", "residual_moment_Nm", "balance_residual_N", "balance_residual_Nm"):
         if c in columns:
-            checks["max_" + c] = float(np.max(np.asarray(columns[c])[cyc.i0:cyc.i1 + 1]))
+            checks["max_" + c] = float(np.max(np.asarray(columns[c])[cyc.i0 : cyc.i1 + 1]))
     transients = [dict(ev) for ev in events if ev.get("kind") == "impulse"]
     return {
         "source": source,
-        "cycle": {"t0_s": cyc.t0, "t1_s": cyc.t1, "period_s": cyc.period,
-                  "crank_frequency_hz": cyc.frequency_hz, "crank_speed_mean_rad_s": cyc.omega,
-                  "period_change": None if math.isnan(cyc.period_change) else cyc.period_change,
-                  "steps": steps, "resampled_points": N, "structure": mode},
-        "method": ("last full crank revolution between passages of phi = 0 (mod 2 pi); cubic "
-                   "spline resampling at N uniform instants; DFT: A_k = 2|c_k|, phase = arg c_k "
-                   "in y = mean + sum A_k cos(k Omega (t - t0) + phase_k)"),
+        "cycle": {
+            "t0_s": cyc.t0,
+            "t1_s": cyc.t1,
+            "period_s": cyc.period,
+            "crank_frequency_hz": cyc.frequency_hz,
+            "crank_speed_mean_rad_s": cyc.omega,
+            "period_change": None if math.isnan(cyc.period_change) else cyc.period_change,
+            "steps": steps,
+            "resampled_points": N,
+            "structure": mode,
+        },
+        "method": (
+            "last full crank revolution between passages of phi = 0 (mod 2 pi); cubic "
+            "spline resampling at N uniform instants; DFT: A_k = 2|c_k|, phase = arg c_k "
+            "in y = mean + sum A_k cos(k Omega (t - t0) + phase_k)"
+        ),
         "quantities": quantities,
         "transients": transients,
         "checks": checks,
@@ -250,8 +296,9 @@ def quantity(report: dict, name: str) -> dict:
     for q in report["quantities"]:
         if q["name"] == name:
             return q
-    raise KeyError(f"load report has no quantity {name!r}; it has "
-                   + ", ".join(q["name"] for q in report["quantities"]))
+    raise KeyError(
+        f"load report has no quantity {name!r}; it has " + ", ".join(q["name"] for q in report["quantities"])
+    )
 
 
 # -- outputs --------------------------------------------------------------------------------
@@ -259,25 +306,39 @@ def format_table(report: dict) -> str:
     """The report as text tables: amplitudes for every quantity, phases for the foundation."""
     c = report["cycle"]
     n = len(report["quantities"][0]["harmonics"]) if report["quantities"] else 0
-    lines = [f"load report {report['source']}: cycle t = {c['t0_s']:.6g} .. {c['t1_s']:.6g} s, "
-             f"period {c['period_s'] * 1e3:.4g} ms, crank {c['crank_speed_mean_rad_s']:.5g} rad/s "
-             f"({c['crank_frequency_hz']:.5g} Hz)"
-             + ("" if c["period_change"] is None
-                else f", period change from the revolution before {c['period_change']:.2e}")]
+    lines = [
+        f"load report {report['source']}: cycle t = {c['t0_s']:.6g} .. {c['t1_s']:.6g} s, "
+        f"period {c['period_s'] * 1e3:.4g} ms, crank {c['crank_speed_mean_rad_s']:.5g} rad/s "
+        f"({c['crank_frequency_hz']:.5g} Hz)"
+        + (
+            ""
+            if c["period_change"] is None
+            else f", period change from the revolution before {c['period_change']:.2e}"
+        )
+    ]
     head = f"{'quantity':<11} {'unit':<4} {'mean':>10} {'peak':>10} {'RMS':>10}" + "".join(
-        f" {'A' + str(k + 1):>9}" for k in range(n))
+        f" {'A' + str(k + 1):>9}" for k in range(n)
+    )
     lines += ["", head, "-" * len(head)]
     for q in report["quantities"]:
-        lines.append(f"{q['name']:<11} {q['unit']:<4} {q['mean']:>10.4g} {q['peak']:>10.4g} "
-                     f"{q['rms']:>10.4g}" + "".join(f" {h['amplitude']:>9.4g}"
-                                                    for h in q["harmonics"]))
-    lines += ["", "phases of the foundation load (deg; y = mean + sum A_k cos(k W (t - t0) + ph_k),"
-              " t0: crank at phi = 0)"]
+        lines.append(
+            f"{q['name']:<11} {q['unit']:<4} {q['mean']:>10.4g} {q['peak']:>10.4g} "
+            f"{q['rms']:>10.4g}" + "".join(f" {h['amplitude']:>9.4g}" for h in q["harmonics"])
+        )
+    lines += [
+        "",
+        "phases of the foundation load (deg; y = mean + sum A_k cos(k W (t - t0) + ph_k),"
+        " t0: crank at phi = 0)",
+    ]
     for q in report["quantities"]:
         if q["name"] in FOUNDATION:
-            lines.append(f"{q['name']:<11}" + "".join(
-                f" {'-' if h['phase_deg'] is None else format(h['phase_deg'], '.1f'):>9}"
-                for h in q["harmonics"]))
+            lines.append(
+                f"{q['name']:<11}"
+                + "".join(
+                    f" {'-' if h['phase_deg'] is None else format(h['phase_deg'], '.1f'):>9}"
+                    for h in q["harmonics"]
+                )
+            )
     tr = report["transients"]
     lines.append("")
     if tr:
@@ -311,18 +372,23 @@ def write_csv(report: dict, path) -> Path:
     """One row a quantity: name, unit, mean, peak, rms, rms_dynamic, A1…An, phase1_deg…"""
     path = Path(path)
     n = len(report["quantities"][0]["harmonics"]) if report["quantities"] else 0
-    head = (["quantity", "unit", "mean", "peak", "rms", "rms_dynamic"]
-            + [f"A{k + 1}" for k in range(n)] + [f"phase{k + 1}_deg" for k in range(n)]
-            + ["meaning"])
+    head = (
+        ["quantity", "unit", "mean", "peak", "rms", "rms_dynamic"]
+        + [f"A{k + 1}" for k in range(n)]
+        + [f"phase{k + 1}_deg" for k in range(n)]
+        + ["meaning"]
+    )
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(head)
         for q in report["quantities"]:
-            w.writerow([q["name"], q["unit"]] + [repr(q[k]) for k in
-                                                  ("mean", "peak", "rms", "rms_dynamic")]
-                       + [repr(h["amplitude"]) for h in q["harmonics"]]
-                       + ["" if h["phase_deg"] is None else repr(h["phase_deg"])
-                          for h in q["harmonics"]] + [q["meaning"]])
+            w.writerow(
+                [q["name"], q["unit"]]
+                + [repr(q[k]) for k in ("mean", "peak", "rms", "rms_dynamic")]
+                + [repr(h["amplitude"]) for h in q["harmonics"]]
+                + ["" if h["phase_deg"] is None else repr(h["phase_deg"]) for h in q["harmonics"]]
+                + [q["meaning"]]
+            )
     return path
 
 
@@ -330,6 +396,7 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
     """A figure for people: the cycle's foundation force and joint forces against the crank
     angle, and the harmonic amplitudes of the foundation load as bars."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -357,8 +424,9 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
 
     fx = quantity(report, "|F_found|") if _has(report, "|F_found|") else None
     head = title or f"Load report: {report['source']}"
-    sub = (f"steady cycle t = {c['t0_s']:.4g}..{c['t1_s']:.4g} s, crank "
-           f"{c['crank_speed_mean_rad_s']:.4g} rad/s")
+    sub = (
+        f"steady cycle t = {c['t0_s']:.4g}..{c['t1_s']:.4g} s, crank {c['crank_speed_mean_rad_s']:.4g} rad/s"
+    )
     if fx:
         sub += f"; |F_found| peak {fx['peak'] / 1e3:.3g} kN, RMS {fx['rms'] / 1e3:.3g} kN"
     fig.suptitle(f"{head}\n{sub}", fontsize=12)
@@ -369,15 +437,30 @@ def write_png(report: dict, columns: Mapping[str, np.ndarray], path, title: str 
 
 def _foundation_panel(a, report: dict, columns, ang, kn) -> None:
     """The foundation force over the cycle: its components, magnitude and static mean."""
-    a.plot(ang, kn(columns["F_found_x"]), label="F_found_x (vertical, along the guide, up)",
-           color="tab:blue", lw=2)
-    a.plot(ang, kn(columns["F_found_y"]), label="F_found_y (across the guide)", color="tab:orange",
-           lw=2)
-    a.plot(ang, np.hypot(kn(columns["F_found_x"]), kn(columns["F_found_y"])), label="|F_found|",
-           color="k", lw=1, ls="--")
+    a.plot(
+        ang,
+        kn(columns["F_found_x"]),
+        label="F_found_x (vertical, along the guide, up)",
+        color="tab:blue",
+        lw=2,
+    )
+    a.plot(ang, kn(columns["F_found_y"]), label="F_found_y (across the guide)", color="tab:orange", lw=2)
+    a.plot(
+        ang,
+        np.hypot(kn(columns["F_found_x"]), kn(columns["F_found_y"])),
+        label="|F_found|",
+        color="k",
+        lw=1,
+        ls="--",
+    )
     if _has(report, "F_found_x"):
-        a.axhline(quantity(report, "F_found_x")["mean"] / 1e3, color="tab:blue", lw=0.8, ls=":",
-                  label="mean of F_found_x (static: the weight)")
+        a.axhline(
+            quantity(report, "F_found_x")["mean"] / 1e3,
+            color="tab:blue",
+            lw=0.8,
+            ls=":",
+            label="mean of F_found_x (static: the weight)",
+        )
     a.axhline(0, color="0.6", lw=0.8)
     a.set_title("Foundation load: force the frame receives")
     a.set_ylabel("force (kN)")
@@ -387,10 +470,12 @@ def _foundation_panel(a, report: dict, columns, ang, kn) -> None:
 
 def _joints_panel(a, columns, ang, kn) -> None:
     """The joint forces' magnitudes over the cycle, and the guide's normal force."""
-    for name, cx, cy in (("|F_O| crank bearing", "F_O_x", "F_O_y"),
-                         ("|F_A| crank-rod", "F_A_x", "F_A_y"),
-                         ("|F_B| rod-rocker", "F_B_x", "F_B_y"),
-                         ("|F_C| rocker-slider", "F_C_x", "F_C_y")):
+    for name, cx, cy in (
+        ("|F_O| crank bearing", "F_O_x", "F_O_y"),
+        ("|F_A| crank-rod", "F_A_x", "F_A_y"),
+        ("|F_B| rod-rocker", "F_B_x", "F_B_y"),
+        ("|F_C| rocker-slider", "F_C_x", "F_C_y"),
+    ):
         if cx in columns:
             a.plot(ang, np.hypot(kn(columns[cx]), kn(columns[cy])), label=name, lw=1.6)
     if "N_guide" in columns:
@@ -406,14 +491,14 @@ def _force_harmonics_panel(a, report: dict, k) -> None:
     """The foundation force's harmonic amplitudes, one bar a component and harmonic."""
     names = [q for q in ("F_found_x", "F_found_y") if _has(report, q)]
     w = 0.8 / max(1, len(names))
-    amps = [np.array([h["amplitude"] for h in quantity(report, q)["harmonics"]]) / 1e3
-            for q in names]
+    amps = [np.array([h["amplitude"] for h in quantity(report, q)["harmonics"]]) / 1e3 for q in names]
     top = max((float(x.max()) for x in amps), default=0.0)
     for j, (name, amp) in enumerate(zip(names, amps)):
         bars = a.bar(k + (j - (len(names) - 1) / 2) * w, amp, w, label=name)
         _labels(a, bars, amp, top)
-    a.set_title("Foundation force: harmonics of the crank frequency "
-                f"({report['cycle']['crank_frequency_hz']:.3g} Hz)")
+    a.set_title(
+        f"Foundation force: harmonics of the crank frequency ({report['cycle']['crank_frequency_hz']:.3g} Hz)"
+    )
     a.set_xlabel("harmonic k (frequency k x crank frequency)")
     a.set_ylabel("amplitude (kN)")
     a.set_xticks(k)
@@ -449,5 +534,17 @@ def _has(report: dict, name: str) -> bool:
     return any(q["name"] == name for q in report["quantities"])
 
 
-__all__ = ["N_HARMONICS", "Cycle", "LoadReportError", "harmonics", "resample", "last_cycle",
-           "load_report", "quantity", "format_table", "write_json", "write_csv", "write_png"]
+__all__ = [
+    "N_HARMONICS",
+    "Cycle",
+    "LoadReportError",
+    "harmonics",
+    "resample",
+    "last_cycle",
+    "load_report",
+    "quantity",
+    "format_table",
+    "write_json",
+    "write_csv",
+    "write_png",
+]

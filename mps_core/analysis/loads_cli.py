@@ -24,26 +24,42 @@ from . import loads
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "loads", help="load report over a steady working cycle: peaks, RMS, harmonics, impulses")
-    p.add_argument("source", metavar="SCENE|RECORDING",
-                   help="preset name, scene file (TOML), a CSV from mps run --reactions --csv, "
-                        "or an MCAP recording (mps record, the node)")
+        "loads", help="load report over a steady working cycle: peaks, RMS, harmonics, impulses"
+    )
+    p.add_argument(
+        "source",
+        metavar="SCENE|RECORDING",
+        help="preset name, scene file (TOML), a CSV from mps run --reactions --csv, "
+        "or an MCAP recording (mps record, the node)",
+    )
     p.add_argument("--json", metavar="FILE", help="write the report as JSON")
     p.add_argument("--csv", metavar="FILE", help="write one row a quantity as CSV")
     p.add_argument("--png", metavar="FILE", help="draw the figure (time series + harmonics)")
-    p.add_argument("--harmonics", type=int, default=loads.N_HARMONICS, metavar="N",
-                   help=f"harmonics of the crank frequency (default {loads.N_HARMONICS})")
-    p.add_argument("--structure", default="locked", metavar="NAME",
-                   help="the working structure whose last full revolution is analysed "
-                        "(default locked)")
+    p.add_argument(
+        "--harmonics",
+        type=int,
+        default=loads.N_HARMONICS,
+        metavar="N",
+        help=f"harmonics of the crank frequency (default {loads.N_HARMONICS})",
+    )
+    p.add_argument(
+        "--structure",
+        default="locked",
+        metavar="NAME",
+        help="the working structure whose last full revolution is analysed (default locked)",
+    )
     p.add_argument("--t-end", type=float, metavar="S", help="end time of the run (s), scenes only")
     p.add_argument("--dt", type=float, metavar="S", help="step of the run (s), scenes only")
-    p.add_argument("--events", metavar="FILE",
-                   help="a recording's event log (JSON lines) for the transients' impulses")
-    p.add_argument("--force", action="store_true",
-                   help="replace an output file that exists (never an input)")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress line while a scene runs (there is one on a terminal only)")
+    p.add_argument(
+        "--events", metavar="FILE", help="a recording's event log (JSON lines) for the transients' impulses"
+    )
+    p.add_argument("--force", action="store_true", help="replace an output file that exists (never an input)")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress line while a scene runs (there is one on a terminal only)",
+    )
     p.set_defaults(func=run)
 
 
@@ -70,15 +86,17 @@ def _mcap_columns(args):
     if args.t_end is not None or args.dt is not None:
         raise loads.LoadReportError("--t-end and --dt apply to scenes, not to a recording")
     if args.events is not None:
-        raise loads.LoadReportError("--events applies to a CSV recording; an MCAP recording "
-                                    "holds its own event log")
+        raise loads.LoadReportError(
+            "--events applies to a CSV recording; an MCAP recording holds its own event log"
+        )
     try:
         replay = importlib.import_module("mps_ros.replay")
     except ModuleNotFoundError as exc:
         raise loads.LoadReportError(
             f"reading the MCAP recording {src!r} needs the package {exc.name!r}, which is not "
             f"installed: install the viewer extra (pip install -e '.[view]') or convert "
-            f"the run to CSV (mps run SCENE --reactions --csv FILE)") from None
+            f"the run to CSV (mps run SCENE --reactions --csv FILE)"
+        ) from None
     return replay.load_columns(src)
 
 
@@ -114,14 +132,13 @@ def _events(path) -> list[dict]:
     if path is None:
         return []
     out = []
-    text = read_text(path, "--events", "JSON lines", allow_empty=True)   # a run without events
+    text = read_text(path, "--events", "JSON lines", allow_empty=True)  # a run without events
     for i, line in enumerate(text.splitlines(), 1):
         if line.strip():
             try:
                 out.append(json.loads(line))
             except json.JSONDecodeError as exc:
-                raise loads.LoadReportError(f"--events {path}: line {i} is not JSON ({exc.msg})") \
-                    from None
+                raise loads.LoadReportError(f"--events {path}: line {i} is not JSON ({exc.msg})") from None
     return out
 
 
@@ -131,15 +148,19 @@ def run(args) -> int:
     if not 1 <= args.harmonics <= 50:
         raise loads.LoadReportError(f"--harmonics = {args.harmonics}: expected 1 to 50")
     # before the run or the reading: paths that cannot be written, inputs, existing files
-    check_outputs({"--json": args.json, "--csv": args.csv, "--png": args.png},
-                  inputs=[args.source, args.events], force=args.force)
+    check_outputs(
+        {"--json": args.json, "--csv": args.csv, "--png": args.png},
+        inputs=[args.source, args.events],
+        force=args.force,
+    )
     columns, events, name = _columns(args)
-    report = loads.load_report(columns, n=args.harmonics, mode=args.structure, events=events,
-                               source=name)
+    report = loads.load_report(columns, n=args.harmonics, mode=args.structure, events=events, source=name)
     print(loads.format_table(report))
-    for path, write in ((args.json, lambda tmp: loads.write_json(report, tmp)),
-                        (args.csv, lambda tmp: loads.write_csv(report, tmp)),
-                        (args.png, lambda tmp: loads.write_png(report, columns, tmp))):
+    for path, write in (
+        (args.json, lambda tmp: loads.write_json(report, tmp)),
+        (args.csv, lambda tmp: loads.write_csv(report, tmp)),
+        (args.png, lambda tmp: loads.write_png(report, columns, tmp)),
+    ):
         if path:
             with written_whole(path) as tmp:
                 write(tmp)

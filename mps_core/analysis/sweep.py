@@ -90,8 +90,9 @@ def _number(key: str, spec: str, text: str) -> float:
     try:
         v = float(text)
     except ValueError:
-        raise SweepError(f"--vary {key}={spec}: {text!r} is not a number (expected a:b:n, a:b "
-                         "or v1,v2,...)") from None
+        raise SweepError(
+            f"--vary {key}={spec}: {text!r} is not a number (expected a:b:n, a:b or v1,v2,...)"
+        ) from None
     if not math.isfinite(v):
         raise SweepError(f"--vary {key}={spec}: {text!r}: expected a finite number")
     return v
@@ -102,8 +103,7 @@ def parse_axis(text: str) -> Axis:
     key, eq, spec = text.partition("=")
     key, spec = key.strip(), spec.strip()
     if not eq or not key or not spec:
-        raise SweepError(f"--vary {text!r}: expected KEY=SPEC, e.g. "
-                         "effects.blanking.thickness_mm=0.5:2.0:7")
+        raise SweepError(f"--vary {text!r}: expected KEY=SPEC, e.g. effects.blanking.thickness_mm=0.5:2.0:7")
     if ":" in spec:
         parts = spec.split(":")
         if len(parts) == 2:
@@ -119,12 +119,14 @@ def parse_axis(text: str) -> Axis:
         except ValueError:
             n = 0
         if n < 1:
-            raise SweepError(f"--vary {key}={spec}: the count {parts[2]!r}: expected an "
-                             "integer >= 1")
+            raise SweepError(f"--vary {key}={spec}: the count {parts[2]!r}: expected an integer >= 1")
         vals = [lo] if n == 1 else list(np.linspace(lo, hi, n))
-        if float(lo).is_integer() and float(hi).is_integer() and \
-                all(float(v).is_integer() for v in vals) and \
-                all(p.strip().lstrip("+-").isdigit() for p in parts[:2]):
+        if (
+            float(lo).is_integer()
+            and float(hi).is_integer()
+            and all(float(v).is_integer() for v in vals)
+            and all(p.strip().lstrip("+-").isdigit() for p in parts[:2])
+        ):
             return Axis(key, tuple(int(round(v)) for v in vals))
         return Axis(key, tuple(float(v) for v in vals))
     return Axis(key, tuple(_word(p) for p in spec.split(",")))
@@ -135,8 +137,9 @@ def _points(axes: Sequence[Axis], samples: int | None, seed: int) -> list[tuple]
     if samples is None:
         bad = [a.key for a in axes if a.sampled]
         if bad:
-            raise SweepError(f"--vary {bad[0]}: a range low:high is sampled: give --samples N "
-                             "(or a:b:n for a grid)")
+            raise SweepError(
+                f"--vary {bad[0]}: a range low:high is sampled: give --samples N (or a:b:n for a grid)"
+            )
         return list(itertools.product(*(a.values for a in axes)))
     if samples < 1:
         raise SweepError(f"--samples {samples}: expected an integer >= 1")
@@ -164,8 +167,9 @@ def _entry(seq: list, key: str, head: str, by: str) -> dict:
         have = ", ".join(str(e.get(by)) for e in seq if isinstance(e, dict)) or "none"
         raise SweepError(f"--vary {key}: the scene has no {by} {head!r} (it has: {have})")
     if len(found) > 1:
-        raise SweepError(f"--vary {key}: the scene has {len(found)} of {by} {head!r}: name one "
-                         "by its index instead")
+        raise SweepError(
+            f"--vary {key}: the scene has {len(found)} of {by} {head!r}: name one by its index instead"
+        )
     return found[0]
 
 
@@ -173,8 +177,7 @@ def set_field(raw: dict, key: str, value: Any) -> None:
     """Set the dotted ``key`` in a parsed scene file (see the module's notes)."""
     parts = key.split(".")
     if len(parts) < 2 or not all(parts):
-        raise SweepError(f"--vary {key}: expected a dotted key TABLE.FIELD, e.g. "
-                         "bodies.slider.mass_kg")
+        raise SweepError(f"--vary {key}: expected a dotted key TABLE.FIELD, e.g. bodies.slider.mass_kg")
     if parts[0] in ("effects", "commands"):
         if len(parts) != 3:
             raise SweepError(f"--vary {key}: expected {parts[0]}.NAME.FIELD")
@@ -207,13 +210,19 @@ def _base_raw(scene: Scene) -> dict:
     import tomllib
 
     if not scene.text:
-        raise SweepError(f"scene {scene.name!r} has no file text to vary (load it from a preset "
-                         "or a file)")
+        raise SweepError(f"scene {scene.name!r} has no file text to vary (load it from a preset or a file)")
     return tomllib.loads(scene.text)
 
 
-def plan(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None = None,
-         seed: int = 0, t_end: float | None = None, dt: float | None = None) -> list[Run]:
+def plan(
+    scene: Scene | str,
+    vary: Iterable[str | Axis],
+    *,
+    samples: int | None = None,
+    seed: int = 0,
+    t_end: float | None = None,
+    dt: float | None = None,
+) -> list[Run]:
     """Every run of a sweep, each scene built and validated (nothing is run)."""
     base = scene if isinstance(scene, Scene) else load_scene(scene)
     axes = [a if isinstance(a, Axis) else parse_axis(a) for a in vary]
@@ -252,16 +261,21 @@ def figures(report: dict) -> dict:
     """A load report as one row's figures: each quantity's mean, peak, RMS, dynamic RMS and
     harmonic amplitudes (``|F_found|.peak``, ``|F_found|.A1``…), the cycle's period and mean
     crank speed, and the impacts' count and largest foundation impulse."""
-    row: dict = {"period_s": report["cycle"]["period_s"],
-                 "crank_speed_rad_s": report["cycle"]["crank_speed_mean_rad_s"]}
+    row: dict = {
+        "period_s": report["cycle"]["period_s"],
+        "crank_speed_rad_s": report["cycle"]["crank_speed_mean_rad_s"],
+    }
     for q in report["quantities"]:
         for f in FIGURES:
             row[f"{q['name']}.{f}"] = q[f]
         for h in q["harmonics"]:
             row[f"{q['name']}.A{h['k']}"] = h["amplitude"]
-    found = [math.hypot(ev.get("impulses_Ns", {}).get("F_found_x", 0.0),
-                        ev.get("impulses_Ns", {}).get("F_found_y", 0.0))
-             for ev in report["transients"]]
+    found = [
+        math.hypot(
+            ev.get("impulses_Ns", {}).get("F_found_x", 0.0), ev.get("impulses_Ns", {}).get("F_found_y", 0.0)
+        )
+        for ev in report["transients"]
+    ]
     row["impacts"] = len(found)
     row["impulse_found_max_Ns"] = max(found) if found else 0.0
     return row
@@ -276,12 +290,10 @@ def run_one(scene: Scene, structure: str = "locked") -> tuple[dict, float]:
     try:
         traj = build(scene).run(scene.t_end, scene.dt)
         cpu = time.process_time() - c0
-        report = loads.load_report(traj.columns, mode=structure, events=traj.events,
-                                   source=scene.name)
+        report = loads.load_report(traj.columns, mode=structure, events=traj.events, source=scene.name)
         return {"status": "ok", "error": "", **figures(report)}, cpu
-    except Exception as exc:        # a run that cannot be simulated is a row, not the end
-        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}, \
-            time.process_time() - c0
+    except Exception as exc:  # a run that cannot be simulated is a row, not the end
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}, time.process_time() - c0
 
 
 def _task(scene: Scene, structure: str) -> tuple[dict, float, float]:
@@ -313,8 +325,7 @@ class Sweep:
         data = []
         for c in cols:
             vals = [r.get(c) for r in self.rows]
-            if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None
-                   for v in vals):
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None for v in vals):
                 data.append(np.array([math.nan if v is None else v for v in vals], float))
             else:
                 data.append(np.array(["" if v is None else str(v) for v in vals]))
@@ -333,12 +344,21 @@ class Sweep:
             best = None
             for r in ok:
                 v = r.get(c)
-                if isinstance(v, (int, float)) and math.isfinite(v) and \
-                        (best is None or abs(v) > abs(best[0])):
+                if (
+                    isinstance(v, (int, float))
+                    and math.isfinite(v)
+                    and (best is None or abs(v) > abs(best[0]))
+                ):
                     best = (v, r)
             if best is not None:
-                out.append({"figure": c, "value": best[0], "run": best[1]["run"],
-                            **{k: best[1][k] for k in self.keys}})
+                out.append(
+                    {
+                        "figure": c,
+                        "value": best[0],
+                        "run": best[1]["run"],
+                        **{k: best[1][k] for k in self.keys},
+                    }
+                )
         return out
 
 
@@ -367,11 +387,20 @@ def _end_torn_line(path: Path) -> None:
                 fh.write(b"\n")
 
 
-def sweep(scene: Scene | str, vary: Iterable[str | Axis], *, samples: int | None = None,
-          seed: int = 0, t_end: float | None = None, dt: float | None = None,
-          structure: str = "locked", workers: int | None = None, client: Any = None,
-          out: str | Path | None = None,
-          on_row: Callable[[dict, int, int], None] | None = None) -> Sweep:
+def sweep(
+    scene: Scene | str,
+    vary: Iterable[str | Axis],
+    *,
+    samples: int | None = None,
+    seed: int = 0,
+    t_end: float | None = None,
+    dt: float | None = None,
+    structure: str = "locked",
+    workers: int | None = None,
+    client: Any = None,
+    out: str | Path | None = None,
+    on_row: Callable[[dict, int, int], None] | None = None,
+) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.
 
     ``workers``: local processes (default: the machine's cores; 1 runs here, in this
@@ -451,13 +480,15 @@ def _in_processes(todo: list[Run], n: int, structure: str, take: Callable) -> No
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
         for fut in [f for f in pending if f.done() and f.exception() is None]:
-            take(pending.pop(fut), *fut.result())         # ended as the pool broke
+            take(pending.pop(fut), *fut.result())  # ended as the pool broke
         left = list(pending.values())
         if left:
             breaks += 1
             if breaks >= 3:
-                raise SweepError(f"the worker processes died three times with no run ending "
-                                 f"between ({len(left)} run(s) left; the rows taken are kept)")
+                raise SweepError(
+                    f"the worker processes died three times with no run ending "
+                    f"between ({len(left)} run(s) left; the rows taken are kept)"
+                )
 
 
 def _ignore_sigint() -> None:
@@ -494,30 +525,38 @@ def write_png(result: Sweep, path: str | Path, title: str = "") -> Path:
     import matplotlib.pyplot as plt
 
     ok = [r for r in result.rows if r.get("status") == "ok"]
-    numeric = [k for k in result.keys
-               if all(isinstance(r[k], (int, float)) and not isinstance(r[k], bool) for r in ok)]
+    numeric = [
+        k
+        for k in result.keys
+        if all(isinstance(r[k], (int, float)) and not isinstance(r[k], bool) for r in ok)
+    ]
     n = len(numeric) + 1
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.6), squeeze=False)
     for ax, k in zip(axes[0], numeric):
         x = [r[k] for r in ok]
         for fig_name, style in (("|F_found|.peak", "o"), ("|F_found|.rms", "s")):
-            ax.plot(x, [r.get(fig_name, math.nan) / 1e3 for r in ok], style, ms=4,
-                    label=fig_name.replace("|F_found|.", ""))
+            ax.plot(
+                x,
+                [r.get(fig_name, math.nan) / 1e3 for r in ok],
+                style,
+                ms=4,
+                label=fig_name.replace("|F_found|.", ""),
+            )
         ax.set_xlabel(k)
         ax.set_ylabel("foundation load |F_found| (kN)")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
     ax = axes[0][-1]
-    amps = sorted({int(c.rsplit(".A", 1)[1]) for r in ok for c in r
-                   if c.startswith("|F_found|.A")})
+    amps = sorted({int(c.rsplit(".A", 1)[1]) for r in ok for c in r if c.startswith("|F_found|.A")})
     env = [max(r.get(f"|F_found|.A{k}", 0.0) for r in ok) / 1e3 for k in amps] if ok else []
     ax.bar(amps, env)
     ax.set_xlabel("harmonic of the crank frequency")
     ax.set_ylabel("largest amplitude over the runs (kN)")
     ax.grid(alpha=0.3, axis="y")
     failed = len(result.rows) - len(ok)
-    fig.suptitle((title + ": " if title else "") + f"{len(ok)} runs"
-                 + (f", {failed} failed" if failed else ""))
+    fig.suptitle(
+        (title + ": " if title else "") + f"{len(ok)} runs" + (f", {failed} failed" if failed else "")
+    )
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110, format="png")

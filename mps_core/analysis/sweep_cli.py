@@ -12,40 +12,59 @@ from pathlib import Path
 from . import sweep as sw
 
 #: what a sweep writes into its folder, beside the runs' record (``runs.jsonl``)
-OUTPUTS = {"table": "sweep.csv", "envelope": "envelope.csv", "spec": "sweep.json",
-           "figure": "sweep.png"}
+OUTPUTS = {"table": "sweep.csv", "envelope": "envelope.csv", "spec": "sweep.json", "figure": "sweep.png"}
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "sweep", help="the load report over many runs of a scene: a table and its envelope")
+        "sweep", help="the load report over many runs of a scene: a table and its envelope"
+    )
     p.add_argument("scene", metavar="SCENE", help="preset name or scene file (TOML)")
-    p.add_argument("--vary", action="append", required=True, metavar="KEY=SPEC",
-                   help="a field and its values: a:b:n (grid), v1,v2,... (list) or a:b (a range "
-                        "for --samples); dotted TOML keys, effects and commands by name, e.g. "
-                        "effects.blanking.thickness_mm=0.5:2.0:7 (repeat for more fields: the "
-                        "grid is their product)")
-    p.add_argument("--samples", type=int, metavar="N",
-                   help="N runs from a Latin hypercube over the ranges a:b")
+    p.add_argument(
+        "--vary",
+        action="append",
+        required=True,
+        metavar="KEY=SPEC",
+        help="a field and its values: a:b:n (grid), v1,v2,... (list) or a:b (a range "
+        "for --samples); dotted TOML keys, effects and commands by name, e.g. "
+        "effects.blanking.thickness_mm=0.5:2.0:7 (repeat for more fields: the "
+        "grid is their product)",
+    )
+    p.add_argument(
+        "--samples", type=int, metavar="N", help="N runs from a Latin hypercube over the ranges a:b"
+    )
     p.add_argument("--seed", type=int, default=0, help="the sample's seed (default 0)")
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="folder of the results: runs.jsonl (each run as it ends; the same "
-                        "command again computes only what is missing), sweep.csv, "
-                        "envelope.csv, sweep.json, sweep.png")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help=f"local worker processes (default: the machine's cores, {os.cpu_count()})")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="a Dask scheduler (tcp://HOST:PORT) instead of local workers "
-                        "(the batch extra)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="folder of the results: runs.jsonl (each run as it ends; the same "
+        "command again computes only what is missing), sweep.csv, "
+        "envelope.csv, sweep.json, sweep.png",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help=f"local worker processes (default: the machine's cores, {os.cpu_count()})",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a Dask scheduler (tcp://HOST:PORT) instead of local workers (the batch extra)",
+    )
     p.add_argument("--t-end", type=float, metavar="S", help="end time of every run (s)")
     p.add_argument("--dt", type=float, metavar="S", help="output step of every run (s)")
-    p.add_argument("--structure", default="locked", metavar="NAME",
-                   help="the working structure whose last full revolution is analysed "
-                        "(default locked)")
-    p.add_argument("--force", action="store_true",
-                   help="write into a folder that holds another sweep")
-    p.add_argument("-q", "--quiet", action="store_true",
-                   help="no progress line (there is one on a terminal only)")
+    p.add_argument(
+        "--structure",
+        default="locked",
+        metavar="NAME",
+        help="the working structure whose last full revolution is analysed (default locked)",
+    )
+    p.add_argument("--force", action="store_true", help="write into a folder that holds another sweep")
+    p.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress line (there is one on a terminal only)"
+    )
     p.set_defaults(func=run)
 
 
@@ -57,7 +76,7 @@ class _Progress:
         self.on = not quiet and self.stream.isatty()
         self.t0 = time.monotonic()
         self.failed = 0
-        self.first: int | None = None       # rows kept from an earlier call
+        self.first: int | None = None  # rows kept from an earlier call
 
     def __call__(self, row: dict, done: int, total: int) -> None:
         if row.get("status") != "ok":
@@ -69,8 +88,9 @@ class _Progress:
         dt = time.monotonic() - self.t0
         rate = (done - self.first) / dt if dt > 0 else 0.0
         left = (total - done) / rate if rate > 0 else float("nan")
-        self.stream.write(f"\rsweep: {done}/{total} runs, {self.failed} failed, "
-                          f"{rate:.2f} runs/s, {left:.0f} s left   ")
+        self.stream.write(
+            f"\rsweep: {done}/{total} runs, {self.failed} failed, {rate:.2f} runs/s, {left:.0f} s left   "
+        )
         self.stream.flush()
 
     def done(self) -> None:
@@ -82,10 +102,18 @@ class _Progress:
 def _spec(args, scene) -> dict:
     from ..version import __version__
 
-    return {"scene": scene.name, "scene_origin": scene.origin, "scene_text": scene.text,
-            "vary": list(args.vary), "samples": args.samples, "seed": args.seed,
-            "t_end": args.t_end, "dt": args.dt, "structure": args.structure,
-            "version": __version__}
+    return {
+        "scene": scene.name,
+        "scene_origin": scene.origin,
+        "scene_text": scene.text,
+        "vary": list(args.vary),
+        "samples": args.samples,
+        "seed": args.seed,
+        "t_end": args.t_end,
+        "dt": args.dt,
+        "structure": args.structure,
+        "version": __version__,
+    }
 
 
 def _check_folder(out: Path, spec: dict, force: bool) -> None:
@@ -102,8 +130,10 @@ def _check_folder(out: Path, spec: dict, force: bool) -> None:
         except (OSError, json.JSONDecodeError):
             before = None
         if before is None or {**before, "version": None} != {**spec, "version": None}:
-            raise sw.SweepError(f"--out {str(out)!r} holds another sweep ({old.name} differs): "
-                                "expected a new folder, that sweep's own arguments, or --force")
+            raise sw.SweepError(
+                f"--out {str(out)!r} holds another sweep ({old.name} differs): "
+                "expected a new folder, that sweep's own arguments, or --force"
+            )
     if out.is_dir() and not os.access(out, os.W_OK):
         raise sw.SweepError(f"--out {str(out)!r}: not writable")
 
@@ -116,8 +146,7 @@ def run(args) -> int:
     out = Path(args.out)
     spec = _spec(args, scene)
     # every run's scene is built and checked before anything runs
-    runs = sw.plan(scene, args.vary, samples=args.samples, seed=args.seed, t_end=args.t_end,
-                   dt=args.dt)
+    runs = sw.plan(scene, args.vary, samples=args.samples, seed=args.seed, t_end=args.t_end, dt=args.dt)
     _check_folder(out, spec, args.force)
     if args.workers is not None and args.workers < 1:
         raise sw.SweepError(f"--workers {args.workers}: expected an integer >= 1")
@@ -126,25 +155,45 @@ def run(args) -> int:
         try:
             from dask.distributed import Client
         except ModuleNotFoundError:
-            raise sw.SweepError("--scheduler needs dask.distributed: install the batch extra "
-                                "(pip install -e '.[batch]')") from None
+            raise sw.SweepError(
+                "--scheduler needs dask.distributed: install the batch extra (pip install -e '.[batch]')"
+            ) from None
         client = Client(args.scheduler)
     out.mkdir(exist_ok=True)
     with written_whole(out / OUTPUTS["spec"]) as tmp:
         Path(tmp).write_text(json.dumps(spec, indent=1) + "\n")
     progress = _Progress(args.quiet)
-    print(f"sweep {scene.name}: {len(runs)} runs, "
-          + (f"Dask scheduler {args.scheduler}" if client else
-             f"{args.workers or os.cpu_count()} worker process(es)") + f"; rows in {out}")
+    print(
+        f"sweep {scene.name}: {len(runs)} runs, "
+        + (
+            f"Dask scheduler {args.scheduler}"
+            if client
+            else f"{args.workers or os.cpu_count()} worker process(es)"
+        )
+        + f"; rows in {out}"
+    )
     try:
-        result = sw.sweep(scene, args.vary, samples=args.samples, seed=args.seed,
-                          t_end=args.t_end, dt=args.dt, structure=args.structure,
-                          workers=args.workers, client=client, out=out, on_row=progress)
+        result = sw.sweep(
+            scene,
+            args.vary,
+            samples=args.samples,
+            seed=args.seed,
+            t_end=args.t_end,
+            dt=args.dt,
+            structure=args.structure,
+            workers=args.workers,
+            client=client,
+            out=out,
+            on_row=progress,
+        )
     except KeyboardInterrupt:
         progress.done()
         kept = len(sw.read_runs(out / sw.RUNS_FILE))
-        print(f"sweep interrupted: {kept} run(s) kept in {out / sw.RUNS_FILE}; the same "
-              "command again computes the rest", file=sys.stderr)
+        print(
+            f"sweep interrupted: {kept} run(s) kept in {out / sw.RUNS_FILE}; the same "
+            "command again computes the rest",
+            file=sys.stderr,
+        )
         return 130
     finally:
         if client is not None:
@@ -160,14 +209,19 @@ def run(args) -> int:
         with written_whole(out / OUTPUTS["figure"]) as tmp:
             sw.write_png(result, tmp, title=scene.name)
     failed = [r for r in result.rows if r.get("status") != "ok"]
-    print(f"{len(result.rows)} runs ({result.computed} computed now, "
-          f"{len(result.rows) - result.computed} kept from before), {len(failed)} failed")
+    print(
+        f"{len(result.rows)} runs ({result.computed} computed now, "
+        f"{len(result.rows) - result.computed} kept from before), {len(failed)} failed"
+    )
     for e in env:
         if e["figure"] in ("|F_found|.peak", "|F_found|.rms", "|F_found|.A1", "|F_found|.A2"):
             at = ", ".join(f"{k}={e[k]!r}" for k in result.keys)
             print(f"  envelope {e['figure']}: {e['value']:.1f} N at run {e['run']} ({at})")
     for r in failed[:5]:
         print(f"  run {r['run']} failed: {r['error']}")
-    print("wrote " + ", ".join(str(out / OUTPUTS[k]) for k in ("table", "envelope", "spec"))
-          + ("" if not (out / OUTPUTS["figure"]).exists() else f", {out / OUTPUTS['figure']}"))
+    print(
+        "wrote "
+        + ", ".join(str(out / OUTPUTS[k]) for k in ("table", "envelope", "spec"))
+        + ("" if not (out / OUTPUTS["figure"]).exists() else f", {out / OUTPUTS['figure']}")
+    )
     return 0

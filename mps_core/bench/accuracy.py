@@ -37,15 +37,14 @@ from .common import (
     run_setting,
 )
 
-FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer",
-            "mujoco")
+FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer", "mujoco")
 #: the peers: what a user would pick instead (not the engine's settings)
 PEERS = ("peer", "mujoco")
 #: MuJoCo's steps: 2.5 ms, then the 1.25 ms ladder halved down to about 10 µs
 MUJOCO_STEPS = (2.5e-3,) + DT_LADDER
 DELTAS_DEG = (1.0, 0.1, 0.01, 0.001)
 LA_ITERATIONS = 3
-GRID = DT_LADDER[0]            # errors are sampled on the paper's 1.25 ms grid
+GRID = DT_LADDER[0]  # errors are sampled on the paper's 1.25 ms grid
 #: central differences stop adaptive solvers below this tolerance (their O(Δ²) error and
 #: round-off are noise to the error estimate: the steps shrink without end)
 CENTRAL_MIN_RTOL = 1e-8
@@ -55,12 +54,31 @@ MAX_EVALUATIONS = 300_000
 #: curves, for both alike)
 PEER_RTOLS = tuple(float(f"{m}e-{k}") for k in range(3, 13) for m in ((1,) if k == 3 else (3, 1)))
 ADAPTIVE_RTOLS = {"dop853": PEER_RTOLS, "radau": (1e-4, 1e-6, 1e-8)}
-DELTA_STUDY_DEG = tuple(10.0 ** -k for k in range(0, 7))
+DELTA_STUDY_DEG = tuple(10.0**-k for k in range(0, 7))
 
-COLUMNS = ("case", "solver", "scheme", "delta_deg", "iterations", "dt", "rtol", "steps",
-           "evaluations", "position_points", "cpu_s", "cpu_per_sim_s", "repeats", "err_end_phi",
-           "max_err_phi", "max_err_phi_dot", "max_err_phi_ddot", "max_err_event_t", "horizon_s",
-           "closure_m", "bare_cpu_s")
+COLUMNS = (
+    "case",
+    "solver",
+    "scheme",
+    "delta_deg",
+    "iterations",
+    "dt",
+    "rtol",
+    "steps",
+    "evaluations",
+    "position_points",
+    "cpu_s",
+    "cpu_per_sim_s",
+    "repeats",
+    "err_end_phi",
+    "max_err_phi",
+    "max_err_phi_dot",
+    "max_err_phi_ddot",
+    "max_err_event_t",
+    "horizon_s",
+    "closure_m",
+    "bare_cpu_s",
+)
 
 
 def _schemes(full: bool):
@@ -74,7 +92,7 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
     long = case.t_end > 0.2
     if rungs is None:
         rungs = 3 if quick else (5 if long else len(DT_LADDER))
-    ladder = DT_LADDER[:2 * rungs - 1:2] if quick else COARSE_STEPS + DT_LADDER[:rungs]
+    ladder = DT_LADDER[: 2 * rungs - 1 : 2] if quick else COARSE_STEPS + DT_LADDER[:rungs]
     schemes = _schemes(full=not quick and not long)
     out = []
     for fam in families:
@@ -83,7 +101,7 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
             it = LA_ITERATIONS if fam == "la-iterated" else 1
             # sixth and eighth order: their errors fall below central differences' at once
             # (exact only)
-            for scheme, d in (schemes if fam not in ("rk6", "rk8") else [("autodiff", 0.0)]):
+            for scheme, d in schemes if fam not in ("rk6", "rk8") else [("autodiff", 0.0)]:
                 for dt in ladder:
                     out.append((Setting(solver, scheme, d, it), dt))
         elif fam in ADAPTIVE_RTOLS:
@@ -106,7 +124,7 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
 
             if not supports(case.scene)[0] or not available()[0]:
                 continue
-            for dt in (MUJOCO_STEPS[:6:2] if quick else MUJOCO_STEPS):
+            for dt in MUJOCO_STEPS[:6:2] if quick else MUJOCO_STEPS:
                 out.append((Setting("mujoco", "exact", 0.0), dt))
         elif fam == "peer":
             from .peers import supports
@@ -135,30 +153,38 @@ def errors(traj_t, phi, phi_dot, phi_ddot, ref: Reference, traj=None) -> dict:
     t = t_all[sel]
     rp, rpd, rpdd = ref.sample(t)
     e = np.abs(np.asarray(phi)[sel] - rp)
-    out = {"err_end_phi": float(e[-1]),
-           "max_err_phi": float(e.max()),
-           "max_err_phi_dot": float(np.abs(np.asarray(phi_dot)[sel] - rpd).max()),
-           "max_err_phi_ddot": float(np.abs(np.asarray(phi_ddot)[sel] - rpdd).max()),
-           "max_err_event_t": "", "horizon_s": float(t[-1])}
+    out = {
+        "err_end_phi": float(e[-1]),
+        "max_err_phi": float(e.max()),
+        "max_err_phi_dot": float(np.abs(np.asarray(phi_dot)[sel] - rpd).max()),
+        "max_err_phi_ddot": float(np.abs(np.asarray(phi_ddot)[sel] - rpdd).max()),
+        "max_err_event_t": "",
+        "horizon_s": float(t[-1]),
+    }
     if ref.events and traj is not None:
         from .common import event_timing_error
+
         out["max_err_event_t"] = event_timing_error(traj, ref)
     return out
 
 
-def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
-            budget: float = 1.0) -> dict:
-    row = {"case": case.name, "solver": s.family, "scheme": s.scheme_label,
-           "delta_deg": s.delta_deg if s.scheme == "central" else "",
-           "iterations": s.iterations if s.solver == "linear-acceleration" else "",
-           "dt": dt if not s.adaptive else "", "rtol": s.rtol if s.adaptive else ""}
+def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3, budget: float = 1.0) -> dict:
+    row = {
+        "case": case.name,
+        "solver": s.family,
+        "scheme": s.scheme_label,
+        "delta_deg": s.delta_deg if s.scheme == "central" else "",
+        "iterations": s.iterations if s.solver == "linear-acceleration" else "",
+        "dt": dt if not s.adaptive else "",
+        "rtol": s.rtol if s.adaptive else "",
+    }
     if s.solver == "mujoco":
         import statistics
 
         from .common import cpu_median
         from .mujoco_peer import bare_loop, run_mujoco
 
-        every = max(dt, GRID)              # outputs on the error grid, at whole steps
+        every = max(dt, GRID)  # outputs on the error grid, at whole steps
         t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
         # the stepping's CPU, as the engine's runs count theirs (not the model's compilation,
         # as the engine's do not count its build), beside the bare mj_step loop's, interleaved
@@ -172,9 +198,16 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
 
         _, run, n = cpu_median(once, repeats, budget)
         cpu = statistics.median(cpus)
-        row.update(steps=int(round(case.t_end / dt)), evaluations=run.nfev, position_points="",
-                   cpu_s=cpu, cpu_per_sim_s=cpu / case.t_end, repeats=n,
-                   closure_m=run.closure, bare_cpu_s=statistics.median(bares))
+        row.update(
+            steps=int(round(case.t_end / dt)),
+            evaluations=run.nfev,
+            position_points="",
+            cpu_s=cpu,
+            cpu_per_sim_s=cpu / case.t_end,
+            repeats=n,
+            closure_m=run.closure,
+            bare_cpu_s=statistics.median(bares),
+        )
         row.update(errors(run.t, run.phi, run.phi_dot, run.phi_ddot, ref))
         return row
     if s.solver == "peer":
@@ -183,30 +216,48 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
 
         t_grid = np.linspace(0.0, case.t_end, int(round(case.t_end / GRID)) + 1)
         cpu, run, n = cpu_median(
-            lambda: run_peer(case.scene, case.t_end, t_grid, rtol=s.rtol), repeats, budget)
-        row.update(steps="", evaluations=run.nfev, position_points="", cpu_s=cpu,
-                   cpu_per_sim_s=cpu / case.t_end, repeats=n)
+            lambda: run_peer(case.scene, case.t_end, t_grid, rtol=s.rtol), repeats, budget
+        )
+        row.update(
+            steps="",
+            evaluations=run.nfev,
+            position_points="",
+            cpu_s=cpu,
+            cpu_per_sim_s=cpu / case.t_end,
+            repeats=n,
+        )
         row.update(errors(run.t, run.phi, run.phi_dot, run.phi_ddot, ref))
         return row
     cpu, traj, n = run_setting(case, s, dt, repeats, budget, MAX_EVALUATIONS)
     c = traj.counts
-    row.update(steps=c["steps"], evaluations=c["evaluations"],
-               position_points=c["position_points"], cpu_s=cpu, cpu_per_sim_s=cpu / case.t_end,
-               repeats=n)
+    row.update(
+        steps=c["steps"],
+        evaluations=c["evaluations"],
+        position_points=c["position_points"],
+        cpu_s=cpu,
+        cpu_per_sim_s=cpu / case.t_end,
+        repeats=n,
+    )
     row.update(errors(traj.t, traj.phi, traj.phi_dot, traj.phi_ddot, ref, traj))
     return row
 
 
 # -- where finite differences stop helping ----------------------------------------------------
-def delta_study(case: Case, ref: Reference | None, deltas=DELTA_STUDY_DEG,
-                dt: float = DT_LADDER[4], trajectory: bool = True):
+def delta_study(
+    case: Case,
+    ref: Reference | None,
+    deltas=DELTA_STUDY_DEG,
+    dt: float = DT_LADDER[4],
+    trajectory: bool = True,
+):
     """Rows (Δ, max relative error of q̈ per evaluation, max φ error of an RK4 run at ``dt``).
 
     Per evaluation: at the states of an RK4 run with exact derivatives (every fourth
     right-hand side, all charts it visits), q̈ by central differences against q̈ exact.
     Per run (``trajectory``): RK4 at ``dt`` with central differences against the reference."""
-    scene = case.scene.with_overrides(t_end=min(case.t_end, 0.1), dt=DT_LADDER[3],
-                                      solver="rk4", scheme="autodiff")
+    scene = case.scene.with_overrides(
+        t_end=min(case.t_end, 0.1), dt=DT_LADDER[3], solver="rk4", scheme="autodiff"
+    )
     sim, states = evaluations_along(scene, scene.t_end)
     states = states[::4]
     rows = []
@@ -220,31 +271,51 @@ def delta_study(case: Case, ref: Reference | None, deltas=DELTA_STUDY_DEG,
         for e, qdd_exact in states:
             try:
                 qdd = eng.evaluate(e.view, e.t, e.q, e.qd).qdd
-            except Exception:           # a stencil leaving the chart's domain: not counted
+            except Exception:  # a stencil leaving the chart's domain: not counted
                 continue
             rel = max(rel, float(np.abs(qdd - qdd_exact).max() / np.abs(qdd_exact).max()))
         if not trajectory:
-            rows.append({"delta_deg": d, "max_rel_err_qdd": rel, "max_err_phi_rk4": math.nan,
-                         "rk4_dt": dt, "states": len(states)})
+            rows.append(
+                {
+                    "delta_deg": d,
+                    "max_rel_err_qdd": rel,
+                    "max_err_phi_rk4": math.nan,
+                    "rk4_dt": dt,
+                    "states": len(states),
+                }
+            )
             continue
         _cpu, traj, _n = run_setting(sub, Setting("rk4", "central", d), dt, repeats=1)
         sel = _on_grid(traj.t)
-        err = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0])
-                    .max())
-        rows.append({"delta_deg": d, "max_rel_err_qdd": rel, "max_err_phi_rk4": err,
-                     "rk4_dt": dt, "states": len(states)})
+        err = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
+        rows.append(
+            {
+                "delta_deg": d,
+                "max_rel_err_qdd": rel,
+                "max_err_phi_rk4": err,
+                "rk4_dt": dt,
+                "states": len(states),
+            }
+        )
     if not trajectory:
         return rows
     _cpu, traj, _n = run_setting(sub, Setting("rk4", "autodiff"), dt, repeats=1)
     sel = _on_grid(traj.t)
     exact = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
-    rows.append({"delta_deg": 0.0, "max_rel_err_qdd": 0.0, "max_err_phi_rk4": exact,
-                 "rk4_dt": dt, "states": len(states)})
+    rows.append(
+        {
+            "delta_deg": 0.0,
+            "max_rel_err_qdd": 0.0,
+            "max_err_phi_rk4": exact,
+            "rk4_dt": dt,
+            "states": len(states),
+        }
+    )
     return rows
 
 
 # -- picking a setting ----------------------------------------------------------------------
-def recommendations(rows, targets=tuple(10.0 ** -k for k in range(2, 11))):
+def recommendations(rows, targets=tuple(10.0**-k for k in range(2, 11))):
     """For each target max |φ − φ_ref|: the cheapest measured setting that meets it (the
     engine's, and the peers' for comparison: scipy's, MuJoCo's): (target, engine, scipy peer,
     MuJoCo), None where none meets it."""
@@ -256,8 +327,14 @@ def recommendations(rows, targets=tuple(10.0 ** -k for k in range(2, 11))):
             rs = [r for r in ok if keep(r["solver"])]
             return min(rs, key=lambda r: r["cpu_s"]) if rs else None
 
-        out.append((tgt, cheapest(lambda s: s not in PEERS), cheapest(lambda s: s == "peer"),
-                    cheapest(lambda s: s == "mujoco")))
+        out.append(
+            (
+                tgt,
+                cheapest(lambda s: s not in PEERS),
+                cheapest(lambda s: s == "peer"),
+                cheapest(lambda s: s == "mujoco"),
+            )
+        )
     return out
 
 
@@ -266,8 +343,7 @@ def versus(rows, peer: str = "mujoco"):
     of the engine at least as accurate or None, that one's CPU over the peer's)."""
     mine = [r for r in rows if r["solver"] not in PEERS]
     out = []
-    for p in sorted((r for r in rows if r["solver"] == peer),
-                    key=lambda r: -r["max_err_phi"]):
+    for p in sorted((r for r in rows if r["solver"] == peer), key=lambda r: -r["max_err_phi"]):
         ok = [r for r in mine if r["max_err_phi"] <= p["max_err_phi"]]
         best = min(ok, key=lambda r: r["cpu_s"]) if ok else None
         out.append((p, best, None if best is None else best["cpu_s"] / p["cpu_s"]))
@@ -297,23 +373,50 @@ def _fmt(v, kind="g"):
 
 
 def format_table(rows) -> str:
-    head = ("solver", "scheme", "dt/rtol", "steps", "evals", "points", "CPU s", "CPU/sim s",
-            "err_end φ", "max|Δφ|", "max|Δφ̇|", "max|Δφ̈|")
+    head = (
+        "solver",
+        "scheme",
+        "dt/rtol",
+        "steps",
+        "evals",
+        "points",
+        "CPU s",
+        "CPU/sim s",
+        "err_end φ",
+        "max|Δφ|",
+        "max|Δφ̇|",
+        "max|Δφ̈|",
+    )
     lines = []
     for r in rows:
         step = _fmt(r["dt"], "g") if r["dt"] != "" else "rtol " + f"{r['rtol']:.0e}"
-        lines.append((r["solver"], r["scheme"], step, _fmt(r["steps"]), _fmt(r["evaluations"]),
-                      _fmt(r["position_points"]), f"{r['cpu_s']:.4f}",
-                      f"{r['cpu_per_sim_s']:.3g}", _fmt(r["err_end_phi"], "e"),
-                      _fmt(r["max_err_phi"], "e"), _fmt(r["max_err_phi_dot"], "e"),
-                      _fmt(r["max_err_phi_ddot"], "e")))
+        lines.append(
+            (
+                r["solver"],
+                r["scheme"],
+                step,
+                _fmt(r["steps"]),
+                _fmt(r["evaluations"]),
+                _fmt(r["position_points"]),
+                f"{r['cpu_s']:.4f}",
+                f"{r['cpu_per_sim_s']:.3g}",
+                _fmt(r["err_end_phi"], "e"),
+                _fmt(r["max_err_phi"], "e"),
+                _fmt(r["max_err_phi_dot"], "e"),
+                _fmt(r["max_err_phi_ddot"], "e"),
+            )
+        )
         if r.get("max_err_event_t") not in ("", None):
             lines[-1] = lines[-1] + (_fmt(r["max_err_event_t"], "e"),)
     if any(len(x) > len(head) for x in lines):
         head = head + ("max|Δt_event|",)
     widths = [max(len(str(x[i])) for x in [head] + lines if i < len(x)) for i in range(len(head))]
-    fmt = lambda x: "  ".join(str(v).rjust(w) if i > 1 else str(v).ljust(w)  # noqa: E731
-                              for i, (v, w) in enumerate(zip(x, widths)))
+
+    def fmt(x):
+        return "  ".join(
+            str(v).rjust(w) if i > 1 else str(v).ljust(w) for i, (v, w) in enumerate(zip(x, widths))
+        )
+
     return "\n".join([fmt(head), fmt(tuple("-" * w for w in widths))] + [fmt(x) for x in lines])
 
 
@@ -328,8 +431,7 @@ def write_csv(rows, path: Path, columns=COLUMNS) -> Path:
     return path
 
 
-def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0, rungs=None,
-          log=print):
+def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0, rungs=None, log=print):
     """Run the study; returns {case: {"rows": [...], "delta": [...], "reference": Reference}}."""
     out = {}
     for name in case_names or available_cases():
@@ -338,15 +440,19 @@ def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0
         ref = reference_for(case, GRID)
         hz = f"; reference uncertain to {ref.uncertainty:.1e} rad (against a tenfold tolerance)"
         if ref.horizon < case.t_end:
-            hz += (f" up to t = {ref.horizon:.3g} s, where that passes 1e-7 rad (the motion is "
-                   "chaotic): errors are measured up to there")
-        log(f"case {case.name}: {case.note}; t_end = {case.t_end:g} s; reference: {ref.label} "
-            f"({ref.cpu:.2f} s CPU){hz}; {len(settings)} runs")
+            hz += (
+                f" up to t = {ref.horizon:.3g} s, where that passes 1e-7 rad (the motion is "
+                "chaotic): errors are measured up to there"
+            )
+        log(
+            f"case {case.name}: {case.note}; t_end = {case.t_end:g} s; reference: {ref.label} "
+            f"({ref.cpu:.2f} s CPU){hz}; {len(settings)} runs"
+        )
         rows = []
         for s, dt in settings:
             try:
                 rows.append(run_one(case, s, dt, ref, repeats, budget))
-            except Exception as exc:    # a setting that fails (unstable, singular) is a result
+            except Exception as exc:  # a setting that fails (unstable, singular) is a result
                 log(f"  {s.label} at {dt:g}: failed ({type(exc).__name__}: {exc})")
         delta = [] if quick or out else delta_study(case, ref)
         out[case.name] = {"rows": rows, "delta": delta, "reference": ref, "case": case}
@@ -362,25 +468,34 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
         log(format_table(rows))
         if res["delta"]:
             log(f"\n-- {name}: central differences against exact derivatives as Δ shrinks --")
-            log("   Δ (deg)   max rel. error of q̈ (per evaluation)   max|Δφ| RK4 "
-                f"dt={res['delta'][0]['rk4_dt']:.3g} s")
+            log(
+                "   Δ (deg)   max rel. error of q̈ (per evaluation)   max|Δφ| RK4 "
+                f"dt={res['delta'][0]['rk4_dt']:.3g} s"
+            )
             for d in res["delta"]:
                 lab = f"{d['delta_deg']:g}" if d["delta_deg"] else "exact"
                 log(f"   {lab:>7}   {d['max_rel_err_qdd']:>36.2e}   {d['max_err_phi_rk4']:.2e}")
         log(f"\n-- {name}: the cheapest setting for a target accuracy (max |φ − φ_ref|) --")
         for tgt, best, peer, mj in recommendations(rows):
-            b = "-" if best is None else (f"{describe(best)}: {best['cpu_per_sim_s']:.3g} s CPU "
-                                          f"per simulated s")
+            b = (
+                "-"
+                if best is None
+                else (f"{describe(best)}: {best['cpu_per_sim_s']:.3g} s CPU per simulated s")
+            )
             p = "peer -" if peer is None else f"peer {peer['cpu_per_sim_s']:.3g} s"
             if any(r["solver"] == "mujoco" for r in rows):
                 p += ", MuJoCo " + ("-" if mj is None else f"{mj['cpu_per_sim_s']:.3g} s")
             log(f"   {tgt:.0e} rad: {b}   [{p}]")
         vs = versus(rows)
         if vs:
-            log(f"\n-- {name}: against MuJoCo (RK4 from Python, motor torque at every stage; "
-                "CPU s per simulated s) --")
-            log(f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
-                f"  {'ratio mps/MuJoCo':>16}  {'MuJoCo/bare mj_step':>19}")
+            log(
+                f"\n-- {name}: against MuJoCo (RK4 from Python, motor torque at every stage; "
+                "CPU s per simulated s) --"
+            )
+            log(
+                f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
+                f"  {'ratio mps/MuJoCo':>16}  {'MuJoCo/bare mj_step':>19}"
+            )
             for p, best, ratio in vs:
                 mj = f"dt {p['dt'] * 1e3:.4g} ms: {p['cpu_per_sim_s']:.3g}"
                 b = "-" if best is None else f"{describe(best)}: {best['cpu_per_sim_s']:.3g}"
@@ -389,12 +504,14 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
                 br = f"{p['cpu_s'] / bare:.2f}" if bare else "-"
                 log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {br:>19}")
             closure = max(p.get("closure_m", 0.0) for p, _, _ in vs)
-            log("   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
+            log(
+                "   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
                 "with solref (2 dt, 1), solimp (0.9999, 0.9999, 0.001): its soft constraint "
                 f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py); "
                 "its CPU is the stepping's (mj_RungeKutta, then mj_forward for the new state's "
                 "accelerations), against a bare mj_step loop of the same model in the last "
-                "column")
+                "column"
+            )
     if out_dir is None:
         return
     out_dir = Path(out_dir)
@@ -414,4 +531,3 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
             else:
                 log("no plot: matplotlib is not installed (pip install 'mps[bench]')")
                 break
-

@@ -22,43 +22,69 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="bench", required=True)
 
     a = sub.add_parser("accuracy", help="work-precision study against an exact reference")
-    a.add_argument("cases", nargs="*", metavar="CASE",
-                   help="paper, paper-long, press-cycle, or a preset/scene file "
-                        "(default: every built-in case)")
-    a.add_argument("--solvers", metavar="NAME,…",
-                   help="comma-separated subset of " + ", ".join(FAMILIES))
-    a.add_argument("--quick", action="store_true",
-                   help="three step sizes, two derivative schemes, fewer tolerances, one repeat")
-    a.add_argument("--rungs", type=int, metavar="N",
-                   help="step sizes: 5 ms, 2.5 ms and the first N of 1.25 ms, 0.625 ms, … "
-                        "(8 reach 1e-5 s)")
-    a.add_argument("--repeats", type=int, default=3, metavar="N",
-                   help="CPU time: median of up to N runs (fewer for runs over 1 s)")
-    a.add_argument("--out", metavar="DIR", default="bench-out",
-                   help="where to write accuracy.csv and the plots (default bench-out)")
+    a.add_argument(
+        "cases",
+        nargs="*",
+        metavar="CASE",
+        help="paper, paper-long, press-cycle, or a preset/scene file (default: every built-in case)",
+    )
+    a.add_argument("--solvers", metavar="NAME,…", help="comma-separated subset of " + ", ".join(FAMILIES))
+    a.add_argument(
+        "--quick",
+        action="store_true",
+        help="three step sizes, two derivative schemes, fewer tolerances, one repeat",
+    )
+    a.add_argument(
+        "--rungs",
+        type=int,
+        metavar="N",
+        help="step sizes: 5 ms, 2.5 ms and the first N of 1.25 ms, 0.625 ms, … (8 reach 1e-5 s)",
+    )
+    a.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        metavar="N",
+        help="CPU time: median of up to N runs (fewer for runs over 1 s)",
+    )
+    a.add_argument(
+        "--out",
+        metavar="DIR",
+        default="bench-out",
+        help="where to write accuracy.csv and the plots (default bench-out)",
+    )
     a.add_argument("--no-plot", action="store_true", help="no PNG")
     a.set_defaults(func=_accuracy)
 
     s = sub.add_parser("speed", help="CPU per step, real-time factor at 1 kHz, cost of effects")
-    s.add_argument("cases", nargs="*", metavar="CASE",
-                   help="paper, press-cycle, or a preset/scene file (default: paper and "
-                        "press-cycle where it exists)")
+    s.add_argument(
+        "cases",
+        nargs="*",
+        metavar="CASE",
+        help="paper, press-cycle, or a preset/scene file (default: paper and press-cycle where it exists)",
+    )
     s.add_argument("--quick", action="store_true", help="fewer solvers and repeats")
     s.add_argument("--out", metavar="DIR", help="also write speed.csv there")
     s.set_defaults(func=_speed)
 
-    b = sub.add_parser("batch", help="batch mode: mechanism-steps per second against the "
-                                     "number of scenes stepped together")
-    b.add_argument("--sizes", default="1,10,100,1000,10000",
-                   help="numbers of scenes (default: 1,10,100,1000,10000)")
+    b = sub.add_parser(
+        "batch", help="batch mode: mechanism-steps per second against the number of scenes stepped together"
+    )
+    b.add_argument(
+        "--sizes", default="1,10,100,1000,10000", help="numbers of scenes (default: 1,10,100,1000,10000)"
+    )
     b.add_argument("--steps", type=int, default=200, help="steps of each run (default 200)")
-    b.add_argument("--scheme", choices=("central", "autodiff", "both"), default="both",
-                   help="derivatives: central differences, exact, or both side by side "
-                        "(default both)")
+    b.add_argument(
+        "--scheme",
+        choices=("central", "autodiff", "both"),
+        default="both",
+        help="derivatives: central differences, exact, or both side by side (default both)",
+    )
     b.set_defaults(func=_batch)
 
-    w = sub.add_parser("sweep", help="mps sweep's throughput: one worker, N local worker "
-                                     "processes, a Dask LocalCluster")
+    w = sub.add_parser(
+        "sweep", help="mps sweep's throughput: one worker, N local worker processes, a Dask LocalCluster"
+    )
     w.add_argument("--runs", type=int, default=256, help="runs of the sweep (default 256)")
     w.add_argument("--workers", type=int, help="N (default: the machine's cores)")
     w.add_argument("--t-end", type=float, default=1.0, help="end time of each run (default 1 s)")
@@ -75,11 +101,11 @@ def _accuracy(args) -> int:
         families = tuple(x.strip() for x in args.solvers.split(",") if x.strip())
         bad = [f for f in families if f not in FAMILIES]
         if bad:
-            raise SystemExit(f"mps bench accuracy: unknown solver(s) {', '.join(bad)}; "
-                             f"expected {', '.join(FAMILIES)}")
+            raise SystemExit(
+                f"mps bench accuracy: unknown solver(s) {', '.join(bad)}; expected {', '.join(FAMILIES)}"
+            )
     repeats = 1 if args.quick else args.repeats
-    res = accuracy.study(args.cases or None, families, quick=args.quick, repeats=repeats,
-                         rungs=args.rungs)
+    res = accuracy.study(args.cases or None, families, quick=args.quick, repeats=repeats, rungs=args.rungs)
     accuracy.report(res, Path(args.out), plot=not args.no_plot)
     return 0
 
@@ -104,15 +130,18 @@ def _batch(args) -> int:
 
     sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
     schemes = ("central", "autodiff") if args.scheme == "both" else (args.scheme,)
-    print("batch mode: working (locked), slider mass swept, linear acceleration, "
-          "dt = 1e-4 s; CPU of the stepping (scenes built beforehand), mechanism-steps a second")
+    print(
+        "batch mode: working (locked), slider mass swept, linear acceleration, "
+        "dt = 1e-4 s; CPU of the stepping (scenes built beforehand), mechanism-steps a second"
+    )
     table = {s: throughput(sizes, steps=args.steps, scheme=s) for s in schemes}
     print(f"{'scenes':>7}" + "".join(f" {s:>14}" for s in schemes))
     for k, row in enumerate(table[schemes[0]]):
         label = "1 alone" if row["scenes"] == 0 else str(row["scenes"])
         print(f"{label:>7}" + "".join(f" {table[s][k]['steps_per_s']:>14,.0f}" for s in schemes))
-    print("(1 alone: simulate, the one-scene path; central: central differences; autodiff: "
-          "exact derivatives)")
+    print(
+        "(1 alone: simulate, the one-scene path; central: central differences; autodiff: exact derivatives)"
+    )
     return 0
 
 

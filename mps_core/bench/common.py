@@ -31,7 +31,7 @@ from ..scene import Scene, load_scene, preset_names
 from ..solvers import ADAPTIVE_SOLVERS
 
 #: the step-size ladder: the paper's 1.25 ms halved down to about 1e-5 s
-DT_LADDER = tuple(1.25e-3 / 2 ** k for k in range(8))
+DT_LADDER = tuple(1.25e-3 / 2**k for k in range(8))
 #: two rungs above the paper's step, for the fixed-step solvers: where the step, not the
 #: derivatives, is cheap enough to matter (RK4 at 2.5 ms is within 1e-4 rad on ``paper``)
 COARSE_STEPS = (5e-3, 2.5e-3)
@@ -41,8 +41,8 @@ CASE_NOTES = {
     "paper-long": "the seed's scene over 1 s (seven branch points)",
     "press-cycle": "the press's working cycle with its events",
     "idle-change-point": "the idle press held at its change point (x_top 25.0 mm, the stop a "
-                         "clamp): the four-bar passes phi = 2 pi k with psi = 0 on the "
-                         "continuation chart, both of its branches",
+    "clamp): the four-bar passes phi = 2 pi k with psi = 0 on the "
+    "continuation chart, both of its branches",
 }
 
 
@@ -68,11 +68,9 @@ def change_point_scene() -> Scene:
     from ..scene import scene_from_text
 
     text = load_scene("idle").text
-    for old, new in (("x_top_mm = 25.5", "x_top_mm = 25.0"),
-                     ('model = "rigid"', 'model = "clamp"')):
+    for old, new in (("x_top_mm = 25.5", "x_top_mm = 25.0"), ('model = "rigid"', 'model = "clamp"')):
         if old not in text:
-            raise ValueError(f"the idle preset no longer has {old!r}: the change-point case "
-                             "needs updating")
+            raise ValueError(f"the idle preset no longer has {old!r}: the change-point case needs updating")
         text = text.replace(old, new)
     return scene_from_text(text)
 
@@ -80,8 +78,7 @@ def change_point_scene() -> Scene:
 def resolve_case(name: str) -> Case:
     """A built-in case, or any preset name or scene file over its own t_end."""
     if name == "idle-change-point":
-        return Case(name, change_point_scene().with_overrides(scheme="autodiff"), 0.3,
-                    CASE_NOTES[name])
+        return Case(name, change_point_scene().with_overrides(scheme="autodiff"), 0.3, CASE_NOTES[name])
     if name == "paper":
         return Case(name, load_scene("paper"), 0.1, CASE_NOTES[name])
     if name == "paper-long":
@@ -136,8 +133,14 @@ class Setting:
 
 def scene_for(case: Case, s: Setting, dt: float) -> Scene:
     """The case's scene with a setting's run parameters."""
-    kw = dict(t_end=case.t_end, dt=dt, solver=s.solver, scheme=s.scheme,
-              iterations=s.iterations, switch_points=s.switch_points)
+    kw = dict(
+        t_end=case.t_end,
+        dt=dt,
+        solver=s.solver,
+        scheme=s.scheme,
+        iterations=s.iterations,
+        switch_points=s.switch_points,
+    )
     if s.scheme == "central":
         kw["delta"] = math.radians(s.delta_deg)
     if s.rtol is not None:
@@ -218,8 +221,14 @@ def _cap(engine, limit: int):
     engine.evaluate = capped
 
 
-def run_setting(case: Case, s: Setting, dt: float, repeats: int = 3, budget: float = 1.0,
-                max_evaluations: int | None = None):
+def run_setting(
+    case: Case,
+    s: Setting,
+    dt: float,
+    repeats: int = 3,
+    budget: float = 1.0,
+    max_evaluations: int | None = None,
+):
     """Run one setting; returns (median CPU s of ``Simulation.run``, trajectory, repeats).
     ``max_evaluations``: give up (:class:`OverBudget`) beyond that many right-hand sides."""
     scene = scene_for(case, s, dt)
@@ -259,7 +268,7 @@ class Reference:
     pointwise errors meaningless; errors are measured up to it."""
 
     label: str
-    sample: object                 # t (array) -> (phi, phi_dot, phi_ddot)
+    sample: object  # t (array) -> (phi, phi_dot, phi_ddot)
     events: list = field(default_factory=list)
     cpu: float = 0.0
     horizon: float = math.inf
@@ -278,10 +287,8 @@ def exact_reference(case: Case, rtol: float = 1e-13, grid: float = DT_LADDER[0])
 
     model = exact_model(case.scene)
     t_grid = np.linspace(0.0, case.t_end, int(round(case.t_end / grid)) + 1)
-    run = run_peer(case.scene, case.t_end, t_grid, rtol=rtol, atol=rtol, dense=True,
-                   model=model)
-    loose = run_peer(case.scene, case.t_end, t_grid, rtol=10 * rtol, atol=10 * rtol,
-                     model=model)
+    run = run_peer(case.scene, case.t_end, t_grid, rtol=rtol, atol=rtol, dense=True, model=model)
+    loose = run_peer(case.scene, case.t_end, t_grid, rtol=10 * rtol, atol=10 * rtol, model=model)
     dense = run.dense
     cache: dict = {}
 
@@ -294,9 +301,13 @@ def exact_reference(case: Case, rtol: float = 1e-13, grid: float = DT_LADDER[0])
             cache[key] = (Y[0], Y[3], acc)
         return cache[key]
 
-    return Reference(f"exact model (sympy, redundant coordinates), DOP853 rtol {rtol:g}",
-                     sample, [], run.cpu + loose.cpu,
-                     *_horizon(t_grid, run.phi, loose.phi, case.t_end))
+    return Reference(
+        f"exact model (sympy, redundant coordinates), DOP853 rtol {rtol:g}",
+        sample,
+        [],
+        run.cpu + loose.cpu,
+        *_horizon(t_grid, run.phi, loose.phi, case.t_end),
+    )
 
 
 def self_reference(case: Case, dt: float, rtol: float = 1e-12) -> Reference:
@@ -317,10 +328,16 @@ def self_reference(case: Case, dt: float, rtol: float = 1e-12) -> Reference:
             raise ValueError("the run's grid is not a subset of the reference's")
         return traj.phi[idx], traj.phi_dot[idx], traj.phi_ddot[idx]
 
-    events = [(ev["kind"], ev.get("name", ev.get("to")), ev["t"]) for ev in traj.events
-              if ev.get("kind") != "chart"]
-    return Reference(f"mps dop853 + autodiff, rtol {rtol:g} (self-convergence, not independent)",
-                     sample, events, cpu, *_horizon(T, traj.phi, loose.phi, case.t_end))
+    events = [
+        (ev["kind"], ev.get("name", ev.get("to")), ev["t"]) for ev in traj.events if ev.get("kind") != "chart"
+    ]
+    return Reference(
+        f"mps dop853 + autodiff, rtol {rtol:g} (self-convergence, not independent)",
+        sample,
+        events,
+        cpu,
+        *_horizon(T, traj.phi, loose.phi, case.t_end),
+    )
 
 
 def reference_for(case: Case, grid: float) -> Reference:
@@ -335,8 +352,9 @@ def reference_for(case: Case, grid: float) -> Reference:
 def event_timing_error(traj, ref: Reference) -> float:
     """max |t_event − t_event,ref| over the events the run and the reference share (matched
     by kind in order); inf where the run misses one or has one more."""
-    mine = [(ev["kind"], ev.get("name", ev.get("to")), ev["t"]) for ev in traj.events
-            if ev.get("kind") != "chart"]
+    mine = [
+        (ev["kind"], ev.get("name", ev.get("to")), ev["t"]) for ev in traj.events if ev.get("kind") != "chart"
+    ]
     if [m[:2] for m in mine] != [r[:2] for r in ref.events]:
         return math.inf
     return max((abs(a[2] - b[2]) for a, b in zip(mine, ref.events)), default=0.0)

@@ -59,8 +59,10 @@ def press_xml(scene, dt: float) -> str:
         # a planar hinge turns about z alone; the other two axes only satisfy MuJoCo's
         # triangle inequality (a body that does not turn, the slider, gets a token inertia)
         j = max(float(j), 1e-9)
-        return (f'<inertial pos="{float(a)!r} {float(b)!r} 0" mass="{float(m)!r}" '
-                f'diaginertia="{j / 2!r} {j / 2!r} {j!r}"/>')
+        return (
+            f'<inertial pos="{float(a)!r} {float(b)!r} 0" mass="{float(m)!r}" '
+            f'diaginertia="{j / 2!r} {j / 2!r} {j!r}"/>'
+        )
 
     def quat(angle):
         return f"{math.cos(angle / 2)!r} 0 0 {math.sin(angle / 2)!r}"
@@ -149,12 +151,12 @@ def run_mujoco(scene, t_end: float, t_eval, dt: float) -> PeerRun:
     phi, phid, phidd = (np.empty(t_eval.size) for _ in range(3))
     closure = 0.0
     rk, forward = mujoco.mj_RungeKutta, mujoco.mj_forward
-    qpos, qvel, qacc = d.qpos, d.qvel, d.qacc     # views of the data, made once
+    qpos, qvel, qacc = d.qpos, d.qvel, d.qacc  # views of the data, made once
     hypot = math.hypot
     mujoco.set_mjcb_control(control)
     try:
         c0 = time.process_time()
-        forward(m, d)                       # the first state's accelerations
+        forward(m, d)  # the first state's accelerations
         k = 0
         for i, s in enumerate(steps.tolist()):
             while k < s:
@@ -164,7 +166,7 @@ def run_mujoco(scene, t_end: float, t_eval, dt: float) -> PeerRun:
             phi[i] = phi0 + qpos[qc]
             phid[i] = qvel[jc]
             phidd[i] = qacc[jc]
-            if d.nefc:                      # the connect's three rows: B's gap
+            if d.nefc:  # the connect's three rows: B's gap
                 e = d.efc_pos
                 gap = hypot(e[0], e[1], e[2])
                 if gap > closure:

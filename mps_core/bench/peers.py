@@ -54,8 +54,8 @@ class _Params:
     l1: float
     l2: float
     l3: float
-    bodies: tuple      # (name, mass, inertia, origin, toward, com_along, com_across, length)
-    g: tuple           # (gx, gy)
+    bodies: tuple  # (name, mass, inertia, origin, toward, com_along, com_across, length)
+    g: tuple  # (gx, gy)
 
 
 def _params(scene) -> _Params:
@@ -64,8 +64,9 @@ def _params(scene) -> _Params:
     for e in scene.effects:
         if e.kind == "gravity":
             g = tuple(float(x) for x in e.params["g"])
-    bodies = tuple((b.name, b.mass, b.inertia, b.origin, b.toward, b.com[0], b.com[1], b.length)
-                   for b in mech.bodies)
+    bodies = tuple(
+        (b.name, b.mass, b.inertia, b.origin, b.toward, b.com[0], b.com[1], b.length) for b in mech.bodies
+    )
     geo = scene.geometry
     return _Params(geo.l1, geo.l2, geo.l3, bodies, g)
 
@@ -86,7 +87,8 @@ class ExactPress:
         for e in scene.effects:
             if e.kind == "motor":
                 self.motor = scene.build_effects(scene.mechanism())[
-                    [x.kind for x in scene.effects].index("motor")]
+                    [x.kind for x in scene.effects].index("motor")
+                ]
         self.sigma = scene.assembly
         p = self.params
         self.atol_scale = np.array([1.0, 1.0, p.l1, 1.0, 1.0, p.l1])
@@ -109,8 +111,7 @@ class ExactPress:
         m00, m01, m02, m11, m12, m22, f0, f1, f2, g0, g1, g2, gam = self._f(*y)
         if self.motor is not None:
             f0 += self.motor.torque(y[3])
-        K = np.array([[m00, m01, m02, -g0], [m01, m11, m12, -g1], [m02, m12, m22, -g2],
-                      [g0, g1, g2, 0.0]])
+        K = np.array([[m00, m01, m02, -g0], [m01, m11, m12, -g1], [m02, m12, m22, -g2], [g0, g1, g2, 0.0]])
         return np.linalg.solve(K, np.array([f0, f1, f2, -gam]))[:3]
 
     def rhs(self, t, y):
@@ -136,8 +137,11 @@ def _derive(p: _Params):
     phid, psid, xcd = sp.symbols("phid psid x_Cd", real=True)
     z, zd = sp.Matrix([phi, psi, xc]), sp.Matrix([phid, psid, xcd])
     l1, l2, l3 = sp.Float(p.l1), sp.Float(p.l2), sp.Float(p.l3)
-    pts = {"O": sp.Matrix([0, 0]), "A": sp.Matrix([l1 * sp.cos(phi), l1 * sp.sin(phi)]),
-           "C": sp.Matrix([xc, 0])}
+    pts = {
+        "O": sp.Matrix([0, 0]),
+        "A": sp.Matrix([l1 * sp.cos(phi), l1 * sp.sin(phi)]),
+        "C": sp.Matrix([xc, 0]),
+    }
     pts["B"] = pts["C"] + sp.Matrix([l3 * sp.cos(psi), l3 * sp.sin(psi)])
     gx, gy = sp.Float(p.g[0]), sp.Float(p.g[1])
     n = 3
@@ -174,11 +178,10 @@ def _derive(p: _Params):
         Qg += m * JG.T * sp.Matrix([gx, gy])
     F = Qg - c
     rab = pts["B"] - pts["A"]
-    g = sp.Matrix([rab[0] ** 2 + rab[1] ** 2 - l2 ** 2])
+    g = sp.Matrix([rab[0] ** 2 + rab[1] ** 2 - l2**2])
     G = g.jacobian(z)
     gam = ((G * zd).jacobian(z) * zd)[0]
-    out = [M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2], F[0], F[1], F[2],
-           G[0], G[1], G[2], gam]
+    out = [M[0, 0], M[0, 1], M[0, 2], M[1, 1], M[1, 2], M[2, 2], F[0], F[1], F[2], G[0], G[1], G[2], gam]
     return sp.lambdify((phi, psi, xc, phid, psid, xcd), out, modules="math", cse=True)
 
 
@@ -195,15 +198,22 @@ class PeerRun:
     phi: np.ndarray
     phi_dot: np.ndarray
     phi_ddot: np.ndarray
-    cpu: float          # seconds of CPU for the integration and φ̈ at the outputs (derivation
+    cpu: float  # seconds of CPU for the integration and φ̈ at the outputs (derivation
     #                     excluded)
-    nfev: int           # right-hand sides
-    closure: float      # max | |B − A| − l2 | on the grid (m)
+    nfev: int  # right-hand sides
+    closure: float  # max | |B − A| − l2 | on the grid (m)
     dense: object = None
 
 
-def run_peer(scene, t_end: float, t_eval, rtol: float, atol: float | None = None,
-             dense: bool = False, model: ExactPress | None = None) -> PeerRun:
+def run_peer(
+    scene,
+    t_end: float,
+    t_eval,
+    rtol: float,
+    atol: float | None = None,
+    dense: bool = False,
+    model: ExactPress | None = None,
+) -> PeerRun:
     """Integrate the exact model with DOP853 to ``t_end``; φ, φ̇, φ̈ at ``t_eval``.
 
     ``atol`` (default rtol·1e-3) is in radians for the angles and their rates, scaled by l1 for
@@ -213,13 +223,29 @@ def run_peer(scene, t_end: float, t_eval, rtol: float, atol: float | None = None
     y0 = model.initial_state()
     t_eval = np.asarray(t_eval, float)
     c0 = time.process_time()
-    sol = solve_ivp(model.rhs, (0.0, float(t_end)), y0, method="DOP853", rtol=rtol,
-                    atol=atol * model.atol_scale, t_eval=t_eval, dense_output=dense)
+    sol = solve_ivp(
+        model.rhs,
+        (0.0, float(t_end)),
+        y0,
+        method="DOP853",
+        rtol=rtol,
+        atol=atol * model.atol_scale,
+        t_eval=t_eval,
+        dense_output=dense,
+    )
     if not sol.success:
         raise RuntimeError(f"peer integration failed: {sol.message}")
     Y = sol.y
     # φ̈ at the outputs is part of what a run reports (ours evaluate the equations there)
     acc = np.array([model.accelerations(Y[:, k])[0] for k in range(Y.shape[1])])
     cpu = time.process_time() - c0
-    return PeerRun(sol.t, Y[0], Y[3], acc, cpu, int(sol.nfev),
-                   float(np.abs(model.closure(Y)).max()), sol.sol if dense else None)
+    return PeerRun(
+        sol.t,
+        Y[0],
+        Y[3],
+        acc,
+        cpu,
+        int(sol.nfev),
+        float(np.abs(model.closure(Y)).max()),
+        sol.sol if dense else None,
+    )

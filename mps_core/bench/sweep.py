@@ -14,12 +14,21 @@ from __future__ import annotations
 import os
 import time
 
-VARY = ("effects.blanking.thickness_mm=0.5:2.0", "effects.motor.crank_speed_rad_s=38:48",
-        "bodies.slider.mass_kg=80:120")
+VARY = (
+    "effects.blanking.thickness_mm=0.5:2.0",
+    "effects.motor.crank_speed_rad_s=38:48",
+    "bodies.slider.mass_kg=80:120",
+)
 
 
-def throughput(runs: int = 256, workers: int | None = None, t_end: float = 1.0,
-               dt: float = 1e-3, dask: bool = True, log=print) -> list[dict]:
+def throughput(
+    runs: int = 256,
+    workers: int | None = None,
+    t_end: float = 1.0,
+    dt: float = 1e-3,
+    dask: bool = True,
+    log=print,
+) -> list[dict]:
     from ..analysis.sweep import plan, sweep
     from ..run.build import simulate
 
@@ -28,17 +37,25 @@ def throughput(runs: int = 256, workers: int | None = None, t_end: float = 1.0,
     c0 = time.process_time()
     planned = plan("press-cycle", VARY, **kw)
     plan_cpu = time.process_time() - c0
-    simulate(planned[0].scene)                    # the kernels built, for every way alike
+    simulate(planned[0].scene)  # the kernels built, for every way alike
     rows = []
 
     def timed(label, workers_, **extra):
         w0 = time.perf_counter()
         res = sweep("press-cycle", VARY, workers=workers_, **kw, **extra)
         wall = time.perf_counter() - w0
-        rows.append({"way": label, "workers": workers_, "runs": len(res.rows), "wall_s": wall,
-                     "runs_per_s": len(res.rows) / wall,
-                     "failed": sum(1 for r in res.rows if r["status"] != "ok"),
-                     "cpu_s": res.cpu_s, "simulation_cpu_s": res.simulation_cpu_s})
+        rows.append(
+            {
+                "way": label,
+                "workers": workers_,
+                "runs": len(res.rows),
+                "wall_s": wall,
+                "runs_per_s": len(res.rows) / wall,
+                "failed": sum(1 for r in res.rows if r["status"] != "ok"),
+                "cpu_s": res.cpu_s,
+                "simulation_cpu_s": res.simulation_cpu_s,
+            }
+        )
         log(f"  {label}: {wall:.1f} s")
         return res
 
@@ -56,11 +73,15 @@ def throughput(runs: int = 256, workers: int | None = None, t_end: float = 1.0,
         else:
             # the workers' statistical profiler off: sampling every thread's stack each 10 ms,
             # it costs a pure-Python run about 80 % more here (docs/loads.md)
-            with dask.config.set({"distributed.worker.profile.enabled": False}), \
-                    LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                 dashboard_address=None) as cluster, Client(cluster) as client:
+            with (
+                dask.config.set({"distributed.worker.profile.enabled": False}),
+                LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+                ) as cluster,
+                Client(cluster) as client,
+            ):
                 timed(f"Dask LocalCluster, {n} worker processes", n, client=client)
-    rows.insert(0, rows.pop(1))                  # one worker first in the table
+    rows.insert(0, rows.pop(1))  # one worker first in the table
     one = rows[0]["runs_per_s"]
     for r in rows:
         r["speedup"] = r["runs_per_s"] / one
@@ -71,10 +92,11 @@ def throughput(runs: int = 256, workers: int | None = None, t_end: float = 1.0,
 def report(rows: list[dict]) -> None:
     print(f"{'way':42} {'wall s':>8} {'runs/s':>8} {'× one':>7} {'failed':>7}")
     for r in rows:
-        print(f"{r['way']:42} {r['wall_s']:8.1f} {r['runs_per_s']:8.2f} {r['speedup']:7.2f} "
-              f"{r['failed']:7d}")
+        print(f"{r['way']:42} {r['wall_s']:8.1f} {r['runs_per_s']:8.2f} {r['speedup']:7.2f} {r['failed']:7d}")
     one = rows[0]
     beside = one["cpu_s"] - one["simulation_cpu_s"] + one["plan_cpu_s"]
-    print(f"beside the simulations (one worker): {beside:.2f} CPU s of {one['cpu_s']:.2f} "
-          f"({100 * beside / one['cpu_s']:.1f} %): the scenes built and checked "
-          f"({one['plan_cpu_s']:.2f} s), the load reports and the rows")
+    print(
+        f"beside the simulations (one worker): {beside:.2f} CPU s of {one['cpu_s']:.2f} "
+        f"({100 * beside / one['cpu_s']:.1f} %): the scenes built and checked "
+        f"({one['plan_cpu_s']:.2f} s), the load reports and the rows"
+    )

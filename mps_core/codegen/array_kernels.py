@@ -42,9 +42,9 @@ def _array_source(source: str) -> str:
         m = _GUARD.match(line)
         if m is None:
             out.append(line)
-        elif m.group(2):            # the test must hold everywhere (a NaN fails it)
+        elif m.group(2):  # the test must hold everywhere (a NaN fails it)
             out.append(f"{m.group(1)}if not _all({m.group(3)}): _miss()")
-        else:                       # the test must fail everywhere
+        else:  # the test must fail everywhere
             out.append(f"{m.group(1)}if _any({m.group(3)}): _miss()")
     return "\n".join(out) + "\n"
 
@@ -57,9 +57,14 @@ def array_kernel(kernel):
     """The array form of an exact kernel (see the module's docstring)."""
     code = _CODE.get(kernel.source)
     if code is None:
-        code = _CODE.keep(kernel.source, compile(_array_source(kernel.source),
-                                                 "<array kernel>", "exec"))
-    namespace = {"cos": np.cos, "sin": np.sin, "sqrt": np.sqrt, "_all": np.all,
-                 "_any": np.any, "_miss": _miss}
+        code = _CODE.keep(kernel.source, compile(_array_source(kernel.source), "<array kernel>", "exec"))
+    namespace = {
+        "cos": np.cos,
+        "sin": np.sin,
+        "sqrt": np.sqrt,
+        "_all": np.all,
+        "_any": np.any,
+        "_miss": _miss,
+    }
     exec(code, namespace)
     return namespace["kernel"]

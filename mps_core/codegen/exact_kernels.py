@@ -88,8 +88,13 @@ def _trace_and_load(engine, view, q):
         return None
     flat, tape, outputs, args, free = traced
     key = ("exact", _key(engine, view), tape.key(), tuple(outputs))
-    kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, key),
-                  f"<exact kernel {view.name}>", flat, view.name)
+    kernel = load(
+        key,
+        lambda: _source(engine, view, tape, outputs, args, free, key),
+        f"<exact kernel {view.name}>",
+        flat,
+        view.name,
+    )
     kernel.key = key
     kernel.parts = lambda: kernel_parts(engine, view, tape, outputs, args, free, key)
     return kernel
@@ -122,7 +127,7 @@ class _Forward:
             return self.sub(a, negs[b])
         if isinstance(a, str) and a in negs:
             return self.sub(b, negs[a])
-        a, b = sorted((self._s(a), self._s(b)))       # a + b == b + a exactly
+        a, b = sorted((self._s(a), self._s(b)))  # a + b == b + a exactly
         return self.w.let(f"{a} + {b}")
 
     def sub(self, a, b):
@@ -164,13 +169,13 @@ class _Forward:
         if isinstance(b, float):
             a, b = b, a
         elif not isinstance(a, float) and b < a:
-            a, b = b, a                                 # a·b == b·a exactly
+            a, b = b, a  # a·b == b·a exactly
         negs = self.negs
         if b in negs:
             if isinstance(a, float):
-                return self.mul(-a, negs[b])            # c·(−x) == (−c)·x exactly
+                return self.mul(-a, negs[b])  # c·(−x) == (−c)·x exactly
             if a in negs:
-                return self.mul(negs[a], negs[b])       # (−x)·(−y) == x·y exactly
+                return self.mul(negs[a], negs[b])  # (−x)·(−y) == x·y exactly
         return self.w.let(f"{self._s(a)} * {self._s(b)}")
 
     def call(self, fn: str, a):
@@ -207,8 +212,7 @@ class _Forward:
             vb, gb, d1b, d2b = y
             ib = self.recip(vb)
             u = mul(va, ib)
-            if isinstance(vb, float) or (all(r is None for r in gb) and d1b is None
-                                         and d2b is None):
+            if isinstance(vb, float) or (all(r is None for r in gb) and d1b is None and d2b is None):
                 return (u, [mul(p, ib) for p in ga], mul(d1a, ib), mul(d2a, ib))
             # u = a/b: u' = (a' − u b')/b, u'' = (a'' − 2 u' b' − u b'')/b
             g = [mul(sub(p, mul(u, r)), ib) for p, r in zip(ga, gb)]
@@ -218,7 +222,7 @@ class _Forward:
         if op in ("cos", "sin"):
             c, s = self.call("cos", va), self.call("sin", va)
             if op == "cos":
-                v, dv, ddv = c, neg(s), neg(c)      # f, f', f''
+                v, dv, ddv = c, neg(s), neg(c)  # f, f', f''
             else:
                 v, dv, ddv = s, c, neg(s)
             g = [mul(dv, p) for p in ga]
@@ -247,7 +251,7 @@ def forward(w: _Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
     :class:`_Forward` (sub)class that writes the code."""
     fw = (cls or _Forward)(w, n)
     qs = [f"q{k}" for k in range(n)]
-    vs = [f"vd{k}" for k in range(n)]      # q̇ (v0, v1, … are the writer's locals)
+    vs = [f"vd{k}" for k in range(n)]  # q̇ (v0, v1, … are the writer's locals)
     # the position function's arguments as code, for a failed guard's call
     call = [qs[free[pos]] if pos in free else repr(a) for pos, a in enumerate(args)]
     # guards are written as soon as their operands exist
@@ -290,10 +294,12 @@ def linear_parts(engine, fw: _Forward, outs):
                 acc = fw.add(acc, fw.mul(float(c), part(outs[k])))
         return acc
 
-    return (lambda row: lin(row, lambda o: o[0]),
-            lambda row, i: lin(row, lambda o: o[1][i]),
-            lambda row: lin(row, lambda o: o[2]),
-            lambda row: lin(row, lambda o: o[3]))
+    return (
+        lambda row: lin(row, lambda o: o[0]),
+        lambda row, i: lin(row, lambda o: o[1][i]),
+        lambda row: lin(row, lambda o: o[2]),
+        lambda row: lin(row, lambda o: o[3]),
+    )
 
 
 def angular(engine, fw: _Forward, n: int, parts) -> tuple[dict, dict]:
@@ -325,10 +331,13 @@ def _source(engine, view, tape, outputs, args, free, key=None) -> str:
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
     A_out = A[0] if n == 1 else f"({A[0]}, {A[1]}, {A[2]})"
-    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
-           f"[{', '.join(h)}], [{', '.join(conv)}]")
-    return (f"def kernel({', '.join(qs + vs)}):\n"
-            + "\n".join(inline_once(live_lines(lines, ret) + [ret])) + "\n")
+    ret = (
+        f"    return [{', '.join(xl)}], [{', '.join(jl)}], [{', '.join(wl)}], {A_out}, "
+        f"[{', '.join(h)}], [{', '.join(conv)}]"
+    )
+    return (
+        f"def kernel({', '.join(qs + vs)}):\n" + "\n".join(inline_once(live_lines(lines, ret) + [ret])) + "\n"
+    )
 
 
 #: kernel_parts by the exact kernel's key
@@ -367,6 +376,7 @@ def _parts(engine, view, tape, outputs, args, free) -> tuple:
     nb = len(mech.bodies)
     omega, theta2 = angular(engine, fw, n, (val, grad, d1, d2))
     com = [2 * engine._names[f"G_{b.name}"] for b in mech.bodies]
+
     def weighted(pairs):
         """Σ c·x·y over (c, x, y), equal products once with their weights added."""
         terms: dict = {}
@@ -386,22 +396,25 @@ def _parts(engine, view, tape, outputs, args, free) -> tuple:
     A = {}
     h = []
     for i in range(n):
-        h.append(weighted(
-            [(mass[k], grad(com[k] + c, i), d2(com[k] + c)) for k in range(nb) for c in (0, 1)]
-            + [(inertia[k], omega.get((k, i)), theta2[k]) for k in rot]))
+        h.append(
+            weighted(
+                [(mass[k], grad(com[k] + c, i), d2(com[k] + c)) for k in range(nb) for c in (0, 1)]
+                + [(inertia[k], omega.get((k, i)), theta2[k]) for k in rot]
+            )
+        )
         for jj in range(i, n):
             A[i, jj] = weighted(
-                [(mass[k], grad(com[k] + c, i), grad(com[k] + c, jj))
-                 for k in range(nb) for c in (0, 1)]
-                + [(inertia[k], omega.get((k, i)), omega.get((k, jj))) for k in rot])
+                [(mass[k], grad(com[k] + c, i), grad(com[k] + c, jj)) for k in range(nb) for c in (0, 1)]
+                + [(inertia[k], omega.get((k, i)), omega.get((k, jj))) for k in rot]
+            )
     offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * NP)
     xl = [code(add(val(r), offset[r] or None)) for r in range(2 * NP)]
     jl = [code(grad(2 * r + c, i)) for r in range(NP) for c in (0, 1) for i in range(n)]
     wl = [code(omega.get((k, i))) for k in range(nb) for i in range(n)]
     # θ̈ at q̈ = 0 of every body, then the centres of mass' accelerations at q̈ = 0 (x, y a
     # body): the motion a reaction kernel reads from the kinematics (computed for h anyway)
-    conv = [code(theta2.get(k)) for k in range(nb)] + [code(d2(com[k] + c)) for k in range(nb)
-                                                       for c in (0, 1)]
+    conv = [code(theta2.get(k)) for k in range(nb)] + [
+        code(d2(com[k] + c)) for k in range(nb) for c in (0, 1)
+    ]
     A_out = [code(A[0, 0])] if n == 1 else [code(A[0, 0]), code(A[0, 1]), code(A[1, 1])]
     return (list(w.lines), xl, jl, wl, A_out, [code(x) for x in h], conv)
-

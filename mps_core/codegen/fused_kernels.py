@@ -89,8 +89,7 @@ def _frozen(x):
         return tuple(sorted((k, _frozen(v)) for k, v in x.items()))
     if isinstance(x, np.ndarray):
         return ("array", x.dtype.str, x.shape, x.tobytes())
-    if getattr(type(x), "__dataclass_params__", None) is not None and \
-            type(x).__dataclass_params__.frozen:
+    if getattr(type(x), "__dataclass_params__", None) is not None and type(x).__dataclass_params__.frozen:
         return x
     raise _Unhashable(type(x).__name__)
 
@@ -108,15 +107,19 @@ def fingerprint(effects):
         for e in effects:
             attrs = vars(e)
             c = attrs.get("controls")
-            out.append((type(e), tuple(sorted((k, _frozen(v)) for k, v in attrs.items()
-                                              if k != "controls")),
-                        None if c is None else _frozen(vars(c))))
+            out.append(
+                (
+                    type(e),
+                    tuple(sorted((k, _frozen(v)) for k, v in attrs.items() if k != "controls")),
+                    None if c is None else _frozen(vars(c)),
+                )
+            )
     except _Unhashable:
         return None
     key = tuple(out)
     number = _FINGERPRINTS.get(key)
     if number is None:
-        _FINGERPRINT_SERIAL[0] += 1     # numbers stay unique past a clear: they only grow
+        _FINGERPRINT_SERIAL[0] += 1  # numbers stay unique past a clear: they only grow
         number = _FINGERPRINTS.keep(key, _FINGERPRINT_SERIAL[0])
     return number
 
@@ -133,10 +136,12 @@ def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
     """A fused function for ``view`` at (t, q, q̇): one made before for the same kinematics
     and the same effects whose guards hold here, else a new one (:func:`fused_kernel`)."""
     fp = engine._fingerprint()
-    return _reused(_MADE, None if fp is None else (exact.serial, fp),
-                   lambda k: k(t, *ql, *vl),
-                   lambda: fused_kernel(engine, view, exact, t, ql, vl, kinematics,
-                                        virtual_work))
+    return _reused(
+        _MADE,
+        None if fp is None else (exact.serial, fp),
+        lambda k: k(t, *ql, *vl),
+        lambda: fused_kernel(engine, view, exact, t, ql, vl, kinematics, virtual_work),
+    )
 
 
 def _reused(cache: Memo, key, trial, make):
@@ -162,10 +167,12 @@ def _reused(cache: Memo, key, trial, make):
 def input_slot(tape, slots: list):
     """``slot(code, value)``: a new input of ``tape``, read as ``code`` in the generated
     function (kept in ``slots``), traced at ``value``."""
+
     def slot(code: str, value: float):
         tape.nodes.append(("input", len(slots)))
         slots.append(code)
         return Traced(tape, len(tape.nodes) - 1, float(value))
+
     return slot
 
 
@@ -200,8 +207,7 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     twl = [slot(c, v) for c, v in zip(wl, wv)]
     tA = [slot(c, v) for c, v in zip(A, Av)]
     th = [slot(c, v) for c, v in zip(h, hv)]
-    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics,
-                           virtual_work)
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work)
     if traced is None:
         return None
     Q, Qnc, qdd = traced
@@ -209,12 +215,23 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     forces = [_node(x) for x in Q + Qnc]
     key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs), tuple(forces))
     extra = {"tanh": math.tanh, "_Branch": ForceLawBranch}
-    accel = load(key, lambda: _source(n, lines, tape, slots, outputs),
-                 f"<fused kernel {view.name}>", view.chart.flat, view.name, extra)
+    accel = load(
+        key,
+        lambda: _source(n, lines, tape, slots, outputs),
+        f"<fused kernel {view.name}>",
+        view.chart.flat,
+        view.name,
+        extra,
+    )
     parts = (xl, jl, wl, A, h, _conv)
-    accel.full = load(key + ("full",),
-                      lambda: _source(n, lines, tape, slots, outputs, forces, parts),
-                      f"<fused evaluation {view.name}>", view.chart.flat, view.name, extra)
+    accel.full = load(
+        key + ("full",),
+        lambda: _source(n, lines, tape, slots, outputs, forces, parts),
+        f"<fused evaluation {view.name}>",
+        view.chart.flat,
+        view.name,
+        extra,
+    )
     return accel
 
 
@@ -227,8 +244,7 @@ def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work):
     of traced numbers (t, q̇, the lists of positions, analogs and angular analogs; A and h),
     the same operations in the same order; None where a law cannot be traced or q̈ is not
     finite at the traced point."""
-    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index, lists=lists,
-                     v=tv)
+    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index, lists=lists, v=tv)
     if engine._effect_paths[0] != len(engine.effects):
         engine._effect_paths = engine._paths()
     try:
@@ -265,9 +281,12 @@ def reuse_or_make_tail(engine, view, t: float, vl: list, parts, kinematics, virt
 
     fp = engine._fingerprint()
     xl, jl, wl, A, h, _wb = parts
-    return _reused(_TAILS, None if fp is None else (_key(engine, view), fp),
-                   lambda k: k(t, *vl, xl, jl, wl, A, h),
-                   lambda: central_tail(engine, view, t, vl, parts, kinematics, virtual_work))
+    return _reused(
+        _TAILS,
+        None if fp is None else (_key(engine, view), fp),
+        lambda k: k(t, *vl, xl, jl, wl, A, h),
+        lambda: central_tail(engine, view, t, vl, parts, kinematics, virtual_work),
+    )
 
 
 def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):
@@ -293,8 +312,7 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     twl = [slot(f"wl[{i}]", x) for i, x in enumerate(wv)]
     tA = [slot("A", Av)] if n == 1 else [slot(f"A[{i}]", x) for i, x in enumerate(Av)]
     th = [slot(f"h[{i}]", x) for i, x in enumerate(hv)]
-    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics,
-                           virtual_work)
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work)
     if traced is None:
         return None
     Q, Qnc, qdd = traced
@@ -305,13 +323,21 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     if check:
         body.append(f"    if {check}: return None")
     fq = [code(_node(x)) for x in Q + Qnc]
-    ret = (f"    return [{', '.join(fq[:n])}], [{', '.join(fq[n:])}], "
-           f"[{', '.join(out)}]")
+    ret = f"    return [{', '.join(fq[:n])}], [{', '.join(fq[n:])}], [{', '.join(out)}]"
     vs = [f"vd{k}" for k in range(n)]
-    src = (f"def kernel(t, {', '.join(vs)}, xl, jl, wl, A, h):\n"
-           + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n")
-    return load(("central tail", src), lambda: src, f"<effects and solve {view.name}>", None,
-                view.name, {"tanh": math.tanh, "_Branch": ForceLawBranch})
+    src = (
+        f"def kernel(t, {', '.join(vs)}, xl, jl, wl, A, h):\n"
+        + "\n".join(inline_once(live_lines(body, ret) + [ret]))
+        + "\n"
+    )
+    return load(
+        ("central tail", src),
+        lambda: src,
+        f"<effects and solve {view.name}>",
+        None,
+        view.name,
+        {"tanh": math.tanh, "_Branch": ForceLawBranch},
+    )
 
 
 def emit_tape(body: list, tape, slots: list):
@@ -351,7 +377,7 @@ def emit_tape(body: list, tape, slots: list):
             elif op == "add" and any(isinstance(x, float) and x == 0.0 for x in xs):
                 vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 0.0 else xs[0])
             elif op == "mul" and any(isinstance(x, float) and x == 0.0 for x in xs):
-                vals.append(0.0)        # the inputs are finite where the guards hold
+                vals.append(0.0)  # the inputs are finite where the guards hold
             elif op == "mul" and any(isinstance(x, float) and x == 1.0 for x in xs):
                 vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 1.0 else xs[0])
             elif op in _INFIX:

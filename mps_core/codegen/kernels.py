@@ -116,8 +116,7 @@ def central_kernel(engine, view, plan, q=None):
         key = (_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
     else:
         key = _key(engine, view, plan)
-    return load(key, lambda: _source(engine, view, plan, traced), f"<kernel {view.name}>",
-                flat, view.name)
+    return load(key, lambda: _source(engine, view, plan, traced), f"<kernel {view.name}>", flat, view.name)
 
 
 #: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
@@ -174,6 +173,7 @@ def _function_key(fn, _depth: int = 0):
     the values its closure holds (numbers, strings, functions of the same kind; its module's
     globals are taken as fixed); None where the closure holds anything else (its generated
     code is then not shared between mechanisms)."""
+
     def value(x):
         if x is None or isinstance(x, (bool, int, float, str)):
             return x
@@ -189,10 +189,11 @@ def _function_key(fn, _depth: int = 0):
         if isinstance(x, types.BuiltinFunctionType):
             return x
         raise TypeError
+
     try:
         cells = tuple(value(c.cell_contents) for c in fn.__closure__ or ())
         defaults = tuple(value(d) for d in fn.__defaults__ or ())
-    except (TypeError, ValueError):       # ValueError: an empty cell
+    except (TypeError, ValueError):  # ValueError: an empty cell
         return None
     return (_code_number(fn.__code__), fn.__module__, cells, defaults)
 
@@ -204,7 +205,7 @@ _CODES: dict = {}
 def _code_number(code) -> int:
     """A number of a code object's own (hashing the object itself walks its bytecode)."""
     hit = _CODES.get(id(code))
-    if hit is None:                 # kept: its id is not given to another object
+    if hit is None:  # kept: its id is not given to another object
         hit = _CODES[id(code)] = (code, len(_CODES) + 1)
     return hit[1]
 
@@ -225,7 +226,7 @@ def live_lines(lines: list[str], ret: str) -> list[str]:
             if target not in needed:
                 continue
             needed.update(_LOCAL.findall(expr))
-        else:                           # a guard or an unpacking: always kept
+        else:  # a guard or an unpacking: always kept
             needed.update(_LOCAL.findall(body))
         keep.append(line)
     return keep[::-1]
@@ -310,7 +311,7 @@ def _inline(w: _Writer, tape, outputs, inputs: list, call: list) -> list:
         if op == "input":
             vals.append(inputs[node[1]])
         elif op == "mul" and _unit(node[1]) and isinstance(node[2], int):
-            vals.append(vals[node[2]])          # 1.0·x is x, bit for bit (NaN, ±inf too)
+            vals.append(vals[node[2]])  # 1.0·x is x, bit for bit (NaN, ±inf too)
         elif op == "mul" and _unit(node[2]) and isinstance(node[1], int):
             vals.append(vals[node[1]])
         elif op in _INFIX:
@@ -326,12 +327,16 @@ def _inline(w: _Writer, tape, outputs, inputs: list, call: list) -> list:
     return [vals[o] if isinstance(o, int) else o for o in outputs]
 
 
-
-
 def _key(engine, view, plan=None) -> tuple:
     """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
-    return (_tables_number(engine), view.chart.name, view.chart.size, tuple(view.free),
-            tuple(view._template), None if plan is None else plan.d.tobytes())
+    return (
+        _tables_number(engine),
+        view.chart.name,
+        view.chart.size,
+        tuple(view.free),
+        tuple(view._template),
+        None if plan is None else plan.d.tobytes(),
+    )
 
 
 #: the engines' tables (linear map, masses, inertias, rotating bodies, points) by a number
@@ -344,12 +349,19 @@ def _tables_number(engine) -> int:
     if number is None:
         mech = engine.mechanism
         off = None if engine._offset is None else engine._offset.tobytes()
-        tables = (engine._MT.shape, engine._MT.tobytes(), off, engine._mass.tobytes(),
-                  engine._inertia.tobytes(), tuple(engine._rot), tuple(engine._point_names),
-                  tuple(getattr(mech, "fixed_points", ())))
+        tables = (
+            engine._MT.shape,
+            engine._MT.tobytes(),
+            off,
+            engine._mass.tobytes(),
+            engine._inertia.tobytes(),
+            tuple(engine._rot),
+            tuple(engine._point_names),
+            tuple(getattr(mech, "fixed_points", ())),
+        )
         number = _TABLES.get(tables)
         if number is None:
-            number = _TABLES[tables] = len(_TABLES) + 1       # never cleared: one per kind
+            number = _TABLES[tables] = len(_TABLES) + 1  # never cleared: one per kind
         engine._tables_number = number
     return number
 
@@ -373,10 +385,12 @@ def _source(engine, view, plan, traced=None) -> str:
     xl, jl, wls = _lists_at_q(st, omegas)
     A_out = _velocity_terms(w.lines, out_A, plan.inv2d, n)
     vds = [f"vd{k}" for k in range(n)]
-    ret = (f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, "
-           f"[{', '.join(wls[1:])}]")
-    return (f"def kernel({', '.join(qs + vds)}):\n"
-            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+    ret = f"    return [{', '.join(xl)}], [{', '.join(jl)}], {wls[0]}, {A_out}, _h, [{', '.join(wls[1:])}]"
+    return (
+        f"def kernel({', '.join(qs + vds)}):\n"
+        + "\n".join(inline_once(live_lines(w.lines, ret) + [ret]))
+        + "\n"
+    )
 
 
 def _positions(engine, view, plan, w, qs, traced) -> list:
@@ -417,7 +431,7 @@ class _Stencil:
         self.engine, self.n, self.w, self.P = engine, view.n, w, P
         _offsets, self.plus, self.minus = stencil(view.n)
         self.inv2d = plan.inv2d
-        self.M = engine._MT.T                   # rows: pairs (x, y) of names, links, check
+        self.M = engine._MT.T  # rows: pairs (x, y) of names, links, check
         fixed = {engine._names[p] for p in getattr(engine.mechanism, "fixed_points", ())}
         self.moving = {k for k in range(2 * engine._npts) if k // 2 not in fixed}
 
@@ -431,8 +445,14 @@ class _Stencil:
                 return None
             if isinstance(a, float) and isinstance(c, float):
                 return None if a == c else repr(a - c)
-            return w.let(f"{a!r} - {c}" if isinstance(a, float) else
-                         f"{a} - {c!r}" if isinstance(c, float) else f"{a} - {c}")
+            return w.let(
+                f"{a!r} - {c}"
+                if isinstance(a, float)
+                else f"{a} - {c!r}"
+                if isinstance(c, float)
+                else f"{a} - {c}"
+            )
+
         e = _lin(self.M[row], var)
         return None if e is None else w.let(e)
 
@@ -444,6 +464,7 @@ class _Stencil:
             if isinstance(a, float):
                 return None if a == 0.0 else repr(a)
             return a
+
         e = _lin(self.M[row], var)
         return None if e is None else self.w.let(e)
 
@@ -512,12 +533,16 @@ def _lists_at_q(st: _Stencil, omegas: list) -> tuple[list, list, list]:
         if offset is not None and offset[r] != 0.0:
             e = f"{e} + {offset[r]!r}"
         xl.append(e)
-    jl = [st.scaled(st.diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1)
-          for i in range(n)]
+    jl = [st.scaled(st.diff(0, i, 2 * r + c), i) for r in range(NP) for c in (0, 1) for i in range(n)]
 
     def omega_list(om):
-        return "[" + ", ".join(st.scaled(om.get((k, i)), i) if k in rot else "0.0"
-                               for k in range(nbodies) for i in range(n)) + "]"
+        return (
+            "["
+            + ", ".join(
+                st.scaled(om.get((k, i)), i) if k in rot else "0.0" for k in range(nbodies) for i in range(n)
+            )
+            + "]"
+        )
 
     return xl, jl, [omega_list(om) for om in omegas]
 
@@ -532,14 +557,18 @@ def _velocity_terms(L: list, out_A: list, inv2d, n: int) -> str:
         return out_A[0][0]
     for k in range(2):
         p, m = out_A[1 + 2 * k], out_A[2 + 2 * k]
-        L.append(f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
-                 f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}")
-    L += ["    _r00 = _d000 * vd0 + _d001 * vd1",
-          "    _r01 = _d001 * vd0 + _d011 * vd1",
-          "    _r10 = _d100 * vd0 + _d101 * vd1",
-          "    _r11 = _d101 * vd0 + _d111 * vd1",
-          "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
-          "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]"]
+        L.append(
+            f"    _d{k}00, _d{k}01, _d{k}11 = ({p[0]} - {m[0]}) * {c[k]}, "
+            f"({p[1]} - {m[1]}) * {c[k]}, ({p[2]} - {m[2]}) * {c[k]}"
+        )
+    L += [
+        "    _r00 = _d000 * vd0 + _d001 * vd1",
+        "    _r01 = _d001 * vd0 + _d011 * vd1",
+        "    _r10 = _d100 * vd0 + _d101 * vd1",
+        "    _r11 = _d101 * vd0 + _d111 * vd1",
+        "    _h = [_r00 * vd0 + _r10 * vd1 - 0.5 * (_r00 * vd0 + _r01 * vd1), "
+        "_r01 * vd0 + _r11 * vd1 - 0.5 * (_r10 * vd0 + _r11 * vd1)]",
+    ]
     return f"({', '.join(out_A[0])})"
 
 

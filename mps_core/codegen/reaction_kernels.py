@@ -73,8 +73,7 @@ class _Folding(_Forward):
 PIVOT_GUARD = 1e-6
 
 
-def reaction_kernel(engine, view, q, system, motion, columns, scale: float,
-                    from_kinematics: bool = False):
+def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from_kinematics: bool = False):
     """The reaction kernel of ``view`` (traced at ``q``), or None where its premises do not
     hold. ``engine``: a :class:`~mps_core.dynamics.engine.PartialSystems` of the mechanism (its maps);
     ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
@@ -108,21 +107,42 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float,
     s = np.ones(3 * nb)
     s[2::3] = 1.0 / scale
     if np.linalg.norm(Jb.T @ E) > 1e-9 * np.linalg.norm(Jb) * np.linalg.norm(E):
-        return None                 # a joint that does work: not this kernel's system
+        return None  # a joint that does work: not this kernel's system
     sv = np.linalg.svd(s[:, None] * E, compute_uv=False)
     if sv[-1] <= 1e-9 * sv[0]:
-        return None                 # not unique at the building state
+        return None  # not unique at the building state
     order, pivots = _pivot_order(s[:, None] * E)
-    key = ("reactions from kinematics" if from_kinematics else "reactions",
-           _key(engine, view), tape.key(), tuple(outputs),
-           tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
-           tuple(columns), float(scale), tuple(order))
-    kernel = load(key, lambda: _source(engine, view, tape, outputs, args, free, sysm, columns,
-                                       scale, order, [float(abs(p) / s[r])
-                                                      for p, r in zip(pivots, order)],
-                                       from_kinematics),
-                  f"<reaction kernel{' from kinematics' if from_kinematics else ''} "
-                  f"{view.name}>", flat, view.name, {"_fallback": _fallback})
+    key = (
+        "reactions from kinematics" if from_kinematics else "reactions",
+        _key(engine, view),
+        tape.key(),
+        tuple(outputs),
+        tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
+        tuple(columns),
+        float(scale),
+        tuple(order),
+    )
+    kernel = load(
+        key,
+        lambda: _source(
+            engine,
+            view,
+            tape,
+            outputs,
+            args,
+            free,
+            sysm,
+            columns,
+            scale,
+            order,
+            [float(abs(p) / s[r]) for p, r in zip(pivots, order)],
+            from_kinematics,
+        ),
+        f"<reaction kernel{' from kinematics' if from_kinematics else ''} {view.name}>",
+        flat,
+        view.name,
+        {"_fallback": _fallback},
+    )
     kernel.flat, kernel.chart = flat, view.name
     return kernel
 
@@ -143,23 +163,21 @@ def with_loads(kernel, sums):
         return made
     head, unpack, *body = kernel.source.rstrip("\n").split("\n")
     targets, eq, rhs = unpack.strip().partition(" = ")
-    if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq
-            and rhs == "loads"):
+    if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq and rhs == "loads"):
         raise ValueError("with_loads: not a reaction kernel's source")
     s_lines = sums.source.rstrip("\n").split("\n")[1:]
     ret = s_lines.pop()
     if not (ret.startswith("    return [") and ret.endswith("]")):
         raise ValueError("with_loads: not a load sums' source")
     local = {m.group(1) for line in s_lines if (m := _ASSIGNED.match(line))}
-    rename = re.compile(r"\b(" + "|".join(sorted(local, key=len, reverse=True)) + r")\b") \
-        if local else None
+    rename = re.compile(r"\b(" + "|".join(sorted(local, key=len, reverse=True)) + r")\b") if local else None
 
     def renamed(line: str) -> str:
         return rename.sub(r"s_\1", line) if rename is not None else line
 
-    params = head[len("def kernel("):-len(", loads):")]
+    params = head[len("def kernel(") : -len(", loads):")]
     names = [x.strip() for x in targets.split(",")]
-    items = _top_level_items(renamed(ret[len("    return ["):-1]))
+    items = _top_level_items(renamed(ret[len("    return [") : -1]))
     if len(names) != len(items):
         raise ValueError("with_loads: the sums do not give the kernel's loads")
     ret = body.pop()
@@ -169,15 +187,24 @@ def with_loads(kernel, sums):
         sub = re.compile(r"\b(" + "|".join(numbers) + r")\b")
         body = [sub.sub(lambda m: f"({numbers[m.group(1)]})", line) for line in body]
         ret = sub.sub(lambda m: f"({numbers[m.group(1)]})", ret)
-    lines = [*(renamed(line) for line in s_lines),
-             *(f"    {a} = {x}" for a, x in zip(names, items) if a not in numbers), *body]
+    lines = [
+        *(renamed(line) for line in s_lines),
+        *(f"    {a} = {x}" for a, x in zip(names, items) if a not in numbers),
+        *body,
+    ]
     given = {x.strip() for x in params.split(",")}
     lists = ", ".join(x for x in ("xl", "jl", "wl", "vl") if x not in given)
-    src = "\n".join([f"def kernel(t, {params}, {lists}):",
-                     *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
-    made = load(key, lambda: src, f"<reaction kernel with loads {kernel.chart}>", kernel.flat,
-                kernel.chart, {"_fallback": _fallback, "tanh": math.tanh,
-                               "_Branch": BranchChanged})
+    src = (
+        "\n".join([f"def kernel(t, {params}, {lists}):", *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
+    )
+    made = load(
+        key,
+        lambda: src,
+        f"<reaction kernel with loads {kernel.chart}>",
+        kernel.flat,
+        kernel.chart,
+        {"_fallback": _fallback, "tanh": math.tanh, "_Branch": BranchChanged},
+    )
     return _WITH_LOADS.keep(key, made)
 
 
@@ -255,8 +282,20 @@ class _Ops:
         return None if acc is None else self.fw.call("sqrt", acc)
 
 
-def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order,
-            pivot_sizes, from_kinematics: bool = False) -> str:
+def _source(
+    engine,
+    view,
+    tape,
+    outputs,
+    args,
+    free,
+    sysm,
+    columns,
+    scale,
+    order,
+    pivot_sizes,
+    from_kinematics: bool = False,
+) -> str:
     """The reaction kernel's code: the bodies' motion and Newton–Euler's right side b, the
     joints' columns E, the least squares' leftover r, E u = b − r by the building state's
     pivots, then what the frame receives and the checks (one step a function below)."""
@@ -266,8 +305,9 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     nb = len(engine.mechanism.bodies)
     offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
     if from_kinematics:
-        fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(engine, view, tape, outputs,
-                                                                    args, free, w)
+        fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(
+            engine, view, tape, outputs, args, free, w
+        )
     else:
         fw, outs = forward(w, n, tape, outputs, args, free, _Folding)
         parts = linear_parts(engine, fw, outs)
@@ -277,15 +317,14 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
 
         def pos(name):
             r = 2 * names[name]
-            return (fw.add(val(r), offset[r] or None),
-                    fw.add(val(r + 1), offset[r + 1] or None))
+            return (fw.add(val(r), offset[r] or None), fw.add(val(r + 1), offset[r + 1] or None))
+
     ops = _Ops(fw, w)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
     accs = [f"a{k}" for k in range(n)]
     origin = pos("O") if "O" in names else (None, None)
-    load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + [
-        "ffx", "ffy", "fmo", "mmot"]
+    load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + ["ffx", "ffy", "fmo", "mmot"]
     w.lines.insert(0, f"    {', '.join(load_names)} = loads")
     motion = _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin)
     E = _joint_columns(ops, engine.mechanism, sysm.cols, pos, motion["G"])
@@ -293,13 +332,18 @@ def _source(engine, view, tape, outputs, args, free, sysm, columns, scale, order
     u = _solve_by_pivots(ops, E, motion["b"], res, order, pivot_sizes, len(sysm.cols))
     out, frame = _frame_receives(ops, sysm.cols, u, columns, pos, origin)
     _checks(ops, out, res, engine, motion, frame)
-    ret = (f"    return [{', '.join(ops.code(out[c]) for c in columns)}], "
-           f"[{', '.join(ops.code(x) for x in res)}]")
-    if unpack is not None:              # the lists' numbers the code above reads
+    ret = (
+        f"    return [{', '.join(ops.code(out[c]) for c in columns)}], "
+        f"[{', '.join(ops.code(x) for x in res)}]"
+    )
+    if unpack is not None:  # the lists' numbers the code above reads
         w.lines[1:1] = unpack()
     lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
-    return (f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
-            + "\n".join(inline_once(live_lines(w.lines, ret) + [ret])) + "\n")
+    return (
+        f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
+        + "\n".join(inline_once(live_lines(w.lines, ret) + [ret]))
+        + "\n"
+    )
 
 
 def _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin) -> dict:
@@ -334,8 +378,7 @@ def _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin) -> d
         lx, ly, lm = f"lx{k}", f"ly{k}", f"lm{k}"
         # the loads' moment about G from theirs about O: M_G = M_O − (G − O) × F
         mG = sub(lm, sub(mul(g[k][0], ly), mul(g[k][1], lx)))
-        b += [sub(mul(mass[k], a[0]), lx), sub(mul(mass[k], a[1]), ly),
-              sub(mul(inertia[k], al), mG)]
+        b += [sub(mul(mass[k], a[0]), lx), sub(mul(mass[k], a[1]), ly), sub(mul(inertia[k], al), mG)]
     return {"G": G, "g": g, "JG": JG, "aG": aG, "alpha": alpha, "W": W, "b": b}
 
 
@@ -380,8 +423,7 @@ def _leftover(ops, motion, nb: int, n: int, scale: float) -> list:
     for i in range(n):
         Mrows.append([x for k in range(nb) for x in (JG[k][0][i], JG[k][1][i], W[k][i])])
     K = len(Mrows)
-    Gm = [[ops.dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)]
-          for i in range(K)]
+    Gm = [[ops.dot(Mrows[i], Mrows[j], wt) if j >= i else None for j in range(K)] for i in range(K)]
     rhs = [None, None, None] + [ops.dot(Mrows[3 + i], b) for i in range(n)]
     diag = [Gm[i][i] for i in range(K)]
     for k in range(K):
@@ -392,7 +434,7 @@ def _leftover(ops, motion, nb: int, n: int, scale: float) -> list:
             raise ValueError("reaction kernel: a constant pivot below its guard")
         ip = fw.recip(p)
         for i in range(k + 1, K):
-            f = mul(Gm[k][i], ip)               # symmetric: G[i][k] = G[k][i]
+            f = mul(Gm[k][i], ip)  # symmetric: G[i][k] = G[k][i]
             if f is None:
                 continue
             for jj in range(i, K):
@@ -494,8 +536,9 @@ def _checks(ops, out, res, engine, motion, frame) -> None:
     bx, by = sub(pdx, sub(ex, RFx)), sub(pdy, sub(ey, RFy))
     out["balance_residual_N"] = ops.norm([bx, by])
     bm = sub(hdot, sub(emo, RM))
-    out["balance_residual_Nm"] = (None if bm is None else abs(bm) if isinstance(bm, float)
-                                  else ops.w.let(f"abs({bm})"))
+    out["balance_residual_Nm"] = (
+        None if bm is None else abs(bm) if isinstance(bm, float) else ops.w.let(f"abs({bm})")
+    )
 
 
 def _from_kinematics(engine, view, tape, outputs, args, free, w):
@@ -519,14 +562,13 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
 
     def read(traced, prefix, i):
         if traced is None or isinstance(traced, float):
-            return traced                   # a zero or a constant of the trace
+            return traced  # a zero or a constant of the trace
         used[prefix].add(i)
         return f"{prefix}{i}"
 
     def pos(name):
         r = 2 * names[name]
-        return tuple(read(fw0.add(val0(r + c), offset[r + c] or None), "kx", r + c)
-                     for c in (0, 1))
+        return tuple(read(fw0.add(val0(r + c), offset[r + c] or None), "kx", r + c) for c in (0, 1))
 
     def grad(row, i):
         return read(grad0(row, i), "kj", row * n + i)
@@ -534,8 +576,9 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
     def d2(row):
         k = com.get(row - row % 2)
         if k is None:
-            raise ValueError("reaction kernel from kinematics: a convective acceleration "
-                             "other than a centre of mass's")
+            raise ValueError(
+                "reaction kernel from kinematics: a convective acceleration other than a centre of mass's"
+            )
         return read(d20(row), "kc", nb + 2 * k + row % 2)
 
     omega = {key: read(x, "kw", key[0] * n + key[1]) for key, x in omega0.items()}
@@ -543,14 +586,14 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
 
     def unpack():
         """The lists into locals (one statement each: the unused ones are ``_``)."""
-        sizes = {"kx": ("xl", 2 * NP), "kj": ("jl", 2 * NP * n), "kw": ("wl", nb * n),
-                 "kc": ("cv", 3 * nb)}
+        sizes = {"kx": ("xl", 2 * NP), "kj": ("jl", 2 * NP * n), "kw": ("wl", nb * n), "kc": ("cv", 3 * nb)}
         out = []
         for prefix, (arg, size) in sizes.items():
             if used[prefix]:
                 targets = [f"{prefix}{i}" if i in used[prefix] else "_" for i in range(size)]
                 out.append(f"    {', '.join(targets)} = {arg}")
         return out
+
     return _Folding(w, n), pos, grad, d2, omega, theta2, unpack
 
 
@@ -568,7 +611,7 @@ class LoadSums:
         self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
         self.nb = nb = len(self.bodies)
         self.effects = []
-        self.constant = []              # (point, body row, fx, fy) of constant forces
+        self.constant = []  # (point, body row, fx, fy) of constant forces
         base = [0.0] * (3 * nb + 4)
         for e in effects:
             if not getattr(e, "applies_forces", True):
@@ -589,7 +632,7 @@ class LoadSums:
             base[k] += fx
             base[k + 1] += fy
         self.base = base
-        self._names = None              # the kinematics' names the rows below are read from
+        self._names = None  # the kinematics' names the rows below are read from
         self._rows = None
         #: the sums as generated code per number of coordinates (:func:`traced_sums`):
         #: [functions, most recent first], for the effects' state ``_traced_at``; kept per
@@ -638,7 +681,7 @@ class LoadSums:
                 if k:
                     made.insert(0, made.pop(k))
                 return out
-            if made and len(made) < 6 and self._traces < 64:   # another branch of a law
+            if made and len(made) < 6 and self._traces < 64:  # another branch of a law
                 self._traces += 1
                 fn = traced_sums(self, t, kin)
                 if fn is not None:
@@ -694,10 +737,19 @@ def traced_sums(sums: LoadSums, t: float, kin):
     slots: list[str] = []
     slot = input_slot(tape, slots)
     vl = kin._vl if kin._vl is not None else kin._v()
-    tl = {name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
-          for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))}
-    tkin = type(kin)(slot("t", t), None, None, kin.names, bodies=kin.bodies,
-                     lists=(tl["xl"], tl["jl"], tl["wl"]), v=tl["vl"])
+    tl = {
+        name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
+        for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))
+    }
+    tkin = type(kin)(
+        slot("t", t),
+        None,
+        None,
+        kin.names,
+        bodies=kin.bodies,
+        lists=(tl["xl"], tl["jl"], tl["wl"]),
+        v=tl["vl"],
+    )
     try:
         out = sums.sums(tkin.t, tkin)
         values = [x.value if isinstance(x, Traced) else float(x) for x in out]
@@ -709,11 +761,9 @@ def traced_sums(sums: LoadSums, t: float, kin):
     code = emit_tape(body, tape, slots)
     items = [code(x.index) if isinstance(x, Traced) else repr(float(x)) for x in out]
     ret = f"    return [{', '.join(items)}]"
-    src = ("def kernel(t, xl, jl, wl, vl):\n"
-           + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n")
+    src = "def kernel(t, xl, jl, wl, vl):\n" + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n"
     key = ("load sums", src)
-    return load(key, lambda: src, "<load sums>", None, "", {
-        "tanh": math.tanh, "_Branch": BranchChanged})
+    return load(key, lambda: src, "<load sums>", None, "", {"tanh": math.tanh, "_Branch": BranchChanged})
 
 
 def _arm(point, names, xl, ox, oy) -> tuple[float, float]:

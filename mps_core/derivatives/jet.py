@@ -65,16 +65,14 @@ class Jet:
 
     def __add__(self, other):
         if isinstance(other, Jet):
-            return Jet(self.val + other.val, self.grad + other.grad, self.d1 + other.d1,
-                       self.d2 + other.d2)
+            return Jet(self.val + other.val, self.grad + other.grad, self.d1 + other.d1, self.d2 + other.d2)
         return Jet(self.val + other, self.grad, self.d1, self.d2)
 
     __radd__ = __add__
 
     def __sub__(self, other):
         if isinstance(other, Jet):
-            return Jet(self.val - other.val, self.grad - other.grad, self.d1 - other.d1,
-                       self.d2 - other.d2)
+            return Jet(self.val - other.val, self.grad - other.grad, self.d1 - other.d1, self.d2 - other.d2)
         return Jet(self.val - other, self.grad, self.d1, self.d2)
 
     def __rsub__(self, other):
@@ -83,10 +81,12 @@ class Jet:
     def __mul__(self, other):
         if isinstance(other, Jet):
             a, b = self, other
-            return Jet(a.val * b.val,
-                       _ex(a.val) * b.grad + _ex(b.val) * a.grad,
-                       a.val * b.d1 + b.val * a.d1,
-                       a.val * b.d2 + 2.0 * a.d1 * b.d1 + b.val * a.d2)
+            return Jet(
+                a.val * b.val,
+                _ex(a.val) * b.grad + _ex(b.val) * a.grad,
+                a.val * b.d1 + b.val * a.d1,
+                a.val * b.d2 + 2.0 * a.d1 * b.d1 + b.val * a.d2,
+            )
         return Jet(self.val * other, _ex(other) * self.grad, self.d1 * other, self.d2 * other)
 
     __rmul__ = __mul__
@@ -109,7 +109,7 @@ class Jet:
         if isinstance(p, Jet):
             raise TypeError("a jet exponent is not supported")
         v = self.val
-        return self._unary(v ** p, p * v ** (p - 1), p * (p - 1) * v ** (p - 2))
+        return self._unary(v**p, p * v ** (p - 1), p * (p - 1) * v ** (p - 2))
 
     def sqrt(self) -> Jet:
         s = np.sqrt(self.val)
@@ -137,10 +137,12 @@ class Jet:
         num1 = x.val * y.d1 - y.val * x.d1
         num2 = x.val * y.d2 - y.val * x.d2
         dr2 = 2.0 * (x.val * x.d1 + y.val * y.d1)
-        return Jet(np.arctan2(y.val, x.val),
-                   (_ex(x.val) * y.grad - _ex(y.val) * x.grad) / _ex(r2),
-                   num1 / r2,
-                   num2 / r2 - num1 * dr2 / (r2 * r2))
+        return Jet(
+            np.arctan2(y.val, x.val),
+            (_ex(x.val) * y.grad - _ex(y.val) * x.grad) / _ex(r2),
+            num1 / r2,
+            num2 / r2 - num1 * dr2 / (r2 * r2),
+        )
 
     # -- numpy interoperability -------------------------------------------------------------
     _UFUNCS = {
@@ -184,8 +186,11 @@ _NUMBER = (float, int)
 
 def _scalar_like(x) -> bool:
     """A scalar jet, or a plain number (a constant of any jet)."""
-    return x.__class__ is ScalarJet or isinstance(x, _NUMBER) or (
-        isinstance(x, (np.ndarray, np.generic)) and np.ndim(x) == 0 and not isinstance(x, Jet))
+    return (
+        x.__class__ is ScalarJet
+        or isinstance(x, _NUMBER)
+        or (isinstance(x, (np.ndarray, np.generic)) and np.ndim(x) == 0 and not isinstance(x, Jet))
+    )
 
 
 def _div(a, b):
@@ -273,8 +278,9 @@ class ScalarJet(Jet):
 
     def __add__(self, other):
         if other.__class__ is ScalarJet:
-            return ScalarJet(self.val + other.val, _gadd(self.g, other.g),
-                             self.d1 + other.d1, self.d2 + other.d2)
+            return ScalarJet(
+                self.val + other.val, _gadd(self.g, other.g), self.d1 + other.d1, self.d2 + other.d2
+            )
         o = other if isinstance(other, _NUMBER) else self._number(other)
         if o is not None:
             return ScalarJet(self.val + o, self.g, self.d1, self.d2)
@@ -284,8 +290,9 @@ class ScalarJet(Jet):
 
     def __sub__(self, other):
         if other.__class__ is ScalarJet:
-            return ScalarJet(self.val - other.val, _gsub(self.g, other.g),
-                             self.d1 - other.d1, self.d2 - other.d2)
+            return ScalarJet(
+                self.val - other.val, _gsub(self.g, other.g), self.d1 - other.d1, self.d2 - other.d2
+            )
         o = other if isinstance(other, _NUMBER) else self._number(other)
         if o is not None:
             return ScalarJet(self.val - o, self.g, self.d1, self.d2)
@@ -300,8 +307,12 @@ class ScalarJet(Jet):
     def __mul__(self, other):
         if other.__class__ is ScalarJet:
             av, bv, ad1, bd1 = self.val, other.val, self.d1, other.d1
-            return ScalarJet(av * bv, _glin(av, other.g, bv, self.g), av * bd1 + bv * ad1,
-                             av * other.d2 + 2.0 * ad1 * bd1 + bv * self.d2)
+            return ScalarJet(
+                av * bv,
+                _glin(av, other.g, bv, self.g),
+                av * bd1 + bv * ad1,
+                av * other.d2 + 2.0 * ad1 * bd1 + bv * self.d2,
+            )
         o = other if isinstance(other, _NUMBER) else self._number(other)
         if o is not None:
             return ScalarJet(self.val * o, _gscale(o, self.g), self.d1 * o, self.d2 * o)
@@ -328,7 +339,7 @@ class ScalarJet(Jet):
             raise TypeError("a jet exponent is not supported")
         v = np.float64(self.val)
         with np.errstate(all="ignore"):
-            f = (v ** p, p * v ** (p - 1), p * (p - 1) * v ** (p - 2))
+            f = (v**p, p * v ** (p - 1), p * (p - 1) * v ** (p - 2))
         return self._unary(*(float(x) for x in f))
 
     def sqrt(self) -> ScalarJet:
@@ -358,10 +369,12 @@ class ScalarJet(Jet):
         num1 = xv * yd1 - yv * xd1
         num2 = xv * y.d2 - yv * x.d2
         dr2 = 2.0 * (xv * xd1 + yv * yd1)
-        return ScalarJet(math.atan2(yv, xv),
-                         tuple([_div(xv * a - yv * b, r2) for a, b in zip(y.g, x.g)]),
-                         _div(num1, r2),
-                         _div(num2, r2) - _div(num1 * dr2, r2 * r2))
+        return ScalarJet(
+            math.atan2(yv, xv),
+            tuple([_div(xv * a - yv * b, r2) for a, b in zip(y.g, x.g)]),
+            _div(num1, r2),
+            _div(num2, r2) - _div(num1 * dr2, r2 * r2),
+        )
 
 
 def seed(q, v) -> list[Jet]:
@@ -375,12 +388,12 @@ def seed(q, v) -> list[Jet]:
     n = q.shape[-1]
     if q.ndim == 1 and v.shape == q.shape:
         ql, vl = q.tolist(), v.tolist()
-        return [ScalarJet(ql[i], tuple([1.0 if k == i else 0.0 for k in range(n)]), vl[i], 0.0)
-                for i in range(n)]
+        return [
+            ScalarJet(ql[i], tuple([1.0 if k == i else 0.0 for k in range(n)]), vl[i], 0.0) for i in range(n)
+        ]
     eye = np.eye(n)
     zero = np.zeros_like(q[..., 0])
-    return [Jet(q[..., i], np.broadcast_to(eye[i], q.shape[:-1] + (n,)), v[..., i], zero)
-            for i in range(n)]
+    return [Jet(q[..., i], np.broadcast_to(eye[i], q.shape[:-1] + (n,)), v[..., i], zero) for i in range(n)]
 
 
 def value_of(x):

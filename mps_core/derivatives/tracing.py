@@ -33,8 +33,14 @@ OPS = {
     "tanh": (1, math.tanh),
 }
 
-_COMPARE = {"gt": operator.gt, "ge": operator.ge, "lt": operator.lt, "le": operator.le,
-            "eq": operator.eq, "ne": operator.ne}
+_COMPARE = {
+    "gt": operator.gt,
+    "ge": operator.ge,
+    "lt": operator.lt,
+    "le": operator.le,
+    "eq": operator.eq,
+    "ne": operator.ne,
+}
 
 
 class TracingError(TypeError):
@@ -181,6 +187,7 @@ def _unary(name):
         if x.__class__ is Traced:
             return x.tape._push((name, x.index), fn(x.value))
         return fn(x)
+
     f.__name__ = name
     return f
 

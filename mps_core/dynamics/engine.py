@@ -82,23 +82,53 @@ class Kinematics:
     ``pose`` (the positions as ``{point: (x, y)}``) is built on first use and kept.
     """
 
-    __slots__ = ("t", "q", "qd", "names", "bodies", "n", "_X", "_J", "_W", "_xl", "_jl", "_wl",
-                 "_vl", "_pose", "_side", "_conv")
+    __slots__ = (
+        "t",
+        "q",
+        "qd",
+        "names",
+        "bodies",
+        "n",
+        "_X",
+        "_J",
+        "_W",
+        "_xl",
+        "_jl",
+        "_wl",
+        "_vl",
+        "_pose",
+        "_side",
+        "_conv",
+    )
 
-    def __init__(self, t, q, qd, names, X=None, J=None, W=None, bodies=None, *, lists=None,
-                 side=None, conv=None, v=None):
+    def __init__(
+        self,
+        t,
+        q,
+        qd,
+        names,
+        X=None,
+        J=None,
+        W=None,
+        bodies=None,
+        *,
+        lists=None,
+        side=None,
+        conv=None,
+        v=None,
+    ):
         self.t = t
-        self._side = side           # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
+        self._side = side  # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
         # from an exact kernel: θ̈ at q̈ = 0 of every body, then each centre of mass's (ẍ, ÿ)
         # at q̈ = 0
         self._conv = conv
         self.q = q
         self.qd = qd
-        self.names = names          # {point name: row}
-        self.bodies = bodies        # {body name: row}
+        self.names = names  # {point name: row}
+        self.bodies = bodies  # {body name: row}
         self._X, self._J, self._W = X, J, W
         self._pose = None
-        self._vl = v                # q̇ as floats, where the caller has them
+        self._vl = v  # q̇ as floats, where the caller has them
         if lists is not None:
             # xl: 2·NP floats (x, y by row); jl: per row, x then y, n floats each; wl: per body
             self._xl, self._jl, self._wl = lists
@@ -151,7 +181,7 @@ class Kinematics:
         jl = self._jl if self._jl is not None else self._lists()[1]
         n = self.n
         r = 2 * n * self.names[point]
-        return jl[r:r + n], jl[r + n:r + 2 * n]
+        return jl[r : r + n], jl[r + n : r + 2 * n]
 
     def vxy(self, point: str) -> tuple[float, float]:
         """Velocity (ẋ, ẏ) of a point, floats."""
@@ -168,7 +198,7 @@ class Kinematics:
         wl = self._wl if self._wl is not None else self._lists()[2]
         n = self.n
         r = n * self.bodies[body]
-        return wl[r:r + n]
+        return wl[r : r + n]
 
     def rate(self, body: str) -> float:
         """Angular velocity of a body, float."""
@@ -180,7 +210,7 @@ class Kinematics:
             return wl[r] * v[0]
         if n == 2:
             return wl[r] * v[0] + wl[r + 1] * v[1]
-        w = wl[r:r + n]
+        w = wl[r : r + n]
         return sum(a * b for a, b in zip(w, v))
 
     def weighted_analogs(self, forces) -> list:
@@ -259,8 +289,7 @@ class Evaluation:
 
     __slots__ = ("view", "t", "q", "qd", "qdd", "kin", "_A", "_h", "_Q", "Q_nc")
 
-    def __init__(self, view: ChartView, t: float, q, qd, qdd, A, h, Q, kin: Kinematics,
-                 Q_nc=None):
+    def __init__(self, view: ChartView, t: float, q, qd, qdd, A, h, Q, kin: Kinematics, Q_nc=None):
         self.view, self.t, self.q, self.qd, self.qdd, self.kin = view, t, q, qd, qdd, kin
         self._A, self._h, self._Q = A, h, Q
         #: the non-conservative effects' share of Q (n floats; None where not kept): their
@@ -315,15 +344,36 @@ def _other_that_holds(others: list, first, call):
 class _Plan:
     """What an evaluation in one chart view reuses (see the module's docstring)."""
 
-    __slots__ = ("n", "S", "B", "odT", "K", "inv2d", "d", "scale", "kernel", "traced",
-                 "inline", "exact", "exact_traced", "exact_others", "branch_tries", "fused",
-                 "fused_at", "fused_tries", "fused_others", "tail", "tail_at", "tail_tries",
-                 "tail_others")
+    __slots__ = (
+        "n",
+        "S",
+        "B",
+        "odT",
+        "K",
+        "inv2d",
+        "d",
+        "scale",
+        "kernel",
+        "traced",
+        "inline",
+        "exact",
+        "exact_traced",
+        "exact_others",
+        "branch_tries",
+        "fused",
+        "fused_at",
+        "fused_tries",
+        "fused_others",
+        "tail",
+        "tail_at",
+        "tail_tries",
+        "tail_others",
+    )
 
     def __init__(self, view: ChartView, delta: float, central: bool = True):
         n = view.n
         self.n = n
-        self.kernel = None          # central differences, calling the position function
+        self.kernel = None  # central differences, calling the position function
         #: central differences from the traced position function (``kernel`` its fallback);
         #: ``traced``: built, or found impossible
         self.traced = False
@@ -350,14 +400,14 @@ class _Plan:
         self.tail_at = -1
         self.tail_tries = 0
         self.tail_others = []
-        if not central:             # exact derivatives: no stencil
+        if not central:  # exact derivatives: no stencil
             self.S = self.B = self.odT = self.K = self.inv2d = self.d = self.scale = None
             return
         offsets, plus, minus = stencil(n)
         d = delta * np.asarray(view.scales, dtype=float)
         S, B = len(offsets), plus.shape[0]
         self.n, self.S, self.B, self.d = n, S, B, d
-        self.odT = np.ascontiguousarray((offsets * d).T)          # (n, S)
+        self.odT = np.ascontiguousarray((offsets * d).T)  # (n, S)
         inv2d = 1.0 / (2.0 * d)
         self.inv2d = inv2d.tolist()
         # columns: B base positions, B·n analogs (base-major), one row sum (finiteness check)
@@ -371,7 +421,7 @@ class _Plan:
                 K[minus[b, i], B + b * n + i] -= 1.0
         K[:, -1] = 1.0
         self.K = K
-        self.scale = np.tile(inv2d, B)[:, None]                     # (B·n, 1)
+        self.scale = np.tile(inv2d, B)[:, None]  # (B·n, 1)
 
 
 def virtual_work(ld, kin) -> list | None:
@@ -422,8 +472,14 @@ class PartialSystems:
     evaluated: the stencil size for ``central``, one jet for ``autodiff``).
     """
 
-    def __init__(self, mechanism: Mechanism, effects=(), scheme: str = "central",
-                 delta: float = math.radians(0.1), kernels: bool = True):
+    def __init__(
+        self,
+        mechanism: Mechanism,
+        effects=(),
+        scheme: str = "central",
+        delta: float = math.radians(0.1),
+        kernels: bool = True,
+    ):
         if scheme not in SCHEMES:
             raise ValueError(f"derivative scheme {scheme!r}: expected one of {', '.join(SCHEMES)}")
         if not (delta > 0.0 and math.isfinite(delta)):
@@ -529,10 +585,10 @@ class PartialSystems:
         qd = np.asarray(qd, dtype=float)
         plan = self._plans.get(view)
         if plan is not None and plan.inline is not None:
-            e = self._kernel_evaluate(view, t, q, qd, plan)     # a traced central kernel
+            e = self._kernel_evaluate(view, t, q, qd, plan)  # a traced central kernel
         elif plan is not None and plan.exact is not None and self.kernels:
             try:
-                e = self._exact_kernel_evaluate(view, t, q, qd, plan)   # an exact kernel
+                e = self._exact_kernel_evaluate(view, t, q, qd, plan)  # an exact kernel
             except BranchChanged:
                 e = self._jets_evaluate(view, t, q, qd)
         else:
@@ -598,8 +654,12 @@ class PartialSystems:
             with the coordinates as arguments, ``accel`` where it raises or gives None), else
             None."""
             plan = plans.get(view)
-            if plan is not None and plan.fused is not None and plan.fused_at == version[0] \
-                    and "accelerations" not in engine.__dict__:
+            if (
+                plan is not None
+                and plan.fused is not None
+                and plan.fused_at == version[0]
+                and "accelerations" not in engine.__dict__
+            ):
                 return plan.fused
             return None
 
@@ -640,18 +700,17 @@ class PartialSystems:
                         counts["evaluations"] += 1
                         counts["position_calls"] += 1
                         counts["position_points"] += 1
-                        kin = Kinematics(t, q, qd, names, bodies=bodies, lists=(xl, jl, wl),
-                                         conv=conv, v=vl)
+                        kin = Kinematics(t, q, qd, names, bodies=bodies, lists=(xl, jl, wl), conv=conv, v=vl)
                         return Evaluation(view, t, q, qd, array(qdd), A, h, Q, kin, Qnc)
             return evaluate(engine, view, t, q, qd)
+
         return fun
 
     def _fused_miss(self, view, plan, t, ql, vl):
         """q̈ by another of the view's fused functions where the first one's guards fail here
         (that one comes first from now on), or by one made here (a few per view at most);
         None for the general path."""
-        other, out = _other_that_holds(plan.fused_others, plan.fused,
-                                       lambda f: f(t, *ql, *vl))
+        other, out = _other_that_holds(plan.fused_others, plan.fused, lambda f: f(t, *ql, *vl))
         if other is not None:
             plan.fused = other
             return out
@@ -675,14 +734,13 @@ class PartialSystems:
         version = STATE_VERSION[0]
         kept = self.__dict__.get("_fingerprint_of")
         if kept is None or kept[0] != version or kept[1] != len(self.effects):
-            kept = self._fingerprint_of = (version, len(self.effects),
-                                           fingerprint(self.effects))
+            kept = self._fingerprint_of = (version, len(self.effects), fingerprint(self.effects))
         return kept[2]
 
     def _fuse(self, view, plan, t, ql, vl):
         """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
         if plan.fused_at != STATE_VERSION[0]:
-            plan.fused_others = []          # made for other parameters or controls
+            plan.fused_others = []  # made for other parameters or controls
         try:
             fused = reuse_or_make(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
         except (ArithmeticError, ValueError, BranchChanged):
@@ -700,7 +758,7 @@ class PartialSystems:
             e = self.evaluate(view, t, np.array(ql, float), np.array(vl, float))
             return e.A.tolist(), e.h.tolist(), e.Q.tolist()
         A, h, Q, _qdd = out
-        if isinstance(A, list):             # rows already (the jets)
+        if isinstance(A, list):  # rows already (the jets)
             return A, h, Q
         if view.n == 1:
             return [[A]], h, Q
@@ -719,7 +777,7 @@ class PartialSystems:
         elif plan.exact is not None and self.kernels:
             try:
                 out = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)
-            except BranchChanged:           # another branch here: the jets
+            except BranchChanged:  # another branch here: the jets
                 e = self._jets_evaluate(view, t, np.array(ql, float), np.array(vl, float))
                 self.counts["evaluations"] += 1
                 return e.A.tolist(), e.h.tolist(), e.Q.tolist(), e.qdd.tolist()
@@ -784,8 +842,11 @@ class PartialSystems:
     def _paths(self):
         """(number of effects, [(fast path or None, effect, conservative)]) without the effects
         that apply no force of their own (``applies_forces`` False: a rigid stop, the latch)."""
-        return len(self.effects), [(_fast_path(e), e, bool(e.conservative)) for e in self.effects
-                                   if getattr(e, "applies_forces", True)]
+        return len(self.effects), [
+            (_fast_path(e), e, bool(e.conservative))
+            for e in self.effects
+            if getattr(e, "applies_forces", True)
+        ]
 
     def potential_energy(self, kin: Kinematics) -> float:
         return float(sum(e.potential(kin) for e in self.effects if e.conservative))
@@ -811,21 +872,34 @@ class PartialSystems:
                     counts["position_calls"] += 1
                     counts["position_points"] += plan.S
                     xl, jl, wl, _A, _h, wb = plan.inline(*ql, *vl)
-                    return Kinematics(t, np.array(ql, float), np.array(vl, float), self._names,
-                                      bodies=self._body_index, lists=(xl, jl, wl),
-                                      side=(wb, plan.inv2d), v=list(vl))
+                    return Kinematics(
+                        t,
+                        np.array(ql, float),
+                        np.array(vl, float),
+                        self._names,
+                        bodies=self._body_index,
+                        lists=(xl, jl, wl),
+                        side=(wb, plan.inv2d),
+                        v=list(vl),
+                    )
                 if plan.exact is not None:
                     counts["position_calls"] += 1
                     counts["position_points"] += 1
                     xl, jl, wl, _A, _h, conv = plan.exact(*ql, *vl)
-                    return Kinematics(t, np.array(ql, float), np.array(vl, float), self._names,
-                                      bodies=self._body_index, lists=(xl, jl, wl), conv=conv,
-                                      v=list(vl))
+                    return Kinematics(
+                        t,
+                        np.array(ql, float),
+                        np.array(vl, float),
+                        self._names,
+                        bodies=self._body_index,
+                        lists=(xl, jl, wl),
+                        conv=conv,
+                        v=list(vl),
+                    )
             except BranchChanged:
-                pass                        # another branch here: the general path
+                pass  # another branch here: the general path
             except (ValueError, ZeroDivisionError, OverflowError):
-                raise ChartDomainError(view.name, "no real configuration at this point") \
-                    from None
+                raise ChartDomainError(view.name, "no real configuration at this point") from None
         return self.kinematics(view, t, ql, vl)
 
     # -- the schemes ----------------------------------------------------------------------
@@ -855,12 +929,12 @@ class PartialSystems:
         if self._offset is not None:
             X = X + self._offset
         X = X.reshape(NP, 2)
-        J = Zt[B:B + n, :NP2].T.reshape(NP, 2, n)
+        J = Zt[B : B + n, :NP2].T.reshape(NP, 2, n)
         nrot = self._nrot
         if nrot:
-            Zc = Zt[:-1].view(complex)                               # pairs as x + iy
-            Rc = Zc[:B, NP:NP + nrot]
-            Wr = (Zc[B:B + B * n, NP:NP + nrot].reshape(B, n, nrot) / Rc[:, None, :]).imag
+            Zc = Zt[:-1].view(complex)  # pairs as x + iy
+            Rc = Zc[:B, NP : NP + nrot]
+            Wr = (Zc[B : B + B * n, NP : NP + nrot].reshape(B, n, nrot) / Rc[:, None, :]).imag
             W = Wr[0].T if self._rot_all else self._omega_rows(Wr[0], n)
         else:
             Wr = None
@@ -876,19 +950,19 @@ class PartialSystems:
                     plan.inline = central_kernel(self, view, plan, q)
                     plan.traced = True
                 except (ChartDomainError, ArithmeticError, ValueError):
-                    pass            # q is outside the chart: the kernel says so; traced later
+                    pass  # q is outside the chart: the kernel says so; traced later
             return self._kernel_evaluate(view, t, q, qd, plan)
         kin, Zt, Wr, plan = self._central(view, t, q, qd)
         n, B = plan.n, plan.B
-        Ut = Zt[B:B + B * n, 2 * self._npts:2 * self._np].reshape(B, n, -1)   # v*_G: (B, n, ·)
+        Ut = Zt[B : B + B * n, 2 * self._npts : 2 * self._np].reshape(B, n, -1)  # v*_G: (B, n, ·)
         if Wr is not None:
             Ut = np.concatenate((Ut, Wr), axis=2)
-        Ab = (Ut * self._w) @ Ut.transpose(0, 2, 1)                # (B, n, n): A at the bases
+        Ab = (Ut * self._w) @ Ut.transpose(0, 2, 1)  # (B, n, n): A at the bases
         Q = self.generalized_forces(t, kin)
         if n <= 2:
             return self._solve_small(view, t, q, qd, Ab, Q, kin, plan)
         A = Ab[0]
-        dA = (Ab[1::2] - Ab[2::2]) * (1.0 / (2.0 * plan.d))[:, None, None]   # dA[k, i, j]
+        dA = (Ab[1::2] - Ab[2::2]) * (1.0 / (2.0 * plan.d))[:, None, None]  # dA[k, i, j]
         h = (np.tensordot(qd, dA, 1) @ qd) - 0.5 * ((dA @ qd) @ qd)
         return self._finish(view, t, q, qd, A, h, Q, kin)
 
@@ -913,10 +987,10 @@ class PartialSystems:
             else:
                 xl, jl, wl, A, h, wb = plan.kernel(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
-            raise ChartDomainError(view.name, "a stencil point has no real configuration") \
-                from None
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         side=(wb, plan.inv2d), v=vl)
+            raise ChartDomainError(view.name, "a stencil point has no real configuration") from None
+        kin = Kinematics(
+            t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl
+        )
         tail = plan.tail
         if plan.tail_at != STATE_VERSION[0] and self.kernels:
             tail = self._central_tail(view, plan, t, vl, (xl, jl, wl, A, h, wb))
@@ -943,7 +1017,7 @@ class PartialSystems:
         from ..codegen.fused_kernels import reuse_or_make_tail
 
         if plan.tail_at != STATE_VERSION[0]:
-            plan.tail_others = []           # made for other parameters or controls
+            plan.tail_others = []  # made for other parameters or controls
         try:
             tail = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
         except (ArithmeticError, ValueError):
@@ -956,8 +1030,7 @@ class PartialSystems:
         fail here (that one comes first from now on), or by one made here (a few per view at
         most); None for the effects one by one."""
         xl, jl, wl, A, h, _wb = parts
-        other, out = _other_that_holds(plan.tail_others, plan.tail,
-                                       lambda f: f(t, *vl, xl, jl, wl, A, h))
+        other, out = _other_that_holds(plan.tail_others, plan.tail, lambda f: f(t, *vl, xl, jl, wl, A, h))
         if other is not None:
             plan.tail = other
             return out
@@ -994,18 +1067,22 @@ class PartialSystems:
             (p00, p01), (p10, p11) = AL[1]
             (m00, m01), (m10, m11) = AL[2]
             c0 = c[0]
-            d000, d001, d010, d011 = ((p00 - m00) * c0, (p01 - m01) * c0,
-                                      (p10 - m10) * c0, (p11 - m11) * c0)
+            d000, d001, d010, d011 = ((p00 - m00) * c0, (p01 - m01) * c0, (p10 - m10) * c0, (p11 - m11) * c0)
             (p00, p01), (p10, p11) = AL[3]
             (m00, m01), (m10, m11) = AL[4]
             c1 = c[1]
-            d100, d101, d110, d111 = ((p00 - m00) * c1, (p01 - m01) * c1,
-                                      (p10 - m10) * c1, (p11 - m11) * c1)
+            d100, d101, d110, d111 = ((p00 - m00) * c1, (p01 - m01) * c1, (p10 - m10) * c1, (p11 - m11) * c1)
             # h_i = Σ_jk dA[k][i][j] q̇_j q̇_k − ½ Σ_jk dA[i][j][k] q̇_j q̇_k
-            h0 = ((d000 * v0 + d001 * v1) * v0 + (d100 * v0 + d101 * v1) * v1
-                  - 0.5 * ((d000 * v0 + d001 * v1) * v0 + (d010 * v0 + d011 * v1) * v1))
-            h1 = ((d010 * v0 + d011 * v1) * v0 + (d110 * v0 + d111 * v1) * v1
-                  - 0.5 * ((d100 * v0 + d101 * v1) * v0 + (d110 * v0 + d111 * v1) * v1))
+            h0 = (
+                (d000 * v0 + d001 * v1) * v0
+                + (d100 * v0 + d101 * v1) * v1
+                - 0.5 * ((d000 * v0 + d001 * v1) * v0 + (d010 * v0 + d011 * v1) * v1)
+            )
+            h1 = (
+                (d010 * v0 + d011 * v1) * v0
+                + (d110 * v0 + d111 * v1) * v1
+                - 0.5 * ((d100 * v0 + d101 * v1) * v0 + (d110 * v0 + d111 * v1) * v1)
+            )
             r0, r1 = Ql[0] - h0, Ql[1] - h1
             det = a00 * a11 - a01 * a10
             try:
@@ -1039,7 +1116,10 @@ class PartialSystems:
     def _no_solution(self, view, t, q, A):
         raise NumericalError(
             f"the equations of motion have no finite solution in chart {view.name} "
-            f"(mass matrix {np.asarray(A).tolist()})", t, self._config(view, q))
+            f"(mass matrix {np.asarray(A).tolist()})",
+            t,
+            self._config(view, q),
+        )
 
     def _autodiff(self, view, t, q, qd):
         """(kin, Zt, Wr, theta2) from one position call on jets: Zt's rows are the value, the
@@ -1056,24 +1136,23 @@ class PartialSystems:
                 if c.__class__ is ScalarJet:
                     rows.append([c.val, *c.g, c.d1, c.d2])
                 elif isinstance(c, Jet):
-                    rows.append([float(c.val), *np.reshape(c.grad, n).tolist(), float(c.d1),
-                                 float(c.d2)])
+                    rows.append([float(c.val), *np.reshape(c.grad, n).tolist(), float(c.d1), float(c.d2)])
                 else:
                     rows.append([float(c), *zero])
         Zt = np.array(rows).T @ self._MT
-        if not all(math.isfinite(x) for x in Zt[:1 + n, -2].tolist()):
+        if not all(math.isfinite(x) for x in Zt[: 1 + n, -2].tolist()):
             raise ChartDomainError(view.name, "no real configuration at this point")
         NP, NP2 = self._np, 2 * self._np
         X = Zt[0, :NP2]
         if self._offset is not None:
             X = X + self._offset
         X = X.reshape(NP, 2)
-        J = Zt[1:1 + n, :NP2].T.reshape(NP, 2, n)
+        J = Zt[1 : 1 + n, :NP2].T.reshape(NP, 2, n)
         nrot = self._nrot
         if nrot:
             Zc = Zt[:, :-2].view(complex)
             # (∂r, ṙ, r̈)/r: Im gives ω* and the angle's rate, Re the rate of ln |r|
-            quo = Zc[1:, NP:NP + nrot] / Zc[0, NP:NP + nrot]
+            quo = Zc[1:, NP : NP + nrot] / Zc[0, NP : NP + nrot]
             Wr = quo[:n].imag
             w1, dot1 = quo[n].imag, quo[n].real
             theta2 = quo[n + 1].imag - 2.0 * w1 * dot1
@@ -1095,12 +1174,12 @@ class PartialSystems:
                     plan.exact = exact_kernel(self, view, q)
                     plan.exact_traced = True
                 except (ChartDomainError, ArithmeticError, ValueError):
-                    pass            # q is outside the chart: the jets say so; built next time
+                    pass  # q is outside the chart: the jets say so; built next time
             if plan.exact is not None:
                 try:
                     e = self._exact_kernel_evaluate(view, t, q, qd, plan)
                 except BranchChanged:
-                    pass            # the position function takes another branch here
+                    pass  # the position function takes another branch here
                 else:
                     self._remember_first(view, plan)
                     return e
@@ -1110,11 +1189,11 @@ class PartialSystems:
         """The autodiff evaluation by the jets (no kernel, or the kernel's branch changed)."""
         kin, Zt, Wr, theta2 = self._autodiff(view, t, q, qd)
         n = view.n
-        G = Zt[:, 2 * self._npts:2 * self._np]          # (n + 3, 2·nbody)
+        G = Zt[:, 2 * self._npts : 2 * self._np]  # (n + 3, 2·nbody)
         if Wr is None:
-            U, D = G[1:1 + n], G[2 + n]
+            U, D = G[1 : 1 + n], G[2 + n]
         else:
-            U = np.concatenate((G[1:1 + n], Wr), axis=1)
+            U = np.concatenate((G[1 : 1 + n], Wr), axis=1)
             D = np.concatenate((G[2 + n], theta2))
         Uw = U * self._w
         A = Uw @ U.T
@@ -1161,8 +1240,7 @@ class PartialSystems:
         counts["position_calls"] += 1
         counts["position_points"] += 1
         xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         conv=conv, v=vl)
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
         return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
 
     def _remember_first(self, view, plan):
@@ -1178,7 +1256,7 @@ class PartialSystems:
         ``ql`` (one of the view's whose guards hold there, else one made before for the same
         position function, else traced there; six kept a view), its fused function to be
         made again; False where there is none (the jets answer)."""
-        zeros = [0.0] * view.n              # the guards are the positions' alone
+        zeros = [0.0] * view.n  # the guards are the positions' alone
         kernel, _ = _other_that_holds(plan.exact_others, plan.exact, lambda k: k(*ql, *zeros))
         if kernel is None:
             if plan.branch_tries >= 16:
@@ -1216,15 +1294,16 @@ class PartialSystems:
             try:
                 out = fused.full(t, *ql, *vl)
             except ForceLawBranch:
-                out = None                  # the kinematics hold: the kernel below
+                out = None  # the kinematics hold: the kernel below
             except BranchChanged:
-                out = None                  # the kinematics' branch: the kernel below
+                out = None  # the kinematics' branch: the kernel below
             except (ArithmeticError, ValueError):
-                out = None                  # the kernel below says what is wrong
-            if out is not None:             # (None: q̈ not finite, the kernel below says so)
+                out = None  # the kernel below says what is wrong
+            if out is not None:  # (None: q̈ not finite, the kernel below says so)
                 xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
-                kin = Kinematics(t, q, qd, self._names, bodies=self._body_index,
-                                 lists=(xl, jl, wl), conv=conv, v=vl)
+                kin = Kinematics(
+                    t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl
+                )
                 return kin, A, h, Q, Qnc, qdd
         try:
             try:
@@ -1237,8 +1316,7 @@ class PartialSystems:
                 xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl),
-                         conv=conv, v=vl)
+        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
         Q, Qnc = self._forces(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:

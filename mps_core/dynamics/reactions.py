@@ -82,45 +82,81 @@ _FALLBACKS = (Fallback, BranchChanged, ArithmeticError, ValueError)
 
 #: reaction columns of a trajectory, in CSV order, with their units (contract §7, then residuals)
 REACTION_COLUMNS: dict[str, str] = {
-    "F_O_x": "N", "F_O_y": "N", "F_A_x": "N", "F_A_y": "N", "F_B_x": "N", "F_B_y": "N",
-    "F_C_x": "N", "F_C_y": "N", "N_guide": "N", "M_guide": "N*m", "M_latch": "N*m",
-    "F_stop": "N", "M_motor": "N*m", "F_found_x": "N", "F_found_y": "N", "M_found_O": "N*m",
-    "residual_force_N": "N", "residual_moment_Nm": "N*m",
-    "balance_residual_N": "N", "balance_residual_Nm": "N*m",
+    "F_O_x": "N",
+    "F_O_y": "N",
+    "F_A_x": "N",
+    "F_A_y": "N",
+    "F_B_x": "N",
+    "F_B_y": "N",
+    "F_C_x": "N",
+    "F_C_y": "N",
+    "N_guide": "N",
+    "M_guide": "N*m",
+    "M_latch": "N*m",
+    "F_stop": "N",
+    "M_motor": "N*m",
+    "F_found_x": "N",
+    "F_found_y": "N",
+    "M_found_O": "N*m",
+    "residual_force_N": "N",
+    "residual_moment_Nm": "N*m",
+    "balance_residual_N": "N",
+    "balance_residual_Nm": "N*m",
 }
 
 #: what each reaction column is: receiving body, point, axes
 DESCRIPTIONS: dict[str, str] = {
-    **{c: f"{j.meaning}, {axis}" for j in PRESS_JOINTS for c, axis in zip(
-        j.columns, [{"x": "x component (frame axes: x along the guide, up)",
-                     "y": "y component (frame axes: y across the guide)",
-                     "m": "about z, counter-clockwise positive"}[k] for k in j.components])},
+    **{
+        c: f"{j.meaning}, {axis}"
+        for j in PRESS_JOINTS
+        for c, axis in zip(
+            j.columns,
+            [
+                {
+                    "x": "x component (frame axes: x along the guide, up)",
+                    "y": "y component (frame axes: y across the guide)",
+                    "m": "about z, counter-clockwise positive",
+                }[k]
+                for k in j.components
+            ],
+        )
+    },
     "M_motor": "torque the crank receives from the motor (the frame receives -M_motor through "
-               "the stator), about z",
+    "the stator), about z",
     "F_found_x": "foundation load: x component of the resultant force the frame receives from "
-                 "the moving links and the effects (along the guide, up)",
-    "F_found_y": "foundation load: y component of the resultant force the frame receives "
-                 "(across the guide)",
+    "the moving links and the effects (along the guide, up)",
+    "F_found_y": "foundation load: y component of the resultant force the frame receives (across the guide)",
     "M_found_O": "foundation load: resultant moment about O the frame receives, about z",
     "residual_force_N": "norm of the force rows left over by the least-squares solve "
-                        "(the equation of motion's residual)",
+    "(the equation of motion's residual)",
     "residual_moment_Nm": "norm of the moment rows left over by the least-squares solve",
     "balance_residual_N": "|sum m a_G - (effect forces on moving links - forces the frame "
-                          "receives from them)|",
+    "receives from them)|",
     "balance_residual_Nm": "the same balance for moments about O",
 }
 
-_JOINT_COLUMNS = tuple(c for c in REACTION_COLUMNS if c not in (
-    "M_motor", "F_found_x", "F_found_y", "M_found_O", "residual_force_N", "residual_moment_Nm",
-    "balance_residual_N", "balance_residual_Nm"))
+_JOINT_COLUMNS = tuple(
+    c
+    for c in REACTION_COLUMNS
+    if c
+    not in (
+        "M_motor",
+        "F_found_x",
+        "F_found_y",
+        "M_found_O",
+        "residual_force_N",
+        "residual_moment_Nm",
+        "balance_residual_N",
+        "balance_residual_Nm",
+    )
+)
 
 
 # -- exact kinematics from jets -------------------------------------------------------------
 def _parts(c, n: int):
     """(value, gradient (n,), first, second directional derivative) of a jet or a constant."""
     if isinstance(c, Jet):
-        return (float(c.val), np.asarray(c.grad, dtype=float).reshape(n), float(c.d1),
-                float(c.d2))
+        return (float(c.val), np.asarray(c.grad, dtype=float).reshape(n), float(c.d1), float(c.d2))
     return float(c), np.zeros(n), 0.0, 0.0
 
 
@@ -148,8 +184,9 @@ class BodyMotion:
 
     def kinematics(self, t: float, q, qd) -> Kinematics:
         """The engine's :class:`Kinematics` with exact analogs (for effects' loads)."""
-        return Kinematics(t, np.asarray(q, float), np.asarray(qd, float), self.names, self.X,
-                          self.J, self.W, self.bodies)
+        return Kinematics(
+            t, np.asarray(q, float), np.asarray(qd, float), self.names, self.X, self.J, self.W, self.bodies
+        )
 
 
 def body_motion(mechanism: Mechanism, view: ChartView, q, qd) -> BodyMotion:
@@ -160,8 +197,7 @@ def body_motion(mechanism: Mechanism, view: ChartView, q, qd) -> BodyMotion:
     pose = dict(view.pose_jets(q, qd))
     for b in mechanism.bodies:
         pose[f"G_{b.name}"] = b.com_of(pose)
-    names = {p: k for k, p in enumerate(list(mechanism.points)
-                                         + [f"G_{b.name}" for b in mechanism.bodies])}
+    names = {p: k for k, p in enumerate(list(mechanism.points) + [f"G_{b.name}" for b in mechanism.bodies])}
     NP = len(names)
     X = np.zeros((NP, 2))
     J = np.zeros((NP, 2, n))
@@ -184,10 +220,8 @@ def body_motion(mechanism: Mechanism, view: ChartView, q, qd) -> BodyMotion:
         w1 = (r[0] * r1[1] - r[1] * r1[0]) / rr
         theta2[k] = (r[0] * r2v[1] - r[1] * r2v[0]) / rr - 2.0 * w1 * float(r @ r1) / rr
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(J))):
-        raise ValueError(f"reactions: no finite kinematics in chart {view.name} at "
-                         f"q = {q.tolist()}")
-    return BodyMotion(names, X, J, D1, D2, W, theta2,
-                      {b.name: k for k, b in enumerate(mechanism.bodies)})
+        raise ValueError(f"reactions: no finite kinematics in chart {view.name} at q = {q.tolist()}")
+    return BodyMotion(names, X, J, D1, D2, W, theta2, {b.name: k for k, b in enumerate(mechanism.bodies)})
 
 
 # -- the system -----------------------------------------------------------------------------
@@ -207,8 +241,7 @@ def length_scale(mechanism: Mechanism) -> float:
 class _System:
     """E u = b: 3 rows a moving body (Fx, Fy, M about its centre of mass), one column an unknown."""
 
-    def __init__(self, mechanism: Mechanism, motion: BodyMotion, joints: Sequence[Joint],
-                 drive: str | None):
+    def __init__(self, mechanism: Mechanism, motion: BodyMotion, joints: Sequence[Joint], drive: str | None):
         self.mechanism = mechanism
         self.motion = motion
         self.body_row = {b.name: 3 * k for k, b in enumerate(mechanism.bodies)}
@@ -220,15 +253,17 @@ class _System:
                 cols.append((j, comp, col))
         if drive is not None:
             if drive not in self.body_row:
-                raise ValueError(f"reactions: drive = {drive!r}: expected a moving body, one of "
-                                 + ", ".join(self.body_row))
+                raise ValueError(
+                    f"reactions: drive = {drive!r}: expected a moving body, one of "
+                    + ", ".join(self.body_row)
+                )
             cols.append((None, "m", "M_drive"))
         self.cols = cols
         self.drive = drive
         nrow = 3 * len(mechanism.bodies)
         E = np.zeros((nrow, len(cols)))
         for c, (j, comp, _col) in enumerate(cols):
-            if j is None:       # the drive: its body receives +M, the frame −M
+            if j is None:  # the drive: its body receives +M, the frame −M
                 E[self.body_row[drive] + 2, c] += 1.0
                 continue
             for body, sign in ((j.receiver, 1.0), (j.giver, -1.0)):
@@ -299,8 +334,10 @@ def _external(mechanism, effects, t, kin, motion: BodyMotion, G: np.ndarray):
         for body, point, fx, fy in ld.forces:
             k = index.get(body)
             if k is None:
-                raise ValueError(f"effect {e.name!r}: force on {body!r}, expected a moving body "
-                                 f"({', '.join(index)}); the frame's share belongs in Loads.frame")
+                raise ValueError(
+                    f"effect {e.name!r}: force on {body!r}, expected a moving body "
+                    f"({', '.join(index)}); the frame's share belongs in Loads.frame"
+                )
             p = _point(motion, point, e.name)
             ext[k, 0] += fx
             ext[k, 1] += fy
@@ -309,8 +346,9 @@ def _external(mechanism, effects, t, kin, motion: BodyMotion, G: np.ndarray):
         for body, m in ld.torques:
             k = index.get(body)
             if k is None:
-                raise ValueError(f"effect {e.name!r}: torque on {body!r}, expected a moving body "
-                                 f"({', '.join(index)})")
+                raise ValueError(
+                    f"effect {e.name!r}: torque on {body!r}, expected a moving body ({', '.join(index)})"
+                )
             ext[k, 2] += m
             ext_M_O += m
             if getattr(e, "kind", "") == "motor":
@@ -324,8 +362,10 @@ def _external(mechanism, effects, t, kin, motion: BodyMotion, G: np.ndarray):
             elif len(entry) == 2:
                 frame_M += entry[1]
             else:
-                raise ValueError(f"effect {e.name!r}: frame entry {entry!r}: expected "
-                                 "('frame', point, Fx, Fy) or ('frame', M)")
+                raise ValueError(
+                    f"effect {e.name!r}: frame entry {entry!r}: expected "
+                    "('frame', point, Fx, Fy) or ('frame', M)"
+                )
     return ext, ext_M_O, frame_F, frame_M, m_motor
 
 
@@ -335,8 +375,11 @@ def _point(motion: BodyMotion, point, effect: str) -> np.ndarray:
     if isinstance(point, str):
         row = motion.names.get(point)
         if row is None:
-            raise ValueError(f"effect {effect!r}: point {point!r}: expected one of "
-                             + ", ".join(motion.names) + " or coordinates (x, y) in m")
+            raise ValueError(
+                f"effect {effect!r}: point {point!r}: expected one of "
+                + ", ".join(motion.names)
+                + " or coordinates (x, y) in m"
+            )
         return motion.X[row] - o
     p = np.asarray(point, dtype=float)
     if p.shape != (2,):
@@ -403,8 +446,8 @@ class _Kernels:
         self.mechanism = mechanism
         self.scale = length_scale(mechanism)
         self.views: dict = {}
-        self._loads = None              # (the effects' list and its length, LoadSums)
-        self._with_loads = None         # (kernel, traced sums, the two as one function)
+        self._loads = None  # (the effects' list and its length, LoadSums)
+        self._with_loads = None  # (kernel, traced sums, the two as one function)
         #: per view, the function that answered last (reaction_values): (STATE_VERSION, the
         #: effects' list, its length, the kernel with its loads, the unknowns, whether it
         #: reads the kinematics' motion)
@@ -451,10 +494,11 @@ class _Kernels:
             try:
                 motion = body_motion(mechanism, view, q, np.zeros_like(q))
                 system = _System(mechanism, motion, joints, None)
-                k = reaction_kernel(self.engine, view, q, system, motion,
-                                    tuple(REACTION_COLUMNS), scale, from_kinematics)
+                k = reaction_kernel(
+                    self.engine, view, q, system, motion, tuple(REACTION_COLUMNS), scale, from_kinematics
+                )
             except (ArithmeticError, ValueError):
-                return None         # outside the chart here: built at a later state
+                return None  # outside the chart here: built at a later state
             unknowns = tuple(c for j in joints for c in j.columns)
             entry = self.views[key] = None if k is None else (k, unknowns)
         return entry
@@ -469,8 +513,17 @@ def kernels_of(mechanism: Mechanism) -> _Kernels:
     return ks
 
 
-def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql, vl, al,
-                    kin: Kinematics, scale: float | None = None):
+def reaction_values(
+    mechanism: Mechanism,
+    effects,
+    view: ChartView,
+    t: float,
+    ql,
+    vl,
+    al,
+    kin: Kinematics,
+    scale: float | None = None,
+):
     """The reactions at (t, q, q̇, q̈) by the view's reaction kernel
     (:mod:`mps_core.codegen.reaction_kernels`), all on floats: ``(values, residual, unknowns)`` with
     ``values`` in :data:`REACTION_COLUMNS` order; None where the general path must answer (no
@@ -487,12 +540,20 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
         # the view's last function that held, for the same effects in the same state:
         # straight to it (the lookups below made it)
         last = ks.last.get(view)
-        if last is not None and last[0] == STATE_VERSION[0] and last[1] is effects \
-                and last[2] == len(effects) and last[5] is moving:
+        if (
+            last is not None
+            and last[0] == STATE_VERSION[0]
+            and last[1] is effects
+            and last[2] == len(effects)
+            and last[5] is moving
+        ):
             try:
                 v = kin._vl if kin._vl is not None else kin._v()
-                values, residual = (last[3](t, *ql, *vl, *al, xl, jl, wl, cv, v) if moving
-                                    else last[3](t, *ql, *vl, *al, xl, jl, wl, v))
+                values, residual = (
+                    last[3](t, *ql, *vl, *al, xl, jl, wl, cv, v)
+                    if moving
+                    else last[3](t, *ql, *vl, *al, xl, jl, wl, v)
+                )
                 return values, residual, last[4]
             except _FALLBACKS:
                 pass
@@ -509,25 +570,41 @@ def reaction_values(mechanism: Mechanism, effects, view: ChartView, t: float, ql
             # say which part failed (a branch of a force law, or the kernel's own fallback)
             try:
                 v = kin._vl if kin._vl is not None else kin._v()
-                values, residual = (both(t, *ql, *vl, *al, xl, jl, wl, cv, v) if moving
-                                    else both(t, *ql, *vl, *al, xl, jl, wl, v))
+                values, residual = (
+                    both(t, *ql, *vl, *al, xl, jl, wl, cv, v)
+                    if moving
+                    else both(t, *ql, *vl, *al, xl, jl, wl, v)
+                )
                 if scale is None:
-                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns,
-                                     moving)
+                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns, moving)
                 return values, residual, unknowns
             except _FALLBACKS:
                 pass
     try:
-        values, residual = (kernel(*ql, *vl, *al, xl, jl, wl, cv, sums(t, kin)) if moving
-                            else kernel(*ql, *vl, *al, sums(t, kin)))
+        values, residual = (
+            kernel(*ql, *vl, *al, xl, jl, wl, cv, sums(t, kin))
+            if moving
+            else kernel(*ql, *vl, *al, sums(t, kin))
+        )
     except _FALLBACKS:
         return None
     return values, residual, unknowns
 
 
-def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, q, qd, qdd, *,
-                      kin: Kinematics | None = None, drive: str | None = None,
-                      scale: float | None = None, kernel: bool = True) -> Reactions:
+def compute_reactions(
+    mechanism: Mechanism,
+    effects,
+    view: ChartView,
+    t: float,
+    q,
+    qd,
+    qdd,
+    *,
+    kin: Kinematics | None = None,
+    drive: str | None = None,
+    scale: float | None = None,
+    kernel: bool = True,
+) -> Reactions:
     """Joint reactions, motor torque, foundation load and checks at (t, q, q̇, q̈) in ``view``.
 
     ``effects`` are the scene's effects, already bound to ``mechanism``; their loads are taken
@@ -541,12 +618,22 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     reference, and answers everywhere else.
     """
     if kernel and kin is not None and drive is None:
-        fast = reaction_values(mechanism, effects, view, t, [float(x) for x in q],
-                               [float(x) for x in qd], [float(x) for x in qdd], kin, scale)
+        fast = reaction_values(
+            mechanism,
+            effects,
+            view,
+            t,
+            [float(x) for x in q],
+            [float(x) for x in qd],
+            [float(x) for x in qdd],
+            kin,
+            scale,
+        )
         if fast is not None:
             values, residual, unknowns = fast
-            return Reactions(float(t), dict(zip(REACTION_COLUMNS, values)),
-                             np.array(residual), unknowns, len(unknowns))
+            return Reactions(
+                float(t), dict(zip(REACTION_COLUMNS, values)), np.array(residual), unknowns, len(unknowns)
+            )
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     qdd = np.asarray(qdd, dtype=float)
@@ -556,8 +643,8 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     joints = active_joints(mechanism, view.frozen)
     sysm = _System(mechanism, motion, joints, drive)
     rows = motion.com_rows(mechanism)
-    aG = motion.J[rows] @ qdd + motion.D2[rows]                # (nb, 2)
-    alpha = motion.W @ qdd + motion.theta2                    # (nb,)
+    aG = motion.J[rows] @ qdd + motion.D2[rows]  # (nb, 2)
+    alpha = motion.W @ qdd + motion.theta2  # (nb,)
     mass = np.array([b.mass for b in mechanism.bodies])
     inertia = np.array([b.inertia for b in mechanism.bodies])
     G = sysm.G
@@ -582,8 +669,7 @@ def compute_reactions(mechanism: Mechanism, effects, view: ChartView, t: float, 
     p_dot = (mass[:, None] * aG).sum(axis=0)
     bal_F = p_dot - (ext[:, :2].sum(axis=0) - R_F)
     g = G - sysm.origin
-    h_dot = float(np.sum(g[:, 0] * mass * aG[:, 1] - g[:, 1] * mass * aG[:, 0])
-                  + inertia @ alpha)
+    h_dot = float(np.sum(g[:, 0] * mass * aG[:, 1] - g[:, 1] * mass * aG[:, 0]) + inertia @ alpha)
     bal_M = h_dot - (ext_M_O - R_M)
     values["balance_residual_N"] = float(np.linalg.norm(bal_F))
     values["balance_residual_Nm"] = float(abs(bal_M))
@@ -622,17 +708,32 @@ class Impulses:
     energy_loss: float = math.nan
 
     def as_event(self, kind: str = "impulse", **extra) -> dict:
-        ev = {"t": self.t, "kind": kind, "impulses_Ns": {k: v for k, v in self.values.items()
-                                                          if k in self.unknowns
-                                                          or k.startswith(("F_found", "M_found"))},
-              "energy_loss_J": self.energy_loss, "duration_s": 0.0}
+        ev = {
+            "t": self.t,
+            "kind": kind,
+            "impulses_Ns": {
+                k: v
+                for k, v in self.values.items()
+                if k in self.unknowns or k.startswith(("F_found", "M_found"))
+            },
+            "energy_loss_J": self.energy_loss,
+            "duration_s": 0.0,
+        }
         ev.update(extra)
         return ev
 
 
-def impulses(mechanism: Mechanism, view: ChartView, q, qd_minus, qd_plus, *,
-             closing: Iterable[str] = (), t: float = math.nan,
-             scale: float | None = None) -> Impulses:
+def impulses(
+    mechanism: Mechanism,
+    view: ChartView,
+    q,
+    qd_minus,
+    qd_plus,
+    *,
+    closing: Iterable[str] = (),
+    t: float = math.nan,
+    scale: float | None = None,
+) -> Impulses:
     """Per-joint impulses of a velocity jump q̇⁻ → q̇⁺ at configuration q (in ``view``).
 
     The Newton–Euler system of :func:`compute_reactions` with the bodies' momentum jumps
@@ -660,13 +761,13 @@ def impulses(mechanism: Mechanism, view: ChartView, q, qd_minus, qd_plus, *,
     u, r, rank = sysm.solve(b, scale if scale is not None else length_scale(mechanism))
     values = {c: 0.0 for c in _JOINT_COLUMNS}
     R_F, R_M, _ = _frame_share(sysm, u, motion, values)
-    values["F_found_x"], values["F_found_y"], values["M_found_O"] = (
-        float(R_F[0]), float(R_F[1]), float(R_M))
-    jumps = {bd.name: (float(mass[k] * dv[k, 0]), float(mass[k] * dv[k, 1]),
-                       float(inertia[k] * dw[k])) for k, bd in enumerate(mechanism.bodies)}
+    values["F_found_x"], values["F_found_y"], values["M_found_O"] = (float(R_F[0]), float(R_F[1]), float(R_M))
+    jumps = {
+        bd.name: (float(mass[k] * dv[k, 0]), float(mass[k] * dv[k, 1]), float(inertia[k] * dw[k]))
+        for k, bd in enumerate(mechanism.bodies)
+    }
     JG = motion.J[rows]
-    A = (np.einsum("b,bki,bkj->ij", mass, JG, JG)
-         + np.einsum("b,bi,bj->ij", inertia, motion.W, motion.W))
+    A = np.einsum("b,bki,bkj->ij", mass, JG, JG) + np.einsum("b,bi,bj->ij", inertia, motion.W, motion.W)
     loss = 0.5 * float(qd_minus @ A @ qd_minus - qd_plus @ A @ qd_plus)
     return Impulses(float(t), values, jumps, r, tuple(c for _, _, c in sysm.cols), rank, loss)
 
@@ -695,32 +796,66 @@ class ReactionObserver:
 
     def observe(self, simulation, evaluation) -> None:
         e = evaluation
-        rx = compute_reactions(simulation.mechanism, simulation.engine.effects, e.view, e.t, e.q,
-                               e.qd, e.qdd, kin=e.kin, drive=self.drive)
+        rx = compute_reactions(
+            simulation.mechanism,
+            simulation.engine.effects,
+            e.view,
+            e.t,
+            e.q,
+            e.qd,
+            e.qdd,
+            kin=e.kin,
+            drive=self.drive,
+        )
         deficiency = len(rx.unknowns) - rx.rank
         if deficiency > 0 and self._deficient_since is None:
             # the reactions are not unique here (a singular position): the least-squares values
             # are one choice among many; say so in the event log, once a stretch
             self._deficient_since = e.t
-            simulation.events.append({"t": e.t, "kind": "reactions-not-unique",
-                                      "rank_deficiency": deficiency,
-                                      "unknowns": list(rx.unknowns)})
+            simulation.events.append(
+                {
+                    "t": e.t,
+                    "kind": "reactions-not-unique",
+                    "rank_deficiency": deficiency,
+                    "unknowns": list(rx.unknowns),
+                }
+            )
         elif deficiency == 0:
             self._deficient_since = None
         self.max_rank_deficiency = max(self.max_rank_deficiency, deficiency)
         for k, v in rx.values.items():
             self.rows[k].append(v)
 
-    def impact(self, simulation, t: float, view: ChartView, q, qd_minus, qd_plus, *,
-               closing: Iterable[str] = (), kind: str = "impulse", **extra) -> Impulses:
+    def impact(
+        self,
+        simulation,
+        t: float,
+        view: ChartView,
+        q,
+        qd_minus,
+        qd_plus,
+        *,
+        closing: Iterable[str] = (),
+        kind: str = "impulse",
+        **extra,
+    ) -> Impulses:
         """Record a plastic impact's impulses at time t (call it where the impact is located).
         Deferred (``defer_impacts``): the event is logged now and completed by
         :meth:`resolve`; returns None."""
         if self.defer_impacts:
             ev = {"t": float(t), "kind": kind}
-            self._pending.append((ev, simulation.mechanism, view, np.array(q, float),
-                                  np.array(qd_minus, float), np.array(qd_plus, float),
-                                  tuple(closing), extra))
+            self._pending.append(
+                (
+                    ev,
+                    simulation.mechanism,
+                    view,
+                    np.array(q, float),
+                    np.array(qd_minus, float),
+                    np.array(qd_plus, float),
+                    tuple(closing),
+                    extra,
+                )
+            )
             self.impacts.append(ev)
             simulation.events.append(ev)
             return None
@@ -733,8 +868,13 @@ class ReactionObserver:
     def checkpoint(self) -> tuple:
         """What the run changes here (see :meth:`Simulation.checkpoint`)."""
         # every column gets a value at every step (observe): one length holds for all
-        return (len(next(iter(self.rows.values()))), list(self.impacts),
-                list(self._pending), self.max_rank_deficiency, self._deficient_since)
+        return (
+            len(next(iter(self.rows.values()))),
+            list(self.impacts),
+            list(self._pending),
+            self.max_rank_deficiency,
+            self._deficient_since,
+        )
 
     def restore(self, cp: tuple) -> None:
         n, impacts, pending, self.max_rank_deficiency, self._deficient_since = cp
@@ -783,6 +923,22 @@ def read_csv(path) -> dict[str, np.ndarray]:
     return out
 
 
-__all__ = ["FRAME", "Joint", "PRESS_JOINTS", "REACTION_COLUMNS", "DESCRIPTIONS", "BodyMotion",
-           "body_motion", "active_joints", "length_scale", "Reactions", "compute_reactions",
-           "plastic_impact", "Impulses", "impulses", "ReactionObserver", "write_csv", "read_csv"]
+__all__ = [
+    "FRAME",
+    "Joint",
+    "PRESS_JOINTS",
+    "REACTION_COLUMNS",
+    "DESCRIPTIONS",
+    "BodyMotion",
+    "body_motion",
+    "active_joints",
+    "length_scale",
+    "Reactions",
+    "compute_reactions",
+    "plastic_impact",
+    "Impulses",
+    "impulses",
+    "ReactionObserver",
+    "write_csv",
+    "read_csv",
+]

@@ -62,8 +62,9 @@ def read_text(path, what: str, kind: str = "text", allow_empty: bool = False) ->
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise InputFileError(p, what, f"not UTF-8 text: byte 0x{data[exc.start]:02x} at "
-                                      f"offset {exc.start}, expected {kind}") from None
+        raise InputFileError(
+            p, what, f"not UTF-8 text: byte 0x{data[exc.start]:02x} at offset {exc.start}, expected {kind}"
+        ) from None
 
 
 def check_file(path, what: str, magic: bytes | None = None, kind: str = "") -> Path:
@@ -72,8 +73,9 @@ def check_file(path, what: str, magic: bytes | None = None, kind: str = "") -> P
     p = Path(path)
     head = _read(p, what, max(1, len(magic or b"")))
     if magic is not None and head != magic:
-        raise InputFileError(p, what, f"not {kind or 'the expected kind of file'} (it starts "
-                                      f"with {head[:8]!r})")
+        raise InputFileError(
+            p, what, f"not {kind or 'the expected kind of file'} (it starts with {head[:8]!r})"
+        )
     return p
 
 

@@ -24,8 +24,12 @@ class OutputFileError(MpsError, ValueError):
         super().__init__(f"{what} {str(path)!r}: {problem}")
 
 
-def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
-                  force: bool = False, folders: Iterable[str] = ()) -> dict[str, Path]:
+def check_outputs(
+    outputs: dict[str, object],
+    inputs: Iterable[object] = (),
+    force: bool = False,
+    folders: Iterable[str] = (),
+) -> dict[str, Path]:
     """The outputs a command was given (``{what: path or None}``), checked before anything runs;
     their paths, or :class:`OutputFileError` for the first that cannot be used. ``inputs``: the
     files the command reads (a path that is not a file, such as a preset's name, is ignored);
@@ -47,12 +51,18 @@ def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
             raise OutputFileError(p, what, "not a file name")
         real = p.resolve()
         if real in ins:
-            raise OutputFileError(p, what, f"the command's input ({ins[real]!r}); writing it "
-                                           "would destroy it: expected another path")
+            raise OutputFileError(
+                p,
+                what,
+                f"the command's input ({ins[real]!r}); writing it would destroy it: expected another path",
+            )
         if what in folders:
             if p.exists():
-                raise OutputFileError(p, what, "exists; expected a new directory (a bag is "
-                                               "never written into one that is there)")
+                raise OutputFileError(
+                    p,
+                    what,
+                    "exists; expected a new directory (a bag is never written into one that is there)",
+                )
         elif p.is_dir():
             raise OutputFileError(p, what, "a directory, expected a file path")
         parent = p.parent
@@ -63,8 +73,7 @@ def check_outputs(outputs: dict[str, object], inputs: Iterable[object] = (),
         if real in seen:
             raise OutputFileError(p, what, f"also the {seen[real]}: expected another path")
         if p.exists() and not force and what not in folders:
-            raise OutputFileError(p, what, "exists; expected a new path, or --force to "
-                                           "replace it")
+            raise OutputFileError(p, what, "exists; expected a new path, or --force to replace it")
         seen[real] = what
         out[what] = p
     return out

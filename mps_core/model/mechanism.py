@@ -217,7 +217,7 @@ class ChartView:
         hit = cache.get(key)
         if hit is None:
             hit = self.positions(seed(q, qd))
-            if len(cache) >= 4:         # the oldest goes (pop: a view may serve two threads)
+            if len(cache) >= 4:  # the oldest goes (pop: a view may serve two threads)
                 cache.pop(next(iter(cache), None), None)
             cache[key] = hit
         return dict(hit)

@@ -106,11 +106,22 @@ def _sign(x: float) -> float:
 #: the operations a chart's formulas use: on arrays and jets (``positions``), or on floats
 #: (``flat``, the engine's scalar kernels: math's functions cost a fraction of numpy's on one
 #: number); the same formulas either way
-_ARRAYS = SimpleNamespace(cos=np.cos, sin=np.sin, sqrt=np.sqrt, domain=_domain,
-                          sign=lambda x: np.sign(np.asarray(value_of(x))),
-                          sqrt_touching=lambda x: _sqrt_touching(x))
-_FLOATS = SimpleNamespace(cos=math.cos, sin=math.sin, sqrt=math.sqrt, domain=_positive,
-                          sign=_sign, sqrt_touching=lambda x: math.sqrt(x) if x > 0.0 else 0.0)
+_ARRAYS = SimpleNamespace(
+    cos=np.cos,
+    sin=np.sin,
+    sqrt=np.sqrt,
+    domain=_domain,
+    sign=lambda x: np.sign(np.asarray(value_of(x))),
+    sqrt_touching=lambda x: _sqrt_touching(x),
+)
+_FLOATS = SimpleNamespace(
+    cos=math.cos,
+    sin=math.sin,
+    sqrt=math.sqrt,
+    domain=_positive,
+    sign=_sign,
+    sqrt_touching=lambda x: math.sqrt(x) if x > 0.0 else 0.0,
+)
 
 
 def _cross(ax, ay, bx, by):
@@ -133,22 +144,80 @@ def _sqrt_touching(x):
 
 #: the press's joints (contract §7); a mechanism may provide its own as ``mechanism.joints``
 PRESS_JOINTS: tuple[Joint, ...] = (
-    Joint("F_O", "O", FRAME, "crank", ("x", "y"), ("F_O_x", "F_O_y"),
-          meaning="force the frame receives from the crank at O"),
-    Joint("F_A", "A", "crank", "rod", ("x", "y"), ("F_A_x", "F_A_y"),
-          meaning="force the crank receives from the rod at A"),
-    Joint("F_B", "B", "rod", "rocker", ("x", "y"), ("F_B_x", "F_B_y"),
-          meaning="force the rod receives from the rocker at B"),
-    Joint("F_C", "C", "slider", "rocker", ("x", "y"), ("F_C_x", "F_C_y"),
-          meaning="force the slider receives from the rocker at C"),
-    Joint("N_guide", "C", FRAME, "slider", ("y",), ("N_guide",),
-          meaning="force along y the frame receives from the slider through the guide, at C"),
-    Joint("M_guide", None, FRAME, "slider", ("m",), ("M_guide",),
-          meaning="moment the frame receives from the slider through the guide"),
-    Joint("M_latch", None, "slider", "rocker", ("m",), ("M_latch",), requires="psi",
-          meaning="moment the slider receives from the rocker through the closed latch"),
-    Joint("F_stop", "C", FRAME, "slider", ("x",), ("F_stop",), requires="x_C",
-          meaning="force along x the frame receives from the slider at the top stop, at C"),
+    Joint(
+        "F_O",
+        "O",
+        FRAME,
+        "crank",
+        ("x", "y"),
+        ("F_O_x", "F_O_y"),
+        meaning="force the frame receives from the crank at O",
+    ),
+    Joint(
+        "F_A",
+        "A",
+        "crank",
+        "rod",
+        ("x", "y"),
+        ("F_A_x", "F_A_y"),
+        meaning="force the crank receives from the rod at A",
+    ),
+    Joint(
+        "F_B",
+        "B",
+        "rod",
+        "rocker",
+        ("x", "y"),
+        ("F_B_x", "F_B_y"),
+        meaning="force the rod receives from the rocker at B",
+    ),
+    Joint(
+        "F_C",
+        "C",
+        "slider",
+        "rocker",
+        ("x", "y"),
+        ("F_C_x", "F_C_y"),
+        meaning="force the slider receives from the rocker at C",
+    ),
+    Joint(
+        "N_guide",
+        "C",
+        FRAME,
+        "slider",
+        ("y",),
+        ("N_guide",),
+        meaning="force along y the frame receives from the slider through the guide, at C",
+    ),
+    Joint(
+        "M_guide",
+        None,
+        FRAME,
+        "slider",
+        ("m",),
+        ("M_guide",),
+        meaning="moment the frame receives from the slider through the guide",
+    ),
+    Joint(
+        "M_latch",
+        None,
+        "slider",
+        "rocker",
+        ("m",),
+        ("M_latch",),
+        requires="psi",
+        meaning="moment the slider receives from the rocker through the closed latch",
+    ),
+    Joint(
+        "F_stop",
+        "C",
+        FRAME,
+        "slider",
+        ("x",),
+        ("F_stop",),
+        requires="x_C",
+        meaning="force along x the frame receives from the slider at the top stop, at C",
+    ),
 )
 
 
@@ -158,22 +227,29 @@ class PressMechanism(Mechanism):
     joints = PRESS_JOINTS
     observables = {o.name: o for o in (PHI, PSI, X_C, THETA2)}
 
-    def __init__(self, geometry: PressGeometry | None = None, bodies: dict | None = None,
-                 psi_lock: float = 0.0, x_top: float | None = None):
+    def __init__(
+        self,
+        geometry: PressGeometry | None = None,
+        bodies: dict | None = None,
+        psi_lock: float = 0.0,
+        x_top: float | None = None,
+    ):
         g = geometry or PressGeometry()
         self.geometry = g
         data = dict(SEED_BODIES)
         data.update(bodies or {})
-        self.bodies = tuple(self._body(name, data[name]) for name in ("crank", "rod", "rocker",
-                                                                       "slider"))
+        self.bodies = tuple(self._body(name, data[name]) for name in ("crank", "rod", "rocker", "slider"))
         self.psi_lock = float(psi_lock)
         self.x_top = None if x_top is None else float(x_top)
         structures = {"free": Structure("free"), "locked": Structure("locked", {"psi": psi_lock})}
         if x_top is not None:
             structures["held"] = Structure("held", {"x_C": self.x_top})
         self.structures = structures
-        self.charts = tuple(self._phi_psi(s) for s in (1, -1)) + \
-            tuple(self._phi_xc(k) for k in (1, -1)) + tuple(self._psi_xc(k) for k in (1, -1))
+        self.charts = (
+            tuple(self._phi_psi(s) for s in (1, -1))
+            + tuple(self._phi_xc(k) for k in (1, -1))
+            + tuple(self._psi_xc(k) for k in (1, -1))
+        )
         if self.at_change_point:
             self.charts += tuple(self._phi_xc(k, continuation=True) for k in (1, -1))
 
@@ -188,8 +264,9 @@ class PressMechanism(Mechanism):
         origin, toward, lname, seed_com = _FRAMES[name]
         length = getattr(self.geometry, lname) if lname else 0.0
         com = d.com if d.com is not None else seed_com(self.geometry)
-        return Body(name, float(d.mass), float(d.inertia), origin, toward, length,
-                    (float(com[0]), float(com[1])))
+        return Body(
+            name, float(d.mass), float(d.inertia), origin, toward, length, (float(com[0]), float(com[1]))
+        )
 
     # -- charts ---------------------------------------------------------------------------
     def _phi_psi(self, sigma: int) -> Chart:
@@ -271,8 +348,7 @@ class PressMechanism(Mechanism):
                 s = sin(0.5 * phi)
                 k = kappa * (1.0 if s > 0.0 else (-1.0 if s < 0.0 else 0.0))
                 h = sqrt(h2) if h2 > 0.0 else 0.0
-                return (0.0, 0.0, ax, ay, ax + a * ux - k * h * uy, ay + a * uy + k * h * ux,
-                        xc, 0.0)
+                return (0.0, 0.0, ax, ay, ax + a * ux - k * h * uy, ay + a * uy + k * h * ux, xc, 0.0)
             if not h2 > 0.0:
                 _positive(name, h2, "B (rod and rocker in line)")
             h = kappa * sqrt(h2)
@@ -291,8 +367,16 @@ class PressMechanism(Mechanism):
                 return kappa * _sign(math.sin(0.5 * math.atan2(ay, ax))) * c >= 0.0
             return kappa * c > 0.0
 
-        return Chart(name, (PHI, X_C), positions, regularity, owns, (1.0, l1),
-                     only_in=("held",) if continuation else None, flat=flat)
+        return Chart(
+            name,
+            (PHI, X_C),
+            positions,
+            regularity,
+            owns,
+            (1.0, l1),
+            only_in=("held",) if continuation else None,
+            flat=flat,
+        )
 
     def _psi_xc(self, kappa: int) -> Chart:
         l1, l2, l3 = self.geometry.l1, self.geometry.l2, self.geometry.l3
@@ -346,8 +430,15 @@ class PressMechanism(Mechanism):
         raise KeyError(name)
 
     # -- initial states -------------------------------------------------------------------
-    def initial_state(self, structure: str, phi: float, phi_dot: float, psi: float | None = None,
-                      psi_dot: float = 0.0, sigma: int = 1):
+    def initial_state(
+        self,
+        structure: str,
+        phi: float,
+        phi_dot: float,
+        psi: float | None = None,
+        psi_dot: float = 0.0,
+        sigma: int = 1,
+    ):
         """(view, q, q̇) for an initial state given by φ, φ̇ (and ψ, ψ̇ in ``free``) on the
         assembly σ of the seed's chart."""
         chart = self.chart("phi-psi" + ("+" if sigma > 0 else "-"))
@@ -358,8 +449,11 @@ class PressMechanism(Mechanism):
             q, qd = np.array([phi, psi], float), np.array([phi_dot, psi_dot], float)
         elif structure == "locked":
             if psi is not None and abs(psi - self.psi_lock) > 1e-12:
-                raise SceneError("initial.psi_deg", math.degrees(psi),
-                                 f"ψ = ψ_lock = {math.degrees(self.psi_lock):g}° in the locked structure")
+                raise SceneError(
+                    "initial.psi_deg",
+                    math.degrees(psi),
+                    f"ψ = ψ_lock = {math.degrees(self.psi_lock):g}° in the locked structure",
+                )
             view = self._view_of(structure, chart)
             q, qd = np.array([phi], float), np.array([phi_dot], float)
         elif structure == "held":
@@ -371,10 +465,11 @@ class PressMechanism(Mechanism):
         try:
             view.positions(list(q))
         except ChartDomainError:
-            raise SceneError("initial", {"phi_deg": math.degrees(phi),
-                                         "psi_deg": None if psi is None else math.degrees(psi)},
-                             "a configuration where the links assemble "
-                             "(|l3·sin ψ − l1·sin φ| < l2)") from None
+            raise SceneError(
+                "initial",
+                {"phi_deg": math.degrees(phi), "psi_deg": None if psi is None else math.degrees(psi)},
+                "a configuration where the links assemble (|l3·sin ψ − l1·sin φ| < l2)",
+            ) from None
         return view, q, qd
 
     def _view_of(self, structure: str, chart: Chart) -> ChartView:
@@ -399,14 +494,20 @@ class PressMechanism(Mechanism):
             psi = float(np.arctan2(by - cy, bx - cx))
             if psi_hint is not None:
                 from .mechanism import unwrap_to
+
                 psi = unwrap_to(psi, psi_hint)
             dist = 0.0 if psi_hint is None else abs(psi - psi_hint)
-            score = (round(dist, 9), -view.regularity(
-                {k: (float(x), float(y)) for k, (x, y) in pose.items()}))
+            score = (
+                round(dist, 9),
+                -view.regularity({k: (float(x), float(y)) for k, (x, y) in pose.items()}),
+            )
             if best is None or score < best[0]:
                 best = (score, view)
         if best is None:
-            raise SceneError("initial.phi_deg", math.degrees(phi),
-                             f"a crank angle where the four-bar assembles with the slider at "
-                             f"x_top = {self.x_top * 1000:g} mm")
+            raise SceneError(
+                "initial.phi_deg",
+                math.degrees(phi),
+                f"a crank angle where the four-bar assembles with the slider at "
+                f"x_top = {self.x_top * 1000:g} mm",
+            )
         return best[1], np.array([phi], float), np.array([phi_dot], float)

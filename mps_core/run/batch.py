@@ -72,8 +72,9 @@ class BatchResult:
 def _group_key(scene: Scene):
     """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
     s = scene.solver
-    if s.name not in VECTOR_SOLVERS or s.scheme not in VECTOR_SCHEMES or scene.commands or \
-            s.step is not None:         # a step apart from the outputs: the scene's own run
+    if (
+        s.name not in VECTOR_SOLVERS or s.scheme not in VECTOR_SCHEMES or scene.commands or s.step is not None
+    ):  # a step apart from the outputs: the scene's own run
         return None
     mech = scene.mechanism()
     effects = scene.build_effects(mech)
@@ -82,10 +83,22 @@ def _group_key(scene: Scene):
     if scene.structure == "held":
         return None
     bodies = tuple((b.name, b.origin, b.toward, b.length, b.com) for b in mech.bodies)
-    return (scene.geometry, scene.assembly, bodies, scene.x_top, scene.structure, scene.psi_lock,
-            tuple(sorted(type(e).__name__ for e in effects)), s.name, s.scheme, s.delta,
-            s.iterations,
-            scene.t_end, scene.dt, scene.charts)
+    return (
+        scene.geometry,
+        scene.assembly,
+        bodies,
+        scene.x_top,
+        scene.structure,
+        scene.psi_lock,
+        tuple(sorted(type(e).__name__ for e in effects)),
+        s.name,
+        s.scheme,
+        s.delta,
+        s.iterations,
+        scene.t_end,
+        scene.dt,
+        scene.charts,
+    )
 
 
 def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult:
@@ -101,10 +114,11 @@ def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult
         if key is None:
             tasks.extend(("single", [i]) for i in idx)
         else:
-            tasks.extend(("batch", idx[k:k + batch_size]) for k in range(0, len(idx), batch_size))
+            tasks.extend(("batch", idx[k : k + batch_size]) for k in range(0, len(idx), batch_size))
     if client is not None:
-        futures = [client.submit(_run_task, kind, [scenes[i] for i in idx], pure=False)
-                   for kind, idx in tasks]
+        futures = [
+            client.submit(_run_task, kind, [scenes[i] for i in idx], pure=False) for kind, idx in tasks
+        ]
         results = client.gather(futures)
     else:
         results = [_run_task(kind, [scenes[i] for i in idx]) for kind, idx in tasks]
@@ -150,7 +164,7 @@ class _Batch:
         self.structure = first.structure
         bodies = self.mech.bodies
         per = [sc.mechanism().bodies for sc in scenes]
-        self.mass = np.array([[b.mass for b in bs] for bs in per])          # (m, nb)
+        self.mass = np.array([[b.mass for b in bs] for bs in per])  # (m, nb)
         self.inertia = np.array([[b.inertia for b in bs] for bs in per])
         self.rot = [k for k, b in enumerate(bodies) if b.rotates]
         self.point_names = list(self.mech.points)
@@ -166,8 +180,7 @@ class _Batch:
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
         if self.g is not None:
-            self.weight_of = [[self.mass[:, b] * self.g[:, c] for c in (0, 1)]
-                              for b in range(len(bodies))]
+            self.weight_of = [[self.mass[:, b] * self.g[:, c] for c in (0, 1)] for b in range(len(bodies))]
         if self.motor is not None:
             self.motor_index = [b.name for b in bodies].index(self.motor_body)
 
@@ -207,15 +220,23 @@ class _Batch:
         else:
             self.motor = None
         sp = take(RetentionSprings)
-        self.springs = None if sp is None else (np.array([e.k for e in sp]),
-                                                np.array([e.f0 for e in sp]),
-                                                np.array([e.x_top for e in sp]))
+        self.springs = (
+            None
+            if sp is None
+            else (np.array([e.k for e in sp]), np.array([e.f0 for e in sp]), np.array([e.x_top for e in sp]))
+        )
         da = take(SliderDamper)
         self.damper = None if da is None else np.array([e.c for e in da])
         bl = take(Blanking)
-        self.blanking = None if bl is None else (np.array([e.f for e in bl]),
-                                                 np.array([e.x_contact for e in bl]),
-                                                 np.array([e.pb for e in bl]))
+        self.blanking = (
+            None
+            if bl is None
+            else (
+                np.array([e.f for e in bl]),
+                np.array([e.x_contact for e in bl]),
+                np.array([e.pb for e in bl]),
+            )
+        )
 
     # -- the vectorised engine ------------------------------------------------------------------
     def evaluate(self, t, q, qd):
@@ -225,41 +246,44 @@ class _Batch:
         n = q.shape[1]
         offsets, plus, minus = stencil(n)
         d = self.settings.delta * self.view.scales
-        pts = q[:, None, :] + offsets[None] * d                      # (m, S, n)
+        pts = q[:, None, :] + offsets[None] * d  # (m, S, n)
         pose = self.view.positions([pts[..., i] for i in range(n)])
         S = pts.shape[1]
         shape = (self.m, S)
-        rows = [np.broadcast_to(np.asarray(pose[p][k], float), shape)
-                for p in self.point_names for k in (0, 1)]
+        rows = [
+            np.broadcast_to(np.asarray(pose[p][k], float), shape) for p in self.point_names for k in (0, 1)
+        ]
         for b in self.mech.bodies:
             gx, gy = b.com_of(pose)
-            rows += [np.broadcast_to(np.asarray(gx, float), shape),
-                     np.broadcast_to(np.asarray(gy, float), shape)]
-        X = np.stack(rows, axis=1).reshape(self.m, -1, 2, S)          # (m, NP, 2, S)
+            rows += [
+                np.broadcast_to(np.asarray(gx, float), shape),
+                np.broadcast_to(np.asarray(gy, float), shape),
+            ]
+        X = np.stack(rows, axis=1).reshape(self.m, -1, 2, S)  # (m, NP, 2, S)
         if not np.all(np.isfinite(X)):
             raise NotVectorisable("a stencil point left the chart")
-        V = (X[..., plus] - X[..., minus]) / (2.0 * d)                # (m, NP, 2, nbase, n)
+        V = (X[..., plus] - X[..., minus]) / (2.0 * d)  # (m, NP, 2, nbase, n)
         base = np.array([0] + [k for i in range(n) for k in (1 + 2 * i, 2 + 2 * i)])
         nb = len(self.mech.bodies)
         W = np.zeros((self.m, nb, len(base), n))
         for k in self.rot:
             b = self.mech.bodies[k]
             p, qq = self.rows[b.origin], self.rows[b.toward]
-            R = X[:, qq][..., base] - X[:, p][..., base]              # (m, 2, nbase)
-            VR = V[:, qq] - V[:, p]                                   # (m, 2, nbase, n)
+            R = X[:, qq][..., base] - X[:, p][..., base]  # (m, 2, nbase)
+            VR = V[:, qq] - V[:, p]  # (m, 2, nbase, n)
             r2 = R[:, 0] ** 2 + R[:, 1] ** 2
             W[:, k] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
         com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
-        VG = V[:, com]                                                # (m, nb, 2, nbase, n)
-        Ab = (np.einsum("mb,mbkci,mbkcj->mcij", self.mass, VG, VG)
-              + np.einsum("mb,mbci,mbcj->mcij", self.inertia, W, W))
+        VG = V[:, com]  # (m, nb, 2, nbase, n)
+        Ab = np.einsum("mb,mbkci,mbkcj->mcij", self.mass, VG, VG) + np.einsum(
+            "mb,mbci,mbcj->mcij", self.inertia, W, W
+        )
         A = Ab[:, 0]
         dA = (Ab[:, 1::2] - Ab[:, 2::2]) / (2.0 * d)[None, :, None, None]
-        h = (np.einsum("mkij,mj,mk->mi", dA, qd, qd)
-             - 0.5 * np.einsum("mijk,mj,mk->mi", dA, qd, qd))
-        J = V[:, :, :, 0, :]                                          # (m, NP, 2, n) at q
-        W0 = W[:, :, 0, :]                                            # (m, nb, n)
-        X0 = X[..., 0]                                                # (m, NP, 2)
+        h = np.einsum("mkij,mj,mk->mi", dA, qd, qd) - 0.5 * np.einsum("mijk,mj,mk->mi", dA, qd, qd)
+        J = V[:, :, :, 0, :]  # (m, NP, 2, n) at q
+        W0 = W[:, :, 0, :]  # (m, nb, n)
+        X0 = X[..., 0]  # (m, NP, 2)
         kin = _Kinematics.of_tables(X0, J, W0)
         self.points += self.m * S
         return self._solve(t, kin, qd, A, h)
@@ -305,8 +329,7 @@ class _Batch:
         elif n == 2:
             a00, a01, a11 = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
             det = a00 * a11 - a01 * a01
-            qdd = np.stack([(a11 * r[0] - a01 * r[1]) / det, (a00 * r[1] - a01 * r[0]) / det],
-                           axis=1)
+            qdd = np.stack([(a11 * r[0] - a01 * r[1]) / det, (a00 * r[1] - a01 * r[0]) / det], axis=1)
         else:
             qdd = np.linalg.solve(A, np.stack(r, axis=1)[..., None])[..., 0]
         if not np.all(np.isfinite(qdd)):
@@ -322,7 +345,7 @@ class _Batch:
         Q = [np.zeros(m) for _ in range(n)]
         power = np.zeros(m)
         c = self.rows["C"]
-        jc = kin.jac(c, 0)                                            # ∂x_C/∂q
+        jc = kin.jac(c, 0)  # ∂x_C/∂q
         vC = sum(jc[i] * v[i] for i in range(n))
         if self.g is not None:
             for b, row in enumerate(self.com_rows):
@@ -335,13 +358,17 @@ class _Batch:
             wk = kin.omega(self.motor_index)
             w = sum(wk[i] * v[i] for i in range(n))
             s = 1.0 - mo["ratio"] * w / mo["wsync"]
-            torque = mo["on"] * mo["ratio"] * mo["eff"] * (
-                2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
+            torque = (
+                mo["on"]
+                * mo["ratio"]
+                * mo["eff"]
+                * (2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
+            )
             for i in range(n):
                 Q[i] += torque * wk[i]
             power += torque * w
         xC = kin.x(c, 0)
-        forces = []                                                   # along the guide, at C
+        forces = []  # along the guide, at C
         if self.springs is not None:
             k, f0, xt = self.springs
             forces.append(f0 + k * (xt - xC))
@@ -380,8 +407,9 @@ class _Batch:
             raise NotVectorisable("a scene would change chart")
         if self.springs is not None:
             k = self.springs[0]
-            j = np.stack([np.broadcast_to(x, (self.m,))
-                          for x in self._last_kin.jac(self.rows["C"], 0)], axis=1)  # (m, n)
+            j = np.stack(
+                [np.broadcast_to(x, (self.m,)) for x in self._last_kin.jac(self.rows["C"], 0)], axis=1
+            )  # (m, n)
             w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
             lim = SOLVERS[self.settings.name].stability_limit
             t_min = 2.0 * math.pi / np.sqrt(np.maximum(w2, 1e-300))
@@ -404,7 +432,7 @@ class _Batch:
         self._record(rows, t0, q, qd, qdd, A, kin, work)
         t = t0
         for k in range(1, n_steps + 1):
-            self._check(kin, A)                # as the driver does at each step's start
+            self._check(kin, A)  # as the driver does at each step's start
             t1 = t_end if k == n_steps else t0 + k * (t_end - t0) / n_steps
             dt = t1 - t
             if name == "linear-acceleration":
@@ -454,8 +482,7 @@ class _Batch:
                 rows[nm + "_ddot"].append(np.zeros(self.m))
         rows["x_C"].append(np.array(np.broadcast_to(kin.x(self.rows["C"], 0), (self.m,))))
         n = qd.shape[1]
-        rows["T"].append(0.5 * sum(qd[:, i] * A[:, i, j] * qd[:, j]
-                                   for i in range(n) for j in range(n)))
+        rows["T"].append(0.5 * sum(qd[:, i] * A[:, i, j] * qd[:, j] for i in range(n) for j in range(n)))
         rows["V"].append(self._potential(kin))
         rows["W"].append(work.copy())
         rows["E_impact"].append(np.zeros(self.m))
@@ -465,20 +492,32 @@ class _Batch:
     def _trajectories(self, rows):
         out = []
         nsteps = len(rows["t"]) - 1
-        per_step = (1 + self.settings.iterations) if self.settings.name == "linear-acceleration" \
-            else 4
+        per_step = (1 + self.settings.iterations) if self.settings.name == "linear-acceleration" else 4
         # each column once as (scene, step): a scene's column is then one row of it
-        table = {k: np.array(v) if k in ("structure", "chart") else
-                 np.array(v, dtype=float).T.copy() for k, v in rows.items()}
+        table = {
+            k: np.array(v) if k in ("structure", "chart") else np.array(v, dtype=float).T.copy()
+            for k, v in rows.items()
+        }
         for i, sc in enumerate(self.scenes):
             cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
-            counts = {"evaluations": 1 + per_step * nsteps, "steps": nsteps,
-                      "batch_evaluations": self.evaluations, "batch_size": self.m}
+            counts = {
+                "evaluations": 1 + per_step * nsteps,
+                "steps": nsteps,
+                "batch_evaluations": self.evaluations,
+                "batch_size": self.m,
+            }
             s = sc.solver
-            settings = {"solver": s.name, "scheme": s.scheme, "delta": s.delta,
-                        "iterations": s.iterations, "rtol": s.rtol, "atol": s.atol,
-                        "chart_switching": sc.charts.switching, "scene": sc.name,
-                        "vectorised": True}
+            settings = {
+                "solver": s.name,
+                "scheme": s.scheme,
+                "delta": s.delta,
+                "iterations": s.iterations,
+                "rtol": s.rtol,
+                "atol": s.atol,
+                "chart_switching": sc.charts.switching,
+                "scene": sc.name,
+                "vectorised": True,
+            }
             out.append(Trajectory(cols, [], counts, settings))
         return out
 
@@ -495,18 +534,17 @@ class _Kinematics:
     def of_tables(cls, X0, J, W0):
         """From arrays (m, NP, 2), (m, NP, 2, n) and (m, nb, n)."""
         m, n = J.shape[0], J.shape[-1]
-        return cls(list(X0.reshape(m, -1).T), list(J.reshape(m, -1).T),
-                   list(W0.reshape(m, -1).T), n, m)
+        return cls(list(X0.reshape(m, -1).T), list(J.reshape(m, -1).T), list(W0.reshape(m, -1).T), n, m)
 
     def x(self, row: int, c: int):
         return self.xl[2 * row + c]
 
     def jac(self, row: int, c: int) -> list:
         k = (2 * row + c) * self.n
-        return self.jl[k:k + self.n]
+        return self.jl[k : k + self.n]
 
     def omega(self, body: int) -> list:
-        return self.wl[body * self.n:(body + 1) * self.n]
+        return self.wl[body * self.n : (body + 1) * self.n]
 
 
 def _weighted(terms, m: int):
@@ -519,8 +557,7 @@ def _weighted(terms, m: int):
     return acc
 
 
-def throughput(sizes=(1, 10, 100, 1000), steps: int = 200,
-               scheme: str = "central") -> list[dict]:
+def throughput(sizes=(1, 10, 100, 1000), steps: int = 200, scheme: str = "central") -> list[dict]:
     """Mechanism-steps per second of the vectorised pass for each number of scenes (working,
     slider mass swept, derivatives by ``scheme``), and of ``simulate`` for one scene
     (``scenes`` = 0)."""
@@ -535,8 +572,9 @@ def throughput(sizes=(1, 10, 100, 1000), steps: int = 200,
     sim = build(base)
     c0 = time.process_time()
     sim.run(base.t_end, base.dt)
-    rows = [{"scenes": 0, "steps_per_s": steps / (time.process_time() - c0),
-             "cpu_s": time.process_time() - c0}]
+    rows = [
+        {"scenes": 0, "steps_per_s": steps / (time.process_time() - c0), "cpu_s": time.process_time() - c0}
+    ]
     for n in sizes:
         scenes = []
         for i in range(n):

@@ -19,9 +19,17 @@ def build(scene: Scene | str) -> Simulation:
         from ..dynamics.reactions import ReactionObserver
 
         observers.append(ReactionObserver())
-    return Simulation(mech, scene.structure, scene.build_effects(mech), scene.initial_state(mech),
-                      solver=scene.solver, charts=scene.charts, commands=scene.commands,
-                      observers=observers, change_point=scene.change_point)
+    return Simulation(
+        mech,
+        scene.structure,
+        scene.build_effects(mech),
+        scene.initial_state(mech),
+        solver=scene.solver,
+        charts=scene.charts,
+        commands=scene.commands,
+        observers=observers,
+        change_point=scene.change_point,
+    )
 
 
 def simulate(scene: Scene | str, **overrides: Any) -> Trajectory:

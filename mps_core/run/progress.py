@@ -20,8 +20,16 @@ class Progress:
     is the recent one (each interval's, smoothed), so that a slow start (kernels built on the
     first steps) or a slow stretch (impacts) does not weigh on the time left for long."""
 
-    def __init__(self, t0: float, t_end: float, label: str = "", stream: TextIO | None = None,
-                 quiet: bool = False, every: float = 0.5, check: int = 32):
+    def __init__(
+        self,
+        t0: float,
+        t_end: float,
+        label: str = "",
+        stream: TextIO | None = None,
+        quiet: bool = False,
+        every: float = 0.5,
+        check: int = 32,
+    ):
         self.stream = sys.stderr if stream is None else stream
         isatty = getattr(self.stream, "isatty", None)
         self.on = not quiet and isatty is not None and isatty()
@@ -29,7 +37,7 @@ class Progress:
         self.label = label
         self.every, self.check = float(every), max(1, int(check))
         self._calls = 0
-        self._last: tuple[float, float] | None = None     # (wall, t) of the previous look
+        self._last: tuple[float, float] | None = None  # (wall, t) of the previous look
         self._next = 0.0
         self._rate: float | None = None
         self._width = 0
@@ -44,7 +52,7 @@ class Progress:
         if now < self._next:
             return
         self._next = now + self.every
-        if self._last is None:          # the first look: the rate is measured from here
+        if self._last is None:  # the first look: the rate is measured from here
             self._last = (now, t)
             return
         wall, sim = now - self._last[0], t - self._last[1]
@@ -63,8 +71,7 @@ class Progress:
         pct = 100.0 * done / total if total > 0 else 100.0
         eta = _duration(left) if left != float("inf") else "unknown"
         head = f"{self.label}: " if self.label else ""
-        return (f"{head}t = {t:.4g} of {self.t_end:.4g} s ({pct:.0f} %), {rate:.3g}x real time, "
-                f"{eta} left")
+        return f"{head}t = {t:.4g} of {self.t_end:.4g} s ({pct:.0f} %), {rate:.3g}x real time, {eta} left"
 
     def _write(self, text: str) -> None:
         pad = max(0, self._width - len(text))

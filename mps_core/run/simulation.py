@@ -81,17 +81,30 @@ from .structure_layer import CommandRefused, StructureLayer, _Event
 from .trajectory import Trajectory
 
 #: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
-_ROW = ("t", "phi", "psi", "phi_dot", "psi_dot", "phi_ddot", "psi_ddot", "x_C", "T", "V", "W",
-        "E_impact", "structure", "chart")
+_ROW = (
+    "t",
+    "phi",
+    "psi",
+    "phi_dot",
+    "psi_dot",
+    "phi_ddot",
+    "psi_ddot",
+    "x_C",
+    "T",
+    "V",
+    "W",
+    "E_impact",
+    "structure",
+    "chart",
+)
 
 
 #: the defaults of a simulation built by hand (frozen: shared safely)
 _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
 
+
 class StabilityError(SimulationError):
     """A fixed step exceeds the solver's stability limit for a stiff effect."""
-
-
 
 
 #: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
@@ -135,24 +148,38 @@ def _check_settings(solver: SolverSettings, change_point: str) -> None:
     if change_point == "keep-side" and solver.scheme != "central":
         # the run restarts exactly at the change point, where √h² has no derivative: jets
         # are undefined there, central stencils straddle it on the smooth chart
-        raise ValueError("change_point = 'keep-side' needs central differences "
-                         "(solver.derivatives = 'central')")
+        raise ValueError(
+            "change_point = 'keep-side' needs central differences (solver.derivatives = 'central')"
+        )
     if solver.step is not None:
         if not (solver.step > 0.0 and math.isfinite(solver.step)):
             raise ValueError(f"step = {solver.step!r}: expected a positive number of seconds")
         if solver.name in ADAPTIVE_SOLVERS:
-            raise ValueError(f"step = {solver.step!r}: the adaptive solver {solver.name} "
-                             "chooses its own steps (a step is for linear-acceleration, "
-                             "rk4, rk6, rk8)")
+            raise ValueError(
+                f"step = {solver.step!r}: the adaptive solver {solver.name} "
+                "chooses its own steps (a step is for linear-acceleration, "
+                "rk4, rk6, rk8)"
+            )
 
 
 class Simulation:
     """One run of a mechanism: structures, events, commands, charts."""
 
-    def __init__(self, mechanism, structure: str, effects, initial, *,
-                 solver: SolverSettings = _DEFAULT_SOLVER, charts: ChartPolicy = _DEFAULT_CHARTS,
-                 t0: float = 0.0, observers=(), commands=(), controls: Controls | None = None,
-                 change_point: str = "continue"):
+    def __init__(
+        self,
+        mechanism,
+        structure: str,
+        effects,
+        initial,
+        *,
+        solver: SolverSettings = _DEFAULT_SOLVER,
+        charts: ChartPolicy = _DEFAULT_CHARTS,
+        t0: float = 0.0,
+        observers=(),
+        commands=(),
+        controls: Controls | None = None,
+        change_point: str = "continue",
+    ):
         _check_settings(solver, change_point)
         self.mechanism = mechanism
         #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
@@ -167,8 +194,9 @@ class Simulation:
         for e in self.effects:
             if isinstance(e, ControlledEffect):
                 e.use(self.controls)
-        self.engine = PartialSystems(mechanism, self.effects, solver.scheme, solver.delta,
-                                     kernels=solver.kernels)
+        self.engine = PartialSystems(
+            mechanism, self.effects, solver.scheme, solver.delta, kernels=solver.kernels
+        )
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
@@ -193,8 +221,7 @@ class Simulation:
         self._kin_last = None
         self._switch_last: dict = {}
         #: the effects whose switching points are located (none where steps step over them)
-        self._switching = [e for e in self.effects if e.switches] \
-            if solver.locates_switch_points() else []
+        self._switching = [e for e in self.effects if e.switches] if solver.locates_switch_points() else []
         self.solver_nfev = 0
         self.solver_steps = 0
         self.work = 0.0
@@ -203,10 +230,14 @@ class Simulation:
         self._report_at = {name: k for k, name in enumerate(self._report)}
         #: the body whose angle an angle observable is (its rates come from the body's analogs)
         self._angle_body = {
-            o.name: b.name for o in mechanism.observables.values() if o.is_angle
-            for b in mechanism.bodies if (b.origin, b.toward) == tuple(o.points)}
+            o.name: b.name
+            for o in mechanism.observables.values()
+            if o.is_angle
+            for b in mechanism.bodies
+            if (b.origin, b.toward) == tuple(o.points)
+        }
         self.phys: dict[str, float] = {}
-        self._phys_of = None            # the evaluation phys was last read from
+        self._phys_of = None  # the evaluation phys was last read from
         self._plans: dict[ChartView, _ViewPlan] = {}
         #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
         self._spans = None
@@ -251,7 +282,8 @@ class Simulation:
         """Whether :meth:`checkpoint` works here: the solver keeps its state (scipy's Radau
         does not) and every observer has ``checkpoint`` and ``restore``."""
         return self.solver.rewindable and all(
-            hasattr(ob, "checkpoint") and hasattr(ob, "restore") for ob in self.observers)
+            hasattr(ob, "checkpoint") and hasattr(ob, "restore") for ob in self.observers
+        )
 
     def checkpoint(self) -> tuple:
         """The run's state now, for :meth:`restore`: a driver that took steps ahead comes back
@@ -263,11 +295,18 @@ class Simulation:
         if not self.rewindable:
             raise NotImplementedError(
                 f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
-                "without checkpoint/restore cannot be rewound")
-        return (dict(self.__dict__), self.solver.state(), dict(vars(self.controls)),
-                list(self.events), list(self.pending), list(self._timers), dict(self.phys),
-                [ob.checkpoint() if hasattr(ob, "checkpoint") else None
-                 for ob in self.observers])
+                "without checkpoint/restore cannot be rewound"
+            )
+        return (
+            dict(self.__dict__),
+            self.solver.state(),
+            dict(vars(self.controls)),
+            list(self.events),
+            list(self.pending),
+            list(self._timers),
+            dict(self.phys),
+            [ob.checkpoint() if hasattr(ob, "checkpoint") else None for ob in self.observers],
+        )
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
@@ -277,7 +316,7 @@ class Simulation:
         d.clear()
         d.update(state)
         if self._exact_engine is None:
-            self._exact_engine = exact              # built since: a cache
+            self._exact_engine = exact  # built since: a cache
         self.solver.set_state(dict(solver))
         vars(self.controls).update(controls)
         self.events[:] = events
@@ -305,11 +344,21 @@ class Simulation:
         if old is not None:
             self.solver_nfev += old.nfev
             self.solver_steps += old.nsteps
-            first = getattr(old, "step_size", None)   # an adaptive solver carries on its step
+            first = getattr(old, "step_size", None)  # an adaptive solver carries on its step
         view = self.view
-        return make_solver(s.name, self._fun(view), t, q, qd, iterations=s.iterations,
-                           rtol=s.rtol, atol=s.atol, scales=view.scales, first_step=first,
-                           accel=self.engine.accelerator(view))
+        return make_solver(
+            s.name,
+            self._fun(view),
+            t,
+            q,
+            qd,
+            iterations=s.iterations,
+            rtol=s.rtol,
+            atol=s.atol,
+            scales=view.scales,
+            first_step=first,
+            accel=self.engine.accelerator(view),
+        )
 
     def _restart(self, view, t, q, qd):
         self.view = view
@@ -337,7 +386,7 @@ class Simulation:
         """(value, rate, acceleration) of each reported observable, in the report's order."""
         view = e.view
         out = []
-        jets = q = qdd = None           # floats of q, q̇ (q̈) and the jets, made on first use
+        jets = q = qdd = None  # floats of q, q̇ (q̈) and the jets, made on first use
         phys = self.phys
         # right after _update_phys(e) an observable read from the pose is already in phys (an
         # angle unwrapped to its reference): the same number as reading it again
@@ -354,8 +403,9 @@ class Simulation:
                 out.append((arg, 0.0, 0.0))
                 continue
             if how == _POSE:
-                out.append((phys[name] if same and not obs.is_angle else obs.value(e.kin.pose),
-                            math.nan, math.nan))
+                out.append(
+                    (phys[name] if same and not obs.is_angle else obs.value(e.kin.pose), math.nan, math.nan)
+                )
                 continue
             kin = e.kin
             if how == _BODY and (conv := kin.angular_convective(arg)) is not None:
@@ -396,8 +446,7 @@ class Simulation:
                 phys[name] = arg
             else:
                 v = obs.value(e.kin.pose)
-                phys[name] = unwrap_to(v, phys[name]) if (
-                    obs.is_angle and name in phys) else v
+                phys[name] = unwrap_to(v, phys[name]) if (obs.is_angle and name in phys) else v
         self._phys_of = e
 
     def _physical_rates(self, view, q, qd) -> dict:
@@ -427,8 +476,10 @@ class Simulation:
         if not self.policy.switching:
             if reg < self.policy.fail_below:
                 raise ChartBreakdown(
-                    f"chart {self.view.name} degenerates (regularity {reg:.3g}) and chart "
-                    "switching is off", e.t, self.config(e))
+                    f"chart {self.view.name} degenerates (regularity {reg:.3g}) and chart switching is off",
+                    e.t,
+                    self.config(e),
+                )
             return
         self._switch(reg, forced=False)
 
@@ -459,8 +510,11 @@ class Simulation:
 
     def _switch(self, reg_now: float, forced: bool):
         e = self.solver.current
-        cands = [c for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
-                 if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)]
+        cands = [
+            c
+            for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
+            if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)
+        ]
         exact = e.kin if self.settings.scheme == "autodiff" else None
         best, q, qd, best_reg = self._map_first(cands, e.q, e.qd, exact)
         if best is None:
@@ -468,11 +522,21 @@ class Simulation:
                 raise SingularConfiguration(
                     f"no chart of structure {self.structure!r} is regular here (best "
                     f"regularity {reg_now:.3g}): a singular position of the machine",
-                    e.t, self.config(e))
+                    e.t,
+                    self.config(e),
+                )
             return
-        self.events.append({"t": e.t, "kind": "chart", "from": self.view.name, "to": best.name,
-                            "regularity_from": reg_now, "regularity_to": best_reg,
-                            "forced": forced})
+        self.events.append(
+            {
+                "t": e.t,
+                "kind": "chart",
+                "from": self.view.name,
+                "to": best.name,
+                "regularity_from": reg_now,
+                "regularity_to": best_reg,
+                "forced": forced,
+            }
+        )
         self._restart(best, e.t, q, qd)
 
     def _map_state(self, view, q, qd, target, kin=None):
@@ -485,15 +549,22 @@ class Simulation:
         else:
             jets = view.pose_jets(q, qd)
             q2, qd2 = target.state_from(jets, self.phys)
-            pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
-                        float(y.val) if hasattr(y, "val") else float(y))
-                    for k, (x, y) in jets.items()}
+            pose = {
+                k: (
+                    float(x.val) if hasattr(x, "val") else float(x),
+                    float(y.val) if hasattr(y, "val") else float(y),
+                )
+                for k, (x, y) in jets.items()
+            }
         check = target.positions(list(q2))
         for p, (x, y) in pose.items():
             cx, cy = check[p]
             if abs(cx - x) + abs(cy - y) > 1e-9 * (1.0 + abs(x) + abs(y)):
-                raise NumericalError(f"changing to chart {target.name} does not reproduce point "
-                                     f"{p}", self.solver.t, self.config())
+                raise NumericalError(
+                    f"changing to chart {target.name} does not reproduce point {p}",
+                    self.solver.t,
+                    self.config(),
+                )
         return q2, qd2
 
     def _state_from_kinematics(self, target, kin) -> tuple[np.ndarray, np.ndarray]:
@@ -556,6 +627,7 @@ class Simulation:
             if angle and name in self.phys:
                 v = unwrap_to(v, self.phys[name])
             return v
+
         return read
 
     def _event_list(self) -> list[_Event]:
@@ -570,7 +642,7 @@ class Simulation:
     def _switch_fn(self, effect, i, view):
         """``fn(t, q, q̇, kin=None)``: the effect's i-th switching function in ``view``."""
         state_kin = self._state_kin
-        last = self._switch_last          # the effect's values at the last state asked for
+        last = self._switch_last  # the effect's values at the last state asked for
 
         def fn(t, q, qd, kin=None):
             if kin is None:
@@ -579,6 +651,7 @@ class Simulation:
             if hit is None or hit[0] is not kin:
                 hit = last[effect] = (kin, effect.switch_values(t, kin))
             return hit[1][i]
+
         return fn
 
     def _state_kin(self, view, t, q, qd):
@@ -619,8 +692,7 @@ class Simulation:
             return True
         vals = self._event_values(t, q, qd)
         for e in self._event_list():
-            if e.name in self._ev_prev and self._crossed(self._ev_prev[e.name], vals[e.name],
-                                                           e.direction):
+            if e.name in self._ev_prev and self._crossed(self._ev_prev[e.name], vals[e.name], e.direction):
                 return True
         self._ev_prev = vals
         self._seg_start = t
@@ -743,7 +815,10 @@ class Simulation:
                 f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
                 f"({FIXED_STEP_LIMITS[name][1]} of the shortest "
                 f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
-                "or solver.stiff = 'subdivide'", e.t, self.config(e))
+                "or solver.stiff = 'subdivide'",
+                e.t,
+                self.config(e),
+            )
         m = math.ceil(dt / (0.5 * limit))
         return dt / m
 
@@ -795,8 +870,7 @@ class Simulation:
         out["structure"] = self.structure
         out["chart"] = self.view.name
         c = self.controls
-        out["motor_on"], out["engage_on"], out["latch_armed"] = c.motor_on, c.engage_on, \
-            c.latch_armed
+        out["motor_on"], out["engage_on"], out["latch_armed"] = c.motor_on, c.engage_on, c.latch_armed
         return out
 
     # -- the run --------------------------------------------------------------------------
@@ -816,8 +890,7 @@ class Simulation:
             p_a = self._power_now
             self._seg_start = t0
             try:
-                self.solver.step_to(t0 + self._step_size(t0, t_target),
-                                    interrupt=self._interrupt)
+                self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self._interrupt)
             except ChartDomainError as exc:
                 failures += 1
                 self._leave_failing_chart(exc, failures)
@@ -832,8 +905,9 @@ class Simulation:
             try:
                 self.structures.check_command(name)
             except CommandRefused as exc:
-                self.events.append({"t": t0, "kind": "command-refused", "command": name,
-                                    "reason": exc.reason})
+                self.events.append(
+                    {"t": t0, "kind": "command-refused", "command": name, "reason": exc.reason}
+                )
                 return True
             self.structures.apply_command(name, t0)
             return True
@@ -854,7 +928,7 @@ class Simulation:
         step = self.settings.step
         if step is not None and dt > step * (1.0 + 1e-9):
             dt = step
-        if dt > self._dt_stable:         # else stable in any state: no estimate needed
+        if dt > self._dt_stable:  # else stable in any state: no estimate needed
             dt = self._stable_step(dt)
         return dt
 
@@ -864,29 +938,41 @@ class Simulation:
         e = self.solver.current
         if not self.policy.switching:
             raise ChartBreakdown(
-                f"the step from here leaves chart {self.view.name} ({exc.detail}) and "
-                "chart switching is off", e.t, self.config(e)) from None
+                f"the step from here leaves chart {self.view.name} ({exc.detail}) and chart switching is off",
+                e.t,
+                self.config(e),
+            ) from None
         if failures > len(self.views(self.structure)):
             raise SingularConfiguration(
-                f"every chart of structure {self.structure!r} fails in the step "
-                f"from here ({exc.detail})", e.t, self.config(e)) from None
+                f"every chart of structure {self.structure!r} fails in the step from here ({exc.detail})",
+                e.t,
+                self.config(e),
+            ) from None
         self._switch(self.view.regularity(e.kin.pose), forced=True)
 
     def _after_step(self, t0: float, p_a: float) -> None:
         """A step taken from t0: cut at its first event (the event's action taken), or kept
         whole with its work, its event values and the chart to look at."""
         spans = self._spans
-        if spans is not None:           # outputs inside the step: its interpolant
-            spans.append([t0, self.solver.t, self.solver.dense_output(), self.view,
-                          self.controls.structure, self.work, p_a, self.impact_loss])
+        if spans is not None:  # outputs inside the step: its interpolant
+            spans.append(
+                [
+                    t0,
+                    self.solver.t,
+                    self.solver.dense_output(),
+                    self.view,
+                    self.controls.structure,
+                    self.work,
+                    p_a,
+                    self.impact_loss,
+                ]
+            )
         hit, vals = self._locate_event()
-        if hit is not None and hit[1].name == "change-point" and \
-                self.change_point != "keep-side":
+        if hit is not None and hit[1].name == "change-point" and self.change_point != "keep-side":
             # the continuation chart is smooth through the change point: the step stands,
             # the passage is logged at its root
             q_e, qd_e = self.solver.dense_output()(hit[0])
-            self.structures.record_change_point(hit[0], np.array(q_e, float),
-                                                np.array(qd_e, float))
+            self.structures.record_change_point(hit[0], np.array(q_e, float), np.array(qd_e, float))
             hit = None
         if hit is not None:
             t_e, ev, after_value = hit
@@ -926,12 +1012,15 @@ class Simulation:
         self._record(rows, self.solver.current)
         step = self.settings.step
         try:
-            if step is not None and step > (t_end - t0) / n * (1.0 + 1e-9) and \
-                    self.settings.name not in ADAPTIVE_SOLVERS:
+            if (
+                step is not None
+                and step > (t_end - t0) / n * (1.0 + 1e-9)
+                and self.settings.name not in ADAPTIVE_SOLVERS
+            ):
                 return self._run_long_steps(rows, t0, t_end, n, step, progress)
             for k in range(1, n + 1):
                 tk = t_end if k == n else t0 + k * (t_end - t0) / n
-                self.advance_to(tk)                 # keeps the unwrap references current
+                self.advance_to(tk)  # keeps the unwrap references current
                 self._record(rows, self.solver.current)
                 if progress is not None:
                     progress(tk)
@@ -987,8 +1076,9 @@ class Simulation:
             raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
         q, qd = dense(tk)
         e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
-        self._record(rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a),
-                     loss=loss, structure=structure)
+        self._record(
+            rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a), loss=loss, structure=structure
+        )
 
     def _record(self, rows, e, work=None, loss=None, structure=None):
         """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
@@ -997,19 +1087,37 @@ class Simulation:
         obs = self._observations(e)
         at = self._report_at
         phi, psi = obs[at["phi"]], obs[at["psi"]]
-        rows.append((e.t, phi[0], psi[0], phi[1], psi[1], phi[2], psi[2], obs[at["x_C"]][0],
-                     e.kinetic_energy, self._potential(e.kin),
-                     self.work if work is None else work,
-                     self.impact_loss if loss is None else loss,
-                     self.controls.structure if structure is None else structure, e.view.name))
+        rows.append(
+            (
+                e.t,
+                phi[0],
+                psi[0],
+                phi[1],
+                psi[1],
+                phi[2],
+                psi[2],
+                obs[at["x_C"]][0],
+                e.kinetic_energy,
+                self._potential(e.kin),
+                self.work if work is None else work,
+                self.impact_loss if loss is None else loss,
+                self.controls.structure if structure is None else structure,
+                e.view.name,
+            )
+        )
         for ob in self.observers:
             ob.observe(self, e)
 
     def _trajectory(self, rows) -> Trajectory:
         data = dict(zip(_ROW, zip(*rows)))
-        cols = {k: (np.array(data.get(k, ()), dtype=float) if k not in ("structure", "chart")
-                    else np.array(data.get(k, ())))
-                for k in COLUMNS}
+        cols = {
+            k: (
+                np.array(data.get(k, ()), dtype=float)
+                if k not in ("structure", "chart")
+                else np.array(data.get(k, ()))
+            )
+            for k in COLUMNS
+        }
         for ob in self.observers:
             cols.update(ob.columns())
         counts = dict(self.engine.counts)
@@ -1017,7 +1125,13 @@ class Simulation:
         counts["steps"] = self.solver_steps + self.solver.nsteps
         counts["switch_points"] = self.switch_points
         s = self.settings
-        settings = {"solver": s.name, "scheme": s.scheme, "delta": s.delta,
-                    "iterations": s.iterations, "rtol": s.rtol, "atol": s.atol,
-                    "chart_switching": self.policy.switching}
+        settings = {
+            "solver": s.name,
+            "scheme": s.scheme,
+            "delta": s.delta,
+            "iterations": s.iterations,
+            "rtol": s.rtol,
+            "atol": s.atol,
+            "chart_switching": self.policy.switching,
+        }
         return Trajectory(cols, list(self.events), counts, settings)

@@ -48,8 +48,8 @@ class CommandRefused(MpsError):
 @dataclass
 class _Event:
     name: str
-    fn: Callable            # fn(t, q, q̇, kin=None): the event function in its list's view
-    direction: int          # +1 rising through zero, -1 falling, 0 either
+    fn: Callable  # fn(t, q, q̇, kin=None): the event function in its list's view
+    direction: int  # +1 rising through zero, -1 falling, 0 either
     action: Callable
     #: a switching point of a force law: the step ends there and the solver starts afresh,
     #: nothing else happens
@@ -73,28 +73,47 @@ class StructureLayer:
             if sim.latch is not None and sim.controls.latch_armed:
                 lock = sim.latch.psi_lock
                 psi = sim._reader("psi", view)
-                ev.append(_Event("latch-closes",
-                                 lambda t, q, qd, kin=None: psi(q, kin) - lock, 0,
-                                 self._close_latch))
+                ev.append(
+                    _Event(
+                        "latch-closes", lambda t, q, qd, kin=None: psi(q, kin) - lock, 0, self._close_latch
+                    )
+                )
             if sim.stop is not None:
                 top = sim.stop.x_top
                 x_C = sim._reader("x_C", view)
-                ev.append(_Event("stop-contact",
-                                 lambda t, q, qd, kin=None: x_C(q, kin) - top, +1,
-                                 self._hit_stop))
+                ev.append(
+                    _Event("stop-contact", lambda t, q, qd, kin=None: x_C(q, kin) - top, +1, self._hit_stop)
+                )
         elif s == "held" and sim.stop is not None and sim.stop.model != "clamp":
-            ev.append(_Event("stop-release",
-                             lambda t, q, qd, kin=None: self.stop_force(t, q, qd, view),
-                             +1, self.release_stop))
+            ev.append(
+                _Event(
+                    "stop-release",
+                    lambda t, q, qd, kin=None: self.stop_force(t, q, qd, view),
+                    +1,
+                    self.release_stop,
+                )
+            )
         if view.chart.name.startswith("phi-xc~"):
             phi = sim._reader("phi", view)
-            ev.append(_Event("change-point",
-                             lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
-                             0, self.record_change_point))
+            ev.append(
+                _Event(
+                    "change-point",
+                    lambda t, q, qd, kin=None: math.sin(0.5 * phi(q, kin)),
+                    0,
+                    self.record_change_point,
+                )
+            )
         for effect in sim._switching:
             for i, name in enumerate(effect.switches):
-                ev.append(_Event(f"{effect.name}:{name}", sim._switch_fn(effect, i, view), 0,
-                                 sim._count_switch, restart=True))
+                ev.append(
+                    _Event(
+                        f"{effect.name}:{name}",
+                        sim._switch_fn(effect, i, view),
+                        0,
+                        sim._count_switch,
+                        restart=True,
+                    )
+                )
         return ev
 
     def _impact(self, obs_name: str, kind: str, new_structure: str, t: float) -> dict:
@@ -115,13 +134,18 @@ class StructureLayer:
         for ob in sim.observers:
             if hasattr(ob, "impact"):
                 ob.impact(sim, t, view, q, qd, qd_plus, closing=(obs_name,))
-        rec = {"t": t, "kind": kind, "from": sim.structure, "to": new_structure,
-               "velocities_before": {k: before[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
-               "velocities_after": {k: after[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
-               "energy_lost": lost,
-               "impulse": -s / gAg,
-               "impulse_unit": "N*m*s" if obs_name == "psi" else "N*s",
-               "state": {k: before[k] for k in ("phi", "psi", "x_C")}}
+        rec = {
+            "t": t,
+            "kind": kind,
+            "from": sim.structure,
+            "to": new_structure,
+            "velocities_before": {k: before[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
+            "velocities_after": {k: after[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
+            "energy_lost": lost,
+            "impulse": -s / gAg,
+            "impulse_unit": "N*m*s" if obs_name == "psi" else "N*s",
+            "state": {k: before[k] for k in ("phi", "psi", "x_C")},
+        }
         self._enter(new_structure, q, qd_plus, t)
         return rec
 
@@ -129,13 +153,19 @@ class StructureLayer:
         """Change structure at t from the current view's state (q, q̇) (already consistent)."""
         sim = self.sim
         jets = sim.view.pose_jets(q, qd)
-        pose = {k: (float(x.val) if hasattr(x, "val") else float(x),
-                    float(y.val) if hasattr(y, "val") else float(y)) for k, (x, y) in jets.items()}
+        pose = {
+            k: (
+                float(x.val) if hasattr(x, "val") else float(x),
+                float(y.val) if hasattr(y, "val") else float(y),
+            )
+            for k, (x, y) in jets.items()
+        }
         cands = [c for c in sim._candidates(structure, pose) if c[0] >= sim.policy.fail_below]
         best, q2, qd2, _ = sim._map_first(cands, q, qd)
         if best is None:
-            raise SingularConfiguration(f"no chart of structure {structure!r} is regular here",
-                                        t, sim.config())
+            raise SingularConfiguration(
+                f"no chart of structure {structure!r} is regular here", t, sim.config()
+            )
         sim.controls.structure = structure
         sim._restart(best, t, q2, qd2)
 
@@ -154,10 +184,17 @@ class StructureLayer:
         e = sim.solver.current
         rates = sim._physical_rates(sim.view, e.q, e.qd)
         self._enter("free", e.q, e.qd, t)
-        sim.events.append({"t": t, "kind": "stop-release", "from": "held", "to": "free",
-                            "velocities_before": {k: rates[k] for k in ("phi_dot", "psi_dot",
-                                                                         "x_C_dot")},
-                            "energy_lost": 0.0, "impulse": 0.0})
+        sim.events.append(
+            {
+                "t": t,
+                "kind": "stop-release",
+                "from": "held",
+                "to": "free",
+                "velocities_before": {k: rates[k] for k in ("phi_dot", "psi_dot", "x_C_dot")},
+                "energy_lost": 0.0,
+                "impulse": 0.0,
+            }
+        )
 
     def record_change_point(self, t, q=None, qd=None):
         """Log a passage through the change point (at the step's cut, or at (q, q̇) when the
@@ -167,9 +204,15 @@ class StructureLayer:
         q = e.q if q is None else q
         qd = e.qd if qd is None else qd
         rates = sim._physical_rates(sim.view, q, qd)
-        rec = {"t": t, "kind": "change-point", "choice": "smooth continuation",
-               "phi": rates["phi"], "psi": rates["psi"],
-               "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")}, "energy_lost": 0.0}
+        rec = {
+            "t": t,
+            "kind": "change-point",
+            "choice": "smooth continuation",
+            "phi": rates["phi"],
+            "psi": rates["psi"],
+            "velocities": {k: rates[k] for k in ("phi_dot", "psi_dot")},
+            "energy_lost": 0.0,
+        }
         if sim.change_point == "keep-side":
             rec.update(self._keep_side(t))
         sim.events.append(rec)
@@ -178,11 +221,10 @@ class StructureLayer:
         """Analogs (centres of mass, body rates) of a continuation chart at the change point φ*,
         as the mean of those at φ* ± ε (the chart is smooth there; error O(ε²))."""
         sim = self.sim
-        ks = [sim._exact_engine.kinematics(view, sim.solver.t, [phi + s * eps], [0.0])
-              for s in (1.0, -1.0)]
+        ks = [sim._exact_engine.kinematics(view, sim.solver.t, [phi + s * eps], [0.0]) for s in (1.0, -1.0)]
         rows = [ks[0].names[f"G_{b.name}"] for b in sim.mechanism.bodies]
-        JG = 0.5 * sum(k.J[rows, :, 0] for k in ks)          # (bodies, 2)
-        W = 0.5 * sum(k.W[:, 0] for k in ks)                 # (bodies,)
+        JG = 0.5 * sum(k.J[rows, :, 0] for k in ks)  # (bodies, 2)
+        W = 0.5 * sum(k.W[:, 0] for k in ks)  # (bodies,)
         return JG, W
 
     def _keep_side(self, t) -> dict:
@@ -197,8 +239,11 @@ class StructureLayer:
             sim._exact_engine = PartialSystems(sim.mechanism, (), "autodiff")
         e = sim.solver.current
         phi = float(e.q[0])
-        other = next(v for v in sim.views(sim.structure)
-                     if v.chart.name.startswith("phi-xc~") and v.chart is not sim.view.chart)
+        other = next(
+            v
+            for v in sim.views(sim.structure)
+            if v.chart.name.startswith("phi-xc~") and v.chart is not sim.view.chart
+        )
         m = np.array([b.mass for b in sim.mechanism.bodies])
         inertia = np.array([b.inertia for b in sim.mechanism.bodies])
         Js, Ws = self._branch_analogs(sim.view, phi)
@@ -208,11 +253,10 @@ class StructureLayer:
         C = float(np.sum(m * np.sum(Jo * Js, axis=1)) + inertia @ (Wo * Ws))
         w_minus = float(e.qd[0])
         w_plus = max(0.0, C / A_o) * w_minus
-        lost = 0.5 * A_s * w_minus ** 2 - 0.5 * A_o * w_plus ** 2
+        lost = 0.5 * A_s * w_minus**2 - 0.5 * A_o * w_plus**2
         sim.impact_loss += lost
         sim._restart(other, t, np.array([phi]), np.array([w_plus]))
-        return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost,
-                "to_chart": other.name}
+        return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost, "to_chart": other.name}
 
     def stop_force(self, t, q, qd, view=None) -> float:
         """λ: the force along x the top stop must give the slider to keep it at x_top (< 0:
@@ -298,15 +342,24 @@ class StructureLayer:
             c.disengage_at = t
             if sim.disengage is not None:
                 c.disengage_on = True
-                sim._timers = sorted([(a, b) for a, b in sim._timers
-                                       if b != "disengage-ends"]
-                                      + [(t + sim.disengage.duration, "disengage-ends")])
+                sim._timers = sorted(
+                    [(a, b) for a, b in sim._timers if b != "disengage-ends"]
+                    + [(t + sim.disengage.duration, "disengage-ends")]
+                )
             if sim.structure == "locked":
                 e = sim.solver.current
                 sim.events.append(rec)
                 self._enter("free", e.q, e.qd, t)
-                sim.events.append({"t": t, "kind": "latch-opens", "from": "locked",
-                                    "to": "free", "energy_lost": 0.0, "impulse": 0.0})
+                sim.events.append(
+                    {
+                        "t": t,
+                        "kind": "latch-opens",
+                        "from": "locked",
+                        "to": "free",
+                        "energy_lost": 0.0,
+                        "impulse": 0.0,
+                    }
+                )
                 return
         elif name == "stop":
             c.motor_on = False
@@ -325,7 +378,7 @@ class StructureLayer:
         if name == "disengage-ends":
             sim.controls.disengage_on = False
             sim.events.append({"t": t, "kind": "cylinder-off", "effect": "disengage_cylinder"})
-        else:                                               # pragma: no cover - internal
+        else:  # pragma: no cover - internal
             raise AssertionError(f"unknown timer {name!r}")
         e = sim.solver.current
         sim._restart(sim.view, t, e.q, e.qd)

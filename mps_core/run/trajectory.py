@@ -78,9 +78,11 @@ def coarse_step(traj: Trajectory, step: float) -> str | None:
         return None
     largest = COARSE_TURN / fast
     scale = 10.0 ** (np.floor(np.log10(largest)) - 1)
-    largest = np.floor(largest / scale) * scale         # two figures, rounded down
-    return (f"the step {step:.6g} s is coarse for this run: the crank or rocker turns up to "
-            f"{np.degrees(fast * step):.3g} deg in one ({fast:.4g} rad/s); beyond "
-            f"{np.degrees(COARSE_TURN):.0f} deg a step the trajectory depends on the step "
-            f"(impacts and chart changes move or vanish). Largest step within it: "
-            f"{largest:.2g} s")
+    largest = np.floor(largest / scale) * scale  # two figures, rounded down
+    return (
+        f"the step {step:.6g} s is coarse for this run: the crank or rocker turns up to "
+        f"{np.degrees(fast * step):.3g} deg in one ({fast:.4g} rad/s); beyond "
+        f"{np.degrees(COARSE_TURN):.0f} deg a step the trajectory depends on the step "
+        f"(impacts and chart changes move or vanish). Largest step within it: "
+        f"{largest:.2g} s"
+    )

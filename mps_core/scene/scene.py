@@ -81,9 +81,22 @@ class Scene:
     def steps(self) -> int:
         return max(1, int(round(self.t_end / self.dt)))
 
-    def with_overrides(self, *, t_end=None, steps=None, dt=None, solver=None, delta=None,
-                       scheme=None, iterations=None, rtol=None, atol=None,
-                       chart_switching=None, switch_points=None, step=None) -> Scene:
+    def with_overrides(
+        self,
+        *,
+        t_end=None,
+        steps=None,
+        dt=None,
+        solver=None,
+        delta=None,
+        scheme=None,
+        iterations=None,
+        rtol=None,
+        atol=None,
+        chart_switching=None,
+        switch_points=None,
+        step=None,
+    ) -> Scene:
         """The same scene with run settings changed (the CLI's options), validated again."""
         s = self
         if steps is not None and dt is not None:
@@ -94,7 +107,7 @@ class Scene:
                 raise SceneError("solver.steps", steps, "a positive integer")
             dt = t_end / steps
         elif dt is None:
-            dt = s.dt                     # a new end time keeps the step
+            dt = s.dt  # a new end time keeps the step
             if dt > t_end:
                 dt = t_end
         _check_dt("solver.dt_s", dt, t_end)
@@ -108,10 +121,8 @@ class Scene:
             _choice("solver.derivatives", scheme, SCHEMES)
             st = replace(st, scheme=scheme)
         if iterations is not None:
-            if isinstance(iterations, bool) or not isinstance(iterations, int) or \
-                    not 1 <= iterations <= 50:
-                raise SceneError("solver.corrector_iterations", iterations,
-                                 "an integer from 1 to 50")
+            if isinstance(iterations, bool) or not isinstance(iterations, int) or not 1 <= iterations <= 50:
+                raise SceneError("solver.corrector_iterations", iterations, "an integer from 1 to 50")
             st = replace(st, iterations=iterations)
         if rtol is not None:
             st = replace(st, rtol=_tol("solver.rtol", rtol))
@@ -135,12 +146,12 @@ class Scene:
         key = (self.geometry, tuple(sorted(self.bodies.items())), self.psi_lock, self.x_top)
         try:
             mech = _MECHANISMS.get(key)
-        except TypeError:               # a body given by hand with a list for its com
-            return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock,
-                                  x_top=self.x_top)
+        except TypeError:  # a body given by hand with a list for its com
+            return PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock, x_top=self.x_top)
         if mech is None:
-            mech = _MECHANISMS.keep(key, PressMechanism(self.geometry, self.bodies,
-                                                        psi_lock=self.psi_lock, x_top=self.x_top))
+            mech = _MECHANISMS.keep(
+                key, PressMechanism(self.geometry, self.bodies, psi_lock=self.psi_lock, x_top=self.x_top)
+            )
         return mech
 
     def build_effects(self, mechanism) -> list:
@@ -153,8 +164,9 @@ class Scene:
 
     def initial_state(self, mechanism):
         i = self.initial
-        return mechanism.initial_state(self.structure, i["phi"], i["phi_dot"], i.get("psi"),
-                                       i.get("psi_dot", 0.0), sigma=self.assembly)
+        return mechanism.initial_state(
+            self.structure, i["phi"], i["phi_dot"], i.get("psi"), i.get("psi_dot", 0.0), sigma=self.assembly
+        )
 
 
 #: mechanisms by what makes them (:meth:`Scene.mechanism`)
@@ -204,9 +216,12 @@ def _step(fieldname, step, t_end) -> float:
 
 def _check_step_solver(st) -> None:
     if st.name in ADAPTIVE_SOLVERS:
-        raise SceneError("solver.step_s", st.step,
-                         "no step for the adaptive solver " + st.name + " (it chooses its own): "
-                         "a fixed-step solver (linear-acceleration, rk4, rk6, rk8)")
+        raise SceneError(
+            "solver.step_s",
+            st.step,
+            "no step for the adaptive solver " + st.name + " (it chooses its own): "
+            "a fixed-step solver (linear-acceleration, rk4, rk6, rk8)",
+        )
 
 
 def _check_dt(fieldname, dt, t_end):
@@ -236,9 +251,11 @@ class _Table:
             if required:
                 near = [k for k, v in self.units_hint.items() if v == key and k in self.data]
                 if near:
-                    raise SceneError(f"{self.path}.{near[0]}", self.data[near[0]],
-                                     f"no such key (did you mean {key!r}? units go in the "
-                                     "key's name)")
+                    raise SceneError(
+                        f"{self.path}.{near[0]}",
+                        self.data[near[0]],
+                        f"no such key (did you mean {key!r}? units go in the key's name)",
+                    )
                 raise SceneError(f"{self.path}.{key}", None, "a value (this field is required)")
             return default
         return self.data[key]
@@ -250,18 +267,25 @@ class _Table:
         for k in self.data:
             if k not in self.used:
                 hint = self.units_hint.get(k)
-                exp = f"no such key (did you mean {hint!r}? units go in the key's name)" if hint \
+                exp = (
+                    f"no such key (did you mean {hint!r}? units go in the key's name)"
+                    if hint
                     else "no such key; known keys: " + ", ".join(sorted(self.used))
+                )
                 raise SceneError(f"{self.path}.{k}", self.data[k], exp)
 
 
 _UNIT_HINTS = {
     "mechanism": {"l1": "l1_mm", "l2": "l2_mm", "l3": "l3_mm"},
-    "initial": {"phi": "phi_deg", "psi": "psi_deg", "phi_dot": "phi_dot_rad_s",
-                "psi_dot": "psi_dot_rad_s"},
+    "initial": {"phi": "phi_deg", "psi": "psi_deg", "phi_dot": "phi_dot_rad_s", "psi_dot": "psi_dot_rad_s"},
     "solver": {"t_end": "t_end_s", "dt": "dt_s", "delta": "delta_deg"},
-    "body": {"mass": "mass_kg", "inertia": "inertia_kg_m2", "com": "com_mm", "J": "inertia_kg_m2",
-             "m": "mass_kg"},
+    "body": {
+        "mass": "mass_kg",
+        "inertia": "inertia_kg_m2",
+        "com": "com_mm",
+        "J": "inertia_kg_m2",
+        "m": "mass_kg",
+    },
     "structure": {"psi_lock": "psi_lock_deg"},
 }
 
@@ -292,10 +316,8 @@ _EFFECT_BUILDERS = {
     "engage_cylinder": lambda p, sc: EngageCylinder(p["force"], p["stroke"], sc.x_top),
     "latch": lambda p, sc: Latch(sc.psi_lock),
     "disengage_cylinder": lambda p, sc: DisengageCylinder(p["torque"], p["duration"]),
-    "blanking": lambda p, sc: Blanking(p["peak_force"], p["x_contact"], p["thickness"],
-                                       p["breakthrough"]),
-    "joint_friction": lambda p, sc: JointFriction(p["coulomb"], p["viscous"], p["rate_smooth"],
-                                                  p["joints"]),
+    "blanking": lambda p, sc: Blanking(p["peak_force"], p["x_contact"], p["thickness"], p["breakthrough"]),
+    "joint_friction": lambda p, sc: JointFriction(p["coulomb"], p["viscous"], p["rate_smooth"], p["joints"]),
     "guide_friction": lambda p, sc: GuideFriction(p["coulomb"], p["viscous"], p["speed_smooth"]),
 }
 
@@ -322,9 +344,13 @@ def _effect(i, raw) -> EffectSpec:
         return EffectSpec(kind, params)
     if kind == "gravity":
         g = t.get("g_m_s2", [-9.81, 0.0])
-        if (not isinstance(g, list) or len(g) != 2
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                           and math.isfinite(x) for x in g)):
+        if (
+            not isinstance(g, list)
+            or len(g) != 2
+            or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in g
+            )
+        ):
             raise SceneError(f"{path}.g_m_s2", g, "two numbers [g_x, g_y] in m/s²")
         t.done()
         return EffectSpec("gravity", {"g": (float(g[0]), float(g[1]))})
@@ -332,11 +358,16 @@ def _effect(i, raw) -> EffectSpec:
     model = t.get("model", "4A80B4U3")
     base = MOTOR_PRESETS.get(model)
     if base is None and model != "custom":
-        raise SceneError(f"{path}.model", model,
-                         "a motor preset (" + ", ".join(MOTOR_PRESETS) + ") or 'custom'")
+        raise SceneError(
+            f"{path}.model", model, "a motor preset (" + ", ".join(MOTOR_PRESETS) + ") or 'custom'"
+        )
     vals = {}
-    for key, attr in (("power_w", "power_w"), ("sync_rpm", "sync_rpm"),
-                      ("rated_slip", "rated_slip"), ("breakdown_ratio", "breakdown_ratio")):
+    for key, attr in (
+        ("power_w", "power_w"),
+        ("sync_rpm", "sync_rpm"),
+        ("rated_slip", "rated_slip"),
+        ("breakdown_ratio", "breakdown_ratio"),
+    ):
         v = t.get(key)
         if v is None:
             if base is None:
@@ -347,10 +378,10 @@ def _effect(i, raw) -> EffectSpec:
     if not (0 < vals["rated_slip"] < 1):
         raise SceneError(f"{path}.rated_slip", vals["rated_slip"], "a slip between 0 and 1")
     if vals["breakdown_ratio"] <= 1:
-        raise SceneError(f"{path}.breakdown_ratio", vals["breakdown_ratio"],
-                         "M_k/M_n greater than 1")
-    data = MotorData(**vals, source=base.source if base and vals == {
-        k: getattr(base, k) for k in vals} else "scene")
+        raise SceneError(f"{path}.breakdown_ratio", vals["breakdown_ratio"], "M_k/M_n greater than 1")
+    data = MotorData(
+        **vals, source=base.source if base and vals == {k: getattr(base, k) for k in vals} else "scene"
+    )
     ratio = t.get("ratio")
     speed = t.get("crank_speed_rad_s")
     if ratio is not None and speed is not None:
@@ -364,8 +395,7 @@ def _effect(i, raw) -> EffectSpec:
     if not (0 < eff <= 1):
         raise SceneError(f"{path}.efficiency", eff, "an efficiency in (0, 1]")
     t.done()
-    return EffectSpec("motor", {"data": data, "ratio": ratio, "crank_speed": speed,
-                                "efficiency": eff})
+    return EffectSpec("motor", {"data": data, "ratio": ratio, "crank_speed": speed, "efficiency": eff})
 
 
 def _springs(t, path):
@@ -389,8 +419,9 @@ def _top_stop(t, path):
 
 def _engage(t, path):
     f = _positive(f"{path}.force_n", t.get("force_n", required=True), unit=" (N)")
-    stroke = _positive(f"{path}.stroke_mm", t.get("stroke_mm", required=True), upper=10.0,
-                       unit=" (mm)") / 1000.0
+    stroke = (
+        _positive(f"{path}.stroke_mm", t.get("stroke_mm", required=True), upper=10.0, unit=" (mm)") / 1000.0
+    )
     return {"force": f, "stroke": stroke}
 
 
@@ -400,48 +431,61 @@ def _latch(t, path):
 
 def _disengage(t, path):
     m = _positive(f"{path}.torque_nm", t.get("torque_nm", required=True), unit=" (N·m)")
-    d = _positive(f"{path}.duration_s", t.get("duration_s", required=True), upper=10.0,
-                  unit=" (s)")
+    d = _positive(f"{path}.duration_s", t.get("duration_s", required=True), upper=10.0, unit=" (s)")
     return {"torque": m, "duration": d}
 
 
 def _blanking(t, path):
     per = _positive(f"{path}.perimeter_mm", t.get("perimeter_mm", required=True), unit=" (mm)")
-    th = _positive(f"{path}.thickness_mm", t.get("thickness_mm", required=True), upper=20.0,
-                   unit=" (mm)")
-    tau = _positive(f"{path}.shear_strength_mpa", t.get("shear_strength_mpa", required=True),
-                    upper=3000.0, unit=" (MPa)")
+    th = _positive(f"{path}.thickness_mm", t.get("thickness_mm", required=True), upper=20.0, unit=" (mm)")
+    tau = _positive(
+        f"{path}.shear_strength_mpa", t.get("shear_strength_mpa", required=True), upper=3000.0, unit=" (MPa)"
+    )
     xc = _num(f"{path}.contact_mm", t.get("contact_mm", required=True), "a slider position (mm)")
     bt = _num(f"{path}.breakthrough", t.get("breakthrough", 0.5), "a fraction of the thickness")
     if not (0 < bt <= 1):
         raise SceneError(f"{path}.breakthrough", bt, "a fraction of the thickness in (0, 1]")
     # peak blanking force L·t·τ (mm · mm · N/mm²)
-    return {"peak_force": per * th * tau, "x_contact": xc / 1000.0, "thickness": th / 1000.0,
-            "breakthrough": bt}
+    return {
+        "peak_force": per * th * tau,
+        "x_contact": xc / 1000.0,
+        "thickness": th / 1000.0,
+        "breakthrough": bt,
+    }
 
 
 def _joint_friction(t, path):
     joints = t.get("joints", ["O", "A", "B", "C"])
-    if not isinstance(joints, list) or not joints or any(j not in ("O", "A", "B", "C")
-                                                          for j in joints):
+    if not isinstance(joints, list) or not joints or any(j not in ("O", "A", "B", "C") for j in joints):
         raise SceneError(f"{path}.joints", joints, "a list of joints among 'O', 'A', 'B', 'C'")
-    return {"coulomb": _nonneg(f"{path}.coulomb_nm", t.get("coulomb_nm", 0.0), " (N·m)"),
-            "viscous": _nonneg(f"{path}.viscous_nm_s", t.get("viscous_nm_s", 0.0), " (N·m·s)"),
-            "rate_smooth": _positive(f"{path}.rate_smooth_rad_s",
-                                     t.get("rate_smooth_rad_s", 0.05), unit=" (rad/s)"),
-            "joints": tuple(joints)}
+    return {
+        "coulomb": _nonneg(f"{path}.coulomb_nm", t.get("coulomb_nm", 0.0), " (N·m)"),
+        "viscous": _nonneg(f"{path}.viscous_nm_s", t.get("viscous_nm_s", 0.0), " (N·m·s)"),
+        "rate_smooth": _positive(
+            f"{path}.rate_smooth_rad_s", t.get("rate_smooth_rad_s", 0.05), unit=" (rad/s)"
+        ),
+        "joints": tuple(joints),
+    }
 
 
 def _guide_friction(t, path):
-    return {"coulomb": _nonneg(f"{path}.coulomb_n", t.get("coulomb_n", 0.0), " (N)"),
-            "viscous": _nonneg(f"{path}.viscous_n_s_m", t.get("viscous_n_s_m", 0.0), " (N·s/m)"),
-            "speed_smooth": _positive(f"{path}.speed_smooth_m_s",
-                                      t.get("speed_smooth_m_s", 1e-3), unit=" (m/s)")}
+    return {
+        "coulomb": _nonneg(f"{path}.coulomb_n", t.get("coulomb_n", 0.0), " (N)"),
+        "viscous": _nonneg(f"{path}.viscous_n_s_m", t.get("viscous_n_s_m", 0.0), " (N·s/m)"),
+        "speed_smooth": _positive(f"{path}.speed_smooth_m_s", t.get("speed_smooth_m_s", 1e-3), unit=" (m/s)"),
+    }
 
 
-_SIMPLE_EFFECTS = {"springs": _springs, "top_stop": _top_stop, "engage_cylinder": _engage,
-                   "latch": _latch, "disengage_cylinder": _disengage, "blanking": _blanking,
-                   "joint_friction": _joint_friction, "guide_friction": _guide_friction}
+_SIMPLE_EFFECTS = {
+    "springs": _springs,
+    "top_stop": _top_stop,
+    "engage_cylinder": _engage,
+    "latch": _latch,
+    "disengage_cylinder": _disengage,
+    "blanking": _blanking,
+    "joint_friction": _joint_friction,
+    "guide_friction": _guide_friction,
+}
 
 
 def _commands(raw) -> tuple:
@@ -482,8 +526,11 @@ def _mechanism(top: _Table) -> tuple[PressGeometry, int, float | None]:
     l2 = _positive("mechanism.l2_mm", mt.get("l2_mm", 40.0), unit=" (mm)") / 1000.0
     l3 = _positive("mechanism.l3_mm", mt.get("l3_mm", 30.0), unit=" (mm)") / 1000.0
     if l2 <= l1:
-        raise SceneError("mechanism.l2_mm", l2 * 1000,
-                         f"a rod longer than the crank (l1_mm = {l1 * 1000:g}) so the crank can turn")
+        raise SceneError(
+            "mechanism.l2_mm",
+            l2 * 1000,
+            f"a rod longer than the crank (l1_mm = {l1 * 1000:g}) so the crank can turn",
+        )
     assembly = mt.get("assembly", 1)
     _choice("mechanism.assembly", assembly, (1, -1))
     x_top = mt.get("x_top_mm")
@@ -491,9 +538,11 @@ def _mechanism(top: _Table) -> tuple[PressGeometry, int, float | None]:
         x_top = _num("mechanism.x_top_mm", x_top, "the top stop's position (mm)") / 1000.0
         lo, hi = l2 - l1 - l3, l1 + l2 + l3
         if not (lo < x_top < hi):
-            raise SceneError("mechanism.x_top_mm", x_top * 1000,
-                             f"a slider position the links can reach ({lo * 1000:g} to "
-                             f"{hi * 1000:g} mm)")
+            raise SceneError(
+                "mechanism.x_top_mm",
+                x_top * 1000,
+                f"a slider position the links can reach ({lo * 1000:g} to {hi * 1000:g} mm)",
+            )
     mt.done()
     return PressGeometry(l1, l2, l3), assembly, x_top
 
@@ -510,17 +559,23 @@ def _bodies(top: _Table) -> dict:
             continue
         b = _Table(raw_b, f"bodies.{bname}", _UNIT_HINTS["body"])
         mass = _positive(f"bodies.{bname}.mass_kg", b.get("mass_kg", d.mass), unit=" (kg)")
-        inertia = _num(f"bodies.{bname}.inertia_kg_m2", b.get("inertia_kg_m2", d.inertia),
-                       "a moment of inertia >= 0 (kg·m²)")
+        inertia = _num(
+            f"bodies.{bname}.inertia_kg_m2",
+            b.get("inertia_kg_m2", d.inertia),
+            "a moment of inertia >= 0 (kg·m²)",
+        )
         if inertia < 0:
-            raise SceneError(f"bodies.{bname}.inertia_kg_m2", inertia,
-                             "a moment of inertia >= 0 (kg·m²)")
+            raise SceneError(f"bodies.{bname}.inertia_kg_m2", inertia, "a moment of inertia >= 0 (kg·m²)")
         com = b.get("com_mm")
         if com is not None:
-            if (not isinstance(com, list) or len(com) != 2
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in com)):
-                raise SceneError(f"bodies.{bname}.com_mm", com,
-                                 "two numbers [along, across] in mm in the body frame")
+            if (
+                not isinstance(com, list)
+                or len(com) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in com)
+            ):
+                raise SceneError(
+                    f"bodies.{bname}.com_mm", com, "two numbers [along, across] in mm in the body frame"
+                )
             com = (com[0] / 1000.0, com[1] / 1000.0)
         b.done()
         bodies[bname] = BodyData(mass, inertia, com)
@@ -567,21 +622,28 @@ def _effects(top: _Table, x_top: float | None, structure: str, commands: tuple) 
             raise SceneError("effects", kinds, f"each effect once ({k!r} is listed twice)")
     for i, e in enumerate(effects):
         if e.kind in _NEEDS_X_TOP and x_top is None:
-            raise SceneError("mechanism.x_top_mm", None,
-                             f"the top stop's position (effects[{i}] {e.kind!r} needs it)")
-    rigid_stop = any(e.kind == "top_stop" and e.params["model"] in ("rigid", "clamp")
-                     for e in effects)
+            raise SceneError(
+                "mechanism.x_top_mm", None, f"the top stop's position (effects[{i}] {e.kind!r} needs it)"
+            )
+    rigid_stop = any(e.kind == "top_stop" and e.params["model"] in ("rigid", "clamp") for e in effects)
     if structure == "held" and not rigid_stop:
-        raise SceneError("structure.initial", structure,
-                         "a rigid (or clamp) top_stop effect for the held structure")
+        raise SceneError(
+            "structure.initial", structure, "a rigid (or clamp) top_stop effect for the held structure"
+        )
     for i, (_ts, name) in enumerate(commands):
-        need = {"engage": ("latch", "engage_cylinder"), "disengage": ("latch",),
-                "stop": ("motor",), "start": ("motor",)}[name]
+        need = {
+            "engage": ("latch", "engage_cylinder"),
+            "disengage": ("latch",),
+            "stop": ("motor",),
+            "start": ("motor",),
+        }[name]
         missing = [k for k in need if k not in kinds]
         if missing:
-            raise SceneError(f"commands[{i}].command", name,
-                             "a command whose effects the scene lists (missing: "
-                             + ", ".join(missing) + ")")
+            raise SceneError(
+                f"commands[{i}].command",
+                name,
+                "a command whose effects the scene lists (missing: " + ", ".join(missing) + ")",
+            )
     return effects
 
 
@@ -618,8 +680,9 @@ def _solver(top: _Table) -> tuple[SolverSettings, float, float]:
     if step is not None:
         step = _step("solver.step_s", step, t_end)
     sv.done()
-    settings = SolverSettings(method, scheme, delta, iters, rtol, atol, stiff,
-                              switch_points=switch_points, step=step)
+    settings = SolverSettings(
+        method, scheme, delta, iters, rtol, atol, stiff, switch_points=switch_points, step=step
+    )
     return settings, t_end, float(dt)
 
 
@@ -642,8 +705,11 @@ def _charts(top: _Table) -> ChartPolicy:
     switch_below = _num("charts.switch_below", ct.get("switch_below", 0.5))
     fail_below = _num("charts.fail_below", ct.get("fail_below", 1e-3))
     if not (0 < fail_below < switch_below < 1):
-        raise SceneError("charts.switch_below", switch_below,
-                         f"a regularity between charts.fail_below = {fail_below:g} and 1")
+        raise SceneError(
+            "charts.switch_below",
+            switch_below,
+            f"a regularity between charts.fail_below = {fail_below:g} and 1",
+        )
     ct.done()
     return ChartPolicy(switching, switch_below, fail_below)
 
@@ -655,9 +721,12 @@ def _check_across_tables(scene: Scene) -> None:
     if scene.solver.step is not None:
         _check_step_solver(scene.solver)
     if scene.change_point == "keep-side" and scene.solver.scheme != "central":
-        raise SceneError("structure.change_point", scene.change_point,
-                         "'continue' with solver.derivatives = 'autodiff' (keep-side restarts "
-                         "exactly at the change point: it needs central differences)")
+        raise SceneError(
+            "structure.change_point",
+            scene.change_point,
+            "'continue' with solver.derivatives = 'autodiff' (keep-side restarts "
+            "exactly at the change point: it needs central differences)",
+        )
     for i, (ts, _name) in enumerate(scene.commands):
         if ts > scene.t_end:
             raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {scene.t_end:g}")
@@ -669,9 +738,12 @@ def _check_across_tables(scene: Scene) -> None:
         psi0 = math.atan2(pose["B"][1] - pose["C"][1], pose["B"][0] - pose["C"][0])
         d = (psi - psi0 + math.pi) % (2 * math.pi) - math.pi
         if abs(d) > math.radians(10.0):
-            raise SceneError("initial.psi_deg", math.degrees(psi),
-                             f"a rocker angle near the closure's {math.degrees(psi0):.2f}° (in "
-                             "held, ψ follows from the closure; psi_deg picks the assembly)")
+            raise SceneError(
+                "initial.psi_deg",
+                math.degrees(psi),
+                f"a rocker angle near the closure's {math.degrees(psi0):.2f}° (in "
+                "held, ψ follows from the closure; psi_deg picks the assembly)",
+            )
 
 
 def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
@@ -689,16 +761,35 @@ def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: s
     reactions = _outputs(top)
     charts = _charts(top)
     top.done()
-    scene = Scene(sname, desc, geometry, assembly, bodies, x_top, structure, psi_lock, initial,
-                  effects, solver, t_end, dt, charts, commands, reactions, change_point, text,
-                  origin)
+    scene = Scene(
+        sname,
+        desc,
+        geometry,
+        assembly,
+        bodies,
+        x_top,
+        structure,
+        psi_lock,
+        initial,
+        effects,
+        solver,
+        t_end,
+        dt,
+        charts,
+        commands,
+        reactions,
+        change_point,
+        text,
+        origin,
+    )
     _check_across_tables(scene)
     return scene
 
 
 def preset_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("mps_core.scene.presets").iterdir()
-                  if p.name.endswith(".toml"))
+    return sorted(
+        p.name[:-5] for p in resources.files("mps_core.scene.presets").iterdir() if p.name.endswith(".toml")
+    )
 
 
 def load_scene(spec: str | Path) -> Scene:
@@ -711,8 +802,9 @@ def load_scene(spec: str | Path) -> Scene:
     else:
         path = Path(spec)
         if not path.exists():
-            raise SceneError("scene", spec, "a preset name (" + ", ".join(preset_names())
-                             + ") or the path of a scene file")
+            raise SceneError(
+                "scene", spec, "a preset name (" + ", ".join(preset_names()) + ") or the path of a scene file"
+            )
         from ..files.inputs import read_text
 
         text = read_text(path, "scene file", "a TOML scene")

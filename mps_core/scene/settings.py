@@ -50,8 +50,9 @@ class SolverSettings:
 
     def locates_switch_points(self) -> bool:
         if self.switch_points not in SWITCH_POINTS:
-            raise ValueError(f"switch_points = {self.switch_points!r}: expected one of "
-                             + ", ".join(SWITCH_POINTS))
+            raise ValueError(
+                f"switch_points = {self.switch_points!r}: expected one of " + ", ".join(SWITCH_POINTS)
+            )
         if self.switch_points == "auto":
             return self.name in ADAPTIVE_SOLVERS
         return self.switch_points == "locate"

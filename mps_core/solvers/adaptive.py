@@ -29,8 +29,21 @@ class AdaptiveSolver(Solver):
     #: scipy's solver object changes in place as it steps: no state to come back to
     rewindable = False
 
-    def __init__(self, fun, t0, q0, qd0, current=None, method="dop853", rtol=1e-9, atol=1e-12,
-                 scales=None, t_bound=np.inf, max_step=np.inf, first_step=None):
+    def __init__(
+        self,
+        fun,
+        t0,
+        q0,
+        qd0,
+        current=None,
+        method="dop853",
+        rtol=1e-9,
+        atol=1e-12,
+        scales=None,
+        t_bound=np.inf,
+        max_step=np.inf,
+        first_step=None,
+    ):
         if method not in _METHODS:
             raise ValueError(f"adaptive method {method!r}: expected one of {', '.join(_METHODS)}")
         if not (0 < rtol < 1) or not (atol > 0):
@@ -57,10 +70,17 @@ class AdaptiveSolver(Solver):
 
         if first_step is not None and not (0 < first_step < np.inf):
             first_step = None
-        self._scipy = _METHODS[method](f, self.t, y0, t_bound, rtol=rtol,
-                                       atol=atol * np.concatenate((sc, sc)), max_step=max_step,
-                                       first_step=first_step)
-        self._sol = None            # the last internal step's interpolant, built once
+        self._scipy = _METHODS[method](
+            f,
+            self.t,
+            y0,
+            t_bound,
+            rtol=rtol,
+            atol=atol * np.concatenate((sc, sc)),
+            max_step=max_step,
+            first_step=first_step,
+        )
+        self._sol = None  # the last internal step's interpolant, built once
 
     @property
     def step_size(self):
@@ -120,6 +140,7 @@ class AdaptiveSolver(Solver):
         def dense(t):
             y = sol(t)
             return y[:n], y[n:]
+
         return dense
 
 
@@ -128,14 +149,37 @@ class Radau(AdaptiveSolver):
 
     name = "radau"
 
-    def __init__(self, fun, t0, q0, qd0, current=None, rtol=1e-9, atol=1e-12, scales=None,
-                 t_bound=np.inf, max_step=np.inf, first_step=None):
-        super().__init__(fun, t0, q0, qd0, current, method="radau", rtol=rtol, atol=atol,
-                         scales=scales, t_bound=t_bound, max_step=max_step,
-                         first_step=first_step)
+    def __init__(
+        self,
+        fun,
+        t0,
+        q0,
+        qd0,
+        current=None,
+        rtol=1e-9,
+        atol=1e-12,
+        scales=None,
+        t_bound=np.inf,
+        max_step=np.inf,
+        first_step=None,
+    ):
+        super().__init__(
+            fun,
+            t0,
+            q0,
+            qd0,
+            current,
+            method="radau",
+            rtol=rtol,
+            atol=atol,
+            scales=scales,
+            t_bound=t_bound,
+            max_step=max_step,
+            first_step=first_step,
+        )
 
     @classmethod
-    def create(cls, fun, t0, q0, qd0, current=None, *, rtol=1e-9, atol=1e-12, scales=None,
-               first_step=None, **_):
-        return cls(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales,
-                   first_step=first_step)
+    def create(
+        cls, fun, t0, q0, qd0, current=None, *, rtol=1e-9, atol=1e-12, scales=None, first_step=None, **_
+    ):
+        return cls(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales, first_step=first_step)

@@ -44,8 +44,7 @@ class Solver:
     #: :meth:`state` and :meth:`set_state` bring a step's state back
     rewindable = True
 
-    def __init__(self, fun: Callable, t0: float, q0, qd0, current=None,
-                 accel: Callable | None = None):
+    def __init__(self, fun: Callable, t0: float, q0, qd0, current=None, accel: Callable | None = None):
         self.fun = fun
         self.accel = accel if accel is not None else self._accel_by_fun
         self.t = float(t0)
@@ -57,9 +56,21 @@ class Solver:
         self.current = current if current is not None else self._call(self.t, self.q, self.qd)
 
     @classmethod
-    def create(cls, fun: Callable, t0: float, q0, qd0, current=None, *, iterations: int = 1,
-               rtol: float = 1e-9, atol: float = 1e-12, scales=None, first_step=None,
-               accel: Callable | None = None) -> Solver:
+    def create(
+        cls,
+        fun: Callable,
+        t0: float,
+        q0,
+        qd0,
+        current=None,
+        *,
+        iterations: int = 1,
+        rtol: float = 1e-9,
+        atol: float = 1e-12,
+        scales=None,
+        first_step=None,
+        accel: Callable | None = None,
+    ) -> Solver:
         """The solver from the run's settings, each taking those it has (a fixed-step method
         no tolerances, an adaptive one no corrector iterations)."""
         return cls(fun, t0, q0, qd0, current, accel=accel)
@@ -103,8 +114,7 @@ def _generated(cls, n: int, direct: bool):
     fn = _STEPS.get((cls, n, direct))
     if fn is None:
         namespace: dict = {"_MISSES": misses()}
-        exec(compile(cls.step_source(n, direct), f"<{cls.name} step, n = {n}>", "exec"),
-             namespace)
+        exec(compile(cls.step_source(n, direct), f"<{cls.name} step, n = {n}>", "exec"), namespace)
         fn = _STEPS.keep((cls, n, direct), namespace["step"])
     return fn
 
@@ -136,12 +146,10 @@ class GeneratedStep(Solver):
     def _advance(self, t0, t1, q, v, a):
         f = self._direct()
         if f is not None:
-            out = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0,
-                                                         *q, *v, *a)
+            out = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0, *q, *v, *a)
             self.accel.count(self.inner_stages - out[-1])
         else:
-            out = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0,
-                                                          *q, *v, *a)
+            out = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0, *q, *v, *a)
         self.nfev += self.inner_stages
         if self.returns_stages:
             self._stages = out[2]
@@ -149,8 +157,7 @@ class GeneratedStep(Solver):
 
     def step_to(self, t_target, interrupt=None):
         t0, q0, v0 = self.t, self.q, self.qd
-        ql, vl = self._advance(t0, t_target, q0.tolist(), v0.tolist(),
-                               self.current.qdd.tolist())
+        ql, vl = self._advance(t0, t_target, q0.tolist(), v0.tolist(), self.current.qdd.tolist())
         q1, v1 = np.array(ql), np.array(vl)
         e = self._call(t_target, q1, v1)
         self._dense = None
@@ -170,8 +177,9 @@ class GeneratedStep(Solver):
             if last is None:
                 raise RuntimeError("no step taken yet")
             t0, q0, v0, a0 = last
-            self._dense = (self.interpolant or CubicHermite)(t0, self.t, q0, v0, a0, self.q,
-                                                             self.qd, self.current.qdd)
+            self._dense = (self.interpolant or CubicHermite)(
+                t0, self.t, q0, v0, a0, self.q, self.qd, self.current.qdd
+            )
         return self._dense
 
 
@@ -214,10 +222,10 @@ def stage_lines(t: str, qs: list, vs: list, out: list, direct: bool) -> list:
     L = [f"    _q{i} = {qs[i]}" for i in range(n)]
     L.append(f"    _t = {t}")
     L.append("    try:")
-    L.append(f"        {', '.join(out)}, = f(_t, {', '.join(f'_q{i}' for i in range(n))}, "
-             f"{', '.join(vs)})")
+    L.append(f"        {', '.join(out)}, = f(_t, {', '.join(f'_q{i}' for i in range(n))}, {', '.join(vs)})")
     L.append("    except _MISSES:")
-    L.append(f"        {', '.join(out)}, = accel(_t, [{', '.join(f'_q{i}' for i in range(n))}], "
-             f"[{', '.join(vs)}])")
+    L.append(
+        f"        {', '.join(out)}, = accel(_t, [{', '.join(f'_q{i}' for i in range(n))}], [{', '.join(vs)}])"
+    )
     L.append("        m += 1")
     return L

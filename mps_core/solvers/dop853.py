@@ -105,8 +105,12 @@ def _dense_source(n: int) -> str:
     def k(j, i):
         return f"k{j}_{i}"
 
-    args = [f"y{i}" for i in range(N)] + [f"f{i}" for i in range(N)] + \
-        [f"u{i}" for i in range(N)] + [f"g{i}" for i in range(N)]
+    args = (
+        [f"y{i}" for i in range(N)]
+        + [f"f{i}" for i in range(N)]
+        + [f"u{i}" for i in range(N)]
+        + [f"g{i}" for i in range(N)]
+    )
     lines = [f"def dense(accel, t, h, K, {', '.join(args)}):"]
     for j in range(STAGES):
         lines.append(f"    {', '.join(k(j, i) for i in range(N))} = K[{j}]")
@@ -114,9 +118,11 @@ def _dense_source(n: int) -> str:
     for s in range(STAGES + 1, E):
         lines += _stage_lines(s, n, k)
     lines += [f"    d{i} = u{i} - y{i}" for i in range(N)]
-    rows = ["[" + ", ".join(f"d{i}" for i in range(N)) + "]",
-            "[" + ", ".join(f"h * f{i} - d{i}" for i in range(N)) + "]",
-            "[" + ", ".join(f"2 * d{i} - h * (g{i} + f{i})" for i in range(N)) + "]"]
+    rows = [
+        "[" + ", ".join(f"d{i}" for i in range(N)) + "]",
+        "[" + ", ".join(f"h * f{i} - d{i}" for i in range(N)) + "]",
+        "[" + ", ".join(f"2 * d{i} - h * (g{i} + f{i})" for i in range(N)) + "]",
+    ]
     for r in range(_D.shape[0]):
         rows.append("[" + ", ".join(f"h * ({_terms(_D[r], k, i)})" for i in range(N)) + "]")
     lines.append(f"    return [{', '.join(rows)}]")
@@ -152,13 +158,39 @@ class DOP853(Solver):
     adaptive = True
 
     @classmethod
-    def create(cls, fun, t0, q0, qd0, current=None, *, rtol=1e-9, atol=1e-12, scales=None,
-               first_step=None, accel=None, **_):
-        return cls(fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales,
-                   first_step=first_step, accel=accel)
+    def create(
+        cls,
+        fun,
+        t0,
+        q0,
+        qd0,
+        current=None,
+        *,
+        rtol=1e-9,
+        atol=1e-12,
+        scales=None,
+        first_step=None,
+        accel=None,
+        **_,
+    ):
+        return cls(
+            fun, t0, q0, qd0, current, rtol=rtol, atol=atol, scales=scales, first_step=first_step, accel=accel
+        )
 
-    def __init__(self, fun, t0, q0, qd0, current=None, rtol=1e-9, atol=1e-12, scales=None,
-                 max_step=math.inf, first_step=None, accel=None):
+    def __init__(
+        self,
+        fun,
+        t0,
+        q0,
+        qd0,
+        current=None,
+        rtol=1e-9,
+        atol=1e-12,
+        scales=None,
+        max_step=math.inf,
+        first_step=None,
+        accel=None,
+    ):
         if not (0 < rtol < 1) or not (atol > 0):
             raise ValueError(f"tolerances rtol = {rtol!r}, atol = {atol!r}: expected 0 < rtol < 1, atol > 0")
         super().__init__(fun, t0, q0, qd0, current, accel)
@@ -174,8 +206,8 @@ class DOP853(Solver):
         self._t = self.t
         self._y = self.q.tolist() + self.qd.tolist()
         self._f = self.qd.tolist() + self.current.qdd.tolist()
-        self._last = None           # (t_old, y_old, f_old, K, h) of the last internal step
-        self._sol = None            # its interpolant, built once
+        self._last = None  # (t_old, y_old, f_old, K, h) of the last internal step
+        self._sol = None  # its interpolant, built once
         if first_step is not None and 0 < first_step < math.inf:
             self.h_abs = float(first_step)
         else:
@@ -230,8 +262,7 @@ class DOP853(Solver):
         domain_failures = 0
         while True:
             if h_abs < min_step:
-                raise NumericalError("dop853 failed: the step size fell below the spacing "
-                                     "of the numbers", t)
+                raise NumericalError("dop853 failed: the step size fell below the spacing of the numbers", t)
             t_new = t + h_abs
             h = t_new - t
             h_abs = abs(h)
@@ -252,13 +283,12 @@ class DOP853(Solver):
                 rejected = False
                 continue
             if err < 1.0:
-                factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
-                                                            SAFETY * err ** ERROR_EXPONENT)
+                factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err**ERROR_EXPONENT)
                 if rejected:
                     factor = min(1.0, factor)
                 h_abs *= factor
                 break
-            h_abs *= max(MIN_FACTOR, SAFETY * err ** ERROR_EXPONENT)
+            h_abs *= max(MIN_FACTOR, SAFETY * err**ERROR_EXPONENT)
             rejected = True
         self._last = (t, y, self._f, K, h)
         self._t, self._y, self._f = t_new, y_new, y_new[n:] + a_new
@@ -269,8 +299,7 @@ class DOP853(Solver):
         """The last internal step's seventh-order interpolant of y (three more stages)."""
         if self._sol is None:
             t_old, y_old, f_old, K, h = self._last
-            F = self._dense_fn(self._accel_counted, t_old, h, K, *y_old, *f_old, *self._y,
-                               *self._f)
+            F = self._dense_fn(self._accel_counted, t_old, h, K, *y_old, *f_old, *self._y, *self._f)
             self._sol = _DenseOutput(t_old, h, y_old, F, self._n)
         return self._sol
 

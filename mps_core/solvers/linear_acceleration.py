@@ -39,7 +39,7 @@ class LinearAcceleration(Solver):
             raise ValueError(f"corrector iterations = {iterations!r}: expected an integer >= 1")
         self.iterations = int(iterations)
         self.evaluations_per_step = 1 + self.iterations
-        self._step = None       # (t0, Δt, q0, q̇0, q̈0, q̈1) of the last step, for its cubic
+        self._step = None  # (t0, Δt, q0, q̇0, q̈0, q̈1) of the last step, for its cubic
         super().__init__(fun, t0, q0, qd0, current, accel)
 
     def step_to(self, t_target, interrupt=None):
@@ -66,8 +66,7 @@ class LinearAcceleration(Solver):
                     a1 = accel(t_target, q1, qd1)
         elif n == 2:
             (x, y), (v, w), (a, c) = ql, vl, al
-            a1 = accel(t_target, [x + v * dt + a * h2, y + w * dt + c * h2],
-                       [v + a * dt, w + c * dt])
+            a1 = accel(t_target, [x + v * dt + a * h2, y + w * dt + c * h2], [v + a * dt, w + c * dt])
             for k in range(self.iterations):
                 b, d = a1
                 qd1 = [v + (a + b) * hh, w + (c + d) * hh]
@@ -75,8 +74,11 @@ class LinearAcceleration(Solver):
                 if k < last:
                     a1 = accel(t_target, q1, qd1)
         else:
-            a1 = accel(t_target, [x + v * dt + a * h2 for x, v, a in zip(ql, vl, al)],
-                       [v + a * dt for v, a in zip(vl, al)])
+            a1 = accel(
+                t_target,
+                [x + v * dt + a * h2 for x, v, a in zip(ql, vl, al)],
+                [v + a * dt for v, a in zip(vl, al)],
+            )
             for k in range(self.iterations):
                 qd1 = [v + (a + b) * hh for v, a, b in zip(vl, al, a1)]
                 q1 = [x + v * dt + (2.0 * a + b) * h6 for x, v, a, b in zip(ql, vl, al, a1)]
@@ -117,6 +119,6 @@ class _LinearAccelerationCubic:
     def __call__(self, t):
         tau = t - self.t0
         j = self.j
-        q = self.q0 + self.qd0 * tau + self.a0 * (tau * tau / 2.0) + j * (tau ** 3 / 6.0)
+        q = self.q0 + self.qd0 * tau + self.a0 * (tau * tau / 2.0) + j * (tau**3 / 6.0)
         qd = self.qd0 + self.a0 * tau + j * (tau * tau / 2.0)
         return q, qd

@@ -29,16 +29,25 @@ class RK4(GeneratedStep):
         q = [f"q{i}" for i in r]
         v = [f"v{i}" for i in r]
         a = [f"a{i}" for i in r]
-        L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(q + v + a)}):",
-             "    hh = 0.5 * h",
-             "    h6 = h / 6.0"]
+        L = [
+            f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(q + v + a)}):",
+            "    hh = 0.5 * h",
+            "    h6 = h / 6.0",
+        ]
         if direct:
             L.append("    m = 0")
 
         def stage(k, t, vs, step, qs_from):
             L.extend(f"    v{k}_{i} = v{i} + {step} * {vs[i]}" for i in r)
-            L.extend(stage_lines(t, [f"q{i} + {step} * {qs_from[i]}" for i in r],
-                                 [f"v{k}_{i}" for i in r], [f"a{k}_{i}" for i in r], direct))
+            L.extend(
+                stage_lines(
+                    t,
+                    [f"q{i} + {step} * {qs_from[i]}" for i in r],
+                    [f"v{k}_{i}" for i in r],
+                    [f"a{k}_{i}" for i in r],
+                    direct,
+                )
+            )
 
         stage(2, "t0 + hh", a, "hh", v)
         stage(3, "t0 + hh", [f"a2_{i}" for i in r], "hh", [f"v2_{i}" for i in r])

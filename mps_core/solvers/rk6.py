@@ -28,13 +28,15 @@ from .base import CubicHermite, GeneratedStep
 from .rk8 import imaginary_limit, tableau_step_source
 
 STAGES = 7
-_ROWS = ([],
-         [_F(1, 3)],
-         [0, _F(2, 3)],
-         [_F(1, 12), _F(1, 3), _F(-1, 12)],
-         [_F(-1, 16), _F(9, 8), _F(-3, 16), _F(-3, 8)],
-         [0, _F(9, 8), _F(-3, 8), _F(-3, 4), _F(1, 2)],
-         [_F(9, 44), _F(-9, 11), _F(63, 44), _F(18, 11), 0, _F(-16, 11)])
+_ROWS = (
+    [],
+    [_F(1, 3)],
+    [0, _F(2, 3)],
+    [_F(1, 12), _F(1, 3), _F(-1, 12)],
+    [_F(-1, 16), _F(9, 8), _F(-3, 16), _F(-3, 8)],
+    [0, _F(9, 8), _F(-3, 8), _F(-3, 4), _F(1, 2)],
+    [_F(9, 44), _F(-9, 11), _F(63, 44), _F(18, 11), 0, _F(-16, 11)],
+)
 _WEIGHTS = (_F(11, 120), 0, _F(27, 40), _F(27, 40), _F(-4, 15), _F(-4, 15), _F(11, 120))
 
 #: the tableau as exact fractions: A (strictly lower), b, c = row sums of A

@@ -61,13 +61,15 @@ def imaginary_limit(A, b, growth: float = 1e-12, step: float = 1e-4, top: float 
 
 IMAGINARY_LIMIT = imaginary_limit(_A, _B)
 
+
 def _term(coefs, name) -> str:
     out = [f"{float(c)!r} * {name(j)}" for j, c in enumerate(coefs) if c != 0.0]
     return " + ".join(out) if out else "0.0"
 
 
-def tableau_step_source(A, b, c, n: int, direct: bool = False, stages: bool = False,
-                        t1_at_one: bool = False) -> str:
+def tableau_step_source(
+    A, b, c, n: int, direct: bool = False, stages: bool = False, t1_at_one: bool = False
+) -> str:
     """The code of one step of the explicit tableau (A, b, c) on y = (q, q̇) for n coordinates
     (see :meth:`~mps_core.solvers.base.GeneratedStep.step_source`): stage 1 the step's start,
     the others by :func:`~mps_core.solvers.base.stage_lines`, zero coefficients left out;
@@ -78,7 +80,7 @@ def tableau_step_source(A, b, c, n: int, direct: bool = False, stages: bool = Fa
     L = [f"def step({'f, ' if direct else ''}accel, t0, t1, h, {', '.join(args)}):"]
     if direct:
         L.append("    m = 0")
-    V = {0: [f"v{i}" for i in r]}          # stage 1: the step's start
+    V = {0: [f"v{i}" for i in r]}  # stage 1: the step's start
     a = {0: [f"a{i}" for i in r]}
     for s in range(1, s_count):
         row = A[s, :s]
@@ -128,7 +130,8 @@ class RK8(GeneratedStep):
             y_new = self.q.tolist() + self.qd.tolist()
             f_new = self.qd.tolist() + self.current.qdd.tolist()
             h = self.t - t0
-            F = _dop853_code("dense", n)(self._accel_counted, t0, h, self._stages, *y_old,
-                                         *f_old, *y_new, *f_new)
+            F = _dop853_code("dense", n)(
+                self._accel_counted, t0, h, self._stages, *y_old, *f_old, *y_new, *f_new
+            )
             self._dense = _DenseOutput(t0, h, y_old, F, n)
         return self._dense

@@ -18,8 +18,12 @@ def scene_engines(name: str, scheme: str):
     for e in effects:
         if hasattr(e, "use"):
             e.use(controls)
-    return (mech, controls, PartialSystems(mech, effects, scheme),
-            PartialSystems(mech, effects, scheme, kernels=False))
+    return (
+        mech,
+        controls,
+        PartialSystems(mech, effects, scheme),
+        PartialSystems(mech, effects, scheme, kernels=False),
+    )
 
 
 def state(view, u: float, w: float) -> list:

@@ -46,7 +46,7 @@ def test_an_array_kernel_gives_each_element_what_the_float_kernel_gives(k):
     CONTROLS.structure = structure
     rng = np.random.default_rng(k)
     u0, w0, kernel = _a_kernel(view)
-    qs, vs = [], []             # states on the kernel's branch (where its guards hold)
+    qs, vs = [], []  # states on the kernel's branch (where its guards hold)
     for u, w in zip(rng.uniform(-0.1, 0.1, 12), rng.uniform(-0.05, 0.05, 12)):
         q, v = state(view, u0 + u, w0 + w), list(rng.uniform(-10.0, 10.0, view.n))
         try:
@@ -79,4 +79,4 @@ def test_a_scene_off_the_branch_fails_the_array_kernels_guard():
     zeros = np.zeros(2)
     with pytest.raises(ArrayBranchChanged):
         ak(q0, q1, zeros, zeros)
-    ak(q0[:1], q1[:1], zeros[:1], zeros[:1])          # the other scene alone: no guard fails
+    ak(q0[:1], q1[:1], zeros[:1], zeros[:1])  # the other scene alone: no guard fails

@@ -15,14 +15,19 @@ COLS = ("phi", "phi_dot", "phi_ddot", "psi", "x_C", "T", "V", "W")
 def sweep(n, t_end=0.05):
     """working with the slider's mass, the motor's reduction and a blanking force swept."""
     base = load_scene("working").with_overrides(t_end=t_end, dt=1e-4)
-    blank = scene_from_text(base.text.replace("[solver]", """[[effects]]
+    blank = scene_from_text(
+        base.text.replace(
+            "[solver]",
+            """[[effects]]
 type = "blanking"
 perimeter_mm = 62.83
 thickness_mm = 1.0
 shear_strength_mpa = 320.0
 contact_mm = -3.0
 
-[solver]""")).with_overrides(t_end=t_end, dt=1e-4)
+[solver]""",
+        )
+    ).with_overrides(t_end=t_end, dt=1e-4)
     out = []
     for i in range(n):
         sc = blank if i % 2 else base
@@ -96,9 +101,12 @@ def test_batches_on_a_local_dask_cluster():
     distributed = pytest.importorskip("distributed")
     scenes = sweep(4, t_end=0.01)
     # in-process workers and transport: the distributed scheduler, no socket opened
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         res = simulate_many(scenes, client=client, batch_size=2)
     assert res.vectorised == [True] * 4
     local = simulate_many(scenes)

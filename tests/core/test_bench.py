@@ -48,13 +48,17 @@ def test_exact_model_covers_only_what_it_knows():
 # -- the work-precision study ----------------------------------------------------------------
 @pytest.fixture(scope="module")
 def quick_study():
-    return accuracy.study(["paper"], ("linear-acceleration", "rk4", "peer", "mujoco"),
-                          quick=True, repeats=1, log=lambda *a: None)["paper"]
+    return accuracy.study(
+        ["paper"],
+        ("linear-acceleration", "rk4", "peer", "mujoco"),
+        quick=True,
+        repeats=1,
+        log=lambda *a: None,
+    )["paper"]
 
 
 def _series(rows, solver, scheme):
-    rs = sorted((r for r in rows if r["solver"] == solver and r["scheme"] == scheme),
-                key=lambda r: -r["dt"])
+    rs = sorted((r for r in rows if r["solver"] == solver and r["scheme"] == scheme), key=lambda r: -r["dt"])
     return [r["dt"] for r in rs], [r["max_err_phi"] for r in rs], rs
 
 
@@ -81,7 +85,7 @@ def test_work_budgets_of_the_study_rows(quick_study, solver, per_step):
         for r in _series(quick_study["rows"], solver, scheme)[2]:
             assert r["position_points"] == points * r["evaluations"]
             extra = r["evaluations"] - 1 - per_step * r["steps"]
-            assert 1 <= extra <= 4, r          # paper's 0.1 s: 2–3 changes of chart
+            assert 1 <= extra <= 4, r  # paper's 0.1 s: 2–3 changes of chart
 
 
 def test_peer_rows_and_recommendations(quick_study):
@@ -197,8 +201,9 @@ def test_dop853_builds_its_dense_output_once_per_internal_step(monkeypatch):
         return original(self)
 
     monkeypatch.setattr(DOP853, "dense_output", counted)
-    scene = PAPER.with_overrides(solver="dop853", scheme="autodiff", rtol=1e-6, atol=1e-9,
-                                 t_end=0.03, dt=1e-3)
+    scene = PAPER.with_overrides(
+        solver="dop853", scheme="autodiff", rtol=1e-6, atol=1e-9, t_end=0.03, dt=1e-3
+    )
     traj = build(scene).run(scene.t_end, scene.dt)
     c = traj.counts
     assert not traj.events
@@ -231,7 +236,7 @@ def test_scalar_jets_equal_array_jets(chart):
 
 
 def test_scalar_jets_follow_numpy_at_the_edges():
-    x, = seed(np.array([0.0]), np.array([1.0]))
+    (x,) = seed(np.array([0.0]), np.array([1.0]))
     with np.errstate(all="ignore"):
         r = (x * 0.0).reciprocal()
         assert math.isinf(r.val) or math.isnan(r.val)
@@ -266,12 +271,11 @@ def test_effects_fast_path_equals_virtual_work_of_their_loads(scheme):
     assert np.allclose(e_fast.Q, e_slow.Q, rtol=1e-13, atol=1e-12)
     assert np.allclose(e_fast.qdd, e_slow.qdd, rtol=1e-12)
     assert g.potential(e_fast.kin) == pytest.approx(
-        -sum(b.mass * (g.g @ e_fast.kin.position(f"G_{b.name}")) for b in sim.mechanism.bodies),
-        rel=1e-14)
+        -sum(b.mass * (g.g @ e_fast.kin.position(f"G_{b.name}")) for b in sim.mechanism.bodies), rel=1e-14
+    )
     from mps_core.model.effects import Effect
 
-    assert m.power(0.0, e_fast.kin) == pytest.approx(Effect.power(m, 0.0, e_fast.kin),
-                                                      rel=1e-14)
+    assert m.power(0.0, e_fast.kin) == pytest.approx(Effect.power(m, 0.0, e_fast.kin), rel=1e-14)
 
 
 def test_kinematics_pose_is_built_once():
@@ -285,8 +289,9 @@ def test_kinematics_pose_is_built_once():
 def test_bench_accuracy_command_writes_table_csv_and_plot(tmp_path, capsys):
     from mps_core.cli import main
 
-    assert main(["bench", "accuracy", "paper", "--quick", "--solvers", "rk4,peer",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(["bench", "accuracy", "paper", "--quick", "--solvers", "rk4,peer", "--out", str(tmp_path)]) == 0
+    )
     out = capsys.readouterr().out
     assert "work-precision" in out and "cheapest setting" in out
     rows = (tmp_path / "accuracy.csv").read_text().splitlines()

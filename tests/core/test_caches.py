@@ -34,8 +34,7 @@ def test_no_module_of_the_core_keeps_a_dict_of_its_own_at_module_level():
     """An empty dict made at a module's top level (to be filled as the process runs) is a memo
     of mps_core.caches; the excepted are registries that must never be cleared: the memos
     themselves, and two that number what they hold."""
-    registries = {("caches.py", "MEMOS"), ("codegen/kernels.py", "_CODES"),
-                  ("codegen/kernels.py", "_TABLES")}
+    registries = {("caches.py", "MEMOS"), ("codegen/kernels.py", "_CODES"), ("codegen/kernels.py", "_TABLES")}
     found = []
     for f in (ROOT / "mps_core").rglob("*.py"):
         rel = str(f.relative_to(ROOT / "mps_core"))
@@ -46,8 +45,12 @@ def test_no_module_of_the_core_keeps_a_dict_of_its_own_at_module_level():
                 target, value = node.targets[0], node.value
             else:
                 continue
-            if isinstance(target, ast.Name) and isinstance(value, ast.Dict) and not value.keys \
-                    and (rel, target.id) not in registries:
+            if (
+                isinstance(target, ast.Name)
+                and isinstance(value, ast.Dict)
+                and not value.keys
+                and (rel, target.id) not in registries
+            ):
                 found.append(f"{rel}: {target.id}")
     assert not found, found
 

@@ -16,8 +16,7 @@ def _press(solver=None, scheme=None, observer=True):
     scene = load_scene("press-cycle")
     scene = replace(scene, commands=())
     if solver is not None or scheme is not None:
-        scene = scene.with_overrides(solver=solver or scene.solver.name,
-                                     scheme=scheme or scene.solver.scheme)
+        scene = scene.with_overrides(solver=solver or scene.solver.name, scheme=scheme or scene.solver.scheme)
     sim = build(scene)
     if observer:
         sim.observers.append(ReactionObserver(defer_impacts=True))
@@ -60,20 +59,30 @@ def straight():
     return _run(COMMANDS)
 
 
-@pytest.mark.parametrize("at, n", [
-    (8, 60),        # ahead without the engage: stop contacts and releases, no latch
-    (20, 40),       # engaged, the latch's impact in the steps taken ahead
-    (90, 50),       # locked, ahead without the disengage
-    (3, 197),       # ahead to the end through everything
-])
+@pytest.mark.parametrize(
+    "at, n",
+    [
+        (8, 60),  # ahead without the engage: stop contacts and releases, no latch
+        (20, 40),  # engaged, the latch's impact in the steps taken ahead
+        (90, 50),  # locked, ahead without the disengage
+        (3, 197),  # ahead to the end through everything
+    ],
+)
 def test_coming_back_goes_on_bit_for_bit(straight, at, n):
     assert _run(COMMANDS, ahead=(at, n)) == straight
 
 
 def test_the_steps_ahead_met_events_and_structure_changes(straight):
     kinds = {e["kind"] for e in straight[1]}
-    assert {"chart", "stop-contact", "stop-release", "latch-closes", "latch-opens",
-            "impulse", "cylinder-off"} <= kinds
+    assert {
+        "chart",
+        "stop-contact",
+        "stop-release",
+        "latch-closes",
+        "latch-opens",
+        "impulse",
+        "cylinder-off",
+    } <= kinds
     structures = {s["structure"] for s, *_ in straight[0]}
     assert structures == {"held", "free", "locked"}
 
@@ -107,8 +116,7 @@ def test_joint_state_is_the_snapshots_numbers_at_every_boundary_and_after_coming
     def check():
         s = sim.snapshot()
         # ẋ_C: the analogs' product on floats (the snapshot's is numpy's, equal to round-off)
-        want = (s["phi"], s["phi_dot"], s["psi"], s["psi_dot"], s["x_C"],
-                sim.solver.current.kin.vxy("C")[0])
+        want = (s["phi"], s["phi_dot"], s["psi"], s["psi_dot"], s["x_C"], sim.solver.current.kin.vxy("C")[0])
         assert abs(want[5] - s["x_C_dot"]) <= 1e-12 * (1.0 + abs(want[5]))
         assert sim.joint_state() == want
         assert sim.joint_state() == want

@@ -10,8 +10,9 @@ from mps_core.names import COLUMNS
 
 
 def mps(*args):
-    return subprocess.run([sys.executable, "-m", "mps_core.cli", *args], capture_output=True,
-                          text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "mps_core.cli", *args], capture_output=True, text=True, timeout=120
+    )
 
 
 def test_run_paper_writes_the_csv(tmp_path):
@@ -30,8 +31,20 @@ def test_run_paper_writes_the_csv(tmp_path):
 
 def test_run_options_and_events(tmp_path):
     ev = tmp_path / "events.jsonl"
-    p = mps("run", "paper", "--t-end", "0.1", "--dt", "1e-4", "--solver", "rk4",
-            "--derivatives", "autodiff", "--events", str(ev))
+    p = mps(
+        "run",
+        "paper",
+        "--t-end",
+        "0.1",
+        "--dt",
+        "1e-4",
+        "--solver",
+        "rk4",
+        "--derivatives",
+        "autodiff",
+        "--events",
+        str(ev),
+    )
     assert p.returncode == 0, p.stderr
     assert "charts: phi-psi+ ->" in p.stdout
     assert ev.read_text().count('"kind": "chart"') >= 2
@@ -56,8 +69,7 @@ def test_a_coarse_step_is_said_with_the_largest_sensible_one():
     assert coarse.returncode == 0, coarse.stderr
     warn = [ln for ln in coarse.stderr.splitlines() if ln.startswith("mps: warning:")]
     assert len(warn) == 1, coarse.stderr
-    assert "the step 0.005 s is coarse" in warn[0] and "Largest step within it: 0.0034 s" \
-        in warn[0], warn
+    assert "the step 0.005 s is coarse" in warn[0] and "Largest step within it: 0.0034 s" in warn[0], warn
     fine = mps("run", "press-cycle", "--t-end", "1", "--dt", "0.001")
     assert fine.returncode == 0 and "warning" not in fine.stderr, fine.stderr
 
@@ -65,8 +77,9 @@ def test_a_coarse_step_is_said_with_the_largest_sensible_one():
 def test_corrections_bounded_from_the_command_line_too():
     p = mps("run", "paper", "--iterations", "100000")
     assert p.returncode == 2 and p.stdout == ""
-    assert p.stderr.strip() == ("mps: error: solver.corrector_iterations = 100000: expected an "
-                                "integer from 1 to 50")
+    assert p.stderr.strip() == (
+        "mps: error: solver.corrector_iterations = 100000: expected an integer from 1 to 50"
+    )
 
 
 def test_progress_line_on_a_terminal_only():
@@ -86,9 +99,12 @@ def test_progress_line_on_a_terminal_only():
         p(k * 1.0)
     p.done()
     lines = [s for s in out.getvalue().split("\r") if s.strip()]
-    assert len(lines) == 4            # the first look only starts the rate's clock
-    assert lines[-1].startswith("press-cycle: t = 5 of 10 s (50 %), ") and "x real time, " \
-        in lines[-1] and lines[-1].rstrip().endswith(" left"), lines
+    assert len(lines) == 4  # the first look only starts the rate's clock
+    assert (
+        lines[-1].startswith("press-cycle: t = 5 of 10 s (50 %), ")
+        and "x real time, " in lines[-1]
+        and lines[-1].rstrip().endswith(" left")
+    ), lines
     assert out.getvalue().endswith("\r") and out.getvalue().split("\r")[-2].strip() == ""
     for stream, quiet in ((io.StringIO(), False), (Tty(), True)):
         q = Progress(0.0, 10.0, stream=stream, quiet=quiet, every=0.0, check=1)

@@ -118,14 +118,18 @@ def test_a_spring_at_a_centre_of_mass_bounds_its_omega():
     assert stiffness_x_bound(2.0e4, mech, "B") == pytest.approx(2.0e4 / mech.body("rod").mass)
     assert stiffness_x_bound(2.0e4, mech, "O") is None
     assert TopStop(0.0255).stiffness_bound(mech) == 0.0
-    assert RetentionSprings(2.0e4, 10.0, 0.0255).stiffness_bound(mech) == \
-        stiffness_x_bound(2.0e4, mech, "C")
+    assert RetentionSprings(2.0e4, 10.0, 0.0255).stiffness_bound(mech) == stiffness_x_bound(2.0e4, mech, "C")
 
 
-ELASTIC = load_scene("free-fall").text.replace(
-    "assembly = 1", "assembly = 1\nx_top_mm = 24.0").replace(
-    "[solver]", "[[effects]]\ntype = \"springs\"\nstiffness_n_m = 2.0e6\npreload_n = 0.0\n\n"
-    "[[effects]]\ntype = \"top_stop\"\nmodel = \"elastic\"\nstiffness_n_m = 5.0e7\n\n[solver]")
+ELASTIC = (
+    load_scene("free-fall")
+    .text.replace("assembly = 1", "assembly = 1\nx_top_mm = 24.0")
+    .replace(
+        "[solver]",
+        '[[effects]]\ntype = "springs"\nstiffness_n_m = 2.0e6\npreload_n = 0.0\n\n'
+        '[[effects]]\ntype = "top_stop"\nmodel = "elastic"\nstiffness_n_m = 5.0e7\n\n[solver]',
+    )
+)
 
 
 @pytest.mark.parametrize("scene,t_end,dt", [("press-cycle", 1.0, 1e-3), (ELASTIC, 0.2, 1e-4)])
@@ -145,18 +149,19 @@ def test_the_bounds_are_above_every_per_step_estimate(scene, t_end, dt):
     sim.observers.append(Every(check))
     sim.run(t_end, dt)
     assert {n for n, _ in seen} == {1, 2} or scene != "press-cycle"
-    assert max(r for _, r in seen) > 0.05          # the bound is not vacuous
+    assert max(r for _, r in seen) > 0.05  # the bound is not vacuous
 
 
-@pytest.mark.parametrize("scene,t_end,dt", [("press-cycle", 0.5, 1e-3), (ELASTIC, 0.1, 1e-4),
-                                            (ELASTIC, 0.05, 2e-3)])
+@pytest.mark.parametrize(
+    "scene,t_end,dt", [("press-cycle", 0.5, 1e-3), (ELASTIC, 0.1, 1e-4), (ELASTIC, 0.05, 2e-3)]
+)
 def test_the_stability_shortcut_changes_nothing(scene, t_end, dt):
     def make():
         return build(load_scene(scene) if "\n" not in scene else scene_from_text(scene))
 
     fast = make()
     slow = make()
-    slow._dt_stable = 0.0                   # the per-step estimate at every step
+    slow._dt_stable = 0.0  # the per-step estimate at every step
     a, b = fast.run(t_end, dt), slow.run(t_end, dt)
     columns_equal(a, b)
     assert a.events == b.events and a.counts == b.counts

@@ -19,8 +19,11 @@ DELTA = math.radians(0.1)
 
 def engine(scheme, delta=DELTA, effects=None):
     m = PressMechanism()
-    eff = effects if effects is not None else [
-        Gravity((-9.81, 0.0)), Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)]
+    eff = (
+        effects
+        if effects is not None
+        else [Gravity((-9.81, 0.0)), Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)]
+    )
     return m, PartialSystems(m, eff, scheme, delta)
 
 
@@ -68,8 +71,7 @@ def test_central_accelerations_converge_to_exact(q):
     errs = []
     for deg in (0.4, 0.2, 0.1):
         m, eng = engine("central", math.radians(deg))
-        errs.append(np.abs(eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, q, qd).qdd
-                           - qdd_exact).max())
+        errs.append(np.abs(eng.evaluate(ChartView(m.chart("phi-psi+")), 0.0, q, qd).qdd - qdd_exact).max())
     assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
 
 
@@ -121,8 +123,7 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
     from mps_core import build, load_scene
     from mps_core.derivatives.tracing import BranchChanged
 
-    scene = load_scene("paper").with_overrides(solver="rk6", scheme="autodiff", dt=5e-3,
-                                               t_end=0.1)
+    scene = load_scene("paper").with_overrides(solver="rk6", scheme="autodiff", dt=5e-3, t_end=0.1)
     first = build(scene)
     states = {}
     evaluate = first.engine.evaluate
@@ -134,13 +135,14 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
 
     first.engine.evaluate = spy
     first.run(0.1, 5e-3)
-    assert len(states) >= 3                     # the start chart and those it changed to
+    assert len(states) >= 3  # the start chart and those it changed to
     for view, e0 in states.items():
         plan0 = first.engine._plans[view]
         for fails in (False, True):
             sim = build(scene)
-            pair = engine_module._FIRST[view, engine_module._tables_number(sim.engine),
-                                        sim.engine._fingerprint()]
+            pair = engine_module._FIRST[
+                view, engine_module._tables_number(sim.engine), sim.engine._fingerprint()
+            ]
             assert pair == (plan0.exact, plan0.fused)
             calls = []
             full = pair[1].full
@@ -157,8 +159,8 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
             finally:
                 pair[1].full = full
             assert calls and (len(calls) == 1 or fails)
-            if fails:               # (the fused function failing alone: the kernel and the
-                                    # effects one by one, the same numbers to round-off)
+            if fails:  # (the fused function failing alone: the kernel and the
+                # effects one by one, the same numbers to round-off)
                 np.testing.assert_allclose(e1.qdd, e0.qdd, rtol=1e-12, atol=0)
             else:
                 assert e1.qdd.tolist() == e0.qdd.tolist() and e1.kin._xl == e0.kin._xl

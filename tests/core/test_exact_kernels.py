@@ -29,12 +29,17 @@ def _close(a, b, scale):
 
 
 def _state(view, u, w, v0, v1):
-    return np.array(state(view, u, w)), np.array([v0, v1][:view.n])
+    return np.array(state(view, u, w)), np.array([v0, v1][: view.n])
 
 
 @settings(max_examples=80, deadline=None)
-@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi),
-       w=st.floats(-0.5, 0.5), v0=st.floats(-20, 20), v1=st.floats(-5, 5))
+@given(
+    k=st.integers(0, len(VIEWS) - 1),
+    u=st.floats(-math.pi, math.pi),
+    w=st.floats(-0.5, 0.5),
+    v0=st.floats(-20, 20),
+    v1=st.floats(-5, 5),
+)
 def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
     structure, view = VIEWS[k]
     CONTROLS.structure = structure
@@ -46,7 +51,7 @@ def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
             KERNEL.evaluate(view, 0.0, q, qd)
         return
     if view.regularity(a.kin.pose) < 0.05:
-        return                     # near a chart's singularity both lose digits differently
+        return  # near a chart's singularity both lose digits differently
     e = KERNEL.evaluate(view, 0.0, q, qd)
     plan = KERNEL._plans[view]
     assert plan.exact_traced
@@ -115,15 +120,17 @@ def test_another_branch_gets_a_kernel_of_its_own(monkeypatch):
 
     v2 = ChartView(dataclasses.replace(view.chart, flat=branching))
     qd = np.array([10.0, 1.0])
-    eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)       # traced with phi <= 0.5
+    eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)  # traced with phi <= 0.5
     plan = eng._plans[v2]
     first = plan.exact
     assert first is not None
     ran_jets = []
     original = PartialSystems._jets_evaluate
-    monkeypatch.setattr(PartialSystems, "_jets_evaluate",
-                        lambda self, *a: (self is eng and ran_jets.append(a))
-                        or original(self, *a))
+    monkeypatch.setattr(
+        PartialSystems,
+        "_jets_evaluate",
+        lambda self, *a: (self is eng and ran_jets.append(a)) or original(self, *a),
+    )
     kernels = []
     for phi in (0.2, 0.9, 0.4, 0.95, 0.1):
         e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
@@ -143,7 +150,7 @@ def test_an_untraceable_chart_keeps_the_jets():
     flat = view.chart.flat
 
     def opaque(phi, psi, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
-        return flat(phi, psi, math.cos, math.sin, math.sqrt)   # math's own: no trace
+        return flat(phi, psi, math.cos, math.sin, math.sqrt)  # math's own: no trace
 
     v2 = ChartView(dataclasses.replace(view.chart, flat=opaque))
     e = eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), np.array([10.0, 1.0]))
@@ -175,8 +182,9 @@ def test_kernels_are_shared_between_equal_mechanisms_only():
     scene = load_scene("paper").with_overrides(scheme="autodiff")
     a, b = build(scene), build(scene)
     assert a.engine._plans[a.view].exact is b.engine._plans[b.view].exact
-    longer = dataclasses.replace(scene, geometry=dataclasses.replace(
-        scene.geometry, l2=scene.geometry.l2 * 1.1))
+    longer = dataclasses.replace(
+        scene, geometry=dataclasses.replace(scene.geometry, l2=scene.geometry.l2 * 1.1)
+    )
     c = build(longer)
     assert function_key(c.view.chart.flat) != function_key(a.view.chart.flat)
     assert function_key(b.view.chart.flat) == function_key(a.view.chart.flat)
@@ -205,13 +213,15 @@ def test_every_chart_of_every_preset_takes_the_exact_kernels(name, monkeypatch):
     from mps_core.dynamics.engine import PartialSystems
 
     scene = change_point_scene() if name == CHANGE_POINT else load_scene(name)
-    scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3),
-                                 dt=max(scene.dt, 1e-4))
+    scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3), dt=max(scene.dt, 1e-4))
     sim = build(scene)
     jets = []
     original = PartialSystems._jets_evaluate
-    monkeypatch.setattr(PartialSystems, "_jets_evaluate",
-                        lambda self, view, *a: jets.append(view.name) or original(self, view, *a))
+    monkeypatch.setattr(
+        PartialSystems,
+        "_jets_evaluate",
+        lambda self, view, *a: jets.append(view.name) or original(self, view, *a),
+    )
     traj = sim.run(scene.t_end, scene.dt)
     assert sim.engine.counts["evaluations"] >= len(traj) - 1
     assert not jets, f"{len(jets)} evaluations by the jets, in {sorted(set(jets))}"

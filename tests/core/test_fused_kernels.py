@@ -35,8 +35,7 @@ def _spy(eng, sim=None):
         return out
 
     accelerations, accelerator = eng.accelerations, eng.accelerator
-    eng.accelerations = lambda view, t, ql, vl: check(
-        view, t, ql, vl, lambda *a: accelerations(view, *a))
+    eng.accelerations = lambda view, t, ql, vl: check(view, t, ql, vl, lambda *a: accelerations(view, *a))
 
     def spied(view):
         accel = accelerator(view)
@@ -61,8 +60,7 @@ def _check_whole_evaluation(eng, view, plan, t, ql, vl):
     except ForceLawBranch:
         return
     xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
-    kin = Kinematics(t, None, None, eng._names, bodies=eng._body_index, lists=(xl, jl, wl),
-                     conv=conv, v=vl)
+    kin = Kinematics(t, None, None, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
     Q, Qnc = eng._forces(t, kin)
     assert list(got) == [xl, jl, wl, A, h, conv, Q, Qnc, solve_given_h(A, h, Q)]
 
@@ -80,7 +78,7 @@ def test_every_preset_chart_and_structure_gives_the_general_paths_accelerations(
     bad = [(v, t, a, b) for v, t, a, b in seen if a != b]
     assert not bad, bad[:3]
     assert fused_calls[0] > 0.8 * len(seen)
-    asked = {v for v, _t, _a, _b in seen}           # the views the solver's stages ran in
+    asked = {v for v, _t, _a, _b in seen}  # the views the solver's stages ran in
     fused = {v.name for v, p in sim.engine._plans.items() if p.fused is not None}
     assert asked <= fused
     if name == "press-cycle":
@@ -108,7 +106,7 @@ def test_a_parameter_or_control_set_makes_the_function_again():
     third = eng.accelerations(view, 0.0, q, v)
     assert third == eng._solve_on_floats(view, 0.0, q, v)[3]
     assert third not in (first, second)
-    assert "/ 157.0" not in eng._plans[view].fused.source      # the motor's law left out
+    assert "/ 157.0" not in eng._plans[view].fused.source  # the motor's law left out
 
 
 class _Exponential(Effect):
@@ -148,7 +146,7 @@ def test_only_the_effects_the_scene_names_are_in_the_code():
     eng.effects.append(friction)
     out = eng.accelerations(view, 0.0, q, v)
     source = eng._plans[view].fused.source
-    assert source.count("tanh(") == 4          # one joint each: O, A, B, C
+    assert source.count("tanh(") == 4  # one joint each: O, A, B, C
     assert out == eng._solve_on_floats(view, 0.0, q, v)[3]
 
 
@@ -170,7 +168,7 @@ def test_a_generated_step_calling_the_fused_function_gives_the_same_run():
     scene = load_scene("press-cycle").with_overrides(scheme="autodiff", solver="rk8")
     direct = build(scene)
     s = direct.solver
-    direct._restart(direct.view, s.t, s.q, s.qd)         # as the other one below
+    direct._restart(direct.view, s.t, s.q, s.qd)  # as the other one below
     a = direct.run(0.5, 2e-3)
     plain = build(scene)
     accelerator = plain.engine.accelerator
@@ -238,8 +236,16 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
             xl, jl, wl, A2, h2, wb = (plan.inline or plan.kernel)(*ql, *vl)
         except BranchChanged:
             xl, jl, wl, A2, h2, wb = plan.kernel(*ql, *vl)
-        one_by_one = Kinematics(t, None, None, eng._names, bodies=eng._body_index,
-                                lists=(xl, jl, wl), side=(wb, plan.inv2d), v=list(vl))
+        one_by_one = Kinematics(
+            t,
+            None,
+            None,
+            eng._names,
+            bodies=eng._body_index,
+            lists=(xl, jl, wl),
+            side=(wb, plan.inv2d),
+            v=list(vl),
+        )
         Q2, Qnc2 = eng._forces(t, one_by_one)
         assert (A, h, Q, Qnc, qdd) == (A2, h2, Q2, Qnc2, solve_given_h(A2, h2, Q2)), (view.name, t)
         calls[0] += 1

@@ -34,7 +34,7 @@ def _imports(name: str, path: Path, modules) -> set[str]:
             targets = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                root = base[:len(base) - node.level + 1]
+                root = base[: len(base) - node.level + 1]
                 mod = ".".join(root + ([node.module] if node.module else []))
             else:
                 mod = node.module or ""
@@ -51,8 +51,11 @@ def test_no_import_circle():
     modules = _modules()
     graph = {m: _imports(m, p, modules) for m, p in modules.items()}
     # packages' __init__ re-export their modules: leave them out of the circles
-    graph = {m: {t for t in ts if Path(modules[t]).name != "__init__.py"}
-             for m, ts in graph.items() if Path(modules[m]).name != "__init__.py"}
+    graph = {
+        m: {t for t in ts if Path(modules[t]).name != "__init__.py"}
+        for m, ts in graph.items()
+        if Path(modules[m]).name != "__init__.py"
+    }
     state: dict[str, int] = {}
     stack: list[str] = []
     circles = []
@@ -62,7 +65,7 @@ def test_no_import_circle():
         stack.append(m)
         for t in sorted(graph.get(m, ())):
             if state.get(t) == 1:
-                circles.append(stack[stack.index(t):] + [t])
+                circles.append(stack[stack.index(t) :] + [t])
             elif t not in state:
                 visit(t)
         stack.pop()
@@ -80,8 +83,9 @@ def test_the_core_imports_no_ros():
             continue
         text = p.read_text()
         for word in ("rclpy", "import mcap", "from mcap", "rerun", "rosbags", "mps_ros"):
-            lines = [ln for ln in text.splitlines()
-                     if ln.strip().startswith(("import", "from")) and word in ln]
+            lines = [
+                ln for ln in text.splitlines() if ln.strip().startswith(("import", "from")) and word in ln
+            ]
             assert not lines, (m, lines)
 
 

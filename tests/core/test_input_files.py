@@ -8,7 +8,7 @@ import pytest
 
 from mps_core.cli import main
 
-pytest.importorskip("mcap")         # recover and view are among the subcommands
+pytest.importorskip("mcap")  # recover and view are among the subcommands
 
 
 @pytest.fixture

@@ -15,7 +15,7 @@ def f(q):
 def fd_derivatives(q, v, h=1e-4):
     q = np.asarray(q, float)
     g = np.array([(f(q + h * e) - f(q - h * e)) / (2 * h) for e in np.eye(2)])
-    d2 = (f(q + h * v) - 2 * f(q) + f(q - h * v)) / h ** 2
+    d2 = (f(q + h * v) - 2 * f(q) + f(q - h * v)) / h**2
     return g, d2
 
 
@@ -37,7 +37,7 @@ def test_jet_exact_on_polynomial():
     p = x * x * y + 2.0 * y - 1.0
     # p = x^2 y + 2y - 1: grad = (2xy, x^2 + 2); d2 along v = 2 y vx^2 + 4 x vx vy
     assert np.allclose(p.grad, [2 * 0.3 * -0.7, 0.09 + 2.0], rtol=0, atol=1e-15)
-    assert np.isclose(p.d2, 2 * -0.7 * 1.5 ** 2 + 4 * 0.3 * 1.5 * 2.0, rtol=0, atol=1e-14)
+    assert np.isclose(p.d2, 2 * -0.7 * 1.5**2 + 4 * 0.3 * 1.5 * 2.0, rtol=0, atol=1e-14)
 
 
 def test_jet_with_array_values_and_constants():

@@ -29,12 +29,17 @@ def _close(a, b, scale):
 
 
 @settings(max_examples=60, deadline=None)
-@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi),
-       w=st.floats(-0.5, 0.5), v0=st.floats(-20, 20), v1=st.floats(-5, 5))
+@given(
+    k=st.integers(0, len(VIEWS) - 1),
+    u=st.floats(-math.pi, math.pi),
+    w=st.floats(-0.5, 0.5),
+    v0=st.floats(-20, 20),
+    v1=st.floats(-5, 5),
+)
 def test_kernel_evaluation_equals_the_array_code(k, u, w, v0, v1):
     structure, view = VIEWS[k]
     CONTROLS.structure = structure
-    q, qd = np.array(state(view, u, w)), np.array([v0, v1][:view.n])
+    q, qd = np.array(state(view, u, w)), np.array([v0, v1][: view.n])
     try:
         a = ARRAY.evaluate(view, 0.0, q, qd)
     except ChartDomainError:
@@ -42,7 +47,7 @@ def test_kernel_evaluation_equals_the_array_code(k, u, w, v0, v1):
             KERNEL.evaluate(view, 0.0, q, qd)
         return
     if view.regularity(a.kin.pose) < 0.05:
-        return                     # near a chart's singularity both lose digits differently
+        return  # near a chart's singularity both lose digits differently
     e = KERNEL.evaluate(view, 0.0, q, qd)
     assert KERNEL._plans[view].kernel is not None
     assert _close(e.A, a.A, np.abs(a.A).max())
@@ -116,8 +121,7 @@ def test_no_flat_positions_means_the_array_code():
 
 
 @settings(max_examples=40, deadline=None)
-@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi),
-       w=st.floats(-0.5, 0.5))
+@given(k=st.integers(0, len(VIEWS) - 1), u=st.floats(-math.pi, math.pi), w=st.floats(-0.5, 0.5))
 def test_the_inlined_kernel_equals_the_calling_kernel(k, u, w):
     """The traced position function written out at each stencil point gives the numbers of the
     kernel that calls it there."""
@@ -126,18 +130,19 @@ def test_the_inlined_kernel_equals_the_calling_kernel(k, u, w):
     q = state(view, u, w)
     plan = KERNEL._plan(view)
     from mps_core.codegen.kernels import central_kernel
+
     try:
-        calling = plan.kernel(*q, *[3.0, -1.0][:view.n])
+        calling = plan.kernel(*q, *[3.0, -1.0][: view.n])
     except (ChartDomainError, ValueError, ZeroDivisionError):
         return
     try:
         inline = central_kernel(KERNEL, view, plan, q)
     except ChartDomainError:
-        return                      # the stencil reaches outside the domain at the traced q
+        return  # the stencil reaches outside the domain at the traced q
     if "~" in view.name:
-        assert inline is None       # the continuation chart's math functions: not traced
+        assert inline is None  # the continuation chart's math functions: not traced
         return
-    out = inline(*q, *[3.0, -1.0][:view.n])
+    out = inline(*q, *[3.0, -1.0][: view.n])
     for a, b in zip(out, calling):
         assert np.allclose(np.asarray(a, float), np.asarray(b, float), rtol=1e-14, atol=1e-300)
 
@@ -158,7 +163,7 @@ def test_an_inlined_kernel_on_another_branch_hands_over_to_the_calling_one():
     qd = np.array([10.0, 1.0])
     eng.evaluate(v2, 0.0, np.array([0.3, -0.1]), qd)
     assert eng._plans[v2].inline is not None
-    for phi in (0.2, 0.9, 0.499):            # 0.499: only some stencil points cross
+    for phi in (0.2, 0.9, 0.499):  # 0.499: only some stencil points cross
         e = eng.evaluate(v2, 0.0, np.array([phi, -0.1]), qd)
         a = arr.evaluate(view, 0.0, np.array([phi, -0.1]), qd)
         assert _close(e.qdd, a.qdd, np.abs(a.qdd).max() + 1.0)

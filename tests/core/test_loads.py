@@ -14,8 +14,7 @@ PHASES = [0.3, -2.0, 0.0, 1.0, 3.0, -0.5]
 
 
 def synthetic(tau, omega, mean=-7.0):
-    return mean + sum(a * np.cos((k + 1) * omega * tau + p)
-                      for k, (a, p) in enumerate(zip(AMPS, PHASES)))
+    return mean + sum(a * np.cos((k + 1) * omega * tau + p) for k, (a, p) in enumerate(zip(AMPS, PHASES)))
 
 
 def test_harmonics_of_one_uniformly_sampled_period_are_exact():
@@ -36,9 +35,8 @@ def test_report_of_a_recorded_signal_finds_the_cycle_and_its_harmonics():
     passages of phi = 0 and the harmonics come back through the spline resampling."""
     w = 2 * math.pi * 7.3
     t = np.arange(0.0, 0.5 + 1e-12, 1e-4)
-    phi = w * t - 0.4                     # passes phi = 0 (mod 2 pi) at t = (0.4 + 2 pi k) / w
-    cols = {"t": t, "phi": phi, "phi_dot": np.full_like(t, w),
-            "structure": np.array(["locked"] * t.size)}
+    phi = w * t - 0.4  # passes phi = 0 (mod 2 pi) at t = (0.4 + 2 pi k) / w
+    cols = {"t": t, "phi": phi, "phi_dot": np.full_like(t, w), "structure": np.array(["locked"] * t.size)}
     k_last = math.floor((phi[-1]) / (2 * math.pi))
     t0 = (0.4 + 2 * math.pi * (k_last - 1)) / w
     cols["F_found_x"] = synthetic(t - t0, w)
@@ -52,8 +50,9 @@ def test_report_of_a_recorded_signal_finds_the_cycle_and_its_harmonics():
     for h, a, p in zip(q["harmonics"], AMPS, PHASES):
         assert h["amplitude"] == pytest.approx(a, abs=1e-8)
         if a:
-            assert math.remainder(math.radians(h["phase_deg"]) - p, 2 * math.pi) == \
-                pytest.approx(0.0, abs=1e-7)
+            assert math.remainder(math.radians(h["phase_deg"]) - p, 2 * math.pi) == pytest.approx(
+                0.0, abs=1e-7
+            )
         else:
             assert h["phase_deg"] is None
     assert q["rms"] == pytest.approx(math.sqrt(49 + sum(a * a for a in AMPS) / 2), rel=1e-9)
@@ -72,8 +71,7 @@ def test_report_of_a_recorded_signal_finds_the_cycle_and_its_harmonics():
 def test_mps_loads_on_a_scene_and_on_its_recording(tmp_path, capsys):
     js, cs, png, rec = (tmp_path / n for n in ("r.json", "r.csv", "r.png", "rec.csv"))
     args = ["--t-end", "0.42", "--dt", "5e-4"]
-    assert main(["loads", "working", *args, "--json", str(js), "--csv", str(cs),
-                 "--png", str(png)]) == 0
+    assert main(["loads", "working", *args, "--json", str(js), "--csv", str(cs), "--png", str(png)]) == 0
     out = capsys.readouterr().out
     assert "F_found_x" in out and "transients: none" in out
     rep = json.loads(js.read_text())
@@ -89,15 +87,18 @@ def test_mps_loads_on_a_scene_and_on_its_recording(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     # the same report from a recording of the same run
     assert main(["run", "working", *args, "--reactions", "--csv", str(rec)]) == 0
-    assert main(["loads", str(rec), "--json", str(js)]) == 2     # it exists: --force
+    assert main(["loads", str(rec), "--json", str(js)]) == 2  # it exists: --force
     assert main(["loads", str(rec), "--json", str(js), "--force"]) == 0
     rep2 = json.loads(js.read_text())
     assert quantity(rep2, "F_found_x")["harmonics"] == fx["harmonics"]
     # a recording's impulse events are listed as transients, not folded into the cycle
     ev = tmp_path / "events.jsonl"
-    ev.write_text(json.dumps({"t": 0.01, "kind": "impulse", "duration_s": 0.0,
-                              "impulses_Ns": {"M_latch": 0.5}}) + "\n"
-                  + json.dumps({"t": 0.02, "kind": "chart"}) + "\n")
+    ev.write_text(
+        json.dumps({"t": 0.01, "kind": "impulse", "duration_s": 0.0, "impulses_Ns": {"M_latch": 0.5}})
+        + "\n"
+        + json.dumps({"t": 0.02, "kind": "chart"})
+        + "\n"
+    )
     capsys.readouterr()
     assert main(["loads", str(rec), "--events", str(ev), "--json", str(js), "--force"]) == 0
     assert "transients (impulses, N*s)" in capsys.readouterr().out

@@ -21,7 +21,7 @@ def test_an_output_that_is_the_scene_is_refused_before_the_run(scene_copy, capsy
     before = scene_copy.read_bytes()
     assert main(["run", str(scene_copy), flag, str(scene_copy), "--force"]) == 2
     out, err = capsys.readouterr()
-    assert out == ""                                    # nothing ran
+    assert out == ""  # nothing ran
     assert err.count("\n") == 1 and f"{flag} {str(scene_copy)!r}" in err
     assert "the command's input" in err and "destroy" in err
     assert scene_copy.read_bytes() == before
@@ -36,7 +36,7 @@ def test_an_existing_output_needs_force(tmp_path, capsys):
     assert csv.read_text() == "keep me\n"
     assert main(["run", "paper", "--csv", str(csv), "--force"]) == 0
     assert csv.read_text().startswith("t,")
-    assert list(tmp_path.iterdir()) == [csv]            # no temporary file left
+    assert list(tmp_path.iterdir()) == [csv]  # no temporary file left
 
 
 def test_output_paths_are_checked_before_the_run(tmp_path, capsys):
@@ -79,14 +79,29 @@ def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys
     from mps_core.dynamics.reactions import read_csv
 
     csv, ev = tmp_path / "p.csv", tmp_path / "p.jsonl"
-    assert main(["run", "press-cycle", "--no-chart-switching", "--dt", "0.001", "--reactions",
-                 "--csv", str(csv), "--events", str(ev)]) == 2
+    assert (
+        main(
+            [
+                "run",
+                "press-cycle",
+                "--no-chart-switching",
+                "--dt",
+                "0.001",
+                "--reactions",
+                "--csv",
+                str(csv),
+                "--events",
+                str(ev),
+            ]
+        )
+        == 2
+    )
     out, err = capsys.readouterr()
     assert err.startswith("mps: error: t = ") and err.count("\n") == 1
     assert "(partial: up to t = " in out
     last = csv.read_text().splitlines()[-1]
     assert last.startswith("# partial: the run stopped at t = ") and "chart switching is off" in last
-    cols = read_csv(csv)                          # our reader skips the comment
+    cols = read_csv(csv)  # our reader skips the comment
     t_stop = cols["t"][-1]
     assert 0.1 < t_stop < 1.0 and len(cols["t"]) == round(t_stop / 0.001) + 1
     assert "F_found_x" in cols
@@ -98,14 +113,30 @@ def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys
 def test_mps_loads_checks_its_outputs_before_the_run(tmp_path, capsys):
     kept = tmp_path / "w.json"
     kept.write_text("{}")
-    for args, words in (([ "--png", str(tmp_path / "nodir" / "w.png")], "no directory"),
-                        (["--json", str(kept)], "exists")):
+    for args, words in (
+        (["--png", str(tmp_path / "nodir" / "w.png")], "no directory"),
+        (["--json", str(kept)], "exists"),
+    ):
         assert main(["loads", "working", *args]) == 2
         out, err = capsys.readouterr()
         assert out == "" and words in err, err
     assert kept.read_text() == "{}"
-    assert main(["loads", "working", "--t-end", "0.3", "--json", str(kept), "--png",
-                 str(tmp_path / "w.png"), "--force"]) == 0
+    assert (
+        main(
+            [
+                "loads",
+                "working",
+                "--t-end",
+                "0.3",
+                "--json",
+                str(kept),
+                "--png",
+                str(tmp_path / "w.png"),
+                "--force",
+            ]
+        )
+        == 0
+    )
     assert kept.read_text().startswith("{\n") or len(kept.read_text()) > 2
     assert (tmp_path / "w.png").read_bytes()[:4] == b"\x89PNG"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w.json", "w.png"]

@@ -40,8 +40,9 @@ def test_outputs_inside_long_steps_from_the_steps_interpolant(paper_reference):
     assert np.allclose(fine.t[::5], coarse.t, atol=1e-12)
     assert np.allclose(fine.phi[::5], coarse.phi, rtol=0, atol=1e-11)
     assert np.allclose(fine.T[::5], coarse.T, rtol=1e-11)
-    assert [e["to"] for e in fine.events if e["kind"] == "chart"] == \
-        [e["to"] for e in coarse.events if e["kind"] == "chart"]
+    assert [e["to"] for e in fine.events if e["kind"] == "chart"] == [
+        e["to"] for e in coarse.events if e["kind"] == "chart"
+    ]
 
 
 def test_short_steps_record_every_nth():
@@ -59,15 +60,19 @@ def test_outputs_inside_steps_through_events_carry_their_steps_structure():
     every change of structure between two outputs has its event between them, the work is
     continuous and the reactions come with every output."""
     scene = load_scene("press-cycle").with_overrides(
-        scheme="autodiff", solver="rk4", dt=1e-3, step=2e-3, t_end=0.6)
+        scheme="autodiff", solver="rk4", dt=1e-3, step=2e-3, t_end=0.6
+    )
     sim = build(scene)
     from mps_core.dynamics.reactions import ReactionObserver
 
     sim.observers.append(ReactionObserver())
     traj = sim.run(0.6, 1e-3)
     assert len(traj.t) == 601 and np.allclose(np.diff(traj.t), 1e-3)
-    impacts = [e["t"] for e in traj.events
-               if e["kind"] in ("latch-closes", "latch-opens", "stop-contact", "stop-release")]
+    impacts = [
+        e["t"]
+        for e in traj.events
+        if e["kind"] in ("latch-closes", "latch-opens", "stop-contact", "stop-release")
+    ]
     assert len(impacts) >= 3
     changed = np.nonzero(traj.structure[1:] != traj.structure[:-1])[0]
     assert len(changed) >= 3

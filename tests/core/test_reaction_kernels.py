@@ -47,10 +47,12 @@ def call(kernel, sim, e, loads):
 
 def both(sim, e):
     """(kernel's values, general path's Reactions) at an evaluation."""
-    fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
-                           e.qd.tolist(), e.qdd.tolist(), e.kin)
-    ref = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                            kin=e.kin, kernel=False)
+    fast = reaction_values(
+        sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), e.qdd.tolist(), e.kin
+    )
+    ref = compute_reactions(
+        sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False
+    )
     return fast, ref
 
 
@@ -86,14 +88,17 @@ def test_exact_kernel_equals_newton_euler_on_every_structure(exact_cycle):
         seen[structure] = seen.get(structure, 0) + 1
         times.setdefault(e.view.name, []).append(e.t)
     assert set(seen) == {"free", "held", "locked"}, seen
-    assert len(times) >= 4, list(times)          # several charts, not one
+    assert len(times) >= 4, list(times)  # several charts, not one
     # exact kinematics: every kernel read the evaluation's motion, none ran the trace again
     assert all(from_kinematics(sim, e) for e, _ in states)
     ks = kernels_of(sim.mechanism)
     assert {k[0].name for k in ks.views if len(k) == 3 and ks.views[k]} >= set(times)
     # the states next to every impact and chart change were among those compared
-    marks = [ev["t"] for ev in sim.events if ev["kind"] in ("chart", "latch-closes",
-                                                             "stop-reached", "stop-release")]
+    marks = [
+        ev["t"]
+        for ev in sim.events
+        if ev["kind"] in ("chart", "latch-closes", "stop-reached", "stop-release")
+    ]
     assert len(marks) >= 5
     stepped = np.array([e.t for e, _ in states])
     for t in marks:
@@ -117,25 +122,36 @@ def test_central_kernel_equals_the_least_squares_and_its_residual(central_cycle)
             assert got[c] == pytest.approx(ref.values[c], rel=1e-6, abs=1e-9 * big), (c, e.t)
         assert got["balance_residual_N"] <= 1e-10 * big
         largest_residual = max(largest_residual, ref.values["residual_force_N"] / big)
-    assert largest_residual > 1e-8          # the residual is there (Δ = 0.1°), not round-off
+    assert largest_residual > 1e-8  # the residual is there (Δ = 0.1°), not round-off
 
 
 def test_compute_reactions_takes_the_kernel_and_keeps_the_reference(exact_cycle):
     sim, states = exact_cycle
     e, _ = states[300]
-    a = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                          kin=e.kin)
-    b = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                          kin=e.kin, kernel=False)
+    a = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+    b = compute_reactions(
+        sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False
+    )
     assert a.unknowns == b.unknowns and a.rank == b.rank
     big = max(abs(b.values[c]) for c in FORCES)
     for c in FORCES:
         assert a.values[c] == pytest.approx(b.values[c], abs=1e-9 * big)
     # a drive torque (kinetostatics) is the general path's alone: the same result either way
-    d1 = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                           kin=e.kin, drive="crank")
-    d2 = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                           kin=e.kin, drive="crank", kernel=False)
+    d1 = compute_reactions(
+        sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, drive="crank"
+    )
+    d2 = compute_reactions(
+        sim.mechanism,
+        sim.engine.effects,
+        e.view,
+        e.t,
+        e.q,
+        e.qd,
+        e.qdd,
+        kin=e.kin,
+        drive="crank",
+        kernel=False,
+    )
     assert d1.values == d2.values
 
 
@@ -144,21 +160,29 @@ def test_a_failed_guard_falls_back_to_the_general_path(exact_cycle, monkeypatch)
     e, _ = states[500]
     ks = kernels_of(sim.mechanism)
     key = (e.view, ks.scale, True)
-    assert reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
-                           e.qd.tolist(), e.qdd.tolist(), e.kin) is not None   # made here
+    assert (
+        reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), e.qdd.tolist(), e.kin
+        )
+        is not None
+    )  # made here
     kernel, unknowns = ks.views[key]
 
     def singular(*a):
         raise Fallback("a pivot below its guard")
 
     monkeypatch.setitem(ks.views, key, (singular, unknowns))
-    monkeypatch.setattr(ks, "last", {})     # the function made from the kernel replaced
-    assert reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(),
-                           e.qd.tolist(), e.qdd.tolist(), e.kin) is None
-    a = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                          kin=e.kin)
-    b = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                          kin=e.kin, kernel=False)
+    monkeypatch.setattr(ks, "last", {})  # the function made from the kernel replaced
+    assert (
+        reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), e.qdd.tolist(), e.kin
+        )
+        is None
+    )
+    a = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+    b = compute_reactions(
+        sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin, kernel=False
+    )
     assert a.values == b.values
     # the guard itself: the pivots that vary with the state are checked against their size
     # (the constant ones, ±1 of a force balance, once when the kernel is written)
@@ -187,7 +211,7 @@ def test_traced_load_sums_are_the_loads_summed_one_by_one(fixture, request):
     general = [0]
 
     def counted(t, kin):
-        if isinstance(t, float):        # not a trace
+        if isinstance(t, float):  # not a trace
             general[0] += 1
         return original(t, kin)
 
@@ -213,8 +237,7 @@ def test_the_kernel_with_its_loads_is_the_two_one_after_the_other(fixture, reque
     answered = 0
     for e, _structure in states:
         ql, vl, al = e.q.tolist(), e.qd.tolist(), e.qdd.tolist()
-        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, ql, vl, al,
-                               e.kin)
+        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, ql, vl, al, e.kin)
         moving = from_kinematics(sim, e)
         assert moving is (fixture == "exact_cycle")
         entry = ks.get(e.view, ql, ks.scale, moving)
@@ -228,7 +251,7 @@ def test_the_kernel_with_its_loads_is_the_two_one_after_the_other(fixture, reque
         lists = (e.kin._xl, e.kin._jl, e.kin._wl) + ((e.kin._conv,) if moving else ())
         try:
             joined = with_loads(entry[0], traced)(e.t, *ql, *vl, *al, *lists, e.kin._v())
-        except BranchChanged:           # another branch of a force law: the two apart answer
+        except BranchChanged:  # another branch of a force law: the two apart answer
             continue
         assert joined == apart, e.t
         answered += 1

@@ -37,34 +37,46 @@ def classical_crank_slider(phi, phid, phidd, torque, g=G):
     equation about O left over (zero when phidd is the true acceleration)."""
     gx, gy = g
     s, c = math.sin(phi), math.cos(phi)
-    st = -L1 * s / L2                                   # sin(theta2), rod angle A->B
+    st = -L1 * s / L2  # sin(theta2), rod angle A->B
     ct = math.sqrt(1.0 - st * st)
     thd = -L1 * c * phid / (L2 * ct)
-    thdd = (L1 * s * phid ** 2 - L1 * c * phidd + L2 * st * thd ** 2) / (L2 * ct)
+    thdd = (L1 * s * phid**2 - L1 * c * phidd + L2 * st * thd**2) / (L2 * ct)
     xB = L1 * c + L2 * ct
-    xBdd = -L1 * (c * phid ** 2 + s * phidd) - L2 * (ct * thd ** 2 + st * thdd)
+    xBdd = -L1 * (c * phid**2 + s * phidd) - L2 * (ct * thd**2 + st * thdd)
     A = np.array([L1 * c, L1 * s])
     B = np.array([xB, 0.0])
-    aA = L1 * np.array([-s * phidd - c * phid ** 2, c * phidd - s * phid ** 2])
+    aA = L1 * np.array([-s * phidd - c * phid**2, c * phidd - s * phid**2])
     m34 = M3 + M4
-    FBx = m34 * (gx - xBdd)                              # rocker + slider along x
-    FAx = FBx + M2 * gx - M2 * xBdd                      # rod along x
-    AB = A - B                                           # rod: moment about B (its centre)
+    FBx = m34 * (gx - xBdd)  # rocker + slider along x
+    FAx = FBx + M2 * gx - M2 * xBdd  # rod along x
+    AB = A - B  # rod: moment about B (its centre)
     FAy = (-J2 * thdd + AB[1] * FAx) / AB[0]
     FBy = FAy - M2 * gy
-    FCx = -FBx + M3 * gx - M3 * xBdd                     # rocker along x
+    FCx = -FBx + M3 * gx - M3 * xBdd  # rocker along x
     FCy = -FBy + M3 * gy
-    N = FCy + M4 * gy                                    # slider along y
-    M_latch = -(L3 * FBy)                                # rocker: moment about C, no rotation
-    M_guide = M_latch                                    # slider: moment about C
+    N = FCy + M4 * gy  # slider along y
+    M_latch = -(L3 * FBy)  # rocker: moment about C, no rotation
+    M_guide = M_latch  # slider: moment about C
     FO = np.array([FAx, FAy]) + M1 * np.array(g) - M1 * aA
-    eom = (A[0] * FAy - A[1] * FAx) + M1 * (A[0] * gy - A[1] * gx) + torque \
-        - (J1 + M1 * L1 ** 2) * phidd
+    eom = (A[0] * FAy - A[1] * FAx) + M1 * (A[0] * gy - A[1] * gx) + torque - (J1 + M1 * L1**2) * phidd
     xC = xB - L3
-    return {"F_O_x": FO[0], "F_O_y": FO[1], "F_A_x": FAx, "F_A_y": FAy, "F_B_x": FBx,
-            "F_B_y": FBy, "F_C_x": FCx, "F_C_y": FCy, "N_guide": N, "M_guide": M_guide,
-            "M_latch": M_latch, "M_motor": torque, "F_found_x": FO[0], "F_found_y": FO[1] + N,
-            "M_found_O": xC * N + M_guide - torque}, eom
+    return {
+        "F_O_x": FO[0],
+        "F_O_y": FO[1],
+        "F_A_x": FAx,
+        "F_A_y": FAy,
+        "F_B_x": FBx,
+        "F_B_y": FBy,
+        "F_C_x": FCx,
+        "F_C_y": FCy,
+        "N_guide": N,
+        "M_guide": M_guide,
+        "M_latch": M_latch,
+        "M_motor": torque,
+        "F_found_x": FO[0],
+        "F_found_y": FO[1] + N,
+        "M_found_O": xC * N + M_guide - torque,
+    }, eom
 
 
 def classical_phidd(phi, phid, torque):
@@ -83,8 +95,9 @@ def _locked():
     return mech, effects, ChartView(mech.chart("phi-psi+"), {"psi": 0.0})
 
 
-@pytest.mark.parametrize("phi_deg,phid", [(0.0, 43.5), (37.0, 40.0), (100.0, 46.0),
-                                          (181.0, 44.0), (250.0, 30.0), (330.0, 45.0)])
+@pytest.mark.parametrize(
+    "phi_deg,phid", [(0.0, 43.5), (37.0, 40.0), (100.0, 46.0), (181.0, 44.0), (250.0, 30.0), (330.0, 45.0)]
+)
 def test_locked_reactions_match_the_classical_crank_slider(phi_deg, phid):
     mech, effects, view = _locked()
     phi = math.radians(phi_deg)
@@ -100,8 +113,19 @@ def test_locked_reactions_match_the_classical_crank_slider(phi_deg, phid):
     for k, v in ref.items():
         assert rx[k] == pytest.approx(v, abs=1e-9 * scale), k
     assert rx["F_stop"] == 0.0
-    assert set(rx.unknowns) == {"F_O_x", "F_O_y", "F_A_x", "F_A_y", "F_B_x", "F_B_y", "F_C_x",
-                                "F_C_y", "N_guide", "M_guide", "M_latch"}
+    assert set(rx.unknowns) == {
+        "F_O_x",
+        "F_O_y",
+        "F_A_x",
+        "F_A_y",
+        "F_B_x",
+        "F_B_y",
+        "F_C_x",
+        "F_C_y",
+        "N_guide",
+        "M_guide",
+        "M_latch",
+    }
     assert rx["residual_force_N"] < 1e-9 * scale and rx["balance_residual_N"] < 1e-9 * scale
 
 
@@ -113,10 +137,20 @@ def test_locked_run_frame_forces_match_the_classical_analysis():
     sim.observers.append(ReactionObserver())
     tr = sim.run(scene.t_end, scene.dt)
     for i in range(0, len(tr), 15):
-        ref, _ = classical_crank_slider(tr.phi[i], tr.phi_dot[i], tr.phi_ddot[i],
-                                        pe.motor_torque(tr.phi_dot[i]))
-        for k in ("F_O_x", "F_O_y", "N_guide", "M_guide", "M_latch", "M_motor", "F_found_x",
-                  "F_found_y", "M_found_O"):
+        ref, _ = classical_crank_slider(
+            tr.phi[i], tr.phi_dot[i], tr.phi_ddot[i], pe.motor_torque(tr.phi_dot[i])
+        )
+        for k in (
+            "F_O_x",
+            "F_O_y",
+            "N_guide",
+            "M_guide",
+            "M_latch",
+            "M_motor",
+            "F_found_x",
+            "F_found_y",
+            "M_found_O",
+        ):
             assert tr[k][i] == pytest.approx(ref[k], abs=1e-8 * 6e3), (k, tr.t[i])
     assert tr["residual_force_N"].max() < 1e-8
     assert tr["balance_residual_N"].max() < 1e-9
@@ -127,8 +161,11 @@ def test_free_paper_balance_is_round_off_and_the_residual_is_the_derivatives_err
     step's accelerations miss of the exact equations of motion: O(delta^2) with central
     differences, round-off with exact derivatives."""
     res = {}
-    for label, ov in (("0.1", {}), ("0.01", {"delta": math.radians(0.01)}),
-                      ("exact", {"scheme": "autodiff"})):
+    for label, ov in (
+        ("0.1", {}),
+        ("0.01", {"delta": math.radians(0.01)}),
+        ("exact", {"scheme": "autodiff"}),
+    ):
         scene = load_scene("paper").with_overrides(**ov)
         sim = build(scene)
         sim.observers.append(ReactionObserver())
@@ -144,7 +181,7 @@ def test_free_paper_balance_is_round_off_and_the_residual_is_the_derivatives_err
         res[label] = (tr["residual_force_N"].max(), tr["residual_moment_Nm"].max())
     assert 1e-3 < res["0.1"][0] < 0.1
     ratio = res["0.1"][0] / res["0.01"][0]
-    assert 80 < ratio < 120                      # O(delta^2)
+    assert 80 < ratio < 120  # O(delta^2)
     assert res["exact"][0] < 1e-8 and res["exact"][1] < 1e-10
 
 
@@ -164,19 +201,18 @@ def test_balanced_crank_slider_shaking_force_harmonics():
     w, N = 43.5, 128
     fx, fy = np.empty(N), np.empty(N)
     for j in range(N):
-        rx = compute_reactions(mech, [grav], view, 0.0, [2 * math.pi * j / N], [w], [0.0],
-                               drive="crank")
+        rx = compute_reactions(mech, [grav], view, 0.0, [2 * math.pi * j / N], [w], [0.0], drive="crank")
         fx[j], fy[j] = rx["F_found_x"], rx["F_found_y"]
         assert rx["residual_force_N"] < 1e-9 and rx["balance_residual_N"] < 1e-9
     m = M2 + M3 + M4
     lam = L1 / L2
     mean, amp, _ = harmonics(fx)
     assert mean == pytest.approx((M1 + m) * G[0], rel=1e-12)
-    assert amp[0] == pytest.approx(m * L1 * w ** 2, rel=1e-10)
-    classical = lam * m * L1 * w ** 2
+    assert amp[0] == pytest.approx(m * L1 * w**2, rel=1e-10)
+    classical = lam * m * L1 * w**2
     assert amp[1] == pytest.approx(classical, rel=0.04)
-    assert amp[1] == pytest.approx(classical * (1 + lam ** 2 / 4 + 15 * lam ** 4 / 128), rel=5e-4)
-    assert np.abs(fy).max() < 1e-9 and amp[2] < 1e-9 * amp[0]    # odd harmonics above the 1st: 0
+    assert amp[1] == pytest.approx(classical * (1 + lam**2 / 4 + 15 * lam**4 / 128), rel=5e-4)
+    assert np.abs(fy).max() < 1e-9 and amp[2] < 1e-9 * amp[0]  # odd harmonics above the 1st: 0
 
 
 def test_latch_impact_impulses_are_the_momentum_jumps():
@@ -200,7 +236,7 @@ def test_latch_impact_impulses_are_the_momentum_jumps():
     FO, FA = np.array([v["F_O_x"], v["F_O_y"]]), np.array([v["F_A_x"], v["F_A_y"]])
     FB, FC = np.array([v["F_B_x"], v["F_B_y"]]), np.array([v["F_C_x"], v["F_C_y"]])
     Nv = np.array([0.0, v["N_guide"]])
-    received = {   # (impulse, angular impulse about the centre of mass), contract §7 signs
+    received = {  # (impulse, angular impulse about the centre of mass), contract §7 signs
         "crank": (-FO + FA, cross(P["O"] - P["A"], -FO)),
         "rod": (FB - FA, cross(P["A"] - P["B"], -FA)),
         "rocker": (-FB - FC, cross(P["B"] - P["C"], -FB) - v["M_latch"]),
@@ -216,7 +252,8 @@ def test_latch_impact_impulses_are_the_momentum_jumps():
     # the latch's angular impulse is the constraint's multiplier; energy lost as contract §5
     assert v["M_latch"] == pytest.approx(lam, rel=1e-9)
     assert imp.energy_loss == pytest.approx(
-        0.5 * (A[1, 1] - A[0, 1] ** 2 / A[0, 0]) * qd_minus[1] ** 2, rel=1e-9)
+        0.5 * (A[1, 1] - A[0, 1] ** 2 / A[0, 0]) * qd_minus[1] ** 2, rel=1e-9
+    )
     total = sum(b.mass * (kin.analog(f"G_{b.name}") @ dq) for b in mech.bodies)
     assert np.allclose([v["F_found_x"], v["F_found_y"]], -total, atol=1e-10 * scale)
     assert np.abs(imp.residual).max() < 1e-10 * scale
@@ -234,11 +271,12 @@ def test_reactions_only_when_asked_and_the_cli_columns(tmp_path, capsys):
     assert "foundation force peak" in capsys.readouterr().out
     rows = list(csv.reader(out.open()))
     assert rows[0] == list(COLUMNS) + list(REACTION_COLUMNS)
-    assert rows[0][len(COLUMNS):len(COLUMNS) + 16] == (
+    assert rows[0][len(COLUMNS) : len(COLUMNS) + 16] == (
         "F_O_x,F_O_y,F_A_x,F_A_y,F_B_x,F_B_y,F_C_x,F_C_y,N_guide,M_guide,M_latch,F_stop,M_motor,"
-        "F_found_x,F_found_y,M_found_O").split(",")
+        "F_found_x,F_found_y,M_found_O"
+    ).split(",")
     assert len(rows) == 42
-    assert all(math.isfinite(float(x)) for x in rows[-1][len(COLUMNS):])
+    assert all(math.isfinite(float(x)) for x in rows[-1][len(COLUMNS) :])
 
 
 def test_the_residual_is_the_equation_of_motion_left_over():
@@ -259,7 +297,7 @@ def test_the_residual_is_the_equation_of_motion_left_over():
     Jb[0::3], Jb[1::3], Jb[2::3] = m.J[rows][:, 0], m.J[rows][:, 1], m.W
     exact = PartialSystems(mech, sim.engine.effects, "autodiff").evaluate(e.view, e.t, e.q, e.qd)
     lhs, rhs = Jb.T @ rx.residual, exact.A @ (e.qdd - exact.qdd)
-    assert np.abs(rhs).max() > 1e-4                # central differences: O(delta^2), not zero
+    assert np.abs(rhs).max() > 1e-4  # central differences: O(delta^2), not zero
     assert np.allclose(lhs, rhs, rtol=1e-7, atol=1e-12)
 
 

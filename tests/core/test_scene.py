@@ -22,8 +22,11 @@ def test_paper_preset_is_the_seeds_test():
     assert math.degrees(s.solver.delta) == pytest.approx(0.1)
     assert [e.kind for e in s.effects] == ["gravity", "motor"]
     assert {k: (b.mass, b.inertia) for k, b in s.bodies.items()} == {
-        "crank": (4.6, 0.034), "rod": (20.0, 0.036), "rocker": (18.0, 0.0441),
-        "slider": (100.0, 0.0)}
+        "crank": (4.6, 0.034),
+        "rod": (20.0, 0.036),
+        "rocker": (18.0, 0.0441),
+        "slider": (100.0, 0.0),
+    }
 
 
 def test_motor_preset_numbers():
@@ -31,7 +34,7 @@ def test_motor_preset_numbers():
     motor = s.build_effects(s.mechanism())[1]
     d = motor.data
     assert d.rated_torque == pytest.approx(1500 / (50 * math.pi * 0.942))
-    assert d.breakdown_slip == pytest.approx(0.058 * (2.2 + math.sqrt(2.2 ** 2 - 1)))
+    assert d.breakdown_slip == pytest.approx(0.058 * (2.2 + math.sqrt(2.2**2 - 1)))
     assert motor.ratio == pytest.approx(50 * math.pi * 0.942 / 43.5)
     # rated torque at the rated speed, through the reduction
     assert motor.torque(43.5) == pytest.approx(motor.ratio * d.rated_torque, rel=1e-12)
@@ -56,8 +59,11 @@ BAD = [
     (edit("[bodies.crank]", "[bodies.crank]\ncolour = 'red'"), "bodies.crank.colour", "no such key"),
     (edit('initial = "free"', 'initial = "floating"'), "structure.initial", "'free'"),
     (edit("phi_deg = -64.1", "phi = -64.1"), "initial.phi", "phi_deg"),
-    (edit("psi_deg = -46.34", "psi_deg = 120.0").replace("l3_mm = 30.0", "l3_mm = 90.0"),
-     "initial", "assemble"),
+    (
+        edit("psi_deg = -46.34", "psi_deg = 120.0").replace("l3_mm = 30.0", "l3_mm = 90.0"),
+        "initial",
+        "assemble",
+    ),
     (edit('type = "gravity"', 'type = "magnetism"'), "effects[0].type", "one of"),
     (edit("g_m_s2 = [-9.81, 0.0]", "g_m_s2 = -9.81"), "effects[0].g_m_s2", "two numbers"),
     (edit('model = "4A80B4U3"', 'model = "4A90"'), "effects[1].model", "motor preset"),
@@ -70,8 +76,11 @@ BAD = [
     (edit("steps = 40", "steps = 40\ndt_s = 0.001"), "solver.steps", "not both"),
     (edit("steps = 40", "dt_s = 1.0"), "solver.dt_s", "between"),
     (edit("steps = 40", "steps = 0"), "solver.steps", "positive integer"),
-    (edit("corrector_iterations = 1", "corrector_iterations = 1.5"),
-     "solver.corrector_iterations", "integer"),
+    (
+        edit("corrector_iterations = 1", "corrector_iterations = 1.5"),
+        "solver.corrector_iterations",
+        "integer",
+    ),
     (edit("switch_below = 0.5", "switch_below = 1e-5"), "charts.switch_below", "between"),
     (edit("switching = true", 'switching = "yes"'), "charts.switching", "true or false"),
     (PAPER_TEXT + "\n[extras]\nx = 1\n", "scene file.extras", "no such key"),
@@ -90,31 +99,34 @@ def edit_idle(old, new, text=None):
 
 
 BAD += [
-    (PAPER_TEXT + '\n[[effects]]\ntype = "springs"\nstiffness_n_m = 1e4\npreload_n = 10.0\n',
-     "mechanism.x_top_mm", "needs it"),
+    (
+        PAPER_TEXT + '\n[[effects]]\ntype = "springs"\nstiffness_n_m = 1e4\npreload_n = 10.0\n',
+        "mechanism.x_top_mm",
+        "needs it",
+    ),
     (edit_idle("x_top_mm = 25.5", "x_top_mm = 90.0"), "mechanism.x_top_mm", "can reach"),
-    (edit_idle("stiffness_n_m = 20000.0", "stiffness_n_m = -5.0"), "effects[2].stiffness_n_m",
-     "positive"),
+    (edit_idle("stiffness_n_m = 20000.0", "stiffness_n_m = -5.0"), "effects[2].stiffness_n_m", "positive"),
     (edit_idle("preload_n = 2500.0", ""), "effects[2].preload_n", "required"),
     (edit_idle('model = "rigid"', 'model = "rubber"'), "effects[3].model", "one of"),
-    (edit_idle('model = "rigid"', 'model = "elastic"'), "effects[3].stiffness_n_m",
-     "contact stiffness"),
-    (edit_idle('[[effects]]\ntype = "top_stop"\nmodel = "rigid"', ""), "structure.initial",
-     "top_stop effect for the held"),
+    (edit_idle('model = "rigid"', 'model = "elastic"'), "effects[3].stiffness_n_m", "contact stiffness"),
+    (
+        edit_idle('[[effects]]\ntype = "top_stop"\nmodel = "rigid"', ""),
+        "structure.initial",
+        "top_stop effect for the held",
+    ),
     (edit_idle("psi_deg = -46.34", "psi_deg = -120.0"), "initial.psi_deg", "near the closure"),
-    (edit_idle('command = "engage"', 'command = "jump"', PC_TEXT), "commands[0].command",
-     "one of"),
+    (edit_idle('command = "engage"', 'command = "jump"', PC_TEXT), "commands[0].command", "one of"),
     (edit_idle("t_s = 0.4351", "t_s = 7.0", PC_TEXT), "commands[1].t_s", "within t_end_s"),
     (edit_idle("t_s = 0.008", "t = 0.008", PC_TEXT), "commands[0].t", "t_s"),
-    (edit_idle('[[effects]]\ntype = "latch"\n', "", PC_TEXT), "commands[0].command",
-     "missing: latch"),
-    (edit_idle("thickness_mm = 1.0", "thickness_mm = 0.0", PC_TEXT), "effects[7].thickness_mm",
-     "positive"),
-    (edit_idle("stroke_mm = 1.5", "stroke_mm = 40.0", PC_TEXT), "effects[4].stroke_mm",
-     "up to 10"),
-    (edit_idle("[solver]", "[solver]\nstiff = \"ignore\"", PC_TEXT), "solver.stiff", "one of"),
-    (edit_idle("[solver]", "[outputs]\nreactions = 1\n\n[solver]", PC_TEXT),
-     "outputs.reactions", "true or false"),
+    (edit_idle('[[effects]]\ntype = "latch"\n', "", PC_TEXT), "commands[0].command", "missing: latch"),
+    (edit_idle("thickness_mm = 1.0", "thickness_mm = 0.0", PC_TEXT), "effects[7].thickness_mm", "positive"),
+    (edit_idle("stroke_mm = 1.5", "stroke_mm = 40.0", PC_TEXT), "effects[4].stroke_mm", "up to 10"),
+    (edit_idle("[solver]", '[solver]\nstiff = "ignore"', PC_TEXT), "solver.stiff", "one of"),
+    (
+        edit_idle("[solver]", "[outputs]\nreactions = 1\n\n[solver]", PC_TEXT),
+        "outputs.reactions",
+        "true or false",
+    ),
 ]
 
 
@@ -144,7 +156,7 @@ def test_unknown_preset_or_path():
 def test_overrides_are_validated():
     s = load_scene("paper")
     assert s.with_overrides(t_end=0.1, dt=1e-4).steps == 1000
-    assert s.with_overrides(t_end=0.1).dt == s.dt          # a new end time keeps the step
+    assert s.with_overrides(t_end=0.1).dt == s.dt  # a new end time keeps the step
     with pytest.raises(SceneError, match="solver.dt_s"):
         s.with_overrides(dt=-1.0)
     with pytest.raises(SceneError, match="solver.method"):

@@ -32,9 +32,9 @@ def test_paper_at_the_seeds_settings(paper_reference_005):
     r = paper_reference_005
     assert len(traj) == 41 and traj.t[-1] == pytest.approx(0.05)
     e_phi, e_phid, e_phidd = (max_err(traj, r, n) for n in ("phi", "phi_dot", "phi_ddot"))
-    assert e_phi < 1e-3          # seen: 5.1e-4 rad at t = 0.05 s
-    assert e_phid < 0.1          # seen: 0.03 rad/s of ~20–45 rad/s
-    assert e_phidd < 60.0        # seen: ~1–2 % of |phi_ddot| ~ 1800 rad/s²
+    assert e_phi < 1e-3  # seen: 5.1e-4 rad at t = 0.05 s
+    assert e_phid < 0.1  # seen: 0.03 rad/s of ~20–45 rad/s
+    assert e_phidd < 60.0  # seen: ~1–2 % of |phi_ddot| ~ 1800 rad/s²
     # the derivative scheme is not what limits the seed's accuracy: exact derivatives change
     # phi by far less than the step's error
     exact = simulate(PAPER, scheme="autodiff")
@@ -45,12 +45,15 @@ def test_paper_at_the_seeds_settings(paper_reference_005):
     assert 3.0 < ratio < 5.5, ratio
 
 
-@pytest.mark.parametrize("solver,steps,order", [
-    ("linear-acceleration", (50, 100, 200, 400), 2.0),
-    ("rk4", (25, 50, 100, 200), 4.0),
-    ("rk6", (40, 50, 80, 100), 6.0),
-    ("rk8", (5, 8, 10, 16), 8.0),
-])
+@pytest.mark.parametrize(
+    "solver,steps,order",
+    [
+        ("linear-acceleration", (50, 100, 200, 400), 2.0),
+        ("rk4", (25, 50, 100, 200), 4.0),
+        ("rk6", (40, 50, 80, 100), 6.0),
+        ("rk8", (5, 8, 10, 16), 8.0),
+    ],
+)
 def test_convergence_order_on_paper(paper_reference_005, solver, steps, order):
     r = paper_reference_005
     dts, errs = [], []
@@ -66,15 +69,18 @@ def test_central_differences_converge_with_delta_squared():
     """Same step, shrinking Δ: the difference to exact derivatives falls as Δ²."""
     exact = simulate(PAPER, solver="rk4", steps=200, scheme="autodiff")
     deltas = [0.4, 0.2, 0.1]
-    errs = [np.abs(simulate(PAPER, solver="rk4", steps=200, delta=math.radians(d)).phi_ddot
-                   - exact.phi_ddot).max() for d in deltas]
+    errs = [
+        np.abs(
+            simulate(PAPER, solver="rk4", steps=200, delta=math.radians(d)).phi_ddot - exact.phi_ddot
+        ).max()
+        for d in deltas
+    ]
     assert abs(slope(deltas, errs) - 2.0) < 0.2, errs
 
 
 def test_adaptive_reference_solvers(paper_reference):
     r = paper_reference
-    tight = simulate(PAPER, solver="dop853", t_end=0.1, dt=1e-3, rtol=1e-11, atol=1e-12,
-                     scheme="autodiff")
+    tight = simulate(PAPER, solver="dop853", t_end=0.1, dt=1e-3, rtol=1e-11, atol=1e-12, scheme="autodiff")
     assert max_err(tight, r, "phi") < 1e-8
     assert max_err(tight, r, "phi_dot") < 1e-6
     radau = simulate(PAPER, solver="radau", t_end=0.1, dt=1e-3, rtol=1e-8, scheme="autodiff")
@@ -100,10 +106,10 @@ def test_passes_the_branch_point_of_the_seeds_chart(paper_reference):
     first = traj.events[0]
     assert first["kind"] == "chart" and first["from"] == "phi-psi+" and first["t"] < crossings[0]
     assert set(traj.chart[traj.t > crossings[0]]).isdisjoint({"phi-psi+"})
-    assert max_err(traj, r, "phi", t_from=crossings[0]) < 1e-4       # seen: 3.7e-5 rad
+    assert max_err(traj, r, "phi", t_from=crossings[0]) < 1e-4  # seen: 3.7e-5 rad
     assert max_err(traj, r, "phi_dot", t_from=crossings[0]) < 5e-3
     assert max_err(traj, r, "psi", t_from=crossings[0]) < 5e-4
-    assert max_err(traj, r, "x_C", t_from=crossings[0]) < 5e-6       # metres
+    assert max_err(traj, r, "x_C", t_from=crossings[0]) < 5e-6  # metres
     assert np.all(np.isfinite(traj.phi_ddot)) and np.all(np.isfinite(traj.psi_ddot))
 
 
@@ -118,9 +124,12 @@ def test_without_chart_switching_the_run_stops_with_a_typed_error():
 def test_a_singular_position_of_the_machine_raises_a_typed_error():
     """l3 = l2 − l1: at phi = 90°, psi = −90° crank, rod and rocker lie on one line across the
     guide, where every chart degenerates."""
-    text = PAPER.text.replace("l1_mm = 15.0", "l1_mm = 10.0").replace(
-        "com_mm = [15.0, 0.0]", "com_mm = [10.0, 0.0]").replace(
-        "phi_deg = -64.1", "phi_deg = 90.0").replace("psi_deg = -46.34", "psi_deg = -89.9999")
+    text = (
+        PAPER.text.replace("l1_mm = 15.0", "l1_mm = 10.0")
+        .replace("com_mm = [15.0, 0.0]", "com_mm = [10.0, 0.0]")
+        .replace("phi_deg = -64.1", "phi_deg = 90.0")
+        .replace("psi_deg = -46.34", "psi_deg = -89.9999")
+    )
     scene = scene_from_text(text)
     with pytest.raises(SingularConfiguration) as info:
         build(scene).run(scene.t_end, scene.dt)
@@ -146,8 +155,11 @@ def test_energy_is_conserved_with_gravity_alone_and_the_bound_shrinks_with_the_s
 
 
 # -- the locked structure ----------------------------------------------------------------------
-LOCKED = PAPER.text.replace('initial = "free"', 'initial = "locked"').replace(
-    "phi_deg = -64.1", "phi_deg = 0.0").replace("psi_deg = -46.34", "psi_deg = 0.0")
+LOCKED = (
+    PAPER.text.replace('initial = "free"', 'initial = "locked"')
+    .replace("phi_deg = -64.1", "phi_deg = 0.0")
+    .replace("psi_deg = -46.34", "psi_deg = 0.0")
+)
 
 
 def test_locked_structure_is_the_classical_crank_slider():
@@ -183,8 +195,7 @@ def test_mass_matrix_stays_symmetric_positive_definite_across_charts():
     assert len(set(traj.chart)) >= 3 and min(seen) > 0
 
 
-@pytest.mark.parametrize("solver,per_step", [("linear-acceleration", 2), ("rk4", 4),
-                                              ("rk6", 7), ("rk8", 12)])
+@pytest.mark.parametrize("solver,per_step", [("linear-acceleration", 2), ("rk4", 4), ("rk6", 7), ("rk8", 12)])
 @pytest.mark.parametrize("scheme,points", [("central", 13), ("autodiff", 1)])
 def test_work_budget(solver, per_step, scheme, points):
     traj = simulate(PAPER, solver=solver, scheme=scheme, steps=20, t_end=0.02)
@@ -215,12 +226,15 @@ def test_scenes_of_equal_mechanism_share_it_and_its_views_and_runs_do_not_interf
     a, b = build(PAPER), build(PAPER)
     assert a.mechanism is b.mechanism
     assert [v for v in a.views("free")] == [v for v in b.views("free")]
-    assert a.view in a.views("free")        # the start chart's view is the structure's own
-    other = scene_from_text(PAPER.text.replace("l1_mm = 15.0", "l1_mm = 14.0").replace(
-        "com_mm = [15.0, 0.0]", "com_mm = [14.0, 0.0]"))
+    assert a.view in a.views("free")  # the start chart's view is the structure's own
+    other = scene_from_text(
+        PAPER.text.replace("l1_mm = 15.0", "l1_mm = 14.0").replace(
+            "com_mm = [15.0, 0.0]", "com_mm = [14.0, 0.0]"
+        )
+    )
     assert build(other).mechanism is not a.mechanism
     alone = build(PAPER).run(0.1, 5e-3)
-    for k in range(1, 21):          # a and b in turn, step by step, through three charts
+    for k in range(1, 21):  # a and b in turn, step by step, through three charts
         a.advance_to(k * 0.1 / 20)  # (the times run() steps to)
         b.advance_to(k * 0.1 / 20)
         assert a.solver.q.tolist() == b.solver.q.tolist()

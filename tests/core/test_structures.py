@@ -64,28 +64,34 @@ def test_press_cycle_energy_balance_closes_to_the_step_order():
         traj = simulate("press-cycle", dt=dt, t_end=0.6)
         res.append(np.abs(energy_residual(traj)).max())
         assert traj.E_impact[-1] > 50.0 and traj.W[-1] > 100.0
-    assert res[1] < 0.05                       # J, of ~100 J exchanged; seen 1.7e-2
+    assert res[1] < 0.05  # J, of ~100 J exchanged; seen 1.7e-2
     assert 3.0 < res[0] / res[1] < 5.5, res
 
 
 def test_only_the_effects_a_scene_lists_are_built():
     scene = load_scene("press-cycle")
     kinds = {e.kind for e in scene.build_effects(scene.mechanism())}
-    assert kinds == {"gravity", "motor", "springs", "top_stop", "engage_cylinder", "latch",
-                     "disengage_cylinder", "blanking"}
+    assert kinds == {
+        "gravity",
+        "motor",
+        "springs",
+        "top_stop",
+        "engage_cylinder",
+        "latch",
+        "disengage_cylinder",
+        "blanking",
+    }
     paper = load_scene("paper")
     assert {e.kind for e in paper.build_effects(paper.mechanism())} == {"gravity", "motor"}
 
 
 # -- impacts -----------------------------------------------------------------------------------
-def armed_latch_run(psi_lock=0.0, solver="linear-acceleration", scheme="central", dt=1e-4,
-                    t_end=0.1):
+def armed_latch_run(psi_lock=0.0, solver="linear-acceleration", scheme="central", dt=1e-4, t_end=0.1):
     m = PressMechanism(psi_lock=psi_lock)
     controls = Controls(structure="free", latch_armed=True)
     effects = [Gravity((-9.81, 0.0)), pe_motor(), Latch(psi_lock)]
     init = m.initial_state("free", math.radians(-64.1), 43.5, math.radians(-46.34), 0.0)
-    sim = Simulation(m, "free", effects, init, controls=controls,
-                     solver=SolverSettings(solver, scheme))
+    sim = Simulation(m, "free", effects, init, controls=controls, solver=SolverSettings(solver, scheme))
     return m, sim, sim.run(t_end, dt)
 
 
@@ -99,6 +105,7 @@ def exact_mass_matrix(state):
 
 def pe_motor():
     from mps_core.model.effects import MOTOR_PRESETS, Motor
+
     return Motor.for_crank_speed(MOTOR_PRESETS["4A80B4U3"], 43.5)
 
 
@@ -121,8 +128,7 @@ def test_plastic_latch_impact_keeps_the_cranks_momentum_and_loses_the_predicted_
     ev = next(e for e in traj.events if e["kind"] == "latch-closes")
     b, a = ev["velocities_before"], ev["velocities_after"]
     A = exact_mass_matrix(ev["state"])
-    assert A[0, 0] * a["phi_dot"] == pytest.approx(A[0, 0] * b["phi_dot"] + A[0, 1] * b["psi_dot"],
-                                                   rel=1e-12)
+    assert A[0, 0] * a["phi_dot"] == pytest.approx(A[0, 0] * b["phi_dot"] + A[0, 1] * b["psi_dot"], rel=1e-12)
 
 
 @pytest.mark.parametrize("offset", [-3e-5, 3e-5])
@@ -145,8 +151,7 @@ def test_event_next_to_a_chart_change_is_located_and_mapped_exactly(paper_refere
     assert ev["state"]["phi"] == pytest.approx(float(r.dense(t_ref)[0]), abs=1e-8)
     assert traj.structure[-1] == "locked"
     charts_before = [e for e in traj.events if e["kind"] == "chart" and e["t"] <= ev["t"]]
-    assert len(charts_before) == len([e for e in free.events if e["kind"] == "chart"
-                                      and e["t"] <= ev["t"]])
+    assert len(charts_before) == len([e for e in free.events if e["kind"] == "chart" and e["t"] <= ev["t"]])
     assert abs(ev["t"] - t_switch) < 1e-4
 
 
@@ -167,20 +172,22 @@ def test_commands_take_effect_at_their_exact_time_and_bad_ones_are_refused():
         sim.command("stop")
     sim.command("start")
     sim.advance_to(0.0101)
-    assert sim.structure != "held"      # the scene's engage at 8 ms took the slider off its stop
+    assert sim.structure != "held"  # the scene's engage at 8 ms took the slider off its stop
     with pytest.raises(CommandRefused, match="already engaging"):
         sim.command("engage")
 
 
 # -- stiff effects -------------------------------------------------------------------------------
 # a 1e10 N/m spring relaxed at the slider's initial position: T_min ≈ 0.74 ms
-STIFF = load_scene("free-fall").text.replace(
-    "assembly = 1", "assembly = 1\nx_top_mm = 24.989060906713247").replace(
-    "[solver]", "[[effects]]\ntype = \"springs\"\nstiffness_n_m = 1.0e10\npreload_n = 0.0\n\n[solver]")
+STIFF = (
+    load_scene("free-fall")
+    .text.replace("assembly = 1", "assembly = 1\nx_top_mm = 24.989060906713247")
+    .replace("[solver]", '[[effects]]\ntype = "springs"\nstiffness_n_m = 1.0e10\npreload_n = 0.0\n\n[solver]')
+)
 
 
 def test_a_step_beyond_the_stability_limit_is_refused_with_the_reason():
-    scene = scene_from_text(STIFF.replace("[solver]", "[solver]\nstiff = \"error\""))
+    scene = scene_from_text(STIFF.replace("[solver]", '[solver]\nstiff = "error"'))
     with pytest.raises(StabilityError) as info:
         simulate(scene, t_end=0.01, dt=1e-3)
     msg = str(info.value)
@@ -191,7 +198,7 @@ def test_a_step_beyond_the_stability_limit_is_subdivided():
     scene = scene_from_text(STIFF)
     coarse = simulate(scene, t_end=0.02, dt=1e-3)
     fine = simulate(scene, t_end=0.02, dt=1e-5)
-    assert coarse.counts["steps"] >= 20 * 4           # substeps of at most T_min/(2π) were taken
+    assert coarse.counts["steps"] >= 20 * 4  # substeps of at most T_min/(2π) were taken
     assert np.all(np.isfinite(coarse.x_C)) and np.all(np.isfinite(coarse.phi_ddot))
     e, ef = coarse.T + coarse.V, fine.T + fine.V
     # no blow-up: the energy never grows. The predictor-corrector damps a mode resolved with
@@ -201,8 +208,7 @@ def test_a_step_beyond_the_stability_limit_is_subdivided():
     assert np.abs(ef - ef[0]).max() < 1e-3 * abs(ef[0])
     # without the subdivision the same step blows up
     with pytest.raises(StabilityError):
-        simulate(scene_from_text(STIFF.replace("[solver]", "[solver]\nstiff = \"error\"")),
-                 t_end=0.02, dt=1e-3)
+        simulate(scene_from_text(STIFF.replace("[solver]", '[solver]\nstiff = "error"')), t_end=0.02, dt=1e-3)
 
 
 def test_the_predictor_corrector_stability_limit_is_omega_dt_2():
@@ -262,8 +268,11 @@ def test_idle_at_the_contract_preload_lifts_off_near_the_toggle_and_stays_finite
 
 # at the change point no one-sided stop holds (the reaction grows without bound as the
 # transmission angle goes to zero at phi = 0): the slider is clamped for this study
-CHANGE = load_scene("idle").text.replace("x_top_mm = 25.5", "x_top_mm = 25.0").replace(
-    'model = "rigid"', 'model = "clamp"')
+CHANGE = (
+    load_scene("idle")
+    .text.replace("x_top_mm = 25.5", "x_top_mm = 25.0")
+    .replace('model = "rigid"', 'model = "clamp"')
+)
 
 
 def test_change_point_is_passed_on_the_smooth_continuation():
@@ -310,7 +319,9 @@ def test_long_conservative_run_keeps_energy_and_the_closure():
 
 def test_friction_work_closes_the_energy_balance():
     """Joint and guide friction only where a scene lists them; their (negative) work is in W."""
-    text = load_scene("working").text.replace("[solver]", """[[effects]]
+    text = load_scene("working").text.replace(
+        "[solver]",
+        """[[effects]]
 type = "joint_friction"
 coulomb_nm = 0.5
 viscous_nm_s = 0.002
@@ -320,7 +331,8 @@ type = "guide_friction"
 coulomb_n = 40.0
 viscous_n_s_m = 50.0
 
-[solver]""")
+[solver]""",
+    )
     scene = scene_from_text(text)
     kinds = {e.kind for e in scene.build_effects(scene.mechanism())}
     assert {"joint_friction", "guide_friction"} <= kinds
@@ -370,8 +382,7 @@ def test_the_higher_order_methods_subdivide_at_their_own_limit():
 
     steps = {}
     for solver in ("rk4", "rk8"):
-        coarse = simulate(scene_from_text(STIFF), t_end=0.02, dt=1e-3, solver=solver,
-                          scheme="autodiff")
+        coarse = simulate(scene_from_text(STIFF), t_end=0.02, dt=1e-3, solver=solver, scheme="autodiff")
         assert np.all(np.isfinite(coarse.x_C)) and np.all(np.isfinite(coarse.phi_ddot))
         e = coarse.T + coarse.V
         # no blow-up: the energy never grows (both damp a mode resolved this coarsely: the
@@ -379,8 +390,13 @@ def test_the_higher_order_methods_subdivide_at_their_own_limit():
         assert e.max() <= e[0] * (1 + 1e-9) and np.all(np.diff(e) <= 1e-6 * abs(e[0]))
         steps[solver] = coarse.counts["steps"]
         with pytest.raises(StabilityError, match="stability limit"):
-            simulate(scene_from_text(STIFF.replace("[solver]", "[solver]\nstiff = \"error\"")),
-                     t_end=0.02, dt=1e-3, solver=solver, scheme="autodiff")
+            simulate(
+                scene_from_text(STIFF.replace("[solver]", '[solver]\nstiff = "error"')),
+                t_end=0.02,
+                dt=1e-3,
+                solver=solver,
+                scheme="autodiff",
+            )
     assert steps["rk8"] > 20
     ratio = steps["rk4"] / steps["rk8"]
     assert 0.75 < ratio / (IMAGINARY_LIMIT / (2 * math.sqrt(2))) < 1.25, steps

@@ -37,28 +37,33 @@ def _close(a: dict, b: dict, rtol: float = 1e-9) -> None:
 
 
 def _figures_only(row: dict, varied: tuple = ("effects.blanking.thickness_mm",)) -> dict:
-    return {k: v for k, v in row.items()
-            if k not in ("run", "key", "status", "error") and k not in varied}
+    return {k: v for k, v in row.items() if k not in ("run", "key", "status", "error") and k not in varied}
 
 
 def test_axes_grid_list_range():
     assert parse_axis("effects.blanking.thickness_mm=0.5:2.0:4").values == (0.5, 1.0, 1.5, 2.0)
     assert parse_axis("solver.corrector_iterations=1:3:3").values == (1, 2, 3)
-    assert parse_axis("solver.method=rk4,linear-acceleration").values == (
-        "rk4", "linear-acceleration")
+    assert parse_axis("solver.method=rk4,linear-acceleration").values == ("rk4", "linear-acceleration")
     assert parse_axis("outputs.reactions=true,false").values == (True, False)
     a = parse_axis("bodies.slider.mass_kg=80:120")
     assert a.sampled and (a.low, a.high) == (80.0, 120.0)
-    for bad, words in (("thickness", "KEY=SPEC"), ("k=1:x:3", "'x' is not a number"),
-                       ("k=1:2:0", "expected an integer >= 1"), ("k=2:1", "low < high"),
-                       ("k=1:2:3:4", "a:b:n")):
+    for bad, words in (
+        ("thickness", "KEY=SPEC"),
+        ("k=1:x:3", "'x' is not a number"),
+        ("k=1:2:0", "expected an integer >= 1"),
+        ("k=2:1", "low < high"),
+        ("k=1:2:3:4", "a:b:n"),
+    ):
         with pytest.raises(SweepError, match=words):
             parse_axis(bad)
 
 
 def test_keys_name_effects_and_commands_by_their_name_or_index():
-    raw = {"effects": [{"type": "motor", "crank_speed_rad_s": 43.5}, {"type": "blanking"}],
-           "commands": [{"t_s": 0.008, "command": "engage"}], "bodies": {}}
+    raw = {
+        "effects": [{"type": "motor", "crank_speed_rad_s": 43.5}, {"type": "blanking"}],
+        "commands": [{"t_s": 0.008, "command": "engage"}],
+        "bodies": {},
+    }
     set_field(raw, "effects.motor.crank_speed_rad_s", 40.0)
     set_field(raw, "effects.1.thickness_mm", 2.0)
     set_field(raw, "commands.engage.t_s", 0.01)
@@ -76,8 +81,11 @@ def test_bad_specs_fail_before_any_run_naming_the_key():
     with pytest.raises(SweepError, match="no type 'blankin'"):
         plan("press-cycle", ["effects.blankin.thickness_mm=1:2:2"])
     # a value the scene refuses: the run, its values and the scene's own words
-    with pytest.raises(SweepError, match=r"run 1 \(effects.blanking.thickness_mm=-1.0\).*"
-                                          r"effects\[7\].thickness_mm"):
+    with pytest.raises(
+        SweepError,
+        match=r"run 1 \(effects.blanking.thickness_mm=-1.0\).*"
+        r"effects\[7\].thickness_mm",
+    ):
         plan("press-cycle", ["effects.blanking.thickness_mm=1.0,-1.0"])
     with pytest.raises(SweepError, match="sampled: give --samples"):
         plan("press-cycle", ["bodies.slider.mass_kg=80:120"])
@@ -87,8 +95,7 @@ def test_bad_specs_fail_before_any_run_naming_the_key():
 
 def test_a_grid_is_the_product_and_a_sample_a_latin_hypercube():
     runs = plan("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], **SHORT)
-    assert [tuple(r.values.values()) for r in runs] == [
-        (t, w) for t in (0.5, 1.25, 2.0) for w in (40, 45)]
+    assert [tuple(r.values.values()) for r in runs] == [(t, w) for t in (0.5, 1.25, 2.0) for w in (40, 45)]
     assert len({r.key for r in runs}) == 6
     assert runs[0].scene.reactions and runs[0].scene.t_end == 1.0 and runs[0].scene.dt == 1e-3
     sampled = plan("press-cycle", ["bodies.slider.mass_kg=80:120"], samples=8, seed=3, **SHORT)
@@ -96,7 +103,8 @@ def test_a_grid_is_the_product_and_a_sample_a_latin_hypercube():
     # one sample in each eighth of the range
     assert [int((m - 80) / 5) for m in masses] == list(range(8))
     assert [r.scene.bodies["slider"].mass for r in sampled] == [
-        r.values["bodies.slider.mass_kg"] for r in sampled]
+        r.values["bodies.slider.mass_kg"] for r in sampled
+    ]
     again = plan("press-cycle", ["bodies.slider.mass_kg=80:120"], samples=8, seed=3, **SHORT)
     assert [r.key for r in again] == [r.key for r in sampled]
 
@@ -111,7 +119,7 @@ def test_each_row_is_the_load_report_of_its_own_run():
         _close(_figures_only(row), figures(report))
         assert row["effects.blanking.thickness_mm"] == run.values["effects.blanking.thickness_mm"]
     peaks = [r["|F_found|.peak"] for r in result.rows]
-    assert peaks == sorted(peaks) and peaks[0] < peaks[-1]    # thicker sheet, larger load
+    assert peaks == sorted(peaks) and peaks[0] < peaks[-1]  # thicker sheet, larger load
     env = {e["figure"]: e for e in result.envelope()}
     assert env["|F_found|.peak"]["value"] == max(peaks) and env["|F_found|.peak"]["run"] == 2
     rec = result.records()
@@ -137,22 +145,29 @@ def test_an_interrupted_sweep_computes_only_what_is_missing(tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
-              workers=1, on_row=stop_after_two, **SHORT)
+        sweep(
+            "press-cycle",
+            [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"],
+            out=out,
+            workers=1,
+            on_row=stop_after_two,
+            **SHORT,
+        )
     lines = (out / "runs.jsonl").read_text().splitlines()
     assert len(lines) == 2
     # a kill mid-line leaves a torn last line: it is not a row
     with (out / "runs.jsonl").open("a") as fh:
         fh.write('{"key": "torn", "run"')
-    again = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
-                  workers=1, **SHORT)
+    again = sweep(
+        "press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out, workers=1, **SHORT
+    )
     assert again.computed == 4 and len(again.rows) == 6
-    whole = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"],
-                  workers=1, **SHORT)
+    whole = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], workers=1, **SHORT)
     for a, b in zip(again.rows, whole.rows):
         _close(a, b)
-    third = sweep("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out,
-                  workers=1, **SHORT)
+    third = sweep(
+        "press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], out=out, workers=1, **SHORT
+    )
     assert third.computed == 0 and [r["run"] for r in third.rows] == list(range(6))
 
 
@@ -160,9 +175,12 @@ def test_worker_processes_and_a_dask_cluster_give_the_same_rows():
     distributed = pytest.importorskip("dask.distributed")
     one = sweep("press-cycle", [THICKNESS], workers=1, **SHORT)
     two = sweep("press-cycle", [THICKNESS], workers=2, **SHORT)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         dask = sweep("press-cycle", [THICKNESS], client=client, **SHORT)
     for a, b, c in zip(one.rows, two.rows, dask.rows):
         _close(a, b)
@@ -191,14 +209,27 @@ def test_a_worker_killed_mid_sweep_loses_no_row():
 
 
 def _mps(*args):
-    return subprocess.run([sys.executable, "-m", "mps_core.cli", *args], capture_output=True,
-                          text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "mps_core.cli", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
     out = tmp_path / "sweep"
-    args = ["sweep", "press-cycle", "--vary", "effects.blanking.thickness_mm=0.5,2.0",
-            "--t-end", "1", "--dt", "0.001", "--workers", "2", "--out", str(out)]
+    args = [
+        "sweep",
+        "press-cycle",
+        "--vary",
+        "effects.blanking.thickness_mm=0.5,2.0",
+        "--t-end",
+        "1",
+        "--dt",
+        "0.001",
+        "--workers",
+        "2",
+        "--out",
+        str(out),
+    ]
     res = _mps(*args)
     assert res.returncode == 0, res.stderr
     assert "2 runs (2 computed now, 0 kept from before), 0 failed" in res.stdout
@@ -211,17 +242,20 @@ def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
     assert env["|F_found|.peak"]["run"] == "1"
     assert float(env["|F_found|.peak"]["value"]) == float(rows[1]["|F_found|.peak"])
     spec = json.loads((out / "sweep.json").read_text())
-    assert spec["scene"] == "press-cycle" and spec["vary"] == [
-        "effects.blanking.thickness_mm=0.5,2.0"] and spec["version"]
+    assert (
+        spec["scene"] == "press-cycle"
+        and spec["vary"] == ["effects.blanking.thickness_mm=0.5,2.0"]
+        and spec["version"]
+    )
     assert (out / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     again = _mps(*args)
     assert again.returncode == 0 and "(0 computed now, 2 kept from before)" in again.stdout
     # another sweep into the same folder is refused; a bad key fails before any run
-    other = _mps("sweep", "press-cycle", "--vary", "effects.blanking.thickness_mm=1.0,3.0",
-                 "--out", str(out))
+    other = _mps("sweep", "press-cycle", "--vary", "effects.blanking.thickness_mm=1.0,3.0", "--out", str(out))
     assert other.returncode == 2 and "holds another sweep" in other.stderr
-    bad = _mps("sweep", "press-cycle", "--vary", "effects.blanking.thicknes_mm=1,2",
-               "--out", str(tmp_path / "bad"))
+    bad = _mps(
+        "sweep", "press-cycle", "--vary", "effects.blanking.thicknes_mm=1,2", "--out", str(tmp_path / "bad")
+    )
     lines = bad.stderr.strip().splitlines()
     assert bad.returncode == 2 and len(lines) == 1 and "thicknes_mm" in lines[0], bad.stderr
     assert not (tmp_path / "bad").exists()

@@ -14,8 +14,9 @@ from mps_core.scene.settings import SolverSettings
 
 def press_cycle(method="linear-acceleration", t_end=None, **solver):
     scene = load_scene("press-cycle")
-    scene = scene.with_overrides(solver=method, t_end=t_end, scheme="autodiff"
-                                 if method == "dop853" else None)
+    scene = scene.with_overrides(
+        solver=method, t_end=t_end, scheme="autodiff" if method == "dop853" else None
+    )
     if solver:
         scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, **solver))
     return scene
@@ -35,9 +36,10 @@ def test_the_disengage_cylinder_stops_acting_at_a_step_boundary():
 
     def go(t_end):
         advance_on_grid(sim, t_end)
+
     go(0.4351)
     assert not sim.controls.disengage_on
-    go(0.436)                                 # the disengage command at 0.4351 has been taken
+    go(0.436)  # the disengage command at 0.4351 has been taken
     assert sim.controls.disengage_on and cyl.active(sim.t)
     go(0.4551 - 1e-4)
     assert sim.controls.disengage_on
@@ -60,11 +62,12 @@ def test_a_second_disengage_moves_the_cylinder_end():
 
     def go(t_end):
         advance_on_grid(sim, t_end)
-    go(0.1)                                   # engaged and locked by now
+
+    go(0.1)  # engaged and locked by now
     assert sim.structure == "locked"
     sim.command("disengage")
     go(sim.t + 0.005)
-    sim.controls.engage_on = True             # as if engaged again: a disengage is accepted
+    sim.controls.engage_on = True  # as if engaged again: a disengage is accepted
     sim.command("disengage")
     t2 = sim.t
     go(t2 + 0.03)
@@ -110,10 +113,14 @@ def test_auto_locates_switch_points_with_adaptive_solvers_only():
 def test_a_scene_names_its_switch_points_setting():
     text = load_scene("press-cycle").text
     assert scene_from_text(text).solver.switch_points == "auto"
-    assert scene_from_text(text.replace('[solver]\n', '[solver]\nswitch_points = "locate"\n')
-                           ).solver.switch_points == "locate"
+    assert (
+        scene_from_text(
+            text.replace("[solver]\n", '[solver]\nswitch_points = "locate"\n')
+        ).solver.switch_points
+        == "locate"
+    )
     with pytest.raises(SceneError, match="solver.switch_points"):
-        scene_from_text(text.replace('[solver]\n', '[solver]\nswitch_points = "never"\n'))
+        scene_from_text(text.replace("[solver]\n", '[solver]\nswitch_points = "never"\n'))
 
 
 @pytest.mark.parametrize("method", ["linear-acceleration", "rk4"])
@@ -128,8 +135,9 @@ def test_a_located_switch_point_ends_a_step_there(method):
     def at_switch(t):
         seen.append((t, sim.solver.t, sim.solver.q.copy(), sim.solver.qd.copy(), sim.view))
         count(t)
+
     sim._count_switch = at_switch
-    sim._events_by_state.clear()            # the event lists take the action when made
+    sim._events_by_state.clear()  # the event lists take the action when made
     traj = sim.run(scene.t_end, scene.dt)
     assert traj.counts["switch_points"] == len(seen) >= 4
     for t, t_solver, q, qd, view in seen:

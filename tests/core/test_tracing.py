@@ -12,8 +12,17 @@ from mps_core.derivatives.tracing import Tape, TracingError, trace_at
 def _run(tape: Tape, outputs, inputs):
     """Evaluate a tape on floats (an independent reading of its nodes)."""
     import operator
-    f = {"add": operator.add, "sub": operator.sub, "mul": operator.mul, "div": operator.truediv,
-         "neg": operator.neg, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt}
+
+    f = {
+        "add": operator.add,
+        "sub": operator.sub,
+        "mul": operator.mul,
+        "div": operator.truediv,
+        "neg": operator.neg,
+        "cos": math.cos,
+        "sin": math.sin,
+        "sqrt": math.sqrt,
+    }
     vals = []
     for node in tape.nodes:
         if node[0] == "input":
@@ -29,12 +38,12 @@ def _fn(a, b, c, cos=math.cos, sin=math.sin, sqrt=math.sqrt):
     y = sqrt(c * c + 1.0) * sin(b) + (1 - a) / (b + 2)
     if not x * x > 0.0:
         raise ValueError("x")
-    return (0.0, x, -y, x ** 2, c)
+    return (0.0, x, -y, x**2, c)
 
 
 def test_a_tape_computes_what_the_function_computes():
     tape, outputs = trace_at(_fn, [0.3, 0.7, 5.0], {0: 0, 1: 1})
-    assert outputs[0] == 0.0 and outputs[4] == 5.0       # constants stay constants
+    assert outputs[0] == 0.0 and outputs[4] == 5.0  # constants stay constants
     for a, b in [(0.3, 0.7), (-1.0, 2.5), (2.0, -0.4)]:
         assert _run(tape, outputs, [a, b]) == pytest.approx(list(_fn(a, b, 5.0)), rel=1e-15)
     # c is no input: sqrt(c·c + 1) was computed on floats, and only its value recorded
@@ -44,13 +53,16 @@ def test_a_tape_computes_what_the_function_computes():
     assert len(tape.guards) == 1 and tape.guards[0][1:] == ("gt", 0.0, True)
 
 
-@pytest.mark.parametrize("bad", [
-    lambda a, cos=None, sin=None, sqrt=None: (math.sin(a),),
-    lambda a, cos=None, sin=None, sqrt=None: (abs(a),),
-    lambda a, cos=None, sin=None, sqrt=None: (1.0 if a else 0.0,),
-    lambda a, cos=None, sin=None, sqrt=None: (a ** 3,),
-    lambda a, cos=None, sin=None, sqrt=None: ("x",),
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda a, cos=None, sin=None, sqrt=None: (math.sin(a),),
+        lambda a, cos=None, sin=None, sqrt=None: (abs(a),),
+        lambda a, cos=None, sin=None, sqrt=None: (1.0 if a else 0.0,),
+        lambda a, cos=None, sin=None, sqrt=None: (a**3,),
+        lambda a, cos=None, sin=None, sqrt=None: ("x",),
+    ],
+)
 def test_what_a_tape_cannot_hold_is_refused(bad):
     with pytest.raises(TracingError):
         trace_at(bad, [0.5], {0: 0})

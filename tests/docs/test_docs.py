@@ -45,7 +45,7 @@ MAX_README_LINES = 250
 @dataclass
 class Block:
     path: Path
-    line: int               # 1-based line of the block's first content line
+    line: int  # 1-based line of the block's first content line
     lang: str
     lines: list[str]
 
@@ -74,7 +74,7 @@ def blocks(path: Path) -> list[Block]:
 def marker_reason(line: str) -> str | None:
     """The reason of a ``# not run in tests: <why>`` marker on the line ("" if empty), or None."""
     i = line.find(MARKER)
-    return None if i < 0 else line[i + len(MARKER):].strip()
+    return None if i < 0 else line[i + len(MARKER) :].strip()
 
 
 def classify(line: str) -> str:
@@ -88,9 +88,9 @@ def classify(line: str) -> str:
     if s.startswith("#"):
         return "comment"
     if s == "make" or s.startswith("make "):
-        return "skip"           # the set-up itself: CI runs `make test`, which runs this test
+        return "skip"  # the set-up itself: CI runs `make test`, which runs this test
     if s.endswith("\\"):
-        return "bad"            # continuation lines are not run one by one: write one line
+        return "bad"  # continuation lines are not run one by one: write one line
     return "run" if s.startswith(RUNNABLE) else "bad"
 
 
@@ -137,9 +137,13 @@ def command_env(tmp: Path) -> dict:
     env = dict(os.environ)
     for k in ("ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS"):
         env.pop(k, None)
-    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(DOMAIN_ID),
-               ROS_LOG_DIR=str(tmp / "ros-log"), MPLBACKEND="Agg",
-               PATH=str(venv_dir() / "bin") + os.pathsep + env.get("PATH", ""))
+    env.update(
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_DOMAIN_ID=str(DOMAIN_ID),
+        ROS_LOG_DIR=str(tmp / "ros-log"),
+        MPLBACKEND="Agg",
+        PATH=str(venv_dir() / "bin") + os.pathsep + env.get("PATH", ""),
+    )
     return env
 
 
@@ -155,8 +159,9 @@ def test_every_shell_line_is_runnable_or_marked():
             for k, line in enumerate(b.lines):
                 if classify(line) == "bad":
                     bad.append(f"{b.path.relative_to(ROOT)}:{b.line + k}: {line.strip()!r}")
-    assert not bad, ("lines neither runnable (.venv/bin/mps …, mps …) nor marked "
-                     f"'{MARKER} <why>':\n" + "\n".join(bad))
+    assert not bad, (
+        f"lines neither runnable (.venv/bin/mps …, mps …) nor marked '{MARKER} <why>':\n" + "\n".join(bad)
+    )
 
 
 def test_marked_python_blocks_compile():
@@ -223,14 +228,21 @@ def test_doc_runs(path, tmp_path, monkeypatch):
                 where = f"{b.path.relative_to(ROOT)}:{b.line + k}"
                 t0 = time.perf_counter()
                 try:
-                    r = subprocess.run(["bash", "-c", line.strip()], cwd=work, env=env,
-                                       capture_output=True, text=True, timeout=LINE_TIMEOUT_S,
-                                       start_new_session=True)
+                    r = subprocess.run(
+                        ["bash", "-c", line.strip()],
+                        cwd=work,
+                        env=env,
+                        capture_output=True,
+                        text=True,
+                        timeout=LINE_TIMEOUT_S,
+                        start_new_session=True,
+                    )
                 except subprocess.TimeoutExpired:
                     pytest.fail(f"{where}: {line.strip()!r} ran past {LINE_TIMEOUT_S} s")
                 assert r.returncode == 0, (
                     f"{where}: {line.strip()!r} exited {r.returncode}\n"
-                    f"stdout:\n{r.stdout[-3000:]}\nstderr:\n{r.stderr[-3000:]}")
+                    f"stdout:\n{r.stdout[-3000:]}\nstderr:\n{r.stderr[-3000:]}"
+                )
                 print(f"{where}: ok in {time.perf_counter() - t0:.2f} s: {line.strip()[:90]}")
                 ran += 1
         elif b.lang == "python":

@@ -60,10 +60,15 @@ def test_sample_reads_back_with_rosbags():
         found = {c.topic: c.msgtype for c in reader.connections}
         assert found == expected
         counts = {c.topic: c.msgcount for c in reader.connections}
-        for topic in ("/joint_states", "/clock", "/press_twin/foundation",
-                      "/press_twin/reactions/O", "/press_twin/reactions/stop"):
+        for topic in (
+            "/joint_states",
+            "/clock",
+            "/press_twin/foundation",
+            "/press_twin/reactions/O",
+            "/press_twin/reactions/stop",
+        ):
             assert counts[topic] == 1001, topic
-        assert counts["/press_twin/structure"] >= 4         # latched: at its changes
+        assert counts["/press_twin/structure"] >= 4  # latched: at its changes
         seen = set()
         for conn, _t, raw in reader.messages():
             if conn.topic not in seen:
@@ -76,8 +81,14 @@ def test_mps_loads_on_the_sample(tmp_path):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", MPLBACKEND="Agg")
     mps = Path(sys.executable).parent / "mps"
     cmd = [str(mps)] if mps.exists() else [sys.executable, "-m", "mps_core.cli"]
-    r = subprocess.run([*cmd, "loads", str(SAMPLE), "--json", str(tmp_path / "loads.json")],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [*cmd, "loads", str(SAMPLE), "--json", str(tmp_path / "loads.json")],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert "F_found_x" in r.stdout
     assert (tmp_path / "loads.json").stat().st_size > 1000

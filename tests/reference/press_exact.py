@@ -257,9 +257,7 @@ class PhiPsiModel:
             raise ValueError("sigma must be +1 or -1")
         self.params = p = params
         self.sigma = sigma
-        phi, psi, phid, psid, gx, gy = sp.symbols(
-            "phi psi phid psid gx gy", real=True
-        )
+        phi, psi, phid, psid, gx, gy = sp.symbols("phi psi phid psid gx gy", real=True)
         q = [phi, psi]
         qd = [phid, psid]
         l1, l2, l3 = (sp.Float(p.l1), sp.Float(p.l2), sp.Float(p.l3))
@@ -292,25 +290,17 @@ class PhiPsiModel:
             + half * J3 * psid**2
             + half * m4 * vC.dot(vC)
         )
-        V = -(
-            gx * (m1 * xA + m2 * xB + (m3 + m4) * xC)
-            + gy * (m1 * yA + m2 * yB + (m3 + m4) * yC)
-        )
+        V = -(gx * (m1 * xA + m2 * xB + (m3 + m4) * xC) + gy * (m1 * yA + m2 * yB + (m3 + m4) * yC))
         L = T - V
         # Lagrange II: d/dt(dL/dq') - dL/dq = Q
         #   => (d2L/dq'dq') q'' = Q + dL/dq - (d2L/dq'dq) q'
         p_mom = [sp.diff(L, v) for v in qd]
         Mmat = [[sp.diff(p_mom[i], qd[j]) for j in range(2)] for i in range(2)]
-        h = [
-            sp.diff(L, q[i]) - sum(sp.diff(p_mom[i], q[j]) * qd[j] for j in range(2))
-            for i in range(2)
-        ]
+        h = [sp.diff(L, q[i]) - sum(sp.diff(p_mom[i], q[j]) * qd[j] for j in range(2)) for i in range(2)]
 
         self._sym = dict(T=T, V=V, M=Mmat, h=h, th2=th2, rA=rA, rB=rB, rC=rC)
         args_state = (phi, psi, phid, psid, gx, gy)
-        self._rhs_math = _lambdify_math(
-            args_state, [Mmat[0][0], Mmat[0][1], Mmat[1][1], h[0], h[1]]
-        )
+        self._rhs_math = _lambdify_math(args_state, [Mmat[0][0], Mmat[0][1], Mmat[1][1], h[0], h[1]])
         args_q = (phi, psi)
         self._M_np = _lambdify_numpy(args_q, [Mmat[i][j] for i in range(2) for j in range(2)], (2, 2))
         self._JA_np = _lambdify_numpy(args_q, list(JA), (2, 2))
@@ -363,9 +353,7 @@ class PhiPsiModel:
     def qdd(self, t, q, qd, motor: bool = True, gravity=GRAVITY) -> np.ndarray:
         """Generalised accelerations ``(phi'', psi'')`` at one state."""
         gx, gy = _gravity_tuple(gravity)
-        m00, m01, m11, h0, h1 = self._rhs_math(
-            float(q[0]), float(q[1]), float(qd[0]), float(qd[1]), gx, gy
-        )
+        m00, m01, m11, h0, h1 = self._rhs_math(float(q[0]), float(q[1]), float(qd[0]), float(qd[1]), gx, gy)
         if motor:
             h0 += motor_torque(float(qd[0]), self.params)
         return np.linalg.solve(np.array([[m00, m01], [m01, m11]]), np.array([h0, h1]))
@@ -515,17 +503,11 @@ class RedundantModel:
             + half * J3 * psid**2
             + half * m4 * vC.dot(vC)
         )
-        V = -(
-            gx * (m1 * xA + m2 * xB + (m3 + m4) * xC)
-            + gy * (m1 * yA + m2 * yB + (m3 + m4) * yC)
-        )
+        V = -(gx * (m1 * xA + m2 * xB + (m3 + m4) * xC) + gy * (m1 * yA + m2 * yB + (m3 + m4) * yC))
         L = T - V
         p_mom = [sp.diff(L, v) for v in zd]
         Mmat = sp.Matrix(4, 4, lambda i, j: sp.diff(p_mom[i], zd[j]))
-        F = [
-            sp.diff(L, z[i]) - sum(sp.diff(p_mom[i], z[j]) * zd[j] for j in range(4))
-            for i in range(4)
-        ]
+        F = [sp.diff(L, z[i]) - sum(sp.diff(p_mom[i], z[j]) * zd[j] for j in range(4)) for i in range(4)]
         gvec = sp.Matrix([xB - xc - l3 * sp.cos(psi), yB - l3 * sp.sin(psi)])
         G = gvec.jacobian(z)
         Gzd = G * zdv
@@ -533,9 +515,7 @@ class RedundantModel:
 
         self._sym = dict(T=T, V=V, M=Mmat, F=F, g=gvec, G=G, gamma=gamma)
         args = (*z, *zd, gx, gy)
-        self._rhs_math = _lambdify_math(
-            args, [*list(Mmat), *F, *list(G), *list(gamma)]
-        )
+        self._rhs_math = _lambdify_math(args, [*list(Mmat), *F, *list(G), *list(gamma)])
         self._g_np = _lambdify_numpy(tuple(z), list(gvec), (2,))
         self._G_np = _lambdify_numpy(tuple(z), list(G), (2, 4))
         self._M_np = _lambdify_numpy(tuple(z), list(Mmat), (4, 4))

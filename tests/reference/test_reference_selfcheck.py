@@ -155,8 +155,10 @@ def test_b_energy_conserved_gravity_only(gravity_redundant):
     g = gravity_redundant
     E = g.E
     rel = np.max(np.abs(E - E[0])) / abs(E[0])
-    print(f"\ngravity-only redundant run: max |E - E0|/|E0| = {rel:.3e}, "
-          f"max |g(z)| = {g.constraint_pos.max():.3e} m, nfev = {g.nfev}")
+    print(
+        f"\ngravity-only redundant run: max |E - E0|/|E0| = {rel:.3e}, "
+        f"max |g(z)| = {g.constraint_pos.max():.3e} m, nfev = {g.nfev}"
+    )
     assert rel < 1e-9
     assert g.constraint_pos.max() < 1e-9
     # the gravity-only run also passes the chart's singular configuration
@@ -191,11 +193,13 @@ def test_c_redundant_passes_branch_point(paper_redundant):
     t_root = roots[0]
     y = r.dense(t_root)
     sq_root = pe.closure_sqrt_arg(y[0], y[2])
-    print(f"\npaper run: radicand l2^2-(l3 sin psi - l1 sin phi)^2 vanishes at t = "
-          f"{', '.join(f'{v:.12f}' for v in roots)} s; min on grid {sq.min():.3e} m^2 at "
-          f"t = {r.t[np.argmin(sq)]:.5f} s; value at root {sq_root:.3e} m^2; "
-          f"max |g(z)| = {r.constraint_pos.max():.3e} m, max |G z'| = "
-          f"{r.constraint_vel.max():.3e} m/s, nfev = {r.nfev}")
+    print(
+        f"\npaper run: radicand l2^2-(l3 sin psi - l1 sin phi)^2 vanishes at t = "
+        f"{', '.join(f'{v:.12f}' for v in roots)} s; min on grid {sq.min():.3e} m^2 at "
+        f"t = {r.t[np.argmin(sq)]:.5f} s; value at root {sq_root:.3e} m^2; "
+        f"max |g(z)| = {r.constraint_pos.max():.3e} m, max |G z'| = "
+        f"{r.constraint_vel.max():.3e} m/s, nfev = {r.nfev}"
+    )
     assert roots.size == 1
     assert abs(t_root - T_BRANCH_PAPER) < 5e-4
     # the radicand touches zero: x_B - x_A changes sign (sigma +1 -> -1)
@@ -256,8 +260,9 @@ def test_locked_kinematics_and_inertia():
     h = 1e-5
     np.testing.assert_allclose(lm.x_C_d1(phi), (lm.x_C(phi + h) - lm.x_C(phi - h)) / (2 * h), atol=1e-10)
     np.testing.assert_allclose(lm.x_C_d2(phi), (lm.x_C_d1(phi + h) - lm.x_C_d1(phi - h)) / (2 * h), atol=1e-9)
-    np.testing.assert_allclose(lm.theta2_d1(phi),
-                               (lm.theta2(phi + h) - lm.theta2(phi - h)) / (2 * h), atol=1e-9)
+    np.testing.assert_allclose(
+        lm.theta2_d1(phi), (lm.theta2(phi + h) - lm.theta2(phi - h)) / (2 * h), atol=1e-9
+    )
     np.testing.assert_allclose(lm.dJ(phi), (lm.J(phi + h) - lm.J(phi - h)) / (2 * h), atol=1e-9)
     for f in phi:
         # closed-form geometry

@@ -42,7 +42,7 @@ def _children(pid: int) -> list[tuple[int, str]]:
             stat = (d / "stat").read_text()
         except OSError:
             continue
-        rest = stat[stat.rfind(")") + 2:].split()
+        rest = stat[stat.rfind(")") + 2 :].split()
         if len(rest) > 1 and rest[0] != "Z" and int(rest[1]) == pid:
             try:
                 cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
@@ -79,7 +79,7 @@ def ros():
 
 
 def pytest_sessionfinish(session, exitstatus):
-    if exitstatus == 0:         # keep the ROS logs of a failed session for a look
+    if exitstatus == 0:  # keep the ROS logs of a failed session for a look
         import shutil
 
         shutil.rmtree(LOG_DIR, ignore_errors=True)

@@ -64,16 +64,19 @@ def _metadata_says_what_the_files_hold(bag: Path) -> dict:
     assert {n: t["message_count"] for n, t in topics.items()} == totals
     assert info["message_count"] == sum(totals.values())
     for t in topics.values():
-        assert t["topic_metadata"]["type_description_hash"] == TYPE_HASHES[
-            t["topic_metadata"]["type"]]
+        assert t["topic_metadata"]["type_description_hash"] == TYPE_HASHES[t["topic_metadata"]["type"]]
     return info
 
 
 def test_a_bag_split_by_time_holds_every_message_once_in_order(tmp_path):
     one, bag = tmp_path / "one.mcap", tmp_path / "run"
     for out, extra in ((one, []), (bag, ["--max-s", "0.25"])):
-        assert mps_main(["record", "press-cycle", "--out", str(out), "--dt", "0.001",
-                         "--t-end", "1.0", "-q", *extra]) == 0
+        assert (
+            mps_main(
+                ["record", "press-cycle", "--out", str(out), "--dt", "0.001", "--t-end", "1.0", "-q", *extra]
+            )
+            == 0
+        )
     info = _metadata_says_what_the_files_hold(bag)
     # a new file once one spans a quarter of a simulated second (the recording process looks
     # between the batches of steps it is handed, so a file may hold a batch more)
@@ -88,7 +91,7 @@ def test_a_bag_split_by_time_holds_every_message_once_in_order(tmp_path):
     def by_topic(msgs):
         out: dict = {}
         for topic, t, data in msgs:
-            if topic != "/diagnostics":     # wall-clock figures: another run's
+            if topic != "/diagnostics":  # wall-clock figures: another run's
                 out.setdefault(topic, []).append((t, data))
         return out
 
@@ -103,8 +106,24 @@ def test_a_bag_split_by_time_holds_every_message_once_in_order(tmp_path):
 
 def test_a_bag_split_by_size_and_the_load_report(tmp_path, capsys):
     bag = tmp_path / "big"
-    assert mps_main(["record", "press-cycle", "--out", str(bag), "--dt", "0.001",
-                     "--t-end", "1.0", "-q", "--max-mb", "0.15"]) == 0
+    assert (
+        mps_main(
+            [
+                "record",
+                "press-cycle",
+                "--out",
+                str(bag),
+                "--dt",
+                "0.001",
+                "--t-end",
+                "1.0",
+                "-q",
+                "--max-mb",
+                "0.15",
+            ]
+        )
+        == 0
+    )
     info = _metadata_says_what_the_files_hold(bag)
     assert len(info["files"]) >= 2
     for name in info["relative_file_paths"][:-1]:
@@ -118,16 +137,14 @@ def test_a_bag_is_never_written_over_and_a_file_is_not_split(tmp_path, capsys):
     bag = tmp_path / "bag"
     bag.mkdir()
     (bag / "x.txt").write_text("keep")
-    assert mps_main(["record", "press-cycle", "--out", str(bag), "--t-end", "0.01",
-                     "--force"]) == 2
+    assert mps_main(["record", "press-cycle", "--out", str(bag), "--t-end", "0.01", "--force"]) == 2
     assert "a bag is never written into one that is there" in capsys.readouterr().err
     assert [p.name for p in bag.iterdir()] == ["x.txt"]
-    assert mps_main(["record", "press-cycle", "--out", str(tmp_path / "f.mcap"),
-                     "--max-s", "1"]) == 2
+    assert mps_main(["record", "press-cycle", "--out", str(tmp_path / "f.mcap"), "--max-s", "1"]) == 2
     assert "--max-mb and --max-s split a bag" in capsys.readouterr().err
     assert not (tmp_path / "f.mcap").exists()
     empty = tmp_path / "empty"
-    empty.mkdir()                   # an empty directory too, as rosbag2 refuses it
+    empty.mkdir()  # an empty directory too, as rosbag2 refuses it
     assert mps_main(["record", "press-cycle", "--out", str(empty), "--t-end", "0.01"]) == 2
     assert "exists; expected a new directory" in capsys.readouterr().err
     assert not any(empty.iterdir())
@@ -137,13 +154,29 @@ def test_a_bag_cut_short_is_recovered(tmp_path, capsys):
     """A writer killed mid-file leaves its earlier files whole, the last without its end, and
     no metadata.yaml: mps recover makes a new bag of what is whole."""
     bag = tmp_path / "cut"
-    assert mps_main(["record", "press-cycle", "--out", str(bag), "--dt", "0.001",
-                     "--t-end", "1.0", "-q", "--max-s", "0.4"]) == 0
+    assert (
+        mps_main(
+            [
+                "record",
+                "press-cycle",
+                "--out",
+                str(bag),
+                "--dt",
+                "0.001",
+                "--t-end",
+                "1.0",
+                "-q",
+                "--max-s",
+                "0.4",
+            ]
+        )
+        == 0
+    )
     names = _info(bag)["relative_file_paths"]
     (bag / "metadata.yaml").unlink()
     last = bag / names[-1]
     data = last.read_bytes()
-    last.write_bytes(data[:len(data) // 2])
+    last.write_bytes(data[: len(data) // 2])
     capsys.readouterr()
     assert mps_main(["recover", str(bag)]) == 0
     out = tmp_path / "cut-recovered"
@@ -153,14 +186,13 @@ def test_a_bag_cut_short_is_recovered(tmp_path, capsys):
     got, count = _read_bag(out)
     assert count == len(got) and [t for _, t, _ in got] == sorted(t for _, t, _ in got)
     assert math.isclose(read_recording(out).columns["t"][-1], 0.8, abs_tol=0.2)
-    assert mps_main(["recover", str(bag)]) == 2           # never over the first
+    assert mps_main(["recover", str(bag)]) == 2  # never over the first
     assert "exists; expected a new directory" in capsys.readouterr().err
 
 
 def test_the_node_records_a_bag(ros, tmp_path):
     bag = tmp_path / "nodebag"
-    params = dict(pacing="as_fast_as_possible", dt=0.001, t_end=0.6, recording=str(bag),
-                  recording_max_s=0.2)
+    params = dict(pacing="as_fast_as_possible", dt=0.001, t_end=0.6, recording=str(bag), recording_max_s=0.2)
     with NodeProcess(tmp_path, params, name="bag") as node:
         assert node.wait(120) == 0, node.log()
         log = node.log()

@@ -48,8 +48,7 @@ def _summary(path):
 
     with open(path, "rb") as f:
         s = make_reader(f).get_summary()
-    by_topic = {ch.topic: s.statistics.channel_message_counts.get(cid, 0)
-                for cid, ch in s.channels.items()}
+    by_topic = {ch.topic: s.statistics.channel_message_counts.get(cid, 0) for cid, ch in s.channels.items()}
     return s, by_topic
 
 
@@ -64,8 +63,7 @@ def _holds_what_the_file_holds(path, name):
     assert bag["ros_distro"] == "jazzy"
     assert bag["message_count"] == s.statistics.message_count == sum(counts.values())
     assert bag["starting_time"]["nanoseconds_since_epoch"] == s.statistics.message_start_time
-    assert bag["duration"]["nanoseconds"] == (s.statistics.message_end_time
-                                              - s.statistics.message_start_time)
+    assert bag["duration"]["nanoseconds"] == (s.statistics.message_end_time - s.statistics.message_start_time)
     assert bag["relative_file_paths"] == [name]
     assert bag["files"][0]["path"] == name
     assert bag["files"][0]["message_count"] == bag["message_count"]
@@ -86,8 +84,7 @@ def _holds_what_the_file_holds(path, name):
 def _recorded(path, t_end: float):
     """press-cycle at 1 kHz to ``t_end`` recorded to ``path`` (small chunks)."""
     twin = Twin("press-cycle", dt=0.001, t_end=t_end)
-    rec = Recorder(path, scene_name="press-cycle", scene_text=twin.scene.text,
-                   chunk_size=16 * 1024)
+    rec = Recorder(path, scene_name="press-cycle", scene_text=twin.scene.text, chunk_size=16 * 1024)
     Runner(twin, sinks=[RecordingSink(rec)]).run()
     rec.finish()
     return path
@@ -102,7 +99,7 @@ def test_a_recovered_recording_says_what_it_recovered(tmp_path):
     full = _recorded(tmp_path / "full.mcap", 0.2)
     data = full.read_bytes()
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(data[:len(data) // 2])
+    cut.write_bytes(data[: len(data) // 2])
     out = tmp_path / ".back.tmp"
     rep = recover(cut, out, name="back.mcap")
     assert not rep.complete and rep.messages > 0

@@ -21,9 +21,15 @@ def test_demo_runs_the_default_scene_with_an_operator(tmp_path):
     from rosbags.highlevel import AnyReader
 
     out = tmp_path / "demo.mcap"
-    proc = subprocess.Popen(mps_cmd("demo", "--out", str(out)), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, cwd=tmp_path,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"), start_new_session=True)
+    proc = subprocess.Popen(
+        mps_cmd("demo", "--out", str(out)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        start_new_session=True,
+    )
     try:
         text, _ = proc.communicate(timeout=120)
     finally:
@@ -39,8 +45,7 @@ def test_demo_runs_the_default_scene_with_an_operator(tmp_path):
             msgs.setdefault(conn.topic, []).append((t, r.deserialize(raw, conn.msgtype)))
     assert [m.data for _, m in msgs["/press_twin/mode"]] == ["engage", "disengage"]
     acks = [json.loads(m.data) for _, m in msgs["/press_twin/mode/status"]]
-    assert [(a["command"], a["accepted"]) for a in acks] == [("engage", True),
-                                                            ("disengage", True)]
+    assert [(a["command"], a["accepted"]) for a in acks] == [("engage", True), ("disengage", True)]
     # each a step or so after its time (more on a busy machine: the operator is another process)
     assert 0.008 < acks[0]["t"] < 0.3 and 0.4351 < acks[1]["t"] < 0.7
     kinds = [json.loads(m.data)["kind"] for _, m in msgs["/press_twin/events"]]

@@ -22,8 +22,11 @@ def _uninterrupted(tmp_path, t_end: float) -> dict:
     is compared with, so that the kernels its stepping process traces are the same (a
     long-lived process, or one that warms up otherwise, may differ in the last bits)."""
     ref = tmp_path / "uninterrupted.mcap"
-    with NodeProcess(tmp_path, dict(pacing="realtime", real_time_factor=10.0, dt=0.001,
-                                    t_end=t_end, recording=str(ref)), name="ref") as node:
+    with NodeProcess(
+        tmp_path,
+        dict(pacing="realtime", real_time_factor=10.0, dt=0.001, t_end=t_end, recording=str(ref)),
+        name="ref",
+    ) as node:
         assert node.wait(120) == 0, node.log()
     return read_all(ref)
 
@@ -53,8 +56,9 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
     from std_srvs.srv import Trigger
 
     rec = tmp_path / "managed.mcap"
-    params = dict(autostart=False, pacing="realtime", dt=0.001, t_end=3.0, recording=str(rec),
-                  diagnostics_period=0.2)
+    params = dict(
+        autostart=False, pacing="realtime", dt=0.001, t_end=3.0, recording=str(rec), diagnostics_period=0.2
+    )
     lis = Listener(keys=("/clock", "/diagnostics", "joint_states"))
     change = lis.node.create_client(ChangeState, "/press_twin/change_state")
     get = lis.node.create_client(GetState, "/press_twin/get_state")
@@ -80,8 +84,12 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
             assert _change(lis.node, change, Transition.TRANSITION_DEACTIVATE)
 
             def stale():
-                return [m for m in lis.get("/diagnostics") for s in m.status
-                        if s.name == "press_twin: pacing" and s.level == b"\x03"]
+                return [
+                    m
+                    for m in lis.get("/diagnostics")
+                    for s in m.status
+                    if s.name == "press_twin: pacing" and s.level == b"\x03"
+                ]
 
             # paused: two STALE reports (two diagnostics periods at least), and no step beyond
             # the one they say simulated time holds at
@@ -94,14 +102,18 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
                 answer = one_step()
                 t = (held + i * 1_000_000) * 1e-9
                 assert answer.success and answer.message == f"stepped to t = {t:.6f} s", answer
-                lis.wait_for(lambda i=i: ns(lis.get("/clock")[-1].clock) == held + i * 1_000_000,
-                             30, f"/clock at the step {i} taken")
+                lis.wait_for(
+                    lambda i=i: ns(lis.get("/clock")[-1].clock) == held + i * 1_000_000,
+                    30,
+                    f"/clock at the step {i} taken",
+                )
             n = len(stale())
             lis.wait_for(lambda: len(stale()) >= n + 1, 30, "STALE after the steps")
             assert ns(lis.get("/clock")[-1].clock) == held + 3_000_000
             assert _change(lis.node, change, Transition.TRANSITION_ACTIVATE)
-            lis.wait_for(lambda: (lis.clock() or 0.0) >= held * 1e-9 + 0.3, 60,
-                         "/clock going on after the pause")
+            lis.wait_for(
+                lambda: (lis.clock() or 0.0) >= held * 1e-9 + 0.3, 60, "/clock going on after the pause"
+            )
             assert _change(lis.node, change, Transition.TRANSITION_ACTIVE_SHUTDOWN)
             assert node.wait(60) == 0, node.log()
             log = node.log()
@@ -117,8 +129,7 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
     want = _uninterrupted(tmp_path, 3.0)
     for topic in ("/joint_states", "/press_twin/foundation", "/tf"):
         n = len(got[topic])
-        assert [(t, raw) for t, _m, raw in got[topic]] == [
-            (t, raw) for t, _m, raw in want[topic][:n]], topic
+        assert [(t, raw) for t, _m, raw in got[topic]] == [(t, raw) for t, _m, raw in want[topic][:n]], topic
 
 
 def test_shut_down_before_it_is_configured(ros, tmp_path):
@@ -129,8 +140,7 @@ def test_shut_down_before_it_is_configured(ros, tmp_path):
     lis = Listener(keys=("/clock",))
     change = lis.node.create_client(ChangeState, "/press_twin/change_state")
     try:
-        with NodeProcess(tmp_path, dict(autostart=False, recording=str(rec)),
-                         name="never") as node:
+        with NodeProcess(tmp_path, dict(autostart=False, recording=str(rec)), name="never") as node:
             assert _change(lis.node, change, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
             assert node.wait(60) == 0, node.log()
             log = node.log()
@@ -175,9 +185,10 @@ def test_a_reset_begins_a_new_run_recorded_beside_the_first(ros, tmp_path):
     assert "run stopped (reset)" in log and "run stopped (shutdown)" in log
     assert f"recording finished: {rec}" in log and f"recording finished: {second}" in log
     want = _uninterrupted(tmp_path, 5.0)
-    for path in (rec, second):         # each a run from the start, as the same run unpaused
+    for path in (rec, second):  # each a run from the start, as the same run unpaused
         got = read_all(path)
         n = len(got["/joint_states"])
         assert n > 150
         assert [(t, raw) for t, _m, raw in got["/joint_states"]] == [
-            (t, raw) for t, _m, raw in want["/joint_states"][:n]], path
+            (t, raw) for t, _m, raw in want["/joint_states"][:n]
+        ], path

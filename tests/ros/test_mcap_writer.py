@@ -17,19 +17,20 @@ from mcap.writer import CompressionType, Writer
 
 from mps_ros.mcap_writer import McapWriter
 
-LIBRARY_KINDS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                 "": CompressionType.NONE}
+LIBRARY_KINDS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "": CompressionType.NONE}
 
 
 def _script(seed: int, n: int = 3000) -> list[tuple]:
     """A run of writer calls: schemas and channels, metadata, messages of random sizes and
     times (mostly rising, some earlier), flushes."""
     rnd = random.Random(seed)
-    calls: list[tuple] = [("start", "ros2", "a library"),
-                          ("metadata", "mps", {"software": "mps", "é": "ü"}),
-                          ("schema", "geometry_msgs/msg/WrenchStamped", "ros2msg", b"x" * 40),
-                          ("channel", "/a", "cdr", 1, {"offered_qos_profiles": "- depth: 1"}),
-                          ("channel", "/b", "cdr", 1, {})]
+    calls: list[tuple] = [
+        ("start", "ros2", "a library"),
+        ("metadata", "mps", {"software": "mps", "é": "ü"}),
+        ("schema", "geometry_msgs/msg/WrenchStamped", "ros2msg", b"x" * 40),
+        ("channel", "/a", "cdr", 1, {"offered_qos_profiles": "- depth: 1"}),
+        ("channel", "/b", "cdr", 1, {}),
+    ]
     t, seq = 1_000, {1: 0, 2: 0}
     for i in range(n):
         t += rnd.choice((0, 1_000_000, 1_000_000, 999))
@@ -85,8 +86,10 @@ def test_same_bytes_as_the_mcap_library(compression, chunk_size):
     assert summary.statistics.message_count == len(sent)
     if chunk_size == 4096:
         assert summary.statistics.chunk_count > 10
-    got = [(m.channel_id, m.log_time, m.data, m.sequence)
-           for _s, _c, m in reader.iter_messages(log_time_order=False)]
+    got = [
+        (m.channel_id, m.log_time, m.data, m.sequence)
+        for _s, _c, m in reader.iter_messages(log_time_order=False)
+    ]
     assert got == [(c[1], c[2], c[3], c[5]) for c in sent]
 
 
@@ -98,8 +101,9 @@ def test_the_recorder_file_reads_in_rosbags(tmp_path):
 
     from mps_ros.recording import record
 
-    path, stats, counts = record("press-cycle", tmp_path / "r.mcap", dt=1e-3, t_end=0.05,
-                                 background=False, stop_on_signals=False)
+    path, stats, counts = record(
+        "press-cycle", tmp_path / "r.mcap", dt=1e-3, t_end=0.05, background=False, stop_on_signals=False
+    )
     with AnyReader([path]) as reader:
         n = {c.topic: 0 for c in reader.connections}
         for conn, _t, raw in reader.messages():
@@ -115,7 +119,10 @@ def test_the_ros2_profiles_names_are_the_libraries():
     from mps_ros.mcap_writer import ENCODING_CDR, MAGIC, PROFILE_ROS2, SCHEMA_ROS2MSG
 
     assert (PROFILE_ROS2, SCHEMA_ROS2MSG, ENCODING_CDR) == (
-        Profile.ROS2, SchemaEncoding.ROS2, MessageEncoding.CDR)
+        Profile.ROS2,
+        SchemaEncoding.ROS2,
+        MessageEncoding.CDR,
+    )
     out = io.BytesIO()
     w = Writer(out)
     w.start(profile=Profile.ROS2, library="test")

@@ -36,8 +36,7 @@ T_END = 0.12
 N = round(T_END / DT)
 TIMES = [T_END if k == N else k * T_END / N for k in range(N + 1)]
 STAMPS = [int(round(t * 1e9)) for t in TIMES]
-STEP_TOPICS = ["joint_states", "/clock", "~/structure", FOUNDATION.key,
-               *(w.key for w in WRENCHES)]
+STEP_TOPICS = ["joint_states", "/clock", "~/structure", FOUNDATION.key, *(w.key for w in WRENCHES)]
 
 
 def read_mcap(path):
@@ -62,19 +61,26 @@ def commanded(ros, tmp_path_factory):
     t >= 0.06 s."""
     tmp = tmp_path_factory.mktemp("commanded")
     rec = tmp / "run.mcap"
-    params = dict(pacing="realtime", real_time_factor=0.2, dt=DT, t_end=T_END,
-                  scene_commands=False, recording=str(rec), wait_for_subscribers=1,
-                  wait_for_commanders=1, wait_timeout=30.0, start_delay=0.3,
-                  command_delay=0.05)
+    params = dict(
+        pacing="realtime",
+        real_time_factor=0.2,
+        dt=DT,
+        t_end=T_END,
+        scene_commands=False,
+        recording=str(rec),
+        wait_for_subscribers=1,
+        wait_for_commanders=1,
+        wait_timeout=30.0,
+        start_delay=0.3,
+        command_delay=0.05,
+    )
     lis = Listener()
     try:
         with NodeProcess(tmp, params) as node:
-            lis.wait_for(lambda: lis.mode.get_subscription_count() > 0, 30,
-                         "the node's ~/mode subscription")
+            lis.wait_for(lambda: lis.mode.get_subscription_count() > 0, 30, "the node's ~/mode subscription")
             sent = []
             for t_cmd, word in ((0.008, "engage"), (0.06, "disengage")):
-                lis.wait_for(lambda t_cmd=t_cmd: (lis.clock() or -1.0) >= t_cmd, 30,
-                             f"/clock >= {t_cmd}")
+                lis.wait_for(lambda t_cmd=t_cmd: (lis.clock() or -1.0) >= t_cmd, 30, f"/clock >= {t_cmd}")
                 sent.append((lis.clock(), word))
                 lis.send(word)
             lis.wait_for(lis.ended, 30, "the run's end")
@@ -85,8 +91,7 @@ def commanded(ros, tmp_path_factory):
         events = lis.events()
     finally:
         lis.close()
-    return dict(rec=rec, rc=rc, log=log, got=got, acks=acks, events=events, sent=sent,
-                names=lis.topics)
+    return dict(rec=rec, rc=rc, log=log, got=got, acks=acks, events=events, sent=sent, names=lis.topics)
 
 
 def test_node_ends_cleanly(commanded):
@@ -101,7 +106,7 @@ def test_every_step_in_order_stamped_with_simulated_time(commanded):
         if key == "/clock":
             stamps = [ns(m.clock) for m in msgs]
         elif key == "~/structure":
-            data = [m.data for m in msgs]         # latched: sent when the structure changes
+            data = [m.data for m in msgs]  # latched: sent when the structure changes
             assert data and all(a != b for a, b in zip(data, data[1:])), data
             continue
         else:
@@ -117,7 +122,9 @@ def test_every_step_in_order_stamped_with_simulated_time(commanded):
 def test_commands_take_effect_when_received(commanded):
     acks, sent = commanded["acks"], commanded["sent"]
     assert [(a["command"], a["accepted"], a["source"]) for a in acks] == [
-        ("engage", True, "topic"), ("disengage", True, "topic")]
+        ("engage", True, "topic"),
+        ("disengage", True, "topic"),
+    ]
     for (t_seen, word), ack in zip(sent, acks):
         # applied at a step boundary after the clock the sender saw, some steps later at most
         # (how many: the node's command_delay here, 0.05 wall s, and the sender's lag behind
@@ -130,8 +137,7 @@ def test_commands_take_effect_when_received(commanded):
     assert kinds[0] == ("run-start", None) and kinds[-1] == ("run-end", None)
     t_engage, t_disengage = acks[0]["t"], acks[1]["t"]
     cmd_ev = [e for e in ev if e["kind"] == "command"]
-    assert [(e["command"], e["t"]) for e in cmd_ev] == [("engage", t_engage),
-                                                        ("disengage", t_disengage)]
+    assert [(e["command"], e["t"]) for e in cmd_ev] == [("engage", t_engage), ("disengage", t_disengage)]
     latch = [e for e in ev if e["kind"] == "latch-closes"]
     assert len(latch) == 1 and t_engage < latch[0]["t"] < t_disengage
     assert any(e["kind"] == "latch-opens" and e["t"] == t_disengage for e in ev)
@@ -156,24 +162,34 @@ def test_values_equal_mps_core(commanded):
             sim.advance_to(t)
         s = sim.snapshot()
         e = sim.solver.current
-        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd,
-                               kin=e.kin).values
+        rx = compute_reactions(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin
+        ).values
         js = got["joint_states"][k]
-        np.testing.assert_allclose([js.position[i] for i in (0, 2, 3)],
-                                   [s["phi"], s["psi"], s["x_C"]], rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose([js.velocity[i] for i in (0, 2, 3)],
-                                   [s["phi_dot"], s["psi_dot"], s["x_C_dot"]], rtol=1e-12,
-                                   atol=1e-12)
-        np.testing.assert_allclose([js.effort[0], js.effort[2], js.effort[3]],
-                                   [rx["M_motor"], rx["M_latch"], rx["F_stop"]], rtol=1e-12,
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            [js.position[i] for i in (0, 2, 3)], [s["phi"], s["psi"], s["x_C"]], rtol=1e-12, atol=1e-15
+        )
+        np.testing.assert_allclose(
+            [js.velocity[i] for i in (0, 2, 3)],
+            [s["phi_dot"], s["psi_dot"], s["x_C_dot"]],
+            rtol=1e-12,
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(
+            [js.effort[0], js.effort[2], js.effort[3]],
+            [rx["M_motor"], rx["M_latch"], rx["F_stop"]],
+            rtol=1e-12,
+            atol=1e-9,
+        )
         assert math.isnan(js.effort[1])
         for w in (*WRENCHES, FOUNDATION):
             m = got[w.key][k].wrench
             want = [0.0 if c is None else rx[c] for c in w.force] + [
-                0.0 if w.torque is None else rx[w.torque]]
-            np.testing.assert_allclose([m.force.x, m.force.y, m.torque.z], want, rtol=1e-12,
-                                       atol=1e-9, err_msg=f"{w.key} at t = {t}")
+                0.0 if w.torque is None else rx[w.torque]
+            ]
+            np.testing.assert_allclose(
+                [m.force.x, m.force.y, m.torque.z], want, rtol=1e-12, atol=1e-9, err_msg=f"{w.key} at t = {t}"
+            )
             assert m.force.z == m.torque.x == m.torque.y == 0.0
         if not structures or structures[-1] != s["structure"]:
             structures.append(s["structure"])
@@ -191,8 +207,7 @@ def test_markers_draw_the_joint_states_and_scale_the_reactions(commanded):
     markers = got["~/markers"]
     assert [ns(m.markers[0].header.stamp) for m in markers] == STAMPS[::33]
     by_stamp = {ns(js.header.stamp): js for js in got["joint_states"]}
-    wrench = {w.key: {ns(m.header.stamp): m.wrench for m in got[w.key]}
-              for w in (*WRENCHES, FOUNDATION)}
+    wrench = {w.key: {ns(m.header.stamp): m.wrench for m in got[w.key]} for w in (*WRENCHES, FOUNDATION)}
     arrows_seen = 0
     texts = []
     for ma in markers:
@@ -216,8 +231,9 @@ def test_markers_draw_the_joint_states_and_scale_the_reactions(commanded):
             arrow = m[(f"reactions/{w.name} (1 m = {N_PER_M:g} N)", 0)]
             (p0, p1) = arrow.points
             f = wrench[w.key][t].force
-            np.testing.assert_allclose([(p1.x - p0.x) * N_PER_M, (p1.y - p0.y) * N_PER_M],
-                                       [f.x, f.y], rtol=1e-9, atol=1e-6)
+            np.testing.assert_allclose(
+                [(p1.x - p0.x) * N_PER_M, (p1.y - p0.y) * N_PER_M], [f.x, f.y], rtol=1e-9, atol=1e-6
+            )
             arrows_seen += 1
         texts.append(m[("latch", 1)].text)
     assert arrows_seen == len(markers) * 7
@@ -227,7 +243,7 @@ def test_markers_draw_the_joint_states_and_scale_the_reactions(commanded):
 
 def test_recording_read_back_by_rosbags(commanded):
     conns, rec = read_mcap(commanded["rec"])
-    names = commanded["names"]      # the topics the test's subscriber took
+    names = commanded["names"]  # the topics the test's subscriber took
     assert set(conns) == {resolve(t.key) for t in TOPICS} | {"/press_twin/mode"}
     # /tf at every step and /tf_static once, recorded also where tf2_msgs is not importable
     # (then not published: tests/ros/test_recording.py checks their frames)
@@ -235,8 +251,12 @@ def test_recording_read_back_by_rosbags(commanded):
     from mps_ros.node import MSG_CLASSES
 
     if "tf2_msgs/msg/TFMessage" not in MSG_CLASSES:
-        assert commanded["log"].count("/tf, /tf_static: recorded, not published (tf2_msgs "
-                                      "cannot be imported here") == 1, commanded["log"]
+        assert (
+            commanded["log"].count(
+                "/tf, /tf_static: recorded, not published (tf2_msgs cannot be imported here"
+            )
+            == 1
+        ), commanded["log"]
     got = commanded["got"]
     for key, name in names.items():
         assert conns[name].msgtype == next(t.msgtype for t in TOPICS if t.key == key)
@@ -246,12 +266,14 @@ def test_recording_read_back_by_rosbags(commanded):
             assert t_log == ns(a.header.stamp) == ns(b.header.stamp)
             if key == "joint_states":
                 for f in ("position", "velocity", "effort"):
-                    np.testing.assert_array_equal(np.asarray(getattr(a, f)),
-                                                  np.asarray(getattr(b, f)))
+                    np.testing.assert_array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
                 assert list(a.name) == list(b.name)
             else:
                 assert (a.wrench.force.x, a.wrench.force.y, a.wrench.torque.z) == (
-                    b.wrench.force.x, b.wrench.force.y, b.wrench.torque.z)
+                    b.wrench.force.x,
+                    b.wrench.force.y,
+                    b.wrench.torque.z,
+                )
     assert [ns(a.clock) for _, a in rec["/clock"]] == STAMPS
     for key in ("~/events", "~/mode/status", "~/structure"):
         assert [a.data for _, a in rec[names[key]]] == [b.data for b in got[key]]
@@ -262,8 +284,9 @@ def test_recording_read_back_by_rosbags(commanded):
     for st in statuses:
         assert st.hardware_id == "mps press-cycle"
         by_name.setdefault(st.name, []).append(st)
-    assert {"press_twin: pacing", "press_twin: commands", "press_twin: recording"} <= set(
-        by_name), [st.name for st in statuses]
+    assert {"press_twin: pacing", "press_twin: commands", "press_twin: recording"} <= set(by_name), [
+        st.name for st in statuses
+    ]
     last = {v.key: v.value for v in by_name["press_twin: commands"][-1].values}
     assert last["commands_accepted"] == "2" and last["commands_refused"] == "0", last
     for st in by_name["press_twin: recording"]:
@@ -272,7 +295,8 @@ def test_recording_read_back_by_rosbags(commanded):
     # the commands it received, at the simulated times it applied them
     acks = commanded["acks"]
     assert [(t, m.data) for t, m in rec["/press_twin/mode"]] == [
-        (int(round(a["t"] * 1e9)), a["command"]) for a in acks]
+        (int(round(a["t"] * 1e9)), a["command"]) for a in acks
+    ]
     # self-describing: the scene's TOML and the software version
     meta = read_metadata(commanded["rec"])
     assert meta["scene"]["toml"] == load_scene("press-cycle").text
@@ -281,7 +305,8 @@ def test_recording_read_back_by_rosbags(commanded):
     # the middleware's writer timers it ran with (the package's profile, unless the
     # environment named another)
     assert meta["mps"]["fastdds_profiles_file"] == os.environ.get(
-        "FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
+        "FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE
+    )
     # QoS offered, as rosbag2 writes it
     q = conns["/joint_states"].ext.offered_qos_profiles[0]
     assert (q.history.name, q.depth, q.reliability.name) == ("KEEP_LAST", 1000, "RELIABLE")
@@ -301,8 +326,15 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
 
     # engaged at 0.008 s, the latch closes soon after: locked until the disengage at 0.4351 s
     # (8.7 wall seconds at x0.05)
-    params = dict(pacing="realtime", real_time_factor=0.05, dt=DT, t_end=1.0,
-                  recording="none", wait_for_subscribers=1, wait_timeout=30.0)
+    params = dict(
+        pacing="realtime",
+        real_time_factor=0.05,
+        dt=DT,
+        t_end=1.0,
+        recording="none",
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+    )
     lis = Listener()
     late_node = executor = thread = None
     try:
@@ -312,9 +344,15 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
             late_node = Node(f"late_{os.getpid()}")
             got = []
             late_node.create_subscription(
-                String, lis.topics["~/structure"], lambda m: got.append((m.data, lis.clock())),
-                QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL))
+                String,
+                lis.topics["~/structure"],
+                lambda m: got.append((m.data, lis.clock())),
+                QoSProfile(
+                    depth=1,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                ),
+            )
             executor = SingleThreadedExecutor()
             executor.add_node(late_node)
             thread = threading.Thread(target=executor.spin, daemon=True)
@@ -323,7 +361,7 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
             data, t_seen = got[0]
             assert data == "locked" and t_seen < 0.4351, got
     finally:
-        if executor is not None:            # as Listener.close: the spinning thread ends first
+        if executor is not None:  # as Listener.close: the spinning thread ends first
             executor.shutdown(timeout_sec=2.0)
         if thread is not None:
             thread.join(timeout=3.0)
@@ -336,9 +374,16 @@ def test_a_flood_of_commands_is_answered_one_by_one(ros, tmp_path):
     """1000 commands sent as fast as a publisher can: none vanishes in the node's queue; each
     gets its answer on ~/mode/status (most of them: refused, a flood), and the run's end line
     counts the commands lost on the way (none here)."""
-    params = dict(pacing="realtime", dt=DT, t_end=4.0, recording="none",
-                  scene_commands=False, wait_for_subscribers=1, wait_for_commanders=1,
-                  wait_timeout=30.0)
+    params = dict(
+        pacing="realtime",
+        dt=DT,
+        t_end=4.0,
+        recording="none",
+        scene_commands=False,
+        wait_for_subscribers=1,
+        wait_for_commanders=1,
+        wait_timeout=30.0,
+    )
     # the commands' answers, the clock and the events only: a subscriber deserializing every
     # topic at 1 kHz as well would take most of a small machine's second core
     lis = Listener(keys=("/clock", "~/mode/status", "~/events"))
@@ -348,8 +393,7 @@ def test_a_flood_of_commands_is_answered_one_by_one(ros, tmp_path):
             words = ["stop", "start"] * 500
             for w in words:
                 lis.send(w)
-            lis.wait_for(lambda: len(lis.acks()) >= len(words), 60,
-                         f"{len(words)} answers on ~/mode/status")
+            lis.wait_for(lambda: len(lis.acks()) >= len(words), 60, f"{len(words)} answers on ~/mode/status")
             lis.wait_for(lis.ended, 60, "the run's end")
             assert node.wait(30) == 0
             log = node.log()
@@ -383,9 +427,16 @@ def test_sigkill_then_recover(ros, tmp_path):
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     rec = tmp_path / "killed.mcap"
-    params = dict(pacing="realtime", dt=DT, t_end=20.0, recording=str(rec),
-                  recording_flush_period=0.2, wait_for_subscribers=1, wait_timeout=30.0,
-                  outputs="[joint_states, foundation, clock, events]")
+    params = dict(
+        pacing="realtime",
+        dt=DT,
+        t_end=20.0,
+        recording=str(rec),
+        recording_flush_period=0.2,
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+        outputs="[joint_states, foundation, clock, events]",
+    )
     lis = Listener()
     try:
         with NodeProcess(tmp_path, params) as node:
@@ -400,8 +451,7 @@ def test_sigkill_then_recover(ros, tmp_path):
         with AnyReader([rec]):
             pass
     out = tmp_path / "recovered.mcap"
-    res = subprocess.run(mps_cmd("recover", str(rec), str(out)), capture_output=True, text=True,
-                         timeout=60)
+    res = subprocess.run(mps_cmd("recover", str(rec), str(out)), capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "cut short" in res.stdout
     conns, back = read_mcap(out)
@@ -418,8 +468,9 @@ def test_sigkill_then_recover(ros, tmp_path):
                 np.testing.assert_array_equal(np.asarray(x.position), np.asarray(y.position))
             else:
                 assert x.wrench.force.x == y.wrench.force.x
-    assert [ns(m.clock) for _, m in back["/clock"]] == [int(round(k * DT * 1e9))
-                                                        for k in range(len(back["/clock"]))]
+    assert [ns(m.clock) for _, m in back["/clock"]] == [
+        int(round(k * DT * 1e9)) for k in range(len(back["/clock"]))
+    ]
     meta = read_metadata(out)
     assert meta["scene"]["toml"] == load_scene("press-cycle").text
     assert meta["mps"]["version"] == __version__
@@ -442,18 +493,30 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
     from twin_probe import RtpsSniffer
 
     rec = tmp_path / "refusals.mcap"
-    params = dict(pacing="realtime", dt=DT, t_end=30.0, scene_commands=False,
-                  recording=str(rec), wait_for_subscribers=1, wait_timeout=30.0,
-                  command_burst=5, command_rate=50.0)
+    params = dict(
+        pacing="realtime",
+        dt=DT,
+        t_end=30.0,
+        scene_commands=False,
+        recording=str(rec),
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+        command_burst=5,
+        command_rate=50.0,
+    )
     sniffer = RtpsSniffer()
     lis = Listener()
     sent = []
     try:
         with NodeProcess(tmp_path, params) as node:
-            lis.wait_for(lambda: lis.mode.get_subscription_count() > 0 and lis.clock(), 40,
-                         "the node running")
-            env = dict(kv.split("=", 1) for kv in
-                       Path(f"/proc/{node.pid}/environ").read_bytes().decode().split("\0") if kv)
+            lis.wait_for(
+                lambda: lis.mode.get_subscription_count() > 0 and lis.clock(), 40, "the node running"
+            )
+            env = dict(
+                kv.split("=", 1)
+                for kv in Path(f"/proc/{node.pid}/environ").read_bytes().decode().split("\0")
+                if kv
+            )
             assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
             assert env["ROS_DOMAIN_ID"] == str(ros_domain)
 
@@ -465,7 +528,7 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
                 assert ack["accepted"] is expect_ok, (word[:20], ack)
                 if reason:
                     assert reason in ack["reason"], (word[:20], ack)
-                time.sleep(0.06)       # 3 tokens back in the flood gate (50 a second)
+                time.sleep(0.06)  # 3 tokens back in the flood gate (50 a second)
                 return ack
 
             for word, reason in REFUSALS:
@@ -475,17 +538,19 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             lis.send("engage")
             lis.send("engage")
             sent += ["engage", "engage"]
-            both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 10,
-                                "two answers")
+            both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 10, "two answers")
             assert both[0]["accepted"] and not both[1]["accepted"]
             # the second is answered at the boundary where it arrived: "already engaging" while
             # the latch is still open (the usual case: tens of ms), the latch's reason after
-            locked = lis.wait_for(lambda: [e["t"] for e in lis.events()
-                                           if e.get("kind") == "latch-closes"], 10,
-                                  "the latch to close")[0]
+            locked = lis.wait_for(
+                lambda: [e["t"] for e in lis.events() if e.get("kind") == "latch-closes"],
+                10,
+                "the latch to close",
+            )[0]
             assert both[0]["t"] < locked
-            assert ("already engaging" if both[1]["t"] < locked
-                    else "the latch is already closed") in both[1]["reason"], (both, locked)
+            assert ("already engaging" if both[1]["t"] < locked else "the latch is already closed") in both[
+                1
+            ]["reason"], (both, locked)
             ask("engage", False, "the latch is already closed (working)")
             # the service form: std_srvs/Trigger
             r = lis.call("stop")
@@ -494,15 +559,17 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             assert not r.success and "the motor is already off" in r.message
             assert lis.call("start").success
             # its answer on ~/mode/status goes out at its step's deadline, after the reply
-            lis.wait_for(lambda: lis.acks() and lis.acks()[-1]["command"] == "start", 10,
-                         "start's answer on ~/mode/status")
+            lis.wait_for(
+                lambda: lis.acks() and lis.acks()[-1]["command"] == "start",
+                10,
+                "start's answer on ~/mode/status",
+            )
             # a flood: 40 at once; a few pass the gate (and are refused on their merits)
             n0 = len(lis.acks())
             for _ in range(40):
                 lis.send("launch")
                 sent.append("launch")
-            flood = lis.wait_for(lambda: len(lis.acks()) >= n0 + 40 and lis.acks()[n0:], 10,
-                                 "40 answers")
+            flood = lis.wait_for(lambda: len(lis.acks()) >= n0 + 40 and lis.acks()[n0:], 10, "40 answers")
             assert all(not a["accepted"] for a in flood)
             # the gate passes at most its burst and its rate over the time the 40 took to
             # arrive (each answered at the first step boundary after it came: within a step)
@@ -529,14 +596,14 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
     assert "stopped (SIGTERM)" in log
     # a SIGTERM finishes the recording properly: rosbags reads it as it is
     conns, back = read_mcap(rec)
-    assert len(back["/press_twin/mode"]) == len(sent) + 3          # + 3 service calls
-    assert [m.data for _, m in back["/press_twin/mode"] if m.data != "x" * 5000][:3] == [
-        "", "   ", "launch"]
+    assert len(back["/press_twin/mode"]) == len(sent) + 3  # + 3 service calls
+    assert [m.data for _, m in back["/press_twin/mode"] if m.data != "x" * 5000][:3] == ["", "   ", "launch"]
     assert [json.loads(m.data)["accepted"] for _, m in back["/press_twin/mode/status"]] == [
-        a["accepted"] for a in acks]
+        a["accepted"] for a in acks
+    ]
     if packets is not None:
-        assert sniffer.on_loopback > 0          # it does see the DDS traffic ...
-        assert packets == [], f"DDS traffic off loopback: {packets[:5]}"     # ... all on lo
+        assert sniffer.on_loopback > 0  # it does see the DDS traffic ...
+        assert packets == [], f"DDS traffic off loopback: {packets[:5]}"  # ... all on lo
 
 
 def test_fastdds_profile_changes_the_writer_timers_only():
@@ -566,9 +633,15 @@ def test_one_node_a_name(ros, tmp_path):
     name runs beside it; a node started after the first was killed (SIGKILL: it never said
     goodbye) runs: a process that starts after it never learns of it."""
     first_rec, second_rec = tmp_path / "first.mcap", tmp_path / "second.mcap"
-    params = dict(pacing="realtime", dt=DT, t_end=60.0, recording=str(first_rec),
-                  wait_for_subscribers=1, wait_timeout=30.0,
-                  outputs="[clock, events]")
+    params = dict(
+        pacing="realtime",
+        dt=DT,
+        t_end=60.0,
+        recording=str(first_rec),
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+        outputs="[clock, events]",
+    )
     # every topic the node publishes with those outputs: it waits for a subscriber on each
     lis = Listener(keys=("/clock", "~/events", "~/mode/status"))
     try:
@@ -576,20 +649,40 @@ def test_one_node_a_name(ros, tmp_path):
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "the first node's /clock")
             # side by side: a second of the first's name, and one of another name
             second = subprocess.Popen(
-                mps_cmd("node", "press-cycle", "--ros-args", "-p", f"recording:={second_rec}",
-                        "-p", "t_end:=1.0"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                text=True)
+                mps_cmd(
+                    "node", "press-cycle", "--ros-args", "-p", f"recording:={second_rec}", "-p", "t_end:=1.0"
+                ),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
             other = subprocess.Popen(
-                mps_cmd("node", "press-cycle", "--ros-args", "-r", "__node:=press_twin_2",
-                        "-p", "recording:=none", "-p", "pacing:=as_fast_as_possible",
-                        "-p", "t_end:=0.05"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                text=True)
+                mps_cmd(
+                    "node",
+                    "press-cycle",
+                    "--ros-args",
+                    "-r",
+                    "__node:=press_twin_2",
+                    "-p",
+                    "recording:=none",
+                    "-p",
+                    "pacing:=as_fast_as_possible",
+                    "-p",
+                    "t_end:=0.05",
+                ),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
             second_out, second_err = second.communicate(timeout=120)
             other_out, other_err = other.communicate(timeout=120)
             assert second.returncode == 2, second_out + second_err
             err = [ln for ln in second_err.splitlines() if "error" in ln]
-            assert len(err) == 1 and "a node /press_twin is already running in ROS domain" \
-                in err[0] and "__node:=NAME" in err[0], second_err
+            assert (
+                len(err) == 1
+                and "a node /press_twin is already running in ROS domain" in err[0]
+                and "__node:=NAME" in err[0]
+            ), second_err
             assert not second_rec.exists()
             assert other.returncode == 0, other_out + other_err
             assert first.alive()
@@ -601,9 +694,21 @@ def test_one_node_a_name(ros, tmp_path):
         # node's never does
         assert any(n == "press_twin" for n, _ns in lis.node.get_node_names_and_namespaces())
         again = subprocess.run(
-            mps_cmd("node", "press-cycle", "--ros-args", "-p", "recording:=none",
-                    "-p", "pacing:=as_fast_as_possible", "-p", "t_end:=0.05"),
-            capture_output=True, text=True, timeout=120)
+            mps_cmd(
+                "node",
+                "press-cycle",
+                "--ros-args",
+                "-p",
+                "recording:=none",
+                "-p",
+                "pacing:=as_fast_as_possible",
+                "-p",
+                "t_end:=0.05",
+            ),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert again.returncode == 0, again.stdout + again.stderr
     finally:
         lis.close()
@@ -612,34 +717,40 @@ def test_one_node_a_name(ros, tmp_path):
 def test_a_profile_named_by_the_environment_is_kept(tmp_path):
     mine = tmp_path / "mine.xml"
     env = {**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(mine)}
-    code = ("import os, mps_ros.node as n; "
-            "print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], n.FASTDDS_PROFILE)")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True).stdout.split()
+    code = (
+        "import os, mps_ros.node as n; print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], n.FASTDDS_PROFILE)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
     assert out == [str(mine), FASTDDS_PROFILE]
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
     assert out == [FASTDDS_PROFILE, FASTDDS_PROFILE] and Path(out[0]).is_file()
 
 
 def test_bad_parameters_are_refused_not_crashed(tmp_path):
-    cases = [({"pacing": "warp"}, "parameter pacing: 'warp'"),
-             ({"outputs": "[joint_states, torque]"}, "unknown output 'torque'"),
-             ({"realtime_priority": 120}, "parameter realtime_priority: 120"),
-             ({"release_period": 0.5}, "parameter release_period: 0.5"),
-             ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
-             ({"release_slice": 0.5}, "parameter release_slice: 0.5"),
-             ({"command_delay": 2.0}, "parameter command_delay: 2.0: expected a number from "
-                                      "0 to 1"),
-             ({"t_end": -1.0}, "parameter t_end: -1.0: expected a number from 0 to 1e9"),
-             ({"scene_commands": 3}, "parameter scene_commands: 3: expected true or false"),
-             ({"outputs": "clock"}, "parameter outputs: 'clock': expected a list of words"),
-             ({"no_such": 1}, "unknown parameter no_such: expected one of autostart, command_burst, ")]
+    cases = [
+        ({"pacing": "warp"}, "parameter pacing: 'warp'"),
+        ({"outputs": "[joint_states, torque]"}, "unknown output 'torque'"),
+        ({"realtime_priority": 120}, "parameter realtime_priority: 120"),
+        ({"release_period": 0.5}, "parameter release_period: 0.5"),
+        ({"derivatives": "spline"}, "parameter derivatives: 'spline'"),
+        ({"release_slice": 0.5}, "parameter release_slice: 0.5"),
+        ({"command_delay": 2.0}, "parameter command_delay: 2.0: expected a number from 0 to 1"),
+        ({"t_end": -1.0}, "parameter t_end: -1.0: expected a number from 0 to 1e9"),
+        ({"scene_commands": 3}, "parameter scene_commands: 3: expected true or false"),
+        ({"outputs": "clock"}, "parameter outputs: 'clock': expected a list of words"),
+        ({"no_such": 1}, "unknown parameter no_such: expected one of autostart, command_burst, "),
+    ]
     # started side by side: each refuses before it joins the graph
     with contextlib.ExitStack() as stack:
-        nodes = [stack.enter_context(NodeProcess(tmp_path, params, name=f"bad{i}"))
-                 for i, (params, _message) in enumerate(cases)]
+        nodes = [
+            stack.enter_context(NodeProcess(tmp_path, params, name=f"bad{i}"))
+            for i, (params, _message) in enumerate(cases)
+        ]
         for node, (_params, message) in zip(nodes, cases):
             rc = node.wait(120)
             log = node.log()
@@ -651,8 +762,10 @@ def test_a_recording_never_replaces_a_file(tmp_path):
     file untouched; a folder that does not exist: the same."""
     kept = tmp_path / "kept.mcap"
     kept.write_bytes(b"an earlier run")
-    for path, message in ((kept, "exists; a recording never replaces a file"),
-                          (tmp_path / "nodir" / "x.mcap", "no directory")):
+    for path, message in (
+        (kept, "exists; a recording never replaces a file"),
+        (tmp_path / "nodir" / "x.mcap", "no directory"),
+    ):
         with NodeProcess(tmp_path, dict(t_end=0.01, recording=str(path)), name="rec") as node:
             rc = node.wait(60)
             log = node.log()
@@ -683,13 +796,29 @@ def test_node_and_mps_record_write_the_same_messages(tmp_path):
     import subprocess
 
     a = tmp_path / "node.mcap"
-    with NodeProcess(tmp_path, dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05,
-                                    recording=str(a), recording_compression="lz4")) as node:
+    with NodeProcess(
+        tmp_path,
+        dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05, recording=str(a), recording_compression="lz4"),
+    ) as node:
         assert node.wait(60) == 0, node.log()
     b = tmp_path / "record.mcap"
-    subprocess.run(mps_cmd("record", "press-cycle", "--out", str(b), "--dt", str(DT),
-                           "--t-end", "0.05", "--compression", "none"), check=True,
-                   capture_output=True, timeout=120)
+    subprocess.run(
+        mps_cmd(
+            "record",
+            "press-cycle",
+            "--out",
+            str(b),
+            "--dt",
+            str(DT),
+            "--t-end",
+            "0.05",
+            "--compression",
+            "none",
+        ),
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
 
     def compressions(path):
         from mcap.reader import make_reader
@@ -721,8 +850,16 @@ def test_parameters_yaml_of_the_package(tmp_path):
     """config/press_twin.yaml is a valid parameters file for the node (-p overrides it)."""
     cfg = Path(__file__).resolve().parents[2] / "config" / "press_twin.yaml"
     node = NodeProcess(tmp_path, {}, name="yaml")
-    node.cmd += ["--params-file", str(cfg), "-p", "pacing:=as_fast_as_possible",
-                 "-p", "t_end:=0.02", "-p", "recording:=none"]
+    node.cmd += [
+        "--params-file",
+        str(cfg),
+        "-p",
+        "pacing:=as_fast_as_possible",
+        "-p",
+        "t_end:=0.02",
+        "-p",
+        "recording:=none",
+    ]
     with node:
         assert node.wait(60) == 0, node.log()
         log = node.log()

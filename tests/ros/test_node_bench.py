@@ -33,13 +33,15 @@ def test_lost_by_topic_names_each_topic_that_differs_and_no_other():
     published = {"/clock": 1000, "/joint_states": 1000, "/press_twin/events": 25}
     received = {"/clock": 1000, "/joint_states": 998, "/press_twin/extra": 3}
     assert lost_by_topic(published, received) == {
-        "/joint_states": 2, "/press_twin/events": 25, "/press_twin/extra": -3}
+        "/joint_states": 2,
+        "/press_twin/events": 25,
+        "/press_twin/extra": -3,
+    }
     assert lost_by_topic(published, dict(published)) == {}
     # printed only where some differ
     assert _lost_line({"lost_by_topic": {}}) == ""
     assert "/joint_states 2" in _lost_line({"lost_by_topic": {"/joint_states": 2}})
-    assert "no summary" in _lost_line({"lost_by_topic": None,
-                                       "recording_error": "recording 'x': no summary"})
+    assert "no summary" in _lost_line({"lost_by_topic": None, "recording_error": "recording 'x': no summary"})
 
 
 def test_keep_logs_copies_the_runs_logs_and_figures(tmp_path):
@@ -52,5 +54,5 @@ def test_keep_logs_copies_the_runs_logs_and_figures(tmp_path):
     assert (keep / "soak-node.log").read_text() == "node log\n"
     assert (keep / "soak-subscriber.log").read_text() == "subscriber log\n"
     assert '"/clock": 1' in (keep / "soak.json").read_text()
-    shutil.rmtree(run)          # kept after the run's own folder is gone
+    shutil.rmtree(run)  # kept after the run's own folder is gone
     assert (keep / "soak-node.log").exists()

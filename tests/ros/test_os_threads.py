@@ -43,14 +43,14 @@ def test_a_short_slice_is_granted_and_read_back_or_not_claimed():
 
     def ask():
         tid = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, tid, 3)         # lowering is never refused
+        os.setpriority(os.PRIO_PROCESS, tid, 3)  # lowering is never refused
         granted = short_slice(1e-4)
         return granted, thread_slice(), os.getpriority(os.PRIO_PROCESS, tid)
 
     granted, got, nice = _in_thread(ask)["value"]
-    assert nice == 3                                    # kept
+    assert nice == 3  # kept
     if granted:
         assert got == pytest.approx(1e-4)
-    else:                                               # an older kernel: nothing claimed
+    else:  # an older kernel: nothing claimed
         assert got is None or got != pytest.approx(1e-4)
-    assert thread_slice() == main_slice                 # the calling thread's only
+    assert thread_slice() == main_slice  # the calling thread's only

@@ -16,14 +16,14 @@ from mps_ros.twin import Command, Gate, Runner, Twin
 
 DT = 1e-3
 T_END = 0.2
-RTF = 0.25          # 4 ms of wall time a step: room to be ahead on a slow machine too
+RTF = 0.25  # 4 ms of wall time a step: room to be ahead on a slow machine too
 
 
 class Sink:
     def __init__(self, live: bool, on_clock=None):
         self.live = live
-        self.got: list = []             # (key, bytes, t_ns, received)
-        self.walls: list = []           # (wall time of emit, t_ns) of the states
+        self.got: list = []  # (key, bytes, t_ns, received)
+        self.walls: list = []  # (wall time of emit, t_ns) of the states
         self.on_clock = on_clock
 
     def emit(self, key, data, t_ns):
@@ -41,8 +41,7 @@ class Sink:
 
 
 def _events(sink):
-    return [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in sink.got
-            if k == "~/events"]
+    return [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in sink.got if k == "~/events"]
 
 
 def _comparable(sink):
@@ -50,8 +49,11 @@ def _comparable(sink):
     end (pacing, statistics)."""
     out = []
     for key, data, t_ns, received in sink.got:
-        if received or key == "/diagnostics" or (
-                key == "~/events" and (b'"run-start"' in data or b'"run-end"' in data)):
+        if (
+            received
+            or key == "/diagnostics"
+            or (key == "~/events" and (b'"run-start"' in data or b'"run-end"' in data))
+        ):
             continue
         out.append((key, data, t_ns, received))
     return out
@@ -60,8 +62,7 @@ def _comparable(sink):
 def test_released_at_deadlines_and_the_same_to_every_sink():
     tw = Twin("press-cycle", dt=DT, t_end=T_END)
     live, rec = Sink(True), Sink(False)
-    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
-                    lead=0.05, warm_up=0.0)
+    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF, lead=0.05, warm_up=0.0)
     st = runner.run()
     assert st["steps"] == round(T_END / DT)
     # never before the deadline (t0's at the schedule's start)
@@ -76,13 +77,14 @@ def test_released_at_deadlines_and_the_same_to_every_sink():
 
 @pytest.mark.parametrize("release_period", [0.0, 4 * DT / RTF])
 def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_stepped_in_time(
-        tmp_path, release_period):
+    tmp_path, release_period
+):
     from mcap.reader import make_reader
 
     from mps_ros.recording import BackgroundRecorder, RecordingSink
     from mps_ros.topics import resolve
 
-    K = 60                              # the command is sent as step K's state goes out
+    K = 60  # the command is sent as step K's state goes out
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
     sent = {}
 
@@ -95,18 +97,25 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     live, rec = Sink(True, on_clock), Sink(False)
     # the recording process, handed each released step in one call (RecordingSink.emit_all)
     bg = BackgroundRecorder(tmp_path / "paced.mcap")
-    runner = Runner(tw, sinks=[live, rec, RecordingSink(bg)], pacing="realtime",
-                    real_time_factor=RTF, lead=0.05, warm_up=0.0,
-                    release_period=release_period)
+    runner = Runner(
+        tw,
+        sinks=[live, rec, RecordingSink(bg)],
+        pacing="realtime",
+        real_time_factor=RTF,
+        lead=0.05,
+        warm_up=0.0,
+        release_period=release_period,
+    )
     st = runner.run()
     bg.finish()
     with open(tmp_path / "paced.mcap", "rb") as f:
-        recorded = [(ch.topic, bytes(m.data), m.log_time)
-                    for _, ch, m in make_reader(f).iter_messages(log_time_order=False)]
+        recorded = [
+            (ch.topic, bytes(m.data), m.log_time)
+            for _, ch, m in make_reader(f).iter_messages(log_time_order=False)
+        ]
     assert recorded == [(resolve(k), d, t) for k, d, t, _ in rec.got]
     assert st["commands_accepted"] == 1
-    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
-            if k == "~/mode/status"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got if k == "~/mode/status"]
     # the boundary: the first step whose deadline is not before the command's arrival
     deadline = [runner.wall_start + k * DT / RTF for k in range(round(T_END / DT) + 1)]
     j = next(k for k, d in enumerate(deadline) if d >= sent["wall"])
@@ -116,7 +125,7 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     # the same run as fast as possible, the command applied at that boundary
     tw2 = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
 
-    box: list = []           # the command sent once
+    box: list = []  # the command sent once
 
     def at_j(t_ns):
         if not box and t_ns >= round(j * DT * 1e9):
@@ -127,8 +136,7 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     afap = Runner(tw2, sinks=[same], pacing="as_fast_as_possible", warm_up=0.0)
     afap.run()
     assert _comparable(rec) == _comparable(live)
-    assert ("~/mode", b"\x00\x01\x00\x00\x07\x00\x00\x00engage\x00", round(j * DT * 1e9),
-            True) in rec.got
+    assert ("~/mode", b"\x00\x01\x00\x00\x07\x00\x00\x00engage\x00", round(j * DT * 1e9), True) in rec.got
     assert _comparable(live) == _comparable(same)
     kinds = [e["kind"] for e in _events(live)]
     assert "latch-closes" in kinds
@@ -145,11 +153,17 @@ def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_
     for rp in (0.0, 4 * period):
         tw = Twin("press-cycle", dt=DT, t_end=T_END)
         live = Sink(True)
-        runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF,
-                        lead=0.05, warm_up=T_END, release_period=rp)
+        runner = Runner(
+            tw,
+            sinks=[live],
+            pacing="realtime",
+            real_time_factor=RTF,
+            lead=0.05,
+            warm_up=T_END,
+            release_period=rp,
+        )
         runner.run()
-        late = [wall - (runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF)
-                for wall, t_ns in live.walls[1:]]
+        late = [wall - (runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF) for wall, t_ns in live.walls[1:]]
         # the wake-ups: states sent less than a fifth of a period apart went out together
         walls = [w for w, _ in live.walls[1:]]
         wakes = 1 + sum(1 for a, b in zip(walls, walls[1:]) if b - a > 0.2 * period)
@@ -158,8 +172,8 @@ def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_
     n = round(T_END / DT)
     assert grouped == plain
     assert min(late0) > -1e-6 and min(late4) > -1e-6
-    assert wakes4 < 0.4 * n                     # about one per four steps ...
-    assert wakes0 > 2 * wakes4                  # ... against one a step (a busy machine
+    assert wakes4 < 0.4 * n  # about one per four steps ...
+    assert wakes0 > 2 * wakes4  # ... against one a step (a busy machine
     #                                             merges a few)
     # the first of four goes out 3 periods late, the last at its deadline; the machine's own
     # delays come on top of that
@@ -170,20 +184,19 @@ def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_
 def test_commands_already_waiting_are_applied_at_the_start():
     tw = Twin("press-cycle", dt=DT, t_end=0.02, scene_commands=False)
     live = Sink(True)
-    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=1.0, lead=0.05,
-                    warm_up=0.0)
+    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=1.0, lead=0.05, warm_up=0.0)
     runner.inbox.put(Command("engage"))
     runner.run()
-    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
-            if k == "~/mode/status"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got if k == "~/mode/status"]
     assert [(a["command"], a["t"], a["accepted"]) for a in acks] == [("engage", 0.0, True)]
 
 
 def test_publishing_every_nth_step_releases_those_and_every_event():
     tw = Twin("press-cycle", dt=DT, t_end=0.1)
     live = Sink(True)
-    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=2.0, lead=0.05,
-                    publish_every=10, warm_up=0.0)
+    runner = Runner(
+        tw, sinks=[live], pacing="realtime", real_time_factor=2.0, lead=0.05, publish_every=10, warm_up=0.0
+    )
     runner.run()
     stamps = [t for _, t in live.walls]
     assert stamps == [round(k * DT * 1e9) for k in range(0, 101, 10)]
@@ -207,12 +220,10 @@ def test_a_solver_that_cannot_come_back_runs_one_step_ahead_and_commands_apply_a
             runner.inbox.put(Command("engage"))
 
     live = Sink(True, on_clock)
-    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=0.5, lead=0.05,
-                    warm_up=0.0)
+    runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=0.5, lead=0.05, warm_up=0.0)
     st = runner.run()
     assert st["steps_recomputed"] == 0 and st["commands_accepted"] == 1
-    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got
-            if k == "~/mode/status"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in live.got if k == "~/mode/status"]
     # applied at the last step computed: the one whose state was going out or the next, a few
     # later where the machine is busy and the stepping thread catches up
     assert sent["t"] * 1e-9 <= acks[0]["t"] <= sent["t"] * 1e-9 + 5.5 * DT
@@ -227,8 +238,7 @@ def test_a_live_sink_that_fails_ends_the_run_and_the_rest_is_still_handed_over()
 
     tw = Twin("press-cycle", dt=DT, t_end=0.2)
     live, rec = Broken(True), Sink(False)
-    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF,
-                    lead=0.05, warm_up=0.0)
+    runner = Runner(tw, sinks=[live, rec], pacing="realtime", real_time_factor=RTF, lead=0.05, warm_up=0.0)
     st = runner.run()
     assert runner.stop_reason == "error" and "the network is gone" in runner.error
     assert st["steps"] < round(0.2 / DT)
@@ -271,14 +281,15 @@ class _Recorder:
         pass
 
 
-REFUSED = {"disengage": [("disengage", False, "the press is not engaged")],
-           "engage, engage": [("engage", True, None), ("engage", False, "already engaging")]}
+REFUSED = {
+    "disengage": [("disengage", False, "the press is not engaged")],
+    "engage, engage": [("engage", True, None), ("engage", False, "already engaging")],
+}
 
 
 @pytest.mark.parametrize("words", list(REFUSED))
 @pytest.mark.parametrize("split", [False, True], ids=["one process", "stepping process"])
-def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no_step(
-        split, words):
+def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no_step(split, words):
     """A command the machine refuses at its boundary (``disengage`` while the press is not
     engaged; a second ``engage`` right after the first, while that one is being applied) is
     answered where its boundary's step says so, no step computed ahead is redone for it, and
@@ -294,15 +305,17 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     def on_clock(t_ns):
         if not sent and t_ns >= round(K * DT * 1e9):
             sent["t_ns"] = t_ns
-            for w in words:             # one after the other, before any answer is read
+            for w in words:  # one after the other, before any answer is read
                 runner.inbox.put(Command(w))
 
     if split:
         rec = _Recorder()
-        spec = {"scene": "press-cycle",
-                "twin": dict(dt=DT, t_end=T_END, scene_commands=False, outputs=list(OUTPUTS)),
-                "runner": dict(real_time_factor=RTF, lead=0.05, warm_up=0.0),
-                "grid": [tw.t0, tw.t_end, tw.n]}
+        spec = {
+            "scene": "press-cycle",
+            "twin": dict(dt=DT, t_end=T_END, scene_commands=False, outputs=list(OUTPUTS)),
+            "runner": dict(real_time_factor=RTF, lead=0.05, warm_up=0.0),
+            "grid": [tw.t0, tw.t_end, tw.n],
+        }
         runner = SteppingProcess(spec, _Publishers(on_clock), lambda *a: None, Gate(), 0)
         runner.sinks.append(rec)
         try:
@@ -314,8 +327,7 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
         assert runner.commands_refused == 1
     else:
         live = Sink(True, on_clock)
-        runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05,
-                        warm_up=0.0)
+        runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05, warm_up=0.0)
         st = runner.run()
         got = live.got
     expected = REFUSED[", ".join(words)]
@@ -323,8 +335,7 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     assert st["commands_accepted"] == sum(1 for *_w, ok, _r in expected if ok)
     if len(words) == 1:
         assert st["steps_recomputed"] == 0
-    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in got
-            if k == "~/mode/status"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in got if k == "~/mode/status"]
     assert [(a["command"], a["accepted"], a["reason"]) for a in acks] == expected
     # each at a step boundary, the first at the step whose state was going out or one of the
     # next, the second at the same or a later one (its own arrival: later on a busy machine)
@@ -352,14 +363,15 @@ def _afap_with(schedule: list, fresh: bool) -> list:
         import subprocess
         import sys
 
-        code = (f"import pickle, sys; sys.path.insert(0, {os.path.dirname(__file__)!r}); "
-                "from test_paced_runner import _afap_with; "
-                f"sys.stdout.buffer.write(pickle.dumps(_afap_with({schedule!r}, False)))")
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True,
-                             timeout=300)
+        code = (
+            f"import pickle, sys; sys.path.insert(0, {os.path.dirname(__file__)!r}); "
+            "from test_paced_runner import _afap_with; "
+            f"sys.stdout.buffer.write(pickle.dumps(_afap_with({schedule!r}, False)))"
+        )
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, check=True, timeout=300)
         return pickle.loads(out.stdout)
 
-    box: set = set()         # the commands sent (each once)
+    box: set = set()  # the commands sent (each once)
 
     def at_j(t_ns):
         for i, (j_ns, word) in enumerate(schedule):
@@ -368,8 +380,12 @@ def _afap_with(schedule: list, fresh: bool) -> list:
                 afap.inbox.put(Command(word))
 
     same = Sink(True, at_j)
-    afap = Runner(Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False), sinks=[same],
-                  pacing="as_fast_as_possible", warm_up=0.0)
+    afap = Runner(
+        Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False),
+        sinks=[same],
+        pacing="as_fast_as_possible",
+        warm_up=0.0,
+    )
     afap.run()
     return _comparable(same)
 
@@ -380,9 +396,9 @@ def test_the_pacing_status_warns_while_deadlines_are_missed_and_clears_after():
     tw = Twin("press-cycle", dt=DT, t_end=T_END)
     runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0)
     sent = []
-    runner._emit = lambda key, msg, t_ns: sent.append(msg)     # the message before encoding
+    runner._emit = lambda key, msg, t_ns: sent.append(msg)  # the message before encoding
     said = []
-    for misses in (0, 3, 3, 5, 5, 11, 11):      # ten steps a report
+    for misses in (0, 3, 3, 5, 5, 11, 11):  # ten steps a report
         tw.k += 10
         runner.misses = misses
         runner._diagnostics(0)
@@ -402,8 +418,7 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
     the node's process's own counts included (a split run's gate answers there); WARN where a
     flood was refused or a command lost since the last report."""
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
-    runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0,
-                    gate=Gate(burst=2, rate=1e-9))
+    runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0, gate=Gate(burst=2, rate=1e-9))
     sent = []
     runner._emit = lambda key, msg, t_ns: sent.append(msg)
 
@@ -412,15 +427,22 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
         st = next(x for x in sent[-1]["status"] if x["name"] == "press_twin: commands")
         return st["level"], {v["key"]: v["value"] for v in st["values"]}
 
-    assert status() == (0, {"commands_accepted": "0", "commands_refused": "0",
-                            "commands_refused_as_floods": "0", "commands_lost": "0"})
-    for w in ("engage", "disengage", "engage", "stop"):     # the last two: a flood
+    assert status() == (
+        0,
+        {
+            "commands_accepted": "0",
+            "commands_refused": "0",
+            "commands_refused_as_floods": "0",
+            "commands_lost": "0",
+        },
+    )
+    for w in ("engage", "disengage", "engage", "stop"):  # the last two: a flood
         runner.inbox.put(Command(w))
     runner._take_commands()
     level, v = status()
     assert level == 1 and v["commands_refused_as_floods"] == "2", v
     assert status()[0] == 0
-    runner.elsewhere = (4, 3, 0)        # the node's process: 4 refused there, 3 as floods
+    runner.elsewhere = (4, 3, 0)  # the node's process: 4 refused there, 3 as floods
     level, v = status()
     assert level == 1 and (v["commands_refused"], v["commands_refused_as_floods"]) == ("6", "5")
     runner.commands_lost = 1
@@ -440,8 +462,7 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
     def run(pause_at: int | None):
         tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
         sink = Sink(True)
-        runner = Runner(tw, sinks=[sink], pacing="as_fast_as_possible",
-                        diagnostics_period=0.01)
+        runner = Runner(tw, sinks=[sink], pacing="as_fast_as_possible", diagnostics_period=0.01)
         box = {}
 
         def on_clock(t_ns):
@@ -453,26 +474,37 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
         thread = threading.Thread(target=runner.run)
         thread.start()
         if pause_at is not None:
+
             def stale():
-                return [d for k, d, *_ in sink.got[box["n"]:] if k == "/diagnostics"
-                        and b"paused at t = 0.030000 s" in d] if box else []
+                return (
+                    [
+                        d
+                        for k, d, *_ in sink.got[box["n"] :]
+                        if k == "/diagnostics" and b"paused at t = 0.030000 s" in d
+                    ]
+                    if box
+                    else []
+                )
 
             wait_until(lambda: len(stale()) >= 2, 30, "two STALE statuses")
             assert box["why"] is None
             # the paused step's own messages, then nothing but diagnostics
-            assert all(t == pause_at * 1_000_000 for _k, _d, t, _r in sink.got[box["n"]:])
+            assert all(t == pause_at * 1_000_000 for _k, _d, t, _r in sink.got[box["n"] :])
             assert sink.got[-1][0] == "/diagnostics"
             runner.inbox.put(Command("engage"))
-            wait_until(lambda: any(k == "~/mode/status" for k, *_ in sink.got[box["n"]:]),
-                       30, "the engage answered while paused")
+            wait_until(
+                lambda: any(k == "~/mode/status" for k, *_ in sink.got[box["n"] :]),
+                30,
+                "the engage answered while paused",
+            )
             stepped = []
-            assert runner.step_paused(stepped.append) is None      # ~/step: one step
+            assert runner.step_paused(stepped.append) is None  # ~/step: one step
             wait_until(lambda: stepped, 30, "the step taken while paused")
             assert stepped == [pytest.approx((pause_at + 1) * DT, abs=1e-12)]
             assert max(t for _k, _d, t, _r in sink.got) == (pause_at + 1) * 1_000_000
             runner.resume()
         else:
-            runner.inbox.put(Command("engage"))     # taken at the first boundary: step 0
+            runner.inbox.put(Command("engage"))  # taken at the first boundary: step 0
         thread.join(60)
         assert not thread.is_alive()
         return [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
@@ -483,8 +515,9 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
     sink = Sink(True)
     runner = Runner(plain_twin, sinks=[sink], pacing="as_fast_as_possible")
     # the same run never paused: the engage at step 30, from its first boundary after it
-    runner.sinks[0].on_clock = (lambda t_ns: runner.inbox.put(Command("engage"))
-                                if t_ns == ack_step * 1_000_000 else None)
+    runner.sinks[0].on_clock = lambda t_ns: (
+        runner.inbox.put(Command("engage")) if t_ns == ack_step * 1_000_000 else None
+    )
     runner.run()
     plain = [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
     assert paused == plain
@@ -506,22 +539,30 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
             if t_ns >= 100_000_000 and not self.stalled:
                 self.stalled = True
                 due = runner.wall_start + (t_ns * 1e-9 + 0.2) / runner.rtf
-                wait_until(lambda: time.perf_counter() >= due, 30,
-                           "the deadline 0.2 simulated s past the stalled step")
+                wait_until(
+                    lambda: time.perf_counter() >= due,
+                    30,
+                    "the deadline 0.2 simulated s past the stalled step",
+                )
 
         def tick(self, deadline=None):
             pass
 
     tw = Twin("press-cycle", dt=DT, t_end=0.8, scene_commands=False)
-    runner = Runner(tw, sinks=[Sink(True), Stall()], pacing="realtime", real_time_factor=0.5,
-                    diagnostics_period=0.05, warm_up=0.0)
+    runner = Runner(
+        tw,
+        sinks=[Sink(True), Stall()],
+        pacing="realtime",
+        real_time_factor=0.5,
+        diagnostics_period=0.05,
+        warm_up=0.0,
+    )
     levels = []
     emit = runner._emit
 
     def keep(key, msg, t_ns):
         if key == "/diagnostics":
-            levels.append(next(s["level"] for s in msg["status"]
-                               if s["name"].endswith(": pacing")))
+            levels.append(next(s["level"] for s in msg["status"] if s["name"].endswith(": pacing")))
         emit(key, msg, t_ns)
 
     runner._emit = keep
@@ -529,4 +570,4 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
     assert runner.misses > 0
     last_trouble = max(i for i, lv in enumerate(levels) if lv != 0)
     assert levels[last_trouble] in (1, 2)
-    assert 0 in levels[last_trouble + 1:], levels
+    assert 0 in levels[last_trouble + 1 :], levels

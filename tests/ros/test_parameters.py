@@ -28,8 +28,9 @@ def test_the_package_yaml_sets_every_parameter_to_its_default_but_the_step():
     values = cfg["press_twin"]["ros__parameters"]
     # the scene is the command line's (commented out in the file)
     assert set(values) == set(BY_NAME) - {"scene"}
-    differ = {n: v for n, v in values.items() if v != BY_NAME[n].default
-              or type(v) is not type(BY_NAME[n].default)}
+    differ = {
+        n: v for n, v in values.items() if v != BY_NAME[n].default or type(v) is not type(BY_NAME[n].default)
+    }
     assert differ == {"dt": 0.001}
 
 
@@ -38,14 +39,19 @@ def test_a_running_node_describes_each_parameter(ros, tmp_path):
     from rcl_interfaces.srv import DescribeParameters, GetParameters
 
     node = ros.create_node(f"describer_{id(tmp_path) % 100000}")
-    params = dict(pacing="realtime", dt=0.001, t_end=600, recording="none",
-                  real_time_factor=1, outputs="[clock]")
+    params = dict(
+        pacing="realtime", dt=0.001, t_end=600, recording="none", real_time_factor=1, outputs="[clock]"
+    )
     try:
         with NodeProcess(tmp_path, params, name="described") as proc:
             describe = node.create_client(DescribeParameters, "/press_twin/describe_parameters")
             get = node.create_client(GetParameters, "/press_twin/get_parameters")
-            wait_until(lambda: describe.service_is_ready() and get.service_is_ready(), 60,
-                       "the node's parameter services", poll=0.05)
+            wait_until(
+                lambda: describe.service_is_ready() and get.service_is_ready(),
+                60,
+                "the node's parameter services",
+                poll=0.05,
+            )
             names = [p.name for p in PARAMETERS]
             fut = describe.call_async(DescribeParameters.Request(names=names))
             ros.spin_until_future_complete(node, fut, timeout_sec=30)
@@ -62,12 +68,13 @@ def test_a_running_node_describes_each_parameter(ros, tmp_path):
         assert d.read_only and not d.dynamic_typing and d.description == p.description
     rtf = got["real_time_factor"]
     assert rtf.type == ParameterType.PARAMETER_DOUBLE
-    assert (rtf.floating_point_range[0].from_value,
-            rtf.floating_point_range[0].to_value) == (1e-3, 1e3)
+    assert (rtf.floating_point_range[0].from_value, rtf.floating_point_range[0].to_value) == (1e-3, 1e3)
     prio = got["realtime_priority"]
     assert (prio.integer_range[0].from_value, prio.integer_range[0].to_value) == (0, 99)
     assert got["outputs"].type == ParameterType.PARAMETER_STRING_ARRAY
     assert "'realtime'" in got["pacing"].additional_constraints
     # integers given for real numbers were taken as such
     assert [(v.type, v.double_value) for v in values] == [
-        (ParameterType.PARAMETER_DOUBLE, 600.0), (ParameterType.PARAMETER_DOUBLE, 1.0)]
+        (ParameterType.PARAMETER_DOUBLE, 600.0),
+        (ParameterType.PARAMETER_DOUBLE, 1.0),
+    ]

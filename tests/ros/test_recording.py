@@ -48,14 +48,19 @@ def _random_messages(rng):
     st = {"sec": rng.randint(0, 2**31 - 1), "nanosec": rng.randint(0, 999_999_999)}
     return {
         "sensor_msgs/msg/JointState": {
-            "header": {"stamp": st, "frame_id": s()}, "name": [s() for _ in range(rng.randint(0, 5))],
+            "header": {"stamp": st, "frame_id": s()},
+            "name": [s() for _ in range(rng.randint(0, 5))],
             "position": [rng.uniform(-9, 9) for _ in range(rng.randint(0, 4))],
             "velocity": [rng.uniform(-9, 9) for _ in range(rng.randint(0, 4))],
-            "effort": [math.nan, rng.random()][:rng.randint(0, 2)]},
+            "effort": [math.nan, rng.random()][: rng.randint(0, 2)],
+        },
         "geometry_msgs/msg/WrenchStamped": {
             "header": {"stamp": st, "frame_id": s()},
-            "wrench": {"force": {"x": rng.random(), "y": -rng.random(), "z": 0.0},
-                       "torque": {"x": 0.0, "y": 1e-300, "z": rng.random()}}},
+            "wrench": {
+                "force": {"x": rng.random(), "y": -rng.random(), "z": 0.0},
+                "torque": {"x": 0.0, "y": 1e-300, "z": rng.random()},
+            },
+        },
         "rosgraph_msgs/msg/Clock": {"clock": st},
         "std_msgs/msg/String": {"data": s()},
     }
@@ -84,25 +89,31 @@ def test_cdr_bytes_are_what_ros_deserializes():
         np.testing.assert_array_equal(js.effort, d["effort"])
         d = m["geometry_msgs/msg/WrenchStamped"]
         w = deserialize_message(ENCODERS["geometry_msgs/msg/WrenchStamped"](d), WrenchStamped)
-        assert (w.wrench.force.x, w.wrench.torque.z) == (d["wrench"]["force"]["x"],
-                                                         d["wrench"]["torque"]["z"])
+        assert (w.wrench.force.x, w.wrench.torque.z) == (
+            d["wrench"]["force"]["x"],
+            d["wrench"]["torque"]["z"],
+        )
 
 
 def test_mps_record_writes_the_nodes_messages(tmp_path, capsys):
     out = tmp_path / "rec.mcap"
-    assert mps_main(["record", "press-cycle", "--out", str(out), "--dt", "0.001",
-                     "--t-end", "0.05"]) == 0
+    assert mps_main(["record", "press-cycle", "--out", str(out), "--dt", "0.001", "--t-end", "0.05"]) == 0
     assert str(out) in capsys.readouterr().out
     back = read_all(out)
     n = 50
-    for topic in ("/joint_states", "/clock", "/press_twin/foundation",
-                  *(f"/press_twin/reactions/{w.name}" for w in WRENCHES)):
+    for topic in (
+        "/joint_states",
+        "/clock",
+        "/press_twin/foundation",
+        *(f"/press_twin/reactions/{w.name}" for w in WRENCHES),
+    ):
         assert len(back[topic]) == n + 1, topic
     assert [t for t, _, _ in back["/joint_states"]] == [round(k * 1e6) for k in range(n + 1)]
     events = [json.loads(m.data) for _, m, _ in back["/press_twin/events"]]
     assert events[0]["kind"] == "run-start" and events[-1]["kind"] == "run-end"
-    assert any(e["kind"] == "command" and e["command"] == "engage" and e["t"] == 0.008
-               for e in events)             # the scene's own schedule, at its exact time
+    assert any(
+        e["kind"] == "command" and e["command"] == "engage" and e["t"] == 0.008 for e in events
+    )  # the scene's own schedule, at its exact time
     # the values are mps_core's
     scene = load_scene("press-cycle").with_overrides(dt=0.001, t_end=0.05)
     sim = build(scene)
@@ -133,9 +144,12 @@ def _frames_are_the_joints(back, geometry):
     assert [t for t, _, _ in tf] == [t for t, _, _ in back["/joint_states"]]
     for (t, m, _), (_t, js, _) in zip(tf, back["/joint_states"]):
         phi, psi, x_c = js.position[0], js.position[2], js.position[3]
-        want = {"press_A": (l1 * math.cos(phi), l1 * math.sin(phi)),
-                "press_B": (x_c + l3 * math.cos(psi), l3 * math.sin(psi)),
-                "press_C": (x_c, 0.0), "press_slider": (x_c, 0.0)}
+        want = {
+            "press_A": (l1 * math.cos(phi), l1 * math.sin(phi)),
+            "press_B": (x_c + l3 * math.cos(psi), l3 * math.sin(psi)),
+            "press_C": (x_c, 0.0),
+            "press_slider": (x_c, 0.0),
+        }
         got = {}
         for tr in m.transforms:
             assert tr.header.frame_id == "press"
@@ -148,16 +162,20 @@ def _frames_are_the_joints(back, geometry):
         assert got.keys() == want.keys()
         for frame, (x, y) in want.items():
             assert abs(got[frame][0] - x) <= 1e-9 and abs(got[frame][1] - y) <= 1e-9, frame
-    (t, m, _), = back["/tf_static"]
+    ((t, m, _),) = back["/tf_static"]
     assert t == 0
     by_child = {tr.child_frame_id: tr for tr in m.transforms}
     assert by_child["press"].header.frame_id == "press_base"
     q = by_child["press"].transform.rotation
     # the rotation's matrix (columns: where press's x, y, z go in press_base)
     x, y, z, w = q.x, q.y, q.z, q.w
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    rot = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     np.testing.assert_allclose(rot, [[0, 1, 0], [0, 0, 1], [1, 0, 0]], atol=1e-15)
     assert by_child["press_O"].header.frame_id == "press"
     o = by_child["press_O"].transform.translation
@@ -172,13 +190,19 @@ def test_only_the_outputs_asked_for(tmp_path, monkeypatch):
 
     monkeypatch.setattr(R, "compute_reactions", no)
     out = tmp_path / "js.mcap"
-    path, stats, counts = record("press-cycle", out, dt=0.001, t_end=0.05,
-                                 outputs=("joint_states", "clock"), publish_every=10,
-                                 stop_on_signals=False)
+    path, stats, counts = record(
+        "press-cycle",
+        out,
+        dt=0.001,
+        t_end=0.05,
+        outputs=("joint_states", "clock"),
+        publish_every=10,
+        stop_on_signals=False,
+    )
     back = read_all(out)
     assert {t for t, v in back.items() if v} == {"/joint_states", "/clock"}
     assert [t for t, _, _ in back["/clock"]] == [k * 10_000_000 for k in range(6)]
-    assert list(back["/joint_states"][0][1].effort) == []      # no reactions, no efforts
+    assert list(back["/joint_states"][0][1].effort) == []  # no reactions, no efforts
 
 
 def test_recover_a_file_cut_short(tmp_path):
@@ -186,8 +210,7 @@ def test_recover_a_file_cut_short(tmp_path):
     twin = Twin("press-cycle", dt=0.001, t_end=0.2)
     from mps_ros.recording import RecordingSink
 
-    with Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text,
-                  chunk_size=16 * 1024) as rec:
+    with Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text, chunk_size=16 * 1024) as rec:
         twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
     whole = read_all(full)
     data = full.read_bytes()
@@ -203,7 +226,7 @@ def test_recover_a_file_cut_short(tmp_path):
         back = read_all(out)
         assert sum(len(v) for v in back.values()) == rep.messages > 0
         for topic, msgs in back.items():
-            assert [raw for _, _, raw in msgs] == [raw for _, _, raw in whole[topic][:len(msgs)]]
+            assert [raw for _, _, raw in msgs] == [raw for _, _, raw in whole[topic][: len(msgs)]]
         assert read_metadata(out)["scene"]["toml"] == twin.scene.text
     # nothing but the header and metadata: an empty, valid recording
     head = tmp_path / "head.mcap"
@@ -215,10 +238,23 @@ def test_recover_a_file_cut_short(tmp_path):
 
 def test_mps_record_finishes_the_file_on_sigint(tmp_path):
     out = tmp_path / "int.mcap"
-    proc = subprocess.Popen(mps_cmd("record", "press-cycle", "--out", str(out), "--pacing",
-                                    "realtime", "--dt", "0.001", "--t-end", "60"),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        mps_cmd(
+            "record",
+            "press-cycle",
+            "--out",
+            str(out),
+            "--pacing",
+            "realtime",
+            "--dt",
+            "0.001",
+            "--t-end",
+            "60",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         # the header first, then a chunk of steps (written within a second of stepping):
         # the run is under way once the file has grown past its header
@@ -232,7 +268,7 @@ def test_mps_record_finishes_the_file_on_sigint(tmp_path):
             proc.kill()
             proc.wait(5)
         proc.stdout.close()
-    back = read_all(out)                 # complete: rosbags reads it as it is
+    back = read_all(out)  # complete: rosbags reads it as it is
     end_ev = json.loads(back["/press_twin/events"][-1][1].data)
     assert end_ev["kind"] == "run-end" and end_ev["reason"] == "SIGINT"
     assert len(back["/joint_states"]) > 10
@@ -241,11 +277,11 @@ def test_mps_record_finishes_the_file_on_sigint(tmp_path):
 def test_gate_refuses_empty_long_and_floods():
     now = [0.0]
     g = Gate(burst=3, rate=2.0, clock=lambda: now[0])
-    assert g.check("") .startswith("empty command")
+    assert g.check("").startswith("empty command")
     assert g.check("y" * 65).startswith("a 65-character command")
     assert g.check("engage") is None
     assert g.check("engage").startswith("flood")
-    now[0] += 0.5                        # one token back
+    now[0] += 0.5  # one token back
     assert g.check("stop") is None
     assert g.check("stop").startswith("flood")
 
@@ -266,8 +302,11 @@ def test_foundation_wrench_is_the_reactions_resultant():
     f = msgs[FOUNDATION.key]
     rx = twin.reactions()
     assert f["header"]["frame_id"] == "press"
-    assert (f["wrench"]["force"]["x"], f["wrench"]["force"]["y"],
-            f["wrench"]["torque"]["z"]) == (rx["F_found_x"], rx["F_found_y"], rx["M_found_O"])
+    assert (f["wrench"]["force"]["x"], f["wrench"]["force"]["y"], f["wrench"]["torque"]["z"]) == (
+        rx["F_found_x"],
+        rx["F_found_y"],
+        rx["M_found_O"],
+    )
 
 
 def test_rod_angle_and_rate():
@@ -295,14 +334,14 @@ def test_rerun_reads_the_recording(tmp_path):
             pytest.skip("no rerun command here (pip install rerun-sdk)")
     out = tmp_path / "r.mcap"
     record("press-cycle", out, dt=0.001, t_end=0.05, stop_on_signals=False)
-    chk = subprocess.run([str(rerun), "mcap", "check", str(out)], capture_output=True, text=True,
-                         timeout=120)
+    chk = subprocess.run([str(rerun), "mcap", "check", str(out)], capture_output=True, text=True, timeout=120)
     assert chk.returncode == 0 and "/joint_states" in chk.stdout, chk.stdout + chk.stderr
     lines = [ln for ln in chk.stdout.splitlines() if "/press_twin/" in ln or "/joint_states" in ln]
     assert lines and all(ln.split()[0] == "ok" for ln in lines), chk.stdout
     rrd = tmp_path / "r.rrd"
-    conv = subprocess.run([str(rerun), "mcap", "convert", str(out), "-o", str(rrd)],
-                          capture_output=True, text=True, timeout=120)
+    conv = subprocess.run(
+        [str(rerun), "mcap", "convert", str(out), "-o", str(rrd)], capture_output=True, text=True, timeout=120
+    )
     assert conv.returncode == 0 and rrd.stat().st_size > 10_000, conv.stderr
 
 
@@ -312,14 +351,15 @@ def test_record_needs_no_rclpy(tmp_path):
     import sys
 
     out = tmp_path / "noros.mcap"
-    code = ("import sys; sys.modules['rclpy'] = None\n"
-            "from mps_core.cli import main\n"
-            f"rc = main(['record', 'press-cycle', '--out', {str(out)!r}, '--dt', '0.001',"
-            " '--t-end', '0.01'])\n"
-            "assert 'rclpy' not in [m for m in sys.modules if sys.modules[m] is not None]\n"
-            "sys.exit(rc or main(['node']))\n")
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
+    code = (
+        "import sys; sys.modules['rclpy'] = None\n"
+        "from mps_core.cli import main\n"
+        f"rc = main(['record', 'press-cycle', '--out', {str(out)!r}, '--dt', '0.001',"
+        " '--t-end', '0.01'])\n"
+        "assert 'rclpy' not in [m for m in sys.modules if sys.modules[m] is not None]\n"
+        "sys.exit(rc or main(['node']))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2, res.stderr
     assert "this command needs ROS 2 Jazzy's rclpy: install the ros extra" in res.stderr
     assert len(read_all(out)["/joint_states"]) == 11
@@ -343,7 +383,7 @@ def test_record_and_recover_never_write_over_a_file(tmp_path, capsys):
         assert out_text == "" and words in err, err
     assert rec.read_bytes() == before and scene.read_text() == load_scene("paper").text
     assert mps_main(["record", "paper", "--out", str(rec), "--t-end", "0.02", "--force"]) == 0
-    assert len(read_all(rec)["/clock"]) > steps            # the new run's
+    assert len(read_all(rec)["/clock"]) > steps  # the new run's
     # recover: never over a file without --force, never over its input, whole or not at all
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(before[: len(before) * 2 // 3])
@@ -355,20 +395,24 @@ def test_record_and_recover_never_write_over_a_file(tmp_path, capsys):
     assert "the command's input" in capsys.readouterr().err
     assert mps_main(["recover", str(cut), str(good), "--force"]) == 0
     assert good.read_bytes()[:8] == MAGIC
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "good.mcap", "r.mcap",
-                                                          "s.toml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "good.mcap", "r.mcap", "s.toml"]
 
 
 def test_new_recordings_never_share_a_file(tmp_path, monkeypatch):
     from mps_ros import recording
 
     # two runs started in the same millisecond: the second gets a name of its own
-    monkeypatch.setattr(recording, "default_path",
-                        lambda scene, d="recordings": tmp_path / f"{scene}-20261125-120000-123.mcap")
+    monkeypatch.setattr(
+        recording,
+        "default_path",
+        lambda scene, d="recordings": tmp_path / f"{scene}-20261125-120000-123.mcap",
+    )
     a = recording.new_recording("press-cycle", tmp_path)
     b = recording.new_recording("press-cycle", tmp_path)
-    assert (a.name, b.name) == ("press-cycle-20261125-120000-123.mcap",
-                                "press-cycle-20261125-120000-123-2.mcap")
+    assert (a.name, b.name) == (
+        "press-cycle-20261125-120000-123.mcap",
+        "press-cycle-20261125-120000-123-2.mcap",
+    )
     assert a.exists() and b.exists()
 
 
@@ -385,15 +429,26 @@ def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing, ros):
     from twin_probe import Listener, NodeProcess
 
     rec = tmp_path / "r.mcap"
-    params = dict(pacing=pacing, real_time_factor=2.0, dt=0.001, t_end=8.0, recording=str(rec),
-                  wait_for_subscribers=1, wait_timeout=30.0)
+    params = dict(
+        pacing=pacing,
+        real_time_factor=2.0,
+        dt=0.001,
+        t_end=8.0,
+        recording=str(rec),
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+    )
     limit = 1_500_000
     node = NodeProcess(tmp_path, params, name=pacing)
-    node.cmd = [sys.executable, "-c",
-                "import os, resource, sys; "
-                f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
-                "os.execv(sys.argv[1], sys.argv[1:])", *node.cmd]
-    lis = Listener()        # every topic: the node waits for a subscriber on each
+    node.cmd = [
+        sys.executable,
+        "-c",
+        "import os, resource, sys; "
+        f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+        "os.execv(sys.argv[1], sys.argv[1:])",
+        *node.cmd,
+    ]
+    lis = Listener()  # every topic: the node waits for a subscriber on each
     try:
         with node:
             rc = node.wait(120)
@@ -407,8 +462,7 @@ def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing, ros):
     stop = next(i for i, s in enumerate(said) if s[1] != DiagnosticStatus.OK)
     assert all(msg.startswith(f"recording to {rec}") for _n, _l, msg in said[:stop]), said
     alarms = said[stop:]
-    assert all(lvl == DiagnosticStatus.ERROR and "File too large" in msg
-               for _n, lvl, msg in alarms), alarms
+    assert all(lvl == DiagnosticStatus.ERROR and "File too large" in msg for _n, lvl, msg in alarms), alarms
     first = statuses.index(alarms[0])
     assert any(n == "press_twin: pacing" for n, _l, _m in statuses[first:]), statuses
     stopped = [ln for ln in log.splitlines() if "recording stopped at t = " in ln]
@@ -434,5 +488,5 @@ def test_a_recorder_used_with_with_finishes_the_file_also_on_an_error(tmp_path, 
         with make(path, scene_name="press-cycle") as rec:
             twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
             raise RuntimeError("the caller's own error")
-    back = read_all(path)           # finished: it reads back without recovery
+    back = read_all(path)  # finished: it reads back without recovery
     assert [t for t, _m, _raw in back["/clock"]][-1] == 50_000_000

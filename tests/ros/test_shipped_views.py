@@ -23,8 +23,10 @@ def test_the_rviz_config_names_the_nodes_topics_and_frames():
     cfg = yaml.safe_load((CONFIG / "press_twin.rviz").read_text())
     vm = cfg["Visualization Manager"]
     assert vm["Global Options"]["Fixed Frame"] == BASE_FRAME
-    types = {"rviz_default_plugins/Wrench": "geometry_msgs/msg/WrenchStamped",
-             "rviz_default_plugins/MarkerArray": "visualization_msgs/msg/MarkerArray"}
+    types = {
+        "rviz_default_plugins/Wrench": "geometry_msgs/msg/WrenchStamped",
+        "rviz_default_plugins/MarkerArray": "visualization_msgs/msg/MarkerArray",
+    }
     shown = set()
     for d in vm["Displays"]:
         if "Topic" in d:
@@ -61,8 +63,7 @@ def test_the_foxglove_layout_names_the_nodes_topics_fields_and_frames():
         kind = pid.split("!")[0]
         if kind == "3D":
             assert cfg["followTfFrame"] in FRAMES
-            assert all(layer.get("frameId", BASE_FRAME) in FRAMES
-                       for layer in cfg["layers"].values())
+            assert all(layer.get("frameId", BASE_FRAME) in FRAMES for layer in cfg["layers"].values())
             assert set(cfg["topics"]) <= set(TOPICS)
         elif kind in ("Plot", "StateTransitions"):
             paths += [p["value"] for p in cfg["paths"]]

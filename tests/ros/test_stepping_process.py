@@ -53,9 +53,16 @@ def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
     from rosbags.highlevel import AnyReader
 
     rec = tmp_path / "cut.mcap"
-    params = dict(pacing="realtime", dt=DT, t_end=30.0, recording=str(rec),
-                  recording_flush_period=0.2, wait_for_subscribers=1, wait_timeout=30.0,
-                  outputs="[joint_states, clock, events]")
+    params = dict(
+        pacing="realtime",
+        dt=DT,
+        t_end=30.0,
+        recording=str(rec),
+        recording_flush_period=0.2,
+        wait_for_subscribers=1,
+        wait_timeout=30.0,
+        outputs="[joint_states, clock, events]",
+    )
     lis = Listener(keys=["joint_states", "/clock", "~/events", "~/mode/status"])
     try:
         with NodeProcess(tmp_path, params, name="killed") as node:
@@ -66,6 +73,7 @@ def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
             t_kill = lis.clock()
             rc = node.wait(60)
             log = node.log()
+
             # no process of the node's is left: its group is empty once it has exited
             def group_gone():
                 try:
@@ -102,9 +110,16 @@ def _refusing_prefix() -> list[str] | None:
     setpriv = shutil.which("setpriv")
     if setpriv is None:
         return None
-    probe = subprocess.run([setpriv, "--bounding-set=-sys_nice", "python3", "-c",
-                            "import os; os.sched_setscheduler(0, os.SCHED_FIFO, "
-                            "os.sched_param(10))"], capture_output=True)
+    probe = subprocess.run(
+        [
+            setpriv,
+            "--bounding-set=-sys_nice",
+            "python3",
+            "-c",
+            "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))",
+        ],
+        capture_output=True,
+    )
     return [setpriv, "--bounding-set=-sys_nice"] if probe.returncode != 0 else None
 
 
@@ -132,12 +147,10 @@ def test_fifo_where_the_system_allows_it(tmp_path):
         pytest.skip("SCHED_FIFO is not allowed here")
     finally:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    params = dict(pacing="realtime", dt=DT, t_end=30.0, recording="none",
-                  realtime_priority=10)
+    params = dict(pacing="realtime", dt=DT, t_end=30.0, recording="none", realtime_priority=10)
     granted = "stepping process and publishing thread: SCHED_FIFO, priority 10"
     with NodeProcess(tmp_path, params, name="fifo") as node:
-        wait_until(lambda: granted in node.log() or not node.alive(), 60,
-                   "the node's line on its priority")
+        wait_until(lambda: granted in node.log() or not node.alive(), 60, "the node's line on its priority")
         assert granted in node.log(), node.log()
         # the node's process: its publishing (main) thread at 10, every other one (rclpy's
         # executor, the middleware's) one below, so that none holding what a release needs
@@ -147,7 +160,7 @@ def test_fifo_where_the_system_allows_it(tmp_path):
             try:
                 policies[tid] = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
             except OSError:
-                pass                    # a thread that ended meanwhile
+                pass  # a thread that ended meanwhile
         node.signal(signal.SIGTERM)
         rc = node.wait(60)
         log = node.log()
@@ -160,8 +173,7 @@ def test_fifo_where_the_system_allows_it(tmp_path):
 def test_a_node_that_cannot_keep_real_time_says_so_once(tmp_path):
     """40 000 steps a wall second asked (0.1 ms steps at x4): no machine steps that in
     Python; the node says so once, early, and runs on to its end."""
-    params = dict(pacing="realtime", dt=1e-4, real_time_factor=4.0, t_end=0.5,
-                  recording="none")
+    params = dict(pacing="realtime", dt=1e-4, real_time_factor=4.0, t_end=0.5, recording="none")
     with NodeProcess(tmp_path, params, name="slow") as node:
         rc = node.wait(120)
         log = node.log()

@@ -34,8 +34,7 @@ def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():
         assert [(k, encoder(BY_KEY[k].msgtype)(m)) for k, m in msgs] == pays, tw.t
         structures += [m["data"] for k, m in msgs if k == "~/structure"]
         statics += sum(1 for k, _m in msgs if k == "/tf_static")
-        assert tw.state_messages() == [m for m in msgs
-                                       if m[0] not in ("~/structure", "/tf_static")]
+        assert tw.state_messages() == [m for m in msgs if m[0] not in ("~/structure", "/tf_static")]
         if tw.done:
             break
         tw.step()
@@ -48,7 +47,7 @@ def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():
 def test_the_derivatives_override_the_scenes():
     """``derivatives``: the twin steps the scene with that scheme, as mps_core does."""
     scene = load_scene("press-cycle")
-    assert scene.solver.scheme == "autodiff"       # the live twin's default
+    assert scene.solver.scheme == "autodiff"  # the live twin's default
     tw = Twin(scene, dt=1e-3, t_end=0.05, derivatives="central")
     assert tw.describe()["derivatives"] == "central"
     sim = build(scene.with_overrides(dt=1e-3, t_end=0.05, scheme="central"))
@@ -120,8 +119,9 @@ def _read(path):
 
 def test_the_recording_process_writes_what_it_is_handed(tmp_path):
     tw = Twin("press-cycle", dt=1e-3, t_end=0.2)
-    rec = BackgroundRecorder(tmp_path / "bg.mcap", scene_name="press-cycle",
-                             scene_text=tw.scene.text, flush_period=0.1)
+    rec = BackgroundRecorder(
+        tmp_path / "bg.mcap", scene_name="press-cycle", scene_text=tw.scene.text, flush_period=0.1
+    )
     st = Runner(tw, sinks=[RecordingSink(rec)]).run()
     rec.finish()
     assert rec.written == rec.messages == st["messages"]
@@ -143,10 +143,11 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
         rec.flush()
         os._exit(3)
     """)
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=60, env=dict(os.environ))
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=dict(os.environ)
+    )
     assert res.returncode == 3, res.stderr
-    for _ in range(100):                 # the writer finishes on its own, shortly after
+    for _ in range(100):  # the writer finishes on its own, shortly after
         try:
             counts = _read(out)
             break
@@ -164,8 +165,14 @@ def test_a_paced_recording_counts_what_was_written(tmp_path):
     counts by topic are those the process wrote, and the file holds them."""
     from mps_ros.recording import record
 
-    path, stats, counts = record("press-cycle", tmp_path / "paced.mcap", dt=1e-3, t_end=0.05,
-                                 pacing="realtime", real_time_factor=4.0,
-                                 stop_on_signals=False)
+    path, stats, counts = record(
+        "press-cycle",
+        tmp_path / "paced.mcap",
+        dt=1e-3,
+        t_end=0.05,
+        pacing="realtime",
+        real_time_factor=4.0,
+        stop_on_signals=False,
+    )
     assert counts == _read(path)
     assert counts["/joint_states"] == 51 and sum(counts.values()) == stats["messages"]

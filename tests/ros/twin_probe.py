@@ -35,9 +35,13 @@ class NodeProcess:
 
     def __enter__(self):
         self._log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen(self.cmd, stdout=self._log, stderr=subprocess.STDOUT,
-                                     env=dict(os.environ, PYTHONUNBUFFERED="1"),
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            self.cmd,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            start_new_session=True,
+        )
         return self
 
     @property
@@ -59,13 +63,14 @@ class NodeProcess:
     def __exit__(self, exc_type, exc, tb):
         stop_group(self.proc)
         self._log.close()
-        if exc_type is not None:      # shown by pytest with the failure
+        if exc_type is not None:  # shown by pytest with the failure
             print(f"--- {self.cmd}\n{self.log()[-6000:]}")
         elif "starting without all peers" in self.log():
             # the node waited out wait_timeout: the test's subscriber missed a topic the node
             # publishes (a test that waits for nothing sets wait_for_subscribers 0)
-            raise AssertionError(f"{self.log_path.name}: the node waited for peers in vain:\n"
-                                 + self.log()[-3000:])
+            raise AssertionError(
+                f"{self.log_path.name}: the node waited for peers in vain:\n" + self.log()[-3000:]
+            )
         return False
 
 
@@ -110,27 +115,28 @@ class Listener:
 
         self.rclpy = rclpy
         self.node = Node(f"probe_{os.getpid()}_{int(time.monotonic() * 1e3) % 100000}")
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000,
-                         reliability=ReliabilityPolicy.RELIABLE)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=20000, reliability=ReliabilityPolicy.RELIABLE)
         self.msgs: dict[str, list] = {}
         self.lock = threading.Lock()
         self.topics = {}
         for t in TOPICS:
             if keys is not None and t.key not in keys:
-                continue            # a test that reads a few topics takes only those
+                continue  # a test that reads a few topics takes only those
             if t.msgtype not in MSG_CLASSES:
-                continue            # not importable here: the node records it only
+                continue  # not importable here: the node records it only
             name = resolve(t.key, node_name)
             self.topics[t.key] = name
             self.msgs[name] = []
             self.node.create_subscription(MSG_CLASSES[t.msgtype], name, self._cb(name), qos)
         self.mode_topic = resolve(MODE.key, node_name)
-        self.mode = self.node.create_publisher(String, self.mode_topic,
-                                               QoSProfile(depth=1000,
-                                                          reliability=ReliabilityPolicy.RELIABLE))
+        self.mode = self.node.create_publisher(
+            String, self.mode_topic, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        )
         self.String = String
-        self.services = {w: self.node.create_client(Trigger, f"/{node_name}/{w}")
-                         for w in ("engage", "disengage", "stop", "start")}
+        self.services = {
+            w: self.node.create_client(Trigger, f"/{node_name}/{w}")
+            for w in ("engage", "disengage", "stop", "start")
+        }
         self.Trigger = Trigger
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
@@ -147,6 +153,7 @@ class Listener:
         def cb(msg):
             with self.lock:
                 self.msgs[name].append(msg)
+
         return cb
 
     # -- reading ---------------------------------------------------------------------------
@@ -223,7 +230,7 @@ class RtpsSniffer:
             except OSError:
                 return
             ifname, hatype = addr[0], addr[3]
-            if hatype not in (1, 772):             # Ethernet and loopback frames
+            if hatype not in (1, 772):  # Ethernet and loopback frames
                 continue
             etype = struct.unpack_from("!H", data, 12)[0]
             if etype == 0x0800 and len(data) > 34 and data[23] == 17:
@@ -235,7 +242,7 @@ class RtpsSniffer:
                 dst = socket.inet_ntop(socket.AF_INET6, data[38:54])
             else:
                 continue
-            if data[udp + 8:udp + 12] == b"RTPS":
+            if data[udp + 8 : udp + 12] == b"RTPS":
                 port = struct.unpack_from("!H", data, udp + 2)[0]
                 if ifname == "lo":
                     self.on_loopback += 1

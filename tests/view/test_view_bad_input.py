@@ -15,8 +15,7 @@ from mps_ros.replay import ReplayError, read_recording
 def _both(path, tmp_path, capsys) -> list[str]:
     """The error message of mps view and of mps loads on path."""
     errs = []
-    for argv in (["view", str(path), "--save", str(tmp_path / "x.rrd"), "--no-spawn"],
-                 ["loads", str(path)]):
+    for argv in (["view", str(path), "--save", str(tmp_path / "x.rrd"), "--no-spawn"], ["loads", str(path)]):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.startswith("mps: error: ") and "Traceback" not in err
@@ -61,14 +60,14 @@ def test_truncated_recording_and_its_recovery(cycle_mcap, tmp_path, capsys):
     rep = read_recording(fixed)
     full = read_recording(cycle_mcap)
     assert 0 < len(rep) < len(full)
-    assert (rep.columns["phi"] == full.columns["phi"][:len(rep)]).all()
+    assert (rep.columns["phi"] == full.columns["phi"][: len(rep)]).all()
     assert rep.scene.name == "press-cycle"
 
 
 def test_summary_cut_still_reads_every_message(cycle_mcap, tmp_path):
     data = cycle_mcap.read_bytes()
     p = tmp_path / "nosummary.mcap"
-    p.write_bytes(data[:-40])                 # footer and part of the summary lost
+    p.write_bytes(data[:-40])  # footer and part of the summary lost
     rep = read_recording(p)
     assert len(rep) == len(read_recording(cycle_mcap))
     assert any("no footer" in w for w in rep.warnings)
@@ -112,4 +111,4 @@ def test_no_display_is_said_before_any_work(cycle_mcap, tmp_path, capsys, monkey
         assert main(argv) == 2, argv
         out, err = capsys.readouterr()
         assert err.startswith("mps: error: no display to open the viewer on") and out == "", err
-    assert list(tmp_path.iterdir()) == []       # no temporary .rrd left
+    assert list(tmp_path.iterdir()) == []  # no temporary .rrd left

@@ -46,7 +46,7 @@ def test_ten_seconds_at_1khz_within_budget(synthetic_10s, tmp_path, monkeypatch)
     c2 = time.perf_counter()
     n = len(rep)
     assert n == 10001
-    for k, v in cols.items():                        # the synthetic values, all read back
+    for k, v in cols.items():  # the synthetic values, all read back
         if k != "structure":
             assert np.array_equal(rep.columns[k], v, equal_nan=True), k
     # rerun's own entry points, counted from outside the converter
@@ -54,11 +54,13 @@ def test_ten_seconds_at_1khz_within_budget(synthetic_10s, tmp_path, monkeypatch)
     assert calls["log"] == out.calls["log"] <= MAX_STATIC_LOGS
     assert out.rows <= MAX_ROWS_PER_STEP * n
     per_step = [e for e, r in out.entities.items() if r == n]
-    assert len(per_step) >= 30                       # mechanism, arrows, every series
-    assert all(r <= n + 20 for r in out.entities.values())   # a row a step, + state changes
-    print(f"\n10 s at 1 kHz: read {c1 - c0:.2f} s, converted {c2 - c1:.2f} s, "
-          f"{out.calls['send_columns']} send_columns, {out.calls['log']} static logs, "
-          f"{out.rows} rows ({out.rows / n:.1f} a step)")
+    assert len(per_step) >= 30  # mechanism, arrows, every series
+    assert all(r <= n + 20 for r in out.entities.values())  # a row a step, + state changes
+    print(
+        f"\n10 s at 1 kHz: read {c1 - c0:.2f} s, converted {c2 - c1:.2f} s, "
+        f"{out.calls['send_columns']} send_columns, {out.calls['log']} static logs, "
+        f"{out.rows} rows ({out.rows / n:.1f} a step)"
+    )
 
 
 def test_a_view_behind_the_run_thins_the_drawing_not_the_plots(synthetic_10s):
@@ -72,9 +74,12 @@ def test_a_view_behind_the_run_thins_the_drawing_not_the_plots(synthetic_10s):
     thin = view_mod.convert(rep, recording=rr.RecordingStream("thin"), draw_every=10)
     drawn = len(range(0, n, 10)) + (0 if (n - 1) % 10 == 0 else 1)
     assert full.drawn_steps == n and thin.drawn_steps == drawn
-    drawing = [e for e in thin.entities if e in ("mechanism/links", "mechanism/joints",
-                                                 "mechanism/slider")
-               or e.startswith("mechanism/reactions/")]
+    drawing = [
+        e
+        for e in thin.entities
+        if e in ("mechanism/links", "mechanism/joints", "mechanism/slider")
+        or e.startswith("mechanism/reactions/")
+    ]
     plots = [e for e in thin.entities if e.startswith("plots/")]
     assert len(drawing) >= 8 and len(plots) >= 15, sorted(thin.entities)
     for entity in drawing:

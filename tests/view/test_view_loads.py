@@ -25,8 +25,7 @@ def test_recording_gives_the_live_runs_figures(working_mcap, tmp_path, capsys):
     rec, text = _report([str(working_mcap)], tmp_path, "rec", capsys)
     live, _ = _report(["working", "--t-end", "0.3", "--dt", "2e-4"], tmp_path, "live", capsys)
     assert text.startswith("load report working.mcap: cycle t = ")
-    for k in ("t0_s", "t1_s", "period_s", "crank_speed_mean_rad_s", "steps",
-              "resampled_points"):
+    for k in ("t0_s", "t1_s", "period_s", "crank_speed_mean_rad_s", "steps", "resampled_points"):
         assert rec["cycle"][k] == pytest.approx(live["cycle"][k], rel=1e-12, abs=1e-12), k
     names = [q["name"] for q in live["quantities"]]
     assert [q["name"] for q in rec["quantities"]] == names
@@ -35,10 +34,12 @@ def test_recording_gives_the_live_runs_figures(working_mcap, tmp_path, capsys):
         for k in ("mean", "peak", "rms", "rms_dynamic"):
             assert a[k] == pytest.approx(b[k], rel=1e-9, abs=1e-9 * b["peak"]), (a["name"], k)
         for ha, hb in zip(a["harmonics"], b["harmonics"]):
-            assert ha["amplitude"] == pytest.approx(hb["amplitude"], rel=1e-9,
-                                                    abs=1e-9 * b["peak"]), (a["name"], ha["k"])
+            assert ha["amplitude"] == pytest.approx(hb["amplitude"], rel=1e-9, abs=1e-9 * b["peak"]), (
+                a["name"],
+                ha["k"],
+            )
     fx = loads.quantity(rec, "F_found_x")
-    assert fx["mean"] == pytest.approx(-1399, rel=2e-3)            # the weight (README)
+    assert fx["mean"] == pytest.approx(-1399, rel=2e-3)  # the weight (README)
 
 
 def test_recording_options_that_do_not_apply(working_mcap, capsys):
@@ -72,12 +73,15 @@ def test_missing_package_says_what_to_install(monkeypatch, capsys):
 
 
 def test_core_imports_no_mcap_rerun_or_ros():
-    code = ("import sys, mps_core, mps_core.analysis.loads_cli, mps_core.cli, mps_core.dynamics.reactions\n"
-            "from mps_core.cli import _parser\n_parser()\n"
-            "bad = [m for m in ('mcap', 'mcap_ros2', 'rerun', 'rclpy', 'pyarrow') "
-            "if m in sys.modules]\nprint(bad)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True).stdout.strip()
+    code = (
+        "import sys, mps_core, mps_core.analysis.loads_cli, mps_core.cli, mps_core.dynamics.reactions\n"
+        "from mps_core.cli import _parser\n_parser()\n"
+        "bad = [m for m in ('mcap', 'mcap_ros2', 'rerun', 'rclpy', 'pyarrow') "
+        "if m in sys.modules]\nprint(bad)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.strip()
     assert out == "[]"
 
 
@@ -86,8 +90,7 @@ def test_recording_holds_the_impulses_of_the_live_run(recordings, tmp_path, caps
     its report lists the same transients as the live run of the same scene and step."""
     from mps_ros.recording import record
 
-    path, _, _ = record("press-cycle", recordings / "press-cycle-impulses.mcap", dt=1e-3,
-                        t_end=0.6)
+    path, _, _ = record("press-cycle", recordings / "press-cycle-impulses.mcap", dt=1e-3, t_end=0.6)
     rec, _ = _report([str(path)], tmp_path, "rec", capsys)
     live, _ = _report(["press-cycle", "--t-end", "0.6", "--dt", "1e-3"], tmp_path, "live", capsys)
     assert len(live["transients"]) >= 2

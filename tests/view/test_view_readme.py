@@ -14,7 +14,7 @@ def _section_blocks(title: str) -> list[str]:
     text = README.read_text()
     start = text.index(f"## {title}")
     nxt = text.find("\n## ", start + 3)
-    sec = text[start:nxt if nxt >= 0 else None]
+    sec = text[start : nxt if nxt >= 0 else None]
     return re.findall(r"```python\n(.*?)```", sec, flags=re.S)
 
 
@@ -25,7 +25,7 @@ def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, caps
 
     started = []
 
-    class FakePopen:            # a viewer that starts and keeps running
+    class FakePopen:  # a viewer that starts and keeps running
         def __init__(self, cmd, **kw):
             started.append(cmd)
 
@@ -33,7 +33,7 @@ def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, caps
             raise view.subprocess.TimeoutExpired(started[-1], timeout)
 
     monkeypatch.setattr(view.subprocess, "Popen", FakePopen)
-    monkeypatch.setenv("DISPLAY", ":99")          # a display to open on (none is used)
+    monkeypatch.setenv("DISPLAY", ":99")  # a display to open on (none is used)
     monkeypatch.setattr(view.tempfile, "mkdtemp", lambda prefix="": str(tmp_path))
     assert main(["view", str(cycle_mcap)]) == 0
     (cmd,) = started
@@ -50,7 +50,7 @@ def test_a_viewer_that_ends_at_once_is_an_error(cycle_mcap, tmp_path, monkeypatc
     from mps_core.cli import main
     from mps_ros import view
 
-    class DeadViewer:           # e.g. no usable display: it exits with an error at once
+    class DeadViewer:  # e.g. no usable display: it exits with an error at once
         def __init__(self, cmd, **kw):
             pass
 

@@ -34,17 +34,23 @@ def test_columns_equal_every_message(cycle_mcap):
     assert names == list(JOINT_NAMES)
     pos = np.array([m.position for m in js])
     vel = np.array([m.velocity for m in js])
-    for j, (pc, vc) in {"crank": ("phi", "phi_dot"), "rod": ("rod", "rod_dot"),
-                        "rocker": ("psi", "psi_dot"), "slider": ("x_C", "x_C_dot")}.items():
+    for j, (pc, vc) in {
+        "crank": ("phi", "phi_dot"),
+        "rod": ("rod", "rod_dot"),
+        "rocker": ("psi", "psi_dot"),
+        "slider": ("x_C", "x_C_dot"),
+    }.items():
         k = names.index(j)
         assert np.array_equal(rep.columns[pc], pos[:, k]), pc
         assert np.array_equal(rep.columns[vc], vel[:, k]), vc
     for w in (*WRENCHES, FOUNDATION):
         tw, msgs = ref[resolve(w.key)]
         assert np.array_equal(tw, t_ns)
-        for col, get in ((w.force[0], lambda m: m.wrench.force.x),
-                         (w.force[1], lambda m: m.wrench.force.y),
-                         (w.torque, lambda m: m.wrench.torque.z)):
+        for col, get in (
+            (w.force[0], lambda m: m.wrench.force.x),
+            (w.force[1], lambda m: m.wrench.force.y),
+            (w.torque, lambda m: m.wrench.torque.z),
+        ):
             if col is not None:
                 assert np.array_equal(rep.columns[col], np.array([get(m) for m in msgs])), col
     ts, st = ref[resolve("~/structure")]
@@ -56,8 +62,15 @@ def test_columns_equal_every_message(cycle_mcap):
     _, evs = ref[resolve("~/events")]
     assert len(rep.events) == len(evs)
     kinds = [e["kind"] for e in rep.events]
-    for k in ("run-start", "command", "stop-release", "latch-closes", "latch-opens",
-              "stop-contact", "run-end"):
+    for k in (
+        "run-start",
+        "command",
+        "stop-release",
+        "latch-closes",
+        "latch-opens",
+        "stop-contact",
+        "run-end",
+    ):
         assert k in kinds, k
 
 
@@ -94,10 +107,21 @@ def test_topics_by_suffix_under_another_namespace(tmp_path):
         sid = w.register_schema(mt, "ros2msg", vh._msgdef(mt).encode())
         cid = w.register_channel("/line1/joint_states", "cdr", sid)
         for i in range(3):
-            w.add_message(cid, log_time=i * 1000, publish_time=i * 1000, data=vh._encode(mt, {
-                "header": {"stamp": {"sec": 0, "nanosec": i * 1000}, "frame_id": "press"},
-                "name": list(JOINT_NAMES), "position": [0.1 * i, 0.0, -0.5, 0.02],
-                "velocity": [1.0, 0.0, 0.0, 0.0], "effort": []}))
+            w.add_message(
+                cid,
+                log_time=i * 1000,
+                publish_time=i * 1000,
+                data=vh._encode(
+                    mt,
+                    {
+                        "header": {"stamp": {"sec": 0, "nanosec": i * 1000}, "frame_id": "press"},
+                        "name": list(JOINT_NAMES),
+                        "position": [0.1 * i, 0.0, -0.5, 0.02],
+                        "velocity": [1.0, 0.0, 0.0, 0.0],
+                        "effort": [],
+                    },
+                ),
+            )
         w.finish()
     rep = read_recording(p)
     assert np.array_equal(rep.columns["phi"], [0.0, 0.1, 0.2])

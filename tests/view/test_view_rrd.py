@@ -41,9 +41,11 @@ def test_series_hold_the_recordings_values(rrd, cycle_mcap):
     expect = {"phi": pos[:, 0], "psi": pos[:, 2], "x_C": pos[:, 3], "phi_dot": vel[:, 0]}
     for w in (*WRENCHES, FOUNDATION):
         _, msgs = ref[resolve(w.key)]
-        for col, get in ((w.force[0], lambda m: m.wrench.force.x),
-                         (w.force[1], lambda m: m.wrench.force.y),
-                         (w.torque, lambda m: m.wrench.torque.z)):
+        for col, get in (
+            (w.force[0], lambda m: m.wrench.force.x),
+            (w.force[1], lambda m: m.wrench.force.y),
+            (w.torque, lambda m: m.wrench.torque.z),
+        ):
             if col is not None and col not in expect:
                 expect[col] = np.array([get(m) for m in msgs])
     seen = set()
@@ -51,7 +53,7 @@ def test_series_hold_the_recordings_values(rrd, cycle_mcap):
         for col, name in series:
             ent = d[f"/plots/{fam}/{col}"]
             assert ent["static"]["SeriesLines:names"] == [name]
-            assert np.array_equal(ent["time_ns"], t_ns), col          # one sample a step
+            assert np.array_equal(ent["time_ns"], t_ns), col  # one sample a step
             y = _col(ent, "Scalars:scalars")
             assert y.size == n
             if col in expect:
@@ -60,8 +62,20 @@ def test_series_hold_the_recordings_values(rrd, cycle_mcap):
             else:
                 assert col == "phi_ddot"
                 assert np.array_equal(y, np.gradient(vel[:, 0], t_ns / 1e9, edge_order=2))
-    assert seen >= {"phi", "psi", "x_C", "phi_dot", "M_motor", "F_O_x", "F_found_x",
-                    "F_found_y", "M_found_O", "M_latch", "F_stop", "N_guide"}
+    assert seen >= {
+        "phi",
+        "psi",
+        "x_C",
+        "phi_dot",
+        "M_motor",
+        "F_O_x",
+        "F_found_x",
+        "F_found_y",
+        "M_found_O",
+        "M_latch",
+        "F_stop",
+        "N_guide",
+    }
 
 
 def test_mechanism_drawn_from_joint_states_and_scene(rrd, cycle_mcap):
@@ -70,15 +84,15 @@ def test_mechanism_drawn_from_joint_states_and_scene(rrd, cycle_mcap):
     g = rep.scene.geometry
     n = len(rep)
     p = positions(rep.columns, g.l1, g.l3)
-    joints = np.array(d["/mechanism/joints"]["Points2D:positions"], dtype=float)   # (n, 4, 2)
+    joints = np.array(d["/mechanism/joints"]["Points2D:positions"], dtype=float)  # (n, 4, 2)
     assert joints.shape == (n, 4, 2)
     assert d["/mechanism/joints"]["static"]["Points2D:labels"] == ["O", "A", "B", "C"]
     for k, name in enumerate("OABC"):
-        assert np.allclose(joints[:, k], to_view(p[name]), atol=1e-4), name   # float32, mm
+        assert np.allclose(joints[:, k], to_view(p[name]), atol=1e-4), name  # float32, mm
     # press frame x up -> view (y, -x) in mm: C on the guide's axis, drawn at v = -x_C
     assert np.all(joints[:, 3, 0] == 0)
     assert np.allclose(joints[:, 3, 1], -1e3 * rep.columns["x_C"], atol=1e-4)
-    assert joints[np.argmax(rep.columns["x_C"]), 3, 1] < 0          # top of the stroke: up
+    assert joints[np.argmax(rep.columns["x_C"]), 3, 1] < 0  # top of the stroke: up
     # the drawing closes: |AB| = l2 (B from C and psi, A from phi) and matches the rod angle
     ab = np.hypot(*(joints[:, 2] - joints[:, 1]).T) / 1e3
     assert np.allclose(ab, g.l2, rtol=1e-5)
@@ -106,7 +120,7 @@ def test_latch_state_visible(rrd, cycle_mcap):
     shown = np.array(labels)[idx]
     assert np.array_equal(np.char.startswith(shown.astype(str), "latch closed"), st == "locked")
     assert set(labels) == {"latch open (held)", "latch open (free)", "latch closed (locked)"}
-    assert 3 <= len(labels) < 10                               # open, closed, open
+    assert 3 <= len(labels) < 10  # open, closed, open
     lanes = d["/state/structure"]["StateChange:state"]
     assert [v[0] for v in lanes][:3] == ["held", "free", "locked"]
 
@@ -141,13 +155,12 @@ def test_arrows_scaled_and_labelled(rrd, cycle_mcap):
     s = np.hypot(*F.T) / np.maximum(np.hypot(*vec.T), 1e-30)
     big = np.hypot(*F.T) > 1.0
     scale = np.median(s[big])
-    assert np.allclose(vec[big], np.column_stack([F[big, 1], -F[big, 0]]) / scale, rtol=1e-5,
-                       atol=1e-4)
+    assert np.allclose(vec[big], np.column_stack([F[big, 1], -F[big, 0]]) / scale, rtol=1e-5, atol=1e-4)
     k = int(np.argmax(np.hypot(*F.T)))
     assert ent["Arrows2D:labels"][k][0].startswith("foundation ")
     assert ent["Arrows2D:labels"][k][0].endswith("kN")
     origins = np.array([v[0] for v in ent["Arrows2D:origins"]])
-    l1_mm = rep.scene.geometry.l1 * 1e3                                     # below O
+    l1_mm = rep.scene.geometry.l1 * 1e3  # below O
     assert np.allclose(origins, [0.0, BEARING * l1_mm])
     a = np.array([v[0] for v in d["/mechanism/reactions/A"]["Arrows2D:origins"]])
     assert np.allclose(a, np.array(d["/mechanism/joints"]["Points2D:positions"])[:, 1])

@@ -45,21 +45,21 @@ def _offsets_of_doubles(data: bytes, values: list[float]) -> list[int]:
     return out
 
 
-def _patch(template: bytes, n: int, t_ns: np.ndarray, stamp_at: int | None,
-           doubles: dict[int, np.ndarray]) -> np.ndarray:
+def _patch(
+    template: bytes, n: int, t_ns: np.ndarray, stamp_at: int | None, doubles: dict[int, np.ndarray]
+) -> np.ndarray:
     M = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
     if stamp_at is not None:
-        M[:, stamp_at:stamp_at + 4] = (t_ns // 1_000_000_000).astype("<i4").view(
-            np.uint8).reshape(n, 4)
-        M[:, stamp_at + 4:stamp_at + 8] = (t_ns % 1_000_000_000).astype("<u4").view(
-            np.uint8).reshape(n, 4)
+        M[:, stamp_at : stamp_at + 4] = (t_ns // 1_000_000_000).astype("<i4").view(np.uint8).reshape(n, 4)
+        M[:, stamp_at + 4 : stamp_at + 8] = (t_ns % 1_000_000_000).astype("<u4").view(np.uint8).reshape(n, 4)
     for off, v in doubles.items():
-        M[:, off:off + 8] = np.asarray(v, dtype="<f8").view(np.uint8).reshape(n, 8)
+        M[:, off : off + 8] = np.asarray(v, dtype="<f8").view(np.uint8).reshape(n, 8)
     return M
 
 
-def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: str = "working",
-                        omega: float = 46.0) -> dict:
+def synthetic_recording(
+    path, *, t_end: float = 10.0, dt: float = 1e-3, scene: str = "working", omega: float = 46.0
+) -> dict:
     """Write a synthetic twin recording; returns its columns (what a reader must find)."""
     from mcap.writer import CompressionType, Writer
 
@@ -71,19 +71,28 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
     t_ns = np.arange(n, dtype=np.int64) * int(round(dt * 1e9))
     t = t_ns / 1e9
     phi = omega * t - 1.0
-    xc = g.l1 * np.cos(phi) + np.sqrt(g.l2 ** 2 - (g.l1 * np.sin(phi)) ** 2) - g.l3
+    xc = g.l1 * np.cos(phi) + np.sqrt(g.l2**2 - (g.l1 * np.sin(phi)) ** 2) - g.l3
     rod = np.arctan2(-g.l1 * np.sin(phi), xc + g.l3 - g.l1 * np.cos(phi))
-    cols = {"t": t, "phi": phi, "phi_dot": np.full(n, omega), "psi": np.zeros(n),
-            "psi_dot": np.zeros(n), "x_C": xc, "x_C_dot": np.gradient(xc, t), "rod": rod,
-            "rod_dot": np.gradient(rod, t), "M_motor": 20.0 + np.sin(phi),
-            "M_latch": 3.0 * np.cos(2 * phi), "F_stop": np.zeros(n),
-            "structure": np.full(n, "locked")}
+    cols = {
+        "t": t,
+        "phi": phi,
+        "phi_dot": np.full(n, omega),
+        "psi": np.zeros(n),
+        "psi_dot": np.zeros(n),
+        "x_C": xc,
+        "x_C_dot": np.gradient(xc, t),
+        "rod": rod,
+        "rod_dot": np.gradient(rod, t),
+        "M_motor": 20.0 + np.sin(phi),
+        "M_latch": 3.0 * np.cos(2 * phi),
+        "F_stop": np.zeros(n),
+        "structure": np.full(n, "locked"),
+    }
     wrench_cols = {}
     for k, w in enumerate((*WRENCHES, FOUNDATION)):
         for j, c in enumerate((*w.force, w.torque)):
             if c is not None and c not in cols:
-                cols[c] = (1000.0 * (k + 1) * np.cos(phi + 0.3 * j) if j < 2
-                           else 10.0 * (k + 1) * np.sin(phi))
+                cols[c] = 1000.0 * (k + 1) * np.cos(phi + 0.3 * j) if j < 2 else 10.0 * (k + 1) * np.sin(phi)
             wrench_cols[(w.name, j)] = c
 
     path = Path(path)
@@ -93,7 +102,7 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
         wr.add_metadata("mps", {"software": "mps", "version": "synthetic", "scene": sc.name})
         wr.add_metadata("scene", {"name": sc.name, "toml": sc.text})
         schemas: dict[str, int] = {}
-        rows: list[tuple[int, np.ndarray]] = []     # (channel, byte matrix)
+        rows: list[tuple[int, np.ndarray]] = []  # (channel, byte matrix)
 
         def channel(key):
             mt = BY_KEY[key].msgtype
@@ -103,20 +112,43 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
 
         # joint states: markers at every number, then their offsets
         marks = [1.5 + 0.25 * i for i in range(12)]
-        js = _encode("sensor_msgs/msg/JointState", {
-            "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": FRAME_ID},
-            "name": list(JOINT_NAMES), "position": marks[0:4], "velocity": marks[4:8],
-            "effort": marks[8:12]})
+        js = _encode(
+            "sensor_msgs/msg/JointState",
+            {
+                "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": FRAME_ID},
+                "name": list(JOINT_NAMES),
+                "position": marks[0:4],
+                "velocity": marks[4:8],
+                "effort": marks[8:12],
+            },
+        )
         off = _offsets_of_doubles(js, marks)
-        vals = [phi, rod, cols["psi"], xc, cols["phi_dot"], cols["rod_dot"], cols["psi_dot"],
-                cols["x_C_dot"], cols["M_motor"], np.full(n, math.nan), cols["M_latch"],
-                cols["F_stop"]]
+        vals = [
+            phi,
+            rod,
+            cols["psi"],
+            xc,
+            cols["phi_dot"],
+            cols["rod_dot"],
+            cols["psi_dot"],
+            cols["x_C_dot"],
+            cols["M_motor"],
+            np.full(n, math.nan),
+            cols["M_latch"],
+            cols["F_stop"],
+        ]
         rows.append((channel("joint_states"), _patch(js, n, t_ns, 4, dict(zip(off, vals)))))
         for w in (*WRENCHES, FOUNDATION):
-            m = _encode("geometry_msgs/msg/WrenchStamped", {
-                "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": w.frame_id},
-                "wrench": {"force": {"x": 1.25, "y": 1.5, "z": 0.0},
-                           "torque": {"x": 0.0, "y": 0.0, "z": 1.75}}})
+            m = _encode(
+                "geometry_msgs/msg/WrenchStamped",
+                {
+                    "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": w.frame_id},
+                    "wrench": {
+                        "force": {"x": 1.25, "y": 1.5, "z": 0.0},
+                        "torque": {"x": 0.0, "y": 0.0, "z": 1.75},
+                    },
+                },
+            )
             ox, oy, oz = _offsets_of_doubles(m, [1.25, 1.5, 1.75])
             d = {}
             for o, c in ((ox, w.force[0]), (oy, w.force[1]), (oz, w.torque)):
@@ -127,20 +159,38 @@ def synthetic_recording(path, *, t_end: float = 10.0, dt: float = 1e-3, scene: s
         st = _encode("std_msgs/msg/String", {"data": "locked"})
         rows.append((channel("~/structure"), _patch(st, n, t_ns, None, {})))
         ev = channel("~/events")
-        wr.add_message(ev, log_time=0, publish_time=0, sequence=0, data=_encode(
-            "std_msgs/msg/String",
-            {"data": json.dumps({"t": 0.0, "kind": "run-start", "scene": sc.name},
-                                separators=(",", ":"))}))
+        wr.add_message(
+            ev,
+            log_time=0,
+            publish_time=0,
+            sequence=0,
+            data=_encode(
+                "std_msgs/msg/String",
+                {
+                    "data": json.dumps(
+                        {"t": 0.0, "kind": "run-start", "scene": sc.name}, separators=(",", ":")
+                    )
+                },
+            ),
+        )
         for i in range(n):
             ti = int(t_ns[i])
             for cid, M in rows:
-                wr.add_message(cid, log_time=ti, publish_time=ti, sequence=i,
-                               data=M[i].tobytes())
-        wr.add_message(ev, log_time=int(t_ns[-1]), publish_time=int(t_ns[-1]), sequence=1,
-                       data=_encode("std_msgs/msg/String",
-                                    {"data": json.dumps({"t": float(t[-1]), "kind": "run-end",
-                                                         "reason": "end"},
-                                                        separators=(",", ":"))}))
+                wr.add_message(cid, log_time=ti, publish_time=ti, sequence=i, data=M[i].tobytes())
+        wr.add_message(
+            ev,
+            log_time=int(t_ns[-1]),
+            publish_time=int(t_ns[-1]),
+            sequence=1,
+            data=_encode(
+                "std_msgs/msg/String",
+                {
+                    "data": json.dumps(
+                        {"t": float(t[-1]), "kind": "run-end", "reason": "end"}, separators=(",", ":")
+                    )
+                },
+            ),
+        )
         wr.finish()
     return cols
 
@@ -166,7 +216,7 @@ def foreign_mcap(path) -> Path:
 def cut_before_end(src, dst) -> Path:
     """A copy of a recording cut in the middle of its data (as a writer killed hard leaves it)."""
     data = Path(src).read_bytes()
-    Path(dst).write_bytes(data[:len(data) // 2])
+    Path(dst).write_bytes(data[: len(data) // 2])
     return Path(dst)
 
 
@@ -188,8 +238,7 @@ def read_rrd(path) -> dict:
                 ent["static"][n] = b.column(n).to_pylist()[-1]
             continue
         t = b.column("sim_time").cast("int64").to_numpy()
-        parts.setdefault(ch.entity_path, []).append((t, {n: b.column(n).to_pylist()
-                                                         for n in names}))
+        parts.setdefault(ch.entity_path, []).append((t, {n: b.column(n).to_pylist() for n in names}))
     for path_, chunks in parts.items():
         t = np.concatenate([c[0] for c in chunks])
         order = np.argsort(t, kind="stable")
@@ -218,8 +267,11 @@ def read_blueprint(path) -> dict:
         if "ViewBlueprint:class_identifier" not in b.schema.names:
             continue
         cls = b.column("ViewBlueprint:class_identifier").to_pylist()
-        org = (b.column("ViewBlueprint:space_origin").to_pylist()
-               if "ViewBlueprint:space_origin" in b.schema.names else [None] * len(cls))
+        org = (
+            b.column("ViewBlueprint:space_origin").to_pylist()
+            if "ViewBlueprint:space_origin" in b.schema.names
+            else [None] * len(cls)
+        )
         for c, o in zip(cls, org):
             c = c[0] if isinstance(c, list) else c
             o = o[0] if isinstance(o, list) else o

@@ -10,6 +10,21 @@ from .motor import MOTOR_PRESETS, Motor, MotorData
 from .springs import RetentionSprings, SliderDamper
 from .top_stop import TopStop
 
-__all__ = ["Effect", "Loads", "Controls", "Gravity", "Motor", "MotorData", "MOTOR_PRESETS",
-           "RetentionSprings", "SliderDamper", "TopStop", "EngageCylinder", "DisengageCylinder",
-           "Latch", "Blanking", "JointFriction", "GuideFriction"]
+__all__ = [
+    "Effect",
+    "Loads",
+    "Controls",
+    "Gravity",
+    "Motor",
+    "MotorData",
+    "MOTOR_PRESETS",
+    "RetentionSprings",
+    "SliderDamper",
+    "TopStop",
+    "EngageCylinder",
+    "DisengageCylinder",
+    "Latch",
+    "Blanking",
+    "JointFriction",
+    "GuideFriction",
+]

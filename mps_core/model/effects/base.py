@@ -131,7 +131,8 @@ def stiffness_x_bound(k: float, mechanism, point: str) -> float | None:
     for b in mechanism.bodies:
         a, c = b.com
         if (b.origin == point and a == 0.0 and c == 0.0) or (
-                b.toward == point and b.length > 0.0 and a == b.length and c == 0.0):
+            b.toward == point and b.length > 0.0 and a == b.length and c == 0.0
+        ):
             m += b.mass
     return k / m if m > 0.0 else None
 

@@ -19,8 +19,9 @@ from .controls import ControlledEffect
 class Blanking(ControlledEffect, Effect):
     kind = "blanking"
 
-    def __init__(self, peak_force: float, x_contact: float, thickness: float,
-                 breakthrough: float = 0.5, name=None):
+    def __init__(
+        self, peak_force: float, x_contact: float, thickness: float, breakthrough: float = 0.5, name=None
+    ):
         super().__init__(name)
         self.f = float(peak_force)
         self.x_contact = float(x_contact)

@@ -27,7 +27,7 @@ class Controls:
 
     def __setattr__(self, name, value):
         object.__setattr__(self, name, value)
-        STATE_VERSION[0] += 1       # code with the controls folded in is made again
+        STATE_VERSION[0] += 1  # code with the controls folded in is made again
 
 
 class ControlledEffect:

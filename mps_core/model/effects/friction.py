@@ -12,15 +12,20 @@ from ...derivatives.tracing import tanh
 from .base import Effect, Loads, along_x
 
 #: joint: (body on one side or "frame", body on the other side)
-JOINTS = {"O": ("frame", "crank"), "A": ("crank", "rod"), "B": ("rod", "rocker"),
-          "C": ("rocker", "slider")}
+JOINTS = {"O": ("frame", "crank"), "A": ("crank", "rod"), "B": ("rod", "rocker"), "C": ("rocker", "slider")}
 
 
 class JointFriction(Effect):
     kind = "joint_friction"
 
-    def __init__(self, coulomb: float, viscous: float, rate_smooth: float = 0.05,
-                 joints=("O", "A", "B", "C"), name=None):
+    def __init__(
+        self,
+        coulomb: float,
+        viscous: float,
+        rate_smooth: float = 0.05,
+        joints=("O", "A", "B", "C"),
+        name=None,
+    ):
         super().__init__(name)
         self.mc = float(coulomb)
         self.c = float(viscous)

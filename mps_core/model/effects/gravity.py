@@ -25,9 +25,10 @@ class Gravity(Effect):
             raise ValueError(f"gravity g: expected two finite numbers (m/s²), got {g!r}")
 
     def bind(self, mechanism) -> None:
-        self._weights = [(b.name, f"G_{b.name}", b.mass * float(self.g[0]),
-                          b.mass * float(self.g[1]), b.mass)
-                         for b in mechanism.bodies]
+        self._weights = [
+            (b.name, f"G_{b.name}", b.mass * float(self.g[0]), b.mass * float(self.g[1]), b.mass)
+            for b in mechanism.bodies
+        ]
         self._forces = [w[:4] for w in self._weights]
         self.acts_on = tuple(w[0] for w in self._weights)
         self._com = [(p, fx, fy) for _, p, fx, fy, _m in self._weights]
@@ -40,7 +41,7 @@ class Gravity(Effect):
         return kin.weighted_analogs(self._com)
 
     def potential(self, kin) -> float:
-        pose = kin.pose                 # built once per state (the driver reads it every step)
+        pose = kin.pose  # built once per state (the driver reads it every step)
         v = 0.0
         for p, fx, fy in self._com:
             x, y = pose[p]

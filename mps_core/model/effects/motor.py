@@ -48,9 +48,13 @@ class MotorData:
 
 
 #: 4A80B4U3: 1.5 kW, 1500 rpm synchronous, s_n = 5.8 %, M_k/M_n = 2.2 (catalogue of the 4A series)
-MOTOR_4A80B4U3 = MotorData(power_w=1500.0, sync_rpm=1500.0, rated_slip=0.058,
-                           breakdown_ratio=2.2,
-                           source="4A series induction motor catalogue: 4A80B4U3")
+MOTOR_4A80B4U3 = MotorData(
+    power_w=1500.0,
+    sync_rpm=1500.0,
+    rated_slip=0.058,
+    breakdown_ratio=2.2,
+    source="4A series induction motor catalogue: 4A80B4U3",
+)
 
 MOTOR_PRESETS = {"4A80B4U3": MOTOR_4A80B4U3}
 
@@ -64,8 +68,15 @@ class Motor(Effect):
 
     kind = "motor"
 
-    def __init__(self, data: MotorData, ratio: float, efficiency: float = 1.0,
-                 body: str = "crank", enabled: bool = True, name: str | None = None):
+    def __init__(
+        self,
+        data: MotorData,
+        ratio: float,
+        efficiency: float = 1.0,
+        body: str = "crank",
+        enabled: bool = True,
+        name: str | None = None,
+    ):
         super().__init__(name)
         self.data = data
         self.ratio = float(ratio)
@@ -82,7 +93,7 @@ class Motor(Effect):
 
     def bind(self, mechanism) -> None:
         mechanism.body(self.body)  # raises KeyError for an unknown body
-        self._constants()          # kept from the start: the same attributes at every call
+        self._constants()  # kept from the start: the same attributes at every call
 
     def _constants(self):
         """(ω_sync, M_k, s_k) of ``data``, computed once per data (the same formulas)."""

@@ -20,8 +20,9 @@ from .base import Effect, Loads, along_x, stiffness_x, stiffness_x_bound
 class TopStop(Effect):
     kind = "top_stop"
 
-    def __init__(self, x_top: float, model: str = "rigid", stiffness: float = 0.0,
-                 damping: float = 0.0, name=None):
+    def __init__(
+        self, x_top: float, model: str = "rigid", stiffness: float = 0.0, damping: float = 0.0, name=None
+    ):
         super().__init__(name)
         self.x_top = float(x_top)
         self.model = model

@@ -16,7 +16,7 @@ class E:
 
 
 def oscillator(omega):
-    return lambda t, q, qd: E(-omega ** 2 * q)
+    return lambda t, q, qd: E(-(omega**2) * q)
 
 
 def run(solver_cls, fun, q0, qd0, t_end, n, **kw):
@@ -30,18 +30,23 @@ def test_linear_acceleration_is_exact_for_acceleration_linear_in_time():
     fun = lambda t, q, qd: E([2.0 + 3.0 * t])  # noqa: E731
     s = run(LinearAcceleration, fun, [1.0], [-0.5], 2.0, 7)
     t = 2.0
-    assert s.q[0] == pytest.approx(1.0 - 0.5 * t + t ** 2 + 0.5 * t ** 3, rel=1e-14)
-    assert s.qd[0] == pytest.approx(-0.5 + 2 * t + 1.5 * t ** 2, rel=1e-14)
+    assert s.q[0] == pytest.approx(1.0 - 0.5 * t + t**2 + 0.5 * t**3, rel=1e-14)
+    assert s.qd[0] == pytest.approx(-0.5 + 2 * t + 1.5 * t**2, rel=1e-14)
     # the dense output is the step's cubic: exact inside the step too
     q, qd = s.dense_output()(t - 0.1)
     tt = t - 0.1
-    assert q[0] == pytest.approx(1.0 - 0.5 * tt + tt ** 2 + 0.5 * tt ** 3, rel=1e-13)
+    assert q[0] == pytest.approx(1.0 - 0.5 * tt + tt**2 + 0.5 * tt**3, rel=1e-13)
 
 
-@pytest.mark.parametrize("cls,order,ns", [(LinearAcceleration, 2, (20, 40, 80, 160)),
-                                          (RK4, 4, (20, 40, 80, 160)),
-                                          (RK6, 6, (6, 8, 12, 16)),
-                                          (RK8, 8, (4, 6, 8, 10))])
+@pytest.mark.parametrize(
+    "cls,order,ns",
+    [
+        (LinearAcceleration, 2, (20, 40, 80, 160)),
+        (RK4, 4, (20, 40, 80, 160)),
+        (RK6, 6, (6, 8, 12, 16)),
+        (RK8, 8, (4, 6, 8, 10)),
+    ],
+)
 def test_order_on_the_harmonic_oscillator(cls, order, ns):
     w = 2 * math.pi
     errs = []
@@ -52,8 +57,7 @@ def test_order_on_the_harmonic_oscillator(cls, order, ns):
     assert abs(p - order) < 0.15, (errs, p)
 
 
-@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4), (RK6, 7),
-                                           (RK8, 12)])
+@pytest.mark.parametrize("cls,per_step", [(LinearAcceleration, 2), (RK4, 4), (RK6, 7), (RK8, 12)])
 def test_evaluations_per_step(cls, per_step):
     s = run(cls, oscillator(1.0), [1.0], [0.0], 1.0, 10)
     assert s.nfev == 1 + per_step * 10 and s.nsteps == 10
@@ -67,9 +71,9 @@ def test_iterated_corrector_converges_to_the_implicit_method():
     s.step_to(dt)
     # implicit linear acceleration on q'' = -w² q: solve for a1 exactly
     # a1 = -w² (q0 + v0 dt + (2 a0 + a1) dt²/6), a0 = -w²
-    a0 = -w ** 2
-    a1 = -w ** 2 * (1.0 + 2 * a0 * dt ** 2 / 6) / (1 + w ** 2 * dt ** 2 / 6)
-    assert s.q[0] == pytest.approx(1.0 + (2 * a0 + a1) * dt ** 2 / 6, rel=1e-13)
+    a0 = -(w**2)
+    a1 = -(w**2) * (1.0 + 2 * a0 * dt**2 / 6) / (1 + w**2 * dt**2 / 6)
+    assert s.q[0] == pytest.approx(1.0 + (2 * a0 + a1) * dt**2 / 6, rel=1e-13)
     assert s.nfev == 1 + 1 + 30
 
 
@@ -99,7 +103,7 @@ def test_adaptive_reference_on_the_oscillator(method):
     for k in range(1, 11):
         s.step_to(0.1 * k)
         assert s.q[0] == pytest.approx(math.cos(w * 0.1 * k), abs=1e-7)
-    assert s.nfev > 0 and s.current.qdd[0] == pytest.approx(-w ** 2 * s.q[0])
+    assert s.nfev > 0 and s.current.qdd[0] == pytest.approx(-(w**2) * s.q[0])
 
 
 def test_adaptive_interrupt_stops_at_an_internal_step():
@@ -119,8 +123,12 @@ def coupled_pendulums(t, q, qd):
     indexing slip."""
     a, b = q
     va, vb = qd
-    return E([-9.81 * math.sin(a) - 2.0 * (a - b) - 0.1 * va + 0.5 * math.cos(3.0 * t),
-              -4.0 * math.sin(b) + 2.0 * (a - b) - 0.3 * vb])
+    return E(
+        [
+            -9.81 * math.sin(a) - 2.0 * (a - b) - 0.1 * va + 0.5 * math.cos(3.0 * t),
+            -4.0 * math.sin(b) + 2.0 * (a - b) - 0.3 * vb,
+        ]
+    )
 
 
 def _scipy_dop853(rtol, q0, v0):
@@ -147,8 +155,7 @@ def test_float_dop853_takes_scipys_steps(rtol):
         assert np.allclose(np.concatenate((mine.q, mine.qd)), ref.y, rtol=1e-7, atol=1e-8)
         t_mid = 0.5 * (t_prev + mine.t)
         q, qd = mine.dense_output()(t_mid)
-        assert np.allclose(np.concatenate((q, qd)), ref.dense_output()(t_mid), rtol=1e-7,
-                           atol=1e-8)
+        assert np.allclose(np.concatenate((q, qd)), ref.dense_output()(t_mid), rtol=1e-7, atol=1e-8)
         t_prev = mine.t
     assert mine.nsteps == 40
     # 12 stages an attempt (11 for a rejected one), 3 for each dense output, 1 each report
@@ -177,7 +184,7 @@ def test_float_dop853_converges_on_the_oscillator():
     for k in range(1, 11):
         s.step_to(0.1 * k)
         assert s.q[0] == pytest.approx(math.cos(w * 0.1 * k), abs=1e-8)
-        assert s.current.qdd[0] == pytest.approx(-w ** 2 * s.q[0])
+        assert s.current.qdd[0] == pytest.approx(-(w**2) * s.q[0])
 
 
 def test_float_dop853_accel_gives_the_stages():
@@ -187,11 +194,11 @@ def test_float_dop853_accel_gives_the_stages():
 
     def fun(t, q, qd):
         calls["fun"] += 1
-        return E(-w ** 2 * np.asarray(q))
+        return E(-(w**2) * np.asarray(q))
 
     def accel(t, ql, vl):
         calls["accel"] += 1
-        return [-w ** 2 * ql[0]]
+        return [-(w**2) * ql[0]]
 
     a = DOP853(fun, 0.0, [1.0], [0.5], rtol=1e-9, atol=1e-12, accel=accel)
     b = DOP853(oscillator(w), 0.0, [1.0], [0.5], rtol=1e-9, atol=1e-12)
@@ -204,16 +211,17 @@ def test_float_dop853_accel_gives_the_stages():
 
 def test_float_dop853_shrinks_a_step_that_leaves_the_domain():
     """A stage outside the chart's domain shrinks the step, as a rejection does."""
+
     def fun(t, q, qd):
         if q[0] > 1.5:
             raise ChartDomainError("test", "outside")
         return E([1.0])
 
     s = DOP853(fun, 0.0, [0.0], [0.0], rtol=1e-6, atol=1e-9)
-    s.step_to(1.6)                       # q = t²/2 reaches 1.28 at t = 1.6
-    assert s.q[0] == pytest.approx(0.5 * 1.6 ** 2, rel=1e-9)
+    s.step_to(1.6)  # q = t²/2 reaches 1.28 at t = 1.6
+    assert s.q[0] == pytest.approx(0.5 * 1.6**2, rel=1e-9)
     with pytest.raises(ChartDomainError):
-        s.step_to(2.0)                   # q = 2 lies outside: the error reaches the caller
+        s.step_to(2.0)  # q = 2 lies outside: the error reaches the caller
 
 
 def test_rk8_stability_limit_from_its_tableau():
@@ -222,8 +230,7 @@ def test_rk8_stability_limit_from_its_tableau():
     from mps_core.solvers.rk8 import IMAGINARY_LIMIT, imaginary_limit
 
     A4 = [[0, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 1, 0]]
-    assert imaginary_limit(A4, [1 / 6, 1 / 3, 1 / 3, 1 / 6]) == pytest.approx(2 * 2 ** 0.5,
-                                                                            abs=2e-4)
+    assert imaginary_limit(A4, [1 / 6, 1 / 3, 1 / 3, 1 / 6]) == pytest.approx(2 * 2**0.5, abs=2e-4)
     assert 5.5 < IMAGINARY_LIMIT < 6.5
     for factor, bounded in ((0.98, True), (1.05, False)):
         w, dt = 1.0, factor * IMAGINARY_LIMIT
@@ -245,7 +252,7 @@ def test_rk6_tableau_has_order_six_and_its_stability_polynomial():
 
     A, b, c = A_EXACT, B_EXACT, C_EXACT
     s = len(b)
-    for k in range(1, 7):                               # Σ b c^(k−1) = 1/k
+    for k in range(1, 7):  # Σ b c^(k−1) = 1/k
         assert sum(b[i] * c[i] ** (k - 1) for i in range(s)) == F(1, k)
     # tall trees: b A^(k−1) 1 = 1/k!, up to k = 6; then the z⁷ coefficient
     v = [F(1)] * s
@@ -274,12 +281,14 @@ def test_rk6_tableau_has_order_six_and_its_stability_polynomial():
 def test_rk6_dense_output_is_its_quintic_hermite():
     """Inside a step q follows the quintic Hermite polynomial of the ends' (q, q̇, q̈): a
     quintic motion comes out exact, q̇ as its derivative."""
+
     def fun(t, q, qd):
-        return E([20.0 * t ** 3 - 6.0 * t])         # q = t⁵ − t³ + 2t
+        return E([20.0 * t**3 - 6.0 * t])  # q = t⁵ − t³ + 2t
+
     s = RK6(fun, 0.0, [0.0], [2.0])
     s.step_to(0.4)
     for t in (0.05, 0.2, 0.33):
         q, qd = s.dense_output()(t)
         # the step is exact for this q̈ (a polynomial of degree 3 in t alone)
-        assert q[0] == pytest.approx(t ** 5 - t ** 3 + 2 * t, rel=1e-13, abs=1e-15)
-        assert qd[0] == pytest.approx(5 * t ** 4 - 3 * t ** 2 + 2, rel=1e-12)
+        assert q[0] == pytest.approx(t**5 - t**3 + 2 * t, rel=1e-13, abs=1e-15)
+        assert qd[0] == pytest.approx(5 * t**4 - 3 * t**2 + 2, rel=1e-12)
