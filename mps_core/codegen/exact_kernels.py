@@ -32,7 +32,17 @@ import math
 
 from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, TracingError, trace_at
-from .kernels import MAX_N, _key, _Writer, function_key, inline_once, live_lines, load, view_arguments
+from .emitter import (
+    COMPARE,
+    MAX_N,
+    Writer,
+    function_key,
+    inline_once,
+    kernel_key,
+    live_lines,
+    load,
+    view_arguments,
+)
 
 
 def trace_view(view, q):
@@ -63,7 +73,7 @@ def exact_kernel(engine, view, q):
     the same tables, view and position function whose guards hold at ``q`` is taken again."""
     flat = getattr(view.chart, "flat", None)
     fkey = None if flat is None or view.n > MAX_N else function_key(flat)
-    made_key = None if fkey is None else (_key(engine, view), fkey)
+    made_key = None if fkey is None else (kernel_key(engine, view), fkey)
     if made_key is not None:
         ql = [float(x) for x in q]
         for k in _MADE.get(made_key, ()):
@@ -87,7 +97,7 @@ def _trace_and_load(engine, view, q):
     if traced is None:
         return None
     flat, tape, outputs, args, free = traced
-    key = ("exact", _key(engine, view), tape.key(), tuple(outputs))
+    key = ("exact", kernel_key(engine, view), tape.key(), tuple(outputs))
     kernel = load(
         key,
         lambda: _source(engine, view, tape, outputs, args, free, key),
@@ -100,11 +110,11 @@ def _trace_and_load(engine, view, q):
     return kernel
 
 
-class _Forward:
+class Forward:
     """Code for one node's (value, gradient, d1, d2); each component is None (zero), a float
     (a constant) or a local's name."""
 
-    def __init__(self, w: _Writer, n: int):
+    def __init__(self, w: Writer, n: int):
         self.w, self.n = w, n
         #: locals that are the negation of another: folded where IEEE arithmetic makes it
         #: exact (−(−x) = x, a + (−x) = a − x, a − (−x) = a + x, c·(−x) = (−c)·x)
@@ -241,15 +251,12 @@ class _Forward:
         raise TracingError(f"operation {op!r}")
 
 
-_HOLD = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
-
-
-def forward(w: _Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
+def forward(w: Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
     """(fw, outs): code of the traced program run forward on (value, gradient, d1, d2), the
     guards written as soon as their operands exist; ``outs`` are the traced outputs' tuples.
     The generated function's arguments are ``q0…`` and ``vd0…`` (q̇). ``cls``: the
-    :class:`_Forward` (sub)class that writes the code."""
-    fw = (cls or _Forward)(w, n)
+    :class:`Forward` (sub)class that writes the code."""
+    fw = (cls or Forward)(w, n)
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]  # q̇ (v0, v1, … are the writer's locals)
     # the position function's arguments as code, for a failed guard's call
@@ -275,16 +282,16 @@ def forward(w: _Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
             va, vb = operand(a)[0], operand(b)[0]
             if isinstance(va, float) and isinstance(vb, float):
                 continue
-            test = f"{fw._s(va)} {_HOLD[op]} {fw._s(vb)}"
+            test = f"{fw._s(va)} {COMPARE[op]} {fw._s(vb)}"
             # "not (a > b)" also catches NaN
             w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
     return fw, [operand(x) for x in outputs]
 
 
-def linear_parts(engine, fw: _Forward, outs):
+def linear_parts(engine, fw: Forward, outs):
     """(val, grad, d1, d2): functions of a row of the engine's linear map (pairs of names,
     links, check) giving the code of that row's value, i-th gradient, d1 and d2."""
-    M = engine._MT.T
+    M = engine.tables.MT.T
 
     def lin(row, part):
         """Σ M[row, k] · part of output k."""
@@ -302,15 +309,15 @@ def linear_parts(engine, fw: _Forward, outs):
     )
 
 
-def angular(engine, fw: _Forward, n: int, parts) -> tuple[dict, dict]:
+def angular(engine, fw: Forward, n: int, parts) -> tuple[dict, dict]:
     """({(body, i): ω*_i}, {body: θ̈ at q̈ = 0}) of the rotating bodies, as code, from their
     link vectors' rows (``parts``: :func:`linear_parts`)."""
     val, grad, d1, d2 = parts
     add, sub, mul = fw.add, fw.sub, fw.mul
-    NP = engine._np
+    NP = engine.tables.npoints
     omega = {}
     theta2 = {}
-    for j, k in enumerate(engine._rot):
+    for j, k in enumerate(engine.tables.rot):
         r = 2 * NP + 2 * j
         rx, ry = val(r), val(r + 1)
         irr = fw.recip(add(mul(rx, rx), mul(ry, ry)))
@@ -360,22 +367,22 @@ def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
 
 def _parts(engine, view, tape, outputs, args, free) -> tuple:
     n = view.n
-    w = _Writer()
+    w = Writer()
     fw, outs = forward(w, n, tape, outputs, args, free)
     val, grad, d1, d2 = linear_parts(engine, fw, outs)
 
-    NP = engine._np
+    NP = engine.tables.npoints
     mech = engine.mechanism
 
     def code(x):
         return "0.0" if x is None else fw._s(x)
 
     add, mul = fw.add, fw.mul
-    rot = engine._rot
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    rot = engine.tables.rot
+    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
     nb = len(mech.bodies)
     omega, theta2 = angular(engine, fw, n, (val, grad, d1, d2))
-    com = [2 * engine._names[f"G_{b.name}"] for b in mech.bodies]
+    com = [2 * engine.tables.names[f"G_{b.name}"] for b in mech.bodies]
 
     def weighted(pairs):
         """Σ c·x·y over (c, x, y), equal products once with their weights added."""
@@ -407,7 +414,7 @@ def _parts(engine, view, tape, outputs, args, free) -> tuple:
                 [(mass[k], grad(com[k] + c, i), grad(com[k] + c, jj)) for k in range(nb) for c in (0, 1)]
                 + [(inertia[k], omega.get((k, i)), omega.get((k, jj))) for k in rot]
             )
-    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * NP)
+    offset = engine.tables.offset.tolist() if engine.tables.offset is not None else [0.0] * (2 * NP)
     xl = [code(add(val(r), offset[r] or None)) for r in range(2 * NP)]
     jl = [code(grad(2 * r + c, i)) for r in range(NP) for c in (0, 1) for i in range(n)]
     wl = [code(omega.get((k, i))) for k in range(nb) for i in range(n)]

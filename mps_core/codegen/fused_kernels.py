@@ -42,10 +42,8 @@ import numpy as np
 
 from ..caches import Memo
 from ..derivatives.tracing import OPS, BranchChanged, Tape, Traced
-from .exact_kernels import _HOLD
-from .kernels import inline_once, live_lines, load, solve_given_h
-
-_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+from .emitter import COMPARE, INFIX, inline_once, kernel_key, live_lines, load
+from .kernels import solve_given_h
 
 
 class ForceLawBranch(BranchChanged):
@@ -135,7 +133,7 @@ _MADE = Memo("codegen.fused_kernels.made", 256)
 def reuse_or_make(engine, view, exact, t, ql, vl, kinematics, virtual_work):
     """A fused function for ``view`` at (t, q, q̇): one made before for the same kinematics
     and the same effects whose guards hold here, else a new one (:func:`fused_kernel`)."""
-    fp = engine._fingerprint()
+    fp = engine.fingerprint()
     return _reused(
         _MADE,
         None if fp is None else (exact.serial, fp),
@@ -244,13 +242,11 @@ def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work):
     of traced numbers (t, q̇, the lists of positions, analogs and angular analogs; A and h),
     the same operations in the same order; None where a law cannot be traced or q̈ is not
     finite at the traced point."""
-    kin = kinematics(tt, None, None, engine._names, bodies=engine._body_index, lists=lists, v=tv)
-    if engine._effect_paths[0] != len(engine.effects):
-        engine._effect_paths = engine._paths()
+    kin = kinematics(tt, None, None, engine.tables.names, bodies=engine.tables.body_index, lists=lists, v=tv)
     try:
         Q = [0.0] * n
         Qc = [0.0] * n
-        for fast, e, conservative in engine._effect_paths[1]:
+        for fast, e, conservative in engine.effect_paths():
             Qe = fast(tt, kin) if fast is not None else virtual_work(e.loads(tt, kin), kin)
             if Qe is not None:
                 acc = Qc if conservative else Q
@@ -277,13 +273,11 @@ _TAILS = Memo("codegen.fused_kernels.tails", 256)
 def reuse_or_make_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_work):
     """A central tail (:func:`central_tail`) for ``view`` whose guards hold at this state:
     one made before for the same tables, view and effects, else a new one."""
-    from .kernels import _key
-
-    fp = engine._fingerprint()
+    fp = engine.fingerprint()
     xl, jl, wl, A, h, _wb = parts
     return _reused(
         _TAILS,
-        None if fp is None else (_key(engine, view), fp),
+        None if fp is None else (kernel_key(engine, view), fp),
         lambda k: k(t, *vl, xl, jl, wl, A, h),
         lambda: central_tail(engine, view, t, vl, parts, kinematics, virtual_work),
     )
@@ -380,8 +374,8 @@ def emit_tape(body: list, tape, slots: list):
                 vals.append(0.0)  # the inputs are finite where the guards hold
             elif op == "mul" and any(isinstance(x, float) and x == 1.0 for x in xs):
                 vals.append(xs[1] if isinstance(xs[0], float) and xs[0] == 1.0 else xs[0])
-            elif op in _INFIX:
-                vals.append(let(f"{s(xs[0])} {_INFIX[op]} {s(xs[1])}"))
+            elif op in INFIX:
+                vals.append(let(f"{s(xs[0])} {INFIX[op]} {s(xs[1])}"))
             elif op == "neg":
                 vals.append(let(f"-{s(xs[0])}"))
             else:
@@ -390,7 +384,7 @@ def emit_tape(body: list, tape, slots: list):
             va, vb = operand(a), operand(b)
             if isinstance(va, float) and isinstance(vb, float):
                 continue
-            test = f"{s(va)} {_HOLD[op]} {s(vb)}"
+            test = f"{s(va)} {COMPARE[op]} {s(vb)}"
             body.append(f"    if {'not ' if outcome else ''}{test}: raise _Branch()")
     return lambda x: s(operand(x))
 

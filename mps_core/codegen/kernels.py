@@ -32,40 +32,22 @@ compares them to round-off).
 from __future__ import annotations
 
 import math
-import re
-import types
-import weakref
 
 import numpy as np
 
-from ..caches import Memo
 from ..derivatives.stencil import stencil
-from ..derivatives.tracing import BranchChanged, TracingError, trace_at
-
-#: charts with at most this many free coordinates get a kernel (the stencil grows as 2n²)
-MAX_N = 2
-
-
-class _Writer:
-    """Straight-line code with one local per distinct expression."""
-
-    def __init__(self):
-        self.lines: list[str] = []
-        self.names: dict = {}
-
-    def let(self, expr: str) -> str:
-        if expr in self.names:
-            return self.names[expr]
-        if _is_name(expr):
-            return expr
-        name = f"v{len(self.names)}"
-        self.lines.append(f"    {name} = {expr}")
-        self.names[expr] = name
-        return name
-
-
-def _is_name(expr: str) -> bool:
-    return expr.replace("_", "a").isalnum() and not expr[0].isdigit()
+from ..derivatives.tracing import TracingError, trace_at
+from .emitter import (
+    COMPARE,
+    INFIX,
+    MAX_N,
+    Writer,
+    inline_once,
+    kernel_key,
+    live_lines,
+    load,
+    view_arguments,
+)
 
 
 def _lin(coefs, var) -> str | None:
@@ -113,178 +95,10 @@ def central_kernel(engine, view, plan, q=None):
             traced = trace_at(flat, args, free)
         except TracingError:
             return None
-        key = (_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
+        key = (kernel_key(engine, view, plan), traced[0].key(), tuple(traced[1]))
     else:
-        key = _key(engine, view, plan)
+        key = kernel_key(engine, view, plan)
     return load(key, lambda: _source(engine, view, plan, traced), f"<kernel {view.name}>", flat, view.name)
-
-
-#: compiled kernels by what their code depends on (a run builds its engine afresh; the code of
-#: an equal mechanism, view and Δ, or traced program, is the same)
-_CODE = Memo("codegen.kernels.code", 1024)
-_SERIAL = [0]
-
-
-def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
-    """The function ``kernel`` of generated code, compiled once per ``key`` (``source()`` gives
-    the code). Its namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``,
-    and ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
-    raises its own error where the point is outside its domain; otherwise
-    :class:`~mps_core.derivatives.tracing.BranchChanged`; and what ``extra`` adds."""
-    code = _CODE.get(key)
-    if code is None:
-        src = source()
-        _SERIAL[0] += 1
-        code = _CODE.keep(key, (compile(src, label, "exec"), src, _SERIAL[0]))
-
-    def miss(*a):
-        flat(*a)
-        raise BranchChanged(chart)
-
-    namespace = {"F": flat, "cos": math.cos, "sin": math.sin, "sqrt": math.sqrt, "_miss": miss}
-    namespace.update(extra or {})
-    exec(code[0], namespace)
-    kernel = namespace["kernel"]
-    kernel.source = code[1]
-    #: a number of its own for each code made (never given twice): a short key for tables
-    kernel.serial = code[2]
-    return kernel
-
-
-_FUNCTION_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def function_key(fn, _depth: int = 0):
-    """:func:`_function_key`, kept per function object."""
-    try:
-        return _FUNCTION_KEYS[fn]
-    except (KeyError, TypeError):
-        pass
-    key = _function_key(fn, _depth)
-    try:
-        _FUNCTION_KEYS[fn] = key
-    except TypeError:
-        pass
-    return key
-
-
-def _function_key(fn, _depth: int = 0):
-    """What a position function computes, as a hashable value: its code, module, defaults and
-    the values its closure holds (numbers, strings, functions of the same kind; its module's
-    globals are taken as fixed); None where the closure holds anything else (its generated
-    code is then not shared between mechanisms)."""
-
-    def value(x):
-        if x is None or isinstance(x, (bool, int, float, str)):
-            return x
-        if isinstance(x, tuple):
-            return tuple(value(y) for y in x)
-        if isinstance(x, types.FunctionType):
-            if _depth > 4:
-                raise TypeError
-            k = function_key(x, _depth + 1)
-            if k is None:
-                raise TypeError
-            return k
-        if isinstance(x, types.BuiltinFunctionType):
-            return x
-        raise TypeError
-
-    try:
-        cells = tuple(value(c.cell_contents) for c in fn.__closure__ or ())
-        defaults = tuple(value(d) for d in fn.__defaults__ or ())
-    except (TypeError, ValueError):  # ValueError: an empty cell
-        return None
-    return (_code_number(fn.__code__), fn.__module__, cells, defaults)
-
-
-#: code objects by identity -> (the object, kept alive so that its id is not reused; a number)
-_CODES: dict = {}
-
-
-def _code_number(code) -> int:
-    """A number of a code object's own (hashing the object itself walks its bytecode)."""
-    hit = _CODES.get(id(code))
-    if hit is None:  # kept: its id is not given to another object
-        hit = _CODES[id(code)] = (code, len(_CODES) + 1)
-    return hit[1]
-
-
-_LOCAL = re.compile(r"\b[A-Za-z_][A-Za-z_0-9]*\b")
-
-
-def live_lines(lines: list[str], ret: str) -> list[str]:
-    """The lines of straight-line code that the return line and the guards need: an
-    assignment whose local nothing later reads is left out (the forward pass computes every
-    derivative of every node; the reactions read a part of them)."""
-    needed = set(_LOCAL.findall(ret))
-    keep = []
-    for line in reversed(lines):
-        body = line.strip()
-        target, eq, expr = body.partition(" = ")
-        if eq and not body.startswith("if ") and "," not in target:
-            if target not in needed:
-                continue
-            needed.update(_LOCAL.findall(expr))
-        else:  # a guard or an unpacking: always kept
-            needed.update(_LOCAL.findall(body))
-        keep.append(line)
-    return keep[::-1]
-
-
-def inline_once(lines: list[str]) -> list[str]:
-    """Straight-line code with each local that is read once written into the line that reads
-    it, in parentheses: the same operations in the same order, without storing and loading it.
-    ``lines``: assignments ``    name = expr``, unpackings (``    a, b = x``: their targets
-    stay), guards (``    if …``) and a last ``    return …``. Only later lines read a local,
-    so an expression only moves forward (past guards, never before one)."""
-    uses: dict = {}
-    for line in lines:
-        text = line.strip()
-        target, eq, expr = text.partition(" = ")
-        if not eq or text.startswith(("if ", "return ")) or "," in target:
-            expr = text if not eq or text.startswith(("if ", "return ")) else expr
-        for name in _LOCAL.findall(expr):
-            uses[name] = uses.get(name, 0) + 1
-    subst: dict = {}
-
-    def put(expr: str) -> str:
-        return _LOCAL.sub(lambda m: subst.pop(m.group(0), m.group(0)), expr)
-
-    out = []
-    for line in lines:
-        text = line.strip()
-        target, eq, expr = text.partition(" = ")
-        if not eq or text.startswith(("if ", "return ")) or "," in target:
-            if eq and "," in target and not text.startswith(("if ", "return ")):
-                out.append(f"    {target} = {put(expr)}")
-            else:
-                out.append("    " + put(text))
-            continue
-        expr = put(expr)
-        if uses.get(target, 0) == 1:
-            subst[target] = expr if _LOCAL.fullmatch(expr) else f"({expr})"
-        else:
-            out.append(f"    {target} = {expr}")
-    return out
-
-
-def view_arguments(view, q):
-    """(the position function's arguments at q: the view's template values and q,
-    {argument position: traced input number})."""
-    args, free = [], {}
-    k_of = {ci: k for k, ci in enumerate(view.free)}
-    for ci in range(view.chart.size):
-        if ci in k_of:
-            free[ci] = k_of[ci]
-            args.append(float(q[k_of[ci]]))
-        else:
-            args.append(float(view._template[ci]))
-    return args, free
-
-
-_INFIX = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
-_CMP = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
 
 
 def _unit(x) -> bool:
@@ -292,7 +106,7 @@ def _unit(x) -> bool:
     return isinstance(x, float) and x == 1.0
 
 
-def _inline(w: _Writer, tape, outputs, inputs: list, call: list) -> list:
+def _inline(w: Writer, tape, outputs, inputs: list, call: list) -> list:
     """Code for one call of a traced function: ``inputs`` the traced arguments as code (by input
     number), ``call`` the whole argument list as code (for a failed guard's call). Returns the
     outputs, each a local's name or a float."""
@@ -314,56 +128,17 @@ def _inline(w: _Writer, tape, outputs, inputs: list, call: list) -> list:
             vals.append(vals[node[2]])  # 1.0·x is x, bit for bit (NaN, ±inf too)
         elif op == "mul" and _unit(node[2]) and isinstance(node[1], int):
             vals.append(vals[node[1]])
-        elif op in _INFIX:
-            vals.append(w.let(f"{code(node[1])} {_INFIX[op]} {code(node[2])}"))
+        elif op in INFIX:
+            vals.append(w.let(f"{code(node[1])} {INFIX[op]} {code(node[2])}"))
         elif op == "neg":
             vals.append(w.let(f"-{code(node[1])}"))
         else:
             vals.append(w.let(f"{op}({code(node[1])})"))
         for a, cmp, b, outcome in pending.get(i, ()):
-            test = f"{code(a)} {_CMP[cmp]} {code(b)}"
+            test = f"{code(a)} {COMPARE[cmp]} {code(b)}"
             # "not (a > b)" also catches NaN
             w.lines.append(f"    if {'not ' if outcome else ''}{test}: _miss({', '.join(call)})")
     return [vals[o] if isinstance(o, int) else o for o in outputs]
-
-
-def _key(engine, view, plan=None) -> tuple:
-    """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
-    return (
-        _tables_number(engine),
-        view.chart.name,
-        view.chart.size,
-        tuple(view.free),
-        tuple(view._template),
-        None if plan is None else plan.d.tobytes(),
-    )
-
-
-#: the engines' tables (linear map, masses, inertias, rotating bodies, points) by a number
-_TABLES: dict = {}
-
-
-def _tables_number(engine) -> int:
-    """A number for the engine's tables, equal for equal tables (worked out once an engine)."""
-    number = engine.__dict__.get("_tables_number")
-    if number is None:
-        mech = engine.mechanism
-        off = None if engine._offset is None else engine._offset.tobytes()
-        tables = (
-            engine._MT.shape,
-            engine._MT.tobytes(),
-            off,
-            engine._mass.tobytes(),
-            engine._inertia.tobytes(),
-            tuple(engine._rot),
-            tuple(engine._point_names),
-            tuple(getattr(mech, "fixed_points", ())),
-        )
-        number = _TABLES.get(tables)
-        if number is None:
-            number = _TABLES[tables] = len(_TABLES) + 1  # never cleared: one per kind
-        engine._tables_number = number
-    return number
 
 
 def _source(engine, view, plan, traced=None) -> str:
@@ -374,7 +149,7 @@ def _source(engine, view, plan, traced=None) -> str:
     at the same point) are summed with their masses added. One step a function: the stencil's
     positions, each stencil base's angular analogs and A, the lists at q, the velocity terms."""
     n = view.n
-    w = _Writer()
+    w = Writer()
     qs = [f"q{k}" for k in range(n)]
     st = _Stencil(engine, view, plan, w, _positions(engine, view, plan, w, qs, traced))
     omegas, out_A = [], []
@@ -396,7 +171,7 @@ def _source(engine, view, plan, traced=None) -> str:
 def _positions(engine, view, plan, w, qs, traced) -> list:
     """The stencil's positions: P[s][k] the point coordinate k at stencil point s (a local's
     name, or a float where the position function gives a constant)."""
-    n, npts = view.n, engine._npts
+    n, npts = view.n, engine.tables.npts
     offsets = stencil(n)[0]
     d = plan.d.tolist()
     args_free = {i: k for k, i in enumerate(view.free)}
@@ -431,9 +206,9 @@ class _Stencil:
         self.engine, self.n, self.w, self.P = engine, view.n, w, P
         _offsets, self.plus, self.minus = stencil(view.n)
         self.inv2d = plan.inv2d
-        self.M = engine._MT.T  # rows: pairs (x, y) of names, links, check
-        fixed = {engine._names[p] for p in getattr(engine.mechanism, "fixed_points", ())}
-        self.moving = {k for k in range(2 * engine._npts) if k // 2 not in fixed}
+        self.M = engine.tables.MT.T  # rows: pairs (x, y) of names, links, check
+        fixed = {engine.tables.names[p] for p in getattr(engine.mechanism, "fixed_points", ())}
+        self.moving = {k for k in range(2 * engine.tables.npts) if k // 2 not in fixed}
 
     def diff(self, b, i, row):
         """Unscaled analog 2Δ_i·∂r/∂q_i of M's row at base b (a local's name, or None)."""
@@ -474,9 +249,9 @@ class _Stencil:
 
 def _angular_analogs(st: _Stencil, b: int) -> dict:
     """At stencil base b, each rotating body's unscaled angular analogs ω̃ (body, i)."""
-    w, NP = st.w, st.engine._np
+    w, NP = st.w, st.engine.tables.npoints
     om = {}
-    for j, k in enumerate(st.engine._rot):
+    for j, k in enumerate(st.engine.tables.rot):
         r = 2 * NP + 2 * j
         rx, ry = st.value(b, r) or "0.0", st.value(b, r + 1) or "0.0"
         irr = w.let(f"1.0 / ({rx} * {rx} + {ry} * {ry})")
@@ -497,9 +272,9 @@ def _angular_analogs(st: _Stencil, b: int) -> dict:
 def _mass_matrix(st: _Stencil, b: int, om: dict) -> list:
     """At stencil base b, A's upper entries (row by row), scaled."""
     engine, n, inv2d = st.engine, st.n, st.inv2d
-    mech, rot = engine.mechanism, engine._rot
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
-    com_rows = [engine._names[f"G_{body.name}"] for body in mech.bodies]
+    mech, rot = engine.mechanism, engine.tables.rot
+    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
+    com_rows = [engine.tables.names[f"G_{body.name}"] for body in mech.bodies]
     entries = []
     for i in range(n):
         for jj in range(i, n):
@@ -524,10 +299,10 @@ def _mass_matrix(st: _Stencil, b: int, om: dict) -> list:
 def _lists_at_q(st: _Stencil, omegas: list) -> tuple[list, list, list]:
     """Positions, analogs and angular analogs at q (the stencil's base 0), and the angular
     analogs' lists of every base."""
-    engine, n, NP = st.engine, st.n, st.engine._np
-    rot, nbodies = engine._rot, len(engine.mechanism.bodies)
+    engine, n, NP = st.engine, st.n, st.engine.tables.npoints
+    rot, nbodies = engine.tables.rot, len(engine.mechanism.bodies)
     xl = []
-    offset = engine._offset.tolist() if engine._offset is not None else None
+    offset = engine.tables.offset.tolist() if engine.tables.offset is not None else None
     for r in range(2 * NP):
         e = st.value(0, r) or "0.0"
         if offset is not None and offset[r] != 0.0:

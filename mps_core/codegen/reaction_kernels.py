@@ -46,9 +46,9 @@ from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, Tape, Traced
 from ..model.effects.base import STATE_VERSION
 from ..model.mechanism import FRAME
-from .exact_kernels import _Forward, angular, forward, linear_parts, trace_view
+from .emitter import Writer, inline_once, kernel_key, live_lines, load
+from .exact_kernels import Forward, angular, forward, linear_parts, trace_view
 from .fused_kernels import emit_tape, fingerprint, input_slot
-from .kernels import _key, _Writer, inline_once, live_lines, load
 
 
 class Fallback(ArithmeticError):
@@ -59,8 +59,8 @@ def _fallback(*_):
     raise Fallback("reaction kernel: a pivot fell below its guard")
 
 
-class _Folding(_Forward):
-    """:class:`~mps_core.codegen.exact_kernels._Forward` that also folds x − x to zero: every value
+class _Folding(Forward):
+    """:class:`~mps_core.codegen.exact_kernels.Forward` that also folds x − x to zero: every value
     a reaction kernel subtracts from itself is finite where the kernel holds (a position)."""
 
     def sub(self, a, b):
@@ -114,7 +114,7 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from
     order, pivots = _pivot_order(s[:, None] * E)
     key = (
         "reactions from kinematics" if from_kinematics else "reactions",
-        _key(engine, view),
+        kernel_key(engine, view),
         tape.key(),
         tuple(outputs),
         tuple((j.name, j.point, j.receiver, j.giver, comp) for j, comp, _c in sysm.cols),
@@ -300,10 +300,14 @@ def _source(
     joints' columns E, the least squares' leftover r, E u = b − r by the building state's
     pivots, then what the frame receives and the checks (one step a function below)."""
     n = view.n
-    w = _Writer()
-    names = engine._names
+    w = Writer()
+    names = engine.tables.names
     nb = len(engine.mechanism.bodies)
-    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * engine._np)
+    offset = (
+        engine.tables.offset.tolist()
+        if engine.tables.offset is not None
+        else [0.0] * (2 * engine.tables.npoints)
+    )
     if from_kinematics:
         fw, pos, grad, d2, omega, theta2, unpack = _from_kinematics(
             engine, view, tape, outputs, args, free, w
@@ -350,8 +354,8 @@ def _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin) -> d
     """Each body's centre G (and G − O), its Jacobian, accelerations (ẍ_G, ÿ_G, θ̈) and
     angular rates' rows, and Newton–Euler's right side b = (m a − F, J α − M_G) a body."""
     add, sub, mul = ops.add, ops.sub, ops.mul
-    names, n = engine._names, len(accs)
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    names, n = engine.tables.names, len(accs)
+    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
     ox, oy = origin
     G, g, JG, aG, alpha, W = [], [], [], [], [], []
     b = []
@@ -520,7 +524,7 @@ def _checks(ops, out, res, engine, motion, frame) -> None:
     whole (the momenta's rates against the loads and what the frame gives)."""
     add, sub, mul = ops.add, ops.sub, ops.mul
     nrow = len(res)
-    mass, inertia = engine._mass.tolist(), engine._inertia.tolist()
+    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
     g, aG, alpha = motion["g"], motion["aG"], motion["alpha"]
     RFx, RFy, RM = frame
     out["residual_force_N"] = ops.norm([res[r] for r in range(nrow) if r % 3 != 2])
@@ -549,11 +553,11 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
     or a constant, so does this; elsewhere the list's number, the same to round-off."""
     n = view.n
     mech = engine.mechanism
-    names = engine._names
+    names = engine.tables.names
     nb = len(mech.bodies)
-    NP = engine._np
-    offset = engine._offset.tolist() if engine._offset is not None else [0.0] * (2 * NP)
-    fw0, outs = forward(_Writer(), n, tape, outputs, args, free, _Folding)
+    NP = engine.tables.npoints
+    offset = engine.tables.offset.tolist() if engine.tables.offset is not None else [0.0] * (2 * NP)
+    fw0, outs = forward(Writer(), n, tape, outputs, args, free, _Folding)
     parts0 = linear_parts(engine, fw0, outs)
     val0, grad0, _d10, d20 = parts0
     omega0, theta20 = angular(engine, fw0, n, parts0)

@@ -56,9 +56,10 @@ import math
 import numpy as np
 
 from ..caches import Memo
+from ..codegen.emitter import Tables
 from ..codegen.exact_kernels import exact_kernel
 from ..codegen.fused_kernels import ForceLawBranch, fingerprint, reuse_or_make
-from ..codegen.kernels import _tables_number, as_matrix, central_kernel, solve_given_h
+from ..codegen.kernels import as_matrix, central_kernel, solve_given_h
 from ..derivatives import SCHEMES
 from ..derivatives.jet import Jet, ScalarJet, seed
 from ..derivatives.stencil import stencil
@@ -505,6 +506,18 @@ class PartialSystems:
         self._inertia = np.array([b.inertia for b in bodies])
         self._rot = [k for k, b in enumerate(bodies) if b.rotates]
         self._build_maps()
+        #: what the generated code reads of the mechanism (:mod:`mps_core.codegen.emitter`)
+        self.tables = Tables(
+            point_names=tuple(self._point_names),
+            names=self._names,
+            body_index=self._body_index,
+            mass=self._mass,
+            inertia=self._inertia,
+            rot=tuple(self._rot),
+            MT=self._MT,
+            offset=self._offset,
+            fixed_points=tuple(getattr(mechanism, "fixed_points", ())),
+        )
         self._plans: dict = {}
         self._evaluate = self._central_evaluate if scheme == "central" else self._autodiff_evaluate
 
@@ -728,7 +741,7 @@ class PartialSystems:
         except (BranchChanged, ArithmeticError, ValueError):
             return None
 
-    def _fingerprint(self):
+    def fingerprint(self):
         """:func:`~mps_core.codegen.fused_kernels.fingerprint` of the effects, made once per state of
         their parameters and controls."""
         version = STATE_VERSION[0]
@@ -795,6 +808,13 @@ class PartialSystems:
         (``generalized_force(t, kin)``, the same number in fewer operations); it is used where
         the effect's class defines it together with its ``loads``."""
         return self._forces(t, kin)[0]
+
+    def effect_paths(self) -> list:
+        """[(fast path or None, effect, conservative)] of the effects that apply forces, in
+        order: how :meth:`generalized_force` calls each (the generated code calls them so)."""
+        if self._effect_paths[0] != len(self.effects):
+            self._effect_paths = self._paths()
+        return self._effect_paths[1]
 
     def _forces(self, t: float, kin: Kinematics) -> tuple[list, list]:
         """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share."""
@@ -1218,10 +1238,10 @@ class PartialSystems:
         pair that an engine of the same tables and effects last used in this view, where the
         fused function holds here (one call: its guards are the kernel's and the laws'); the
         plan then has both, as the lookups would have given it. None: the lookups decide."""
-        fp = self._fingerprint()
+        fp = self.fingerprint()
         if fp is None:
             return None
-        key = (view, _tables_number(self), fp)
+        key = (view, self.tables.number, fp)
         pair = _FIRST.get(key)
         if pair is None:
             return None
@@ -1246,10 +1266,10 @@ class PartialSystems:
     def _remember_first(self, view, plan):
         """Keep the view's (exact kernel, fused function) for the next engine's first
         evaluation there (:meth:`_first_evaluate`)."""
-        fp = self._fingerprint()
+        fp = self.fingerprint()
         if fp is None or plan.exact is None or plan.fused is None:
             return
-        _FIRST.keep((view, _tables_number(self), fp), (plan.exact, plan.fused))
+        _FIRST.keep((view, self.tables.number, fp), (plan.exact, plan.fused))
 
     def _other_branch(self, view, plan, ql) -> bool:
         """Make the view's exact kernel the one of the branch its position function takes at

@@ -140,9 +140,7 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
         plan0 = first.engine._plans[view]
         for fails in (False, True):
             sim = build(scene)
-            pair = engine_module._FIRST[
-                view, engine_module._tables_number(sim.engine), sim.engine._fingerprint()
-            ]
+            pair = engine_module._FIRST[view, sim.engine.tables.number, sim.engine.fingerprint()]
             assert pair == (plan0.exact, plan0.fused)
             calls = []
             full = pair[1].full

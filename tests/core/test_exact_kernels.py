@@ -177,7 +177,7 @@ def test_a_run_with_exact_kernels_follows_the_jets():
 def test_kernels_are_shared_between_equal_mechanisms_only():
     """A second engine of the same scene takes the first one's kernel (no trace); a press
     with another rod length gets its own, whose numbers are its jets'."""
-    from mps_core.codegen.kernels import function_key
+    from mps_core.codegen.emitter import function_key
 
     scene = load_scene("paper").with_overrides(scheme="autodiff")
     a, b = build(scene), build(scene)
