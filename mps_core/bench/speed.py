@@ -217,10 +217,8 @@ def evaluation_costs(case: Case, number: int = 2000):
             if plan is not None and plan.fused is not None:
                 # the same evaluation without the fused function: the exact kernel, the
                 # effects one by one and the solve (what the fused function replaces)
-                from ..model.effects.base import STATE_VERSION
-
                 fused = plan.fused
-                plan.fused, plan.fused_at = None, STATE_VERSION[0]
+                plan.fused, plan.fused_at = None, eng.version[0]
                 us = _per_call(lambda: eng.evaluate(e.view, e.t, e.q, e.qd), number)
                 plan.fused = fused
                 rows.append(

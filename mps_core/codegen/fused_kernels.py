@@ -29,9 +29,9 @@ effects and the solve, is traced the same way into ``tail(t, q̇…, xl, jl, wl,
 the central kernel's lists by index (:func:`central_tail`): the effects' calls one by one
 become one generated call, with the same numbers.
 
-The code depends on the effects' parameters and the controls at the time it is made:
-:data:`~mps_core.model.effects.base.STATE_VERSION` moves at every assignment to them, and the
-engine makes the function again when it has moved.
+The code depends on the effects' parameters and the controls at the time it is made: the
+engine's :class:`~mps_core.model.effects.base.Version` moves at every assignment to them, and
+the engine makes the function again when it has moved (each engine has its own counter).
 """
 
 from __future__ import annotations
@@ -95,6 +95,15 @@ def _frozen(x):
 _FINGERPRINTS = Memo("codegen.fused_kernels.fingerprints", 4096)
 
 
+#: attributes of an effect that are not what a trace folds in: the controls (taken apart) and
+#: the counters watching it (:class:`~mps_core.model.effects.base.Watched`)
+_NOT_STATE = ("controls", "_watchers")
+
+
+def _state_of(obj) -> dict:
+    return {k: v for k, v in vars(obj).items() if k != "_watchers"}
+
+
 def fingerprint(effects):
     """Everything a trace of ``effects`` can fold in: each effect's class and attributes and
     the controls it reads, as a number (the same for equal effects, never given to others);
@@ -108,8 +117,8 @@ def fingerprint(effects):
             out.append(
                 (
                     type(e),
-                    tuple(sorted((k, _frozen(v)) for k, v in attrs.items() if k != "controls")),
-                    None if c is None else _frozen(vars(c)),
+                    tuple(sorted((k, _frozen(v)) for k, v in attrs.items() if k not in _NOT_STATE)),
+                    None if c is None else _frozen(_state_of(c)),
                 )
             )
     except _Unhashable:

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, Tape, Traced
-from ..model.effects.base import STATE_VERSION
+from ..model.effects.base import Version, watch_all
 from ..model.mechanism import FRAME
 from .emitter import Writer, inline_once, kernel_key, live_lines, load
 from .exact_kernels import Forward, angular, forward, linear_parts, trace_view
@@ -614,6 +614,9 @@ class LoadSums:
     def __init__(self, effects, mechanism):
         self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
         self.nb = nb = len(self.bodies)
+        #: the state of the effects and their controls (moved by any assignment to them)
+        self.version = Version()
+        watch_all(effects, self.version)
         self.effects = []
         self.constant = []  # (point, body row, fx, fy) of constant forces
         base = [0.0] * (3 * nb + 4)
@@ -648,8 +651,8 @@ class LoadSums:
 
     def _refresh(self) -> None:
         """The traced sums of the effects' present state (parameters and controls)."""
-        if self._traced_at != STATE_VERSION[0]:
-            self._traced_at = STATE_VERSION[0]
+        if self._traced_at != self.version[0]:
+            self._traced_at = self.version[0]
             state = fingerprint([e for e, _motor in self.effects])
             if state is None:
                 self._traced = {}

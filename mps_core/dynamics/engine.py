@@ -65,7 +65,7 @@ from ..derivatives.jet import Jet, ScalarJet, seed
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged
 from ..errors import ChartDomainError, NumericalError, config_in_degrees
-from ..model.effects.base import STATE_VERSION
+from ..model.effects.base import Version, watch_all
 from ..model.mechanism import ChartView, Mechanism
 
 
@@ -388,7 +388,7 @@ class _Plan:
         self.exact_others = []
         self.branch_tries = 0
         #: q̈ alone with the effects traced in (:mod:`mps_core.codegen.fused_kernels`), made for the
-        #: effects' and controls' state ``fused_at`` (:data:`STATE_VERSION`); ``fused_others``:
+        #: effects' and controls' state ``fused_at`` (:attr:`version`); ``fused_others``:
         #: up to six made at other states for the same (other branches of a force law);
         #: ``fused_tries``: how often a failed guard had one made (a few times a view at most)
         self.fused = None
@@ -465,6 +465,58 @@ def _fast_path(effect):
 _FIRST = Memo("dynamics.engine.first", 512)
 
 
+class _Effects(list):
+    """An engine's effects: a change of the list (an effect added or taken away) moves the
+    engine's :attr:`PartialSystems.version`, so that no code made for the old list is used."""
+
+    def __init__(self, engine, effects=()):
+        super().__init__(effects)
+        self._engine = engine
+
+    def _changed(self):
+        engine = self._engine
+        if "_effect_paths" in engine.__dict__:
+            engine._effect_paths = engine._paths()
+
+    def append(self, effect):
+        super().append(effect)
+        self._changed()
+
+    def extend(self, effects):
+        super().extend(effects)
+        self._changed()
+
+    def insert(self, i, effect):
+        super().insert(i, effect)
+        self._changed()
+
+    def remove(self, effect):
+        super().remove(effect)
+        self._changed()
+
+    def pop(self, i=-1):
+        out = super().pop(i)
+        self._changed()
+        return out
+
+    def clear(self):
+        super().clear()
+        self._changed()
+
+    def __setitem__(self, i, value):
+        super().__setitem__(i, value)
+        self._changed()
+
+    def __delitem__(self, i):
+        super().__delitem__(i)
+        self._changed()
+
+    def __iadd__(self, effects):
+        super().extend(effects)
+        self._changed()
+        return self
+
+
 class PartialSystems:
     """The engine: evaluates q̈ for a mechanism, its scene's effects and a derivative scheme.
 
@@ -486,9 +538,12 @@ class PartialSystems:
         if not (delta > 0.0 and math.isfinite(delta)):
             raise ValueError(f"virtual displacement delta = {delta!r}: expected a positive number")
         self.mechanism = mechanism
-        self.effects = list(effects)
+        self.effects = _Effects(self, effects)
         for e in self.effects:
             e.bind(mechanism)
+        #: the state of the effects and the controls they read, as this engine's generated
+        #: code folded them in: moved by any assignment to them (no other engine's)
+        self.version = Version()
         self._effect_paths = self._paths()
         self.scheme = scheme
         self.delta = float(delta)
@@ -619,7 +674,7 @@ class PartialSystems:
         plan = self._plans.get(view)
         if plan is not None and plan.exact is not None and self.kernels:
             fused = plan.fused
-            if plan.fused_at != STATE_VERSION[0]:
+            if plan.fused_at != self.version[0]:
                 fused = self._fuse(view, plan, t, ql, vl)
             if fused is not None:
                 try:
@@ -644,7 +699,7 @@ class PartialSystems:
         engine = self
         counts = self.counts
         plans = self._plans
-        version = STATE_VERSION
+        version = self.version
 
         def accel(t, ql, vl):
             plan = plans.get(view)
@@ -691,7 +746,7 @@ class PartialSystems:
         ``evaluate`` set on the engine object (a spy, a budget) is called instead."""
         evaluate = PartialSystems.evaluate
         engine = self
-        counts, plans, version = self.counts, self._plans, STATE_VERSION
+        counts, plans, version = self.counts, self._plans, self.version
         names, bodies = self._names, self._body_index
         ndarray, array = np.ndarray, np.array
 
@@ -744,7 +799,7 @@ class PartialSystems:
     def fingerprint(self):
         """:func:`~mps_core.codegen.fused_kernels.fingerprint` of the effects, made once per state of
         their parameters and controls."""
-        version = STATE_VERSION[0]
+        version = self.version[0]
         kept = self.__dict__.get("_fingerprint_of")
         if kept is None or kept[0] != version or kept[1] != len(self.effects):
             kept = self._fingerprint_of = (version, len(self.effects), fingerprint(self.effects))
@@ -752,14 +807,14 @@ class PartialSystems:
 
     def _fuse(self, view, plan, t, ql, vl):
         """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
-        if plan.fused_at != STATE_VERSION[0]:
+        if plan.fused_at != self.version[0]:
             plan.fused_others = []  # made for other parameters or controls
         try:
             fused = reuse_or_make(self, view, plan.exact, t, ql, vl, Kinematics, virtual_work)
         except (ArithmeticError, ValueError, BranchChanged):
             fused = None
         plan.fused = fused
-        plan.fused_at = STATE_VERSION[0]
+        plan.fused_at = self.version[0]
         return fused
 
     def equations(self, view: ChartView, t: float, ql: list, vl: list) -> tuple:
@@ -861,7 +916,10 @@ class PartialSystems:
 
     def _paths(self):
         """(number of effects, [(fast path or None, effect, conservative)]) without the effects
-        that apply no force of their own (``applies_forces`` False: a rigid stop, the latch)."""
+        that apply no force of their own (``applies_forces`` False: a rigid stop, the latch);
+        :attr:`version` watches every effect (and moves: the list changed)."""
+        watch_all(self.effects, self.version)
+        self.version[0] += 1
         return len(self.effects), [
             (_fast_path(e), e, bool(e.conservative))
             for e in self.effects
@@ -1012,7 +1070,7 @@ class PartialSystems:
             t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl
         )
         tail = plan.tail
-        if plan.tail_at != STATE_VERSION[0] and self.kernels:
+        if plan.tail_at != self.version[0] and self.kernels:
             tail = self._central_tail(view, plan, t, vl, (xl, jl, wl, A, h, wb))
         if tail is not None:
             # the effects and the solve in one generated call where its guards hold and q̈ is
@@ -1036,13 +1094,13 @@ class PartialSystems:
         (None where it cannot be made), for the effects' present state."""
         from ..codegen.fused_kernels import reuse_or_make_tail
 
-        if plan.tail_at != STATE_VERSION[0]:
+        if plan.tail_at != self.version[0]:
             plan.tail_others = []  # made for other parameters or controls
         try:
             tail = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
         except (ArithmeticError, ValueError):
             tail = None
-        plan.tail, plan.tail_at = tail, STATE_VERSION[0]
+        plan.tail, plan.tail_at = tail, self.version[0]
         return tail
 
     def _tail_miss(self, view, plan, t, vl, parts):
@@ -1254,7 +1312,7 @@ class PartialSystems:
         if out is None:
             return None
         plan.exact, plan.exact_traced = exact, True
-        plan.fused, plan.fused_at = fused, STATE_VERSION[0]
+        plan.fused, plan.fused_at = fused, self.version[0]
         plan.fused_others = []
         counts = self.counts
         counts["position_calls"] += 1
@@ -1306,7 +1364,7 @@ class PartialSystems:
         counts["position_calls"] += 1
         counts["position_points"] += 1
         fused = plan.fused
-        if plan.fused_at != STATE_VERSION[0]:
+        if plan.fused_at != self.version[0]:
             fused = self._fuse(view, plan, t, ql, vl)
         if fused is not None:
             # the whole evaluation in one call (mps_core.codegen.fused_kernels), where its guards

@@ -71,7 +71,6 @@ import numpy as np
 from ..codegen.reaction_kernels import Fallback
 from ..derivatives.jet import Jet
 from ..derivatives.tracing import BranchChanged
-from ..model.effects.base import STATE_VERSION
 from ..model.mechanism import FRAME, ChartView, Joint, Mechanism
 from ..model.press import PRESS_JOINTS
 from .engine import Kinematics
@@ -448,9 +447,9 @@ class _Kernels:
         self.views: dict = {}
         self._loads = None  # (the effects' list and its length, LoadSums)
         self._with_loads = None  # (kernel, traced sums, the two as one function)
-        #: per view, the function that answered last (reaction_values): (STATE_VERSION, the
-        #: effects' list, its length, the kernel with its loads, the unknowns, whether it
-        #: reads the kinematics' motion)
+        #: per view, the function that answered last (reaction_values): (the effects' state
+        #: counter and its value then, the effects' list, its length, the kernel with its
+        #: loads, the unknowns, whether it reads the kinematics' motion)
         self.last: dict = {}
 
     def loads(self, effects):
@@ -542,19 +541,19 @@ def reaction_values(
         last = ks.last.get(view)
         if (
             last is not None
-            and last[0] == STATE_VERSION[0]
-            and last[1] is effects
-            and last[2] == len(effects)
-            and last[5] is moving
+            and last[0][0] == last[1]
+            and last[2] is effects
+            and last[3] == len(effects)
+            and last[6] is moving
         ):
             try:
                 v = kin._vl if kin._vl is not None else kin._v()
                 values, residual = (
-                    last[3](t, *ql, *vl, *al, xl, jl, wl, cv, v)
+                    last[4](t, *ql, *vl, *al, xl, jl, wl, cv, v)
                     if moving
-                    else last[3](t, *ql, *vl, *al, xl, jl, wl, v)
+                    else last[4](t, *ql, *vl, *al, xl, jl, wl, v)
                 )
-                return values, residual, last[4]
+                return values, residual, last[5]
             except _FALLBACKS:
                 pass
     entry = ks.get(view, ql, ks.scale if scale is None else float(scale), moving)
@@ -576,7 +575,15 @@ def reaction_values(
                     else both(t, *ql, *vl, *al, xl, jl, wl, v)
                 )
                 if scale is None:
-                    ks.last[view] = (STATE_VERSION[0], effects, len(effects), both, unknowns, moving)
+                    ks.last[view] = (
+                        sums.version,
+                        sums.version[0],
+                        effects,
+                        len(effects),
+                        both,
+                        unknowns,
+                        moving,
+                    )
                 return values, residual, unknowns
             except _FALLBACKS:
                 pass

@@ -319,6 +319,7 @@ class Simulation:
             self._exact_engine = exact  # built since: a cache
         self.solver.set_state(dict(solver))
         vars(self.controls).update(controls)
+        self.controls.touch()  # restored behind __setattr__: code folded on them is stale
         self.events[:] = events
         self.pending[:] = pending
         self._timers = list(timers)

@@ -9,7 +9,6 @@ import pytest
 
 from mps_core import build, load_scene, preset_names
 from mps_core.model.effects import Effect, JointFriction
-from mps_core.model.effects.base import STATE_VERSION
 
 
 def _spy(eng, sim=None):
@@ -96,9 +95,16 @@ def test_a_parameter_or_control_set_makes_the_function_again():
     first = eng.accelerations(view, 0.0, q, v)
     assert eng._plans[view].fused is not None
     motor = next(e for e in eng.effects if e.kind == "motor")
-    version = STATE_VERSION[0]
+    other = _paper()  # another run in the same process: its counter never moves for this one
+    version, others = eng.version[0], other.engine.version[0]
     motor.ratio = 2.0 * motor.ratio
-    assert STATE_VERSION[0] > version
+    assert eng.version[0] > version and other.engine.version[0] == others
+    # the controls move the counter of an engine whose effects read them (press-cycle's
+    # cylinders), and no other's
+    cycle = build(load_scene("press-cycle").with_overrides(scheme="autodiff"))
+    before, mine = cycle.engine.version[0], eng.version[0]
+    cycle.controls.engage_on = not cycle.controls.engage_on
+    assert cycle.engine.version[0] > before and eng.version[0] == mine
     second = eng.accelerations(view, 0.0, q, v)
     assert second != first
     assert second == eng._solve_on_floats(view, 0.0, q, v)[3]

@@ -9,6 +9,7 @@ touches the engine. A conservative effect also gives its potential energy.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,24 +30,66 @@ class Loads:
     frame: list = field(default_factory=list)
 
 
-#: bumped by every assignment to an attribute of an effect or of the controls
-#: (:class:`~mps_core.model.effects.controls.Controls`): code generated with their values folded in
-#: (:mod:`mps_core.codegen.fused_kernels`) holds while it has not moved
-STATE_VERSION = [0]
+class Version(list):
+    """``[n]``: a counter of the state of the effects and controls that an engine (or another
+    holder of generated code) reads, moved by every assignment to an attribute of any of
+    them (:class:`Watched`). Code generated with their values folded in
+    (:mod:`mps_core.codegen.fused_kernels`) holds while it has not moved. Each engine has its
+    own: a run's commands never move another run's counter."""
+
+    def __init__(self):
+        super().__init__([0])
+
+    # one counter is one object (kept in weak sets): by identity, not by its count
+    __eq__ = object.__eq__
+    __ne__ = object.__ne__
+    __hash__ = object.__hash__  # type: ignore[assignment]
 
 
-class Effect:
+class Watched:
+    """Mixin: every assignment to an attribute moves the :class:`Version` counters watching
+    the object (:meth:`watch`; held weakly: a counter goes with its holder)."""
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+        watchers = self.__dict__.get("_watchers")
+        if watchers:
+            for version in watchers:
+                version[0] += 1
+
+    def watch(self, version: Version) -> None:
+        watchers = self.__dict__.get("_watchers")
+        if watchers is None:
+            watchers = weakref.WeakSet()
+            object.__setattr__(self, "_watchers", watchers)
+        watchers.add(version)
+
+    def touch(self) -> None:
+        """Move the counters watching this object (its state was changed behind
+        ``__setattr__``, e.g. restored from a checkpoint)."""
+        for version in self.__dict__.get("_watchers") or ():
+            version[0] += 1
+
+
+def watch_all(effects, version: Version) -> None:
+    """``version`` watches each effect and the controls each reads."""
+    for e in effects:
+        if isinstance(e, Watched):
+            e.watch(version)
+        controls = getattr(e, "controls", None)
+        if isinstance(controls, Watched):
+            controls.watch(version)
+
+
+class Effect(Watched):
     """Base class. Subclasses set ``kind`` and implement :meth:`loads`.
 
     A force law written in plain arithmetic on what ``kin`` gives (comparisons where it
     branches; ``sin``, ``cos``, ``sqrt``, ``tanh`` from :mod:`mps_core.derivatives.tracing`) is traced into
     the engine's generated code (:mod:`mps_core.codegen.fused_kernels`) with its parameters folded in;
     one that does anything else keeps the general path. Parameters are read when the code is
-    made: set them by assignment (which moves :data:`STATE_VERSION`), not in place."""
-
-    def __setattr__(self, name, value):
-        object.__setattr__(self, name, value)
-        STATE_VERSION[0] += 1
+    made: set them by assignment (which moves the :class:`Version` of every engine that reads
+    the effect), not in place."""
 
     kind: str = "effect"
     conservative: bool = False

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .base import STATE_VERSION
+from .base import Watched
 
 
 @dataclass
-class Controls:
+class Controls(Watched):
     structure: str = "free"
     motor_on: bool = True
     #: the engage cylinder is pressurised (engage command until disengage)
@@ -25,10 +25,6 @@ class Controls:
     #: switches it off at a step boundary, so that no step straddles the jump in its torque)
     disengage_on: bool = False
 
-    def __setattr__(self, name, value):
-        object.__setattr__(self, name, value)
-        STATE_VERSION[0] += 1  # code with the controls folded in is made again
-
 
 class ControlledEffect:
     """Mixin: an effect that reads the shared controls (set by the driver through ``use``)."""
@@ -37,3 +33,5 @@ class ControlledEffect:
 
     def use(self, controls: Controls) -> None:
         self.controls = controls
+        for version in self.__dict__.get("_watchers") or ():  # who watches the effect
+            controls.watch(version)
