@@ -18,7 +18,7 @@ from scipy.integrate import DOP853 as ScipyDOP853
 from scipy.integrate import Radau as ScipyRadau
 
 from ..errors import ChartDomainError, NumericalError
-from .base import Solver
+from .base import Advance, Solver
 
 _METHODS = {"dop853": ScipyDOP853, "radau": ScipyRadau}
 
@@ -98,27 +98,24 @@ class AdaptiveSolver(Solver):
     def state(self) -> dict:
         raise NotImplementedError(f"the {self.name} solver cannot be rewound")
 
-    def step_to(self, t_target, interrupt=None):
+    def _advance_to(self, t_target, interrupt):
         s, n = self._scipy, self._n
+        steps = 0
         while s.t < t_target:
             # each internal step's end before t_target goes to ``interrupt`` before the next
             # step (also the end of a step that began before this call)
             if interrupt is not None and s.t > self.t and interrupt(s.t, s.y[:n], s.y[n:]):
-                self._dense = self._wrap(self._interpolant())
-                self.t, self.q, self.qd = s.t, s.y[:n].copy(), s.y[n:].copy()
-                self.current = self._call(self.t, self.q, self.qd)
-                return
+                dense = self._wrap(self._interpolant())
+                return Advance(s.t, s.y[:n].copy(), s.y[n:].copy(), dense, None, steps)
             if s.status != "running":
                 raise NumericalError(f"{self.name} stopped: {s.status}", s.t)
             msg = self._step_within_domain()
             if s.status == "failed":
                 raise NumericalError(f"{self.name} failed: {msg}", s.t)
-            self.nsteps += 1
+            steps += 1
         sol = self._interpolant()
         y = sol(t_target)
-        self._dense = self._wrap(sol)
-        self.t, self.q, self.qd = t_target, y[:n].copy(), y[n:].copy()
-        self.current = self._call(self.t, self.q, self.qd)
+        return Advance(t_target, y[:n].copy(), y[n:].copy(), self._wrap(sol), None, steps)
 
     def _step_within_domain(self, tries: int = 12):
         """One internal step; a stage outside the chart's domain rejects it like a too large

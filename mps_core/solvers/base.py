@@ -22,6 +22,7 @@ A solver advances a second-order system ``q̈ = f(t, q, q̇)``:
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,7 +30,24 @@ from ..caches import Memo
 from ..derivatives.tracing import BranchChanged
 
 
+class Advance(NamedTuple):
+    """What a method's :meth:`Solver._advance_to` hands the base's :meth:`Solver.step_to`: the
+    new state, its dense output (None: made when asked for, from ``dense_from``), what the
+    dense output is made from, and the steps taken (internal steps of an adaptive method)."""
+
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    dense: Any = None
+    dense_from: Any = None
+    steps: int = 1
+
+
 class Solver:
+    """The contract (see the module's docstring). A method implements :meth:`_advance_to`;
+    :meth:`step_to` is the template around it: the evaluation at the new state, then the
+    bookkeeping, so that a step is all or nothing."""
+
     name = "solver"
     #: order of convergence of the global error in the step (None: adaptive, as asked)
     order: int | None = 0
@@ -87,6 +105,20 @@ class Solver:
         return self.fun(t, np.array(ql, dtype=float), np.array(vl, dtype=float)).qdd.tolist()
 
     def step_to(self, t_target: float, interrupt: Callable | None = None) -> None:
+        """Advance to ``t_target`` (an adaptive method: or to where ``interrupt`` stopped it):
+        the method's :meth:`_advance_to`, the evaluation at the state it reached, then the new
+        state, its dense output and the step count. Where the evaluation raises, nothing of the
+        solver's state has changed (all or nothing)."""
+        a = self._advance_to(t_target, interrupt)
+        e = self._call(a.t, a.q, a.qd)
+        self._dense, self._dense_from = a.dense, a.dense_from
+        self.t, self.q, self.qd, self.current = a.t, a.q, a.qd, e
+        self.nsteps += a.steps
+
+    def _advance_to(self, t_target: float, interrupt: Callable | None) -> Advance:
+        """The method's own work: from the present state toward ``t_target`` (see
+        :class:`Advance`), without changing the solver's state (t, q, q̇, current, the dense
+        output), which :meth:`step_to` sets from what it returns."""
         raise NotImplementedError
 
     def state(self) -> dict:
@@ -144,6 +176,7 @@ class GeneratedStep(Solver):
         raise NotImplementedError
 
     def _advance(self, t0, t1, q, v, a):
+        """(q₁, v₁, the stages or None): the generated step."""
         f = self._direct()
         if f is not None:
             out = _generated(type(self), len(q), True)(f, self.accel, t0, t1, t1 - t0, *q, *v, *a)
@@ -151,19 +184,12 @@ class GeneratedStep(Solver):
         else:
             out = _generated(type(self), len(q), False)(self.accel, t0, t1, t1 - t0, *q, *v, *a)
         self.nfev += self.inner_stages
-        if self.returns_stages:
-            self._stages = out[2]
-        return out[0], out[1]
+        return out[0], out[1], out[2] if self.returns_stages else None
 
-    def step_to(self, t_target, interrupt=None):
-        t0, q0, v0 = self.t, self.q, self.qd
-        ql, vl = self._advance(t0, t_target, q0.tolist(), v0.tolist(), self.current.qdd.tolist())
-        q1, v1 = np.array(ql), np.array(vl)
-        e = self._call(t_target, q1, v1)
-        self._dense = None
-        self._last = (t0, q0, v0, self.current.qdd)
-        self.t, self.q, self.qd, self.current = t_target, q1, v1, e
-        self.nsteps += 1
+    def _advance_to(self, t_target, interrupt):
+        t0, q0, v0, a0 = self.t, self.q, self.qd, self.current.qdd
+        ql, vl, stages = self._advance(t0, t_target, q0.tolist(), v0.tolist(), a0.tolist())
+        return Advance(t_target, np.array(ql), np.array(vl), None, (t0, q0, v0, a0, stages))
 
     def _direct(self):
         """The fused function to call from the generated stages, where ``accel`` has one that
@@ -173,10 +199,10 @@ class GeneratedStep(Solver):
 
     def dense_output(self):
         if self._dense is None:
-            last = self.__dict__.get("_last")
+            last = self.__dict__.get("_dense_from")
             if last is None:
                 raise RuntimeError("no step taken yet")
-            t0, q0, v0, a0 = last
+            t0, q0, v0, a0, _stages = last
             self._dense = (self.interpolant or CubicHermite)(
                 t0, self.t, q0, v0, a0, self.q, self.qd, self.current.qdd
             )

@@ -35,7 +35,7 @@ from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from ..caches import Memo
 from ..errors import ChartDomainError, NumericalError
-from .base import Solver
+from .base import Advance, Solver
 
 SAFETY = 0.9
 MIN_FACTOR = 0.2
@@ -303,8 +303,9 @@ class DOP853(Solver):
             self._sol = _DenseOutput(t_old, h, y_old, F, self._n)
         return self._sol
 
-    def step_to(self, t_target, interrupt=None):
+    def _advance_to(self, t_target, interrupt):
         n = self._n
+        steps = 0
         while self._t < t_target:
             # every internal step's end before t_target is offered to ``interrupt`` before the
             # next step is taken: also the end of a step that began before this call (the
@@ -313,17 +314,12 @@ class DOP853(Solver):
             if interrupt is not None and self._t > self.t:
                 q, qd = np.array(self._y[:n]), np.array(self._y[n:])
                 if interrupt(self._t, q, qd):
-                    self._dense = self._interpolant()
-                    self.t, self.q, self.qd = self._t, q, qd
-                    self.current = self._call(self.t, q, qd)
-                    return
+                    return Advance(self._t, q, qd, self._interpolant(), None, steps)
             self._advance()
-            self.nsteps += 1
+            steps += 1
         sol = self._interpolant()
         q, qd = sol(t_target)
-        self._dense = sol
-        self.t, self.q, self.qd = t_target, q, qd
-        self.current = self._call(t_target, q, qd)
+        return Advance(t_target, q, qd, sol, None, steps)
 
 
 class _DenseOutput:

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .base import Solver
+from .base import Advance, Solver
 
 
 class LinearAcceleration(Solver):
@@ -39,10 +39,9 @@ class LinearAcceleration(Solver):
             raise ValueError(f"corrector iterations = {iterations!r}: expected an integer >= 1")
         self.iterations = int(iterations)
         self.evaluations_per_step = 1 + self.iterations
-        self._step = None  # (t0, Δt, q0, q̇0, q̈0, q̈1) of the last step, for its cubic
         super().__init__(fun, t0, q0, qd0, current, accel)
 
-    def step_to(self, t_target, interrupt=None):
+    def _advance_to(self, t_target, interrupt):
         # elementwise on floats (n is 1 or 2: numpy's per-call cost would dominate), written out
         # for n = 1 and 2; the same operations in the same order as the vector formulas above.
         # The predicted and all but the last corrected states need q̈ alone (``accel``); the
@@ -84,18 +83,15 @@ class LinearAcceleration(Solver):
                 q1 = [x + v * dt + (2.0 * a + b) * h6 for x, v, a, b in zip(ql, vl, al, a1)]
                 if k < last:
                     a1 = accel(t_target, q1, qd1)
-        q1, qd1 = np.array(q1), np.array(qd1)
-        e = self._call(t_target, q1, qd1)
-        # the step's cubic is made when asked for (at events only): keep what it needs
-        self._dense = None
-        self._step = (t0, dt, q0, qd0, a0, a1)
-        self.t, self.q, self.qd, self.current = t_target, q1, qd1, e
-        self.nsteps += 1
+        # the step's cubic is made when asked for (at events only): what it needs, (t0, Δt,
+        # q0, q̇0, q̈0, q̈1)
+        return Advance(t_target, np.array(q1), np.array(qd1), None, (t0, dt, q0, qd0, a0, a1))
 
     def dense_output(self):
         """The last step's cubic (43), made on the first call after the step."""
-        if self._dense is None and self._step is not None:
-            self._dense = _LinearAccelerationCubic(*self._step)
+        last = self.__dict__.get("_dense_from")
+        if self._dense is None and last is not None:
+            self._dense = _LinearAccelerationCubic(*last)
         return super().dense_output()
 
 

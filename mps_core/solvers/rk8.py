@@ -120,18 +120,16 @@ class RK8(GeneratedStep):
         (scipy's ``Dop853DenseOutput``), made when asked for: outputs inside a step keep the
         method's accuracy."""
         if self._dense is None:
-            last = self.__dict__.get("_last")
+            last = self.__dict__.get("_dense_from")
             if last is None:
                 raise RuntimeError("no step taken yet")
-            t0, q0, v0, a0 = last
+            t0, q0, v0, a0, stages = last
             n = q0.size
             y_old = q0.tolist() + v0.tolist()
             f_old = v0.tolist() + a0.tolist()
             y_new = self.q.tolist() + self.qd.tolist()
             f_new = self.qd.tolist() + self.current.qdd.tolist()
             h = self.t - t0
-            F = _dop853_code("dense", n)(
-                self._accel_counted, t0, h, self._stages, *y_old, *f_old, *y_new, *f_new
-            )
+            F = _dop853_code("dense", n)(self._accel_counted, t0, h, stages, *y_old, *f_old, *y_new, *f_new)
             self._dense = _DenseOutput(t0, h, y_old, F, n)
         return self._dense

@@ -292,3 +292,42 @@ def test_rk6_dense_output_is_its_quintic_hermite():
         # the step is exact for this q̈ (a polynomial of degree 3 in t alone)
         assert q[0] == pytest.approx(t**5 - t**3 + 2 * t, rel=1e-13, abs=1e-15)
         assert qd[0] == pytest.approx(5 * t**4 - 3 * t**2 + 2, rel=1e-12)
+
+
+class _Refuses(Exception):
+    pass
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda f: LinearAcceleration(f, 0.0, [1.0], [0.0]),
+        lambda f: RK4(f, 0.0, [1.0], [0.0]),
+        lambda f: RK6(f, 0.0, [1.0], [0.0]),
+        lambda f: RK8(f, 0.0, [1.0], [0.0]),
+        lambda f: DOP853(f, 0.0, [1.0], [0.0], rtol=1e-8, atol=1e-10),
+        lambda f: AdaptiveSolver(f, 0.0, [1.0], [0.0], rtol=1e-8, atol=1e-10),
+    ],
+    ids=["linear-acceleration", "rk4", "rk6", "rk8", "dop853", "scipy-dop853"],
+)
+def test_a_step_whose_evaluation_raises_changes_nothing(make):
+    """The base's step_to (the template around each method's own step): where the evaluation
+    at the new state raises, the solver is as it was before the step."""
+    refuse = []
+    base = oscillator(2.0)
+
+    def fun(t, q, qd):
+        if refuse and t >= refuse[0]:
+            raise _Refuses
+        return base(t, q, qd)
+
+    s = make(fun)
+    s.step_to(0.1)
+    before = (s.t, s.q.copy(), s.qd.copy(), s.current, s.nsteps, s.dense_output()(0.05))
+    refuse.append(0.15)
+    with pytest.raises(_Refuses):
+        s.step_to(0.2)
+    after = (s.t, s.q, s.qd, s.current, s.nsteps, s.dense_output()(0.05))
+    assert after[0] == before[0] and after[3] is before[3] and after[4] == before[4]
+    for a, b in ((after[1], before[1]), (after[2], before[2]), (after[5][0], before[5][0])):
+        assert np.array_equal(a, b)
