@@ -72,6 +72,7 @@ from ..errors import (
     config_in_degrees,
 )
 from ..model.effects import Controls, Latch, Motor, TopStop
+from ..model.effects.base import Stiff, StiffnessBounded
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView, unwrap_to
 from ..names import COLUMNS
@@ -265,7 +266,7 @@ class Simulation:
         self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
         self._nc = [e for e in eff if not e.conservative]
         self._potentials = [e.potential for e in eff if e.conservative]
-        self._stiff = [e for e in eff if hasattr(e, "stiffness")]
+        self._stiff = [e for e in eff if isinstance(e, Stiff)]
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -762,8 +763,7 @@ class Simulation:
             return math.inf
         w2 = 0.0
         for s in self._stiff:
-            bound = getattr(s, "stiffness_bound", None)
-            b = bound(self.mechanism) if bound is not None else None
+            b = s.stiffness_bound(self.mechanism) if isinstance(s, StiffnessBounded) else None
             if b is None or not (b >= 0.0) or math.isinf(b):
                 return 0.0
             w2 += b

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -130,15 +131,8 @@ class Effect(Watched):
         nothing else."""
         return []
 
-    #: optional, in a subclass that defines it together with :meth:`loads`:
-    #: ``generalized_force(t, kin)``, the virtual work of the loads as n floats (None for
-    #: none), the same number as the engine's sum over the loads in fewer operations
-
-    #: optional, in a subclass with a ``stiffness(kin)`` (its generalized stiffness, n × n, or
-    #: None): ``stiffness_bound(mechanism)``, an upper bound on the largest ω² of
-    #: K v = ω² A v for this effect's K alone, valid in every configuration and chart (None: no
-    #: bound known). The driver's stability check skips its per-step work for steps safely
-    #: within the bounds' limit (:meth:`mps_core.run.simulation.Simulation._stable_step`)
+    #: optional hooks, each a protocol below: :class:`FastForce` (``generalized_force``),
+    #: :class:`Stiff` (``stiffness``), :class:`StiffnessBounded` (``stiffness_bound``)
 
     def power(self, t: float, kin) -> float:
         """Mechanical power (W) this effect delivers to the moving bodies."""
@@ -185,3 +179,32 @@ def vector2(value, field_name: str) -> np.ndarray:
     if v.shape != (2,):
         raise ValueError(f"{field_name}: expected two numbers (x, y), got {value!r}")
     return v
+
+
+# -- an effect's optional hooks ------------------------------------------------------------------
+@runtime_checkable
+class FastForce(Protocol):
+    """``generalized_force(t, kin)``: the virtual work of the effect's loads as n floats (None
+    for none), the same number as the engine's sum over the loads in fewer operations. Used
+    where the class defines it together with its :meth:`Effect.loads` (a subclass that
+    overrides ``loads`` alone keeps the general path)."""
+
+    def generalized_force(self, t: float, kin) -> list | None: ...
+
+
+@runtime_checkable
+class Stiff(Protocol):
+    """``stiffness(kin)``: the effect's generalized stiffness at a state, n × n, or None (none
+    there); the driver keeps a fixed step within the stability limit it sets."""
+
+    def stiffness(self, kin) -> list | None: ...
+
+
+@runtime_checkable
+class StiffnessBounded(Protocol):
+    """``stiffness_bound(mechanism)``: an upper bound on the largest ω² of K v = ω² A v for
+    this effect's K alone, valid in every configuration and chart (None: no bound known). The
+    driver's stability check skips its per-step work for steps safely within the bounds'
+    limit (:meth:`mps_core.run.simulation.Simulation._stable_step`)."""
+
+    def stiffness_bound(self, mechanism) -> float | None: ...
