@@ -67,17 +67,16 @@ from ..errors import (
     ChartDomainError,
     MpsError,
     NumericalError,
-    SimulationError,
     SingularConfiguration,
     config_in_degrees,
 )
 from ..model.effects import Controls, Latch, Motor, TopStop
-from ..model.effects.base import Stiff, StiffnessBounded
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView, unwrap_to
 from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
-from ..solvers import ADAPTIVE_SOLVERS, FIXED_STEP_LIMITS, make_solver
+from ..solvers import ADAPTIVE_SOLVERS, make_solver
+from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer, _Event
 from .trajectory import Trajectory
 
@@ -102,10 +101,6 @@ _ROW = (
 
 #: the defaults of a simulation built by hand (frozen: shared safely)
 _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
-
-
-class StabilityError(SimulationError):
-    """A fixed step exceeds the solver's stability limit for a stiff effect."""
 
 
 #: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
@@ -204,7 +199,8 @@ class Simulation:
         #: the switches between structures, the impacts and the commands
         self.structures = StructureLayer(self)
         self._sort_effects()
-        self._dt_stable = self._always_stable()
+        #: the fixed steps' stability limit for the stiff effects
+        self.stability = StepStability(self.effects, mechanism, solver)
         self._views: dict[str, list[ChartView]] = {}
         self._events_by_state: dict[tuple, list[_Event]] = {}
         self._full: dict[str, ChartView] = {}
@@ -254,8 +250,8 @@ class Simulation:
 
     def _sort_effects(self) -> None:
         """The effects the driver acts through (latch, rigid stop, motor, cylinders) and those
-        its bookkeeping reads (non-conservative: work; conservative: potentials; stiff: the
-        stability limit)."""
+        its bookkeeping reads (non-conservative: work; conservative: potentials; the stiff
+        ones are :attr:`stability`'s)."""
         eff = self.effects
         self.latch = next((e for e in eff if isinstance(e, Latch)), None)
         self.stop = next((e for e in eff if isinstance(e, TopStop) and e.rigid), None)
@@ -266,7 +262,6 @@ class Simulation:
         self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
         self._nc = [e for e in eff if not e.conservative]
         self._potentials = [e.potential for e in eff if e.conservative]
-        self._stiff = [e for e in eff if isinstance(e, Stiff)]
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -751,78 +746,6 @@ class Simulation:
         """Take a command now (t None) or at a later simulated time; refused ones raise."""
         self.structures.command(name, t)
 
-    # -- stability ------------------------------------------------------------------------
-    def _always_stable(self) -> float:
-        """A step up to which :meth:`_stable_step` keeps every step whole, in any state: half of
-        0.9 × the stability limit for ω² = the sum of the stiff effects' bounds
-        (``stiffness_bound``: ω²_max of their summed K is at most the sum of theirs); 0 where one
-        has no bound. Half, so that the round-off of the per-step estimate (a few ulps, more
-        on a badly conditioned A) can never reach the bound's factor of 4 in ω²."""
-        name = self.settings.name
-        if not self._stiff or name not in FIXED_STEP_LIMITS:
-            return math.inf
-        w2 = 0.0
-        for s in self._stiff:
-            b = s.stiffness_bound(self.mechanism) if isinstance(s, StiffnessBounded) else None
-            if b is None or not (b >= 0.0) or math.isinf(b):
-                return 0.0
-            w2 += b
-        if w2 == 0.0:
-            return math.inf
-        limit = FIXED_STEP_LIMITS[name][0] * (2.0 * math.pi / math.sqrt(w2))
-        return 0.5 * 0.9 * limit
-
-    def _omega2(self, e) -> float | None:
-        """The stiff effects' ω²_max at evaluation ``e``, estimated from above by trace(A⁻¹K)
-        (A SPD, K PSD: at most n times too large, and no eigensolver); None where their K is
-        zero."""
-        K = None
-        for s in self._stiff:
-            k = s.stiffness(e.kin)
-            if k is not None:
-                K = k if K is None else [[a + b for a, b in zip(r, s_)] for r, s_ in zip(K, k)]
-        if K is None or not any(any(r) for r in K):
-            return None
-        n = len(K)
-        if n == 1:
-            return K[0][0] / float(e.A[0, 0] if isinstance(e._A, np.ndarray) else e._A)
-        if n == 2:
-            (a00, a01), (a10, a11) = e.A.tolist()
-            det = a00 * a11 - a01 * a10
-            return (a11 * K[0][0] - a01 * K[1][0] - a10 * K[0][1] + a00 * K[1][1]) / det
-        return float(np.trace(np.linalg.solve(e.A, np.array(K))))
-
-    def _stable_step(self, dt: float) -> float:
-        """The largest step not beyond the solver's stability limit for the stiff effects.
-
-        Steps up to :meth:`_always_stable`'s bound (computed once) are returned at once: the
-        per-step estimate below would keep them whole too."""
-        if dt <= self._dt_stable:
-            return dt
-        name = self.settings.name
-        if not self._stiff or name not in FIXED_STEP_LIMITS:
-            return dt
-        e = self.solver.current
-        w2 = self._omega2(e)
-        if w2 is None or w2 <= 0.0:
-            return dt
-        t_min = 2.0 * math.pi / math.sqrt(w2)
-        limit = FIXED_STEP_LIMITS[name][0] * t_min
-        if dt <= 0.9 * limit:
-            return dt
-        if self.settings.stiff == "error":
-            which = ", ".join(s.name for s in self._stiff)
-            raise StabilityError(
-                f"step {dt:.3g} s exceeds the {name} method's stability limit {limit:.3g} s "
-                f"({FIXED_STEP_LIMITS[name][1]} of the shortest "
-                f"period T_min = {t_min:.3g} s, from {which}); use dt <= {0.9 * limit:.3g} s "
-                "or solver.stiff = 'subdivide'",
-                e.t,
-                self.config(e),
-            )
-        m = math.ceil(dt / (0.5 * limit))
-        return dt / m
-
     # -- work and energy ------------------------------------------------------------------
     def _power(self, e) -> float:
         if e.Q_nc is not None:
@@ -929,8 +852,8 @@ class Simulation:
         step = self.settings.step
         if step is not None and dt > step * (1.0 + 1e-9):
             dt = step
-        if dt > self._dt_stable:  # else stable in any state: no estimate needed
-            dt = self._stable_step(dt)
+        if dt > self.stability.always:  # else stable in any state: no estimate needed
+            dt = self.stability.stable_step(dt, self.solver.current, self.config)
         return dt
 
     def _leave_failing_chart(self, exc: ChartDomainError, failures: int) -> None:

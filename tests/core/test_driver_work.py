@@ -139,8 +139,8 @@ def test_the_bounds_are_above_every_per_step_estimate(scene, t_end, dt):
     seen = []
 
     def check(sim, e):
-        w2 = sim._omega2(e)
-        bound = sum(s.stiffness_bound(sim.mechanism) for s in sim._stiff)
+        w2 = sim.stability.omega2(e)
+        bound = sum(s.stiffness_bound(sim.mechanism) for s in sim.stability.stiff)
         if w2 is not None:
             assert w2 <= bound * (1.0 + 1e-12)
             seen.append((e.view.n, w2 / bound))
@@ -161,7 +161,7 @@ def test_the_stability_shortcut_changes_nothing(scene, t_end, dt):
 
     fast = make()
     slow = make()
-    slow._dt_stable = 0.0  # the per-step estimate at every step
+    slow.stability.always = 0.0  # the per-step estimate at every step
     a, b = fast.run(t_end, dt), slow.run(t_end, dt)
     columns_equal(a, b)
     assert a.events == b.events and a.counts == b.counts
@@ -172,9 +172,9 @@ def test_an_effect_without_a_bound_keeps_the_per_step_estimate():
         stiffness_bound = None
 
     sim = build("idle")
-    assert 0.0 < sim._dt_stable < np.inf
-    sim._stiff.append(Unbounded(1.0, 0.0, 0.0255))
-    assert sim._always_stable() == 0.0
+    assert 0.0 < sim.stability.always < np.inf
+    sim.stability.stiff.append(Unbounded(1.0, 0.0, 0.0255))
+    assert sim.stability.always_stable() == 0.0
 
 
 # -- the solver ---------------------------------------------------------------------------------

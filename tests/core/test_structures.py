@@ -10,7 +10,8 @@ from scipy.optimize import brentq
 from mps_core import SceneError, build, load_scene, scene_from_text, simulate
 from mps_core.model import PressMechanism
 from mps_core.model.effects import Controls, Gravity, Latch
-from mps_core.run.simulation import CommandRefused, Simulation, StabilityError
+from mps_core.run.simulation import CommandRefused, Simulation
+from mps_core.run.stability import StabilityError
 from mps_core.scene.settings import SolverSettings
 
 SWITCHES = ("latch-closes", "stop-contact", "stop-release", "latch-opens")

@@ -205,6 +205,6 @@ class StiffnessBounded(Protocol):
     """``stiffness_bound(mechanism)``: an upper bound on the largest ω² of K v = ω² A v for
     this effect's K alone, valid in every configuration and chart (None: no bound known). The
     driver's stability check skips its per-step work for steps safely within the bounds'
-    limit (:meth:`mps_core.run.simulation.Simulation._stable_step`)."""
+    limit (:class:`mps_core.run.stability.StepStability`)."""
 
     def stiffness_bound(self, mechanism) -> float | None: ...
