@@ -906,7 +906,8 @@ class Simulation:
             self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
             ev.action(t_e)
             if ev.restart or ev.name == "change-point":
-                self._ev_prev[ev.name] = after_value
+                # a new dict: a checkpoint may hold the one before
+                self._ev_prev = {**self._ev_prev, ev.name: after_value}
             self._update_phys(self.solver.current)
             return
         # the step stands: its work (trapezoid on the power at its ends), the event values
