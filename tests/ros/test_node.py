@@ -524,7 +524,7 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
                 n0 = len(lis.acks())
                 lis.send(word)
                 sent.append(word)
-                ack = lis.wait_for(lambda: lis.acks()[n0:], 10, f"an answer to {word[:20]!r}")[0]
+                ack = lis.wait_for(lambda: lis.acks()[n0:], 30, f"an answer to {word[:20]!r}")[0]
                 assert ack["accepted"] is expect_ok, (word[:20], ack)
                 if reason:
                     assert reason in ack["reason"], (word[:20], ack)
@@ -538,7 +538,7 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             lis.send("engage")
             lis.send("engage")
             sent += ["engage", "engage"]
-            both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 10, "two answers")
+            both = lis.wait_for(lambda: len(lis.acks()) >= n0 + 2 and lis.acks()[n0:], 30, "two answers")
             assert both[0]["accepted"] and not both[1]["accepted"]
             # the second is answered at the boundary where it arrived: "already engaging" while
             # the latch is still open (the usual case: tens of ms), the latch's reason after
