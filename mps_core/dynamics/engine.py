@@ -65,7 +65,7 @@ from ..derivatives.jet import Jet, ScalarJet, seed
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged
 from ..errors import ChartDomainError, NumericalError, config_in_degrees
-from ..model.effects.base import FastForce, Version, watch_all
+from ..model.effects.base import FastForce, Version, has_hook, watch_all
 from ..model.mechanism import ChartView, Mechanism
 
 
@@ -453,7 +453,7 @@ def _fast_path(effect):
     """An effect's ``generalized_force(t, kin)`` (:class:`~mps_core.model.effects.base.FastForce`)
     where it has one for the same ``loads`` (a subclass that overrides ``loads`` alone keeps
     the general path)."""
-    if not isinstance(effect, FastForce):
+    if not has_hook(effect, FastForce):
         return None
     cls = type(effect)
     gf = _owner(cls, "generalized_force")

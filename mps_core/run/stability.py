@@ -20,7 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..errors import SimulationError
-from ..model.effects.base import Stiff, StiffnessBounded
+from ..model.effects.base import Stiff, StiffnessBounded, has_hook
 from ..solvers import FIXED_STEP_LIMITS
 
 __all__ = ["StabilityError", "StepStability"]
@@ -35,7 +35,7 @@ class StepStability:
     ``mechanism`` (the effects' bounds), ``settings`` (the solver's name and ``stiff``)."""
 
     def __init__(self, effects, mechanism, settings):
-        self.stiff = [e for e in effects if isinstance(e, Stiff)]
+        self.stiff = [e for e in effects if has_hook(e, Stiff)]
         self.mechanism = mechanism
         self.settings = settings
         #: steps up to this are stable in any state (:meth:`always_stable`, computed once)
@@ -52,7 +52,7 @@ class StepStability:
             return math.inf
         w2 = 0.0
         for s in self.stiff:
-            b = s.stiffness_bound(self.mechanism) if isinstance(s, StiffnessBounded) else None
+            b = s.stiffness_bound(self.mechanism) if has_hook(s, StiffnessBounded) else None
             if b is None or not (b >= 0.0) or math.isinf(b):
                 return 0.0
             w2 += b

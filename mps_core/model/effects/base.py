@@ -9,6 +9,7 @@ touches the engine. A conservative effect also gives its potential energy.
 
 from __future__ import annotations
 
+import functools
 import weakref
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
@@ -208,3 +209,15 @@ class StiffnessBounded(Protocol):
     limit (:class:`mps_core.run.stability.StepStability`)."""
 
     def stiffness_bound(self, mechanism) -> float | None: ...
+
+
+@functools.lru_cache(maxsize=256)
+def _class_has(cls: type, hook: type) -> bool:
+    return issubclass(cls, hook)
+
+
+def has_hook(effect, hook: type) -> bool:
+    """Whether an effect's class implements an optional hook (:class:`FastForce`,
+    :class:`Stiff`, :class:`StiffnessBounded`): the protocol's check, once per class (a
+    protocol's ``isinstance`` costs tens of µs, a run's build asks it for every effect)."""
+    return _class_has(effect.__class__, hook)
