@@ -59,7 +59,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..dynamics.engine import PartialSystems
 from ..errors import (
@@ -76,8 +75,9 @@ from ..model.mechanism import ChartView, unwrap_to
 from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
+from .events import EventLocator
 from .stability import StepStability
-from .structure_layer import CommandRefused, StructureLayer, _Event
+from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
 
 #: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
@@ -202,7 +202,6 @@ class Simulation:
         #: the fixed steps' stability limit for the stiff effects
         self.stability = StepStability(self.effects, mechanism, solver)
         self._views: dict[str, list[ChartView]] = {}
-        self._events_by_state: dict[tuple, list[_Event]] = {}
         self._full: dict[str, ChartView] = {}
         #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates)
         self._held: dict[ChartView, tuple] = {}
@@ -215,10 +214,8 @@ class Simulation:
         self._timers: list[tuple[float, str]] = []
         #: switching points of the effects' force laws crossed (a step ended at each)
         self.switch_points = 0
-        self._kin_last = None
-        self._switch_last: dict = {}
-        #: the effects whose switching points are located (none where steps step over them)
-        self._switching = [e for e in self.effects if e.switches] if solver.locates_switch_points() else []
+        #: the events that can happen now and where they happen inside a step
+        self.events_now = EventLocator(self, solver.locates_switch_points())
         self.solver_nfev = 0
         self.solver_steps = 0
         self.work = 0.0
@@ -243,7 +240,7 @@ class Simulation:
         self._power_now = self._power(self.solver.current)
         self._chart_due = False
         self._check_chart()
-        self._ev_prev = self._event_values(self.solver.t, self.solver.q, self.solver.qd)
+        self._ev_prev = self.events_now.values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
             self.structures.release_stop(self.solver.t)
@@ -361,7 +358,7 @@ class Simulation:
         self.view = view
         self.solver = self._new_solver(t, q, qd)
         self._power_now = self._power(self.solver.current)
-        self._ev_prev = self._event_values(t, self.solver.q, self.solver.qd)
+        self._ev_prev = self.events_now.values(t, self.solver.q, self.solver.qd)
         self._seg_start = t
         # the forces may have changed (a command, an impact): a stop that would now pull lets go
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
@@ -587,147 +584,6 @@ class Simulation:
                 qd[k] = kin.vxy(obs.points[0])[c]
         return q, qd
 
-    # -- events ---------------------------------------------------------------------------
-    def _observable(self, name, view, q, kin=None) -> float:
-        """An observable's value at q in a view (``kin``: that state's kinematics, if known)."""
-        k = view.coordinate_index(name)
-        if k is not None:
-            return float(q[k])
-        if name in view.frozen:
-            return float(view.frozen[name])
-        if kin is not None:
-            pose = kin.pose
-        else:
-            pose = view.positions(list(q))
-            pose = {p: (float(x), float(y)) for p, (x, y) in pose.items()}
-        v = self.mechanism.observables[name].value(pose)
-        if self.mechanism.observables[name].is_angle and name in self.phys:
-            v = unwrap_to(v, self.phys[name])
-        return v
-
-    def _reader(self, name, view):
-        """``read(q, kin=None)``: the observable's value at q in ``view``, as :meth:`_observable`
-        gives it, with the lookups that depend on the view alone done once."""
-        k = view.coordinate_index(name)
-        if k is not None:
-            return lambda q, kin=None: float(q[k])
-        if name in view.frozen:
-            value = float(view.frozen[name])
-            return lambda q, kin=None: value
-        obs = self.mechanism.observables[name]
-        angle = obs.is_angle
-
-        def read(q, kin=None):
-            if kin is None:
-                return self._observable(name, view, q)
-            v = obs.value(kin.pose)
-            if angle and name in self.phys:
-                v = unwrap_to(v, self.phys[name])
-            return v
-
-        return read
-
-    def _event_list(self) -> list[_Event]:
-        """The events that can happen now (they depend on the structure, the latch's arming and
-        the chart view only; kept by those)."""
-        key = (self.controls.structure, self.controls.latch_armed, self.view)
-        ev = self._events_by_state.get(key)
-        if ev is None:
-            ev = self._events_by_state[key] = self.structures.make_event_list()
-        return ev
-
-    def _switch_fn(self, effect, i, view):
-        """``fn(t, q, q̇, kin=None)``: the effect's i-th switching function in ``view``."""
-        state_kin = self._state_kin
-        last = self._switch_last  # the effect's values at the last state asked for
-
-        def fn(t, q, qd, kin=None):
-            if kin is None:
-                kin = state_kin(view, t, q, qd)
-            hit = last.get(effect)
-            if hit is None or hit[0] is not kin:
-                hit = last[effect] = (kin, effect.switch_values(t, kin))
-            return hit[1][i]
-
-        return fn
-
-    def _state_kin(self, view, t, q, qd):
-        """The kinematics of a state between evaluations (event location), the last one kept:
-        the switching functions of one state share it."""
-        ql, vl = [float(x) for x in q], [float(x) for x in qd]
-        key = (view, t, *ql, *vl)
-        last = self._kin_last
-        if last is not None and last[0] == key:
-            return last[1]
-        kin = self.engine.state_kinematics(view, t, ql, vl)
-        self._kin_last = (key, kin)
-        return kin
-
-    def _count_switch(self, t):
-        self.switch_points += 1
-
-    def _event_values(self, t, q, qd, kin=None) -> dict:
-        return {e.name: e.fn(t, q, qd, kin) for e in self._event_list()}
-
-    @staticmethod
-    def _crossed(a: float, b: float, direction: int) -> bool:
-        if direction > 0:
-            return a < 0.0 <= b
-        if direction < 0:
-            return a > 0.0 >= b
-        return (a < 0.0 <= b) or (a > 0.0 >= b)
-
-    def _interrupt(self, t, q, qd) -> bool:
-        """Called by adaptive solvers after each internal step: stop for an event or a chart."""
-        try:
-            pose = self.view.positions(list(q))
-        except ChartDomainError:
-            return True
-        reg = self.view.regularity({k: (float(x), float(y)) for k, (x, y) in pose.items()})
-        limit = self.policy.switch_below if self.policy.switching else self.policy.fail_below
-        if reg < limit:
-            return True
-        vals = self._event_values(t, q, qd)
-        for e in self._event_list():
-            if e.name in self._ev_prev and self._crossed(self._ev_prev[e.name], vals[e.name], e.direction):
-                return True
-        self._ev_prev = vals
-        self._seg_start = t
-        return False
-
-    def _locate_event(self):
-        """(earliest event root inside the last step or None, event values at the step's end)."""
-        events = self._event_list()
-        if not events:
-            return None, {}
-        s = self.solver
-        t1, q1, qd1, kin = s.t, s.q, s.qd, s.current.kin
-        vals = {e.name: e.fn(t1, q1, qd1, kin) for e in events}
-        prev = self._ev_prev
-        first = None
-        for e in events:
-            a, b = prev.get(e.name), vals[e.name]
-            if a is None or not self._crossed(a, b, e.direction):
-                continue
-            dense = s.dense_output()
-            t_a = self._seg_start
-
-            def g(t, fn=e.fn, dense=dense):
-                q, qd = dense(t)
-                return fn(t, q, qd)
-
-            if a == 0.0:
-                root = t_a
-            else:
-                ga = g(t_a)
-                if ga * b > 0.0:
-                    # the recorded sign was set at an event's root: no bracket in this step
-                    continue
-                root = brentq(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
-            if first is None or root < first[0]:
-                first = (root, e, b)
-        return first, vals
-
     def _cut_at(self, t_e: float):
         """Restart the solver from the last step's interpolant at t_e (same chart)."""
         q, qd = self.solver.dense_output()(t_e)
@@ -814,7 +670,7 @@ class Simulation:
             p_a = self._power_now
             self._seg_start = t0
             try:
-                self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self._interrupt)
+                self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self.events_now.interrupt)
             except ChartDomainError as exc:
                 failures += 1
                 self._leave_failing_chart(exc, failures)
@@ -891,7 +747,7 @@ class Simulation:
                     self.impact_loss,
                 ]
             )
-        hit, vals = self._locate_event()
+        hit, vals = self.events_now.locate()
         if hit is not None and hit[1].name == "change-point" and self.change_point != "keep-side":
             # the continuation chart is smooth through the change point: the step stands,
             # the passage is logged at its root

@@ -72,7 +72,7 @@ class StructureLayer:
         if s == "free":
             if sim.latch is not None and sim.controls.latch_armed:
                 lock = sim.latch.psi_lock
-                psi = sim._reader("psi", view)
+                psi = sim.events_now.reader("psi", view)
                 ev.append(
                     _Event(
                         "latch-closes", lambda t, q, qd, kin=None: psi(q, kin) - lock, 0, self._close_latch
@@ -80,7 +80,7 @@ class StructureLayer:
                 )
             if sim.stop is not None:
                 top = sim.stop.x_top
-                x_C = sim._reader("x_C", view)
+                x_C = sim.events_now.reader("x_C", view)
                 ev.append(
                     _Event("stop-contact", lambda t, q, qd, kin=None: x_C(q, kin) - top, +1, self._hit_stop)
                 )
@@ -94,7 +94,7 @@ class StructureLayer:
                 )
             )
         if view.chart.name.startswith("phi-xc~"):
-            phi = sim._reader("phi", view)
+            phi = sim.events_now.reader("phi", view)
             ev.append(
                 _Event(
                     "change-point",
@@ -103,14 +103,14 @@ class StructureLayer:
                     self.record_change_point,
                 )
             )
-        for effect in sim._switching:
+        for effect in sim.events_now.switching:
             for i, name in enumerate(effect.switches):
                 ev.append(
                     _Event(
                         f"{effect.name}:{name}",
-                        sim._switch_fn(effect, i, view),
+                        sim.events_now.switch_fn(effect, i, view),
                         0,
-                        sim._count_switch,
+                        sim.events_now.count_switch,
                         restart=True,
                     )
                 )

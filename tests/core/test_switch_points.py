@@ -130,20 +130,21 @@ def test_a_located_switch_point_ends_a_step_there(method):
     scene = press_cycle(method, t_end=0.12, switch_points="locate")
     sim = build(scene)
     seen = []
-    count = sim._count_switch
+    events = sim.events_now
+    count = events.count_switch
 
     def at_switch(t):
         seen.append((t, sim.solver.t, sim.solver.q.copy(), sim.solver.qd.copy(), sim.view))
         count(t)
 
-    sim._count_switch = at_switch
-    sim._events_by_state.clear()  # the event lists take the action when made
+    events.count_switch = at_switch
+    events._by_state.clear()  # the event lists take the action when made
     traj = sim.run(scene.t_end, scene.dt)
     assert traj.counts["switch_points"] == len(seen) >= 4
     for t, t_solver, q, qd, view in seen:
         assert t == t_solver
         kin = sim.engine.state_kinematics(view, t, q.tolist(), qd.tolist())
-        values = [v for e in sim._switching for v in e.switch_values(t, kin)]
+        values = [v for e in events.switching for v in e.switch_values(t, kin)]
         assert min(abs(v) for v in values) < 1e-9
 
 
