@@ -75,6 +75,7 @@ from ..model.mechanism import ChartView, unwrap_to
 from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
+from .charts import ChartChanger
 from .events import EventLocator
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
@@ -216,6 +217,8 @@ class Simulation:
         self.switch_points = 0
         #: the events that can happen now and where they happen inside a step
         self.events_now = EventLocator(self, solver.locates_switch_points())
+        #: the changes of chart where the present one degenerates
+        self.charts = ChartChanger(self)
         self.solver_nfev = 0
         self.solver_steps = 0
         self.work = 0.0
@@ -239,7 +242,7 @@ class Simulation:
         self._update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
         self._chart_due = False
-        self._check_chart()
+        self.charts.check()
         self._ev_prev = self.events_now.values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
@@ -461,129 +464,6 @@ class Simulation:
         vals = {k: v for k, (v, _, _) in self._observe(e).items()}
         return config_in_degrees(vals) | {"structure": self.structure, "chart": self.view.name}
 
-    # -- charts ---------------------------------------------------------------------------
-    def _check_chart(self):
-        e = self.solver.current
-        reg = self.view.regularity(e.kin.pose)
-        if reg >= self.policy.switch_below:
-            return
-        if not self.policy.switching:
-            if reg < self.policy.fail_below:
-                raise ChartBreakdown(
-                    f"chart {self.view.name} degenerates (regularity {reg:.3g}) and chart switching is off",
-                    e.t,
-                    self.config(e),
-                )
-            return
-        self._switch(reg, forced=False)
-
-    def _candidates(self, structure, pose, exclude=None) -> list[tuple[float, ChartView]]:
-        """Views of a structure that own the configuration, most regular first."""
-        out = []
-        for v in self.views(structure):
-            if (exclude is not None and v.chart is exclude) or not v.owns(pose):
-                continue
-            out.append((v.regularity(pose), v))
-        out.sort(key=lambda rv: -rv[0])
-        return out
-
-    def _map_first(self, candidates, q, qd, kin=None):
-        """The first candidate view into which the state maps exactly: (view, q, q̇, regularity).
-
-        A chart's branch test sees only the configuration; a chart whose branch depends on how
-        often the crank has turned (the change-point continuation) is confirmed by the mapping.
-        ``kin``: the state's kinematics where they are exact (see :meth:`_map_state`).
-        """
-        for reg, v in candidates:
-            try:
-                q2, qd2 = self._map_state(self.view, q, qd, v, kin)
-            except (NumericalError, ChartDomainError):
-                continue
-            return v, q2, qd2, reg
-        return None, None, None, -1.0
-
-    def _switch(self, reg_now: float, forced: bool):
-        e = self.solver.current
-        cands = [
-            c
-            for c in self._candidates(self.structure, e.kin.pose, exclude=self.view.chart)
-            if c[0] >= self.policy.fail_below and (forced or c[0] > reg_now)
-        ]
-        exact = e.kin if self.settings.scheme == "autodiff" else None
-        best, q, qd, best_reg = self._map_first(cands, e.q, e.qd, exact)
-        if best is None:
-            if forced or reg_now < self.policy.fail_below:
-                raise SingularConfiguration(
-                    f"no chart of structure {self.structure!r} is regular here (best "
-                    f"regularity {reg_now:.3g}): a singular position of the machine",
-                    e.t,
-                    self.config(e),
-                )
-            return
-        self.events.append(
-            {
-                "t": e.t,
-                "kind": "chart",
-                "from": self.view.name,
-                "to": best.name,
-                "regularity_from": reg_now,
-                "regularity_to": best_reg,
-                "forced": forced,
-            }
-        )
-        self._restart(best, e.t, q, qd)
-
-    def _map_state(self, view, q, qd, target, kin=None):
-        """(q, q̇) of ``target`` for the state (q, q̇) of ``view``: exact, through jets, or from
-        ``kin``, the state's exact kinematics (positions and velocities of the points, from an
-        exact kernel: the same numbers to round-off, without the jets)."""
-        if kin is not None and kin._xl is not None:
-            q2, qd2 = self._state_from_kinematics(target, kin)
-            pose = {p: kin.xy(p) for p in self.mechanism.points}
-        else:
-            jets = view.pose_jets(q, qd)
-            q2, qd2 = target.state_from(jets, self.phys)
-            pose = {
-                k: (
-                    float(x.val) if hasattr(x, "val") else float(x),
-                    float(y.val) if hasattr(y, "val") else float(y),
-                )
-                for k, (x, y) in jets.items()
-            }
-        check = target.positions(list(q2))
-        for p, (x, y) in pose.items():
-            cx, cy = check[p]
-            if abs(cx - x) + abs(cy - y) > 1e-9 * (1.0 + abs(x) + abs(y)):
-                raise NumericalError(
-                    f"changing to chart {target.name} does not reproduce point {p}",
-                    self.solver.t,
-                    self.config(),
-                )
-        return q2, qd2
-
-    def _state_from_kinematics(self, target, kin) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`~mps_core.model.mechanism.ChartView.state_from` from exact kinematics: each
-        coordinate's value (angles unwrapped to ``phys``) and rate, the angle of P→Q's as
-        (d × ḋ)/|d|² with d = Q − P."""
-        q = np.empty(target.n)
-        qd = np.empty(target.n)
-        phys = self.phys
-        for k, obs in enumerate(target.coordinates):
-            if obs.kind == "angle":
-                (px, py), (qx, qy) = kin.xy(obs.points[0]), kin.xy(obs.points[1])
-                (pu, pv), (qu, qv) = kin.vxy(obs.points[0]), kin.vxy(obs.points[1])
-                dx, dy, du, dv = qx - px, qy - py, qu - pu, qv - pv
-                v = math.atan2(dy, dx)
-                if obs.name in phys:
-                    v = unwrap_to(v, phys[obs.name])
-                q[k] = v
-                qd[k] = (dx * dv - dy * du) / (dx * dx + dy * dy)
-            else:
-                c = 0 if obs.kind == "x" else 1
-                q[k] = kin.xy(obs.points[0])[c]
-                qd[k] = kin.vxy(obs.points[0])[c]
-        return q, qd
-
     def _cut_at(self, t_e: float):
         """Restart the solver from the last step's interpolant at t_e (same chart)."""
         q, qd = self.solver.dense_output()(t_e)
@@ -663,7 +543,7 @@ class Simulation:
                 # the chart's regularity at the last step's end, looked at when the next step
                 # is about to start (a run that ends there changes no chart for nothing)
                 self._chart_due = False
-                self._check_chart()
+                self.charts.check()
             t0 = self.solver.t
             if self._at_boundary(t0, tol):
                 continue
@@ -728,7 +608,7 @@ class Simulation:
                 e.t,
                 self.config(e),
             ) from None
-        self._switch(self.view.regularity(e.kin.pose), forced=True)
+        self.charts.change(self.view.regularity(e.kin.pose), forced=True)
 
     def _after_step(self, t0: float, p_a: float) -> None:
         """A step taken from t0: cut at its first event (the event's action taken), or kept

@@ -160,8 +160,8 @@ class StructureLayer:
             )
             for k, (x, y) in jets.items()
         }
-        cands = [c for c in sim._candidates(structure, pose) if c[0] >= sim.policy.fail_below]
-        best, q2, qd2, _ = sim._map_first(cands, q, qd)
+        cands = [c for c in sim.charts.candidates(structure, pose) if c[0] >= sim.policy.fail_below]
+        best, q2, qd2, _ = sim.charts.map_first(cands, q, qd)
         if best is None:
             raise SingularConfiguration(
                 f"no chart of structure {structure!r} is regular here", t, sim.config()
