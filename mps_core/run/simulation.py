@@ -71,12 +71,13 @@ from ..errors import (
 )
 from ..model.effects import Controls, Latch, Motor, TopStop
 from ..model.effects.controls import ControlledEffect
-from ..model.mechanism import ChartView, unwrap_to
+from ..model.mechanism import ChartView
 from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
 from .charts import ChartChanger
 from .events import EventLocator
+from .observables import Observables
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
@@ -102,39 +103,6 @@ _ROW = (
 
 #: the defaults of a simulation built by hand (frozen: shared safely)
 _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
-
-
-#: where a reported observable comes from in a chart view (see :class:`_ViewPlan`)
-_COORD, _FROZEN, _POSE, _BODY, _JETS = range(5)
-
-
-class _ViewPlan:
-    """What the driver reads of one chart view at every step, worked out once per view.
-
-    ``report``: for each reported observable (the mechanism's ``report``, in order)
-    ``(name, how, observable, arg)``: ``_COORD`` (a free coordinate, arg its index), ``_FROZEN``
-    (arg its value), ``_POSE`` (position only, from the evaluation's pose), ``_BODY`` (a body's
-    angle: rates from the body's analogs, arg the body's name), ``_JETS`` (exact, through jets).
-    """
-
-    __slots__ = ("report",)
-
-    def __init__(self, sim: Simulation, view: ChartView):
-        report = []
-        for name, order in sim._report.items():
-            obs = sim.mechanism.observables[name]
-            k = view.coordinate_index(name)
-            if k is not None:
-                report.append((name, _COORD, obs, k))
-            elif name in view.frozen:
-                report.append((name, _FROZEN, obs, float(view.frozen[name])))
-            elif order == 0:
-                report.append((name, _POSE, obs, None))
-            elif name in sim._angle_body:
-                report.append((name, _BODY, obs, sim._angle_body[name]))
-            else:
-                report.append((name, _JETS, obs, None))
-        self.report = tuple(report)
 
 
 def _check_settings(solver: SolverSettings, change_point: str) -> None:
@@ -223,23 +191,14 @@ class Simulation:
         self.solver_steps = 0
         self.work = 0.0
         self.impact_loss = 0.0
-        self._report = getattr(mechanism, "report", {"phi": 2, "psi": 2, "x_C": 0})
-        self._report_at = {name: k for k, name in enumerate(self._report)}
-        #: the body whose angle an angle observable is (its rates come from the body's analogs)
-        self._angle_body = {
-            o.name: b.name
-            for o in mechanism.observables.values()
-            if o.is_angle
-            for b in mechanism.bodies
-            if (b.origin, b.toward) == tuple(o.points)
-        }
+        #: the reported observables' values, rates and accelerations in any chart
+        self.observables = Observables(self)
         self.phys: dict[str, float] = {}
         self._phys_of = None  # the evaluation phys was last read from
-        self._plans: dict[ChartView, _ViewPlan] = {}
         #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
         self._spans = None
         self.solver = self._new_solver(t0, q, qd)
-        self._update_phys(self.solver.current)
+        self.observables.update_phys(self.solver.current)
         self._power_now = self._power(self.solver.current)
         self._chart_due = False
         self.charts.check()
@@ -367,101 +326,9 @@ class Simulation:
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
             self.structures.release_stop(t)
 
-    # -- physical observables -------------------------------------------------------------
-    def _plan(self, view) -> _ViewPlan:
-        """The view's :class:`_ViewPlan` (built on first use, kept by the view object)."""
-        plan = self._plans.get(view)
-        if plan is None:
-            plan = self._plans[view] = _ViewPlan(self, view)
-        return plan
-
-    def _observe(self, e):
-        """Reported observables (value, rate, acceleration) from an evaluation, any chart."""
-        return dict(zip(self._report, self._observations(e)))
-
-    def _observations(self, e) -> list:
-        """(value, rate, acceleration) of each reported observable, in the report's order."""
-        view = e.view
-        out = []
-        jets = q = qdd = None  # floats of q, q̇ (q̈) and the jets, made on first use
-        phys = self.phys
-        # right after _update_phys(e) an observable read from the pose is already in phys (an
-        # angle unwrapped to its reference): the same number as reading it again
-        same = self._phys_of is e
-        for name, how, obs, arg in self._plan(view).report:
-            if how == _COORD:
-                if q is None:
-                    q, qd = e.q.tolist(), e.qd.tolist()
-                    if qdd is None:
-                        qdd = e.qdd.tolist()
-                out.append((q[arg], qd[arg], qdd[arg]))
-                continue
-            if how == _FROZEN:
-                out.append((arg, 0.0, 0.0))
-                continue
-            if how == _POSE:
-                out.append(
-                    (phys[name] if same and not obs.is_angle else obs.value(e.kin.pose), math.nan, math.nan)
-                )
-                continue
-            kin = e.kin
-            if how == _BODY and (conv := kin.angular_convective(arg)) is not None:
-                # the body's angle: rate ω*·q̇, acceleration ω*·q̈ + Σ ∂ω*/∂q q̇ q̇ by the
-                # evaluation's own central differences (the scheme's accuracy, no jets)
-                if same:
-                    v = phys[name]
-                else:
-                    v = obs.value(kin.pose)
-                    if name in phys:
-                        v = unwrap_to(v, phys[name])
-                if qdd is None:
-                    qdd = e.qdd.tolist()
-                acc = conv
-                for wi, ai in zip(kin.omega(arg), qdd):
-                    acc += wi * ai
-                out.append((v, kin.rate(arg), acc))
-                continue
-            if jets is None:
-                jets = view.pose_jets(e.q, e.qd)
-            j = obs.jet(jets, view.n)
-            v = float(j.val)
-            if obs.is_angle and name in phys:
-                v = unwrap_to(v, phys[name])
-            out.append((v, float(j.d1), float(j.grad @ e.qdd + j.d2)))
-        return out
-
-    def _update_phys(self, e):
-        """The current values of the reported angles: references for unwrapping (positions only)."""
-        phys = self.phys
-        q = None
-        for name, how, obs, arg in self._plan(e.view).report:
-            if how == _COORD:
-                if q is None:
-                    q = e.q.tolist()
-                phys[name] = q[arg]
-            elif how == _FROZEN:
-                phys[name] = arg
-            else:
-                v = obs.value(e.kin.pose)
-                phys[name] = unwrap_to(v, phys[name]) if (obs.is_angle and name in phys) else v
-        self._phys_of = e
-
-    def _physical_rates(self, view, q, qd) -> dict:
-        """Physical φ, ψ, x_C and their rates at a chart state (exact, through jets)."""
-        jets = view.pose_jets(q, qd)
-        out = {}
-        for name in ("phi", "psi", "x_C"):
-            j = self.mechanism.observables[name].jet(jets, view.n)
-            v = float(j.val)
-            if name in self.phys and self.mechanism.observables[name].is_angle:
-                v = unwrap_to(v, self.phys[name])
-            out[name] = v
-            out[name + "_dot"] = float(j.d1)
-        return out
-
     def config(self, e=None) -> dict:
         e = e or self.solver.current
-        vals = {k: v for k, (v, _, _) in self._observe(e).items()}
+        vals = {k: v for k, (v, _, _) in self.observables.observe(e).items()}
         return config_in_degrees(vals) | {"structure": self.structure, "chart": self.view.name}
 
     def _cut_at(self, t_e: float):
@@ -508,7 +375,7 @@ class Simulation:
         """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
         gives under those names, without the energies."""
         e = self.solver.current
-        obs = self._observe(e)
+        obs = self.observables.observe(e)
         phi, psi, x = obs["phi"], obs["psi"], obs["x_C"]
         return (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
 
@@ -516,7 +383,7 @@ class Simulation:
         """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,
         energies, structure, chart), plus ``x_C_dot`` and the controls."""
         e = self.solver.current
-        obs = self._observe(e)
+        obs = self.observables.observe(e)
         out = {"t": e.t}
         for name in ("phi", "psi"):
             v, vd, vdd = obs[name]
@@ -644,7 +511,7 @@ class Simulation:
             if ev.restart or ev.name == "change-point":
                 # a new dict: a checkpoint may hold the one before
                 self._ev_prev = {**self._ev_prev, ev.name: after_value}
-            self._update_phys(self.solver.current)
+            self.observables.update_phys(self.solver.current)
             return
         # the step stands: its work (trapezoid on the power at its ends), the event values
         # and unwrap references at its end, and the chart's regularity there
@@ -654,7 +521,7 @@ class Simulation:
         self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
         self._power_now = p_b
         self._ev_prev = vals
-        self._update_phys(e)
+        self.observables.update_phys(e)
         self._chart_due = True
 
     def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
@@ -745,8 +612,8 @@ class Simulation:
         """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
         made once, at the end) and call the observers. ``work``, ``loss``, ``structure``: the
         run's at ``e`` where they are not the present ones (an output inside a step)."""
-        obs = self._observations(e)
-        at = self._report_at
+        obs = self.observables.observations(e)
+        at = self.observables.report_at
         phi, psi = obs[at["phi"]], obs[at["psi"]]
         rows.append(
             (

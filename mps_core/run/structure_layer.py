@@ -128,8 +128,8 @@ class StructureLayer:
         s = float(g @ qd)
         qd_plus = qd - Ainv_g * (s / gAg)
         lost = 0.5 * s * s / gAg
-        before = sim._physical_rates(view, q, qd)
-        after = sim._physical_rates(view, q, qd_plus)
+        before = sim.observables.physical_rates(view, q, qd)
+        after = sim.observables.physical_rates(view, q, qd_plus)
         sim.impact_loss += lost
         for ob in sim.observers:
             if hasattr(ob, "impact"):
@@ -182,7 +182,7 @@ class StructureLayer:
     def release_stop(self, t):
         sim = self.sim
         e = sim.solver.current
-        rates = sim._physical_rates(sim.view, e.q, e.qd)
+        rates = sim.observables.physical_rates(sim.view, e.q, e.qd)
         self._enter("free", e.q, e.qd, t)
         sim.events.append(
             {
@@ -203,7 +203,7 @@ class StructureLayer:
         e = sim.solver.current
         q = e.q if q is None else q
         qd = e.qd if qd is None else qd
-        rates = sim._physical_rates(sim.view, q, qd)
+        rates = sim.observables.physical_rates(sim.view, q, qd)
         rec = {
             "t": t,
             "kind": "change-point",

@@ -43,9 +43,9 @@ def test_a_record_reads_what_a_fresh_observation_reads():
     views = set()
 
     def check(sim, e):
-        kept = sim._observations(e)
+        kept = sim.observables.observations(e)
         sim._phys_of = None
-        fresh = sim._observations(e)
+        fresh = sim.observables.observations(e)
         sim._phys_of = e
         assert kept == fresh or np.array_equal(kept, fresh, equal_nan=True)
         views.add(e.view.name)
