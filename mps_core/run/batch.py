@@ -506,14 +506,8 @@ class _Batch:
                 "batch_evaluations": self.evaluations,
                 "batch_size": self.m,
             }
-            s = sc.solver
             settings = {
-                "solver": s.name,
-                "scheme": s.scheme,
-                "delta": s.delta,
-                "iterations": s.iterations,
-                "rtol": s.rtol,
-                "atol": s.atol,
+                **sc.solver.described(),
                 "chart_switching": sc.charts.switching,
                 "scene": sc.name,
                 "vectorised": True,

@@ -652,14 +652,5 @@ class Simulation:
         counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
         counts["steps"] = self.solver_steps + self.solver.nsteps
         counts["switch_points"] = self.switch_points
-        s = self.settings
-        settings = {
-            "solver": s.name,
-            "scheme": s.scheme,
-            "delta": s.delta,
-            "iterations": s.iterations,
-            "rtol": s.rtol,
-            "atol": s.atol,
-            "chart_switching": self.policy.switching,
-        }
+        settings = {**self.settings.described(), "chart_switching": self.policy.switching}
         return Trajectory(cols, list(self.events), counts, settings)

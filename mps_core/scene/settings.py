@@ -48,6 +48,17 @@ class SolverSettings:
     #: interpolant, each evaluated there (event location, commands and charts as ever)
     step: float | None = None
 
+    def described(self) -> dict[str, object]:
+        """What a trajectory's ``settings`` say of the solver."""
+        return {
+            "solver": self.name,
+            "scheme": self.scheme,
+            "delta": self.delta,
+            "iterations": self.iterations,
+            "rtol": self.rtol,
+            "atol": self.atol,
+        }
+
     def locates_switch_points(self) -> bool:
         if self.switch_points not in SWITCH_POINTS:
             raise ValueError(
