@@ -167,22 +167,16 @@ class _Batch:
         self.mass = np.array([[b.mass for b in bs] for bs in per])  # (m, nb)
         self.inertia = np.array([[b.inertia for b in bs] for bs in per])
         self.rot = [k for k, b in enumerate(bodies) if b.rotates]
-        self.point_names = list(self.mech.points)
-        self.rows = {p: k for k, p in enumerate(self.point_names)}
+        self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
             self.rows[f"G_{b.name}"] = len(self.rows)
         self._effects([sc.build_effects(sc.mechanism()) for sc in scenes])
         self.evaluations = 0
-        self.points = 0
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
         self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
-        if self.g is not None:
-            self.weight_of = [[self.mass[:, b] * self.g[:, c] for c in (0, 1)] for b in range(len(bodies))]
-        if self.motor is not None:
-            self.motor_index = [b.name for b in bodies].index(self.motor_body)
 
     def _array_kernel(self, first: Scene):
         """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
@@ -205,11 +199,19 @@ class _Batch:
             return [f[0] for f in found] if all(found) else None
 
         g = take(Gravity)
-        self.g = None if g is None else np.array([e.g for e in g])
+        bodies = self.mech.bodies
+        # each body's weight (m g, x and y), one array a component: None without gravity
+        self.weight_of = (
+            None
+            if g is None
+            else [
+                [self.mass[:, b] * np.array([e.g[c] for e in g]) for c in (0, 1)] for b in range(len(bodies))
+            ]
+        )
         mo = take(Motor)
         if mo is not None:
-            self.motor_body = mo[0].body
             self.motor = {
+                "index": [b.name for b in bodies].index(mo[0].body),
                 "ratio": np.array([e.ratio for e in mo]),
                 "eff": np.array([e.efficiency for e in mo]),
                 "wsync": np.array([e.data.omega_sync for e in mo]),
@@ -251,7 +253,7 @@ class _Batch:
         S = pts.shape[1]
         shape = (self.m, S)
         rows = [
-            np.broadcast_to(np.asarray(pose[p][k], float), shape) for p in self.point_names for k in (0, 1)
+            np.broadcast_to(np.asarray(pose[p][k], float), shape) for p in self.mech.points for k in (0, 1)
         ]
         for b in self.mech.bodies:
             gx, gy = b.com_of(pose)
@@ -285,7 +287,6 @@ class _Batch:
         W0 = W[:, :, 0, :]  # (m, nb, n)
         X0 = X[..., 0]  # (m, NP, 2)
         kin = _Kinematics.of_tables(X0, J, W0)
-        self.points += self.m * S
         return self._solve(t, kin, qd, A, h)
 
     def _evaluate_exact(self, t, q, qd):
@@ -334,7 +335,6 @@ class _Batch:
             qdd = np.linalg.solve(A, np.stack(r, axis=1)[..., None])[..., 0]
         if not np.all(np.isfinite(qdd)):
             raise NotVectorisable("non-finite accelerations")
-        self._last_kin = kin
         self.evaluations += 1
         return qdd, A, kin, power
 
@@ -347,7 +347,7 @@ class _Batch:
         c = self.rows["C"]
         jc = kin.jac(c, 0)  # ∂x_C/∂q
         vC = sum(jc[i] * v[i] for i in range(n))
-        if self.g is not None:
+        if self.weight_of is not None:
             for b, row in enumerate(self.com_rows):
                 for cc in (0, 1):
                     jg, mg = kin.jac(row, cc), self.weight_of[b][cc]
@@ -355,7 +355,7 @@ class _Batch:
                         Q[i] += mg * jg[i]
         if self.motor is not None:
             mo = self.motor
-            wk = kin.omega(self.motor_index)
+            wk = kin.omega(mo["index"])
             w = sum(wk[i] * v[i] for i in range(n))
             s = 1.0 - mo["ratio"] * w / mo["wsync"]
             torque = (
@@ -390,7 +390,7 @@ class _Batch:
 
     def _potential(self, kin):
         V = np.zeros(self.m)
-        if self.g is not None:
+        if self.weight_of is not None:
             for b, row in enumerate(self.com_rows):
                 for cc in (0, 1):
                     V -= self.weight_of[b][cc] * kin.x(row, cc)
@@ -408,7 +408,7 @@ class _Batch:
         if self.springs is not None:
             k = self.springs[0]
             j = np.stack(
-                [np.broadcast_to(x, (self.m,)) for x in self._last_kin.jac(self.rows["C"], 0)], axis=1
+                [np.broadcast_to(x, (self.m,)) for x in kin.jac(self.rows["C"], 0)], axis=1
             )  # (m, n)
             w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
             lim = SOLVERS[self.settings.name].stability_limit
