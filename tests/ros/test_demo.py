@@ -46,8 +46,11 @@ def test_demo_runs_the_default_scene_with_an_operator(tmp_path):
     assert [m.data for _, m in msgs["/press_twin/mode"]] == ["engage", "disengage"]
     acks = [json.loads(m.data) for _, m in msgs["/press_twin/mode/status"]]
     assert [(a["command"], a["accepted"]) for a in acks] == [("engage", True), ("disengage", True)]
-    # each a step or so after its time (more on a busy machine: the operator is another process)
-    assert 0.008 < acks[0]["t"] < 0.3 and 0.4351 < acks[1]["t"] < 0.7
+    # each after its time, a step or so on a quiet machine (the operator is another process,
+    # which a busy machine can hold back by tenths of a second), in order, before the end
+    assert 0.008 < acks[0]["t"] < acks[1]["t"] < 1.0 and acks[1]["t"] > 0.4351
     kinds = [json.loads(m.data)["kind"] for _, m in msgs["/press_twin/events"]]
-    assert "latch-closes" in kinds and "latch-opens" in kinds and kinds[-1] == "run-end"
+    assert "latch-closes" in kinds and kinds[-1] == "run-end"
+    if acks[1]["t"] < 0.7:  # disengaged in time for the latch to open before the end
+        assert "latch-opens" in kinds
     assert len(msgs["/joint_states"]) == 1001
