@@ -55,291 +55,18 @@ import math
 
 import numpy as np
 
-from ..caches import Memo
 from ..codegen.emitter import Tables
-from ..codegen.exact_kernels import exact_kernel
-from ..codegen.fused_kernels import ForceLawBranch, fingerprint, reuse_or_make
-from ..codegen.kernels import as_matrix, central_kernel, solve_given_h
+from ..codegen.fused_kernels import fingerprint, reuse_or_make
+from ..codegen.kernels import central_kernel
 from ..derivatives import SCHEMES
-from ..derivatives.jet import Jet, ScalarJet, seed
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged
 from ..errors import ChartDomainError, NumericalError, config_in_degrees
 from ..model.effects.base import FastForce, Version, has_hook, watch_all
 from ..model.mechanism import ChartView, Mechanism
-
-
-class Kinematics:
-    """Positions, velocity analogs and velocities at one configuration, by name.
-
-    Points are the mechanism's points and the centres of mass ``G_<body>``. Two views of the same
-    numbers, each built from the other on first use:
-
-    * arrays, for vector code: ``X`` (NP, 2) positions, ``J`` (NP, 2, n) velocity analogs, ``W``
-      (nbody, n) angular analogs (zero rows: translating bodies);
-    * floats, for the effects' scalar code (numpy's per-call cost would exceed the arithmetic):
-      :meth:`xy`, :meth:`jac`, :meth:`vxy`, :meth:`omega`, :meth:`rate`.
-
-    ``pose`` (the positions as ``{point: (x, y)}``) is built on first use and kept.
-    """
-
-    __slots__ = (
-        "t",
-        "q",
-        "qd",
-        "names",
-        "bodies",
-        "n",
-        "_X",
-        "_J",
-        "_W",
-        "_xl",
-        "_jl",
-        "_wl",
-        "_vl",
-        "_pose",
-        "_side",
-        "_conv",
-    )
-
-    def __init__(
-        self,
-        t,
-        q,
-        qd,
-        names,
-        X=None,
-        J=None,
-        W=None,
-        bodies=None,
-        *,
-        lists=None,
-        side=None,
-        conv=None,
-        v=None,
-    ):
-        self.t = t
-        self._side = side  # (angular analogs at q ± Δe_k, 1/2Δ_k) from a kernel
-        # from an exact kernel: θ̈ at q̈ = 0 of every body, then each centre of mass's (ẍ, ÿ)
-        # at q̈ = 0
-        self._conv = conv
-        self.q = q
-        self.qd = qd
-        self.names = names  # {point name: row}
-        self.bodies = bodies  # {body name: row}
-        self._X, self._J, self._W = X, J, W
-        self._pose = None
-        self._vl = v  # q̇ as floats, where the caller has them
-        if lists is not None:
-            # xl: 2·NP floats (x, y by row); jl: per row, x then y, n floats each; wl: per body
-            self._xl, self._jl, self._wl = lists
-            self.n = len(self._wl) // len(bodies)
-        else:
-            self._xl = self._jl = self._wl = None
-            self.n = J.shape[-1]
-
-    # -- arrays ---------------------------------------------------------------------------
-    @property
-    def X(self) -> np.ndarray:
-        if self._X is None:
-            self._X = np.array(self._xl).reshape(-1, 2)
-        return self._X
-
-    @property
-    def J(self) -> np.ndarray:
-        if self._J is None:
-            self._J = np.array(self._jl).reshape(-1, 2, self.n)
-        return self._J
-
-    @property
-    def W(self) -> np.ndarray:
-        if self._W is None:
-            self._W = np.array(self._wl).reshape(-1, self.n)
-        return self._W
-
-    # -- floats ---------------------------------------------------------------------------
-    def _lists(self):
-        if self._xl is None:
-            self._xl = self._X.reshape(-1).tolist()
-            self._jl = self._J.reshape(-1).tolist()
-            self._wl = self._W.reshape(-1).tolist()
-        return self._xl, self._jl, self._wl
-
-    def _v(self):
-        v = self._vl
-        if v is None:
-            v = self._vl = [float(x) for x in self.qd]
-        return v
-
-    def xy(self, point: str) -> tuple[float, float]:
-        """Position (x, y) of a point, floats."""
-        xl = self._xl if self._xl is not None else self._lists()[0]
-        r = 2 * self.names[point]
-        return xl[r], xl[r + 1]
-
-    def jac(self, point: str) -> tuple[list, list]:
-        """Velocity analogs of a point: (∂x/∂q, ∂y/∂q), n floats each."""
-        jl = self._jl if self._jl is not None else self._lists()[1]
-        n = self.n
-        r = 2 * n * self.names[point]
-        return jl[r : r + n], jl[r + n : r + 2 * n]
-
-    def vxy(self, point: str) -> tuple[float, float]:
-        """Velocity (ẋ, ẏ) of a point, floats."""
-        jx, jy = self.jac(point)
-        v = self._vl if self._vl is not None else self._v()
-        if self.n == 1:
-            return jx[0] * v[0], jy[0] * v[0]
-        if self.n == 2:
-            return jx[0] * v[0] + jx[1] * v[1], jy[0] * v[0] + jy[1] * v[1]
-        return sum(a * b for a, b in zip(jx, v)), sum(a * b for a, b in zip(jy, v))
-
-    def omega(self, body: str) -> list:
-        """Angular analog ∂θ/∂q of a body, n floats (zeros for a translating body)."""
-        wl = self._wl if self._wl is not None else self._lists()[2]
-        n = self.n
-        r = n * self.bodies[body]
-        return wl[r : r + n]
-
-    def rate(self, body: str) -> float:
-        """Angular velocity of a body, float."""
-        wl = self._wl if self._wl is not None else self._lists()[2]
-        v = self._vl if self._vl is not None else self._v()
-        n = self.n
-        r = n * self.bodies[body]
-        if n == 1:
-            return wl[r] * v[0]
-        if n == 2:
-            return wl[r] * v[0] + wl[r + 1] * v[1]
-        w = wl[r : r + n]
-        return sum(a * b for a, b in zip(w, v))
-
-    def weighted_analogs(self, forces) -> list:
-        """Σ (f_x ∂x_P/∂q + f_y ∂y_P/∂q) over ``forces``, a sequence of (point, f_x, f_y): the
-        generalized force of constant forces at points, n floats."""
-        jl = self._jl if self._jl is not None else self._lists()[1]
-        n, names = self.n, self.names
-        if n == 1:
-            s = 0.0
-            for p, fx, fy in forces:
-                r = 2 * names[p]
-                s += fx * jl[r] + fy * jl[r + 1]
-            return [s]
-        if n == 2:
-            s0 = s1 = 0.0
-            for p, fx, fy in forces:
-                r = 4 * names[p]
-                s0 += fx * jl[r] + fy * jl[r + 2]
-                s1 += fx * jl[r + 1] + fy * jl[r + 3]
-            return [s0, s1]
-        Q = [0.0] * n
-        for p, fx, fy in forces:
-            r = 2 * n * names[p]
-            for i in range(n):
-                Q[i] += fx * jl[r + i] + fy * jl[r + n + i]
-        return Q
-
-    def angular_convective(self, body: str) -> float | None:
-        """θ̈ of a body at q̈ = 0, Σ_jk ∂²θ/∂q_j∂q_k q̇_j q̇_k, in the scheme's own accuracy:
-        exact from an exact kernel, by central differences of the angular analogs from a
-        central one; None where this state has no such data."""
-        if self._conv is not None:
-            return self._conv[self.bodies[body]]
-        if self._side is None:
-            return None
-        wb, inv2d = self._side
-        n = self.n
-        r = n * self.bodies[body]
-        v = self._v()
-        out = 0.0
-        for k in range(n):
-            wp, wm = wb[2 * k], wb[2 * k + 1]
-            s = 0.0
-            for i in range(n):
-                s += (wp[r + i] - wm[r + i]) * v[i]
-            out += s * inv2d[k] * v[k]
-        return out
-
-    # -- arrays by name (vector code) -------------------------------------------------------
-    def position(self, point: str) -> np.ndarray:
-        return self.X[self.names[point]]
-
-    def analog(self, point: str) -> np.ndarray:
-        return self.J[self.names[point]]
-
-    def velocity(self, point: str) -> np.ndarray:
-        return self.J[self.names[point]] @ self.qd
-
-    def angular_analog(self, body: str) -> np.ndarray:
-        return self.W[self.bodies[body]]
-
-    @property
-    def pose(self) -> dict:
-        p = self._pose
-        if p is None:
-            xl = self._xl if self._xl is not None else self._lists()[0]
-            p = self._pose = {k: (xl[2 * i], xl[2 * i + 1]) for k, i in self.names.items()}
-        return p
-
-
-class Evaluation:
-    """One evaluation of the equations of motion at (t, q, q̇) in a chart view.
-
-    ``A``, ``h`` and ``Q`` are arrays; an evaluation from a scalar kernel keeps them as floats
-    and makes the arrays on first use."""
-
-    __slots__ = ("view", "t", "q", "qd", "qdd", "kin", "_A", "_h", "_Q", "Q_nc")
-
-    def __init__(self, view: ChartView, t: float, q, qd, qdd, A, h, Q, kin: Kinematics, Q_nc=None):
-        self.view, self.t, self.q, self.qd, self.qdd, self.kin = view, t, q, qd, qdd, kin
-        self._A, self._h, self._Q = A, h, Q
-        #: the non-conservative effects' share of Q (n floats; None where not kept): their
-        #: power is Q_nc·q̇
-        self.Q_nc = Q_nc
-
-    @property
-    def A(self) -> np.ndarray:
-        A = self._A
-        if not isinstance(A, np.ndarray):
-            A = self._A = as_matrix(A, self.view.n)
-        return A
-
-    @property
-    def h(self) -> np.ndarray:
-        if not isinstance(self._h, np.ndarray):
-            self._h = np.array(self._h, dtype=float)
-        return self._h
-
-    @property
-    def Q(self) -> np.ndarray:
-        if not isinstance(self._Q, np.ndarray):
-            self._Q = np.array(self._Q, dtype=float)
-        return self._Q
-
-    @property
-    def kinetic_energy(self) -> float:
-        A, v = self._A, self.qd
-        if isinstance(A, np.ndarray):
-            return 0.5 * float(v @ A @ v)
-        if self.view.n == 1:
-            v0 = float(v[0])
-            return 0.5 * A * v0 * v0
-        a00, a01, a11 = A
-        v0, v1 = float(v[0]), float(v[1])
-        return 0.5 * (a00 * v0 * v0 + 2.0 * a01 * v0 * v1 + a11 * v1 * v1)
-
-
-def _other_that_holds(others: list, first, call):
-    """(fn, call(fn)) for the first of ``others`` whose guards hold here (it and ``first``
-    change places in the list), or (None, None)."""
-    for k, other in enumerate(others):
-        try:
-            out = call(other)
-        except (BranchChanged, ArithmeticError, ValueError):
-            continue
-        others[k] = first
-        return other, out
-    return None, None
+from .central import CentralScheme
+from .exact import ExactScheme, other_that_holds
+from .kinematics import Evaluation, Kinematics, virtual_work
 
 
 class _Plan:
@@ -425,23 +152,6 @@ class _Plan:
         self.scale = np.tile(inv2d, B)[:, None]  # (B·n, 1)
 
 
-def virtual_work(ld, kin) -> list | None:
-    """Σ F·v*_P + Σ M·ω*_b of an effect's loads, n floats (None for no loads)."""
-    if not ld.forces and not ld.torques:
-        return None
-    n = kin.n
-    Q = [0.0] * n
-    for _body, point, fx, fy in ld.forces:
-        jx, jy = kin.jac(point)
-        for i in range(n):
-            Q[i] += fx * jx[i] + fy * jy[i]
-    for body, m in ld.torques:
-        w = kin.omega(body)
-        for i in range(n):
-            Q[i] += m * w[i]
-    return Q
-
-
 def _owner(cls, name):
     for k in cls.__mro__:
         if name in k.__dict__:
@@ -460,12 +170,6 @@ def _fast_path(effect):
     if gf is not None and gf is _owner(cls, "loads"):
         return effect.generalized_force
     return None
-
-
-#: per (chart view, the engine's tables, the effects' fingerprint): the (exact kernel, fused
-#: function) an engine last used there, for another engine's first evaluation in that view
-#: (the charts a run changes to, in a fresh simulation of a scene run before)
-_FIRST = Memo("dynamics.engine.first", 512)
 
 
 class _Effects(list):
@@ -577,7 +281,10 @@ class PartialSystems:
             fixed_points=tuple(getattr(mechanism, "fixed_points", ())),
         )
         self._plans: dict = {}
-        self._evaluate = self._central_evaluate if scheme == "central" else self._autodiff_evaluate
+        #: the two derivative schemes' evaluations (:mod:`~mps_core.dynamics.central`,
+        #: :mod:`~mps_core.dynamics.exact`), the scheme's one used
+        self.central, self.exact = CentralScheme(self), ExactScheme(self)
+        self._evaluate = self.central.evaluate if scheme == "central" else self.exact.evaluate
 
     def _build_maps(self):
         """The map from the points' coordinates (x0, y0, x1, y1, …) to, in pairs (x, y): the
@@ -656,12 +363,12 @@ class PartialSystems:
         qd = np.asarray(qd, dtype=float)
         plan = self._plans.get(view)
         if plan is not None and plan.inline is not None:
-            e = self._kernel_evaluate(view, t, q, qd, plan)  # a traced central kernel
+            e = self.central.kernel_evaluate(view, t, q, qd, plan)  # a traced central kernel
         elif plan is not None and plan.exact is not None and self.kernels:
             try:
-                e = self._exact_kernel_evaluate(view, t, q, qd, plan)  # an exact kernel
+                e = self.exact.kernel_evaluate(view, t, q, qd, plan)  # an exact kernel
             except BranchChanged:
-                e = self._jets_evaluate(view, t, q, qd)
+                e = self.exact.jets_evaluate(view, t, q, qd)
         else:
             e = self._evaluate(view, t, q, qd)
         self.counts["evaluations"] += 1
@@ -781,7 +488,7 @@ class PartialSystems:
         """q̈ by another of the view's fused functions where the first one's guards fail here
         (that one comes first from now on), or by one made here (a few per view at most);
         None for the general path."""
-        other, out = _other_that_holds(plan.fused_others, plan.fused, lambda f: f(t, *ql, *vl))
+        other, out = other_that_holds(plan.fused_others, plan.fused, lambda f: f(t, *ql, *vl))
         if other is not None:
             plan.fused = other
             return out
@@ -844,12 +551,12 @@ class PartialSystems:
         if plan is None:
             return None
         if plan.inline is not None:
-            out = self._kernel_solve(view, t, ql, vl, ql, vl, plan)
+            out = self.central.kernel_solve(view, t, ql, vl, ql, vl, plan)
         elif plan.exact is not None and self.kernels:
             try:
-                out = self._exact_kernel_solve(view, t, ql, vl, ql, vl, plan)
+                out = self.exact.kernel_solve(view, t, ql, vl, ql, vl, plan)
             except BranchChanged:  # another branch here: the jets
-                e = self._jets_evaluate(view, t, np.array(ql, float), np.array(vl, float))
+                e = self.exact.jets_evaluate(view, t, np.array(ql, float), np.array(vl, float))
                 self.counts["evaluations"] += 1
                 return e.A.tolist(), e.h.tolist(), e.Q.tolist(), e.qdd.tolist()
         else:
@@ -937,8 +644,8 @@ class PartialSystems:
         q = np.asarray(q, dtype=float)
         qd = np.asarray(qd, dtype=float)
         if self.scheme == "central":
-            return self._central(view, t, q, qd)[0]
-        return self._autodiff(view, t, q, qd)[0]
+            return self.central.kinematics(view, t, q, qd)[0]
+        return self.exact.kinematics(view, t, q, qd)[0]
 
     def state_kinematics(self, view: ChartView, t: float, ql: list, vl: list) -> Kinematics:
         """Positions and analogs at (t, q, q̇) given as floats, by the view's kernel where it
@@ -983,208 +690,6 @@ class PartialSystems:
                 raise ChartDomainError(view.name, "no real configuration at this point") from None
         return self.kinematics(view, t, ql, vl)
 
-    # -- the schemes ----------------------------------------------------------------------
-    def _points_matrix(self, pose, cols):
-        P = np.empty((2 * self._npts, cols))
-        for p, rx, ry in self._point_slots:
-            x, y = pose[p]
-            P[rx] = x
-            P[ry] = y
-        return P
-
-    def _central(self, view, t, q, qd):
-        """(kin, Zt, Wr, plan): kinematics at q; Zt (columns of K × pairs of M): positions at the
-        base points, then every analog at every base point; Wr (B, n, nrot) the angular ones."""
-        plan = self._plans.get(view) or self._plan(view)
-        n, B = plan.n, plan.B
-        pose = view.positions(list(q[:, None] + plan.odT))
-        counts = self.counts
-        counts["position_calls"] += 1
-        counts["position_points"] += plan.S
-        Zt = (self._points_matrix(pose, plan.S) @ plan.K).T @ self._MT
-        if not math.isfinite(Zt[-1, -2]):
-            raise ChartDomainError(view.name, "a stencil point has no real configuration")
-        Zt[B:-1] *= plan.scale
-        NP, NP2 = self._np, 2 * self._np
-        X = Zt[0, :NP2]
-        if self._offset is not None:
-            X = X + self._offset
-        X = X.reshape(NP, 2)
-        J = Zt[B : B + n, :NP2].T.reshape(NP, 2, n)
-        nrot = self._nrot
-        if nrot:
-            Zc = Zt[:-1].view(complex)  # pairs as x + iy
-            Rc = Zc[:B, NP : NP + nrot]
-            Wr = (Zc[B : B + B * n, NP : NP + nrot].reshape(B, n, nrot) / Rc[:, None, :]).imag
-            W = Wr[0].T if self._rot_all else self._omega_rows(Wr[0], n)
-        else:
-            Wr = None
-            W = np.zeros((len(self._mass), n))
-        kin = Kinematics(t, q, qd, self._names, X, J, W, self._body_index)
-        return kin, Zt, Wr, plan
-
-    def _central_evaluate(self, view, t, q, qd):
-        plan = self._plans.get(view) or self._plan(view)
-        if plan.kernel is not None:
-            if not plan.traced:
-                try:
-                    plan.inline = central_kernel(self, view, plan, q)
-                    plan.traced = True
-                except (ChartDomainError, ArithmeticError, ValueError):
-                    pass  # q is outside the chart: the kernel says so; traced later
-            return self._kernel_evaluate(view, t, q, qd, plan)
-        kin, Zt, Wr, plan = self._central(view, t, q, qd)
-        n, B = plan.n, plan.B
-        Ut = Zt[B : B + B * n, 2 * self._npts : 2 * self._np].reshape(B, n, -1)  # v*_G: (B, n, ·)
-        if Wr is not None:
-            Ut = np.concatenate((Ut, Wr), axis=2)
-        Ab = (Ut * self._w) @ Ut.transpose(0, 2, 1)  # (B, n, n): A at the bases
-        Q = self.generalized_forces(t, kin)
-        if n <= 2:
-            return self._solve_small(view, t, q, qd, Ab, Q, kin, plan)
-        A = Ab[0]
-        dA = (Ab[1::2] - Ab[2::2]) * (1.0 / (2.0 * plan.d))[:, None, None]  # dA[k, i, j]
-        h = (np.tensordot(qd, dA, 1) @ qd) - 0.5 * ((dA @ qd) @ qd)
-        return self._finish(view, t, q, qd, A, h, Q, kin)
-
-    def _kernel_evaluate(self, view, t, q, qd, plan):
-        """The same evaluation on floats, by the view's scalar kernel."""
-        vl = qd.tolist()
-        kin, A, h, Q, Qnc, qdd = self._kernel_solve(view, t, q, qd, q.tolist(), vl, plan)
-        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
-
-    def _kernel_solve(self, view, t, q, qd, ql, vl, plan):
-        """(kin, A, h, Q, Q_nc, q̈) by the view's central kernel, all on floats; q, q̇ as given
-        (arrays, or the float lists themselves where no evaluation is made)."""
-        counts = self.counts
-        counts["position_calls"] += 1
-        counts["position_points"] += plan.S
-        try:
-            if plan.inline is not None:
-                try:
-                    xl, jl, wl, A, h, wb = plan.inline(*ql, *vl)
-                except BranchChanged:
-                    xl, jl, wl, A, h, wb = plan.kernel(*ql, *vl)
-            else:
-                xl, jl, wl, A, h, wb = plan.kernel(*ql, *vl)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            raise ChartDomainError(view.name, "a stencil point has no real configuration") from None
-        kin = Kinematics(
-            t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl
-        )
-        tail = plan.tail
-        if plan.tail_at != self.version[0] and self.kernels:
-            tail = self._central_tail(view, plan, t, vl, (xl, jl, wl, A, h, wb))
-        if tail is not None:
-            # the effects and the solve in one generated call where its guards hold and q̈ is
-            # finite; else the effects one by one below
-            try:
-                out = tail(t, *vl, xl, jl, wl, A, h)
-            except (BranchChanged, ArithmeticError, ValueError):
-                out = self._tail_miss(view, plan, t, vl, (xl, jl, wl, A, h, wb))
-            if out is not None:
-                Q, Qnc, qdd = out
-                return kin, A, h, Q, Qnc, qdd
-        Q, Qnc = self._forces(t, kin)
-        qdd = solve_given_h(A, h, Q)
-        for x in qdd:
-            if not math.isfinite(x):
-                self._no_solution(view, t, np.array(ql, float), as_matrix(A, plan.n))
-        return kin, A, h, Q, Qnc, qdd
-
-    def _central_tail(self, view, plan, t, vl, parts):
-        """Make the view's traced effects and solve after its central kernel at this state
-        (None where it cannot be made), for the effects' present state."""
-        from ..codegen.fused_kernels import reuse_or_make_tail
-
-        if plan.tail_at != self.version[0]:
-            plan.tail_others = []  # made for other parameters or controls
-        try:
-            tail = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
-        except (ArithmeticError, ValueError):
-            tail = None
-        plan.tail, plan.tail_at = tail, self.version[0]
-        return tail
-
-    def _tail_miss(self, view, plan, t, vl, parts):
-        """(Q, Q_nc, q̈) by another of the view's traced tails where the first one's guards
-        fail here (that one comes first from now on), or by one made here (a few per view at
-        most); None for the effects one by one."""
-        xl, jl, wl, A, h, _wb = parts
-        other, out = _other_that_holds(plan.tail_others, plan.tail, lambda f: f(t, *vl, xl, jl, wl, A, h))
-        if other is not None:
-            plan.tail = other
-            return out
-        if plan.tail_tries >= 32:
-            return None
-        plan.tail_tries += 1
-        from ..codegen.fused_kernels import reuse_or_make_tail
-
-        try:
-            made = reuse_or_make_tail(self, view, t, vl, parts, Kinematics, virtual_work)
-        except (ArithmeticError, ValueError):
-            made = None
-        if made is None:
-            return None
-        if plan.tail is not None:
-            plan.tail_others.insert(0, plan.tail)
-            del plan.tail_others[6:]
-        plan.tail = made
-        try:
-            return made(t, *vl, xl, jl, wl, A, h)
-        except (BranchChanged, ArithmeticError, ValueError):
-            return None
-
-    def _solve_small(self, view, t, q, qd, Ab, Q, kin, plan):
-        """n = 1 or 2: velocity terms by central differences of A, and the solve, on floats."""
-        AL = Ab.tolist()
-        v = qd.tolist()
-        Ql = Q.tolist()
-        c = plan.inv2d
-        if plan.n == 2:
-            (a00, a01), (a10, a11) = AL[0]
-            v0, v1 = v
-            # dA[k] = (A(q + Δe_k) − A(q − Δe_k)) / 2Δ_k
-            (p00, p01), (p10, p11) = AL[1]
-            (m00, m01), (m10, m11) = AL[2]
-            c0 = c[0]
-            d000, d001, d010, d011 = ((p00 - m00) * c0, (p01 - m01) * c0, (p10 - m10) * c0, (p11 - m11) * c0)
-            (p00, p01), (p10, p11) = AL[3]
-            (m00, m01), (m10, m11) = AL[4]
-            c1 = c[1]
-            d100, d101, d110, d111 = ((p00 - m00) * c1, (p01 - m01) * c1, (p10 - m10) * c1, (p11 - m11) * c1)
-            # h_i = Σ_jk dA[k][i][j] q̇_j q̇_k − ½ Σ_jk dA[i][j][k] q̇_j q̇_k
-            h0 = (
-                (d000 * v0 + d001 * v1) * v0
-                + (d100 * v0 + d101 * v1) * v1
-                - 0.5 * ((d000 * v0 + d001 * v1) * v0 + (d010 * v0 + d011 * v1) * v1)
-            )
-            h1 = (
-                (d010 * v0 + d011 * v1) * v0
-                + (d110 * v0 + d111 * v1) * v1
-                - 0.5 * ((d100 * v0 + d101 * v1) * v0 + (d110 * v0 + d111 * v1) * v1)
-            )
-            r0, r1 = Ql[0] - h0, Ql[1] - h1
-            det = a00 * a11 - a01 * a10
-            try:
-                qdd = [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a10 * r0) / det]
-            except ZeroDivisionError:
-                qdd = [math.nan, math.nan]
-            h = [h0, h1]
-        else:
-            a = AL[0][0][0]
-            d = (AL[1][0][0] - AL[2][0][0]) * c[0]
-            h0 = 0.5 * d * v[0] * v[0]
-            try:
-                qdd = [(Ql[0] - h0) / a]
-            except ZeroDivisionError:
-                qdd = [math.nan]
-            h = [h0]
-        for x in qdd:
-            if not math.isfinite(x):
-                self._no_solution(view, t, q, Ab[0])
-        return Evaluation(view, t, q, qd, np.array(qdd), Ab[0], np.array(h), Q, kin)
-
     def _finish(self, view, t, q, qd, A, h, Q, kin):
         try:
             qdd = np.linalg.solve(A, Q - h)
@@ -1201,211 +706,6 @@ class PartialSystems:
             t,
             self._config(view, q),
         )
-
-    def _autodiff(self, view, t, q, qd):
-        """(kin, Zt, Wr, theta2) from one position call on jets: Zt's rows are the value, the
-        n partial derivatives, d1 and d2 (along q̇) of every pair of M; Wr (n, nrot) the angular
-        analogs, theta2 (nrot,) the angles' second rates at q̈ = 0."""
-        n = view.n
-        pose = view.positions(seed(q, qd))
-        self.counts["position_calls"] += 1
-        self.counts["position_points"] += 1
-        rows = []
-        zero = [0.0] * (n + 2)
-        for p in self._point_names:
-            for c in pose[p]:
-                if c.__class__ is ScalarJet:
-                    rows.append([c.val, *c.g, c.d1, c.d2])
-                elif isinstance(c, Jet):
-                    rows.append([float(c.val), *np.reshape(c.grad, n).tolist(), float(c.d1), float(c.d2)])
-                else:
-                    rows.append([float(c), *zero])
-        Zt = np.array(rows).T @ self._MT
-        if not all(math.isfinite(x) for x in Zt[: 1 + n, -2].tolist()):
-            raise ChartDomainError(view.name, "no real configuration at this point")
-        NP, NP2 = self._np, 2 * self._np
-        X = Zt[0, :NP2]
-        if self._offset is not None:
-            X = X + self._offset
-        X = X.reshape(NP, 2)
-        J = Zt[1 : 1 + n, :NP2].T.reshape(NP, 2, n)
-        nrot = self._nrot
-        if nrot:
-            Zc = Zt[:, :-2].view(complex)
-            # (∂r, ṙ, r̈)/r: Im gives ω* and the angle's rate, Re the rate of ln |r|
-            quo = Zc[1:, NP : NP + nrot] / Zc[0, NP : NP + nrot]
-            Wr = quo[:n].imag
-            w1, dot1 = quo[n].imag, quo[n].real
-            theta2 = quo[n + 1].imag - 2.0 * w1 * dot1
-            W = self._omega_rows(Wr, n)
-        else:
-            Wr = theta2 = None
-            W = np.zeros((len(self._mass), n))
-        kin = Kinematics(t, q, qd, self._names, X, J, W, self._body_index)
-        return kin, Zt, Wr, theta2
-
-    def _autodiff_evaluate(self, view, t, q, qd):
-        if self.kernels:
-            plan = self._plans.get(view) or self._plan(view)
-            if not plan.exact_traced:
-                e = self._first_evaluate(view, t, q, qd, plan)
-                if e is not None:
-                    return e
-                try:
-                    plan.exact = exact_kernel(self, view, q)
-                    plan.exact_traced = True
-                except (ChartDomainError, ArithmeticError, ValueError):
-                    pass  # q is outside the chart: the jets say so; built next time
-            if plan.exact is not None:
-                try:
-                    e = self._exact_kernel_evaluate(view, t, q, qd, plan)
-                except BranchChanged:
-                    pass  # the position function takes another branch here
-                else:
-                    self._remember_first(view, plan)
-                    return e
-        return self._jets_evaluate(view, t, q, qd)
-
-    def _jets_evaluate(self, view, t, q, qd):
-        """The autodiff evaluation by the jets (no kernel, or the kernel's branch changed)."""
-        kin, Zt, Wr, theta2 = self._autodiff(view, t, q, qd)
-        n = view.n
-        G = Zt[:, 2 * self._npts : 2 * self._np]  # (n + 3, 2·nbody)
-        if Wr is None:
-            U, D = G[1 : 1 + n], G[2 + n]
-        else:
-            U = np.concatenate((G[1 : 1 + n], Wr), axis=1)
-            D = np.concatenate((G[2 + n], theta2))
-        Uw = U * self._w
-        A = Uw @ U.T
-        h = Uw @ D
-        Q = self.generalized_forces(t, kin)
-        if n == 2:
-            (a00, a01), (a10, a11) = A.tolist()
-            r0, r1 = (Q - h).tolist()
-            det = a00 * a11 - a01 * a10
-            try:
-                qdd = [(r0 * a11 - a01 * r1) / det, (a00 * r1 - a10 * r0) / det]
-            except ZeroDivisionError:
-                qdd = [math.nan, math.nan]
-            for x in qdd:
-                if not math.isfinite(x):
-                    self._no_solution(view, t, q, A)
-            return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin)
-        return self._finish(view, t, q, qd, A, h, Q, kin)
-
-    def _first_evaluate(self, view, t, q, qd, plan):
-        """A view's first exact evaluation in this engine by the (exact kernel, fused function)
-        pair that an engine of the same tables and effects last used in this view, where the
-        fused function holds here (one call: its guards are the kernel's and the laws'); the
-        plan then has both, as the lookups would have given it. None: the lookups decide."""
-        fp = self.fingerprint()
-        if fp is None:
-            return None
-        key = (view, self.tables.number, fp)
-        pair = _FIRST.get(key)
-        if pair is None:
-            return None
-        exact, fused = pair
-        ql, vl = q.tolist(), qd.tolist()
-        try:
-            out = fused.full(t, *ql, *vl)
-        except (BranchChanged, ArithmeticError, ValueError):
-            return None
-        if out is None:
-            return None
-        plan.exact, plan.exact_traced = exact, True
-        plan.fused, plan.fused_at = fused, self.version[0]
-        plan.fused_others = []
-        counts = self.counts
-        counts["position_calls"] += 1
-        counts["position_points"] += 1
-        xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
-        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
-
-    def _remember_first(self, view, plan):
-        """Keep the view's (exact kernel, fused function) for the next engine's first
-        evaluation there (:meth:`_first_evaluate`)."""
-        fp = self.fingerprint()
-        if fp is None or plan.exact is None or plan.fused is None:
-            return
-        _FIRST.keep((view, self.tables.number, fp), (plan.exact, plan.fused))
-
-    def _other_branch(self, view, plan, ql) -> bool:
-        """Make the view's exact kernel the one of the branch its position function takes at
-        ``ql`` (one of the view's whose guards hold there, else one made before for the same
-        position function, else traced there; six kept a view), its fused function to be
-        made again; False where there is none (the jets answer)."""
-        zeros = [0.0] * view.n  # the guards are the positions' alone
-        kernel, _ = _other_that_holds(plan.exact_others, plan.exact, lambda k: k(*ql, *zeros))
-        if kernel is None:
-            if plan.branch_tries >= 16:
-                return False
-            try:
-                kernel = exact_kernel(self, view, ql)
-            except (ChartDomainError, ArithmeticError, ValueError, BranchChanged):
-                kernel = None
-            if kernel is None or kernel is plan.exact:
-                plan.branch_tries += 1
-                return False
-            plan.exact_others = ([plan.exact] + plan.exact_others)[:6]
-        plan.exact = kernel
-        plan.fused, plan.fused_others, plan.fused_at = None, [], -1
-        return True
-
-    def _exact_kernel_evaluate(self, view, t, q, qd, plan):
-        """The autodiff evaluation on floats, by the view's exact kernel."""
-        vl = qd.tolist()
-        kin, A, h, Q, Qnc, qdd = self._exact_kernel_solve(view, t, q, qd, q.tolist(), vl, plan)
-        return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
-
-    def _exact_kernel_solve(self, view, t, q, qd, ql, vl, plan):
-        """(kin, A, h, Q, Q_nc, q̈) by the view's exact kernel, all on floats (as
-        :meth:`_kernel_solve`)."""
-        counts = self.counts
-        counts["position_calls"] += 1
-        counts["position_points"] += 1
-        fused = plan.fused
-        if plan.fused_at != self.version[0]:
-            fused = self._fuse(view, plan, t, ql, vl)
-        if fused is not None:
-            # the whole evaluation in one call (mps_core.codegen.fused_kernels), where its guards
-            # hold and q̈ is finite; else the kernel and the effects one by one below
-            try:
-                out = fused.full(t, *ql, *vl)
-            except ForceLawBranch:
-                out = None  # the kinematics hold: the kernel below
-            except BranchChanged:
-                out = None  # the kinematics' branch: the kernel below
-            except (ArithmeticError, ValueError):
-                out = None  # the kernel below says what is wrong
-            if out is not None:  # (None: q̈ not finite, the kernel below says so)
-                xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
-                kin = Kinematics(
-                    t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl
-                )
-                return kin, A, h, Q, Qnc, qdd
-        try:
-            try:
-                xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
-            except BranchChanged:
-                # the position function takes another branch here (a continuation chart's
-                # sign, a root that touches zero): that branch's kernel, made once
-                if not self._other_branch(view, plan, ql):
-                    raise
-                xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            raise ChartDomainError(view.name, "no real configuration at this point") from None
-        kin = Kinematics(t, q, qd, self._names, bodies=self._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
-        Q, Qnc = self._forces(t, kin)
-        qdd = solve_given_h(A, h, Q)
-        for x in qdd:
-            if not math.isfinite(x):
-                if not all(math.isfinite(x) for x in xl):
-                    raise ChartDomainError(view.name, "no real configuration at this point")
-                self._no_solution(view, t, np.array(ql, float), as_matrix(A, plan.n))
-        return kin, A, h, Q, Qnc, qdd
 
     def _config(self, view, q):
         return config_in_degrees({c.name: float(v) for c, v in zip(view.coordinates, q)})

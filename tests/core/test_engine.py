@@ -119,7 +119,7 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
     kernel and fused function the first one used there: one call, the same numbers as the
     lookups give, the same functions in its plan; where that pair does not hold (a failed
     guard: another branch) the lookups answer, with the same numbers."""
-    import mps_core.dynamics.engine as engine_module
+    import mps_core.dynamics.exact as exact_module
     from mps_core import build, load_scene
     from mps_core.derivatives.tracing import BranchChanged
 
@@ -140,7 +140,7 @@ def test_a_fresh_engines_first_evaluation_in_a_view_takes_the_pair_used_before()
         plan0 = first.engine._plans[view]
         for fails in (False, True):
             sim = build(scene)
-            pair = engine_module._FIRST[view, sim.engine.tables.number, sim.engine.fingerprint()]
+            pair = exact_module._FIRST[view, sim.engine.tables.number, sim.engine.fingerprint()]
             assert pair == (plan0.exact, plan0.fused)
             calls = []
             full = pair[1].full

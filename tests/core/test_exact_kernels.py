@@ -70,7 +70,7 @@ def test_exact_kernel_evaluation_equals_the_jets(k, u, w, v0, v1):
     assert _close(e.kin.W, a.kin.W, np.abs(a.kin.W).max())
     if plan.exact is not None:
         # the bodies' angular accelerations at q̈ = 0 against the jets'
-        _, _, _, theta2 = JETS._autodiff(view, 0.0, q, qd)
+        _, _, _, theta2 = JETS.exact.kinematics(view, 0.0, q, qd)
         conv = [e.kin._conv[k] for k in KERNEL._rot]
         assert _close(conv, theta2, np.abs(theta2).max() + 1.0)
 
@@ -105,7 +105,7 @@ def test_another_branch_gets_a_kernel_of_its_own(monkeypatch):
     """A position function that branches: where the traced comparison comes out otherwise, that
     branch's kernel is traced there (once) and taken; back on the first branch the first kernel
     is taken again; the same numbers as the jets everywhere, and the jets never run."""
-    from mps_core.dynamics.engine import PartialSystems
+    from mps_core.dynamics.exact import ExactScheme
 
     mech, controls, eng, jets = _scene_engines("paper")
     view = mech.views("free")[0]
@@ -125,11 +125,11 @@ def test_another_branch_gets_a_kernel_of_its_own(monkeypatch):
     first = plan.exact
     assert first is not None
     ran_jets = []
-    original = PartialSystems._jets_evaluate
+    original = ExactScheme.jets_evaluate
     monkeypatch.setattr(
-        PartialSystems,
-        "_jets_evaluate",
-        lambda self, *a: (self is eng and ran_jets.append(a)) or original(self, *a),
+        ExactScheme,
+        "jets_evaluate",
+        lambda self, *a: (self.engine is eng and ran_jets.append(a)) or original(self, *a),
     )
     kernels = []
     for phi in (0.2, 0.9, 0.4, 0.95, 0.1):
@@ -210,16 +210,16 @@ def test_every_chart_of_every_preset_takes_the_exact_kernels(name, monkeypatch):
     """With exact derivatives, no evaluation of a preset's run (every chart it enters, the
     continuation charts and both branches of theirs included) falls back to the jets."""
     from mps_core.bench.common import change_point_scene
-    from mps_core.dynamics.engine import PartialSystems
+    from mps_core.dynamics.exact import ExactScheme
 
     scene = change_point_scene() if name == CHANGE_POINT else load_scene(name)
     scene = scene.with_overrides(scheme="autodiff", t_end=min(scene.t_end, 0.3), dt=max(scene.dt, 1e-4))
     sim = build(scene)
     jets = []
-    original = PartialSystems._jets_evaluate
+    original = ExactScheme.jets_evaluate
     monkeypatch.setattr(
-        PartialSystems,
-        "_jets_evaluate",
+        ExactScheme,
+        "jets_evaluate",
         lambda self, view, *a: jets.append(view.name) or original(self, view, *a),
     )
     traj = sim.run(scene.t_end, scene.dt)

@@ -232,7 +232,7 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
     scene = load_scene(name).with_overrides(scheme="central", solver="linear-acceleration")
     sim = build(scene)
     eng = sim.engine
-    solve = eng._kernel_solve
+    solve = eng.central.kernel_solve
     calls, by_tail = [0], [0]
 
     def spied(view, t, q, qd, ql, vl, plan):
@@ -258,7 +258,7 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
         by_tail[0] += plan.tail is not None and plan.tail is tail_before
         return kin, A, h, Q, Qnc, qdd
 
-    eng._kernel_solve = spied
+    eng.central.kernel_solve = spied
     sim.run(min(scene.t_end, 0.6), 1e-3)
     assert calls[0] > 100
     assert by_tail[0] > 0.8 * calls[0], (by_tail[0], calls[0])
