@@ -413,7 +413,8 @@ def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None
         pacing="as_fast_as_possible",
         dt=0.001,
         t_end=steps * 1e-3,
-        recording=(tmp / "afap.mcap") if recording else "none",
+        # a file of its own for each run (a recording never replaces a file)
+        recording=(tmp / f"afap-{len(list(tmp.glob('afap-*.mcap')))}.mcap") if recording else "none",
     )
     if outputs:
         params["outputs"] = "[" + outputs + "]"
@@ -693,6 +694,47 @@ def _lost_line(r: dict) -> str:
 
 
 def main(argv=None) -> int:
+    a = _parser().parse_args(argv)
+    if a.what == "soak" and not a.minutes * 60.0 >= 10.0:
+        print(
+            f"python -m mps_ros.bench soak: --minutes {a.minutes:g}: expected at least 10 s "
+            "(1/6 min): the node's memory is read at 5 s and at the end",
+            file=sys.stderr,
+        )
+        return 2
+    if a.what == "probe":
+        return probe()
+    if a.what == "wakeup":
+        for name, us in wakeup_costs().items():
+            print(f"{name:38s} {us:5.1f} us of CPU a wake-up (1 ms waits, this thread's own time)")
+        return 0
+    if a.what == "writer":
+        return _writer()
+    env = ros_env()
+    os.environ.update(
+        {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR", "RMW_IMPLEMENTATION")}
+    )
+    res = {
+        "machine": f"{os.cpu_count()} cores, load average "
+        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"
+    }
+    with tempfile.TemporaryDirectory(prefix="mps-bench-") as d:
+        tmp = Path(d)
+        if a.what in ("all", "realtime"):
+            res["realtime_1kHz"] = _realtime_run(a, env, tmp)
+        if a.what == "table":
+            res["table"] = _table(a, env, tmp)
+        if a.what == "soak":
+            res["soak"] = _soak(a, env, tmp)
+        if a.what in ("all", "afap"):
+            res["afap"] = _afap_runs(a, env, tmp)
+    print(res["machine"])
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=2))
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m mps_ros.bench",
         description=__doc__,
@@ -819,219 +861,216 @@ def main(argv=None) -> int:
         help="the subscriber deserializes every message into a Python object "
         "(default: it takes them serialized, as delivered)",
     )
-    a = p.parse_args(argv)
-    if a.what == "probe":
-        return probe()
-    if a.what == "wakeup":
-        for name, us in wakeup_costs().items():
-            print(f"{name:38s} {us:5.1f} us of CPU a wake-up (1 ms waits, this thread's own time)")
-        return 0
-    if a.what == "writer":
-        r = writer_costs()
-        print(
-            f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
-            f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
-            f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
-            f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
-            f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
-            f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}"
-        )
-        return 0 if r["same_bytes"] else 1
-    env = ros_env()
-    os.environ.update(
-        {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR", "RMW_IMPLEMENTATION")}
-    )
-    res = {
-        "machine": f"{os.cpu_count()} cores, load average "
-        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"
-    }
-    with tempfile.TemporaryDirectory(prefix="mps-bench-") as d:
-        tmp = Path(d)
-        if a.what in ("all", "realtime"):
-            r = realtime(
-                a.steps,
-                env,
-                tmp,
-                a.deserialize,
-                a.outputs,
-                a.publish_every,
-                a.priority,
-                a.lead,
-                a.release_period,
-                a.derivatives,
-                a.release_slice,
-                a.neighbours,
-                a.in_process,
-                a.commands_every,
-                a.command_delay,
-                a.flood,
-            )
-            res["realtime_1kHz"] = r
-            if a.keep:
-                keep_logs(tmp, a.keep, "realtime", r)
-            how = "deserializing" if a.deserialize else "taking them serialized"
-            scheme = a.derivatives or "the scene's (autodiff)"
-            print(
-                f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
-                f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
-                f"subscriber ({how}, rclpy's {PROBE_EXECUTOR} executor), "
-                f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
-                f", {a.neighbours} busy neighbour process(es), "
-                f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
-                f"{'0.1 (default)' if a.lead is None else a.lead} s, release_period "
-                f"{'0 (default)' if a.release_period is None else a.release_period} s, "
-                f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
-                f" s, derivatives {scheme}"
-                + (f", an operator command every {a.commands_every:g} s" if a.commands_every else "")
-                + (
-                    f", a flood of {a.flood} engage at once 2 s in (sent in "
-                    f"{r.get('flood_s') or float('nan'):.3f} s)"
-                    if a.flood
-                    else ""
-                )
-                + (
-                    f", command_delay {'0 (default)' if a.command_delay is None else a.command_delay} s"
-                    if a.commands_every or a.flood
-                    else ""
-                )
-                + ":\n"
-                f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
-                f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
-                f"  achieved real-time factor   {r['rtf']:.3f}\n"
-                f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
-                f"{r['step_p99_ms']:.3f} ms\n"
-                f"  publish p50 / p99           {r['publish_p50_ms']:.3f} / "
-                f"{r['publish_p99_ms']:.3f} ms\n"
-                f"  latency p50 / p99           {r.get('latency_p50_ms', float('nan')):.3f} / "
-                f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
-                f"step's deadline)\n"
-                f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
-                + (
-                    f"  commands                    {r['commands_applied']} applied, "
-                    f"{r['commands_refused']} refused\n"
-                    if a.commands_every or a.flood
-                    else ""
-                )
-                + f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
-                f"({r['subscriber_received']} of {r['messages']} published)\n"
-                + _lost_line(r)
-                + f"  the subscriber's CPU        {100 * r['subscriber_cpu_share']:.0f} % of one core\n"
-                f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
-                f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
-                f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
-                f"(0: the system's own)\n"
-                f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
-                f"the run's steps (the node's own count: every thread of its "
-                f"{r['node_processes']} process(es); not the recording process)"
-                + (
-                    f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
-                    f"{r['ros_process_cpu_us']:.0f} us"
-                    if r["stepping_process_cpu_us"] == r["stepping_process_cpu_us"]
-                    else ""
-                )
-                + "\n"
-                f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
-                f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
-                f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
-                f"                              {r['cpu_per_step_us']:.0f} us a step from "
-                f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
-                f"the start to the run's end); the recording process "
-                f"{100 * r['recorder_cpu_share']:.0f} %\n"
-                f"  the node's threads (/proc; CPU a step, context switches a step: "
-                f"voluntary, involuntary):\n"
-                + "".join(
-                    f"    {t['thread']:<22s}{t['cpu_us']:6.0f} us  {t['voluntary']:5.2f}  "
-                    f"{t['involuntary']:5.2f}\n"
-                    for t in r["threads"]
-                ).rstrip("\n"),
-                flush=True,
-            )
-        if a.what == "table":
-            rows = []
-            from .topics import OUTPUTS
+    return p
 
-            no_markers = ",".join(o for o in OUTPUTS if o != "markers")
-            for label, outs, rec in (
-                ("joint_states, clock", "joint_states,clock", False),
-                ("every output but markers, recording", no_markers, True),
-                ("every output, no recording", None, False),
-                ("every output, recording", None, True),
-            ):
-                r = afap(rec, env, tmp, a.afap_steps, outs)
-                rows.append(dict(r, outputs=label))
-            res["table"] = rows
-            print(
-                f"the node as fast as possible, no subscriber, {a.afap_steps} steps of "
-                f"press-cycle at 1 kHz:\n"
-                f"  | outputs | step p50 | publish p50 | real-time factor |\n"
-                f"  |---|---|---|---|"
-            )
-            for r in rows:
-                print(
-                    f"  | {r['outputs']} | {r['step_p50_ms']:.3f} ms | "
-                    f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |",
-                    flush=True,
-                )
-        if a.what == "soak":
-            steps = int(round(a.minutes * 60_000))
-            r = realtime(
-                steps,
-                env,
-                tmp,
-                a.deserialize,
-                a.outputs,
-                a.publish_every,
-                a.priority,
-                a.lead,
-                a.release_period,
-                a.derivatives,
-                a.release_slice,
-                a.neighbours,
-                a.in_process,
-            )
-            res["soak"] = r
-            if a.keep:
-                keep_logs(tmp, a.keep, "soak", r)
-            print(
-                f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), "
-                f"{a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
-                f"every output, one external subscriber:\n"
-                f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
-                f"{r['rss_end_mb']:.1f} MB at the end "
-                f"({r['rss_end_mb'] - r['rss_start_mb']:+.1f} MB)\n"
-                f"  simulated vs wall drift     {r['drift_ms']:.2f} ms (wall behind simulated: "
-                f"the lowest offset of the subscriber's /clock over the last 5 s against the "
-                f"first 5 s; first message against last "
-                f"{r.get('drift_end_to_end_ms', float('nan')):.2f} ms)\n"
-                f"  messages                    {r['messages']} published, "
-                f"{r['subscriber_received']} received "
-                f"({r['messages'] - r['subscriber_received']} lost)\n"
-                + _lost_line(r)
-                + f"  real-time factor            {r['rtf']:.4f}, deadline misses "
-                f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
-                f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
-                f"  CPU                         stepping thread {r['step_thread_cpu_us']:.0f} "
-                f"us a step, node process {r['process_cpu_us']:.0f} us a step (its own "
-                f"count over the run's steps; {100 * r['cpu_share']:.0f} % of one core from "
-                f"outside), recording process {100 * r['recorder_cpu_share']:.0f} %",
-                flush=True,
-            )
-        if a.what in ("all", "afap"):
-            on = afap(True, env, tmp, a.afap_steps)
-            off = afap(False, env, tmp, a.afap_steps)
-            rec = record_only(tmp, a.afap_steps)
-            res["afap"] = {"recording_on": on, "recording_off": off, "mps_record": rec}
-            print(
-                f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
-                f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
-                f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
-                f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}",
-                flush=True,
-            )
-    print(res["machine"])
-    if a.json:
-        Path(a.json).write_text(json.dumps(res, indent=2))
-    return 0
+
+def _writer() -> int:
+    """``writer``: the recordings' MCAP writer against the mcap library's, side by side."""
+    r = writer_costs()
+    print(
+        f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
+        f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
+        f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
+        f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
+        f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
+        f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}"
+    )
+    return 0 if r["same_bytes"] else 1
+
+
+def _realtime_run(a, env, tmp: Path) -> dict:
+    """``realtime``: the run and its figures, printed."""
+    r = realtime(
+        a.steps,
+        env,
+        tmp,
+        a.deserialize,
+        a.outputs,
+        a.publish_every,
+        a.priority,
+        a.lead,
+        a.release_period,
+        a.derivatives,
+        a.release_slice,
+        a.neighbours,
+        a.in_process,
+        a.commands_every,
+        a.command_delay,
+        a.flood,
+    )
+    if a.keep:
+        keep_logs(tmp, a.keep, "realtime", r)
+    _print_realtime(a, r)
+    return r
+
+
+def _print_realtime(a, r: dict) -> None:
+    how = "deserializing" if a.deserialize else "taking them serialized"
+    scheme = a.derivatives or "the scene's (autodiff)"
+    print(
+        f"realtime, 1 kHz, {a.steps} steps, recording on, outputs "
+        f"{a.outputs or 'all'}, publishing every {a.publish_every}, one external "
+        f"subscriber ({how}, rclpy's {PROBE_EXECUTOR} executor), "
+        f"{'stepping in the node process' if a.in_process else 'a stepping process'}"
+        f", {a.neighbours} busy neighbour process(es), "
+        f"realtime_priority {'40 (default)' if a.priority is None else a.priority}, lead "
+        f"{'0.1 (default)' if a.lead is None else a.lead} s, release_period "
+        f"{'0 (default)' if a.release_period is None else a.release_period} s, "
+        f"release_slice {'0.0001 (default)' if a.release_slice is None else a.release_slice}"
+        f" s, derivatives {scheme}"
+        + (f", an operator command every {a.commands_every:g} s" if a.commands_every else "")
+        + (
+            f", a flood of {a.flood} engage at once 2 s in (sent in {r.get('flood_s') or float('nan'):.3f} s)"
+            if a.flood
+            else ""
+        )
+        + (
+            f", command_delay {'0 (default)' if a.command_delay is None else a.command_delay} s"
+            if a.commands_every or a.flood
+            else ""
+        )
+        + ":\n"
+        f"  priority the node got       {r['priority'] or 'normal (SCHED_OTHER)'}"
+        f"{' (SCHED_FIFO)' if r['priority'] else ''}\n"
+        f"  achieved real-time factor   {r['rtf']:.3f}\n"
+        f"  step compute p50 / p99      {r['step_p50_ms']:.3f} / "
+        f"{r['step_p99_ms']:.3f} ms\n"
+        f"  publish p50 / p99           {r['publish_p50_ms']:.3f} / "
+        f"{r['publish_p99_ms']:.3f} ms\n"
+        f"  latency p50 / p99           {r.get('latency_p50_ms', float('nan')):.3f} / "
+        f"{r.get('latency_p99_ms', float('nan')):.3f} ms (publication after the "
+        f"step's deadline)\n"
+        f"  deadline misses             {r['misses_per_1e4']:.0f} per 10^4 steps\n"
+        + (
+            f"  commands                    {r['commands_applied']} applied, "
+            f"{r['commands_refused']} refused\n"
+            if a.commands_every or a.flood
+            else ""
+        )
+        + f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
+        f"({r['subscriber_received']} of {r['messages']} published)\n"
+        + _lost_line(r)
+        + f"  the subscriber's CPU        {100 * r['subscriber_cpu_share']:.0f} % of one core\n"
+        f"  stepping thread CPU         {r['step_thread_cpu_us']:.0f} us a step "
+        f"({r['step_thread_cpu_us'] / 10:.1f} % of the 1 ms period)\n"
+        f"  publishing thread's slice   {r['release_slice_ms']:.3g} ms as granted "
+        f"(0: the system's own)\n"
+        f"  node process CPU            {r['process_cpu_us']:.0f} us a step over "
+        f"the run's steps (the node's own count: every thread of its "
+        f"{r['node_processes']} process(es); not the recording process)"
+        + (
+            f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
+            f"{r['ros_process_cpu_us']:.0f} us"
+            if r["stepping_process_cpu_us"] == r["stepping_process_cpu_us"]
+            else ""
+        )
+        + "\n"
+        f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
+        f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
+        f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
+        f"                              {r['cpu_per_step_us']:.0f} us a step from "
+        f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
+        f"the start to the run's end); the recording process "
+        f"{100 * r['recorder_cpu_share']:.0f} %\n"
+        f"  the node's threads (/proc; CPU a step, context switches a step: "
+        f"voluntary, involuntary):\n"
+        + "".join(
+            f"    {t['thread']:<22s}{t['cpu_us']:6.0f} us  {t['voluntary']:5.2f}  {t['involuntary']:5.2f}\n"
+            for t in r["threads"]
+        ).rstrip("\n"),
+        flush=True,
+    )
+
+
+def _table(a, env, tmp: Path) -> list:
+    """``table``: the node as fast as possible by outputs."""
+    rows = []
+    from .topics import OUTPUTS
+
+    no_markers = ",".join(o for o in OUTPUTS if o != "markers")
+    for label, outs, rec in (
+        ("joint_states, clock", "joint_states,clock", False),
+        ("every output but markers, recording", no_markers, True),
+        ("every output, no recording", None, False),
+        ("every output, recording", None, True),
+    ):
+        r = afap(rec, env, tmp, a.afap_steps, outs)
+        rows.append(dict(r, outputs=label))
+    print(
+        f"the node as fast as possible, no subscriber, {a.afap_steps} steps of "
+        f"press-cycle at 1 kHz:\n"
+        f"  | outputs | step p50 | publish p50 | real-time factor |\n"
+        f"  |---|---|---|---|"
+    )
+    for r in rows:
+        print(
+            f"  | {r['outputs']} | {r['step_p50_ms']:.3f} ms | "
+            f"{r['publish_p50_ms']:.3f} ms | {r['rtf']:.2f} |",
+            flush=True,
+        )
+    return rows
+
+
+def _soak(a, env, tmp: Path) -> dict:
+    """``soak``: the long realtime run."""
+    steps = int(round(a.minutes * 60_000))
+    r = realtime(
+        steps,
+        env,
+        tmp,
+        a.deserialize,
+        a.outputs,
+        a.publish_every,
+        a.priority,
+        a.lead,
+        a.release_period,
+        a.derivatives,
+        a.release_slice,
+        a.neighbours,
+        a.in_process,
+    )
+    if a.keep:
+        keep_logs(tmp, a.keep, "soak", r)
+    print(
+        f"soak: realtime, 1 kHz, {steps} steps ({a.minutes:g} min), "
+        f"{a.neighbours} busy neighbour(s), priority {r['priority']}, recording on, "
+        f"every output, one external subscriber:\n"
+        f"  node RSS                    {r['rss_start_mb']:.1f} MB at 5 s, "
+        f"{r['rss_end_mb']:.1f} MB at the end "
+        f"({r['rss_end_mb'] - r['rss_start_mb']:+.1f} MB)\n"
+        f"  simulated vs wall drift     {r['drift_ms']:.2f} ms (wall behind simulated: "
+        f"the lowest offset of the subscriber's /clock over the last 5 s against the "
+        f"first 5 s; first message against last "
+        f"{r.get('drift_end_to_end_ms', float('nan')):.2f} ms)\n"
+        f"  messages                    {r['messages']} published, "
+        f"{r['subscriber_received']} received "
+        f"({r['messages'] - r['subscriber_received']} lost)\n"
+        + _lost_line(r)
+        + f"  real-time factor            {r['rtf']:.4f}, deadline misses "
+        f"{r['misses_per_1e4']:.1f} per 10^4 steps, latency p99 "
+        f"{r.get('latency_p99_ms', float('nan')):.2f} ms\n"
+        f"  CPU                         stepping thread {r['step_thread_cpu_us']:.0f} "
+        f"us a step, node process {r['process_cpu_us']:.0f} us a step (its own "
+        f"count over the run's steps; {100 * r['cpu_share']:.0f} % of one core from "
+        f"outside), recording process {100 * r['recorder_cpu_share']:.0f} %",
+        flush=True,
+    )
+    return r
+
+
+def _afap_runs(a, env, tmp: Path) -> dict:
+    """``afap``: the node as fast as possible with and without recording, and mps record."""
+    on = afap(True, env, tmp, a.afap_steps)
+    off = afap(False, env, tmp, a.afap_steps)
+    rec = record_only(tmp, a.afap_steps)
+    print(
+        f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
+        f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
+        f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
+        f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}",
+        flush=True,
+    )
+    return {"recording_on": on, "recording_off": off, "mps_record": rec}
 
 
 if __name__ == "__main__":
