@@ -878,12 +878,10 @@ def _writer() -> int:
     return 0 if r["same_bytes"] else 1
 
 
-def _realtime_run(a, env, tmp: Path) -> dict:
-    """``realtime``: the run and its figures, printed."""
-    r = realtime(
-        a.steps,
-        env,
-        tmp,
+def _node_settings(a) -> tuple:
+    """The realtime and soak runs' settings from the command line, in :func:`realtime`'s order
+    after the steps, the environment and the folder."""
+    return (
         a.deserialize,
         a.outputs,
         a.publish_every,
@@ -894,10 +892,12 @@ def _realtime_run(a, env, tmp: Path) -> dict:
         a.release_slice,
         a.neighbours,
         a.in_process,
-        a.commands_every,
-        a.command_delay,
-        a.flood,
     )
+
+
+def _realtime_run(a, env, tmp: Path) -> dict:
+    """``realtime``: the run and its figures, printed."""
+    r = realtime(a.steps, env, tmp, *_node_settings(a), a.commands_every, a.command_delay, a.flood)
     if a.keep:
         keep_logs(tmp, a.keep, "realtime", r)
     _print_realtime(a, r)
@@ -1014,21 +1014,7 @@ def _table(a, env, tmp: Path) -> list:
 def _soak(a, env, tmp: Path) -> dict:
     """``soak``: the long realtime run."""
     steps = int(round(a.minutes * 60_000))
-    r = realtime(
-        steps,
-        env,
-        tmp,
-        a.deserialize,
-        a.outputs,
-        a.publish_every,
-        a.priority,
-        a.lead,
-        a.release_period,
-        a.derivatives,
-        a.release_slice,
-        a.neighbours,
-        a.in_process,
-    )
+    r = realtime(steps, env, tmp, *_node_settings(a))
     if a.keep:
         keep_logs(tmp, a.keep, "soak", r)
     print(
