@@ -202,6 +202,31 @@ def _meaning(name: str, cols: tuple[str, ...]) -> str:
     return f"magnitude of the {base}"
 
 
+def _figures(name: str, unit: str, meaning: str, ys: np.ndarray, inside: np.ndarray, n: int) -> dict:
+    """One quantity's figures: ``ys`` its cycle resampled, ``inside`` its samples in the cycle
+    (the peak is over both)."""
+    mean, amp, ph = harmonics(ys, n)
+    peak = float(np.max(np.abs(np.concatenate([inside, ys]))))
+    tiny = 1e-9 * max(peak, 1e-300)
+    return {
+        "name": name,
+        "unit": unit,
+        "meaning": meaning,
+        "mean": mean,
+        "peak": peak,
+        "rms": float(np.sqrt(np.mean(ys**2))),
+        "rms_dynamic": float(np.sqrt(np.mean((ys - mean) ** 2))),
+        "harmonics": [
+            {
+                "k": k + 1,
+                "amplitude": float(amp[k]),
+                "phase_deg": (float(math.degrees(ph[k])) if amp[k] > tiny else None),
+            }
+            for k in range(n)
+        ],
+    }
+
+
 def load_report(
     columns: Mapping[str, np.ndarray],
     *,
@@ -240,28 +265,7 @@ def load_report(
         if not np.any(y[sl] != 0.0):
             continue  # no such joint in this structure
         ys = resample(t[sl], y[sl], cyc.t0, cyc.period, N)
-        mean, amp, ph = harmonics(ys, n)
-        peak = float(np.max(np.abs(np.concatenate([y[inside], ys]))))
-        tiny = 1e-9 * max(peak, 1e-300)
-        quantities.append(
-            {
-                "name": name,
-                "unit": unit,
-                "meaning": _meaning(name, cols),
-                "mean": mean,
-                "peak": peak,
-                "rms": float(np.sqrt(np.mean(ys**2))),
-                "rms_dynamic": float(np.sqrt(np.mean((ys - mean) ** 2))),
-                "harmonics": [
-                    {
-                        "k": k + 1,
-                        "amplitude": float(amp[k]),
-                        "phase_deg": (float(math.degrees(ph[k])) if amp[k] > tiny else None),
-                    }
-                    for k in range(n)
-                ],
-            }
-        )
+        quantities.append(_figures(name, unit, _meaning(name, cols), ys, y[inside], n))
     checks = {}
     for c in ("residual_force_N", "residual_moment_Nm", "balance_residual_N", "balance_residual_Nm"):
         if c in columns:

@@ -138,6 +138,22 @@ def _check_folder(out: Path, spec: dict, force: bool) -> None:
         raise sw.SweepError(f"--out {str(out)!r}: not writable")
 
 
+def _write_outputs(result, out: Path, title: str) -> list:
+    """The table, the envelope and, where a run succeeded, the plot, each written whole; the
+    envelope."""
+    from ..files.outputs import written_whole
+
+    with written_whole(out / OUTPUTS["table"]) as tmp:
+        sw.write_csv(result.rows, result.columns(), tmp)
+    env = result.envelope()
+    with written_whole(out / OUTPUTS["envelope"]) as tmp:
+        sw.write_csv(env, ["figure", "value", "run", *result.keys], tmp)
+    if any(r.get("status") == "ok" for r in result.rows):
+        with written_whole(out / OUTPUTS["figure"]) as tmp:
+            sw.write_png(result, tmp, title=title)
+    return env
+
+
 def run(args) -> int:
     from ..files.outputs import written_whole
     from ..scene import load_scene
@@ -199,15 +215,7 @@ def run(args) -> int:
         if client is not None:
             client.close()
     progress.done()
-    cols = result.columns()
-    with written_whole(out / OUTPUTS["table"]) as tmp:
-        sw.write_csv(result.rows, cols, tmp)
-    env = result.envelope()
-    with written_whole(out / OUTPUTS["envelope"]) as tmp:
-        sw.write_csv(env, ["figure", "value", "run", *result.keys], tmp)
-    if any(r.get("status") == "ok" for r in result.rows):
-        with written_whole(out / OUTPUTS["figure"]) as tmp:
-            sw.write_png(result, tmp, title=scene.name)
+    env = _write_outputs(result, out, scene.name)
     failed = [r for r in result.rows if r.get("status") != "ok"]
     print(
         f"{len(result.rows)} runs ({result.computed} computed now, "
