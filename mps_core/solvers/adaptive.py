@@ -18,7 +18,7 @@ from scipy.integrate import DOP853 as ScipyDOP853
 from scipy.integrate import Radau as ScipyRadau
 
 from ..errors import ChartDomainError, NumericalError
-from .base import Advance, Solver
+from .base import Advance, Solver, check_tolerances
 
 _METHODS = {"dop853": ScipyDOP853, "radau": ScipyRadau}
 
@@ -46,8 +46,7 @@ class AdaptiveSolver(Solver):
     ):
         if method not in _METHODS:
             raise ValueError(f"adaptive method {method!r}: expected one of {', '.join(_METHODS)}")
-        if not (0 < rtol < 1) or not (atol > 0):
-            raise ValueError(f"tolerances rtol = {rtol!r}, atol = {atol!r}: expected 0 < rtol < 1, atol > 0")
+        check_tolerances(rtol, atol)
         self.name = method
         super().__init__(fun, t0, q0, qd0, current)
         n = self.q.size
@@ -146,34 +145,10 @@ class Radau(AdaptiveSolver):
 
     name = "radau"
 
-    def __init__(
-        self,
-        fun,
-        t0,
-        q0,
-        qd0,
-        current=None,
-        rtol=1e-9,
-        atol=1e-12,
-        scales=None,
-        t_bound=np.inf,
-        max_step=np.inf,
-        first_step=None,
-    ):
-        super().__init__(
-            fun,
-            t0,
-            q0,
-            qd0,
-            current,
-            method="radau",
-            rtol=rtol,
-            atol=atol,
-            scales=scales,
-            t_bound=t_bound,
-            max_step=max_step,
-            first_step=first_step,
-        )
+    def __init__(self, fun, t0, q0, qd0, current=None, **settings):
+        """:class:`AdaptiveSolver`'s settings by keyword (``rtol``, ``atol``, ``scales``,
+        ``t_bound``, ``max_step``, ``first_step``), the method Radau."""
+        super().__init__(fun, t0, q0, qd0, current, method="radau", **settings)
 
     @classmethod
     def create(

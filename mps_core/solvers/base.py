@@ -30,6 +30,12 @@ from ..caches import Memo
 from ..derivatives.tracing import BranchChanged
 
 
+def check_tolerances(rtol: float, atol: float) -> None:
+    """An adaptive method's tolerances: 0 < rtol < 1, atol > 0 (ValueError naming both)."""
+    if not (0 < rtol < 1) or not (atol > 0):
+        raise ValueError(f"tolerances rtol = {rtol!r}, atol = {atol!r}: expected 0 < rtol < 1, atol > 0")
+
+
 class Advance(NamedTuple):
     """What a method's :meth:`Solver._advance_to` hands the base's :meth:`Solver.step_to`: the
     new state, its dense output (None: made when asked for, from ``dense_from``), what the

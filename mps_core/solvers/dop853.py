@@ -35,7 +35,7 @@ from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from ..caches import Memo
 from ..errors import ChartDomainError, NumericalError
-from .base import Advance, Solver
+from .base import Advance, Solver, check_tolerances
 
 SAFETY = 0.9
 MIN_FACTOR = 0.2
@@ -191,8 +191,7 @@ class DOP853(Solver):
         first_step=None,
         accel=None,
     ):
-        if not (0 < rtol < 1) or not (atol > 0):
-            raise ValueError(f"tolerances rtol = {rtol!r}, atol = {atol!r}: expected 0 < rtol < 1, atol > 0")
+        check_tolerances(rtol, atol)
         super().__init__(fun, t0, q0, qd0, current, accel)
         n = self.q.size
         sc = [1.0] * n if scales is None else [float(s) for s in scales]
