@@ -330,11 +330,10 @@ class PressTwin(LifecycleNode):
         if self.inactive:
             self.runner.pause()
 
-    def _runner(self, p: dict) -> Runner:
-        return Runner(
-            self.twin,
-            sinks=[self.ros_sink],
-            pacing=p["pacing"],
+    def _pacing(self, p: dict) -> dict:
+        """The runner's settings from the parameters, the same in the node's process and in a
+        stepping process of its own."""
+        return dict(
             real_time_factor=p["real_time_factor"],
             lead=p["lead"],
             command_delay=p["command_delay"],
@@ -343,10 +342,18 @@ class PressTwin(LifecycleNode):
             freeze_gc=True,
             publish_every=p["publish_every"],
             diagnostics_period=p["diagnostics_period"],
+            name=self.get_fully_qualified_name().lstrip("/"),
+        )
+
+    def _runner(self, p: dict) -> Runner:
+        return Runner(
+            self.twin,
+            sinks=[self.ros_sink],
+            pacing=p["pacing"],
             inbox=self.inbox,
             gate=Gate(p["command_burst"], p["command_rate"]),
             log=self._log,
-            name=self.get_fully_qualified_name().lstrip("/"),
+            **self._pacing(p),
         )
 
     def _stepping_process(self, p: dict):
@@ -361,22 +368,11 @@ class PressTwin(LifecycleNode):
             markers_scale=p["markers_scale"],
             derivatives=p["derivatives"] or None,
         )
-        runner = dict(
-            real_time_factor=p["real_time_factor"],
-            lead=p["lead"],
-            command_delay=p["command_delay"],
-            release_period=p["release_period"],
-            release_slice=p["release_slice"],
-            freeze_gc=True,
-            publish_every=p["publish_every"],
-            diagnostics_period=p["diagnostics_period"],
-            name=self.get_fully_qualified_name().lstrip("/"),
-        )
         tw = self.twin
         spec = {
             "scene": p["scene"],
             "twin": twin,
-            "runner": runner,
+            "runner": self._pacing(p),
             "grid": [tw.t0, tw.t_end, tw.n],
             "hardware_id": hardware_id(tw.scene.name),
         }
