@@ -95,6 +95,8 @@ def test_the_lifecycle_configures_runs_pauses_goes_on_and_shuts_down(ros, tmp_pa
             # the one they say simulated time holds at
             lis.wait_for(lambda: len(stale()) >= 2, 30, "two STALE pacing statuses")
             held = ns(stale()[0].header.stamp)
+            # the clock up to the held step may come in after the statuses: waited for
+            lis.wait_for(lambda: ns(lis.get("/clock")[-1].clock) >= held, 30, "/clock at the held step")
             assert all(ns(m.clock) <= held for m in lis.get("/clock"))
             assert ns(lis.get("/clock")[-1].clock) == held
             # ~/step while paused: one step each, published, then held again
