@@ -135,3 +135,17 @@ def test_every_layer_is_a_package_of_the_tree():
         for n in names:
             path = ROOT / Path(*n.split("."))
             assert path.with_suffix(".py").is_file() or (path / "__init__.py").is_file(), n
+
+
+def test_the_recording_process_does_without_the_engine():
+    """The recording process (``python -m mps_ros.recording``) writes files: importing it, and
+    ``mps_core`` itself, loads neither the engine nor scipy (a second's start here)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, mps_core, mps_ros.recording; "
+        "print(sorted(m for m in ('scipy', 'mps_core.run.simulation', 'mps_core.scene') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
