@@ -408,13 +408,18 @@ def keep_logs(tmp: Path, keep: Path, what: str, result: dict) -> None:
     (keep / f"{what}.json").write_text(json.dumps(result, indent=2))
 
 
-def afap(recording: bool, env, tmp: Path, steps: int, outputs: str | None = None) -> dict:
+def afap(
+    recording: bool, env, tmp: Path, steps: int, outputs: str | None = None, in_process: bool = False
+) -> dict:
+    """The node as fast as possible (``in_process``: stepping in the node's own process,
+    ``stepping_process:=false``); its final statistics."""
     params = dict(
         pacing="as_fast_as_possible",
         dt=0.001,
         t_end=steps * 1e-3,
         # a file of its own for each run (a recording never replaces a file)
         recording=(tmp / f"afap-{len(list(tmp.glob('afap-*.mcap')))}.mcap") if recording else "none",
+        stepping_process=not in_process,
     )
     if outputs:
         params["outputs"] = "[" + outputs + "]"
@@ -1048,15 +1053,27 @@ def _afap_runs(a, env, tmp: Path) -> dict:
     """``afap``: the node as fast as possible with and without recording, and mps record."""
     on = afap(True, env, tmp, a.afap_steps)
     off = afap(False, env, tmp, a.afap_steps)
+    one = afap(True, env, tmp, a.afap_steps, in_process=True)
     rec = record_only(tmp, a.afap_steps)
+    plain = loop_cost(min(a.afap_steps, 3000))
     print(
         f"as fast as possible, 1 kHz steps, {a.afap_steps} steps, no subscriber:\n"
         f"  node, recording on          real-time factor {on['rtf']:.2f}\n"
         f"  node, recording off         real-time factor {off['rtf']:.2f}\n"
-        f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}",
+        f"  node, recording on, stepping in the node's process (stepping_process:=false)\n"
+        f"                              real-time factor {one['rtf']:.2f}\n"
+        f"  mps record (no ROS)         real-time factor {rec['rtf']:.2f}\n"
+        f"  the plain loop of the same steps: {plain:.0f} us a step, "
+        f"{1e3 / plain:.2f}x real time by itself",
         flush=True,
     )
-    return {"recording_on": on, "recording_off": off, "mps_record": rec}
+    return {
+        "recording_on": on,
+        "recording_off": off,
+        "recording_on_in_process": one,
+        "mps_record": rec,
+        "plain_loop_us": plain,
+    }
 
 
 if __name__ == "__main__":

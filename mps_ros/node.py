@@ -314,9 +314,10 @@ class PressTwin(LifecycleNode):
         if twin is None:
             self.twin = self._twin()
         self.closed = False
-        #: realtime: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this
-        #: process publishes what it releases and forwards the commands
-        self.split = p["pacing"] == "realtime" and p["stepping_process"]
+        #: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this process
+        #: publishes what it releases and forwards the commands (as fast as possible, where
+        #: the twin can come back to a step: a command's boundary is the last step released)
+        self.split = p["stepping_process"] and (p["pacing"] == "realtime" or self.twin.rewindable)
         if self.split:
             self.runner = self._stepping_process(p)
             self.inbox = self.runner.inbox
@@ -369,19 +370,22 @@ class PressTwin(LifecycleNode):
             derivatives=p["derivatives"] or None,
         )
         tw = self.twin
+        afap = p["pacing"] != "realtime"
         spec = {
             "scene": p["scene"],
             "twin": twin,
             "runner": self._pacing(p),
             "grid": [tw.t0, tw.t_end, tw.n],
             "hardware_id": hardware_id(tw.scene.name),
+            "afap": afap,
         }
         return SteppingProcess(
             spec,
             self.ros_sink,
             self._log,
             Gate(p["command_burst"], p["command_rate"]),
-            p["realtime_priority"],
+            # no deadlines to keep: a run as fast as possible never takes a core from the others
+            0 if afap else p["realtime_priority"],
         )
 
     # -- parameters -----------------------------------------------------------------------
@@ -618,7 +622,7 @@ class PressTwin(LifecycleNode):
         stop.wait(self.p["start_delay"])
         if stop.is_set():
             self.runner.request_stop("signal")
-        if not self.split:
+        if not self.split and self.p["pacing"] == "realtime":
             self._set_priority()
         self.get_logger().info("stepping starts")
         return self.runner.run()

@@ -190,7 +190,7 @@ PARAMETERS: tuple[Parameter, ...] = (
     P(
         "realtime_priority",
         40,
-        "SCHED_FIFO priority of the stepping process and the "
+        "realtime pacing: SCHED_FIFO priority of the stepping process and the "
         "publishing thread (below the kernel's threaded interrupt handlers at 50); where the "
         "system refuses it, one warning that says how to allow it, and the run goes on at "
         "normal priority (see Real-time scheduling). 0: normal scheduling",
@@ -200,9 +200,10 @@ PARAMETERS: tuple[Parameter, ...] = (
     P(
         "stepping_process",
         True,
-        "realtime pacing: the twin steps in a process of its own "
-        "(`mps_ros/stepping.py`); false: in the node's process, a thread beside the publishing "
-        "one (both measured under Performance)",
+        "the twin steps in a process of its own "
+        "(`mps_ros/stepping.py`; as fast as possible, where the twin can come back to a step); "
+        "false: in the node's process, a thread beside the publishing one in realtime pacing "
+        "(both measured under Performance)",
     ),
     P(
         "markers_hz",

@@ -1,6 +1,6 @@
 """The live node's stepping process: the twin stepped in an interpreter of its own.
 
-In realtime pacing the node (:mod:`mps_ros.node`) does not step the twin itself. It starts
+The node (:mod:`mps_ros.node`) does not step the twin itself. It starts
 ``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and uses the
 same :class:`~mps_ros.twin.Runner`'s parts (the run's start and end messages, events,
 diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
@@ -38,15 +38,23 @@ it had sent of the old generation beyond the boundary is dropped on arrival. So 
 one that stepped in time, as in one process, and what the node publishes is what it records,
 byte for byte, in the same order.
 
+**As fast as possible** (where the twin can come back to a step) the same two processes
+pipeline the run: the stepping process steps on while it is fewer than ``_Ahead.AHEAD`` steps
+past the last step the node has released (which the node tells it, frame ``K``); the node
+releases each step as it comes. A command is applied at the boundary of the last step released
+when it came, the steps held beyond it dropped and computed again, as above: what subscribers
+saw before the command is what the run was.
+
 **Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
 stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
 command (marshal: reply id or None, word, source, wall, boundary step, generation), ``N`` the
 commands refused here, of which as floods, and lost (marshal: three counts, for its
 /diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
 applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
-deadline moves), ``T`` one step while paused (the node's ``~/step``), ``S`` stop (the reason,
-UTF-8). From it: ``R`` ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a
-step or a command's answers (marshal: step, generation, deadline, whether it holds the step's
+deadline moves), ``T`` one step while paused (the node's ``~/step``), ``K`` as fast as
+possible, the last step released (marshal), ``S`` stop (the reason, UTF-8). From it: ``R``
+ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a step or a command's
+answers (marshal: step, generation, deadline, whether it holds the step's
 state, the structure, why the machine would refuse each command word there
 (:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a command's
 answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text), ``E`` the
@@ -191,6 +199,8 @@ class Hold:
         self.paused = False
         self.shift = 0.0
         self.steps: collections.deque = collections.deque()
+        #: as fast as possible: the last step the node has released (frame ``K``)
+        self.released = -1
 
 
 class _Ahead:
@@ -198,23 +208,38 @@ class _Ahead:
     steps' deadlines, each step's messages written down the pipe as soon as the lead is full
     (or its deadline is near), a checkpoint kept for each step not yet past, and each command
     applied at the boundary the ROS process chose for it (coming back to that step's
-    checkpoint, or stepping on to it)."""
+    checkpoint, or stepping on to it).
+
+    ``afap`` (as fast as possible): no deadlines; the twin steps on while it is fewer than
+    :attr:`AHEAD` steps past the last step the node has released (frame ``K``), the steps
+    written :attr:`BATCH` at a time, a checkpoint kept for each step the node may still hold."""
 
     #: steps written at once at most; a step due within this (wall s) goes at once
     BATCH, NEAR = 16, 0.002
+    #: as fast as possible: steps computed past the last one released, at most
+    AHEAD = 256
 
     def __init__(
-        self, runner: Runner, out: FrameWriter, commands, wake: threading.Event, hold: Hold | None = None
+        self,
+        runner: Runner,
+        out: FrameWriter,
+        commands,
+        wake: threading.Event,
+        hold: Hold | None = None,
+        afap: bool = False,
     ):
         self.runner, self.twin, self.out = runner, runner.twin, out
         self.commands, self.wake = commands, wake
         self.hold = hold or Hold()
+        self.afap = afap
         self.gen = 0
         self.cps: dict[int, tuple] = {}
         self.pending: list[bytes] = []
         self.due = math.inf  # the earliest deadline among the pending steps
 
     def deadline(self, k: int) -> float:
+        if self.afap:
+            return 0.0  # none: the node releases each step as it comes
         tw = self.twin
         return self.wall_start + self.hold.shift + (tw.time_of(k) - tw.t0) / self.runner.rtf
 
@@ -223,7 +248,7 @@ class _Ahead:
         self.pending.append(
             marshal.dumps((k, self.gen, deadline, state, twin.sim.structure, twin.refusals(), msgs))
         )
-        if deadline < self.due:
+        if deadline < self.due and not self.afap:
             self.due = deadline
 
     def flush(self) -> None:
@@ -235,12 +260,13 @@ class _Ahead:
                 raise BrokenPipeError("the node's process is gone")
 
     def run(self) -> None:
-        runner, twin = self.runner, self.twin
+        runner, twin, afap = self.runner, self.twin, self.afap
         clock = time.perf_counter
         step = twin.dt / runner.rtf
-        ahead = twin.rewindable and runner.lead > step
+        ahead = twin.rewindable and (afap or runner.lead > step)
         lead = runner.lead if ahead else step
-        keep = int(math.ceil(2.0 * lead / step)) + 100  # checkpoints kept, by step
+        # checkpoints kept, by step
+        keep = (self.AHEAD + self.BATCH + 100) if afap else int(math.ceil(2.0 * lead / step)) + 100
         refill = 0.2 * lead if ahead else 0.0
         runner.prepare()
         runner._start_clocks()
@@ -248,11 +274,11 @@ class _Ahead:
         runner._staging = staged
         runner._begin()
         runner._staging = None
-        self.wall_start = runner.wall_start = clock() + (lead - step)
+        self.wall_start = runner.wall_start = clock() + (0.0 if afap else lead - step)
         self.k0 = twin.k
         if ahead:
             self.cps[twin.k] = twin.checkpoint()
-        self._entry(twin.k, self.wall_start, True, staged)
+        self._entry(twin.k, self.deadline(twin.k) if afap else self.wall_start, True, staged)
         runner._later_logs = []
         next_diag = runner.wall_start + runner.period
         commands, stop = self.commands, runner._stop
@@ -273,7 +299,14 @@ class _Ahead:
                     self.hold.steps.popleft()
                     one = True
                 deadline = self.deadline(twin.k + 1)
-                if not commands and not one:
+                if afap:
+                    if not one and twin.k - self.hold.released >= self.AHEAD:
+                        self.flush()  # as far ahead as the node may hold: it releases first
+                        self.wake.wait(0.05)
+                        self.wake.clear()
+                        continue
+                    deadline = math.inf  # no deadline: no miss
+                elif not commands and not one:
                     wait = deadline - lead - clock()
                     if wait > 0.0:
                         self.flush()
@@ -300,7 +333,7 @@ class _Ahead:
                 if ahead:
                     self.cps[k] = twin.checkpoint()
                     self.cps.pop(k - keep, None)
-                self._entry(k, deadline, msgs is not None, staged)
+                self._entry(k, self.deadline(k) if afap else deadline, msgs is not None, staged)
                 if one or len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
                     self.flush()
         except Exception as exc:
@@ -407,7 +440,8 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
 
     try:
         twin = Twin(spec["scene"], **spec["twin"])
-        runner = Runner(twin, pacing="realtime", log=log, **spec["runner"])
+        pacing = "as_fast_as_possible" if spec.get("afap") else "realtime"
+        runner = Runner(twin, pacing=pacing, log=log, **spec["runner"])
         runner.prepare()
     except Exception as exc:
         out.frame(b"R", json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
@@ -449,6 +483,9 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         elif kind == b"T":
             hold.steps.append(1)
             wake.set()
+        elif kind == b"K":
+            hold.released = marshal.loads(payload)
+            wake.set()
         elif kind == b"O":
             paused = marshal.loads(payload)
             hold.shift += paused
@@ -484,7 +521,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     name_thread("mps-step")
     error_kind = None
     try:
-        _Ahead(runner, out, commands, wake, hold).run()
+        _Ahead(runner, out, commands, wake, hold, afap=bool(spec.get("afap"))).run()
     except Exception as exc:
         from mps_core import MpsError
 
@@ -560,6 +597,9 @@ class SteppingProcess:
         from .cdr import string
 
         self.spec = spec
+        #: as fast as possible: each step released as it comes, a command applied at the
+        #: boundary of the last step released (the steps held beyond it computed again)
+        self.afap = bool(spec.get("afap"))
         self.sink = sink
         self.sinks: list = []  # the others: the recorder
         self.log = log
@@ -726,7 +766,7 @@ class SteppingProcess:
         waiting = self._waiting
         while waiting and (self._ended or self._gen == self._received_gen):
             cmd, word, refusal = waiting[0]
-            if not self._ended and refusal is None:
+            if not self._ended and refusal is None and not self.afap:
                 last = self._queue[-1] if self._queue else self._released
                 if last is None or last.deadline < cmd.wall + self.command_delay:
                     return  # its boundary's step is still to come
@@ -736,7 +776,10 @@ class SteppingProcess:
     def _step_at(self, wall: float) -> int | None:
         """The first step whose deadline is not before ``wall`` (the lock held), among the
         last released, those held and those still to come (the schedule's; the stepping
-        process steps on to it, where it is not there yet); None before the run has started."""
+        process steps on to it, where it is not there yet); None before the run has started.
+        As fast as possible: the last step released."""
+        if self.afap:
+            return None if self._released is None else self._released.k
         last = self._queue[-1] if self._queue else self._released
         if last is None:
             return None
@@ -767,7 +810,10 @@ class SteppingProcess:
     def _boundary(self, wall: float) -> _Entry | None:
         """The entry a command that arrived at ``wall`` follows (the lock held): the last
         entry of the first step whose deadline is not before ``wall``, among the last released
-        and those held; the last of them where none is that late yet."""
+        and those held; the last of them where none is that late yet. As fast as possible: the
+        last step released."""
+        if self.afap:
+            return self._released
         at = self._released
         d = at.deadline if at is not None and at.deadline >= wall else None
         # held in the order of their deadlines: a command's boundary is near the front
@@ -918,6 +964,9 @@ class SteppingProcess:
         queue, lock = self._queue, self._lock
         end = None
         eof = False
+        told = -1  # as fast as possible: the last step released that the stepping process knows of
+        if self.afap:
+            self._first = clock()  # the run's start: the first step goes out as it comes
         import select
 
         while True:
@@ -933,7 +982,7 @@ class SteppingProcess:
                         if self._paused_at is not None:  # paused: the steps asked for
                             if not self._step_replies:
                                 break
-                        elif queue[0].deadline > now:
+                        elif not self.afap and queue[0].deadline > now:
                             break
                     head = self._released = queue.popleft()
                     if head.state and self._paused_at is not None and self._step_replies:
@@ -944,6 +993,10 @@ class SteppingProcess:
                         reply(self._time_of(head.k))
                     except Exception:  # a reply must never take the run down
                         pass
+            if self.afap and self._released is not None and self._released.k != told:
+                # the stepping process steps on up to _Ahead.AHEAD past it
+                told = self._released.k
+                self._out.frame(b"K", marshal.dumps(told))
             if self._paused_at is not None and now >= self._next_status:
                 self._stale(now)
             if (end is not None or eof) and not queue:
@@ -1013,8 +1066,9 @@ class SteppingProcess:
         self.k_released, self.structure = head.k, head.structure
         if head.state:
             self.publish_times.add(p1 - p0)
-            late = p1 - head.deadline
-            self.latencies.add(late if late > 0.0 else 0.0)
+            if not self.afap:
+                late = p1 - head.deadline
+                self.latencies.add(late if late > 0.0 else 0.0)
         said = False  # the recording's failure, first seen at this step
         for s in self.sinks:
             try:
@@ -1144,6 +1198,7 @@ class SteppingProcess:
         if self.latencies.n:
             s["latency_p50_ms"] = self.latencies.percentile(50) * 1e3
             s["latency_p99_ms"] = self.latencies.percentile(99) * 1e3
+        if self.publish_times.n:
             s["publish_time_p50_ms"] = self.publish_times.percentile(50) * 1e3
             s["publish_time_p99_ms"] = self.publish_times.percentile(99) * 1e3
         ros = getattr(self, "ros_cpu", None)

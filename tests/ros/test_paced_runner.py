@@ -360,6 +360,56 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     assert _comparable(done) == _afap_with(schedule, fresh=split)
 
 
+def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step_released():
+    """As fast as possible in a stepping process of its own (the node's way where the twin can
+    come back to a step): the steps go out as they come; a command is applied at the boundary
+    of the last step released when it came, its answer right after that step's messages (the
+    steps computed beyond it are computed again, or, where the machine refuses it there, stand);
+    the run is bit for bit the one given each command at that boundary in one process, and the
+    recorder gets what was published, in the same order."""
+    from mps_ros.stepping import SteppingProcess
+    from mps_ros.topics import OUTPUTS
+
+    plan = {40: "engage", 41: "engage", 150: "disengage"}  # at the step whose /clock went out
+    tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
+    sent = []
+
+    def on_clock(t_ns):
+        k = round(t_ns * 1e-9 / DT)
+        if k in plan and k not in [j for j, _ in sent]:
+            sent.append((k, plan[k]))
+            runner.inbox.put(Command(plan[k]))
+
+    rec = _Recorder()
+    live = _Publishers(on_clock)
+    spec = {
+        "scene": "press-cycle",
+        "twin": dict(dt=DT, t_end=T_END, scene_commands=False, outputs=list(OUTPUTS)),
+        "runner": dict(warm_up=0.0),
+        "grid": [tw.t0, tw.t_end, tw.n],
+        "afap": True,
+    }
+    runner = SteppingProcess(spec, live, lambda *a: None, Gate(), 0)
+    runner.sinks.append(rec)
+    try:
+        st = runner.run()
+    finally:
+        runner.close()
+    assert runner.error is None and st["steps"] == tw.n
+    assert st["real_time_factor"] > 0 and "latency_p50_ms" not in st
+    assert [k for k, _ in sent] == sorted(plan)
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in rec.got if k == "~/mode/status"]
+    # each at the step whose /clock it came on: the last step released then
+    assert [(round(a["t"] / DT), a["command"]) for a in acks] == sorted(plan.items())
+    assert [(a["accepted"], a["reason"]) for a in acks[:2]] == [(True, None), (False, "already engaging")]
+    assert st["commands_accepted"] == sum(a["accepted"] for a in acks)
+    assert [(k, d) for k, d, _t, received in rec.got if not received] == live.got
+    done = Sink(True)
+    done.got = list(rec.got)
+    schedule = [(round(a["t"] * 1e9), a["command"]) for a in acks]
+    assert _comparable(done) == _afap_with(schedule, fresh=True)
+
+
 def _afap_with(schedule: list, fresh: bool) -> list:
     """:func:`_comparable` of the run as fast as possible with each command of ``schedule``
     ((step time ns, word), in order) given at its step time (``fresh``: in a new
