@@ -1,11 +1,12 @@
 """``mps bench accuracy``: the work-precision study.
 
 For each case (:mod:`mps_core.bench.common`), each solver, each step size of the ladder (5 ms
-and 2.5 ms, then the paper's 1.25 ms halved down to about 1e-5 s) or each tolerance (adaptive
-solvers), and each derivative scheme (central differences at Δ = 1°, 0.1°, 0.01°, 0.001°, and
-exact derivatives): the error against the case's reference (φ at the end time; max |φ − φ_ref|,
-|φ̇ − φ̇_ref|, |φ̈ − φ̈_ref| over the run, sampled on the paper's 1.25 ms grid where the run has
-those times: every point from 1.25 ms down, every second or fourth at 2.5 and 5 ms;
+and 2.5 ms, then the paper's 1.25 ms halved down to about 1e-5 s; RK6 and RK8 also at 12.5, 10
+and 6.25 ms) or each tolerance (adaptive solvers), and each derivative scheme (central
+differences at Δ = 1°, 0.1°, 0.01°, 0.001°, and exact derivatives): the error against the
+case's reference (φ at the end time; max |φ − φ_ref|, |φ̇ − φ̇_ref|, |φ̈ − φ̈_ref| over the run,
+sampled on the paper's 1.25 ms grid where the run has those times: every point from 1.25 ms
+down, at the coarser steps their own outputs, every 2nd, 4th, 5th, 8th or 10th grid point;
 and for scenes with events, the events' timing), the CPU time of the run (median of repeats) and
 the work (right-hand sides, position points). The peer, scipy's DOP853 on the exact equations
 (:mod:`mps_core.bench.peers`), runs side by side on the same cases.
@@ -19,6 +20,8 @@ from __future__ import annotations
 
 import csv
 import math
+import statistics
+import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +30,7 @@ from ..dynamics.engine import PartialSystems
 from .common import (
     COARSE_STEPS,
     DT_LADDER,
+    HIGH_ORDER_STEPS,
     Case,
     Reference,
     Setting,
@@ -35,6 +39,7 @@ from .common import (
     reference_for,
     resolve_case,
     run_setting,
+    scene_for,
 )
 
 FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer", "mujoco")
@@ -55,6 +60,9 @@ MAX_EVALUATIONS = 300_000
 PEER_RTOLS = tuple(float(f"{m}e-{k}") for k in range(3, 13) for m in ((1,) if k == 3 else (3, 1)))
 ADAPTIVE_RTOLS = {"dop853": PEER_RTOLS, "radau": (1e-4, 1e-6, 1e-8)}
 DELTA_STUDY_DEG = tuple(10.0**-k for k in range(0, 7))
+#: the fixed steps from which a run with exact derivatives also has its evaluations alone
+#: timed (:func:`evaluations_alone`): the short runs, where the driver's share is the largest
+ALONE_FROM = 5e-3
 
 COLUMNS = (
     "case",
@@ -78,6 +86,7 @@ COLUMNS = (
     "horizon_s",
     "closure_m",
     "bare_cpu_s",
+    "alone_cpu_s",
 )
 
 
@@ -100,9 +109,10 @@ def plan(case: Case, families=FAMILIES, quick: bool = False, rungs: int | None =
             solver = fam if fam in ("rk4", "rk6", "rk8") else "linear-acceleration"
             it = LA_ITERATIONS if fam == "la-iterated" else 1
             # sixth and eighth order: their errors fall below central differences' at once
-            # (exact only)
-            for scheme, d in schemes if fam not in ("rk6", "rk8") else [("autodiff", 0.0)]:
-                for dt in ladder:
+            # (exact only), and they stay accurate at steps longer than 5 ms
+            high = fam in ("rk6", "rk8")
+            for scheme, d in schemes if not high else [("autodiff", 0.0)]:
+                for dt in (HIGH_ORDER_STEPS if high and not quick else ()) + ladder:
                     out.append((Setting(solver, scheme, d, it), dt))
         elif fam in ADAPTIVE_RTOLS:
             rtols = ADAPTIVE_RTOLS[fam]
@@ -179,8 +189,6 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
         "rtol": s.rtol if s.adaptive else "",
     }
     if s.solver == "mujoco":
-        import statistics
-
         from .common import cpu_median
         from .mujoco_peer import bare_loop, run_mujoco
 
@@ -238,8 +246,50 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
         cpu_per_sim_s=cpu / case.t_end,
         repeats=n,
     )
+    if s.scheme == "autodiff" and not s.adaptive and dt >= ALONE_FROM * (1 - 1e-9):
+        per, _states, count = evaluations_alone(case, s, dt)
+        row["alone_cpu_s"] = per * count
     row.update(errors(traj.t, traj.phi, traj.phi_dot, traj.phi_ddot, ref, traj))
     return row
+
+
+def evaluations_alone(case: Case, s: Setting, dt: float, number: int = 100, repeats: int = 3):
+    """What a run's evaluations cost alone: (the CPU s of one q̈ as a generated solver step's
+    inner stage asks it, by the chart's fused function with exact derivatives (where a chart
+    has none, :meth:`~mps_core.dynamics.engine.PartialSystems.accelerations`), averaged over
+    the states the run kept: each step's end and each new chart's start, the first state's
+    being the build's; those states; the run's evaluations). The first times the last is the
+    least any driver of the run's steps costs: the steps' own arithmetic, the kept
+    evaluations' kinematics, the recorded rows and the changes of chart come on top. Each
+    state's figure is the median of ``repeats`` batches of ``number`` calls."""
+    scene = scene_for(case, s, dt)
+    sim, states = evaluations_along(scene, scene.t_end)
+    states = list(states)
+    eng = sim.engine
+    count = eng.counts["evaluations"]
+    total = 0.0
+    for e in states:
+        t, ql, vl, view = e.t, e.q.tolist(), e.qd.tolist(), e.view
+        eng.accelerations(view, t, ql, vl)  # the view's fused function made, where it can be
+        plan = eng._plans.get(view)
+        fused = plan.fused if plan is not None else None
+        if fused is not None:
+
+            def call(f=fused, t=t, ql=ql, vl=vl):
+                return f(t, *ql, *vl)
+        else:
+
+            def call(view=view, t=t, ql=ql, vl=vl):
+                return eng.accelerations(view, t, ql, vl)
+
+        batches = []
+        for _ in range(repeats):
+            c0 = time.process_time()
+            for _ in range(number):
+                call()
+            batches.append((time.process_time() - c0) / number)
+        total += statistics.median(batches)
+    return total / len(states), len(states), count
 
 
 # -- where finite differences stop helping ----------------------------------------------------
@@ -494,15 +544,18 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
             )
             log(
                 f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
-                f"  {'ratio mps/MuJoCo':>16}  {'MuJoCo/bare mj_step':>19}"
+                f"  {'ratio mps/MuJoCo':>16}  {'its evaluations alone/MuJoCo':>28}"
+                f"  {'MuJoCo/bare mj_step':>19}"
             )
             for p, best, ratio in vs:
                 mj = f"dt {p['dt'] * 1e3:.4g} ms: {p['cpu_per_sim_s']:.3g}"
                 b = "-" if best is None else f"{describe(best)}: {best['cpu_per_sim_s']:.3g}"
                 rt = "-" if ratio is None else f"{ratio:.2f}"
+                alone = None if best is None else best.get("alone_cpu_s")
+                al = f"{alone / p['cpu_s']:.2f}" if alone else "-"
                 bare = p.get("bare_cpu_s")
                 br = f"{p['cpu_s'] / bare:.2f}" if bare else "-"
-                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {br:>19}")
+                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {al:>28}  {br:>19}")
             closure = max(p.get("closure_m", 0.0) for p, _, _ in vs)
             log(
                 "   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
@@ -510,7 +563,9 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
                 f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py); "
                 "its CPU is the stepping's (mj_RungeKutta, then mj_forward for the new state's "
                 "accelerations), against a bare mj_step loop of the same model in the last "
-                "column"
+                "column; 'its evaluations alone': the mps setting's evaluations times one q̈ "
+                "by its charts' fused functions at the run's states (steps from "
+                f"{ALONE_FROM * 1e3:g} ms), what no driver of those steps can go below"
             )
     if out_dir is None:
         return

@@ -35,6 +35,10 @@ DT_LADDER = tuple(1.25e-3 / 2**k for k in range(8))
 #: two rungs above the paper's step, for the fixed-step solvers: where the step, not the
 #: derivatives, is cheap enough to matter (RK4 at 2.5 ms is within 1e-4 rad on ``paper``)
 COARSE_STEPS = (5e-3, 2.5e-3)
+#: three rungs more above those for the sixth- and eighth-order methods (RK8 at 10 ms is within
+#: 2e-4 rad on ``paper`` at its outputs): whole multiples of the 1.25 ms grid, so that every
+#: output of theirs is on it, and whole divisors of the built-in cases' end times
+HIGH_ORDER_STEPS = (12.5e-3, 10e-3, 6.25e-3)
 
 CASE_NOTES = {
     "paper": "the seed's scene over 0.1 s (passes the (phi, psi) chart's branch point)",

@@ -307,6 +307,55 @@ def test_cases_resolve():
     assert s.family == "la-iterated" and "×3" in s.label
 
 
+def test_the_ladder_gives_the_high_order_methods_longer_steps_on_the_error_grid():
+    """RK6 and RK8 also run at 12.5, 10 and 6.25 ms (RK4 and linear acceleration from 5 ms
+    down, a quick study from 1.25 ms down); every fixed step divides each built-in case's end
+    time and is a whole number of the 1.25 ms error grid's points or divides it, so that the
+    errors are read at each output of the coarse runs."""
+    for name in ("paper", "paper-long"):
+        case = resolve_case(name)
+        steps = {}
+        for s, dt in accuracy.plan(case):
+            if not s.adaptive and s.solver != "mujoco":
+                steps.setdefault(s.family, set()).add(dt)
+        assert max(steps["rk8"]) == max(steps["rk6"]) == 12.5e-3
+        assert {12.5e-3, 10e-3, 6.25e-3} <= steps["rk8"] and max(steps["rk4"]) == 5e-3
+        for dt in set().union(*steps.values()):
+            n, per = case.t_end / dt, max(dt, accuracy.GRID) / min(dt, accuracy.GRID)
+            assert abs(n - round(n)) < 1e-9 and abs(per - round(per)) < 1e-9, dt
+    quick = {dt for s, dt in accuracy.plan(resolve_case("paper"), quick=True) if s.solver == "rk8"}
+    assert max(quick) == accuracy.GRID
+
+
+def test_a_coarse_runs_evaluations_alone_are_taken_at_the_states_it_kept(monkeypatch):
+    """RK8 at 10 ms over ``paper``: the least its steps cost is its 123 evaluations (1 + 12 a
+    step + 1 at each of its two changes of chart) times one q̈ by the fused function, timed at
+    the 12 states the run kept (its 10 steps' ends, the two new charts' starts at two of those
+    times; the first state's is the build's); each state's fused function is called, once to
+    make it and then ``number`` times a batch, no other path."""
+    case = resolve_case("paper")
+    calls = []
+    real = accuracy.evaluations_along
+
+    def along(scene, t_end):
+        sim, states = real(scene, t_end)
+        for plan in sim.engine._plans.values():
+            f = plan.fused
+
+            def counted(t, *a, f=f):
+                calls.append(t)
+                return f(t, *a)
+
+            plan.fused = counted
+        return sim, states
+
+    monkeypatch.setattr(accuracy, "evaluations_along", along)
+    rk8 = Setting("rk8", "autodiff")
+    per, states, count = accuracy.evaluations_alone(case, rk8, 10e-3, number=2, repeats=1)
+    assert (states, count) == (12, 123) and per > 0.0
+    assert len(calls) == (1 + 2) * 12 and len(set(calls)) == 10
+
+
 @pytest.mark.parametrize("solver", ["rk6", "dop853"])
 def test_a_run_past_its_evaluation_budget_stops(solver):
     """The study's budget: a fixed-step run is looked at every output step, an adaptive one at

@@ -207,6 +207,35 @@ def test_work_budget(solver, per_step, scheme, points):
     assert c["solver_evaluations"] == c["evaluations"]
 
 
+@pytest.mark.parametrize(
+    "solver,per_step,dt,steps,max_phi_err",
+    [
+        ("rk6", 7, 1e-2, 10, None),
+        ("rk8", 12, 1e-2, 10, 2e-4),
+        ("rk8", 12, 1.25e-2, 8, 3e-4),
+        ("rk8", 12, 6.25e-3, 16, 2e-5),
+    ],
+)
+def test_a_short_coarse_runs_work_is_its_steps_and_two_changes_of_chart(
+    paper_reference, solver, per_step, dt, steps, max_phi_err
+):
+    """The work of a coarse run over ``paper``'s 0.1 s (the bench's cheapest settings): the
+    first state's evaluation, the method's evaluations a step, and one evaluation at each change
+    of chart (the new chart's start); two changes, (φ, ψ) → (ψ, x_C) → (φ, x_C), around the
+    (φ, ψ) chart's branch point at t ≈ 0.057 s, and none more."""
+    traj = simulate(PAPER, solver=solver, scheme="autodiff", t_end=0.1, dt=dt)
+    c = traj.counts
+    changes = [e for e in traj.events if e["kind"] == "chart"]
+    assert len(traj.events) == len(changes) == 2
+    assert [(e["from"], e["to"]) for e in changes] == [("phi-psi+", "psi-xc+"), ("psi-xc+", "phi-xc+")]
+    assert all(0.035 < e["t"] < 0.07 and not e["forced"] for e in changes)
+    assert c["steps"] == steps and len(traj) == steps + 1
+    assert c["evaluations"] == 1 + per_step * steps + len(changes)
+    assert c["solver_evaluations"] == c["evaluations"] == c["position_points"]
+    if max_phi_err is not None:  # seen: 1.5e-4, 2.0e-4, 1.3e-5 rad at the outputs
+        assert max_err(traj, paper_reference, "phi") < max_phi_err
+
+
 def test_iterated_corrector_budget_and_accuracy(paper_reference_005):
     """Three corrections cost 4 evaluations a step; over the seed's 0.05 s they are the more
     accurate (over 0.1 s, through the branch point, they are not: README, bench)."""
