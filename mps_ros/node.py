@@ -358,7 +358,7 @@ class PressTwin(LifecycleNode):
         )
 
     def _stepping_process(self, p: dict):
-        from .stepping import SteppingProcess
+        from .releasing import SteppingProcess
 
         twin = dict(
             dt=p["dt"] or None,
