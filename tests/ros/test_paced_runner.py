@@ -179,11 +179,17 @@ def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_
     assert min(late0) > -1e-6 and min(late4) > -1e-6
     assert wakes4 < 0.4 * n  # about one per four steps ...
     assert wakes0 > 2 * wakes4  # ... against one a step (a busy machine
+
     #                                             merges a few)
     # the first of four goes out 3 periods late, the last at its deadline; the machine's own
-    # delays come on top of that
-    assert 1.0 * period < statistics.median(late4) < 3 * period + 0.02
-    assert sorted(late4)[int(0.9 * len(late4))] < 3 * period + 0.05
+    # delays come on top of that: as much as they delayed the run that sends each step at its
+    # deadline (its own lateness, measured the same way just before), with room for a busy
+    # machine's moments
+    def p(late, q):
+        return sorted(late)[int(q * len(late))]
+
+    assert 1.0 * period < statistics.median(late4) < 3 * period + p(late0, 0.5) + 0.02
+    assert p(late4, 0.9) < 3 * period + p(late0, 0.9) + 0.05
 
 
 def test_commands_already_waiting_are_applied_at_the_start():
@@ -299,7 +305,7 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     engaged; a second ``engage`` right after the first, while that one is being applied) is
     answered where its boundary's step says so, no step computed ahead is redone for it, and
     the run is the one that stepped in time."""
-    from mps_ros.stepping import SteppingProcess
+    from mps_ros.releasing import SteppingProcess
     from mps_ros.topics import OUTPUTS
 
     K = 60
@@ -367,7 +373,7 @@ def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step
     steps computed beyond it are computed again, or, where the machine refuses it there, stand);
     the run is bit for bit the one given each command at that boundary in one process, and the
     recorder gets what was published, in the same order."""
-    from mps_ros.stepping import SteppingProcess
+    from mps_ros.releasing import SteppingProcess
     from mps_ros.topics import OUTPUTS
 
     plan = {40: "engage", 41: "engage", 150: "disengage"}  # at the step whose /clock went out
