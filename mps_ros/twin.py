@@ -17,7 +17,7 @@ wall seconds ahead and released by a thread of their own, never before their dea
 most ``release_period`` less one step's period after them (the thread wakes about once per
 ``release_period`` and sends every step that is due: a wake-up costs the machine more than a
 step's publishing), and a command comes back to the checkpoint of its boundary
-(:meth:`Runner._run_paced`); a step computed after its deadline is a *deadline miss* (it goes
+(:class:`~mps_ros.paced.PacedInProcess`); a step computed after its deadline is a *deadline miss* (it goes
 out late; the schedule is kept, so the run catches up when it can).
 """
 
@@ -39,7 +39,6 @@ from mps_core.scene.settings import COMMANDS
 
 from . import diagnostics
 from .diagnostics import hardware_id
-from .os_threads import name_thread, short_slice
 from .topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES
 
 _RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
@@ -205,6 +204,11 @@ class Twin:
     @property
     def t(self) -> float:
         return self.sim.t
+
+    @property
+    def t_ns(self) -> int:
+        """The simulated time in nanoseconds (the messages' stamps)."""
+        return to_ns(self.sim.t)
 
     @property
     def done(self) -> bool:
@@ -633,20 +637,6 @@ class RefusalLog:
 
 
 # -- the run --------------------------------------------------------------------------------
-class _Release:
-    """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
-    (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
-    twin's checkpoint after the step (to come back to for a command); ``structure`` and
-    ``refusals`` (:meth:`Twin.refusals`): the twin's after the step."""
-
-    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp", "structure", "refusals")
-
-    def __init__(self, k, t_ns, deadline, msgs, state, cp, structure="", refusals=None):
-        self.k, self.t_ns, self.deadline = k, t_ns, deadline
-        self.msgs, self.state, self.cp = msgs, state, cp
-        self.structure, self.refusals = structure, refusals
-
-
 class Timings:
     """Durations (s) kept as a histogram of 1 % wide bins from 1 µs to 100 s: percentiles to
     1 % and the maximum, in memory that does not grow with the run's length."""
@@ -1037,10 +1027,6 @@ class Runner:
             gc.collect()
             gc.freeze()
 
-    #: realtime, steps queued ahead: no step is begun closer than this (wall s) to the next
-    #: release's deadline (at most half a step's period)
-    RELEASE_GUARD = 3e-4
-
     def _start_clocks(self) -> None:
         self.wall_start = time.perf_counter()
         self.cpu_start = time.process_time()
@@ -1099,7 +1085,9 @@ class Runner:
 
     def run(self) -> dict:
         if self.pacing == "realtime":
-            return self._run_paced()
+            from .paced import PacedInProcess
+
+            return PacedInProcess(self).run()
         twin = self.twin
         clock = time.perf_counter
         self.prepare()
@@ -1179,228 +1167,6 @@ class Runner:
                     s.tick(None)
             self.inbox.wait(0.05)
 
-    # -- the loop: realtime, steps computed ahead -----------------------------------------
-    def _run_paced(self) -> dict:
-        """Realtime pacing. The stepping thread (this one) computes steps up to ``lead``
-        seconds of wall time ahead of their deadlines and queues each step's messages with a
-        checkpoint of the twin; a releasing thread hands each step's messages to the live
-        sinks (``sink.live``: the ROS publishers) once its deadline has passed (at most
-        ``release_period`` less one period after it: the steps due at a wake-up go out
-        together), and the stepping thread then hands the released steps to the other sinks
-        (the recorder) in its spare time. A
-        step that costs more than the period (an impact, a chart change, the machine busy for
-        a moment) is absorbed by the steps computed ahead instead of coming out late. A
-        command that arrives at wall time w is applied at the first step boundary whose
-        deadline is not before w + ``command_delay`` (one the gate refuses is answered at w's
-        boundary, and changes nothing): the twin comes back to that step's checkpoint (the steps
-        computed beyond it are dropped, never released) and goes on from there with the
-        command. Nothing is released before its deadline, so what the sinks get is what a run
-        that stepped in time would have given them."""
-        twin = self.twin
-        clock = time.perf_counter
-        step = twin.dt / self.rtf  # a step's period on the wall clock
-        ahead = twin.rewindable and self.lead > step
-        lead = self.lead if ahead else step
-        self.prepare()
-        self._start_clocks()
-        queue: collections.deque[_Release] = collections.deque()
-        cond = threading.Condition()
-        self._queue, self._cond, self._released = queue, cond, None
-        self._flush = self._ahead_done = self._releasing = False
-        live = [s for s in self.sinks if getattr(s, "live", False)]
-        later = [s for s in self.sinks if not getattr(s, "live", False)]
-        released = self._released_steps = collections.deque()
-        # the steps and the releases share the interpreter: a step is not begun this close
-        # to a release's deadline, or while one is going out, when steps are queued ahead
-        guard = min(self.RELEASE_GUARD, 0.5 * step)
-        # a release goes out this long after the deadline of the first step it sends
-        self._release_delay = delay = max(0.0, self.release_period - step)
-        refill = 0.2 * lead if ahead else 0.0
-        releaser = threading.Thread(
-            target=self._release_loop, args=(live,), name=f"{self.name}-release", daemon=True
-        )
-        next_diag = self.wall_start + self.period
-        try:
-            # the run's start, t0's state and the commands already waiting go out at the
-            # schedule's start; with steps computed ahead, that is once the first of them are
-            # (the schedule's first steps would otherwise find none banked)
-            first = _Release(twin.k, to_ns(twin.t), 0.0, [], True, None, twin.sim.structure, twin.refusals())
-            self._staging = first.msgs
-            self._begin()
-            self._staging = None
-            self.wall_start = first.deadline = clock() + (lead - step)
-            if ahead:
-                first.cp = twin.checkpoint()
-            queue.append(first)
-            self._released = first
-            releaser.start()
-            if ahead:
-                self._later_logs = []
-            t0, rtf, inbox = twin.t0, self.rtf, self.inbox
-            while not twin.done and not self._stop.is_set():
-                if released:
-                    self._hand_over(released, later)
-                if inbox:
-                    self._commands_ahead(ahead)
-                    continue
-                deadline = self.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
-                wait = deadline - lead - clock()
-                if wait > 0.0:
-                    if self._later_logs:
-                        self._flush_logs()
-                        continue
-                    # a full lead: sleep until a part of it is spent, then refill it in a
-                    # burst of steps (one wake-up for several steps)
-                    wait += refill
-                    inbox.wait(wait if wait < 0.05 else 0.05)
-                    continue
-                if ahead and queue:
-                    with cond:
-                        while (
-                            (self._releasing or (queue and queue[0].deadline + delay - clock() < guard))
-                            and not self._stop.is_set()
-                            and not inbox
-                        ):
-                            cond.wait(0.002)
-                k, msgs, c1 = self._timed_step(deadline, clock)
-                t_ns = to_ns(twin.t)
-                entry = _Release(
-                    k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals()
-                )
-                self._staging = entry.msgs
-                if msgs is not None:
-                    entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
-                # no time ahead: an impact's impulses wait for the next step's spare time
-                self._emit_events(twin.new_events(hold=not ahead), t_ns)
-                if c1 >= next_diag:
-                    next_diag = c1 + self.period
-                    self._diagnostics(t_ns)
-                self._staging = None
-                if ahead:
-                    entry.cp = twin.checkpoint()
-                with cond:
-                    # the releasing thread waits for its head's deadline, which a step
-                    # queued behind it does not move: it is woken only where it has none
-                    idle = not queue
-                    queue.append(entry)
-                    if idle:
-                        cond.notify_all()
-        except Exception as exc:
-            self._failed(exc)
-            raise
-        finally:
-            self._staging = None
-            with cond:
-                self._ahead_done = True
-                self._flush = self._stop.is_set() or self.error is not None
-                cond.notify_all()
-            if releaser.is_alive():
-                releaser.join()
-            self._hand_over(released, later)
-            self._flush_logs()
-            self._later_logs = None
-            self._end()
-        return self.stats()
-
-    def _release_loop(self, live) -> None:
-        """The releasing thread: each queued step's messages to the live sinks once its
-        deadline has passed: woken ``_release_delay`` after the first queued step's deadline,
-        it sends that step and every one queued behind it whose deadline has passed by then
-        (one wake-up for them all); then each step goes to the stepping thread for the other
-        sinks."""
-        # named for top -H and /proc; a short scheduler slice, so that the subscribers'
-        # threads its messages wake preempt it less often (Linux 6.12 on; elsewhere not)
-        name_thread("mps-release")
-        ask = self.release_slice_asked
-        self.release_slice = ask if ask and short_slice(ask) else None
-        clock = time.perf_counter
-        queue, cond, released = self._queue, self._cond, self._released_steps
-        delay = self._release_delay
-        due = -math.inf  # the wake-up's time: the steps due by then go out now
-        while True:
-            with cond:
-                while True:
-                    if queue:
-                        head = queue[0]
-                        if head.deadline > due and not self._flush:
-                            now = clock()
-                            left = head.deadline + delay - now
-                            if left > 0.0:
-                                cond.wait(left)
-                                continue
-                            due = now
-                        queue.popleft()
-                        self._released = head
-                        self._releasing = True
-                        break
-                    elif self._ahead_done:
-                        return
-                    else:
-                        cond.wait()
-            p0 = clock()
-            n = 0
-            try:
-                msgs = head.msgs
-                for _key, _data, _t, received in msgs:
-                    if not received:
-                        n += 1
-                for s in live:
-                    emit_all = getattr(s, "emit_all", None)
-                    if emit_all is not None:
-                        emit_all(msgs)
-                        continue
-                    for key, data, t_ns, received in msgs:
-                        if not received:
-                            s.emit(key, data, t_ns)
-                for s in live:
-                    s.tick(head.deadline)
-            except Exception as exc:  # a sink that fails ends the run, never hangs it
-                if self.error is None:
-                    self.error = f"{type(exc).__name__}: {exc}"
-                    self.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: {self.error}")
-                self.request_stop("error")
-            p1 = clock()
-            self.messages += n
-            released.append(head)
-            with cond:
-                self._releasing = False
-                cond.notify_all()
-            if head.state:
-                self.publish_times.add(p1 - p0)
-                late = p1 - head.deadline
-                self.latencies.add(late if late > 0.0 else 0.0)
-
-    @staticmethod
-    def _hand_over(released: collections.deque, sinks) -> None:
-        """Released steps to the sinks that are not live (the recorder), in order."""
-        while released:
-            entry = released.popleft()
-            for s in sinks:
-                emit_all = getattr(s, "emit_all", None)
-                if emit_all is not None:  # the whole step in one call
-                    emit_all(entry.msgs)
-                    continue
-                for key, data, t_ns, received in entry.msgs:
-                    if not received:
-                        s.emit(key, data, t_ns)
-                    elif hasattr(s, "received"):
-                        s.received(key, data, t_ns)
-            for s in sinks:
-                s.tick(entry.deadline)
-
-    def _boundary(self, wall: float, ahead: bool) -> _Release:
-        """The release a command that arrived at ``wall`` follows (call with the queue's
-        lock held): the first step whose deadline is not before ``wall`` (its last release:
-        the step's, or a command's applied there), among the last one released and those
-        queued after it; the last one computed where nothing can be rewound."""
-        queue = self._queue
-        last = queue[-1] if queue else self._released
-        if not ahead:
-            return last
-        steps = (self._released, *queue)
-        d = next((e.deadline for e in steps if e.deadline >= wall), None)
-        return last if d is None else [e for e in steps if e.deadline <= d][-1]
-
     def _timed_step(self, deadline: float, clock) -> tuple[int, list | None, float]:
         """One step: the twin stepped and its messages made where due, the compute time kept
         and a deadline miss counted where it ended after ``deadline``; (k, the messages or
@@ -1415,55 +1181,6 @@ class Runner:
         if c1 > deadline:
             self.misses += 1
         return k, msgs, c1
-
-    def _commands_ahead(self, ahead: bool) -> None:
-        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One
-        the gate refuses (a flood, an empty or overlong word), or the machine would refuse at
-        its boundary (the step's :attr:`_Release.refusals`), changes nothing: its answer is
-        queued right after its boundary and the steps computed beyond it stand. Any other comes
-        back to its boundary's checkpoint, drops the steps beyond it, and is applied there."""
-        twin, queue, cond = self.twin, self._queue, self._cond
-        for c in self.inbox.drain():
-            word = c.word if isinstance(c.word, str) else str(c.word)
-            refusal = self.gate.check(word)
-            with cond:
-                if refusal is not None:
-                    at = self._boundary(c.wall, ahead)
-                else:
-                    at = self._boundary(c.wall + self.command_delay, ahead)
-                    refusal = at.refusals[COMMAND_INDEX[word]]
-                    if refusal is None:
-                        last = queue[-1] if queue else self._released
-                        while queue and queue[-1] is not at:
-                            queue.pop()
-            if refusal is not None:
-                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure, at.refusals)
-                self._staging = entry.msgs
-                try:
-                    self._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
-                finally:
-                    self._staging = None
-                with cond:
-                    # right after its boundary (or first, where that went out meanwhile)
-                    i = next((n for n, e in enumerate(queue) if e is at), -1)
-                    queue.insert(i + 1, entry)
-                    cond.notify_all()
-                continue
-            if at is not last:
-                self.steps_recomputed += last.k - at.k
-                twin.restore(at.cp)
-            entry = _Release(twin.k, to_ns(twin.t), at.deadline, [], False, None)
-            self._staging = entry.msgs
-            try:
-                self._take_commands([c], gated=True)
-            finally:
-                self._staging = None
-            entry.structure, entry.refusals = twin.sim.structure, twin.refusals()
-            if ahead:
-                entry.cp = twin.checkpoint()
-            with cond:
-                queue.append(entry)
-                cond.notify_all()
 
 
 __all__ = [

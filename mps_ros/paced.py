@@ -1,0 +1,317 @@
+"""Realtime pacing in one process (the node's ``stepping_process:=false``): a
+:class:`~mps_ros.twin.Runner`'s twin stepped ahead by its thread, each step released at its
+deadline by a thread of its own (:class:`PacedInProcess`). The node's default steps in a
+process of its own instead (:mod:`mps_ros.stepping`, :mod:`mps_ros.releasing`)."""
+
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+
+from mps_core.scene.settings import COMMANDS
+
+from .os_threads import name_thread, short_slice
+
+
+class _Release:
+    """A step's messages waiting for their deadline (realtime pacing): ``msgs`` as
+    (key, bytes, t_ns, received), ``state``: they include the step's state; ``cp``: the
+    twin's checkpoint after the step (to come back to for a command); ``structure`` and
+    ``refusals`` (:meth:`Twin.refusals`): the twin's after the step."""
+
+    __slots__ = ("k", "t_ns", "deadline", "msgs", "state", "cp", "structure", "refusals")
+
+    def __init__(self, k, t_ns, deadline, msgs, state, cp, structure="", refusals=None):
+        self.k, self.t_ns, self.deadline = k, t_ns, deadline
+        self.msgs, self.state, self.cp = msgs, state, cp
+        self.structure, self.refusals = structure, refusals
+
+
+class PacedInProcess:
+    """A :class:`~mps_ros.twin.Runner`'s realtime run in its own process: the steps, their
+    releases and the commands at their boundaries (see :meth:`run`). ``runner``: the run's
+    twin, sinks, inbox, settings and counters."""
+
+    #: steps queued ahead: no step is begun closer than this (wall s) to the next release's
+    #: deadline (at most half a step's period)
+    RELEASE_GUARD = 3e-4
+
+    def __init__(self, runner):
+        self.runner = runner
+        self._queue: collections.deque[_Release] = collections.deque()
+        self._cond = threading.Condition()
+        self._released: _Release | None = None
+        self._flush = self._ahead_done = self._releasing = False
+        self._released_steps: collections.deque[_Release] = collections.deque()
+        self._release_delay = 0.0
+
+    def run(self) -> dict:
+        """Realtime pacing. The stepping thread (this one) computes steps up to ``lead``
+        seconds of wall time ahead of their deadlines and queues each step's messages with a
+        checkpoint of the twin; a releasing thread hands each step's messages to the live
+        sinks (``sink.live``: the ROS publishers) once its deadline has passed (at most
+        ``release_period`` less one period after it: the steps due at a wake-up go out
+        together), and the stepping thread then hands the released steps to the other sinks
+        (the recorder) in its spare time. A
+        step that costs more than the period (an impact, a chart change, the machine busy for
+        a moment) is absorbed by the steps computed ahead instead of coming out late. A
+        command that arrives at wall time w is applied at the first step boundary whose
+        deadline is not before w + ``command_delay`` (one the gate refuses is answered at w's
+        boundary, and changes nothing): the twin comes back to that step's checkpoint (the steps
+        computed beyond it are dropped, never released) and goes on from there with the
+        command. Nothing is released before its deadline, so what the sinks get is what a run
+        that stepped in time would have given them."""
+        r = self.runner
+        twin = r.twin
+        clock = time.perf_counter
+        step = twin.dt / r.rtf  # a step's period on the wall clock
+        ahead = twin.rewindable and r.lead > step
+        lead = r.lead if ahead else step
+        r.prepare()
+        r._start_clocks()
+        queue, cond, released = self._queue, self._cond, self._released_steps
+        live = [s for s in r.sinks if getattr(s, "live", False)]
+        later = [s for s in r.sinks if not getattr(s, "live", False)]
+        # the steps and the releases share the interpreter: a step is not begun this close
+        # to a release's deadline, or while one is going out, when steps are queued ahead
+        guard = min(self.RELEASE_GUARD, 0.5 * step)
+        # a release goes out this long after the deadline of the first step it sends
+        self._release_delay = delay = max(0.0, r.release_period - step)
+        refill = 0.2 * lead if ahead else 0.0
+        releaser = threading.Thread(
+            target=self._release_loop, args=(live,), name=f"{r.name}-release", daemon=True
+        )
+        next_diag = r.wall_start + r.period
+        try:
+            # the run's start, t0's state and the commands already waiting go out at the
+            # schedule's start; with steps computed ahead, that is once the first of them are
+            # (the schedule's first steps would otherwise find none banked)
+            first = _Release(twin.k, twin.t_ns, 0.0, [], True, None, twin.sim.structure, twin.refusals())
+            r._staging = first.msgs
+            r._begin()
+            r._staging = None
+            r.wall_start = first.deadline = clock() + (lead - step)
+            if ahead:
+                first.cp = twin.checkpoint()
+            queue.append(first)
+            self._released = first
+            releaser.start()
+            if ahead:
+                r._later_logs = []
+            t0, rtf, inbox = twin.t0, r.rtf, r.inbox
+            while not twin.done and not r._stop.is_set():
+                if released:
+                    self._hand_over(released, later)
+                if inbox:
+                    self._commands_ahead(ahead)
+                    continue
+                deadline = r.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
+                wait = deadline - lead - clock()
+                if wait > 0.0:
+                    if r._later_logs:
+                        r._flush_logs()
+                        continue
+                    # a full lead: sleep until a part of it is spent, then refill it in a
+                    # burst of steps (one wake-up for several steps)
+                    wait += refill
+                    inbox.wait(wait if wait < 0.05 else 0.05)
+                    continue
+                if ahead and queue:
+                    with cond:
+                        while (
+                            (self._releasing or (queue and queue[0].deadline + delay - clock() < guard))
+                            and not r._stop.is_set()
+                            and not inbox
+                        ):
+                            cond.wait(0.002)
+                k, msgs, c1 = r._timed_step(deadline, clock)
+                t_ns = twin.t_ns
+                entry = _Release(
+                    k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals()
+                )
+                r._staging = entry.msgs
+                if msgs is not None:
+                    entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
+                # no time ahead: an impact's impulses wait for the next step's spare time
+                r._emit_events(twin.new_events(hold=not ahead), t_ns)
+                if c1 >= next_diag:
+                    next_diag = c1 + r.period
+                    r._diagnostics(t_ns)
+                r._staging = None
+                if ahead:
+                    entry.cp = twin.checkpoint()
+                with cond:
+                    # the releasing thread waits for its head's deadline, which a step
+                    # queued behind it does not move: it is woken only where it has none
+                    idle = not queue
+                    queue.append(entry)
+                    if idle:
+                        cond.notify_all()
+        except Exception as exc:
+            r._failed(exc)
+            raise
+        finally:
+            r._staging = None
+            with cond:
+                self._ahead_done = True
+                self._flush = r._stop.is_set() or r.error is not None
+                cond.notify_all()
+            if releaser.is_alive():
+                releaser.join()
+            self._hand_over(released, later)
+            r._flush_logs()
+            r._later_logs = None
+            r._end()
+        return r.stats()
+
+    def _release_loop(self, live) -> None:
+        """The releasing thread: each queued step's messages to the live sinks once its
+        deadline has passed: woken ``_release_delay`` after the first queued step's deadline,
+        it sends that step and every one queued behind it whose deadline has passed by then
+        (one wake-up for them all); then each step goes to the stepping thread for the other
+        sinks."""
+        r = self.runner
+        # named for top -H and /proc; a short scheduler slice, so that the subscribers'
+        # threads its messages wake preempt it less often (Linux 6.12 on; elsewhere not)
+        name_thread("mps-release")
+        ask = r.release_slice_asked
+        r.release_slice = ask if ask and short_slice(ask) else None
+        clock = time.perf_counter
+        queue, cond, released = self._queue, self._cond, self._released_steps
+        delay = self._release_delay
+        due = -math.inf  # the wake-up's time: the steps due by then go out now
+        while True:
+            with cond:
+                while True:
+                    if queue:
+                        head = queue[0]
+                        if head.deadline > due and not self._flush:
+                            now = clock()
+                            left = head.deadline + delay - now
+                            if left > 0.0:
+                                cond.wait(left)
+                                continue
+                            due = now
+                        queue.popleft()
+                        self._released = head
+                        self._releasing = True
+                        break
+                    elif self._ahead_done:
+                        return
+                    else:
+                        cond.wait()
+            p0 = clock()
+            n = 0
+            try:
+                msgs = head.msgs
+                for _key, _data, _t, received in msgs:
+                    if not received:
+                        n += 1
+                for s in live:
+                    emit_all = getattr(s, "emit_all", None)
+                    if emit_all is not None:
+                        emit_all(msgs)
+                        continue
+                    for key, data, t_ns, received in msgs:
+                        if not received:
+                            s.emit(key, data, t_ns)
+                for s in live:
+                    s.tick(head.deadline)
+            except Exception as exc:  # a sink that fails ends the run, never hangs it
+                if r.error is None:
+                    r.error = f"{type(exc).__name__}: {exc}"
+                    r.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: {r.error}")
+                r.request_stop("error")
+            p1 = clock()
+            r.messages += n
+            released.append(head)
+            with cond:
+                self._releasing = False
+                cond.notify_all()
+            if head.state:
+                r.publish_times.add(p1 - p0)
+                late = p1 - head.deadline
+                r.latencies.add(late if late > 0.0 else 0.0)
+
+    @staticmethod
+    def _hand_over(released: collections.deque, sinks) -> None:
+        """Released steps to the sinks that are not live (the recorder), in order."""
+        while released:
+            entry = released.popleft()
+            for s in sinks:
+                emit_all = getattr(s, "emit_all", None)
+                if emit_all is not None:  # the whole step in one call
+                    emit_all(entry.msgs)
+                    continue
+                for key, data, t_ns, received in entry.msgs:
+                    if not received:
+                        s.emit(key, data, t_ns)
+                    elif hasattr(s, "received"):
+                        s.received(key, data, t_ns)
+            for s in sinks:
+                s.tick(entry.deadline)
+
+    def _boundary(self, wall: float, ahead: bool) -> _Release:
+        """The release a command that arrived at ``wall`` follows (call with the queue's
+        lock held): the first step whose deadline is not before ``wall`` (its last release:
+        the step's, or a command's applied there), among the last one released and those
+        queued after it; the last one computed where nothing can be rewound."""
+        queue = self._queue
+        last = queue[-1] if queue else self._released
+        if not ahead:
+            return last
+        steps = (self._released, *queue)
+        d = next((e.deadline for e in steps if e.deadline >= wall), None)
+        return last if d is None else [e for e in steps if e.deadline <= d][-1]
+
+    def _commands_ahead(self, ahead: bool) -> None:
+        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One
+        the gate refuses (a flood, an empty or overlong word), or the machine would refuse at
+        its boundary (the step's :attr:`_Release.refusals`), changes nothing: its answer is
+        queued right after its boundary and the steps computed beyond it stand. Any other comes
+        back to its boundary's checkpoint, drops the steps beyond it, and is applied there."""
+        r = self.runner
+        twin, queue, cond = r.twin, self._queue, self._cond
+        for c in r.inbox.drain():
+            word = c.word if isinstance(c.word, str) else str(c.word)
+            refusal = r.gate.check(word)
+            with cond:
+                if refusal is not None:
+                    at = self._boundary(c.wall, ahead)
+                else:
+                    at = self._boundary(c.wall + r.command_delay, ahead)
+                    refusal = at.refusals[COMMANDS.index(word)]
+                    if refusal is None:
+                        last = queue[-1] if queue else self._released
+                        while queue and queue[-1] is not at:
+                            queue.pop()
+            if refusal is not None:
+                entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure, at.refusals)
+                r._staging = entry.msgs
+                try:
+                    r._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
+                finally:
+                    r._staging = None
+                with cond:
+                    # right after its boundary (or first, where that went out meanwhile)
+                    i = next((n for n, e in enumerate(queue) if e is at), -1)
+                    queue.insert(i + 1, entry)
+                    cond.notify_all()
+                continue
+            if at is not last:
+                r.steps_recomputed += last.k - at.k
+                twin.restore(at.cp)
+            entry = _Release(twin.k, twin.t_ns, at.deadline, [], False, None)
+            r._staging = entry.msgs
+            try:
+                r._take_commands([c], gated=True)
+            finally:
+                r._staging = None
+            entry.structure, entry.refusals = twin.sim.structure, twin.refusals()
+            if ahead:
+                entry.cp = twin.checkpoint()
+            with cond:
+                queue.append(entry)
+                cond.notify_all()
