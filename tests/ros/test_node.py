@@ -786,10 +786,12 @@ def test_no_process_left(tmp_path):
         os.killpg(pgid, 0)
 
 
-def test_node_and_mps_record_write_the_same_messages(tmp_path):
+@pytest.mark.parametrize("split", [True, False], ids=["stepping process", "one process"])
+def test_node_and_mps_record_write_the_same_messages(tmp_path, split):
     """One recording module: a node run and ``mps record`` of the same scene hold the same
     messages, byte for byte (the pacing diagnostics aside), whatever their chunks'
-    compression (here lz4 and none, each as asked). Each runs in a fresh process of
+    compression (here lz4 and none, each as asked), and whether the node steps in a process
+    of its own (its default) or in its own process. Each runs in a fresh process of
     its own, as a user runs them. (Called inside this test process, after the hundreds of
     scenes the suite runs before, ``record`` gives values that differ from a fresh process's
     in their last bits, from t = 6 ms on, relative 1e-16 to 2e-15: the generated kernels a
@@ -799,9 +801,18 @@ def test_node_and_mps_record_write_the_same_messages(tmp_path):
     a = tmp_path / "node.mcap"
     with NodeProcess(
         tmp_path,
-        dict(pacing="as_fast_as_possible", dt=DT, t_end=0.05, recording=str(a), recording_compression="lz4"),
+        dict(
+            pacing="as_fast_as_possible",
+            dt=DT,
+            t_end=0.05,
+            recording=str(a),
+            recording_compression="lz4",
+            stepping_process=split,
+        ),
     ) as node:
         assert node.wait(60) == 0, node.log()
+        # the final line gives each process's CPU where there are two
+        assert ("us and ROS process" in node.log()) == split, node.log()
     b = tmp_path / "record.mcap"
     subprocess.run(
         mps_cmd(
