@@ -493,27 +493,7 @@ class SteppingProcess:
         """Go; release each step at its deadline until the stepping process's end (or its
         death: :attr:`error` says so)."""
         self.prepare()
-        import gc
-
-        from .os_threads import name_thread, short_slice
-
-        if self.priority:
-            self._this_refused = ask_fifo(self.priority)
-            if not self._this_refused:
-                # the rest of this process one below: never ahead of the releases, never
-                # behind an ordinary process while holding what the releases need
-                fifo_for_the_others(max(1, self.priority - 1))
-        if not self.priority or self._this_refused:
-            # under the fair scheduler: a short slice, so that this thread, woken at each
-            # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
-            ask = self.spec["runner"].get("release_slice", 1e-4)
-            if ask:
-                short_slice(ask)
-        name_thread("mps-publish")
-        # what the node made so far (rclpy, the publishers, the scene) out of the collector's
-        # passes: a full collection during the run scans only what the run made since
-        gc.collect()
-        gc.freeze()
+        self._scheduling()
         self._out.frame(b"G", json.dumps({"priority": self.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
@@ -527,29 +507,10 @@ class SteppingProcess:
         import select
 
         while True:
+            now = clock()
             # a run stopped early lets go of what it holds at once
             flush = end is not None and (end.get("stop_reason") or end.get("error"))
-            now = clock()
-            while True:  # every held step whose deadline has passed
-                reply = None
-                with lock:
-                    if not queue:
-                        break
-                    if not flush:
-                        if self._paused_at is not None:  # paused: the steps asked for
-                            if not self._step_replies:
-                                break
-                        elif not self.afap and queue[0].deadline > now:
-                            break
-                    head = self._released = queue.popleft()
-                    if head.state and self._paused_at is not None and self._step_replies:
-                        reply = self._step_replies.popleft()
-                self._release(head, clock)
-                if reply is not None:
-                    try:
-                        reply(self._time_of(head.k))
-                    except Exception:  # a reply must never take the run down
-                        pass
+            self._release_due(now, flush, clock)
             if self.afap and self._released is not None and self._released.k != told:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self._released.k
@@ -575,22 +536,7 @@ class SteppingProcess:
             if not got:
                 eof = True
                 continue
-            for kind, payload in got:
-                if kind == b"M":
-                    entry = _Entry(*marshal.loads(payload))
-                    with lock:
-                        boundaries.arrived(entry)
-                elif kind == b"A":
-                    cid, ack = marshal.loads(payload)
-                    boundaries.answer(cid, json.loads(ack))
-                elif kind == b"L":
-                    self.log(*marshal.loads(payload))
-                elif kind == b"P":
-                    self._priority_said(json.loads(payload))
-                elif kind == b"E":
-                    end = json.loads(payload)
-                    with lock:
-                        self._ended = True
+            end = self._take_frames(got) or end
             if boundaries.has_waiting():
                 with lock:
                     boundaries.take_waiting()
@@ -599,6 +545,79 @@ class SteppingProcess:
         for s in self.sinks:
             s.tick(None)
         return self._finish(end)
+
+    def _scheduling(self) -> None:
+        """This process's scheduling for the run: SCHED_FIFO where asked and allowed (its
+        other threads one below), else a short slice for the publishing thread; the objects
+        made so far frozen out of the collector's passes."""
+        import gc
+
+        from .os_threads import name_thread, short_slice
+
+        if self.priority:
+            self._this_refused = ask_fifo(self.priority)
+            if not self._this_refused:
+                # the rest of this process one below: never ahead of the releases, never
+                # behind an ordinary process while holding what the releases need
+                fifo_for_the_others(max(1, self.priority - 1))
+        if not self.priority or self._this_refused:
+            # under the fair scheduler: a short slice, so that this thread, woken at each
+            # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
+            ask = self.spec["runner"].get("release_slice", 1e-4)
+            if ask:
+                short_slice(ask)
+        name_thread("mps-publish")
+        # what the node made so far (rclpy, the publishers, the scene) out of the collector's
+        # passes: a full collection during the run scans only what the run made since
+        gc.collect()
+        gc.freeze()
+
+    def _release_due(self, now: float, flush, clock) -> None:
+        """Every held step whose deadline has passed by ``now`` (as fast as possible: every
+        one held; paused: those asked for), released in order; ``flush``: all held."""
+        queue, lock = self._queue, self._lock
+        while True:
+            reply = None
+            with lock:
+                if not queue:
+                    break
+                if not flush:
+                    if self._paused_at is not None:  # paused: the steps asked for
+                        if not self._step_replies:
+                            break
+                    elif not self.afap and queue[0].deadline > now:
+                        break
+                head = self._released = queue.popleft()
+                if head.state and self._paused_at is not None and self._step_replies:
+                    reply = self._step_replies.popleft()
+            self._release(head, clock)
+            if reply is not None:
+                try:
+                    reply(self._time_of(head.k))
+                except Exception:  # a reply must never take the run down
+                    pass
+
+    def _take_frames(self, got: list) -> dict | None:
+        """The frames the stepping process sent: steps held (of the present generation),
+        answers given, log lines said, its priority; the run's end (returned, where it came)."""
+        end = None
+        for kind, payload in got:
+            if kind == b"M":
+                entry = _Entry(*marshal.loads(payload))
+                with self._lock:
+                    self.boundaries.arrived(entry)
+            elif kind == b"A":
+                cid, ack = marshal.loads(payload)
+                self.boundaries.answer(cid, json.loads(ack))
+            elif kind == b"L":
+                self.log(*marshal.loads(payload))
+            elif kind == b"P":
+                self._priority_said(json.loads(payload))
+            elif kind == b"E":
+                end = json.loads(payload)
+                with self._lock:
+                    self._ended = True
+        return end
 
     def _release(self, head: _Entry, clock) -> None:
         msgs = head.msgs
