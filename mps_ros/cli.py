@@ -200,6 +200,16 @@ def _count(text):
 
 
 def register(sub) -> None:
+    """The ROS commands of ``mps``: node, operator, demo, record, recover."""
+    _register_node(sub)
+    _register_operator(sub)
+    _register_demo(sub)
+    _register_record(sub)
+    _register_recover(sub)
+
+
+def _register_node(sub) -> None:
+    """``mps node``: the ROS 2 node press_twin."""
     n = sub.add_parser(
         "node",
         help="the ROS 2 node press_twin (publishes, records; needs rclpy)",
@@ -218,6 +228,9 @@ def register(sub) -> None:
     )
     n.set_defaults(func=_node)
 
+
+def _register_operator(sub) -> None:
+    """``mps operator``: mode commands sent at simulated times."""
     o = sub.add_parser(
         "operator",
         help="send mode commands to press_twin at simulated times",
@@ -245,6 +258,9 @@ def register(sub) -> None:
     )
     o.set_defaults(func=_operator)
 
+
+def _register_demo(sub) -> None:
+    """``mps demo``: node and operator, realtime, recorded."""
     d = sub.add_parser(
         "demo",
         help="node + operator on a scene, realtime, recorded (make run)",
@@ -261,6 +277,9 @@ def register(sub) -> None:
     )
     d.set_defaults(func=_demo)
 
+
+def _register_record(sub) -> None:
+    """``mps record``: the node's recording made without ROS."""
     r = sub.add_parser(
         "record",
         help="write the node's MCAP recording without ROS",
@@ -324,6 +343,9 @@ def register(sub) -> None:
     )
     r.set_defaults(func=_record)
 
+
+def _register_recover(sub) -> None:
+    """``mps recover``: a recording cut short made whole."""
     c = sub.add_parser(
         "recover",
         help="complete an MCAP recording cut short (e.g. SIGKILL)",
