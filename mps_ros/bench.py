@@ -767,6 +767,13 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         help="keep the realtime or soak run's logs (the node's, the subscriber's) and figures in DIR",
     )
+    _node_arguments(p.add_argument_group("the node's settings"))
+    _beside_arguments(p.add_argument_group("beside the node: the machine's load, the subscriber"))
+    return p
+
+
+def _node_arguments(p) -> None:
+    """The benchmark's arguments that set the node's parameters."""
     p.add_argument(
         "--outputs", metavar="LIST", help="the realtime run's outputs, comma-separated (default: all)"
     )
@@ -816,7 +823,7 @@ def _parser() -> argparse.ArgumentParser:
         "--derivatives",
         choices=("central", "autodiff"),
         default=None,
-        help="the node's derivatives (default: the scene's, central)",
+        help="the node's derivatives (default: the scene's)",
     )
     p.add_argument(
         "--in-process",
@@ -824,6 +831,17 @@ def _parser() -> argparse.ArgumentParser:
         help="the node steps in its own process (stepping_process:=false) instead "
         "of a stepping process of its own",
     )
+    p.add_argument(
+        "--command-delay",
+        type=float,
+        default=None,
+        metavar="S",
+        help="the node's command_delay (default: the node's, 0)",
+    )
+
+
+def _beside_arguments(p) -> None:
+    """The benchmark's arguments for what runs beside the node."""
     p.add_argument(
         "--neighbours",
         type=int,
@@ -848,13 +866,6 @@ def _parser() -> argparse.ArgumentParser:
         "(the scene's own commands off)",
     )
     p.add_argument(
-        "--command-delay",
-        type=float,
-        default=None,
-        metavar="S",
-        help="the node's command_delay (default: the node's, 0)",
-    )
-    p.add_argument(
         "--events-executor",
         action="store_true",
         help="probe: spin rclpy's events executor (the realtime run's subscriber "
@@ -866,7 +877,6 @@ def _parser() -> argparse.ArgumentParser:
         help="the subscriber deserializes every message into a Python object "
         "(default: it takes them serialized, as delivered)",
     )
-    return p
 
 
 def _writer() -> int:
