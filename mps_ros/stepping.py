@@ -266,18 +266,7 @@ class _Ahead:
         # checkpoints kept, by step
         keep = (self.AHEAD + self.BATCH + 100) if afap else int(math.ceil(2.0 * lead / step)) + 100
         refill = 0.2 * lead if ahead else 0.0
-        runner.prepare()
-        runner._start_clocks()
-        staged: list = []
-        runner._staging = staged
-        runner._begin()
-        runner._staging = None
-        self.wall_start = runner.wall_start = clock() + (0.0 if afap else lead - step)
-        self.k0 = twin.k
-        if ahead:
-            self.cps[twin.k] = twin.checkpoint()
-        self._entry(twin.k, self.deadline(twin.k) if afap else self.wall_start, True, staged)
-        runner._later_logs = []
+        self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.wall_start + runner.period
         commands, stop = self.commands, runner._stop
         # a schedule this far behind (wall s) is said once: the run cannot keep real time
@@ -338,25 +327,48 @@ class _Ahead:
             runner._failed(exc)
             raise
         finally:
+            self._end()
+
+    def _begin(self, ahead: bool, lead: float) -> None:
+        """The run's start: its start event, t0's state and the commands already waiting, the
+        first entry, due ``lead`` wall seconds from now (the first steps computed meanwhile)."""
+        runner, twin = self.runner, self.twin
+        runner.prepare()
+        runner._start_clocks()
+        staged: list = []
+        runner._staging = staged
+        runner._begin()
+        runner._staging = None
+        self.wall_start = runner.wall_start = time.perf_counter() + lead
+        self.k0 = twin.k
+        if ahead:
+            self.cps[twin.k] = twin.checkpoint()
+        self._entry(twin.k, self.deadline(twin.k), True, staged)
+        runner._later_logs = []
+
+    def _end(self) -> None:
+        """The run's end, however it ends: what is pending written, the log lines said, the
+        run's end event and its last state as the last entry."""
+        runner, twin = self.runner, self.twin
+        runner._staging = None
+        try:
+            self.flush()
+        except BrokenPipeError:
+            pass
+        runner._flush_logs()
+        runner._later_logs = None
+        staged: list = []
+        runner._staging = staged
+        try:
+            runner._end()
+        finally:
             runner._staging = None
-            try:
-                self.flush()
-            except BrokenPipeError:
-                pass
-            runner._flush_logs()
-            runner._later_logs = None
-            staged = []
-            runner._staging = staged
-            try:
-                runner._end()
-            finally:
-                runner._staging = None
-            runner.messages += sum(1 for m in staged if not m[3])
-            self._entry(twin.k, self.deadline(twin.k), False, staged)
-            try:
-                self.flush()
-            except BrokenPipeError:
-                pass
+        runner.messages += sum(1 for m in staged if not m[3])
+        self._entry(twin.k, self.deadline(twin.k), False, staged)
+        try:
+            self.flush()
+        except BrokenPipeError:
+            pass
 
     def _say_behind(self, k: int, late: float) -> None:
         """One warning: the steps cost more than their period (the run goes on, late)."""
@@ -416,6 +428,64 @@ def _set_parent_death_signal() -> None:
         pass
 
 
+class _FromTheNode:
+    """What the node's process sends the stepping process after its settings, taken by a
+    thread of its own as it comes (see the module's docstring for the frames): the commands
+    (for :class:`_Ahead`), go and the priority asked (:attr:`go`, :attr:`asked`), a stop, the
+    node's command counts, its pause, its steps asked for while paused and its releases
+    (:attr:`hold`); ``pending``: frames that came with the settings."""
+
+    def __init__(self, runner: Runner, reader: FrameReader, pending: list):
+        self.runner, self.reader, self.pending = runner, reader, pending
+        self.commands: collections.deque = collections.deque()
+        self.wake = threading.Event()  # the stepping loop's: something came
+        self.hold = Hold()
+        self.go = threading.Event()
+        self.asked: dict = {}
+
+    def stop(self, reason: str) -> None:
+        self.runner.request_stop(reason)
+        self.wake.set()
+
+    def take(self, kind: bytes, payload: bytes) -> None:
+        hold, runner = self.hold, self.runner
+        if kind == b"C":
+            self.commands.append(marshal.loads(payload))
+        elif kind == b"S":
+            self.stop(payload.decode())
+            self.go.set()
+        elif kind == b"G":
+            self.asked.update(json.loads(payload))
+            self.go.set()
+        elif kind == b"N":
+            runner.elsewhere = marshal.loads(payload)
+        elif kind == b"Z":
+            hold.paused = True
+        elif kind == b"T":
+            hold.steps.append(1)
+        elif kind == b"K":
+            hold.released = marshal.loads(payload)
+        elif kind == b"O":
+            paused = marshal.loads(payload)
+            hold.shift += paused
+            runner.wall_start += paused
+            hold.paused = False
+        self.wake.set()
+
+    def listen(self) -> None:
+        """The thread's loop, until the node's end of the pipe closes (a stop)."""
+        for kind, payload in self.pending:
+            self.take(kind, payload)
+        while True:
+            got = self.reader.read()
+            if not got:  # the node's end of the pipe closed
+                self.stop("the node's process ended")
+                self.go.set()
+                return
+            for kind, payload in got:
+                self.take(kind, payload)
+
+
 def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     """The stepping process (``python -m mps_ros.stepping``): settings, ready, go, the run,
     its end; see the module's docstring."""
@@ -444,68 +514,19 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     except Exception as exc:
         out.frame(b"R", json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
         return 2
-    commands: collections.deque = collections.deque()
-    wake = threading.Event()
-    hold = Hold()
-
-    def stop(reason: str) -> None:
-        runner.request_stop(reason)
-        wake.set()
+    node = _FromTheNode(runner, reader, pending)
 
     def on_signal(signum, _frame):
-        stop(signal.Signals(signum).name)
+        node.stop(signal.Signals(signum).name)
 
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, on_signal)
     if os.getppid() != parent:  # the node died before the death signal was asked for
-        stop("the node's process ended")
+        node.stop("the node's process ended")
     out.frame(b"R", json.dumps({"ready": True, "pid": os.getpid(), "rewindable": twin.rewindable}).encode())
-    go = threading.Event()
-    asked: dict = {}
-
-    def take(kind, payload) -> None:
-        if kind == b"C":
-            commands.append(marshal.loads(payload))
-            wake.set()
-        elif kind == b"S":
-            stop(payload.decode())
-            go.set()
-        elif kind == b"G":
-            asked.update(json.loads(payload))
-            go.set()
-        elif kind == b"N":
-            runner.elsewhere = marshal.loads(payload)
-        elif kind == b"Z":
-            hold.paused = True
-            wake.set()
-        elif kind == b"T":
-            hold.steps.append(1)
-            wake.set()
-        elif kind == b"K":
-            hold.released = marshal.loads(payload)
-            wake.set()
-        elif kind == b"O":
-            paused = marshal.loads(payload)
-            hold.shift += paused
-            runner.wall_start += paused
-            hold.paused = False
-            wake.set()
-
-    def listen() -> None:
-        for kind, payload in pending:
-            take(kind, payload)
-        while True:
-            got = reader.read()
-            if not got:  # the node's end of the pipe closed
-                stop("the node's process ended")
-                go.set()
-                return
-            for kind, payload in got:
-                take(kind, payload)
-
-    threading.Thread(target=listen, name="mps-commands", daemon=True).start()
-    go.wait()
-    prio = int(asked.get("priority", 0))
+    threading.Thread(target=node.listen, name="mps-commands", daemon=True).start()
+    node.go.wait()
+    prio = int(node.asked.get("priority", 0))
     why = ask_fifo(prio) if prio else None
     if prio and why is None:
         # the commands' thread too: a command waits for no ordinary process on the machine
@@ -519,7 +540,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     name_thread("mps-step")
     error_kind = None
     try:
-        _Ahead(runner, out, commands, wake, hold, afap=bool(spec.get("afap"))).run()
+        _Ahead(runner, out, node.commands, node.wake, node.hold, afap=bool(spec.get("afap"))).run()
     except Exception as exc:
         from mps_core import MpsError
 
