@@ -173,10 +173,9 @@ def run_live(
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
     # the node's module first: loopback-only discovery unless set, before rclpy starts
     import rclpy
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from .node import MSG_CLASSES
-    from .view import FAMILIES, _rr, blueprint, convert
+    from .node import MSG_CLASSES  # noqa: F401  (imported for the environment it sets)
+    from .view import _rr
 
     if log is None:
 
@@ -190,53 +189,17 @@ def run_live(
 
         no_display()  # before anything is started
     rr = _rr()
-    import rerun.blueprint as rrb
 
     scale = arrow_scale_n_per_m / 1e3  # N per mm
     extent = extent_mm(scene)
     _warm_up(rr, scene, node_name, scale, extent)
-    rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
-    viewer = None
-    # the sink and its blueprint before the first frame, so that frame costs what any does
-    every = SimpleNamespace(columns={c: None for _, _, series in FAMILIES for c, _ in series})
-    bp = blueprint(rrb, _bounds(scene, extent), scale, every)
-    if save is not None:
-        try:
-            rr.save(Path(save), default_blueprint=bp, recording=rec)
-        except (OSError, RuntimeError) as exc:
-            raise ReplayError(f"--save {save}: cannot write it ({exc})") from None
-    elif connect is not None:
-        rr.connect_grpc(connect, default_blueprint=bp, recording=rec)
-    else:
-        viewer, url = _spawn()
-        rr.connect_grpc(url, default_blueprint=bp, recording=rec)
+    rec, viewer = _open_sink(rr, scene, extent, scale, save, connect)
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     stop = threading.Event()
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     node = rclpy.create_node(f"mps_view_live_{os.getpid()}")
     inbox = _Inbox(node_name)
-    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
-    latched = QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1,
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL,
-    )
-    subs = []
-    for topic, msgtype in inbox.topics.items():
-        cb = inbox.callback(topic)
-        subs.append(
-            (
-                node.create_subscription(
-                    MSG_CLASSES[msgtype],
-                    topic,
-                    cb,
-                    latched if topic.endswith("/structure") else qos,
-                    raw=True,
-                ),
-                cb,
-            )
-        )
+    subs = _subscribe(node, inbox)
     taking = threading.Event()
     taker = threading.Thread(target=_take, args=(subs, taking), name="mps-view-take", daemon=True)
     taker.start()
@@ -244,38 +207,11 @@ def run_live(
         f"following {resolve('joint_states', node_name)}: "
         + (f"saving to {save}" if save is not None else f"streaming to {connect or 'a viewer on 127.0.0.1'}")
     )
-    frames = steps = drawn = thinned = 0
-    last_logged = None
+    out = _Frames(node_name, scene, rec, scale, extent)
+    log_frame = out.log
     max_lag = 0.0
-    work: list[float] = []
     t_start = time.monotonic()
     period = 1.0 / hz
-
-    def log_frame(got: dict) -> None:
-        nonlocal frames, steps, drawn, thinned, last_logged
-        w0 = time.perf_counter()
-        rep = replay_of_messages("live", got, node_name)
-        if rep is None or not len(rep):
-            return
-        # behind the run (a frame holding more steps than DRAW_MAX): the mechanism drawn at
-        # every k-th step, the plots and events at every one
-        k = max(1, math.ceil(len(rep) / DRAW_MAX))
-        c = convert(
-            rep,
-            scene=scene,
-            recording=rec,
-            arrow_scale=scale,
-            extent=extent,
-            statics=frames == 0,
-            draw_every=k,
-        )
-        frames += 1
-        steps += len(rep)
-        drawn += c.drawn_steps
-        thinned += k > 1
-        last_logged = float(rep.columns["t"][-1])
-        work.append(time.perf_counter() - w0)
-
     try:
         nxt = time.monotonic()
         while not stop.is_set():
@@ -285,7 +221,7 @@ def run_live(
                 raise ReplayError("the view stopped taking the node's messages")
             ended = inbox.ended
             log_frame(inbox.take())
-            newest = inbox.last_ns
+            newest, last_logged = inbox.last_ns, out.last_logged
             if newest is not None and last_logged is not None:
                 max_lag = max(max_lag, newest * 1e-9 - last_logged)
             if ended:
@@ -311,18 +247,104 @@ def run_live(
             signal.signal(s, h)
         rec.flush()
         rr.disconnect(recording=rec)
-    work.sort()
+    work = sorted(out.work)
     return {
-        "frames": frames,
-        "steps": steps,
-        "drawn_steps": drawn,
-        "thinned_frames": thinned,
-        "last_t": last_logged,
+        "frames": out.frames,
+        "steps": out.steps,
+        "drawn_steps": out.drawn,
+        "thinned_frames": out.thinned,
+        "last_t": out.last_logged,
         "max_lag_s": max_lag,
         "frame_work_p50_s": work[len(work) // 2] if work else math.nan,
         "frame_work_max_s": work[-1] if work else math.nan,
         "viewer_pid": viewer.pid if viewer is not None else None,
     }
+
+
+def _open_sink(rr, scene, extent, scale, save, connect):
+    """The recording stream and where it goes (a file, a viewer at ``connect``, or a viewer
+    spawned on loopback), its blueprint sent before the first frame, so that that frame costs
+    what any does: (the stream, the spawned viewer or None)."""
+    import rerun.blueprint as rrb
+
+    from .view import FAMILIES, blueprint
+
+    rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
+    viewer = None
+    every = SimpleNamespace(columns={c: None for _, _, series in FAMILIES for c, _ in series})
+    bp = blueprint(rrb, _bounds(scene, extent), scale, every)
+    if save is not None:
+        try:
+            rr.save(Path(save), default_blueprint=bp, recording=rec)
+        except (OSError, RuntimeError) as exc:
+            raise ReplayError(f"--save {save}: cannot write it ({exc})") from None
+    elif connect is not None:
+        rr.connect_grpc(connect, default_blueprint=bp, recording=rec)
+    else:
+        viewer, url = _spawn()
+        rr.connect_grpc(url, default_blueprint=bp, recording=rec)
+    return rec, viewer
+
+
+def _subscribe(node, inbox) -> list:
+    """The view's subscriptions to the node's topics (the structure latched), raw, each
+    with its inbox callback: [(subscription, callback)]."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from .node import MSG_CLASSES
+
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    subs = []
+    for topic, msgtype in inbox.topics.items():
+        cb = inbox.callback(topic)
+        sub = node.create_subscription(
+            MSG_CLASSES[msgtype], topic, cb, latched if topic.endswith("/structure") else qos, raw=True
+        )
+        subs.append((sub, cb))
+    return subs
+
+
+class _Frames:
+    """The frames logged so far: each a batch of the node's messages converted and logged to
+    the stream (:meth:`log`), with its counts and work."""
+
+    def __init__(self, node_name, scene, rec, scale, extent):
+        self.node_name, self.scene, self.rec, self.scale, self.extent = node_name, scene, rec, scale, extent
+        self.frames = self.steps = self.drawn = self.thinned = 0
+        self.last_logged: float | None = None
+        self.work: list[float] = []
+
+    def log(self, got: dict) -> None:
+        from .view import convert
+
+        w0 = time.perf_counter()
+        rep = replay_of_messages("live", got, self.node_name)
+        if rep is None or not len(rep):
+            return
+        # behind the run (a frame holding more steps than DRAW_MAX): the mechanism drawn at
+        # every k-th step, the plots and events at every one
+        k = max(1, math.ceil(len(rep) / DRAW_MAX))
+        c = convert(
+            rep,
+            scene=self.scene,
+            recording=self.rec,
+            arrow_scale=self.scale,
+            extent=self.extent,
+            statics=self.frames == 0,
+            draw_every=k,
+        )
+        self.frames += 1
+        self.steps += len(rep)
+        self.drawn += c.drawn_steps
+        self.thinned += k > 1
+        self.last_logged = float(rep.columns["t"][-1])
+        self.work.append(time.perf_counter() - w0)
 
 
 def _warm_up(rr, scene, node_name, scale, extent) -> None:
