@@ -515,37 +515,25 @@ _RECORD = struct.Struct("<HqI").pack
 _RECORD_HEAD = struct.Struct("<HqI")
 
 
-def _write_from_pipe() -> int:
-    """The writing process of :class:`BackgroundRecorder` (``python -m mps_ros.recording``)."""
-    import json
-    import select
-    import signal
-    import sys
+class _PipeFrames:
+    """Whole frames from the stepping process's pipe (see :class:`BackgroundRecorder`)."""
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    fd = sys.stdin.fileno()
-    out = sys.stdout
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.buf = bytearray()
+        self.eof = False  # the other end closed
 
-    def answer(obj) -> None:
-        try:
-            out.write(json.dumps(obj) + "\n")
-            out.flush()
-        except (BrokenPipeError, OSError):
-            pass
-
-    buf = bytearray()
-    eof = False
-
-    def frames(timeout):
+    def read(self, timeout: float | None) -> list[tuple[bytes, bytes]]:
         """Whole frames read so far (waiting up to ``timeout`` for more)."""
-        nonlocal eof
-        if not eof and select.select([fd], [], [], timeout)[0]:
-            chunk = os.read(fd, 1 << 20)
+        import select
+
+        buf = self.buf
+        if not self.eof and select.select([self.fd], [], [], timeout)[0]:
+            chunk = os.read(self.fd, 1 << 20)
             if chunk:
                 buf.extend(chunk)
             else:
-                eof = True
+                self.eof = True
         got = []
         pos = 0
         while len(buf) - pos >= 5:
@@ -557,9 +545,28 @@ def _write_from_pipe() -> int:
         del buf[:pos]
         return got
 
+
+def _write_from_pipe() -> int:
+    """The writing process of :class:`BackgroundRecorder` (``python -m mps_ros.recording``)."""
+    import json
+    import signal
+    import sys
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    frames = _PipeFrames(sys.stdin.fileno())
+    out = sys.stdout
+
+    def answer(obj) -> None:
+        try:
+            out.write(json.dumps(obj) + "\n")
+            out.flush()
+        except (BrokenPipeError, OSError):
+            pass
+
     rec = None
     while rec is None:
-        for kind, payload in frames(None):
+        for kind, payload in frames.read(None):
             if kind != b"I":
                 answer({"error": f"expected the settings first, got {kind!r}"})
                 return 2
@@ -572,51 +579,12 @@ def _write_from_pipe() -> int:
             except Exception as exc:
                 answer({"error": f"{type(exc).__name__}: {exc}"})
                 return 2
-        if eof and rec is None:
+        if frames.eof and rec is None:
             return 2
     answer({"ready": True})
-    channels: dict[int, tuple] = {}
-    by_key: dict = {}  # a step's keys -> channel ids (the "S" frames)
-    error = None
-    done = False
+    error, done = None, False
     try:
-        while not done:
-            got = frames(rec.flush_period)
-            if not got:
-                rec.tick()
-                if eof:  # the stepping process is gone: finish the file
-                    break
-                continue
-            for kind, payload in got:
-                if kind == b"B":
-                    write = rec.write
-                    pos, end = 0, len(payload)
-                    while pos < end:
-                        cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
-                        pos += 14
-                        topic, msgtype, qos = channels[cid]
-                        write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
-                        pos += n
-                    rec.tick()
-                elif kind == b"S":
-                    ids, steps = marshal.loads(payload)
-                    if ids is not None:
-                        by_key = ids
-                    write = rec.write
-                    for msgs in steps:
-                        for key, data, t_ns, _received in msgs:
-                            topic, msgtype, qos = channels[by_key[key]]
-                            write(topic, msgtype, data, t_ns, qos)
-                    rec.tick()
-                elif kind == b"C":
-                    cid, topic, msgtype, qos = json.loads(payload)
-                    channels[cid] = (topic, msgtype, qos)
-                    rec.channel(topic, msgtype, qos)
-                elif kind == b"F":
-                    rec.flush()
-                elif kind == b"E":
-                    done = True
-                    break
+        done = _write_frames(rec, frames)
     except OSError as exc:  # the disk full, the file system gone read-only
         error = f"{exc.strerror or exc}"
     except Exception as exc:
@@ -633,9 +601,54 @@ def _write_from_pipe() -> int:
         rec.finish()
     except Exception:
         pass
-    while not done and not eof:
-        done = any(kind == b"E" for kind, _ in frames(None))
+    while not done and not frames.eof:
+        done = any(kind == b"E" for kind, _ in frames.read(None))
     return 1
+
+
+def _write_frames(rec: Recorder, frames: _PipeFrames) -> bool:
+    """Write what comes down the pipe until the finish frame (True) or the pipe's end
+    (False: the stepping process is gone; the file is finished all the same)."""
+    import json
+
+    channels: dict[int, tuple] = {}
+    by_key: dict = {}  # a step's keys -> channel ids (the "S" frames)
+    while True:
+        got = frames.read(rec.flush_period)
+        if not got:
+            rec.tick()
+            if frames.eof:  # the stepping process is gone: finish the file
+                return False
+            continue
+        for kind, payload in got:
+            if kind == b"B":
+                write = rec.write
+                pos, end = 0, len(payload)
+                while pos < end:
+                    cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
+                    pos += 14
+                    topic, msgtype, qos = channels[cid]
+                    write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
+                    pos += n
+                rec.tick()
+            elif kind == b"S":
+                ids, steps = marshal.loads(payload)
+                if ids is not None:
+                    by_key = ids
+                write = rec.write
+                for msgs in steps:
+                    for key, data, t_ns, _received in msgs:
+                        topic, msgtype, qos = channels[by_key[key]]
+                        write(topic, msgtype, data, t_ns, qos)
+                rec.tick()
+            elif kind == b"C":
+                cid, topic, msgtype, qos = json.loads(payload)
+                channels[cid] = (topic, msgtype, qos)
+                rec.channel(topic, msgtype, qos)
+            elif kind == b"F":
+                rec.flush()
+            elif kind == b"E":
+                return True
 
 
 class RecordingSink:
