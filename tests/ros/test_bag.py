@@ -85,7 +85,9 @@ def test_a_bag_split_by_time_holds_every_message_once_in_order(tmp_path):
         assert f["duration"]["nanoseconds"] >= 0.25e9 - 1e6
     got, count = _read_bag(bag)
     want = _read_file(one)
-    assert count == len(got) == len(want)
+    assert count == len(got)
+    # /diagnostics come once a wall second: a run slowed by a busy machine has one more
+    assert sum(1 for m in got if m[0] != "/diagnostics") == sum(1 for m in want if m[0] != "/diagnostics")
     assert [t for _, t, _ in got] == sorted(t for _, t, _ in got)
 
     def by_topic(msgs):
