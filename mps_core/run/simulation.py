@@ -49,9 +49,10 @@ each reported observable comes from, the event functions) is worked out once per
 recorded rows are tuples made into columns at the end, and the reported angles read for unwrapping
 after a step are reused by its record.
 
-**Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
-their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
-``T + V − (T0 + V0) − W + E_impact`` closes to the integration error.
+**Energy** (:mod:`mps_core.run.energy`): the work of the non-conservative effects is integrated
+per step (trapezoid rule on their power at the step's ends) into ``W``; impact losses accumulate
+into ``E_impact``; the balance ``T + V − (T0 + V0) − W + E_impact`` closes to the integration
+error.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
 from .charts import ChartChanger
+from .energy import EnergyAccount
 from .events import EventLocator
 from .observables import Observables
 from .stability import StepStability
@@ -189,8 +191,8 @@ class Simulation:
         self.charts = ChartChanger(self)
         self.solver_nfev = 0
         self.solver_steps = 0
-        self.work = 0.0
-        self.impact_loss = 0.0
+        #: W, E_impact and V: the energy balance's terms
+        self.energy = EnergyAccount(self.effects)
         #: the reported observables' values, rates and accelerations in any chart
         self.observables = Observables(self)
         self.phys: dict[str, float] = {}
@@ -199,7 +201,7 @@ class Simulation:
         self._spans = None
         self.solver = self._new_solver(t0, q, qd)
         self.observables.update_phys(self.solver.current)
-        self._power_now = self._power(self.solver.current)
+        self.energy.power_now = self.energy.power(self.solver.current)
         self._chart_due = False
         self.charts.check()
         self._ev_prev = self.events_now.values(self.solver.t, self.solver.q, self.solver.qd)
@@ -208,9 +210,8 @@ class Simulation:
             self.structures.release_stop(self.solver.t)
 
     def _sort_effects(self) -> None:
-        """The effects the driver acts through (latch, rigid stop, motor, cylinders) and those
-        its bookkeeping reads (non-conservative: work; conservative: potentials; the stiff
-        ones are :attr:`stability`'s)."""
+        """The effects the driver acts through (latch, rigid stop, motor, cylinders; those its
+        bookkeeping reads are :attr:`energy`'s and, the stiff ones, :attr:`stability`'s)."""
         eff = self.effects
         self.latch = next((e for e in eff if isinstance(e, Latch)), None)
         self.stop = next((e for e in eff if isinstance(e, TopStop) and e.rigid), None)
@@ -219,8 +220,6 @@ class Simulation:
             self.controls.motor_on = self.motor.enabled
         self.engage = next((e for e in eff if e.kind == "engage_cylinder"), None)
         self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
-        self._nc = [e for e in eff if not e.conservative]
-        self._potentials = [e.potential for e in eff if e.conservative]
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -245,8 +244,8 @@ class Simulation:
         to a step boundary (a command arrived for it) and goes on from there exactly as if it
         had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
         changed, by a step, except the containers copied here (the controls, the event log,
-        the pending commands and timers, the unwrapping references, the observers' own
-        ``checkpoint``). Caches (kernels, views, plans) are shared, not kept."""
+        the pending commands and timers, the energy account, the unwrapping references, the
+        observers' own ``checkpoint``). Caches (kernels, views, plans) are shared, not kept."""
         if not self.rewindable:
             raise NotImplementedError(
                 f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
@@ -259,13 +258,14 @@ class Simulation:
             list(self.events),
             list(self.pending),
             list(self._timers),
+            self.energy.state(),
             dict(self.phys),
             [ob.checkpoint() if hasattr(ob, "checkpoint") else None for ob in self.observers],
         )
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
-        state, solver, controls, events, pending, timers, phys, observers = cp
+        state, solver, controls, events, pending, timers, energy, phys, observers = cp
         exact = self._exact_engine
         d = self.__dict__
         d.clear()
@@ -278,6 +278,7 @@ class Simulation:
         self.events[:] = events
         self.pending[:] = pending
         self._timers = list(timers)
+        self.energy.set_state(energy)
         self.phys.clear()
         self.phys.update(phys)
         for ob, st in zip(self.observers, observers):
@@ -319,7 +320,7 @@ class Simulation:
     def _restart(self, view, t, q, qd):
         self.view = view
         self.solver = self._new_solver(t, q, qd)
-        self._power_now = self._power(self.solver.current)
+        self.energy.power_now = self.energy.power(self.solver.current)
         self._ev_prev = self.events_now.values(t, self.solver.q, self.solver.qd)
         self._seg_start = t
         # the forces may have changed (a command, an impact): a stop that would now pull lets go
@@ -349,27 +350,6 @@ class Simulation:
         """Take a command now (t None) or at a later simulated time; refused ones raise."""
         self.structures.command(name, t)
 
-    # -- work and energy ------------------------------------------------------------------
-    def _power(self, e) -> float:
-        if e.Q_nc is not None:
-            # Σ F·v + M·ω of the non-conservative loads is their virtual work along q̇
-            p = 0.0
-            for a, b in zip(e.Q_nc, e.kin._v()):
-                p += a * b
-            return p
-        p = 0.0
-        for eff in self._nc:
-            p += eff.power(e.t, e.kin)
-        return p
-
-    def _potential(self, kin) -> float:
-        """V: the engine's ``potential_energy`` (the conservative effects' sum, in their order)
-        over the list of those effects kept by the driver (a test holds the two equal)."""
-        v = 0
-        for potential in self._potentials:
-            v += potential(kin)
-        return float(v)
-
     # -- the state, for sinks ---------------------------------------------------------------
     def joint_state(self) -> tuple:
         """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
@@ -392,8 +372,8 @@ class Simulation:
         out["x_C_dot"] = float(e.kin.velocity("C")[0])
         out["T"] = e.kinetic_energy
         out["V"] = self.engine.potential_energy(e.kin)
-        out["W"] = self.work
-        out["E_impact"] = self.impact_loss
+        out["W"] = self.energy.work
+        out["E_impact"] = self.energy.impact_loss
         out["structure"] = self.structure
         out["chart"] = self.view.name
         c = self.controls
@@ -414,7 +394,7 @@ class Simulation:
             t0 = self.solver.t
             if self._at_boundary(t0, tol):
                 continue
-            p_a = self._power_now
+            p_a = self.energy.power_now
             self._seg_start = t0
             try:
                 self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self.events_now.interrupt)
@@ -481,6 +461,7 @@ class Simulation:
         """A step taken from t0: cut at its first event (the event's action taken), or kept
         whole with its work, its event values and the chart to look at."""
         spans = self._spans
+        energy = self.energy
         if spans is not None:  # outputs inside the step: its interpolant
             spans.append(
                 [
@@ -489,9 +470,9 @@ class Simulation:
                     self.solver.dense_output(),
                     self.view,
                     self.controls.structure,
-                    self.work,
+                    energy.work,
                     p_a,
-                    self.impact_loss,
+                    energy.impact_loss,
                 ]
             )
         hit, vals = self.events_now.locate()
@@ -506,7 +487,7 @@ class Simulation:
             if spans is not None:
                 spans[-1][1] = t_e
             self._cut_at(t_e)
-            self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
+            energy.work += 0.5 * (p_a + energy.power(self.solver.current)) * (t_e - t0)
             ev.action(t_e)
             if ev.restart or ev.name == "change-point":
                 # a new dict: a checkpoint may hold the one before
@@ -517,9 +498,9 @@ class Simulation:
         # and unwrap references at its end, and the chart's regularity there
         solver = self.solver
         e = solver.current
-        p_b = self._power(e)
-        self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
-        self._power_now = p_b
+        p_b = energy.power(e)
+        energy.work += 0.5 * (p_a + p_b) * (solver.t - t0)
+        energy.power_now = p_b
         self._ev_prev = vals
         self.observables.update_phys(e)
         self._chart_due = True
@@ -605,7 +586,11 @@ class Simulation:
         q, qd = dense(tk)
         e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
         self._record(
-            rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a), loss=loss, structure=structure
+            rows,
+            e,
+            work=work + 0.5 * (p_a + self.energy.power(e)) * (tk - t_a),
+            loss=loss,
+            structure=structure,
         )
 
     def _record(self, rows, e, work=None, loss=None, structure=None):
@@ -614,6 +599,7 @@ class Simulation:
         run's at ``e`` where they are not the present ones (an output inside a step)."""
         obs = self.observables.observations(e)
         at = self.observables.report_at
+        energy = self.energy
         phi, psi = obs[at["phi"]], obs[at["psi"]]
         rows.append(
             (
@@ -626,9 +612,9 @@ class Simulation:
                 psi[2],
                 obs[at["x_C"]][0],
                 e.kinetic_energy,
-                self._potential(e.kin),
-                self.work if work is None else work,
-                self.impact_loss if loss is None else loss,
+                energy.potential(e.kin),
+                energy.work if work is None else work,
+                energy.impact_loss if loss is None else loss,
                 self.controls.structure if structure is None else structure,
                 e.view.name,
             )

@@ -130,7 +130,7 @@ class StructureLayer:
         lost = 0.5 * s * s / gAg
         before = sim.observables.physical_rates(view, q, qd)
         after = sim.observables.physical_rates(view, q, qd_plus)
-        sim.impact_loss += lost
+        sim.energy.impact_loss += lost
         for ob in sim.observers:
             if hasattr(ob, "impact"):
                 ob.impact(sim, t, view, q, qd, qd_plus, closing=(obs_name,))
@@ -254,7 +254,7 @@ class StructureLayer:
         w_minus = float(e.qd[0])
         w_plus = max(0.0, C / A_o) * w_minus
         lost = 0.5 * A_s * w_minus**2 - 0.5 * A_o * w_plus**2
-        sim.impact_loss += lost
+        sim.energy.impact_loss += lost
         sim._restart(other, t, np.array([phi]), np.array([w_plus]))
         return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost, "to_chart": other.name}
 
