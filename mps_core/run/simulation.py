@@ -80,6 +80,7 @@ from .charts import ChartChanger
 from .energy import EnergyAccount
 from .events import EventLocator
 from .observables import Observables
+from .records import WorkCounts
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
@@ -183,14 +184,12 @@ class Simulation:
         #: the driver's own control changes due at a known time, (t, name), sorted: step
         #: boundaries like commands (the disengage cylinder's end)
         self._timers: list[tuple[float, str]] = []
-        #: switching points of the effects' force laws crossed (a step ended at each)
-        self.switch_points = 0
         #: the events that can happen now and where they happen inside a step
         self.events_now = EventLocator(self, solver.locates_switch_points())
         #: the changes of chart where the present one degenerates
         self.charts = ChartChanger(self)
-        self.solver_nfev = 0
-        self.solver_steps = 0
+        #: the solvers' work and the switching points crossed (the engine counts its own)
+        self.work_counts = WorkCounts()
         #: W, E_impact and V: the energy balance's terms
         self.energy = EnergyAccount(self.effects)
         #: the reported observables' values, rates and accelerations in any chart
@@ -244,8 +243,9 @@ class Simulation:
         to a step boundary (a command arrived for it) and goes on from there exactly as if it
         had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
         changed, by a step, except the containers copied here (the controls, the event log,
-        the pending commands and timers, the energy account, the unwrapping references, the
-        observers' own ``checkpoint``). Caches (kernels, views, plans) are shared, not kept."""
+        the pending commands and timers, the energy account, the work counts, the unwrapping
+        references, the observers' own ``checkpoint``). Caches (kernels, views, plans) are
+        shared, not kept."""
         if not self.rewindable:
             raise NotImplementedError(
                 f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
@@ -259,13 +259,14 @@ class Simulation:
             list(self.pending),
             list(self._timers),
             self.energy.state(),
+            self.work_counts.state(),
             dict(self.phys),
             [ob.checkpoint() if hasattr(ob, "checkpoint") else None for ob in self.observers],
         )
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
-        state, solver, controls, events, pending, timers, energy, phys, observers = cp
+        state, solver, controls, events, pending, timers, energy, work, phys, observers = cp
         exact = self._exact_engine
         d = self.__dict__
         d.clear()
@@ -279,6 +280,7 @@ class Simulation:
         self.pending[:] = pending
         self._timers = list(timers)
         self.energy.set_state(energy)
+        self.work_counts.set_state(work)
         self.phys.clear()
         self.phys.update(phys)
         for ob, st in zip(self.observers, observers):
@@ -299,8 +301,7 @@ class Simulation:
         old = getattr(self, "solver", None)
         first = None
         if old is not None:
-            self.solver_nfev += old.nfev
-            self.solver_steps += old.nsteps
+            self.work_counts.retire(old)
             first = getattr(old, "step_size", None)  # an adaptive solver carries on its step
         view = self.view
         return make_solver(
@@ -634,9 +635,6 @@ class Simulation:
         }
         for ob in self.observers:
             cols.update(ob.columns())
-        counts = dict(self.engine.counts)
-        counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
-        counts["steps"] = self.solver_steps + self.solver.nsteps
-        counts["switch_points"] = self.switch_points
+        counts = self.work_counts.counts(self.engine.counts, self.solver)
         settings = {**self.settings.described(), "chart_switching": self.policy.switching}
         return Trajectory(cols, list(self.events), counts, settings)
