@@ -81,6 +81,7 @@ from .energy import EnergyAccount
 from .events import EventLocator
 from .observables import Observables
 from .records import WorkCounts
+from .schedule import Schedule
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
@@ -180,10 +181,9 @@ class Simulation:
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
-        self.pending: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
-        #: the driver's own control changes due at a known time, (t, name), sorted: step
-        #: boundaries like commands (the disengage cylinder's end)
-        self._timers: list[tuple[float, str]] = []
+        #: the commands given for later and the driver's own control changes (the disengage
+        #: cylinder's end): step boundaries
+        self.schedule = Schedule(commands)
         #: the events that can happen now and where they happen inside a step
         self.events_now = EventLocator(self, solver.locates_switch_points())
         #: the changes of chart where the present one degenerates
@@ -243,7 +243,7 @@ class Simulation:
         to a step boundary (a command arrived for it) and goes on from there exactly as if it
         had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
         changed, by a step, except the containers copied here (the controls, the event log,
-        the pending commands and timers, the energy account, the work counts, the unwrapping
+        the schedule's commands and timers, the energy account, the work counts, the unwrapping
         references, the observers' own ``checkpoint``). Caches (kernels, views, plans) are
         shared, not kept."""
         if not self.rewindable:
@@ -256,8 +256,7 @@ class Simulation:
             self.solver.state(),
             dict(vars(self.controls)),
             list(self.events),
-            list(self.pending),
-            list(self._timers),
+            self.schedule.state(),
             self.energy.state(),
             self.work_counts.state(),
             dict(self.phys),
@@ -266,7 +265,7 @@ class Simulation:
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
-        state, solver, controls, events, pending, timers, energy, work, phys, observers = cp
+        state, solver, controls, events, schedule, energy, work, phys, observers = cp
         exact = self._exact_engine
         d = self.__dict__
         d.clear()
@@ -277,8 +276,7 @@ class Simulation:
         vars(self.controls).update(controls)
         self.controls.touch()  # restored behind __setattr__: code folded on them is stale
         self.events[:] = events
-        self.pending[:] = pending
-        self._timers = list(timers)
+        self.schedule.set_state(schedule)
         self.energy.set_state(energy)
         self.work_counts.set_state(work)
         self.phys.clear()
@@ -408,8 +406,10 @@ class Simulation:
 
     def _at_boundary(self, t0: float, tol: float) -> bool:
         """A command or a timer due at t0 applied (or the command refused, logged): True."""
-        if self.pending and self.pending[0][0] <= t0 + tol:
-            _t_cmd, name = self.pending.pop(0)
+        schedule = self.schedule
+        commands = schedule.commands
+        if commands and commands[0][0] <= t0 + tol:
+            _t_cmd, name = commands.pop(0)
             try:
                 self.structures.check_command(name)
             except CommandRefused as exc:
@@ -419,20 +419,16 @@ class Simulation:
                 return True
             self.structures.apply_command(name, t0)
             return True
-        if self._timers and self._timers[0][0] <= t0 + tol:
-            self.structures.apply_timer(self._timers.pop(0)[1], t0)
+        timers = schedule.timers
+        if timers and timers[0][0] <= t0 + tol:
+            self.structures.apply_timer(timers.pop(0)[1], t0)
             return True
         return False
 
     def _step_size(self, t0: float, t_target: float) -> float:
         """The next step from t0: to the target, the next command or timer, at most the
         solver's own step, within the stability limit of the stiff effects."""
-        t_next = t_target
-        if self.pending and self.pending[0][0] < t_next:
-            t_next = self.pending[0][0]
-        if self._timers and self._timers[0][0] < t_next:
-            t_next = self._timers[0][0]
-        dt = t_next - t0
+        dt = self.schedule.until(t_target) - t0
         step = self.settings.step
         if step is not None and dt > step * (1.0 + 1e-9):
             dt = step

@@ -326,8 +326,7 @@ class StructureLayer:
         else:
             if not isinstance(name, str) or name not in COMMANDS:
                 raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
-            sim.pending.append((float(t), name))
-            sim.pending.sort()
+            sim.schedule.add_command(t, name)
 
     def apply_command(self, name, t):
         sim = self.sim
@@ -342,10 +341,7 @@ class StructureLayer:
             c.disengage_at = t
             if sim.disengage is not None:
                 c.disengage_on = True
-                sim._timers = sorted(
-                    [(a, b) for a, b in sim._timers if b != "disengage-ends"]
-                    + [(t + sim.disengage.duration, "disengage-ends")]
-                )
+                sim.schedule.set_timer(t + sim.disengage.duration, "disengage-ends")
             if sim.structure == "locked":
                 e = sim.solver.current
                 sim.events.append(rec)
