@@ -21,7 +21,7 @@ class EnergyAccount:
 
     __slots__ = ("_nc", "_potentials", "work", "impact_loss", "power_now")
 
-    def __init__(self, effects):
+    def __init__(self, effects) -> None:
         self._nc = [e for e in effects if not e.conservative]
         self._potentials = [e.potential for e in effects if e.conservative]
         self.work = 0.0

@@ -13,7 +13,7 @@ class WorkCounts:
 
     __slots__ = ("solver_evaluations", "steps", "switch_points")
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.solver_evaluations = 0
         self.steps = 0
         self.switch_points = 0

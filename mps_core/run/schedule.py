@@ -14,7 +14,7 @@ class Schedule:
 
     __slots__ = ("commands", "timers")
 
-    def __init__(self, commands=()):
+    def __init__(self, commands=()) -> None:
         self.commands: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
         self.timers: list[tuple[float, str]] = []
 

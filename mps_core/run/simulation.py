@@ -70,7 +70,7 @@ from ..errors import (
     SingularConfiguration,
     config_in_degrees,
 )
-from ..model.effects import Controls, Latch, Motor, TopStop
+from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
 from ..names import COLUMNS
@@ -154,7 +154,6 @@ class Simulation:
         #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
         #: or the rocker kept on its side with a plastic impact
         self.change_point = change_point
-        self._exact_engine = None
         self.settings = solver
         self.policy = charts
         self.effects = list(effects)
@@ -169,15 +168,15 @@ class Simulation:
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
-        #: the switches between structures, the impacts and the commands
+        #: the switches between structures, the impacts and the commands (and the press's
+        #: parts they act through)
         self.structures = StructureLayer(self)
-        self._sort_effects()
+        motor = self.structures.parts.motor
+        if motor is not None:
+            self.controls.motor_on = motor.enabled
         #: the fixed steps' stability limit for the stiff effects
         self.stability = StepStability(self.effects, mechanism, solver)
         self._views: dict[str, list[ChartView]] = {}
-        self._full: dict[str, ChartView] = {}
-        #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates)
-        self._held: dict[ChartView, tuple] = {}
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
@@ -207,18 +206,6 @@ class Simulation:
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
             self.structures.release_stop(self.solver.t)
-
-    def _sort_effects(self) -> None:
-        """The effects the driver acts through (latch, rigid stop, motor, cylinders; those its
-        bookkeeping reads are :attr:`energy`'s and, the stiff ones, :attr:`stability`'s)."""
-        eff = self.effects
-        self.latch = next((e for e in eff if isinstance(e, Latch)), None)
-        self.stop = next((e for e in eff if isinstance(e, TopStop) and e.rigid), None)
-        self.motor = next((e for e in eff if isinstance(e, Motor)), None)
-        if self.motor is not None:
-            self.controls.motor_on = self.motor.enabled
-        self.engage = next((e for e in eff if e.kind == "engage_cylinder"), None)
-        self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -266,12 +253,9 @@ class Simulation:
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
         state, solver, controls, events, schedule, energy, work, phys, observers = cp
-        exact = self._exact_engine
         d = self.__dict__
         d.clear()
         d.update(state)
-        if self._exact_engine is None:
-            self._exact_engine = exact  # built since: a cache
         self.solver.set_state(dict(solver))
         vars(self.controls).update(controls)
         self.controls.touch()  # restored behind __setattr__: code folded on them is stale
