@@ -1,8 +1,113 @@
-"""What a run records: its work counts (:class:`WorkCounts`)."""
+"""What a run records: a row at each output (:class:`Recorder`) and its work counts
+(:class:`WorkCounts`).
+
+A row is one tuple a step, in the order of :data:`ROW` (the columns are made once, at the end);
+the observers are called at each row (``observe(simulation, evaluation)``) and their
+``columns()`` join the trajectory's. An output inside a step longer than the output interval is
+the step's interpolant there, evaluated, with the work, impact loss and structure of that step.
+"""
 
 from __future__ import annotations
 
-__all__ = ["WorkCounts"]
+import numpy as np
+
+from ..errors import NumericalError
+from ..names import COLUMNS
+from .trajectory import Trajectory
+
+__all__ = ["ROW", "Recorder", "WorkCounts"]
+
+#: a recorded row's columns (see :meth:`Recorder.record`), in :data:`~mps_core.names.COLUMNS`
+ROW = (
+    "t",
+    "phi",
+    "psi",
+    "phi_dot",
+    "psi_dot",
+    "phi_ddot",
+    "psi_ddot",
+    "x_C",
+    "T",
+    "V",
+    "W",
+    "E_impact",
+    "structure",
+    "chart",
+)
+
+
+class Recorder:
+    """The rows of one :meth:`~mps_core.run.simulation.Simulation.run` of ``sim`` and the
+    trajectory made of them."""
+
+    def __init__(self, sim) -> None:
+        self.sim = sim
+        self.rows: list[tuple] = []
+
+    def record(self, e, work=None, loss=None, structure=None) -> None:
+        """Append the row of :data:`ROW` at evaluation ``e`` and call the observers. ``work``,
+        ``loss``, ``structure``: the run's at ``e`` where they are not the present ones (an
+        output inside a step)."""
+        sim = self.sim
+        observables = sim.observables
+        obs = observables.observations(e)
+        at = observables.report_at
+        energy = sim.energy
+        phi, psi = obs[at["phi"]], obs[at["psi"]]
+        self.rows.append(
+            (
+                e.t,
+                phi[0],
+                psi[0],
+                phi[1],
+                psi[1],
+                phi[2],
+                psi[2],
+                obs[at["x_C"]][0],
+                e.kinetic_energy,
+                energy.potential(e.kin),
+                energy.work if work is None else work,
+                energy.impact_loss if loss is None else loss,
+                sim.controls.structure if structure is None else structure,
+                e.view.name,
+            )
+        )
+        for ob in sim.observers:
+            ob.observe(sim, e)
+
+    def record_inside(self, tk: float, spans: list, tol: float) -> None:
+        """Record the output at ``tk`` from the last step of ``spans`` that holds it (each
+        ``[t_a, t_b, dense output, view, structure, work, power at t_a, impact loss]``)."""
+        # the span found is read after the loop
+        for t_a, t_b, dense, view, structure, work, p_a, loss in reversed(spans):  # noqa: B007
+            if t_a - tol <= tk <= t_b + tol:
+                break
+        else:
+            raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
+        q, qd = dense(tk)
+        sim = self.sim
+        e = sim.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
+        self.record(
+            e, work=work + 0.5 * (p_a + sim.energy.power(e)) * (tk - t_a), loss=loss, structure=structure
+        )
+
+    def trajectory(self) -> Trajectory:
+        """The rows so far as columns, the observers' columns, the events, counts and settings."""
+        sim = self.sim
+        data = dict(zip(ROW, zip(*self.rows)))
+        cols = {
+            k: (
+                np.array(data.get(k, ()), dtype=float)
+                if k not in ("structure", "chart")
+                else np.array(data.get(k, ()))
+            )
+            for k in COLUMNS
+        }
+        for ob in sim.observers:
+            cols.update(ob.columns())
+        counts = sim.work_counts.counts(sim.engine.counts, sim.solver)
+        settings = {**sim.settings.described(), "chart_switching": sim.policy.switching}
+        return Trajectory(cols, list(sim.events), counts, settings)
 
 
 class WorkCounts:

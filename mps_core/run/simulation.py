@@ -46,8 +46,8 @@ them whole.
 
 **Per step** the driver does only what the step needs: what depends on a chart view alone (where
 each reported observable comes from, the event functions) is worked out once per view, the
-recorded rows are tuples made into columns at the end, and the reported angles read for unwrapping
-after a step are reused by its record.
+recorded rows are tuples made into columns at the end (:mod:`mps_core.run.records`), and the
+reported angles read for unwrapping after a step are reused by its record.
 
 **Energy** (:mod:`mps_core.run.energy`): the work of the non-conservative effects is integrated
 per step (trapezoid rule on their power at the step's ends) into ``W``; impact losses accumulate
@@ -66,44 +66,23 @@ from ..errors import (
     ChartBreakdown,
     ChartDomainError,
     MpsError,
-    NumericalError,
     SingularConfiguration,
     config_in_degrees,
 )
 from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
-from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
 from .charts import ChartChanger
 from .energy import EnergyAccount
 from .events import EventLocator
 from .observables import Observables
-from .records import WorkCounts
+from .records import Recorder, WorkCounts
 from .schedule import Schedule
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
-
-#: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
-_ROW = (
-    "t",
-    "phi",
-    "psi",
-    "phi_dot",
-    "psi_dot",
-    "phi_ddot",
-    "psi_ddot",
-    "x_C",
-    "T",
-    "V",
-    "W",
-    "E_impact",
-    "structure",
-    "chart",
-)
-
 
 #: the defaults of a simulation built by hand (frozen: shared safely)
 _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
@@ -498,8 +477,8 @@ class Simulation:
         if not (dt > 0):
             raise ValueError(f"dt = {dt!r}: expected a positive step")
         n = max(1, int(round((t_end - t0) / dt)))
-        rows: list[tuple] = []
-        self._record(rows, self.solver.current)
+        rec = Recorder(self)
+        rec.record(self.solver.current)
         step = self.settings.step
         try:
             if (
@@ -507,23 +486,23 @@ class Simulation:
                 and step > (t_end - t0) / n * (1.0 + 1e-9)
                 and self.settings.name not in ADAPTIVE_SOLVERS
             ):
-                return self._run_long_steps(rows, t0, t_end, n, step, progress)
+                return self._run_long_steps(rec, t0, t_end, n, step, progress)
             for k in range(1, n + 1):
                 tk = t_end if k == n else t0 + k * (t_end - t0) / n
                 self.advance_to(tk)  # keeps the unwrap references current
-                self._record(rows, self.solver.current)
+                rec.record(self.solver.current)
                 if progress is not None:
                     progress(tk)
-            return self._trajectory(rows)
+            return rec.trajectory()
         except MpsError as exc:
             # what was computed up to the failure, for a caller that writes it (marked partial)
             try:
-                exc.partial = self._trajectory(rows)
+                exc.partial = rec.trajectory()
             except Exception:
                 exc.partial = None
             raise
 
-    def _run_long_steps(self, rows, t0, t_end, n, step, progress=None) -> Trajectory:
+    def _run_long_steps(self, rec: Recorder, t0, t_end, n, step, progress=None) -> Trajectory:
         """Steps longer than the output interval. Each output inside a step is the step's
         interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
         structure, work (trapezoid from the step's start) and impact loss of that step; an
@@ -545,76 +524,12 @@ class Simulation:
                 while k < n and times[k] <= t_now + tol:
                     tk = times[k]
                     if abs(tk - t_now) <= tol:
-                        self._record(rows, self.solver.current)
+                        rec.record(self.solver.current)
                     else:
-                        self._record_inside(rows, tk, spans, tol)
+                        rec.record_inside(tk, spans, tol)
                     k += 1
                 if progress is not None:
                     progress(t_now)
         finally:
             self._spans = None
-        return self._trajectory(rows)
-
-    def _record_inside(self, rows, tk, spans, tol):
-        """Record the output at ``tk`` from the last step that holds it (see
-        :meth:`_run_long_steps`)."""
-        # the span found is read after the loop
-        for t_a, t_b, dense, view, structure, work, p_a, loss in reversed(spans):  # noqa: B007
-            if t_a - tol <= tk <= t_b + tol:
-                break
-        else:
-            raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
-        q, qd = dense(tk)
-        e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
-        self._record(
-            rows,
-            e,
-            work=work + 0.5 * (p_a + self.energy.power(e)) * (tk - t_a),
-            loss=loss,
-            structure=structure,
-        )
-
-    def _record(self, rows, e, work=None, loss=None, structure=None):
-        """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
-        made once, at the end) and call the observers. ``work``, ``loss``, ``structure``: the
-        run's at ``e`` where they are not the present ones (an output inside a step)."""
-        obs = self.observables.observations(e)
-        at = self.observables.report_at
-        energy = self.energy
-        phi, psi = obs[at["phi"]], obs[at["psi"]]
-        rows.append(
-            (
-                e.t,
-                phi[0],
-                psi[0],
-                phi[1],
-                psi[1],
-                phi[2],
-                psi[2],
-                obs[at["x_C"]][0],
-                e.kinetic_energy,
-                energy.potential(e.kin),
-                energy.work if work is None else work,
-                energy.impact_loss if loss is None else loss,
-                self.controls.structure if structure is None else structure,
-                e.view.name,
-            )
-        )
-        for ob in self.observers:
-            ob.observe(self, e)
-
-    def _trajectory(self, rows) -> Trajectory:
-        data = dict(zip(_ROW, zip(*rows)))
-        cols = {
-            k: (
-                np.array(data.get(k, ()), dtype=float)
-                if k not in ("structure", "chart")
-                else np.array(data.get(k, ()))
-            )
-            for k in COLUMNS
-        }
-        for ob in self.observers:
-            cols.update(ob.columns())
-        counts = self.work_counts.counts(self.engine.counts, self.solver)
-        settings = {**self.settings.described(), "chart_switching": self.policy.switching}
-        return Trajectory(cols, list(self.events), counts, settings)
+        return rec.trajectory()
