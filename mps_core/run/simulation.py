@@ -62,13 +62,7 @@ import math
 import numpy as np
 
 from ..dynamics.engine import PartialSystems
-from ..errors import (
-    ChartBreakdown,
-    ChartDomainError,
-    MpsError,
-    SingularConfiguration,
-    config_in_degrees,
-)
+from ..errors import ChartDomainError, MpsError, config_in_degrees
 from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
@@ -155,7 +149,6 @@ class Simulation:
             self.controls.motor_on = motor.enabled
         #: the fixed steps' stability limit for the stiff effects
         self.stability = StepStability(self.effects, mechanism, solver)
-        self._views: dict[str, list[ChartView]] = {}
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
@@ -249,9 +242,8 @@ class Simulation:
                 ob.restore(st)
 
     def views(self, structure: str) -> list[ChartView]:
-        if structure not in self._views:
-            self._views[structure] = self.mechanism.views(structure)
-        return self._views[structure]
+        """The chart views of ``structure`` (:meth:`ChartChanger.views <.charts.ChartChanger.views>`)."""
+        return self.charts.views(structure)
 
     # -- solver management ----------------------------------------------------------------
     def _fun(self, view):
@@ -298,10 +290,6 @@ class Simulation:
         """Restart the solver from the last step's interpolant at t_e (same chart)."""
         q, qd = self.solver.dense_output()(t_e)
         self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
-
-    # -- actions --------------------------------------------------------------------------
-
-    # -- commands -------------------------------------------------------------------------
 
     # -- commands (the structure layer's) -------------------------------------------------
     def check_command(self, name) -> None:
@@ -362,7 +350,7 @@ class Simulation:
                 self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self.events_now.interrupt)
             except ChartDomainError as exc:
                 failures += 1
-                self._leave_failing_chart(exc, failures)
+                self.charts.leave_failing(exc, failures)
                 continue
             failures = 0
             self._after_step(t0, p_a)
@@ -398,24 +386,6 @@ class Simulation:
         if dt > self.stability.always:  # else stable in any state: no estimate needed
             dt = self.stability.stable_step(dt, self.solver.current, self.config)
         return dt
-
-    def _leave_failing_chart(self, exc: ChartDomainError, failures: int) -> None:
-        """A step that left its chart's domain: another chart of the structure (or a clear
-        error where chart switching is off or every chart has failed from here)."""
-        e = self.solver.current
-        if not self.policy.switching:
-            raise ChartBreakdown(
-                f"the step from here leaves chart {self.view.name} ({exc.detail}) and chart switching is off",
-                e.t,
-                self.config(e),
-            ) from None
-        if failures > len(self.views(self.structure)):
-            raise SingularConfiguration(
-                f"every chart of structure {self.structure!r} fails in the step from here ({exc.detail})",
-                e.t,
-                self.config(e),
-            ) from None
-        self.charts.change(self.view.regularity(e.kin.pose), forced=True)
 
     def _after_step(self, t0: float, p_a: float) -> None:
         """A step taken from t0: cut at its first event (the event's action taken), or kept
