@@ -167,7 +167,7 @@ class Simulation:
         self.observables = Observables(self)
         self.phys: dict[str, float] = {}
         self._phys_of = None  # the evaluation phys was last read from
-        #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
+        #: the steps of a run with steps longer than its outputs (``Recorder.run_long_steps``)
         self._spans = None
         self.solver = self._new_solver(t0, q, qd)
         self.observables.update_phys(self.solver.current)
@@ -438,7 +438,8 @@ class Simulation:
     def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
         ``dt``, or by the settings' ``step`` where given: shorter, several steps an output;
-        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`).
+        longer, the outputs inside a step from its interpolant
+        (:meth:`Recorder.run_long_steps <mps_core.run.records.Recorder.run_long_steps>`).
         ``progress``: called with the simulated time after each output (e.g. a
         :class:`~mps_core.run.progress.Progress`)."""
         t0 = self.solver.t
@@ -456,7 +457,7 @@ class Simulation:
                 and step > (t_end - t0) / n * (1.0 + 1e-9)
                 and self.settings.name not in ADAPTIVE_SOLVERS
             ):
-                return self._run_long_steps(rec, t0, t_end, n, step, progress)
+                return rec.run_long_steps(t0, t_end, n, step, progress)
             for k in range(1, n + 1):
                 tk = t_end if k == n else t0 + k * (t_end - t0) / n
                 self.advance_to(tk)  # keeps the unwrap references current
@@ -471,35 +472,3 @@ class Simulation:
             except Exception:
                 exc.partial = None
             raise
-
-    def _run_long_steps(self, rec: Recorder, t0, t_end, n, step, progress=None) -> Trajectory:
-        """Steps longer than the output interval. Each output inside a step is the step's
-        interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
-        structure, work (trapezoid from the step's start) and impact loss of that step; an
-        output at a step's end is that step's own evaluation. The steps keep the grid
-        t0 + m·step; events still end steps at their roots, and commands and charts change
-        between steps, as with any step."""
-        times = [t_end if k == n else t0 + k * (t_end - t0) / n for k in range(1, n + 1)]
-        tol = 1e-12 * max(1.0, abs(t_end))
-        k = 0
-        self._spans = spans = []
-        try:
-            while k < n:
-                spans.clear()
-                # the steps keep their grid t0 + m·step: after an event's cut the next step
-                # ends where it would have
-                m = math.floor((self.solver.t - t0) / step + 1e-9) + 1
-                self.advance_to(min(t0 + m * step, t_end))
-                t_now = self.solver.t
-                while k < n and times[k] <= t_now + tol:
-                    tk = times[k]
-                    if abs(tk - t_now) <= tol:
-                        rec.record(self.solver.current)
-                    else:
-                        rec.record_inside(tk, spans, tol)
-                    k += 1
-                if progress is not None:
-                    progress(t_now)
-        finally:
-            self._spans = None
-        return rec.trajectory()
