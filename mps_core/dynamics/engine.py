@@ -27,9 +27,10 @@ Two derivative schemes:
 How an evaluation is organised (it is the inner loop of every run, so it is written to make few
 numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost):
 
-* everything that depends only on the mechanism is built once per engine: the centres of mass
-  and the rotating bodies' link vectors are linear in the points' coordinates, so one matrix
-  ``M`` maps the points' coordinates to all named points, centres of mass and link vectors;
+* everything that depends only on the mechanism is built once per engine
+  (:mod:`mps_core.dynamics.maps`): the centres of mass and the rotating bodies' link vectors
+  are linear in the points' coordinates, so one matrix ``M`` maps the points' coordinates to
+  all named points, centres of mass and link vectors;
 * everything that depends on the chart view is built once per view (a :class:`_Plan`): the
   stencil's displacements and one matrix ``K`` whose columns select the base points of the
   stencil and take the central differences there;
@@ -55,7 +56,6 @@ import math
 
 import numpy as np
 
-from ..codegen.emitter import Tables
 from ..codegen.fused_kernels import fingerprint, reuse_or_make
 from ..codegen.kernels import central_kernel
 from ..derivatives import SCHEMES
@@ -67,6 +67,7 @@ from ..model.mechanism import ChartView, Mechanism
 from .central import CentralScheme
 from .exact import ExactScheme, other_that_holds
 from .kinematics import Evaluation, Kinematics, virtual_work
+from .maps import MechanismMaps
 
 
 class _Plan:
@@ -258,94 +259,15 @@ class PartialSystems:
         #: kernels (:mod:`mps_core.codegen.kernels`); False keeps the array code everywhere
         self.kernels = bool(kernels)
         self.counts = {"evaluations": 0, "position_calls": 0, "position_points": 0}
-        bodies = mechanism.bodies
-        self._point_names = list(mechanism.points)
-        self._names = {p: k for k, p in enumerate(self._point_names)}
-        for b in bodies:
-            self._names[f"G_{b.name}"] = len(self._names)
-        self._body_index = {b.name: k for k, b in enumerate(bodies)}
-        self._mass = np.array([b.mass for b in bodies])
-        self._inertia = np.array([b.inertia for b in bodies])
-        self._rot = [k for k, b in enumerate(bodies) if b.rotates]
-        self._build_maps()
+        #: what every evaluation reuses of the mechanism (its maps and their frozen tables)
+        self.maps = MechanismMaps(mechanism)
         #: what the generated code reads of the mechanism (:mod:`mps_core.codegen.emitter`)
-        self.tables = Tables(
-            point_names=tuple(self._point_names),
-            names=self._names,
-            body_index=self._body_index,
-            mass=self._mass,
-            inertia=self._inertia,
-            rot=tuple(self._rot),
-            MT=self._MT,
-            offset=self._offset,
-            fixed_points=tuple(getattr(mechanism, "fixed_points", ())),
-        )
+        self.tables = self.maps.tables
         self._plans: dict = {}
         #: the two derivative schemes' evaluations (:mod:`~mps_core.dynamics.central`,
         #: :mod:`~mps_core.dynamics.exact`), the scheme's one used
         self.central, self.exact = CentralScheme(self), ExactScheme(self)
         self._evaluate = self.central.evaluate if scheme == "central" else self.exact.evaluate
-
-    def _build_maps(self):
-        """The map from the points' coordinates (x0, y0, x1, y1, …) to, in pairs (x, y): the
-        named points and centres of mass (pairs 0 … NP−1), the rotating bodies' link vectors
-        toward − origin (pairs NP … NP+nrot−1), and a pair (Σ of everything, 0) that makes a
-        non-finite position show in one number. Kept transposed (``_MT``), so that a result's
-        last axis is x, y, x, y, …: viewed as complex numbers x + iy, an angular analog is
-        ω* = (r × v*)/|r|² = Im(v*/r) in one division."""
-        mech = self.mechanism
-        npts = len(self._point_names)
-        NP = len(self._names)
-        nrot = len(self._rot)
-        M = np.zeros((2 * NP + 2 * nrot + 2, 2 * npts))
-        offset = np.zeros((NP, 2))
-        for k in range(npts):
-            M[2 * k, 2 * k] = M[2 * k + 1, 2 * k + 1] = 1.0
-        for b in mech.bodies:
-            r = 2 * self._names[f"G_{b.name}"]
-            o = 2 * self._names[b.origin]
-            a, c = b.com
-            if b.toward is None:
-                M[r, o] = M[r + 1, o + 1] = 1.0
-                offset[r // 2] = (a, c)
-                continue
-            t = 2 * self._names[b.toward]
-            al, be = a / b.length, c / b.length
-            # G = P_o + al (P_t − P_o) + be n(P_t − P_o), n(x, y) = (−y, x)   (Body.com_of)
-            M[r, o] += 1.0 - al
-            M[r, t] += al
-            M[r, t + 1] -= be
-            M[r, o + 1] += be
-            M[r + 1, o + 1] += 1.0 - al
-            M[r + 1, t + 1] += al
-            M[r + 1, t] += be
-            M[r + 1, o] -= be
-        for j, k in enumerate(self._rot):
-            b = mech.bodies[k]
-            r = 2 * NP + 2 * j
-            o, t = 2 * self._names[b.origin], 2 * self._names[b.toward]
-            M[r, t] += 1.0
-            M[r, o] -= 1.0
-            M[r + 1, t + 1] += 1.0
-            M[r + 1, o + 1] -= 1.0
-        M[-2, :] = 1.0
-        self._MT = np.ascontiguousarray(M.T)
-        self._offset = offset.reshape(-1) if np.any(offset != 0.0) else None
-        self._np, self._npts, self._nrot = NP, npts, nrot
-        nbody = len(mech.bodies)
-        # weights of U's rows [v*_G (x, y per body); ω*_rot]: A = U diag(w) Uᵀ
-        self._w = np.concatenate((np.repeat(self._mass, 2), self._inertia[self._rot]))
-        self._rot_all = self._rot == list(range(nbody))
-        self._rot_idx = np.array(self._rot, dtype=int)
-        self._point_slots = [(p, 2 * k, 2 * k + 1) for k, p in enumerate(self._point_names)]
-
-    def _omega_rows(self, Wr, n):
-        """(nbody, n) angular analogs from the rotating bodies' (n, nrot)."""
-        if self._rot_all:
-            return Wr.T
-        W = np.zeros((len(self._mass), n))
-        W[self._rot_idx] = Wr.T
-        return W
 
     def _plan(self, view) -> _Plan:
         plan = self._plans.get(view)
@@ -457,7 +379,7 @@ class PartialSystems:
         evaluate = PartialSystems.evaluate
         engine = self
         counts, plans, version = self.counts, self._plans, self.version
-        names, bodies = self._names, self._body_index
+        names, bodies = self.maps.names, self.maps.body_index
         ndarray, array = np.ndarray, np.array
 
         def fun(t, q, qd):
@@ -655,6 +577,7 @@ class PartialSystems:
         plan = self._plans.get(view)
         if plan is not None and self.kernels:
             counts = self.counts
+            maps = self.maps
             try:
                 if plan.inline is not None:
                     counts["position_calls"] += 1
@@ -664,8 +587,8 @@ class PartialSystems:
                         t,
                         np.array(ql, float),
                         np.array(vl, float),
-                        self._names,
-                        bodies=self._body_index,
+                        maps.names,
+                        bodies=maps.body_index,
                         lists=(xl, jl, wl),
                         side=(wb, plan.inv2d),
                         v=list(vl),
@@ -678,8 +601,8 @@ class PartialSystems:
                         t,
                         np.array(ql, float),
                         np.array(vl, float),
-                        self._names,
-                        bodies=self._body_index,
+                        maps.names,
+                        bodies=maps.body_index,
                         lists=(xl, jl, wl),
                         conv=conv,
                         v=list(vl),

@@ -59,7 +59,9 @@ def _check_whole_evaluation(eng, view, plan, t, ql, vl):
     except ForceLawBranch:
         return
     xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
-    kin = Kinematics(t, None, None, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
+    kin = Kinematics(
+        t, None, None, eng.maps.names, bodies=eng.maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl
+    )
     Q, Qnc = eng._forces(t, kin)
     assert list(got) == [xl, jl, wl, A, h, conv, Q, Qnc, solve_given_h(A, h, Q)]
 
@@ -246,8 +248,8 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
             t,
             None,
             None,
-            eng._names,
-            bodies=eng._body_index,
+            eng.maps.names,
+            bodies=eng.maps.body_index,
             lists=(xl, jl, wl),
             side=(wb, plan.inv2d),
             v=list(vl),
