@@ -146,7 +146,7 @@ class CentralScheme:
             if out is not None:
                 Q, Qnc, qdd = out
                 return kin, A, h, Q, Qnc, qdd
-        Q, Qnc = eng._forces(t, kin)
+        Q, Qnc = eng.forces.generalized(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):

@@ -56,16 +56,16 @@ import math
 
 import numpy as np
 
-from ..codegen.fused_kernels import fingerprint, reuse_or_make
+from ..codegen.fused_kernels import reuse_or_make
 from ..codegen.kernels import central_kernel
 from ..derivatives import SCHEMES
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged
 from ..errors import ChartDomainError, NumericalError, config_in_degrees
-from ..model.effects.base import FastForce, Version, has_hook, watch_all
 from ..model.mechanism import ChartView, Mechanism
 from .central import CentralScheme
 from .exact import ExactScheme, other_that_holds
+from .forces import EffectForces
 from .kinematics import Evaluation, Kinematics, virtual_work
 from .maps import MechanismMaps
 
@@ -153,78 +153,6 @@ class _Plan:
         self.scale = np.tile(inv2d, B)[:, None]  # (B·n, 1)
 
 
-def _owner(cls, name):
-    for k in cls.__mro__:
-        if name in k.__dict__:
-            return k
-    return None
-
-
-def _fast_path(effect):
-    """An effect's ``generalized_force(t, kin)`` (:class:`~mps_core.model.effects.base.FastForce`)
-    where it has one for the same ``loads`` (a subclass that overrides ``loads`` alone keeps
-    the general path)."""
-    if not has_hook(effect, FastForce):
-        return None
-    cls = type(effect)
-    gf = _owner(cls, "generalized_force")
-    if gf is not None and gf is _owner(cls, "loads"):
-        return effect.generalized_force
-    return None
-
-
-class _Effects(list):
-    """An engine's effects: a change of the list (an effect added or taken away) moves the
-    engine's :attr:`PartialSystems.version`, so that no code made for the old list is used."""
-
-    def __init__(self, engine, effects=()):
-        super().__init__(effects)
-        self._engine = engine
-
-    def _changed(self):
-        engine = self._engine
-        if "_effect_paths" in engine.__dict__:
-            engine._effect_paths = engine._paths()
-
-    def append(self, effect):
-        super().append(effect)
-        self._changed()
-
-    def extend(self, effects):
-        super().extend(effects)
-        self._changed()
-
-    def insert(self, i, effect):
-        super().insert(i, effect)
-        self._changed()
-
-    def remove(self, effect):
-        super().remove(effect)
-        self._changed()
-
-    def pop(self, i=-1):
-        out = super().pop(i)
-        self._changed()
-        return out
-
-    def clear(self):
-        super().clear()
-        self._changed()
-
-    def __setitem__(self, i, value):
-        super().__setitem__(i, value)
-        self._changed()
-
-    def __delitem__(self, i):
-        super().__delitem__(i)
-        self._changed()
-
-    def __iadd__(self, effects):
-        super().extend(effects)
-        self._changed()
-        return self
-
-
 class PartialSystems:
     """The engine: evaluates q̈ for a mechanism, its scene's effects and a derivative scheme.
 
@@ -246,13 +174,13 @@ class PartialSystems:
         if not (delta > 0.0 and math.isfinite(delta)):
             raise ValueError(f"virtual displacement delta = {delta!r}: expected a positive number")
         self.mechanism = mechanism
-        self.effects = _Effects(self, effects)
-        for e in self.effects:
-            e.bind(mechanism)
+        #: the effects' generalized forces (:mod:`mps_core.dynamics.forces`)
+        self.forces = EffectForces(mechanism, effects)
+        #: the effects (bound to the mechanism); a change of the list moves :attr:`version`
+        self.effects = self.forces.effects
         #: the state of the effects and the controls they read, as this engine's generated
         #: code folded them in: moved by any assignment to them (no other engine's)
-        self.version = Version()
-        self._effect_paths = self._paths()
+        self.version = self.forces.version
         self.scheme = scheme
         self.delta = float(delta)
         #: central differences on charts with ``flat`` positions and n <= 2 run as scalar
@@ -429,13 +357,8 @@ class PartialSystems:
             return None
 
     def fingerprint(self):
-        """:func:`~mps_core.codegen.fused_kernels.fingerprint` of the effects, made once per state of
-        their parameters and controls."""
-        version = self.version[0]
-        kept = self.__dict__.get("_fingerprint_of")
-        if kept is None or kept[0] != version or kept[1] != len(self.effects):
-            kept = self._fingerprint_of = (version, len(self.effects), fingerprint(self.effects))
-        return kept[2]
+        """:meth:`~mps_core.dynamics.forces.EffectForces.fingerprint`."""
+        return self.forces.fingerprint()
 
     def _fuse(self, view, plan, t, ql, vl):
         """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
@@ -491,75 +414,15 @@ class PartialSystems:
         return np.array(self.force_list(t, kin), dtype=float)
 
     def force_list(self, t: float, kin: Kinematics) -> list:
-        """Q as n floats. An effect may give its generalized force directly
-        (``generalized_force(t, kin)``, the same number in fewer operations); it is used where
-        the effect's class defines it together with its ``loads``."""
-        return self._forces(t, kin)[0]
+        """Q as n floats (:meth:`~mps_core.dynamics.forces.EffectForces.generalized`)."""
+        return self.forces.generalized(t, kin)[0]
 
     def effect_paths(self) -> list:
-        """[(fast path or None, effect, conservative)] of the effects that apply forces, in
-        order: how :meth:`generalized_force` calls each (the generated code calls them so)."""
-        if self._effect_paths[0] != len(self.effects):
-            self._effect_paths = self._paths()
-        return self._effect_paths[1]
-
-    def _forces(self, t: float, kin: Kinematics) -> tuple[list, list]:
-        """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share."""
-        if self._effect_paths[0] != len(self.effects):
-            self._effect_paths = self._paths()
-        n = kin.n
-        if n == 1:
-            q, qc = 0.0, 0.0
-            for fast, e, conservative in self._effect_paths[1]:
-                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-                if Qe is not None:
-                    if conservative:
-                        qc += Qe[0]
-                    else:
-                        q += Qe[0]
-            return [q + qc], [q]
-        if n == 2:
-            q0 = q1 = c0 = c1 = 0.0
-            for fast, e, conservative in self._effect_paths[1]:
-                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-                if Qe is not None:
-                    if conservative:
-                        c0 += Qe[0]
-                        c1 += Qe[1]
-                    else:
-                        q0 += Qe[0]
-                        q1 += Qe[1]
-            return [q0 + c0, q1 + c1], [q0, q1]
-        Q = [0.0] * n
-        Qc = [0.0] * n
-        for fast, e, conservative in self._effect_paths[1]:
-            Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-            if Qe is not None:
-                if conservative:
-                    for i in range(n):
-                        Qc[i] += Qe[i]
-                else:
-                    for i in range(n):
-                        Q[i] += Qe[i]
-        Qnc = list(Q)
-        for i in range(n):
-            Q[i] += Qc[i]
-        return Q, Qnc
-
-    def _paths(self):
-        """(number of effects, [(fast path or None, effect, conservative)]) without the effects
-        that apply no force of their own (``applies_forces`` False: a rigid stop, the latch);
-        :attr:`version` watches every effect (and moves: the list changed)."""
-        watch_all(self.effects, self.version)
-        self.version[0] += 1
-        return len(self.effects), [
-            (_fast_path(e), e, bool(e.conservative))
-            for e in self.effects
-            if getattr(e, "applies_forces", True)
-        ]
+        """:meth:`~mps_core.dynamics.forces.EffectForces.paths`."""
+        return self.forces.paths()
 
     def potential_energy(self, kin: Kinematics) -> float:
-        return float(sum(e.potential(kin) for e in self.effects if e.conservative))
+        return self.forces.potential_energy(kin)
 
     def kinematics(self, view: ChartView, t: float, q, qd) -> Kinematics:
         """Positions and analogs alone (no forces, no solve), in the engine's scheme."""

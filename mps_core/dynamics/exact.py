@@ -261,7 +261,7 @@ class ExactScheme:
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
         kin = Kinematics(t, q, qd, maps.names, bodies=maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl)
-        Q, Qnc = eng._forces(t, kin)
+        Q, Qnc = eng.forces.generalized(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):
