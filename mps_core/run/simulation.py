@@ -201,10 +201,10 @@ class Simulation:
         """The run's state now, for :meth:`restore`: a driver that took steps ahead comes back
         to a step boundary (a command arrived for it) and goes on from there exactly as if it
         had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
-        changed, by a step, except the containers copied here (the controls, the event log,
-        the schedule's commands and timers, the energy account, the work counts, the unwrapping
-        references, the observers' own ``checkpoint``). Caches (kernels, views, plans) are
-        shared, not kept."""
+        changed, by a step, except the containers copied here (the controls, the motor switched
+        on or off, the event log, the schedule's commands and timers, the energy account, the
+        work counts, the unwrapping references, the observers' own ``checkpoint``). Caches
+        (kernels, views, plans) are shared, not kept."""
         if not self.rewindable:
             raise NotImplementedError(
                 f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
@@ -214,6 +214,7 @@ class Simulation:
             dict(self.__dict__),
             self.solver.state(),
             dict(vars(self.controls)),
+            self.structures.parts.state(),
             list(self.events),
             self.schedule.state(),
             self.energy.state(),
@@ -224,13 +225,14 @@ class Simulation:
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
-        state, solver, controls, events, schedule, energy, work, phys, observers = cp
+        state, solver, controls, parts, events, schedule, energy, work, phys, observers = cp
         d = self.__dict__
         d.clear()
         d.update(state)
         self.solver.set_state(dict(solver))
         vars(self.controls).update(controls)
         self.controls.touch()  # restored behind __setattr__: code folded on them is stale
+        self.structures.parts.set_state(parts)
         self.events[:] = events
         self.schedule.set_state(schedule)
         self.energy.set_state(energy)

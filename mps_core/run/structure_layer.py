@@ -85,6 +85,15 @@ class MachineParts:
             disengage=first(lambda e: e.kind == "disengage_cylinder"),
         )
 
+    def state(self) -> bool | None:
+        """What the commands change of the parts themselves (the motor switched on or off by
+        ``stop`` and ``start``), for :meth:`set_state`."""
+        return None if self.motor is None else self.motor.enabled
+
+    def set_state(self, state: bool | None) -> None:
+        if self.motor is not None and self.motor.enabled != state:
+            self.motor.enabled = state
+
 
 class StructureLayer:
     """The structures' switches, impacts and commands of one run (``sim``)."""
