@@ -404,89 +404,104 @@ def study(case_names=None, quick: bool = False, log=print):
 
 
 def report(results, log=print) -> None:
+    """Log each case's tables: whole runs, the engine and solver alone, the effects."""
     for name, res in results.items():
-        log(f"\n== {name}: streaming at 1 kHz (t_end {res['case'].t_end:g} s), whole runs ==")
+        _report_runs(name, res, log)
+        _report_core(name, res, log)
+        _report_effects(name, res, log)
+
+
+def _report_runs(name, res, log) -> None:
+    """Whole runs streaming at 1 kHz, and the fastest setting at least as accurate as the
+    paper's scheme."""
+    log(f"\n== {name}: streaming at 1 kHz (t_end {res['case'].t_end:g} s), whole runs ==")
+    log(f"{'setting':52s} {'us/step':>9s} {'x real time':>11s} {'evals/step':>10s} {'max|dphi| rad':>13s}")
+    base = None
+    for r in res["solvers"]:
+        if "failed" in r:
+            log(f"{r['setting']:52s} failed: {r['failed']}")
+            continue
+        if base is None and r["setting"].startswith("linear-acceleration, central 0.1"):
+            base = r
         log(
-            f"{'setting':52s} {'us/step':>9s} {'x real time':>11s} {'evals/step':>10s} {'max|dphi| rad':>13s}"
+            f"{r['setting']:52s} {r['us_per_step']:9.1f} {r['rtf_1khz']:11.1f} "
+            f"{r['evals_per_step']:10.2f} {r['max_err_phi']:13.2e}"
         )
-        base = None
-        for r in res["solvers"]:
-            if "failed" in r:
-                log(f"{r['setting']:52s} failed: {r['failed']}")
-                continue
-            if base is None and r["setting"].startswith("linear-acceleration, central 0.1"):
-                base = r
+    if base is not None and res["reference"] is not None:
+        ok = [
+            r
+            for r in res["solvers"]
+            if "failed" not in r
+            and not r["setting"].startswith("peer")
+            and r["max_err_phi"] <= base["max_err_phi"]
+        ]
+        best = min(ok, key=lambda r: r["us_per_step"])
+        log(
+            f"paper's scheme (linear acceleration, central 0.1°): {base['rtf_1khz']:.1f}× "
+            f"real time; fastest of at least equal accuracy: {best['setting']} "
+            f"{best['rtf_1khz']:.1f}× ({best['max_err_phi']:.1e} rad ≤ "
+            f"{base['max_err_phi']:.1e})"
+        )
+
+
+def _report_core(name, res, log) -> None:
+    """The engine and solver alone, one evaluation alone, and the reactions beside one."""
+    log(f"\n-- {name}: engine + solver alone (initial chart, no driver) --")
+    for r in res["core"]:
+        log(
+            f"{r['setting']:52s} {r['us_per_step']:9.1f} us/step "
+            f"({r['evals_per_step']:.2f} evaluations, {r['steps']} steps, chart {r['chart']})"
+        )
+    for r in res["evaluation"]:
+        log(
+            f"one evaluation, {r['scheme']:14s} chart {r['chart']:10s} n = {r['n']}: "
+            f"{r['us_per_evaluation']:6.1f} us ({r['position_points']} position points)"
+        )
+    lone = {r["scheme"]: r["us_per_evaluation"] for r in res["evaluation"]}
+    for r in res["core"]:
+        if r["setting"] == "rk4, autodiff" and "autodiff" in lone:
+            # RK4's step: three stages asking for q̈ alone, one whole evaluation
+            alone = [v for k, v in lone.items() if k.startswith("autodiff, q̈ alone")]
+            each = (3 * alone[0] + lone["autodiff"]) / 4 if alone else lone["autodiff"]
+            per = r["us_per_step"] / r["evals_per_step"]
             log(
-                f"{r['setting']:52s} {r['us_per_step']:9.1f} {r['rtf_1khz']:11.1f} "
-                f"{r['evals_per_step']:10.2f} {r['max_err_phi']:13.2e}"
+                f"inside an RK4 run (autodiff, engine + solver alone): {per:.1f} us per "
+                f"evaluation, {per / each:.2f}× the same mix measured alone ({each:.1f} us)"
             )
-        if base is not None and res["reference"] is not None:
-            ok = [
-                r
-                for r in res["solvers"]
-                if "failed" not in r
-                and not r["setting"].startswith("peer")
-                and r["max_err_phi"] <= base["max_err_phi"]
-            ]
-            best = min(ok, key=lambda r: r["us_per_step"])
-            log(
-                f"paper's scheme (linear acceleration, central 0.1°): {base['rtf_1khz']:.1f}× "
-                f"real time; fastest of at least equal accuracy: {best['setting']} "
-                f"{best['rtf_1khz']:.1f}× ({best['max_err_phi']:.1e} rad ≤ "
-                f"{base['max_err_phi']:.1e})"
-            )
-        log(f"\n-- {name}: engine + solver alone (initial chart, no driver) --")
-        for r in res["core"]:
-            log(
-                f"{r['setting']:52s} {r['us_per_step']:9.1f} us/step "
-                f"({r['evals_per_step']:.2f} evaluations, {r['steps']} steps, chart {r['chart']})"
-            )
-        for r in res["evaluation"]:
-            log(
-                f"one evaluation, {r['scheme']:14s} chart {r['chart']:10s} n = {r['n']}: "
-                f"{r['us_per_evaluation']:6.1f} us ({r['position_points']} position points)"
-            )
-        lone = {r["scheme"]: r["us_per_evaluation"] for r in res["evaluation"]}
-        for r in res["core"]:
-            if r["setting"] == "rk4, autodiff" and "autodiff" in lone:
-                # RK4's step: three stages asking for q̈ alone, one whole evaluation
-                alone = [v for k, v in lone.items() if k.startswith("autodiff, q̈ alone")]
-                each = (3 * alone[0] + lone["autodiff"]) / 4 if alone else lone["autodiff"]
-                per = r["us_per_step"] / r["evals_per_step"]
-                log(
-                    f"inside an RK4 run (autodiff, engine + solver alone): {per:.1f} us per "
-                    f"evaluation, {per / each:.2f}× the same mix measured alone ({each:.1f} us)"
-                )
-        for r in res.get("reactions", ()):
-            run = (
-                "an exact run: the kernel reads the evaluation's motion"
-                if r.get("run") == "autodiff"
-                else "the seed's central run: the kernel traces the motion itself"
-            )
-            log(
-                f"reactions beside one exact evaluation ({run}; {r['which']}: median of "
-                f"{r['states']} states over the run, side by side): exact evaluation "
-                f"{r['us_exact_evaluation']:.1f} us, reaction kernel "
-                f"with the loads {r['us_reactions_kernel']:.1f} us "
-                f"({r['kernel_over_evaluation']:.2f}× the evaluation), general least squares "
-                f"{r['us_reactions_general']:.1f} us ({r['general_over_kernel']:.0f}× the kernel)"
-            )
-        log(f"\n-- {name}: effects --")
-        for r in res["effects"]:
-            log(f"generalized force of {r['effect']:18s} {r['us_per_evaluation']:6.2f} us per evaluation")
-        for r in res["effect_evals"]:
-            log(
-                f"evaluation with effects {r['effects']:34s} {r['us_per_evaluation']:7.1f} us "
-                f"(central 0.1°, the same {r['states']} states)"
-            )
-        for r in res["effect_runs"]:
-            if "failed" in r:
-                log(f"run with effects {r['effects']:41s} failed: {r['failed']}")
-                continue
-            log(
-                f"run with effects {r['effects']:41s} {r['us_per_step']:7.1f} us/step "
-                f"(linear acceleration, central 0.1°; the motion changes with the forces)"
-            )
+    for r in res.get("reactions", ()):
+        run = (
+            "an exact run: the kernel reads the evaluation's motion"
+            if r.get("run") == "autodiff"
+            else "the seed's central run: the kernel traces the motion itself"
+        )
+        log(
+            f"reactions beside one exact evaluation ({run}; {r['which']}: median of "
+            f"{r['states']} states over the run, side by side): exact evaluation "
+            f"{r['us_exact_evaluation']:.1f} us, reaction kernel "
+            f"with the loads {r['us_reactions_kernel']:.1f} us "
+            f"({r['kernel_over_evaluation']:.2f}× the evaluation), general least squares "
+            f"{r['us_reactions_general']:.1f} us ({r['general_over_kernel']:.0f}× the kernel)"
+        )
+
+
+def _report_effects(name, res, log) -> None:
+    """Each effect's own cost, evaluations and whole runs with effects left out."""
+    log(f"\n-- {name}: effects --")
+    for r in res["effects"]:
+        log(f"generalized force of {r['effect']:18s} {r['us_per_evaluation']:6.2f} us per evaluation")
+    for r in res["effect_evals"]:
+        log(
+            f"evaluation with effects {r['effects']:34s} {r['us_per_evaluation']:7.1f} us "
+            f"(central 0.1°, the same {r['states']} states)"
+        )
+    for r in res["effect_runs"]:
+        if "failed" in r:
+            log(f"run with effects {r['effects']:41s} failed: {r['failed']}")
+            continue
+        log(
+            f"run with effects {r['effects']:41s} {r['us_per_step']:7.1f} us/step "
+            f"(linear acceleration, central 0.1°; the motion changes with the forces)"
+        )
 
 
 def as_rows(results):

@@ -52,9 +52,9 @@ class Tables:
     ``names``: every named row (the points, then ``G_<body>`` for each centre of mass) by its
     row number; ``body_index``: the bodies by name; ``mass``, ``inertia``: by body; ``rot``:
     the rotating bodies' numbers; ``MT``: the linear map from the points' coordinates to the
-    named rows, the rotating bodies' link vectors and a finiteness check (transposed, see the
-    engine's ``_build_maps``); ``offset``: the centres of mass' constant offsets (None: all
-    zero); ``fixed_points``: the mechanism's fixed points. ``npoints`` (named rows) and
+    named rows, the rotating bodies' link vectors and a finiteness check (transposed, see
+    :class:`~mps_core.dynamics.maps.MechanismMaps`); ``offset``: the centres of mass' constant
+    offsets (None: all zero); ``fixed_points``: the mechanism's fixed points. ``npoints`` (named rows) and
     ``npts`` (points) are counts; ``number`` is equal for equal tables (what compiled code is
     keyed by)."""
 

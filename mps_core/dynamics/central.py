@@ -34,8 +34,8 @@ class CentralScheme:
 
     def points_matrix(self, pose, cols):
         eng = self.engine
-        P = np.empty((2 * eng._npts, cols))
-        for p, rx, ry in eng._point_slots:
+        P = np.empty((2 * eng.maps.npts, cols))
+        for p, rx, ry in eng.maps.point_slots:
             x, y = pose[p]
             P[rx] = x
             P[ry] = y
@@ -45,36 +45,38 @@ class CentralScheme:
         """(kin, Zt, Wr, plan): kinematics at q; Zt (columns of K × pairs of M): positions at the
         base points, then every analog at every base point; Wr (B, n, nrot) the angular ones."""
         eng = self.engine
+        maps = eng.maps
         plan = eng._plans.get(view) or eng._plan(view)
         n, B = plan.n, plan.B
         pose = view.positions(list(q[:, None] + plan.odT))
         counts = eng.counts
         counts["position_calls"] += 1
         counts["position_points"] += plan.S
-        Zt = (self.points_matrix(pose, plan.S) @ plan.K).T @ eng._MT
+        Zt = (self.points_matrix(pose, plan.S) @ plan.K).T @ maps.MT
         if not math.isfinite(Zt[-1, -2]):
             raise ChartDomainError(view.name, "a stencil point has no real configuration")
         Zt[B:-1] *= plan.scale
-        NP, NP2 = eng._np, 2 * eng._np
+        NP, NP2 = maps.npoints, 2 * maps.npoints
         X = Zt[0, :NP2]
-        if eng._offset is not None:
-            X = X + eng._offset
+        if maps.offset is not None:
+            X = X + maps.offset
         X = X.reshape(NP, 2)
         J = Zt[B : B + n, :NP2].T.reshape(NP, 2, n)
-        nrot = eng._nrot
+        nrot = maps.nrot
         if nrot:
             Zc = Zt[:-1].view(complex)  # pairs as x + iy
             Rc = Zc[:B, NP : NP + nrot]
             Wr = (Zc[B : B + B * n, NP : NP + nrot].reshape(B, n, nrot) / Rc[:, None, :]).imag
-            W = Wr[0].T if eng._rot_all else eng._omega_rows(Wr[0], n)
+            W = Wr[0].T if maps.rot_all else maps.omega_rows(Wr[0], n)
         else:
             Wr = None
-            W = np.zeros((len(eng._mass), n))
-        kin = Kinematics(t, q, qd, eng._names, X, J, W, eng._body_index)
+            W = np.zeros((len(maps.mass), n))
+        kin = Kinematics(t, q, qd, maps.names, X, J, W, maps.body_index)
         return kin, Zt, Wr, plan
 
     def evaluate(self, view, t, q, qd):
         eng = self.engine
+        maps = eng.maps
         plan = eng._plans.get(view) or eng._plan(view)
         if plan.kernel is not None:
             if not plan.traced:
@@ -86,10 +88,10 @@ class CentralScheme:
             return self.kernel_evaluate(view, t, q, qd, plan)
         kin, Zt, Wr, plan = self.kinematics(view, t, q, qd)
         n, B = plan.n, plan.B
-        Ut = Zt[B : B + B * n, 2 * eng._npts : 2 * eng._np].reshape(B, n, -1)  # v*_G: (B, n, ·)
+        Ut = Zt[B : B + B * n, 2 * maps.npts : 2 * maps.npoints].reshape(B, n, -1)  # v*_G: (B, n, ·)
         if Wr is not None:
             Ut = np.concatenate((Ut, Wr), axis=2)
-        Ab = (Ut * eng._w) @ Ut.transpose(0, 2, 1)  # (B, n, n): A at the bases
+        Ab = (Ut * maps.weights) @ Ut.transpose(0, 2, 1)  # (B, n, n): A at the bases
         Q = eng.generalized_forces(t, kin)
         if n <= 2:
             return self.solve_small(view, t, q, qd, Ab, Q, kin, plan)
@@ -122,7 +124,14 @@ class CentralScheme:
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "a stencil point has no real configuration") from None
         kin = Kinematics(
-            t, q, qd, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), side=(wb, plan.inv2d), v=vl
+            t,
+            q,
+            qd,
+            eng.maps.names,
+            bodies=eng.maps.body_index,
+            lists=(xl, jl, wl),
+            side=(wb, plan.inv2d),
+            v=vl,
         )
         tail = plan.tail
         if plan.tail_at != eng.version[0] and eng.kernels:
@@ -137,7 +146,7 @@ class CentralScheme:
             if out is not None:
                 Q, Qnc, qdd = out
                 return kin, A, h, Q, Qnc, qdd
-        Q, Qnc = eng._forces(t, kin)
+        Q, Qnc = eng.forces.generalized(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):

@@ -27,9 +27,10 @@ Two derivative schemes:
 How an evaluation is organised (it is the inner loop of every run, so it is written to make few
 numpy calls: for n ≤ 2 numpy's per-call overhead, not arithmetic, is the cost):
 
-* everything that depends only on the mechanism is built once per engine: the centres of mass
-  and the rotating bodies' link vectors are linear in the points' coordinates, so one matrix
-  ``M`` maps the points' coordinates to all named points, centres of mass and link vectors;
+* everything that depends only on the mechanism is built once per engine
+  (:mod:`mps_core.dynamics.maps`): the centres of mass and the rotating bodies' link vectors
+  are linear in the points' coordinates, so one matrix ``M`` maps the points' coordinates to
+  all named points, centres of mass and link vectors;
 * everything that depends on the chart view is built once per view (a :class:`_Plan`): the
   stencil's displacements and one matrix ``K`` whose columns select the base points of the
   stencil and take the central differences there;
@@ -55,18 +56,18 @@ import math
 
 import numpy as np
 
-from ..codegen.emitter import Tables
-from ..codegen.fused_kernels import fingerprint, reuse_or_make
+from ..codegen.fused_kernels import reuse_or_make
 from ..codegen.kernels import central_kernel
 from ..derivatives import SCHEMES
 from ..derivatives.stencil import stencil
 from ..derivatives.tracing import BranchChanged
 from ..errors import ChartDomainError, NumericalError, config_in_degrees
-from ..model.effects.base import FastForce, Version, has_hook, watch_all
 from ..model.mechanism import ChartView, Mechanism
 from .central import CentralScheme
 from .exact import ExactScheme, other_that_holds
+from .forces import EffectForces
 from .kinematics import Evaluation, Kinematics, virtual_work
+from .maps import MechanismMaps
 
 
 class _Plan:
@@ -152,78 +153,6 @@ class _Plan:
         self.scale = np.tile(inv2d, B)[:, None]  # (B·n, 1)
 
 
-def _owner(cls, name):
-    for k in cls.__mro__:
-        if name in k.__dict__:
-            return k
-    return None
-
-
-def _fast_path(effect):
-    """An effect's ``generalized_force(t, kin)`` (:class:`~mps_core.model.effects.base.FastForce`)
-    where it has one for the same ``loads`` (a subclass that overrides ``loads`` alone keeps
-    the general path)."""
-    if not has_hook(effect, FastForce):
-        return None
-    cls = type(effect)
-    gf = _owner(cls, "generalized_force")
-    if gf is not None and gf is _owner(cls, "loads"):
-        return effect.generalized_force
-    return None
-
-
-class _Effects(list):
-    """An engine's effects: a change of the list (an effect added or taken away) moves the
-    engine's :attr:`PartialSystems.version`, so that no code made for the old list is used."""
-
-    def __init__(self, engine, effects=()):
-        super().__init__(effects)
-        self._engine = engine
-
-    def _changed(self):
-        engine = self._engine
-        if "_effect_paths" in engine.__dict__:
-            engine._effect_paths = engine._paths()
-
-    def append(self, effect):
-        super().append(effect)
-        self._changed()
-
-    def extend(self, effects):
-        super().extend(effects)
-        self._changed()
-
-    def insert(self, i, effect):
-        super().insert(i, effect)
-        self._changed()
-
-    def remove(self, effect):
-        super().remove(effect)
-        self._changed()
-
-    def pop(self, i=-1):
-        out = super().pop(i)
-        self._changed()
-        return out
-
-    def clear(self):
-        super().clear()
-        self._changed()
-
-    def __setitem__(self, i, value):
-        super().__setitem__(i, value)
-        self._changed()
-
-    def __delitem__(self, i):
-        super().__delitem__(i)
-        self._changed()
-
-    def __iadd__(self, effects):
-        super().extend(effects)
-        self._changed()
-        return self
-
-
 class PartialSystems:
     """The engine: evaluates q̈ for a mechanism, its scene's effects and a derivative scheme.
 
@@ -245,107 +174,28 @@ class PartialSystems:
         if not (delta > 0.0 and math.isfinite(delta)):
             raise ValueError(f"virtual displacement delta = {delta!r}: expected a positive number")
         self.mechanism = mechanism
-        self.effects = _Effects(self, effects)
-        for e in self.effects:
-            e.bind(mechanism)
+        #: the effects' generalized forces (:mod:`mps_core.dynamics.forces`)
+        self.forces = EffectForces(mechanism, effects)
+        #: the effects (bound to the mechanism); a change of the list moves :attr:`version`
+        self.effects = self.forces.effects
         #: the state of the effects and the controls they read, as this engine's generated
         #: code folded them in: moved by any assignment to them (no other engine's)
-        self.version = Version()
-        self._effect_paths = self._paths()
+        self.version = self.forces.version
         self.scheme = scheme
         self.delta = float(delta)
         #: central differences on charts with ``flat`` positions and n <= 2 run as scalar
         #: kernels (:mod:`mps_core.codegen.kernels`); False keeps the array code everywhere
         self.kernels = bool(kernels)
         self.counts = {"evaluations": 0, "position_calls": 0, "position_points": 0}
-        bodies = mechanism.bodies
-        self._point_names = list(mechanism.points)
-        self._names = {p: k for k, p in enumerate(self._point_names)}
-        for b in bodies:
-            self._names[f"G_{b.name}"] = len(self._names)
-        self._body_index = {b.name: k for k, b in enumerate(bodies)}
-        self._mass = np.array([b.mass for b in bodies])
-        self._inertia = np.array([b.inertia for b in bodies])
-        self._rot = [k for k, b in enumerate(bodies) if b.rotates]
-        self._build_maps()
+        #: what every evaluation reuses of the mechanism (its maps and their frozen tables)
+        self.maps = MechanismMaps(mechanism)
         #: what the generated code reads of the mechanism (:mod:`mps_core.codegen.emitter`)
-        self.tables = Tables(
-            point_names=tuple(self._point_names),
-            names=self._names,
-            body_index=self._body_index,
-            mass=self._mass,
-            inertia=self._inertia,
-            rot=tuple(self._rot),
-            MT=self._MT,
-            offset=self._offset,
-            fixed_points=tuple(getattr(mechanism, "fixed_points", ())),
-        )
+        self.tables = self.maps.tables
         self._plans: dict = {}
         #: the two derivative schemes' evaluations (:mod:`~mps_core.dynamics.central`,
         #: :mod:`~mps_core.dynamics.exact`), the scheme's one used
         self.central, self.exact = CentralScheme(self), ExactScheme(self)
         self._evaluate = self.central.evaluate if scheme == "central" else self.exact.evaluate
-
-    def _build_maps(self):
-        """The map from the points' coordinates (x0, y0, x1, y1, …) to, in pairs (x, y): the
-        named points and centres of mass (pairs 0 … NP−1), the rotating bodies' link vectors
-        toward − origin (pairs NP … NP+nrot−1), and a pair (Σ of everything, 0) that makes a
-        non-finite position show in one number. Kept transposed (``_MT``), so that a result's
-        last axis is x, y, x, y, …: viewed as complex numbers x + iy, an angular analog is
-        ω* = (r × v*)/|r|² = Im(v*/r) in one division."""
-        mech = self.mechanism
-        npts = len(self._point_names)
-        NP = len(self._names)
-        nrot = len(self._rot)
-        M = np.zeros((2 * NP + 2 * nrot + 2, 2 * npts))
-        offset = np.zeros((NP, 2))
-        for k in range(npts):
-            M[2 * k, 2 * k] = M[2 * k + 1, 2 * k + 1] = 1.0
-        for b in mech.bodies:
-            r = 2 * self._names[f"G_{b.name}"]
-            o = 2 * self._names[b.origin]
-            a, c = b.com
-            if b.toward is None:
-                M[r, o] = M[r + 1, o + 1] = 1.0
-                offset[r // 2] = (a, c)
-                continue
-            t = 2 * self._names[b.toward]
-            al, be = a / b.length, c / b.length
-            # G = P_o + al (P_t − P_o) + be n(P_t − P_o), n(x, y) = (−y, x)   (Body.com_of)
-            M[r, o] += 1.0 - al
-            M[r, t] += al
-            M[r, t + 1] -= be
-            M[r, o + 1] += be
-            M[r + 1, o + 1] += 1.0 - al
-            M[r + 1, t + 1] += al
-            M[r + 1, t] += be
-            M[r + 1, o] -= be
-        for j, k in enumerate(self._rot):
-            b = mech.bodies[k]
-            r = 2 * NP + 2 * j
-            o, t = 2 * self._names[b.origin], 2 * self._names[b.toward]
-            M[r, t] += 1.0
-            M[r, o] -= 1.0
-            M[r + 1, t + 1] += 1.0
-            M[r + 1, o + 1] -= 1.0
-        M[-2, :] = 1.0
-        self._MT = np.ascontiguousarray(M.T)
-        self._offset = offset.reshape(-1) if np.any(offset != 0.0) else None
-        self._np, self._npts, self._nrot = NP, npts, nrot
-        nbody = len(mech.bodies)
-        # weights of U's rows [v*_G (x, y per body); ω*_rot]: A = U diag(w) Uᵀ
-        self._w = np.concatenate((np.repeat(self._mass, 2), self._inertia[self._rot]))
-        self._rot_all = self._rot == list(range(nbody))
-        self._rot_idx = np.array(self._rot, dtype=int)
-        self._point_slots = [(p, 2 * k, 2 * k + 1) for k, p in enumerate(self._point_names)]
-
-    def _omega_rows(self, Wr, n):
-        """(nbody, n) angular analogs from the rotating bodies' (n, nrot)."""
-        if self._rot_all:
-            return Wr.T
-        W = np.zeros((len(self._mass), n))
-        W[self._rot_idx] = Wr.T
-        return W
 
     def _plan(self, view) -> _Plan:
         plan = self._plans.get(view)
@@ -457,7 +307,7 @@ class PartialSystems:
         evaluate = PartialSystems.evaluate
         engine = self
         counts, plans, version = self.counts, self._plans, self.version
-        names, bodies = self._names, self._body_index
+        names, bodies = self.maps.names, self.maps.body_index
         ndarray, array = np.ndarray, np.array
 
         def fun(t, q, qd):
@@ -507,13 +357,8 @@ class PartialSystems:
             return None
 
     def fingerprint(self):
-        """:func:`~mps_core.codegen.fused_kernels.fingerprint` of the effects, made once per state of
-        their parameters and controls."""
-        version = self.version[0]
-        kept = self.__dict__.get("_fingerprint_of")
-        if kept is None or kept[0] != version or kept[1] != len(self.effects):
-            kept = self._fingerprint_of = (version, len(self.effects), fingerprint(self.effects))
-        return kept[2]
+        """:meth:`~mps_core.dynamics.forces.EffectForces.fingerprint`."""
+        return self.forces.fingerprint()
 
     def _fuse(self, view, plan, t, ql, vl):
         """Make the view's fused function at (t, q, q̇) (None where it cannot be made)."""
@@ -569,75 +414,15 @@ class PartialSystems:
         return np.array(self.force_list(t, kin), dtype=float)
 
     def force_list(self, t: float, kin: Kinematics) -> list:
-        """Q as n floats. An effect may give its generalized force directly
-        (``generalized_force(t, kin)``, the same number in fewer operations); it is used where
-        the effect's class defines it together with its ``loads``."""
-        return self._forces(t, kin)[0]
+        """Q as n floats (:meth:`~mps_core.dynamics.forces.EffectForces.generalized`)."""
+        return self.forces.generalized(t, kin)[0]
 
     def effect_paths(self) -> list:
-        """[(fast path or None, effect, conservative)] of the effects that apply forces, in
-        order: how :meth:`generalized_force` calls each (the generated code calls them so)."""
-        if self._effect_paths[0] != len(self.effects):
-            self._effect_paths = self._paths()
-        return self._effect_paths[1]
-
-    def _forces(self, t: float, kin: Kinematics) -> tuple[list, list]:
-        """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share."""
-        if self._effect_paths[0] != len(self.effects):
-            self._effect_paths = self._paths()
-        n = kin.n
-        if n == 1:
-            q, qc = 0.0, 0.0
-            for fast, e, conservative in self._effect_paths[1]:
-                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-                if Qe is not None:
-                    if conservative:
-                        qc += Qe[0]
-                    else:
-                        q += Qe[0]
-            return [q + qc], [q]
-        if n == 2:
-            q0 = q1 = c0 = c1 = 0.0
-            for fast, e, conservative in self._effect_paths[1]:
-                Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-                if Qe is not None:
-                    if conservative:
-                        c0 += Qe[0]
-                        c1 += Qe[1]
-                    else:
-                        q0 += Qe[0]
-                        q1 += Qe[1]
-            return [q0 + c0, q1 + c1], [q0, q1]
-        Q = [0.0] * n
-        Qc = [0.0] * n
-        for fast, e, conservative in self._effect_paths[1]:
-            Qe = fast(t, kin) if fast is not None else virtual_work(e.loads(t, kin), kin)
-            if Qe is not None:
-                if conservative:
-                    for i in range(n):
-                        Qc[i] += Qe[i]
-                else:
-                    for i in range(n):
-                        Q[i] += Qe[i]
-        Qnc = list(Q)
-        for i in range(n):
-            Q[i] += Qc[i]
-        return Q, Qnc
-
-    def _paths(self):
-        """(number of effects, [(fast path or None, effect, conservative)]) without the effects
-        that apply no force of their own (``applies_forces`` False: a rigid stop, the latch);
-        :attr:`version` watches every effect (and moves: the list changed)."""
-        watch_all(self.effects, self.version)
-        self.version[0] += 1
-        return len(self.effects), [
-            (_fast_path(e), e, bool(e.conservative))
-            for e in self.effects
-            if getattr(e, "applies_forces", True)
-        ]
+        """:meth:`~mps_core.dynamics.forces.EffectForces.paths`."""
+        return self.forces.paths()
 
     def potential_energy(self, kin: Kinematics) -> float:
-        return float(sum(e.potential(kin) for e in self.effects if e.conservative))
+        return self.forces.potential_energy(kin)
 
     def kinematics(self, view: ChartView, t: float, q, qd) -> Kinematics:
         """Positions and analogs alone (no forces, no solve), in the engine's scheme."""
@@ -655,6 +440,7 @@ class PartialSystems:
         plan = self._plans.get(view)
         if plan is not None and self.kernels:
             counts = self.counts
+            maps = self.maps
             try:
                 if plan.inline is not None:
                     counts["position_calls"] += 1
@@ -664,8 +450,8 @@ class PartialSystems:
                         t,
                         np.array(ql, float),
                         np.array(vl, float),
-                        self._names,
-                        bodies=self._body_index,
+                        maps.names,
+                        bodies=maps.body_index,
                         lists=(xl, jl, wl),
                         side=(wb, plan.inv2d),
                         v=list(vl),
@@ -678,8 +464,8 @@ class PartialSystems:
                         t,
                         np.array(ql, float),
                         np.array(vl, float),
-                        self._names,
-                        bodies=self._body_index,
+                        maps.names,
+                        bodies=maps.body_index,
                         lists=(xl, jl, wl),
                         conv=conv,
                         v=list(vl),

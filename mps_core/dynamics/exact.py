@@ -58,13 +58,14 @@ class ExactScheme:
         n partial derivatives, d1 and d2 (along q̇) of every pair of M; Wr (n, nrot) the angular
         analogs, theta2 (nrot,) the angles' second rates at q̈ = 0."""
         eng = self.engine
+        maps = eng.maps
         n = view.n
         pose = view.positions(seed(q, qd))
         eng.counts["position_calls"] += 1
         eng.counts["position_points"] += 1
         rows = []
         zero = [0.0] * (n + 2)
-        for p in eng._point_names:
+        for p in maps.point_names:
             for c in pose[p]:
                 if c.__class__ is ScalarJet:
                     rows.append([c.val, *c.g, c.d1, c.d2])
@@ -72,16 +73,16 @@ class ExactScheme:
                     rows.append([float(c.val), *np.reshape(c.grad, n).tolist(), float(c.d1), float(c.d2)])
                 else:
                     rows.append([float(c), *zero])
-        Zt = np.array(rows).T @ eng._MT
+        Zt = np.array(rows).T @ maps.MT
         if not all(math.isfinite(x) for x in Zt[: 1 + n, -2].tolist()):
             raise ChartDomainError(view.name, "no real configuration at this point")
-        NP, NP2 = eng._np, 2 * eng._np
+        NP, NP2 = maps.npoints, 2 * maps.npoints
         X = Zt[0, :NP2]
-        if eng._offset is not None:
-            X = X + eng._offset
+        if maps.offset is not None:
+            X = X + maps.offset
         X = X.reshape(NP, 2)
         J = Zt[1 : 1 + n, :NP2].T.reshape(NP, 2, n)
-        nrot = eng._nrot
+        nrot = maps.nrot
         if nrot:
             Zc = Zt[:, :-2].view(complex)
             # (∂r, ṙ, r̈)/r: Im gives ω* and the angle's rate, Re the rate of ln |r|
@@ -89,11 +90,11 @@ class ExactScheme:
             Wr = quo[:n].imag
             w1, dot1 = quo[n].imag, quo[n].real
             theta2 = quo[n + 1].imag - 2.0 * w1 * dot1
-            W = eng._omega_rows(Wr, n)
+            W = maps.omega_rows(Wr, n)
         else:
             Wr = theta2 = None
-            W = np.zeros((len(eng._mass), n))
-        kin = Kinematics(t, q, qd, eng._names, X, J, W, eng._body_index)
+            W = np.zeros((len(maps.mass), n))
+        kin = Kinematics(t, q, qd, maps.names, X, J, W, maps.body_index)
         return kin, Zt, Wr, theta2
 
     def evaluate(self, view, t, q, qd):
@@ -122,15 +123,16 @@ class ExactScheme:
     def jets_evaluate(self, view, t, q, qd):
         """The autodiff evaluation by the jets (no kernel, or the kernel's branch changed)."""
         eng = self.engine
+        maps = eng.maps
         kin, Zt, Wr, theta2 = self.kinematics(view, t, q, qd)
         n = view.n
-        G = Zt[:, 2 * eng._npts : 2 * eng._np]  # (n + 3, 2·nbody)
+        G = Zt[:, 2 * maps.npts : 2 * maps.npoints]  # (n + 3, 2·nbody)
         if Wr is None:
             U, D = G[1 : 1 + n], G[2 + n]
         else:
             U = np.concatenate((G[1 : 1 + n], Wr), axis=1)
             D = np.concatenate((G[2 + n], theta2))
-        Uw = U * eng._w
+        Uw = U * maps.weights
         A = Uw @ U.T
         h = Uw @ D
         Q = eng.generalized_forces(t, kin)
@@ -176,7 +178,9 @@ class ExactScheme:
         counts["position_calls"] += 1
         counts["position_points"] += 1
         xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
-        kin = Kinematics(t, q, qd, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
+        kin = Kinematics(
+            t, q, qd, eng.maps.names, bodies=eng.maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl
+        )
         return Evaluation(view, t, q, qd, np.array(qdd), A, h, Q, kin, Qnc)
 
     def remember_first(self, view, plan):
@@ -221,6 +225,7 @@ class ExactScheme:
         """(kin, A, h, Q, Q_nc, q̈) by the view's exact kernel, all on floats (as
         :meth:`_kernel_solve`)."""
         eng = self.engine
+        maps = eng.maps
         counts = eng.counts
         counts["position_calls"] += 1
         counts["position_points"] += 1
@@ -241,7 +246,7 @@ class ExactScheme:
             if out is not None:  # (None: q̈ not finite, the kernel below says so)
                 xl, jl, wl, A, h, conv, Q, Qnc, qdd = out
                 kin = Kinematics(
-                    t, q, qd, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl
+                    t, q, qd, maps.names, bodies=maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl
                 )
                 return kin, A, h, Q, Qnc, qdd
         try:
@@ -255,8 +260,8 @@ class ExactScheme:
                 xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
         except (ValueError, ZeroDivisionError, OverflowError):
             raise ChartDomainError(view.name, "no real configuration at this point") from None
-        kin = Kinematics(t, q, qd, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
-        Q, Qnc = eng._forces(t, kin)
+        kin = Kinematics(t, q, qd, maps.names, bodies=maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl)
+        Q, Qnc = eng.forces.generalized(t, kin)
         qdd = solve_given_h(A, h, Q)
         for x in qdd:
             if not math.isfinite(x):

@@ -3,7 +3,8 @@ structure that owns the configuration, the state mapped into it exactly (contrac
 
 :meth:`ChartChanger.check` runs at every step's end: below the policy's ``switch_below`` it
 changes chart (:meth:`ChartChanger.change`); with chart switching off, below ``fail_below``
-the run stops with :class:`~mps_core.errors.ChartBreakdown`. A state is mapped into another
+the run stops with :class:`~mps_core.errors.ChartBreakdown`. A step that leaves its chart's
+domain is taken again in another chart (:meth:`ChartChanger.leave_failing`). A state is mapped into another
 chart exactly (:meth:`ChartChanger.map_state`: through jets, or from the exact kinematics where
 the scheme has them) and checked point by point; no regular chart is a singular position of
 the machine (:class:`~mps_core.errors.SingularConfiguration`).
@@ -24,8 +25,17 @@ __all__ = ["ChartChanger"]
 class ChartChanger:
     """The changes of chart of a run ``sim`` (a :class:`~mps_core.run.simulation.Simulation`)."""
 
-    def __init__(self, sim):
+    def __init__(self, sim) -> None:
         self.sim = sim
+        #: the chart views of each structure, made on first use
+        self._views: dict[str, list[ChartView]] = {}
+
+    def views(self, structure: str) -> list[ChartView]:
+        """The chart views of ``structure`` (the mechanism's, kept)."""
+        views = self._views.get(structure)
+        if views is None:
+            views = self._views[structure] = self.sim.mechanism.views(structure)
+        return views
 
     def check(self):
         sim = self.sim
@@ -45,9 +55,8 @@ class ChartChanger:
 
     def candidates(self, structure, pose, exclude=None) -> list[tuple[float, ChartView]]:
         """Views of a structure that own the configuration, most regular first."""
-        sim = self.sim
         out = []
-        for v in sim.views(structure):
+        for v in self.views(structure):
             if (exclude is not None and v.chart is exclude) or not v.owns(pose):
                 continue
             out.append((v.regularity(pose), v))
@@ -69,6 +78,26 @@ class ChartChanger:
                 continue
             return v, q2, qd2, reg
         return None, None, None, -1.0
+
+    def leave_failing(self, exc: ChartDomainError, failures: int) -> None:
+        """A step that left its chart's domain (``failures`` in a row from here): another chart
+        of the structure (or a clear error where chart switching is off or every chart has
+        failed from here)."""
+        sim = self.sim
+        e = sim.solver.current
+        if not sim.policy.switching:
+            raise ChartBreakdown(
+                f"the step from here leaves chart {sim.view.name} ({exc.detail}) and chart switching is off",
+                e.t,
+                sim.config(e),
+            ) from None
+        if failures > len(self.views(sim.structure)):
+            raise SingularConfiguration(
+                f"every chart of structure {sim.structure!r} fails in the step from here ({exc.detail})",
+                e.t,
+                sim.config(e),
+            ) from None
+        self.change(sim.view.regularity(e.kin.pose), forced=True)
 
     def change(self, reg_now: float, forced: bool):
         sim = self.sim

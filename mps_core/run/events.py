@@ -117,8 +117,7 @@ class EventLocator:
         return kin
 
     def count_switch(self, t):
-        sim = self.sim
-        sim.switch_points += 1
+        self.sim.work_counts.switch_points += 1
 
     def values(self, t, q, qd, kin=None) -> dict:
         return {e.name: e.fn(t, q, qd, kin) for e in self.event_list()}

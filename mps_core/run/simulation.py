@@ -46,12 +46,13 @@ them whole.
 
 **Per step** the driver does only what the step needs: what depends on a chart view alone (where
 each reported observable comes from, the event functions) is worked out once per view, the
-recorded rows are tuples made into columns at the end, and the reported angles read for unwrapping
-after a step are reused by its record.
+recorded rows are tuples made into columns at the end (:mod:`mps_core.run.records`), and the
+reported angles read for unwrapping after a step are reused by its record.
 
-**Energy**: the work of the non-conservative effects is integrated per step (trapezoid rule on
-their power at the step's ends) into ``W``; impact losses accumulate into ``E_impact``; the balance
-``T + V − (T0 + V0) − W + E_impact`` closes to the integration error.
+**Energy** (:mod:`mps_core.run.energy`): the work of the non-conservative effects is integrated
+per step (trapezoid rule on their power at the step's ends) into ``W``; impact losses accumulate
+into ``E_impact``; the balance ``T + V − (T0 + V0) − W + E_impact`` closes to the integration
+error.
 """
 
 from __future__ import annotations
@@ -61,45 +62,21 @@ import math
 import numpy as np
 
 from ..dynamics.engine import PartialSystems
-from ..errors import (
-    ChartBreakdown,
-    ChartDomainError,
-    MpsError,
-    NumericalError,
-    SingularConfiguration,
-    config_in_degrees,
-)
-from ..model.effects import Controls, Latch, Motor, TopStop
+from ..errors import ChartDomainError, MpsError, config_in_degrees
+from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
-from ..names import COLUMNS
 from ..scene.settings import ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
 from .charts import ChartChanger
+from .energy import EnergyAccount
 from .events import EventLocator
 from .observables import Observables
+from .records import Recorder, WorkCounts
+from .schedule import Schedule
 from .stability import StepStability
 from .structure_layer import CommandRefused, StructureLayer
 from .trajectory import Trajectory
-
-#: a recorded row's columns (see :meth:`Simulation._record`), in :data:`~mps_core.names.COLUMNS`
-_ROW = (
-    "t",
-    "phi",
-    "psi",
-    "phi_dot",
-    "psi_dot",
-    "phi_ddot",
-    "psi_ddot",
-    "x_C",
-    "T",
-    "V",
-    "W",
-    "E_impact",
-    "structure",
-    "chart",
-)
-
 
 #: the defaults of a simulation built by hand (frozen: shared safely)
 _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
@@ -150,7 +127,6 @@ class Simulation:
         #: at a change point (held four-bar at x_top = l1 + l2 − l3): the smooth continuation,
         #: or the rocker kept on its side with a plastic impact
         self.change_point = change_point
-        self._exact_engine = None
         self.settings = solver
         self.policy = charts
         self.effects = list(effects)
@@ -165,62 +141,43 @@ class Simulation:
         #: called at every recorded step: ``observe(simulation, evaluation)``; their
         #: ``columns()`` join the trajectory's (reactions, loads: only when a scene asks)
         self.observers = list(observers)
-        #: the switches between structures, the impacts and the commands
+        #: the switches between structures, the impacts and the commands (and the press's
+        #: parts they act through)
         self.structures = StructureLayer(self)
-        self._sort_effects()
+        motor = self.structures.parts.motor
+        if motor is not None:
+            self.controls.motor_on = motor.enabled
         #: the fixed steps' stability limit for the stiff effects
         self.stability = StepStability(self.effects, mechanism, solver)
-        self._views: dict[str, list[ChartView]] = {}
-        self._full: dict[str, ChartView] = {}
-        #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates)
-        self._held: dict[ChartView, tuple] = {}
         view, q, qd = initial
         self.view: ChartView = view
         self.events: list[dict] = []
-        self.pending: list[tuple[float, str]] = sorted((float(t), c) for t, c in commands)
-        #: the driver's own control changes due at a known time, (t, name), sorted: step
-        #: boundaries like commands (the disengage cylinder's end)
-        self._timers: list[tuple[float, str]] = []
-        #: switching points of the effects' force laws crossed (a step ended at each)
-        self.switch_points = 0
+        #: the commands given for later and the driver's own control changes (the disengage
+        #: cylinder's end): step boundaries
+        self.schedule = Schedule(commands)
         #: the events that can happen now and where they happen inside a step
         self.events_now = EventLocator(self, solver.locates_switch_points())
         #: the changes of chart where the present one degenerates
         self.charts = ChartChanger(self)
-        self.solver_nfev = 0
-        self.solver_steps = 0
-        self.work = 0.0
-        self.impact_loss = 0.0
+        #: the solvers' work and the switching points crossed (the engine counts its own)
+        self.work_counts = WorkCounts()
+        #: W, E_impact and V: the energy balance's terms
+        self.energy = EnergyAccount(self.effects)
         #: the reported observables' values, rates and accelerations in any chart
         self.observables = Observables(self)
         self.phys: dict[str, float] = {}
         self._phys_of = None  # the evaluation phys was last read from
-        #: the steps of a run with steps longer than its outputs (see ``_run_long_steps``)
+        #: the steps of a run with steps longer than its outputs (``Recorder.run_long_steps``)
         self._spans = None
         self.solver = self._new_solver(t0, q, qd)
         self.observables.update_phys(self.solver.current)
-        self._power_now = self._power(self.solver.current)
+        self.energy.power_now = self.energy.power(self.solver.current)
         self._chart_due = False
         self.charts.check()
         self._ev_prev = self.events_now.values(self.solver.t, self.solver.q, self.solver.qd)
         self._seg_start = self.solver.t
         if self._ev_prev.get("stop-release", -1.0) > 0.0:
             self.structures.release_stop(self.solver.t)
-
-    def _sort_effects(self) -> None:
-        """The effects the driver acts through (latch, rigid stop, motor, cylinders) and those
-        its bookkeeping reads (non-conservative: work; conservative: potentials; the stiff
-        ones are :attr:`stability`'s)."""
-        eff = self.effects
-        self.latch = next((e for e in eff if isinstance(e, Latch)), None)
-        self.stop = next((e for e in eff if isinstance(e, TopStop) and e.rigid), None)
-        self.motor = next((e for e in eff if isinstance(e, Motor)), None)
-        if self.motor is not None:
-            self.controls.motor_on = self.motor.enabled
-        self.engage = next((e for e in eff if e.kind == "engage_cylinder"), None)
-        self.disengage = next((e for e in eff if e.kind == "disengage_cylinder"), None)
-        self._nc = [e for e in eff if not e.conservative]
-        self._potentials = [e.potential for e in eff if e.conservative]
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -244,9 +201,10 @@ class Simulation:
         """The run's state now, for :meth:`restore`: a driver that took steps ahead comes back
         to a step boundary (a command arrived for it) and goes on from there exactly as if it
         had stopped there. Shallow and cheap (a few µs): the state's objects are replaced, not
-        changed, by a step, except the containers copied here (the controls, the event log,
-        the pending commands and timers, the unwrapping references, the observers' own
-        ``checkpoint``). Caches (kernels, views, plans) are shared, not kept."""
+        changed, by a step, except the containers copied here (the controls, the motor switched
+        on or off, the event log, the schedule's commands and timers, the energy account, the
+        work counts, the unwrapping references, the observers' own ``checkpoint``). Caches
+        (kernels, views, plans) are shared, not kept."""
         if not self.rewindable:
             raise NotImplementedError(
                 f"no checkpoint of this run: solver {self.solver.name!r} or an observer "
@@ -256,28 +214,29 @@ class Simulation:
             dict(self.__dict__),
             self.solver.state(),
             dict(vars(self.controls)),
+            self.structures.parts.state(),
             list(self.events),
-            list(self.pending),
-            list(self._timers),
+            self.schedule.state(),
+            self.energy.state(),
+            self.work_counts.state(),
             dict(self.phys),
             [ob.checkpoint() if hasattr(ob, "checkpoint") else None for ob in self.observers],
         )
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint` of this run."""
-        state, solver, controls, events, pending, timers, phys, observers = cp
-        exact = self._exact_engine
+        state, solver, controls, parts, events, schedule, energy, work, phys, observers = cp
         d = self.__dict__
         d.clear()
         d.update(state)
-        if self._exact_engine is None:
-            self._exact_engine = exact  # built since: a cache
         self.solver.set_state(dict(solver))
         vars(self.controls).update(controls)
         self.controls.touch()  # restored behind __setattr__: code folded on them is stale
+        self.structures.parts.set_state(parts)
         self.events[:] = events
-        self.pending[:] = pending
-        self._timers = list(timers)
+        self.schedule.set_state(schedule)
+        self.energy.set_state(energy)
+        self.work_counts.set_state(work)
         self.phys.clear()
         self.phys.update(phys)
         for ob, st in zip(self.observers, observers):
@@ -285,9 +244,8 @@ class Simulation:
                 ob.restore(st)
 
     def views(self, structure: str) -> list[ChartView]:
-        if structure not in self._views:
-            self._views[structure] = self.mechanism.views(structure)
-        return self._views[structure]
+        """The chart views of ``structure`` (:meth:`ChartChanger.views <.charts.ChartChanger.views>`)."""
+        return self.charts.views(structure)
 
     # -- solver management ----------------------------------------------------------------
     def _fun(self, view):
@@ -298,8 +256,7 @@ class Simulation:
         old = getattr(self, "solver", None)
         first = None
         if old is not None:
-            self.solver_nfev += old.nfev
-            self.solver_steps += old.nsteps
+            self.work_counts.retire(old)
             first = getattr(old, "step_size", None)  # an adaptive solver carries on its step
         view = self.view
         return make_solver(
@@ -319,7 +276,7 @@ class Simulation:
     def _restart(self, view, t, q, qd):
         self.view = view
         self.solver = self._new_solver(t, q, qd)
-        self._power_now = self._power(self.solver.current)
+        self.energy.power_now = self.energy.power(self.solver.current)
         self._ev_prev = self.events_now.values(t, self.solver.q, self.solver.qd)
         self._seg_start = t
         # the forces may have changed (a command, an impact): a stop that would now pull lets go
@@ -336,10 +293,6 @@ class Simulation:
         q, qd = self.solver.dense_output()(t_e)
         self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
 
-    # -- actions --------------------------------------------------------------------------
-
-    # -- commands -------------------------------------------------------------------------
-
     # -- commands (the structure layer's) -------------------------------------------------
     def check_command(self, name) -> None:
         """Raise :class:`CommandRefused` if ``name`` makes no sense now."""
@@ -348,27 +301,6 @@ class Simulation:
     def command(self, name: str, t: float | None = None) -> None:
         """Take a command now (t None) or at a later simulated time; refused ones raise."""
         self.structures.command(name, t)
-
-    # -- work and energy ------------------------------------------------------------------
-    def _power(self, e) -> float:
-        if e.Q_nc is not None:
-            # Σ F·v + M·ω of the non-conservative loads is their virtual work along q̇
-            p = 0.0
-            for a, b in zip(e.Q_nc, e.kin._v()):
-                p += a * b
-            return p
-        p = 0.0
-        for eff in self._nc:
-            p += eff.power(e.t, e.kin)
-        return p
-
-    def _potential(self, kin) -> float:
-        """V: the engine's ``potential_energy`` (the conservative effects' sum, in their order)
-        over the list of those effects kept by the driver (a test holds the two equal)."""
-        v = 0
-        for potential in self._potentials:
-            v += potential(kin)
-        return float(v)
 
     # -- the state, for sinks ---------------------------------------------------------------
     def joint_state(self) -> tuple:
@@ -392,8 +324,8 @@ class Simulation:
         out["x_C_dot"] = float(e.kin.velocity("C")[0])
         out["T"] = e.kinetic_energy
         out["V"] = self.engine.potential_energy(e.kin)
-        out["W"] = self.work
-        out["E_impact"] = self.impact_loss
+        out["W"] = self.energy.work
+        out["E_impact"] = self.energy.impact_loss
         out["structure"] = self.structure
         out["chart"] = self.view.name
         c = self.controls
@@ -414,21 +346,23 @@ class Simulation:
             t0 = self.solver.t
             if self._at_boundary(t0, tol):
                 continue
-            p_a = self._power_now
+            p_a = self.energy.power_now
             self._seg_start = t0
             try:
                 self.solver.step_to(t0 + self._step_size(t0, t_target), interrupt=self.events_now.interrupt)
             except ChartDomainError as exc:
                 failures += 1
-                self._leave_failing_chart(exc, failures)
+                self.charts.leave_failing(exc, failures)
                 continue
             failures = 0
             self._after_step(t0, p_a)
 
     def _at_boundary(self, t0: float, tol: float) -> bool:
         """A command or a timer due at t0 applied (or the command refused, logged): True."""
-        if self.pending and self.pending[0][0] <= t0 + tol:
-            _t_cmd, name = self.pending.pop(0)
+        schedule = self.schedule
+        commands = schedule.commands
+        if commands and commands[0][0] <= t0 + tol:
+            _t_cmd, name = commands.pop(0)
             try:
                 self.structures.check_command(name)
             except CommandRefused as exc:
@@ -438,20 +372,16 @@ class Simulation:
                 return True
             self.structures.apply_command(name, t0)
             return True
-        if self._timers and self._timers[0][0] <= t0 + tol:
-            self.structures.apply_timer(self._timers.pop(0)[1], t0)
+        timers = schedule.timers
+        if timers and timers[0][0] <= t0 + tol:
+            self.structures.apply_timer(timers.pop(0)[1], t0)
             return True
         return False
 
     def _step_size(self, t0: float, t_target: float) -> float:
         """The next step from t0: to the target, the next command or timer, at most the
         solver's own step, within the stability limit of the stiff effects."""
-        t_next = t_target
-        if self.pending and self.pending[0][0] < t_next:
-            t_next = self.pending[0][0]
-        if self._timers and self._timers[0][0] < t_next:
-            t_next = self._timers[0][0]
-        dt = t_next - t0
+        dt = self.schedule.until(t_target) - t0
         step = self.settings.step
         if step is not None and dt > step * (1.0 + 1e-9):
             dt = step
@@ -459,28 +389,11 @@ class Simulation:
             dt = self.stability.stable_step(dt, self.solver.current, self.config)
         return dt
 
-    def _leave_failing_chart(self, exc: ChartDomainError, failures: int) -> None:
-        """A step that left its chart's domain: another chart of the structure (or a clear
-        error where chart switching is off or every chart has failed from here)."""
-        e = self.solver.current
-        if not self.policy.switching:
-            raise ChartBreakdown(
-                f"the step from here leaves chart {self.view.name} ({exc.detail}) and chart switching is off",
-                e.t,
-                self.config(e),
-            ) from None
-        if failures > len(self.views(self.structure)):
-            raise SingularConfiguration(
-                f"every chart of structure {self.structure!r} fails in the step from here ({exc.detail})",
-                e.t,
-                self.config(e),
-            ) from None
-        self.charts.change(self.view.regularity(e.kin.pose), forced=True)
-
     def _after_step(self, t0: float, p_a: float) -> None:
         """A step taken from t0: cut at its first event (the event's action taken), or kept
         whole with its work, its event values and the chart to look at."""
         spans = self._spans
+        energy = self.energy
         if spans is not None:  # outputs inside the step: its interpolant
             spans.append(
                 [
@@ -489,9 +402,9 @@ class Simulation:
                     self.solver.dense_output(),
                     self.view,
                     self.controls.structure,
-                    self.work,
+                    energy.work,
                     p_a,
-                    self.impact_loss,
+                    energy.impact_loss,
                 ]
             )
         hit, vals = self.events_now.locate()
@@ -506,7 +419,7 @@ class Simulation:
             if spans is not None:
                 spans[-1][1] = t_e
             self._cut_at(t_e)
-            self.work += 0.5 * (p_a + self._power(self.solver.current)) * (t_e - t0)
+            energy.work += 0.5 * (p_a + energy.power(self.solver.current)) * (t_e - t0)
             ev.action(t_e)
             if ev.restart or ev.name == "change-point":
                 # a new dict: a checkpoint may hold the one before
@@ -517,9 +430,9 @@ class Simulation:
         # and unwrap references at its end, and the chart's regularity there
         solver = self.solver
         e = solver.current
-        p_b = self._power(e)
-        self.work += 0.5 * (p_a + p_b) * (solver.t - t0)
-        self._power_now = p_b
+        p_b = energy.power(e)
+        energy.work += 0.5 * (p_a + p_b) * (solver.t - t0)
+        energy.power_now = p_b
         self._ev_prev = vals
         self.observables.update_phys(e)
         self._chart_due = True
@@ -527,7 +440,8 @@ class Simulation:
     def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by
         ``dt``, or by the settings' ``step`` where given: shorter, several steps an output;
-        longer, the outputs inside a step from its interpolant (:meth:`_run_long_steps`).
+        longer, the outputs inside a step from its interpolant
+        (:meth:`Recorder.run_long_steps <mps_core.run.records.Recorder.run_long_steps>`).
         ``progress``: called with the simulated time after each output (e.g. a
         :class:`~mps_core.run.progress.Progress`)."""
         t0 = self.solver.t
@@ -536,8 +450,8 @@ class Simulation:
         if not (dt > 0):
             raise ValueError(f"dt = {dt!r}: expected a positive step")
         n = max(1, int(round((t_end - t0) / dt)))
-        rows: list[tuple] = []
-        self._record(rows, self.solver.current)
+        rec = Recorder(self)
+        rec.record(self.solver.current)
         step = self.settings.step
         try:
             if (
@@ -545,112 +459,18 @@ class Simulation:
                 and step > (t_end - t0) / n * (1.0 + 1e-9)
                 and self.settings.name not in ADAPTIVE_SOLVERS
             ):
-                return self._run_long_steps(rows, t0, t_end, n, step, progress)
+                return rec.run_long_steps(t0, t_end, n, step, progress)
             for k in range(1, n + 1):
                 tk = t_end if k == n else t0 + k * (t_end - t0) / n
                 self.advance_to(tk)  # keeps the unwrap references current
-                self._record(rows, self.solver.current)
+                rec.record(self.solver.current)
                 if progress is not None:
                     progress(tk)
-            return self._trajectory(rows)
+            return rec.trajectory()
         except MpsError as exc:
             # what was computed up to the failure, for a caller that writes it (marked partial)
             try:
-                exc.partial = self._trajectory(rows)
+                exc.partial = rec.trajectory()
             except Exception:
                 exc.partial = None
             raise
-
-    def _run_long_steps(self, rows, t0, t_end, n, step, progress=None) -> Trajectory:
-        """Steps longer than the output interval. Each output inside a step is the step's
-        interpolant there, evaluated (q̈, the kinematics, the observers' outputs), with the
-        structure, work (trapezoid from the step's start) and impact loss of that step; an
-        output at a step's end is that step's own evaluation. The steps keep the grid
-        t0 + m·step; events still end steps at their roots, and commands and charts change
-        between steps, as with any step."""
-        times = [t_end if k == n else t0 + k * (t_end - t0) / n for k in range(1, n + 1)]
-        tol = 1e-12 * max(1.0, abs(t_end))
-        k = 0
-        self._spans = spans = []
-        try:
-            while k < n:
-                spans.clear()
-                # the steps keep their grid t0 + m·step: after an event's cut the next step
-                # ends where it would have
-                m = math.floor((self.solver.t - t0) / step + 1e-9) + 1
-                self.advance_to(min(t0 + m * step, t_end))
-                t_now = self.solver.t
-                while k < n and times[k] <= t_now + tol:
-                    tk = times[k]
-                    if abs(tk - t_now) <= tol:
-                        self._record(rows, self.solver.current)
-                    else:
-                        self._record_inside(rows, tk, spans, tol)
-                    k += 1
-                if progress is not None:
-                    progress(t_now)
-        finally:
-            self._spans = None
-        return self._trajectory(rows)
-
-    def _record_inside(self, rows, tk, spans, tol):
-        """Record the output at ``tk`` from the last step that holds it (see
-        :meth:`_run_long_steps`)."""
-        # the span found is read after the loop
-        for t_a, t_b, dense, view, structure, work, p_a, loss in reversed(spans):  # noqa: B007
-            if t_a - tol <= tk <= t_b + tol:
-                break
-        else:
-            raise NumericalError(f"no step holds the output at t = {tk!r}", tk)
-        q, qd = dense(tk)
-        e = self.engine.evaluate(view, tk, np.array(q, float), np.array(qd, float))
-        self._record(
-            rows, e, work=work + 0.5 * (p_a + self._power(e)) * (tk - t_a), loss=loss, structure=structure
-        )
-
-    def _record(self, rows, e, work=None, loss=None, structure=None):
-        """Append the row of :data:`_ROW` at evaluation ``e`` (one tuple a step: the columns are
-        made once, at the end) and call the observers. ``work``, ``loss``, ``structure``: the
-        run's at ``e`` where they are not the present ones (an output inside a step)."""
-        obs = self.observables.observations(e)
-        at = self.observables.report_at
-        phi, psi = obs[at["phi"]], obs[at["psi"]]
-        rows.append(
-            (
-                e.t,
-                phi[0],
-                psi[0],
-                phi[1],
-                psi[1],
-                phi[2],
-                psi[2],
-                obs[at["x_C"]][0],
-                e.kinetic_energy,
-                self._potential(e.kin),
-                self.work if work is None else work,
-                self.impact_loss if loss is None else loss,
-                self.controls.structure if structure is None else structure,
-                e.view.name,
-            )
-        )
-        for ob in self.observers:
-            ob.observe(self, e)
-
-    def _trajectory(self, rows) -> Trajectory:
-        data = dict(zip(_ROW, zip(*rows)))
-        cols = {
-            k: (
-                np.array(data.get(k, ()), dtype=float)
-                if k not in ("structure", "chart")
-                else np.array(data.get(k, ()))
-            )
-            for k in COLUMNS
-        }
-        for ob in self.observers:
-            cols.update(ob.columns())
-        counts = dict(self.engine.counts)
-        counts["solver_evaluations"] = self.solver_nfev + self.solver.nfev
-        counts["steps"] = self.solver_steps + self.solver.nsteps
-        counts["switch_points"] = self.switch_points
-        settings = {**self.settings.described(), "chart_switching": self.policy.switching}
-        return Trajectory(cols, list(self.events), counts, settings)

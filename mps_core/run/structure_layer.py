@@ -19,7 +19,9 @@ hands it the commands at their times:
   cylinder's end is a timer the layer sets.
 
 The layer holds no state of its own: it reads and changes the run's (``self.sim``), so the
-numbers are the run's, operation for operation.
+numbers are the run's, operation for operation. It keeps the press's parts it acts through
+(:class:`MachineParts`) and caches of its own (the unfrozen charts of the held views, an exact
+engine for the change point's branches).
 """
 
 from __future__ import annotations
@@ -27,11 +29,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..dynamics.engine import PartialSystems
 from ..errors import MpsError, SingularConfiguration
+from ..model.effects import Latch, Motor, TopStop
 from ..model.mechanism import ChartView
 from ..scene.settings import COMMANDS
 
@@ -56,11 +60,54 @@ class _Event:
     restart: bool = False
 
 
+@dataclass(frozen=True)
+class MachineParts:
+    """The effects of a scene the structure layer acts through or checks commands against:
+    the latch, the rigid top stop, the motor, the engage and disengage cylinders (each None
+    where the scene has none)."""
+
+    latch: Any = None
+    stop: Any = None
+    motor: Any = None
+    engage: Any = None
+    disengage: Any = None
+
+    @classmethod
+    def of(cls, effects) -> MachineParts:
+        def first(pick):
+            return next((e for e in effects if pick(e)), None)
+
+        return cls(
+            latch=first(lambda e: isinstance(e, Latch)),
+            stop=first(lambda e: isinstance(e, TopStop) and e.rigid),
+            motor=first(lambda e: isinstance(e, Motor)),
+            engage=first(lambda e: e.kind == "engage_cylinder"),
+            disengage=first(lambda e: e.kind == "disengage_cylinder"),
+        )
+
+    def state(self) -> bool | None:
+        """What the commands change of the parts themselves (the motor switched on or off by
+        ``stop`` and ``start``), for :meth:`set_state`."""
+        return None if self.motor is None else self.motor.enabled
+
+    def set_state(self, state: bool | None) -> None:
+        if self.motor is not None and self.motor.enabled != state:
+            self.motor.enabled = state
+
+
 class StructureLayer:
     """The structures' switches, impacts and commands of one run (``sim``)."""
 
-    def __init__(self, sim):
+    def __init__(self, sim) -> None:
         self.sim = sim
+        #: the press's parts the layer acts through
+        self.parts = MachineParts.of(sim.effects)
+        #: per held view: (its chart unfrozen, the index of x_C there, the free coordinates);
+        #: the unfrozen views by chart name
+        self._held: dict[ChartView, tuple] = {}
+        self._full: dict[str, ChartView] = {}
+        #: an engine with exact derivatives for the change point's branches (made when needed)
+        self._exact_engine: PartialSystems | None = None
 
     def make_event_list(self) -> list[_Event]:
         """The events of the present structure and arming in the present view: each ``fn(t, q,
@@ -69,22 +116,23 @@ class StructureLayer:
         ev = []
         s = sim.structure
         view = sim.view
+        parts = self.parts
         if s == "free":
-            if sim.latch is not None and sim.controls.latch_armed:
-                lock = sim.latch.psi_lock
+            if parts.latch is not None and sim.controls.latch_armed:
+                lock = parts.latch.psi_lock
                 psi = sim.events_now.reader("psi", view)
                 ev.append(
                     _Event(
                         "latch-closes", lambda t, q, qd, kin=None: psi(q, kin) - lock, 0, self._close_latch
                     )
                 )
-            if sim.stop is not None:
-                top = sim.stop.x_top
+            if parts.stop is not None:
+                top = parts.stop.x_top
                 x_C = sim.events_now.reader("x_C", view)
                 ev.append(
                     _Event("stop-contact", lambda t, q, qd, kin=None: x_C(q, kin) - top, +1, self._hit_stop)
                 )
-        elif s == "held" and sim.stop is not None and sim.stop.model != "clamp":
+        elif s == "held" and parts.stop is not None and parts.stop.model != "clamp":
             ev.append(
                 _Event(
                     "stop-release",
@@ -130,7 +178,7 @@ class StructureLayer:
         lost = 0.5 * s * s / gAg
         before = sim.observables.physical_rates(view, q, qd)
         after = sim.observables.physical_rates(view, q, qd_plus)
-        sim.impact_loss += lost
+        sim.energy.impact_loss += lost
         for ob in sim.observers:
             if hasattr(ob, "impact"):
                 ob.impact(sim, t, view, q, qd, qd_plus, closing=(obs_name,))
@@ -221,7 +269,9 @@ class StructureLayer:
         """Analogs (centres of mass, body rates) of a continuation chart at the change point φ*,
         as the mean of those at φ* ± ε (the chart is smooth there; error O(ε²))."""
         sim = self.sim
-        ks = [sim._exact_engine.kinematics(view, sim.solver.t, [phi + s * eps], [0.0]) for s in (1.0, -1.0)]
+        exact = self._exact_engine
+        assert exact is not None  # made by _keep_side
+        ks = [exact.kinematics(view, sim.solver.t, [phi + s * eps], [0.0]) for s in (1.0, -1.0)]
         rows = [ks[0].names[f"G_{b.name}"] for b in sim.mechanism.bodies]
         JG = 0.5 * sum(k.J[rows, :, 0] for k in ks)  # (bodies, 2)
         W = 0.5 * sum(k.W[:, 0] for k in ks)  # (bodies,)
@@ -235,8 +285,8 @@ class StructureLayer:
         Where the new branch turns back more than a right angle (J_oᵀMJ_s < 0) the mechanism
         stops dead at the change point, and the forces take it on from rest."""
         sim = self.sim
-        if sim._exact_engine is None:
-            sim._exact_engine = PartialSystems(sim.mechanism, (), "autodiff")
+        if self._exact_engine is None:
+            self._exact_engine = PartialSystems(sim.mechanism, (), "autodiff")
         e = sim.solver.current
         phi = float(e.q[0])
         other = next(
@@ -254,7 +304,7 @@ class StructureLayer:
         w_minus = float(e.qd[0])
         w_plus = max(0.0, C / A_o) * w_minus
         lost = 0.5 * A_s * w_minus**2 - 0.5 * A_o * w_plus**2
-        sim.impact_loss += lost
+        sim.energy.impact_loss += lost
         sim._restart(other, t, np.array([phi]), np.array([w_plus]))
         return {"choice": "keep side", "phi_dot_after": w_plus, "energy_lost": lost, "to_chart": other.name}
 
@@ -264,13 +314,13 @@ class StructureLayer:
         λ = (A q̈ + h − Q) along x_C, with q̈ the held structure's accelerations."""
         sim = self.sim
         view = view or sim.view
-        held = sim._held.get(view)
+        held = self._held.get(view)
         if held is None:
             chart = view.chart
-            full = sim._full.get(chart.name)
+            full = self._full.get(chart.name)
             if full is None:
-                full = sim._full[chart.name] = ChartView(chart)
-            held = sim._held[view] = (full, full.coordinate_index("x_C"), list(view.free))
+                full = self._full[chart.name] = ChartView(chart)
+            held = self._held[view] = (full, full.coordinate_index("x_C"), list(view.free))
         full, c, f = held
         ql = q.tolist() if isinstance(q, np.ndarray) else [float(x) for x in q]
         qdl = qd.tolist() if isinstance(qd, np.ndarray) else [float(x) for x in qd]
@@ -300,7 +350,7 @@ class StructureLayer:
             raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
         c = sim.controls
         if name == "engage":
-            if sim.latch is None or sim.engage is None:
+            if self.parts.latch is None or self.parts.engage is None:
                 raise CommandRefused(name, "this scene has no latch and engage cylinder")
             if sim.structure == "locked":
                 raise CommandRefused(name, "the latch is already closed (working)")
@@ -310,7 +360,7 @@ class StructureLayer:
             if sim.structure != "locked" and not c.engage_on:
                 raise CommandRefused(name, "the press is not engaged")
         elif name in ("stop", "start"):
-            if sim.motor is None:
+            if self.parts.motor is None:
                 raise CommandRefused(name, "this scene has no motor")
             if name == "stop" and not c.motor_on:
                 raise CommandRefused(name, "the motor is already off")
@@ -326,8 +376,7 @@ class StructureLayer:
         else:
             if not isinstance(name, str) or name not in COMMANDS:
                 raise CommandRefused(name, "expected one of " + ", ".join(COMMANDS))
-            sim.pending.append((float(t), name))
-            sim.pending.sort()
+            sim.schedule.add_command(t, name)
 
     def apply_command(self, name, t):
         sim = self.sim
@@ -340,12 +389,9 @@ class StructureLayer:
             c.engage_on = False
             c.latch_armed = False
             c.disengage_at = t
-            if sim.disengage is not None:
+            if self.parts.disengage is not None:
                 c.disengage_on = True
-                sim._timers = sorted(
-                    [(a, b) for a, b in sim._timers if b != "disengage-ends"]
-                    + [(t + sim.disengage.duration, "disengage-ends")]
-                )
+                sim.schedule.set_timer(t + self.parts.disengage.duration, "disengage-ends")
             if sim.structure == "locked":
                 e = sim.solver.current
                 sim.events.append(rec)
@@ -363,10 +409,10 @@ class StructureLayer:
                 return
         elif name == "stop":
             c.motor_on = False
-            sim.motor.enabled = False
+            self.parts.motor.enabled = False
         elif name == "start":
             c.motor_on = True
-            sim.motor.enabled = True
+            self.parts.motor.enabled = True
         sim.events.append(rec)
         # the forces changed: the state carries on, its accelerations are new
         e = sim.solver.current
@@ -384,4 +430,4 @@ class StructureLayer:
         sim._restart(sim.view, t, e.q, e.qd)
 
 
-__all__ = ["COMMANDS", "CommandRefused", "StructureLayer"]
+__all__ = ["COMMANDS", "CommandRefused", "MachineParts", "StructureLayer"]

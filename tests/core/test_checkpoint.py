@@ -87,6 +87,26 @@ def test_the_steps_ahead_met_events_and_structure_changes(straight):
     assert structures == {"held", "free", "locked"}
 
 
+def test_a_command_taken_in_the_steps_ahead_is_undone_by_coming_back(straight):
+    """A stop given for a later time and taken in the steps ahead: coming back undoes it (the
+    motor switched on again, the stop due again, then dropped) and the run goes on bit for bit
+    as one that never had it."""
+    sim = _press()
+    out = []
+    for k in range(200):
+        if k == 30:
+            cp = sim.checkpoint()
+            sim.command("stop", 40 * DT)
+            _trace(sim, k, 100, [])
+            assert not sim.controls.motor_on
+            sim.restore(cp)
+            assert sim.controls.motor_on and sim.structures.parts.motor.enabled
+        if k in COMMANDS:
+            sim.command(COMMANDS[k])
+        _trace(sim, k, k + 1, out)
+    assert (out, sim.events) == straight
+
+
 def test_exact_derivatives_and_rk4_come_back_too():
     for kw in (dict(scheme="autodiff"), dict(solver="rk4")):
         straight = _run(COMMANDS, **kw)

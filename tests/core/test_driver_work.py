@@ -58,7 +58,7 @@ def test_a_record_reads_what_a_fresh_observation_reads():
 
 def test_the_recorded_potential_energy_is_the_engines():
     def check(sim, e):
-        assert sim._potential(e.kin) == sim.engine.potential_energy(e.kin)
+        assert sim.energy.potential(e.kin) == sim.engine.potential_energy(e.kin)
 
     for scene in ("press-cycle", "paper"):
         sim = build(scene)

@@ -59,8 +59,10 @@ def _check_whole_evaluation(eng, view, plan, t, ql, vl):
     except ForceLawBranch:
         return
     xl, jl, wl, A, h, conv = plan.exact(*ql, *vl)
-    kin = Kinematics(t, None, None, eng._names, bodies=eng._body_index, lists=(xl, jl, wl), conv=conv, v=vl)
-    Q, Qnc = eng._forces(t, kin)
+    kin = Kinematics(
+        t, None, None, eng.maps.names, bodies=eng.maps.body_index, lists=(xl, jl, wl), conv=conv, v=vl
+    )
+    Q, Qnc = eng.forces.generalized(t, kin)
     assert list(got) == [xl, jl, wl, A, h, conv, Q, Qnc, solve_given_h(A, h, Q)]
 
 
@@ -246,13 +248,13 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
             t,
             None,
             None,
-            eng._names,
-            bodies=eng._body_index,
+            eng.maps.names,
+            bodies=eng.maps.body_index,
             lists=(xl, jl, wl),
             side=(wb, plan.inv2d),
             v=list(vl),
         )
-        Q2, Qnc2 = eng._forces(t, one_by_one)
+        Q2, Qnc2 = eng.forces.generalized(t, one_by_one)
         assert (A, h, Q, Qnc, qdd) == (A2, h2, Q2, Qnc2, solve_given_h(A2, h2, Q2)), (view.name, t)
         calls[0] += 1
         by_tail[0] += plan.tail is not None and plan.tail is tail_before

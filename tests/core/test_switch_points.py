@@ -32,7 +32,7 @@ def advance_on_grid(sim, t_end, dt=1e-3):
 def test_the_disengage_cylinder_stops_acting_at_a_step_boundary():
     scene = press_cycle(t_end=0.5)
     sim = build(scene)
-    cyl = sim.disengage
+    cyl = sim.structures.parts.disengage
 
     def go(t_end):
         advance_on_grid(sim, t_end)
@@ -72,7 +72,7 @@ def test_a_second_disengage_moves_the_cylinder_end():
     t2 = sim.t
     go(t2 + 0.03)
     ends = [e["t"] for e in sim.events if e["kind"] == "cylinder-off"]
-    assert ends == [pytest.approx(t2 + sim.disengage.duration, abs=1e-15)]
+    assert ends == [pytest.approx(t2 + sim.structures.parts.disengage.duration, abs=1e-15)]
 
 
 # -- switching functions ---------------------------------------------------------------------------
