@@ -103,45 +103,8 @@ class MarkerLayout:
         w, h = SLIDER[0] * l1, SLIDER[1] * l1
         markers = []
 
-        def marker(
-            ns,
-            mid,
-            mtype,
-            *,
-            position=(0.0, 0.0),
-            scale=(1.0, 1.0, 1.0),
-            color=(0, 0, 0),
-            points=(),
-            colors=(),
-            text="",
-        ):
-            markers.append(
-                {
-                    "header": head,
-                    "ns": ns,
-                    "id": mid,
-                    "type": mtype,
-                    "action": ADD,
-                    "pose": {"position": _p(*position), "orientation": dict(_Q0)},
-                    "scale": _p(*scale),
-                    "color": _rgba(color),
-                    "lifetime": {"sec": 0, "nanosec": 0},
-                    "frame_locked": False,
-                    "points": [_p(*p) for p in points],
-                    "colors": [_rgba(c) for c in colors],
-                    "texture_resource": "",
-                    "texture": {
-                        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
-                        "format": "",
-                        "data": b"",
-                    },
-                    "uv_coordinates": [],
-                    "text": text,
-                    "mesh_resource": "",
-                    "mesh_file": {"filename": "", "data": b""},
-                    "mesh_use_embedded_materials": False,
-                }
-            )
+        def marker(ns, mid, mtype, **kw):
+            markers.append(_marker(head, ns, mid, mtype, **kw))
 
         # the frame: the guide's rails, its axis, the bearing at O, the top stop's ledges
         lo, hi = -l1 - h - 0.3 * l1, l1 + (self.x_top or l1) + h + 0.3 * l1
@@ -202,6 +165,47 @@ class MarkerLayout:
                 points=[(x0, y0), (x1, y1)],
             )
         return {"markers": markers}
+
+
+def _marker(
+    head: dict,
+    ns: str,
+    mid: int,
+    mtype: int,
+    *,
+    position=(0.0, 0.0),
+    scale=(1.0, 1.0, 1.0),
+    color=(0, 0, 0),
+    points=(),
+    colors=(),
+    text="",
+) -> dict:
+    """One visualization_msgs/Marker (ADD, never expiring) in the field layout of its type."""
+    return {
+        "header": head,
+        "ns": ns,
+        "id": mid,
+        "type": mtype,
+        "action": ADD,
+        "pose": {"position": _p(*position), "orientation": dict(_Q0)},
+        "scale": _p(*scale),
+        "color": _rgba(color),
+        "lifetime": {"sec": 0, "nanosec": 0},
+        "frame_locked": False,
+        "points": [_p(*p) for p in points],
+        "colors": [_rgba(c) for c in colors],
+        "texture_resource": "",
+        "texture": {
+            "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""},
+            "format": "",
+            "data": b"",
+        },
+        "uv_coordinates": [],
+        "text": text,
+        "mesh_resource": "",
+        "mesh_file": {"filename": "", "data": b""},
+        "mesh_use_embedded_materials": False,
+    }
 
 
 __all__ = ["MarkerLayout", "MSGTYPE", "N_PER_M"]
