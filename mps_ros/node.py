@@ -61,9 +61,9 @@ from mps_core import MpsError  # noqa: E402
 from mps_core.scene.settings import COMMANDS as COMMAND_WORDS  # noqa: E402
 
 from .diagnostics import hardware_id  # noqa: E402
-from .parameters import BY_NAME, PARAMETERS, descriptor  # noqa: E402
+from .parameters import ParameterError, declare, read  # noqa: E402
 from .topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve  # noqa: E402
-from .twin import Command, Gate, Inbox, Runner, Twin, check_outputs, shown, to_json  # noqa: E402
+from .twin import Command, Gate, Inbox, Runner, Twin, shown, to_json  # noqa: E402
 
 MSG_CLASSES = {
     "rosgraph_msgs/msg/Clock": Clock,
@@ -140,10 +140,6 @@ class RosSink:
         pass
 
 
-class ParameterError(ValueError):
-    pass
-
-
 class NameTaken(RuntimeError):
     """Another node of this node's name and namespace is running in the same ROS domain."""
 
@@ -164,8 +160,8 @@ class PressTwin(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         self._created = time.monotonic()
         self._recording_reserved = False
-        self._declare(default_scene or DEFAULT_SCENE)
-        self.p = self._params()
+        declare(self, default_scene or DEFAULT_SCENE)
+        self.p = read(self)
         self.twin = self.runner = self.recorder = self.recording_sink = None
         self.pubs: dict[str, object] = {}
         self.names: dict[str, str] = {}
@@ -387,52 +383,6 @@ class PressTwin(LifecycleNode):
             # no deadlines to keep: a run as fast as possible never takes a core from the others
             0 if afap else p["realtime_priority"],
         )
-
-    # -- parameters -----------------------------------------------------------------------
-    def _declare(self, scene: str):
-        """Every parameter of :data:`~mps_ros.parameters.PARAMETERS`, typed and read-only, its
-        range enforced by rclpy: a value of the wrong type or out of range ends the node."""
-        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-        from rclpy.parameter import Parameter as Given
-
-        given = getattr(self, "_parameter_overrides", None) or {}
-        for p in PARAMETERS:
-            v = given.get(p.name)
-            if p.kind == "double" and v is not None and v.type_ == Given.Type.INTEGER:
-                # an integer where a real number is expected: taken as one (-p t_end:=20)
-                given[p.name] = v = Given(p.name, value=float(v.value))
-            try:
-                self.declare_parameter(*descriptor(p, scene))
-            except (InvalidParameterTypeException, InvalidParameterValueException):
-                raise ParameterError(f"parameter {p.name}: {v.value!r}: expected {p.expected()}") from None
-
-    def _params(self) -> dict:
-        # a parameter given (-p, a parameters file for this node) that the node does not have:
-        # refused, not ignored (a typo would otherwise run with the default, without a word);
-        # rclpy keeps what it was given in _parameter_overrides, and declares use_sim_time
-        given = getattr(self, "_parameter_overrides", {}) or {}
-        unknown = sorted(n for n in given if not self.has_parameter(n))
-        if unknown:
-            raise ParameterError(
-                f"unknown parameter{'s' if len(unknown) > 1 else ''} "
-                f"{', '.join(unknown)}: expected one of "
-                f"{', '.join(sorted(BY_NAME))}"
-            )
-        out = {p.name: self.get_parameter(p.name).value for p in PARAMETERS}
-        for p in PARAMETERS:
-            if p.choices and out[p.name] not in p.choices:
-                raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected {p.expected()}")
-        try:
-            out["outputs"] = check_outputs(out["outputs"])
-        except ValueError as exc:
-            raise ParameterError(f"parameter outputs: {exc}") from None
-        out["recording"] = out["recording"].strip()
-        if 0.0 < out["release_slice"] < 1e-4:
-            raise ParameterError(
-                f"parameter release_slice: {out['release_slice']!r} must be 0 "
-                "(the system's) or from 0.0001 to 0.1 s"
-            )
-        return out
 
     # -- callbacks (executor thread): queue only ------------------------------------------
     def _log(self, level: str, text: str):

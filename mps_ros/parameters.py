@@ -14,7 +14,11 @@ from dataclasses import dataclass
 from mps_core.dynamics.engine import SCHEMES
 
 from .topics import OUTPUTS
-from .twin import PACINGS
+from .twin import PACINGS, check_outputs
+
+
+class ParameterError(ValueError):
+    """A parameter the node was given that it cannot take (its name, value, what it expects)."""
 
 
 @dataclass(frozen=True)
@@ -313,4 +317,63 @@ def markdown_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["Parameter", "PARAMETERS", "BY_NAME", "descriptor", "markdown_table"]
+# -- the node's parameters declared and read -----------------------------------------------
+def declare(node, scene: str) -> None:
+    """Every parameter of :data:`~mps_ros.parameters.PARAMETERS`, typed and read-only, its
+    range enforced by rclpy: a value of the wrong type or out of range ends the node."""
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+    from rclpy.parameter import Parameter as Given
+
+    given = getattr(node, "_parameter_overrides", None) or {}
+    for p in PARAMETERS:
+        v = given.get(p.name)
+        if p.kind == "double" and v is not None and v.type_ == Given.Type.INTEGER:
+            # an integer where a real number is expected: taken as one (-p t_end:=20)
+            given[p.name] = v = Given(p.name, value=float(v.value))
+        try:
+            node.declare_parameter(*descriptor(p, scene))
+        except (InvalidParameterTypeException, InvalidParameterValueException):
+            raise ParameterError(f"parameter {p.name}: {v.value!r}: expected {p.expected()}") from None
+
+
+def read(node) -> dict:
+    """The parameters' values as the node was given them, checked (the choices, the outputs,
+    the release slice): :class:`ParameterError` names the first that is wrong."""
+    # a parameter given (-p, a parameters file for this node) that the node does not have:
+    # refused, not ignored (a typo would otherwise run with the default, without a word);
+    # rclpy keeps what it was given in _parameter_overrides, and declares use_sim_time
+    given = getattr(node, "_parameter_overrides", {}) or {}
+    unknown = sorted(n for n in given if not node.has_parameter(n))
+    if unknown:
+        raise ParameterError(
+            f"unknown parameter{'s' if len(unknown) > 1 else ''} "
+            f"{', '.join(unknown)}: expected one of "
+            f"{', '.join(sorted(BY_NAME))}"
+        )
+    out = {p.name: node.get_parameter(p.name).value for p in PARAMETERS}
+    for p in PARAMETERS:
+        if p.choices and out[p.name] not in p.choices:
+            raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected {p.expected()}")
+    try:
+        out["outputs"] = check_outputs(out["outputs"])
+    except ValueError as exc:
+        raise ParameterError(f"parameter outputs: {exc}") from None
+    out["recording"] = out["recording"].strip()
+    if 0.0 < out["release_slice"] < 1e-4:
+        raise ParameterError(
+            f"parameter release_slice: {out['release_slice']!r} must be 0 "
+            "(the system's) or from 0.0001 to 0.1 s"
+        )
+    return out
+
+
+__all__ = [
+    "Parameter",
+    "ParameterError",
+    "PARAMETERS",
+    "BY_NAME",
+    "declare",
+    "descriptor",
+    "markdown_table",
+    "read",
+]
