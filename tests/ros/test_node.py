@@ -23,7 +23,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from twin_probe import Listener, NodeProcess, mps_cmd, ns
+from twin_probe import Listener, NodeProcess, mps_cmd, ns, wait_until
 
 from mps_core import __version__, build, load_scene
 from mps_core.dynamics.reactions import compute_reactions
@@ -778,9 +778,11 @@ def test_a_recording_never_replaces_a_file(tmp_path):
 
 
 def test_no_process_left(tmp_path):
-    """A node stopped by its fixture leaves nothing: its whole process group is gone."""
+    """A node stopped by its fixture while it steps (its stepping process started) leaves
+    nothing: its whole process group is gone."""
     with NodeProcess(tmp_path, dict(t_end=50.0, recording="none")) as node:
-        time.sleep(0.5)
+        wait_until(lambda: "stepping starts" in node.log() or not node.alive(), 60, "the node stepping")
+        assert node.alive(), node.log()
         pgid = node.pid
     with pytest.raises(ProcessLookupError):
         os.killpg(pgid, 0)

@@ -147,7 +147,7 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=dict(os.environ)
     )
     assert res.returncode == 3, res.stderr
-    for _ in range(100):  # the writer finishes on its own, shortly after
+    for _ in range(300):  # the writer finishes on its own, shortly after (30 s at most)
         try:
             counts = _read(out)
             break
