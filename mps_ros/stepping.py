@@ -216,6 +216,10 @@ class _Ahead:
     BATCH, NEAR = 16, 0.002
     #: as fast as possible: steps computed past the last one released, at most
     AHEAD = 256
+    #: a checkpoint kept every this many steps (and after each command): a command's boundary
+    #: between two is reached from the one before it by stepping again (a checkpoint costs
+    #: about a sixth of a step; a command comes back up to this less one steps further)
+    EVERY = 8
 
     def __init__(
         self,
@@ -265,6 +269,7 @@ class _Ahead:
         lead = runner.lead if ahead else step
         # checkpoints kept, by step
         keep = (self.AHEAD + self.BATCH + 100) if afap else int(math.ceil(2.0 * lead / step)) + 100
+        keep += self.EVERY
         refill = 0.2 * lead if ahead else 0.0
         self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.wall_start + runner.period
@@ -317,9 +322,11 @@ class _Ahead:
                     runner._diagnostics(t_ns)
                 runner._staging = None
                 runner.messages += sum(1 for m in staged if not m[3])
-                if ahead:
-                    self.cps[k] = twin.checkpoint()
-                    self.cps.pop(k - keep, None)
+                if ahead and k % self.EVERY == 0:
+                    cps = self.cps
+                    cps[k] = twin.checkpoint()
+                    while next(iter(cps)) < k - keep:  # in the order they were taken
+                        del cps[next(iter(cps))]
                 self._entry(k, self.deadline(k) if afap else deadline, msgs is not None, staged)
                 if one or len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
                     self.flush()
@@ -392,12 +399,13 @@ class _Ahead:
         cid, word, source, wall, k, gen = cmd
         runner, twin = self.runner, self.twin
         if twin.k > k:
-            cp = self.cps.get(k)
-            if cp is not None:
+            j = max((j for j in self.cps if j <= k), default=None)
+            if j is not None:
                 runner.steps_recomputed += twin.k - k
-                twin.restore(cp)
+                twin.restore(self.cps[j])
                 for j in [j for j in self.cps if j > k]:
                     del self.cps[j]
+                self._step_again_to(k, ahead)
         self.gen = gen
         reply = None if cid is None else self._reply(cid)
         staged: list = []
@@ -410,6 +418,17 @@ class _Ahead:
             self.cps[twin.k] = twin.checkpoint()
         self._entry(twin.k, self.deadline(twin.k), False, staged)
         self.flush()
+
+    def _step_again_to(self, k: int, ahead: bool) -> None:
+        """From a checkpoint before step ``k`` to ``k`` again, as the loop stepped there (the
+        messages and events made as they were, so that the twin is where it was; nothing
+        sent: those steps went out already)."""
+        twin, every = self.twin, self.runner.every
+        while twin.k < k:
+            twin.step()
+            if twin.k % every == 0 or twin.done:
+                twin.state_payloads()
+            twin.new_events(hold=not ahead)
 
     def _reply(self, cid: int):
         def reply(ack):
