@@ -563,7 +563,7 @@ class SteppingProcess:
         if not self.priority or self._this_refused:
             # under the fair scheduler: a short slice, so that this thread, woken at each
             # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
-            ask = self.spec["runner"].get("release_slice", 1e-4)
+            ask = 0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4)
             if ask:
                 short_slice(ask)
         name_thread("mps-publish")
