@@ -4,11 +4,12 @@ The node (:mod:`mps_ros.node`) does not step the twin itself. It starts
 ``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and uses the
 same :class:`~mps_ros.twin.Runner`'s parts (the run's start and end messages, events,
 diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
-keeps a checkpoint of each, and writes each step's messages, already encoded, down a pipe. The
-node's process (:mod:`mps_ros.releasing`) holds them and publishes each at its deadline, then
-hands it to the recorder: its interpreter is not shared with the stepping, so a step being
-computed (or a stepping thread that another process preempts while it holds its interpreter's
-lock) never holds a publication back, and a step's eleven publishes never hold a step back.
+keeps a checkpoint of every ``_Ahead.EVERY``-th step, and writes each step's messages, already
+encoded, down a pipe. The node's process (:mod:`mps_ros.releasing`) holds them and publishes
+each at its deadline, then hands it to the recorder: its interpreter is not shared with the
+stepping, so a step being computed (or a stepping thread that another process preempts while it
+holds its interpreter's lock) never holds a publication back, and a step's eleven publishes
+never hold a step back.
 
 ::
 
