@@ -48,6 +48,10 @@ VECTOR_SOLVERS = ("linear-acceleration", "rk4")
 VECTOR_SCHEMES = ("central", "autodiff")
 
 
+#: states a call of the reaction kernel on arrays takes (its arrays stay in the caches)
+_REACTION_CHUNK = 8192
+
+
 class NotVectorisable(Exception):
     """A group of scenes cannot (or can no longer) share one vectorised pass."""
 
@@ -98,6 +102,7 @@ def _group_key(scene: Scene):
         scene.t_end,
         scene.dt,
         scene.charts,
+        scene.reactions,
     )
 
 
@@ -175,8 +180,17 @@ class _Batch:
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
         self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
+        self._slider = (
+            [b.name for b in bodies].index("slider") if "slider" in [b.name for b in bodies] else None
+        )
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
+        #: the joint reactions (the scenes' ``outputs.reactions``): at each recorded step its
+        #: state and the effects' loads (:meth:`_loads`), all solved after the run
+        self.reactions = bool(first.reactions)
+        self._states = np.empty(0)  # (q, q̇ or q̈, coordinate, step, scene)
+        self._loads_of = np.empty(0)  # (load, step, scene)
+        self._at_C = None  # the last evaluation's motor torque and force along x at C
 
     def _array_kernel(self, first: Scene):
         """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
@@ -367,6 +381,8 @@ class _Batch:
             for i in range(n):
                 Q[i] += torque * wk[i]
             power += torque * w
+        else:
+            torque = None
         xC = kin.x(c, 0)
         forces = []  # along the guide, at C
         if self.springs is not None:
@@ -386,6 +402,7 @@ class _Batch:
         for f in forces:
             for i in range(n):
                 Q[i] += f * jc[i]
+        self._at_C = (torque, sum(forces) if forces else None)
         return Q, power
 
     def _potential(self, kin):
@@ -426,6 +443,10 @@ class _Batch:
         name, its = self.settings.name, self.settings.iterations
         rows = {k: [] for k in COLUMNS}
         work = np.zeros(self.m)
+        if self.reactions:
+            nl = 3 * len(self.mech.bodies) + 4
+            self._states = np.empty((3, q.shape[1], n_steps + 1, self.m))
+            self._loads_of = np.zeros((nl, n_steps + 1, self.m))
 
         ev = self.evaluate
         qdd, A, kin, p_now = ev(t0, q, qd)
@@ -488,6 +509,76 @@ class _Batch:
         rows["E_impact"].append(np.zeros(self.m))
         rows["structure"].append(self.structure)
         rows["chart"].append(self.view.name)
+        if self.reactions:
+            k = len(rows["t"]) - 1
+            for j, x in enumerate((q, qd, qdd)):
+                self._states[j, :, k] = x.T
+            for j, x in enumerate(self._loads(kin)):
+                self._loads_of[j, k] = x
+
+    def _loads(self, kin) -> list:
+        """The effects' loads at a recorded state as the reaction kernel takes them
+        (:class:`~mps_core.codegen.reaction_kernels.LoadSums`): per body the force (x, y) and its
+        moment about O, then the frame's own (force x, y, moment about O) and the motor's
+        torque; from the state's evaluation (its kinematics, its motor torque and force at C)."""
+        nb = len(self.mech.bodies)
+        out: list = [0.0] * (3 * nb + 4)
+        o = self.rows.get("O")
+        ox, oy = (kin.x(o, 0), kin.x(o, 1)) if o is not None else (0.0, 0.0)
+        if self.weight_of is not None:
+            for b, row in enumerate(self.com_rows):
+                fx, fy = self.weight_of[b]
+                out[3 * b] += fx
+                out[3 * b + 1] += fy
+                out[3 * b + 2] += (kin.x(row, 0) - ox) * fy - (kin.x(row, 1) - oy) * fx
+        torque, f = self._at_C
+        if torque is not None:
+            k = self.motor["index"]
+            out[3 * k + 2] += torque
+            out[3 * nb + 2] -= torque  # the stator's
+            out[3 * nb + 3] += torque
+        if f is not None:  # along x at C on the slider, the frame the opposite
+            c = self.rows["C"]
+            k = self._slider
+            py = kin.x(c, 1) - oy
+            out[3 * k] += f
+            out[3 * k + 2] -= py * f
+            out[3 * nb] -= f
+            out[3 * nb + 2] += py * f
+        return out
+
+    def _reaction_columns(self) -> dict:
+        """The reaction columns, (step, scene) each, of the recorded states: the view's
+        reaction kernel on arrays (:func:`~mps_core.dynamics.reactions.array_reactions`), on
+        every step of every scene at once, a chunk of them a call."""
+        from ..codegen.array_kernels import ArrayBranchChanged
+        from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
+
+        fn = array_reactions(self.mech, self.view, self.q0[0])
+        if fn is None:
+            raise NotVectorisable("the chart view has no reaction kernel")
+        _, n, S, m = self._states.shape
+        N = S * m
+        # one array a number, step by step, then scene by scene within a step
+        args = [self._states[j, i].reshape(N) for j in range(3) for i in range(n)]
+        masses = [np.tile(self.mass[:, b], S) for b in range(self.mass.shape[1])]
+        masses += [np.tile(self.inertia[:, b], S) for b in range(self.inertia.shape[1])]
+        loads = [x.reshape(N) for x in self._loads_of]
+        out = {c: np.empty(N) for c in REACTION_COLUMNS}
+        for s0 in range(0, N, _REACTION_CHUNK):
+            sl = slice(s0, s0 + _REACTION_CHUNK)
+            try:
+                values, _residual = fn(
+                    *(a[sl] for a in args), [x[sl] for x in masses], [x[sl] for x in loads]
+                )
+            except ArrayBranchChanged:
+                raise NotVectorisable("a scene's reactions are not unique at a step") from None
+            for c, v in zip(REACTION_COLUMNS, values):
+                out[c][sl] = v
+        if not all(np.all(np.isfinite(v)) for v in out.values()):
+            raise NotVectorisable("non-finite reactions")
+        self._states = self._loads_of = np.empty(0)
+        return {c: v.reshape(S, m) for c, v in out.items()}
 
     def _trajectories(self, rows):
         out = []
@@ -498,6 +589,8 @@ class _Batch:
             k: np.array(v) if k in ("structure", "chart") else np.array(v, dtype=float).T.copy()
             for k, v in rows.items()
         }
+        if self.reactions:
+            table.update({k: v.T.copy() for k, v in self._reaction_columns().items()})
         for i, sc in enumerate(self.scenes):
             cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
             counts = {
