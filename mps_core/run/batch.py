@@ -25,6 +25,14 @@ code does. With exact derivatives it runs the chart's exact kernel
 straight-line numpy code, A and h formed from them with each scene's masses. A scene that
 leaves the kernel's branch sends its group back to the one-by-one runs.
 
+With ``outputs.reactions`` (the scenes of a group alike) the trajectories carry the joint
+reactions and the foundation load (:data:`mps_core.dynamics.reactions.REACTION_COLUMNS`), as a
+scalar run's: each recorded step keeps its state and its effects' loads (from that step's
+evaluation), and after the run the chart view's reaction kernel, its masses and inertias an
+argument, runs on arrays over every step of every scene at once
+(:func:`mps_core.dynamics.reactions.array_reactions`). A state where the kernel does not hold
+(a singular position) sends the group back to the one-by-one runs.
+
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
 cluster (``dask.distributed.Client``), one vectorised batch a task.
 """
@@ -73,7 +81,7 @@ class BatchResult:
         return self.trajectories[i]
 
 
-def _group_key(scene: Scene):
+def group_key(scene: Scene):
     """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
     s = scene.solver
     if (
@@ -106,6 +114,13 @@ def _group_key(scene: Scene):
     )
 
 
+def run_batch(scenes) -> list:
+    """The trajectories of scenes of one group (equal :func:`group_key`) stepped together in
+    one vectorised pass; :class:`NotVectorisable` where they cannot (or can no longer) share
+    it."""
+    return _Batch(list(scenes)).run()
+
+
 def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult:
     """Run many scenes; vectorised where they can share a pass (see the module's notes)."""
     scenes = [sc if isinstance(sc, Scene) else load_scene(sc) for sc in scenes]
@@ -113,7 +128,7 @@ def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult
     vec = [False] * len(scenes)
     groups: dict = {}
     for i, sc in enumerate(scenes):
-        groups.setdefault(_group_key(sc), []).append(i)
+        groups.setdefault(group_key(sc), []).append(i)
     tasks = []
     for key, idx in groups.items():
         if key is None:

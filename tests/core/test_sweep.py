@@ -264,3 +264,84 @@ def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
 def test_axis_values_are_what_the_scene_receives():
     runs = plan("press-cycle", [Axis("solver.corrector_iterations", (1, 2))], **SHORT)
     assert [r.scene.solver.iterations for r in runs] == [1, 2]
+
+
+#: working (locked, no events): its runs share vectorised batches; 2.4 crank revolutions
+WORKING = dict(t_end=0.35, dt=5e-4)
+MASS_SPEED = ["bodies.slider.mass_kg=80:120:3", "effects.motor.crank_speed_rad_s=40,45"]
+
+
+def _same_figures(a: dict, b: dict) -> None:
+    """Equal rows, each figure to 1e-9 of itself or of its quantity's peak (a mean that
+    cancels to nearly zero, e.g. F_found_y's, carries the round-off of the peak's size)."""
+    assert a.keys() == b.keys()
+    for k in a:
+        if isinstance(a[k], float):
+            scale = max(abs(b[k]), abs(b.get(k.rsplit(".", 1)[0] + ".peak", 0.0)))
+            assert abs(a[k] - b[k]) <= 1e-9 * scale, (k, a[k], b[k])
+        else:
+            assert a[k] == b[k], k
+
+
+def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
+    vec = sweep("working", MASS_SPEED, workers=1, **WORKING)
+    one = sweep("working", MASS_SPEED, workers=1, vectorise=False, **WORKING)
+    assert vec.vectorised == 6 and one.vectorised == 0
+    assert [r["status"] for r in vec.rows] == ["ok"] * 6
+    for a, b in zip(vec.rows, one.rows):
+        _same_figures(a, b)
+    # the rows differ run by run (each scene's own masses and motor in the batch)
+    assert len({r["|F_found|.peak"] for r in vec.rows}) == 6
+    # two worker processes, a batch of three each
+    two = sweep("working", MASS_SPEED, workers=2, **WORKING)
+    assert two.vectorised == 6
+    for a, b in zip(two.rows, vec.rows):
+        _close(a, b, rtol=0.0)
+    # runs that cannot share the pass (rk8: not a vectorised solver) go on their own beside
+    # the batch, with the same rows as one by one
+    vary = ["solver.method=linear-acceleration,rk8", "bodies.slider.mass_kg=80,120"]
+    mixed = sweep("working", vary, workers=1, **WORKING)
+    alone = sweep("working", vary, workers=1, vectorise=False, **WORKING)
+    assert mixed.vectorised == 2 and [r["status"] for r in mixed.rows] == ["ok"] * 4
+    for a, b in zip(mixed.rows, alone.rows):
+        _same_figures(a, b)
+
+
+def test_an_interrupted_vectorised_sweep_keeps_every_row_of_its_batches(tmp_path):
+    out = tmp_path / "v"
+    seen = []
+
+    def stop_at_the_second_row(row, done, total):
+        seen.append(row["run"])
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sweep(
+            "working", MASS_SPEED, out=out, workers=1, batch_size=3, on_row=stop_at_the_second_row, **WORKING
+        )
+    # the batch of three was recorded whole before its rows were told
+    assert len((out / "runs.jsonl").read_text().splitlines()) == 3
+    again = sweep("working", MASS_SPEED, out=out, workers=1, batch_size=3, **WORKING)
+    assert again.computed == 3 and again.vectorised == 3 and len(again.rows) == 6
+    whole = sweep("working", MASS_SPEED, workers=1, **WORKING)
+    for a, b in zip(again.rows, whole.rows):
+        _same_figures(a, b)
+
+
+def test_the_command_vectorises_unless_told_not_to(tmp_path):
+    base = ["sweep", "working", "--vary", "bodies.slider.mass_kg=80,120", "--t-end", "0.35", "--dt", "0.0005"]
+    vec = _mps(*base, "--workers", "1", "--out", str(tmp_path / "v"))
+    assert vec.returncode == 0, vec.stderr
+    assert "2 of the runs computed now in vectorised batches" in vec.stdout
+    one = _mps(*base, "--workers", "1", "--no-vectorise", "--out", str(tmp_path / "o"))
+    assert one.returncode == 0 and "vectorised" not in one.stdout, one.stderr
+    tables = []
+    for d in ("v", "o"):
+        with (tmp_path / d / "sweep.csv").open() as fh:
+            tables.append(list(csv.DictReader(fh)))
+    for a, b in zip(*tables):
+        assert a.keys() == b.keys() and a["status"] == b["status"] == "ok"
+        assert math.isclose(float(a["|F_found|.peak"]), float(b["|F_found|.peak"]), rel_tol=1e-9)
+    bad = _mps(*base, "--batch-size", "0", "--out", str(tmp_path / "b"))
+    assert bad.returncode == 2 and "--batch-size 0: expected an integer >= 1" in bad.stderr
