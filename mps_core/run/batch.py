@@ -57,7 +57,7 @@ VECTOR_SCHEMES = ("central", "autodiff")
 
 
 #: states a call of the reaction kernel on arrays takes (its arrays stay in the caches)
-_REACTION_CHUNK = 8192
+_REACTION_CHUNK = 4096
 
 
 class NotVectorisable(Exception):
