@@ -203,8 +203,8 @@ class _Batch:
         #: the joint reactions (the scenes' ``outputs.reactions``): at each recorded step its
         #: state and the effects' loads (:meth:`_loads`), all solved after the run
         self.reactions = bool(first.reactions)
-        self._states = np.empty(0)  # (q, q̇ or q̈, coordinate, step, scene)
-        self._loads_of = np.empty(0)  # (load, step, scene)
+        self._states = np.empty(0)  # (q, q̇ or q̈, coordinate, scene, step)
+        self._loads_of = np.empty(0)  # (load, scene, step)
         self._at_C = None  # the last evaluation's motor torque and force along x at C
 
     def _array_kernel(self, first: Scene):
@@ -460,8 +460,8 @@ class _Batch:
         work = np.zeros(self.m)
         if self.reactions:
             nl = 3 * len(self.mech.bodies) + 4
-            self._states = np.empty((3, q.shape[1], n_steps + 1, self.m))
-            self._loads_of = np.zeros((nl, n_steps + 1, self.m))
+            self._states = np.empty((3, q.shape[1], self.m, n_steps + 1))
+            self._loads_of = np.zeros((nl, self.m, n_steps + 1))
 
         ev = self.evaluate
         qdd, A, kin, p_now = ev(t0, q, qd)
@@ -527,9 +527,9 @@ class _Batch:
         if self.reactions:
             k = len(rows["t"]) - 1
             for j, x in enumerate((q, qd, qdd)):
-                self._states[j, :, k] = x.T
+                self._states[j, :, :, k] = x.T
             for j, x in enumerate(self._loads(kin)):
-                self._loads_of[j, k] = x
+                self._loads_of[j, :, k] = x
 
     def _loads(self, kin) -> list:
         """The effects' loads at a recorded state as the reaction kernel takes them
@@ -563,37 +563,43 @@ class _Batch:
         return out
 
     def _reaction_columns(self) -> dict:
-        """The reaction columns, (step, scene) each, of the recorded states: the view's
+        """The reaction columns, (scene, step) each, of the recorded states: the view's
         reaction kernel on arrays (:func:`~mps_core.dynamics.reactions.array_reactions`), on
-        every step of every scene at once, a chunk of them a call."""
+        blocks of (steps, scenes) of about :data:`_REACTION_CHUNK` states a call."""
         from ..codegen.array_kernels import ArrayBranchChanged
         from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
 
         fn = array_reactions(self.mech, self.view, self.q0[0])
         if fn is None:
             raise NotVectorisable("the chart view has no reaction kernel")
-        _, n, S, m = self._states.shape
-        N = S * m
-        # one array a number, step by step, then scene by scene within a step
-        args = [self._states[j, i].reshape(N) for j in range(3) for i in range(n)]
-        masses = [np.tile(self.mass[:, b], S) for b in range(self.mass.shape[1])]
-        masses += [np.tile(self.inertia[:, b], S) for b in range(self.inertia.shape[1])]
-        loads = [x.reshape(N) for x in self._loads_of]
-        out = {c: np.empty(N) for c in REACTION_COLUMNS}
-        for s0 in range(0, N, _REACTION_CHUNK):
-            sl = slice(s0, s0 + _REACTION_CHUNK)
-            try:
-                values, _residual = fn(
-                    *(a[sl] for a in args), [x[sl] for x in masses], [x[sl] for x in loads]
-                )
-            except ArrayBranchChanged:
-                raise NotVectorisable("a scene's reactions are not unique at a step") from None
-            for c, v in zip(REACTION_COLUMNS, values):
-                out[c][sl] = v
-        if not all(np.all(np.isfinite(v)) for v in out.values()):
+        _, n, m, S = self._states.shape
+        # a mass or an inertia the scenes share is a number, the others one value a scene
+        masses = [
+            float(col[0]) if np.all(col == col[0]) else col[:, None]
+            for col in [*self.mass.T, *self.inertia.T]
+        ]
+        out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
+        # blocks of whole scenes (all their steps) where a scene's steps fit a call, else of
+        # a scene's steps
+        width = max(1, _REACTION_CHUNK // S)
+        height = min(S, _REACTION_CHUNK)
+        for j0 in range(0, m, width):
+            cols = slice(j0, j0 + width)
+            given = [x if isinstance(x, float) else x[cols] for x in masses]
+            for s0 in range(0, S, height):
+                rows = slice(s0, s0 + height)
+                args = [self._states[j, i, cols, rows] for j in range(3) for i in range(n)]
+                try:
+                    values, _residual = fn(*args, given, [x[cols, rows] for x in self._loads_of])
+                except ArrayBranchChanged:
+                    raise NotVectorisable("a scene's reactions are not unique at a step") from None
+                for c, v in zip(REACTION_COLUMNS, values):
+                    out[c][cols, rows] = v
+        # a NaN or an infinity anywhere makes the sum one
+        if not all(np.isfinite(v.sum()) for v in out.values()):
             raise NotVectorisable("non-finite reactions")
         self._states = self._loads_of = np.empty(0)
-        return {c: v.reshape(S, m) for c, v in out.items()}
+        return out
 
     def _trajectories(self, rows):
         out = []
@@ -605,7 +611,7 @@ class _Batch:
             for k, v in rows.items()
         }
         if self.reactions:
-            table.update({k: v.T.copy() for k, v in self._reaction_columns().items()})
+            table.update(self._reaction_columns())
         for i, sc in enumerate(self.scenes):
             cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
             counts = {
