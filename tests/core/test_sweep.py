@@ -345,3 +345,15 @@ def test_the_command_vectorises_unless_told_not_to(tmp_path):
         assert math.isclose(float(a["|F_found|.peak"]), float(b["|F_found|.peak"]), rel_tol=1e-9)
     bad = _mps(*base, "--batch-size", "0", "--out", str(tmp_path / "b"))
     assert bad.returncode == 2 and "--batch-size 0: expected an integer >= 1" in bad.stderr
+
+
+def test_the_vectorised_sweep_benchmark_counts_what_it_ran():
+    from mps_core.bench.sweep import report_vectorised, vectorised
+
+    rows = vectorised(sizes=(3,), alone=2, repeats=1, schemes=("autodiff",), log=lambda *_: None, **WORKING)
+    one, batch = rows
+    assert (one["way"], one["runs"], one["vectorised"]) == ("one by one", 2, 0)
+    assert (batch["runs"], batch["vectorised"], batch["failed"]) == (3, 3, 0)
+    assert batch["steps"] == 700 and batch["steps_per_s"] == 3 * 700 / batch["cpu_s"]
+    assert batch["simulation_cpu_s"] + batch["reports_cpu_s"] <= batch["cpu_s"]
+    report_vectorised(rows)
