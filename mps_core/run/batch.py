@@ -183,14 +183,15 @@ class _Batch:
         self.policy = first.charts
         self.structure = first.structure
         bodies = self.mech.bodies
-        per = [sc.mechanism().bodies for sc in scenes]
+        mechanisms = [sc.mechanism() for sc in scenes]  # each scene's masses and inertias
+        per = [mech.bodies for mech in mechanisms]
         self.mass = np.array([[b.mass for b in bs] for bs in per])  # (m, nb)
         self.inertia = np.array([[b.inertia for b in bs] for bs in per])
         self.rot = [k for k, b in enumerate(bodies) if b.rotates]
         self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
             self.rows[f"G_{b.name}"] = len(self.rows)
-        self._effects([sc.build_effects(sc.mechanism()) for sc in scenes])
+        self._effects([sc.build_effects(mech) for sc, mech in zip(scenes, mechanisms)])
         self.evaluations = 0
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
