@@ -296,7 +296,7 @@ def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
     two = sweep("working", MASS_SPEED, workers=2, **WORKING)
     assert two.vectorised == 6
     for a, b in zip(two.rows, vec.rows):
-        _close(a, b, rtol=0.0)
+        _same_figures(a, b)
     # runs that cannot share the pass (rk8: not a vectorised solver) go on their own beside
     # the batch, with the same rows as one by one
     vary = ["solver.method=linear-acceleration,rk8", "bodies.slider.mass_kg=80,120"]
@@ -304,6 +304,21 @@ def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
     alone = sweep("working", vary, workers=1, vectorise=False, **WORKING)
     assert mixed.vectorised == 2 and [r["status"] for r in mixed.rows] == ["ok"] * 4
     for a, b in zip(mixed.rows, alone.rows):
+        _same_figures(a, b)
+
+
+def test_vectorised_batches_on_a_dask_cluster():
+    distributed = pytest.importorskip("dask.distributed")
+    local = sweep("working", MASS_SPEED, workers=1, **WORKING)
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        dask = sweep("working", MASS_SPEED, client=client, **WORKING)
+    assert dask.vectorised == 6  # two batches, one a worker
+    for a, b in zip(dask.rows, local.rows):
         _same_figures(a, b)
 
 
