@@ -196,9 +196,9 @@ class _Batch:
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
         self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
-        self._slider = (
-            [b.name for b in bodies].index("slider") if "slider" in [b.name for b in bodies] else None
-        )
+        names = [b.name for b in bodies]
+        #: the body the effects along the guide act on, at C (springs, damper, blanking)
+        self._slider = names.index("slider") if "slider" in names else None
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
         #: the joint reactions (the scenes' ``outputs.reactions``): at each recorded step its
@@ -566,7 +566,7 @@ class _Batch:
     def _reaction_columns(self) -> dict:
         """The reaction columns, (scene, step) each, of the recorded states: the view's
         reaction kernel on arrays (:func:`~mps_core.dynamics.reactions.array_reactions`), on
-        blocks of (steps, scenes) of about :data:`_REACTION_CHUNK` states a call."""
+        blocks of (scenes, steps) of about :data:`_REACTION_CHUNK` states a call."""
         from ..codegen.array_kernels import ArrayBranchChanged
         from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
 
