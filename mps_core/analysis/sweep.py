@@ -18,8 +18,9 @@ row is appended to ``runs.jsonl`` as soon as it is done, so that a sweep started
 same arguments after Ctrl-C or a lost worker computes only the runs still missing. A run that
 fails (a scene that cannot be simulated, no steady cycle) is a row with its error.
 
-Runs whose scenes can share a vectorised pass (:mod:`mps_core.run.batch`: event-free ``locked``
-scenes with a fixed-step solver, alike but for masses, initial state and effect parameters) go
+Runs whose scenes can share a vectorised pass (:mod:`mps_core.run.batch`: scenes without events
+or commands, e.g. ``locked`` ones of ``working``, with a fixed-step solver, alike but for masses,
+initial state and effect parameters) go
 in batches, each batch a task: its rows, the same as the runs' one by one to round-off, are
 recorded together as it ends. ``vectorise=False`` runs every run on its own.
 
@@ -476,7 +477,7 @@ def sweep(
     process); ``client``: a ``dask.distributed.Client`` instead. ``out``: a folder whose
     ``runs.jsonl`` keeps every row as it comes (runs already there are not computed again).
     ``on_row(row, done, total)`` is called in this process after each row. ``vectorise``:
-    the runs whose scenes can share a vectorised pass (event-free ``locked`` scenes with a
+    the runs whose scenes can share a vectorised pass (scenes without events with a
     fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` (their
     rows the same, to round-off); False: every run on its own."""
     vary = list(vary)
