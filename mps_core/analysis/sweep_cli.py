@@ -65,9 +65,9 @@ def register(subparsers) -> None:
         "--no-vectorise",
         dest="vectorise",
         action="store_false",
-        help="every run on its own (by default the runs whose scenes allow it, event-free "
-        "locked ones with a fixed-step solver, go in vectorised batches: the same rows, "
-        "to round-off)",
+        help="every run on its own (by default the runs whose scenes allow it, ones without "
+        "events with a fixed-step solver such as working's, go in vectorised batches: the "
+        "same rows, to round-off)",
     )
     p.add_argument(
         "--batch-size",

@@ -166,7 +166,10 @@ def _sweep(args) -> int:
     from . import sweep
 
     if args.vectorised:
-        sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
+        try:
+            sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
+        except ValueError:
+            sizes = []
         if not sizes or min(sizes) < 1:
             raise SystemExit(
                 f"mps bench sweep: --sizes {args.sizes!r}: expected integers >= 1, e.g. 10,100,1000"
