@@ -342,7 +342,8 @@ def _work(scenes: list[Scene], structure: str, batch: bool) -> list[Result]:
     return run_batch(scenes, structure) if batch else [_task(sc, structure) for sc in scenes]
 
 
-#: scene-steps a vectorised batch of a sweep holds at most (its columns: about 0.5 kB each)
+#: scene-steps a vectorised batch of a sweep holds at most (its columns and the reactions' inputs:
+#: about 0.5 kB each at the batch's peak)
 BATCH_STATES = 2_000_000
 
 
