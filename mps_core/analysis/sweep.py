@@ -347,11 +347,18 @@ def _work(scenes: list[Scene], structure: str, batch: bool) -> list[Result]:
 BATCH_STATES = 2_000_000
 
 
+#: the fewest runs a vectorised batch takes, by derivative scheme (fewer go one by one): with
+#: central differences a batch's step costs about the same from 10 to 40 runs, and a batch of
+#: 10 more than its runs one by one (``mps bench sweep --vectorised``, docs/loads.md)
+MIN_BATCH = {"central": 20, "autodiff": 2}
+
+
 def tasks(todo: Sequence[Run], workers: int, vectorise: bool = True, batch_size: int = 1000) -> list:
     """The sweep's runs as tasks ``(batch, runs)``: the runs whose scenes can share a
-    vectorised pass (:func:`mps_core.run.batch.group_key`; two or more) in batches of at most
-    ``batch_size`` runs and :data:`BATCH_STATES` scene-steps, split so that each of the
-    ``workers`` gets one; every other run a task of its own."""
+    vectorised pass (:func:`mps_core.run.batch.group_key`; at least :data:`MIN_BATCH` of them)
+    in batches of at most ``batch_size`` runs and :data:`BATCH_STATES` scene-steps, split so
+    that each of the ``workers`` gets one where they are enough, the batches of a group as
+    even as they can be; every other run a task of its own."""
     from ..run.batch import group_key
 
     groups: dict = {}
@@ -359,13 +366,17 @@ def tasks(todo: Sequence[Run], workers: int, vectorise: bool = True, batch_size:
         groups.setdefault(group_key(r.scene) if vectorise else None, []).append(r)
     out: list = []
     for key, runs in groups.items():
-        if key is None or len(runs) < 2:
+        least = MIN_BATCH.get(runs[0].scene.solver.scheme, 2) if key is not None else 0
+        if key is None or len(runs) < least:
             out.extend((False, [r]) for r in runs)
             continue
         sc = runs[0].scene
         steps = max(1, int(round(sc.t_end / sc.dt))) + 1
-        size = min(batch_size, max(1, BATCH_STATES // steps), -(-len(runs) // max(1, workers)))
-        out.extend((True, runs[k : k + size]) for k in range(0, len(runs), size))
+        share = max(least, -(-len(runs) // max(1, workers)))
+        size = min(batch_size, max(1, BATCH_STATES // steps), share)
+        count = -(-len(runs) // size)  # as many batches, as even as they can be
+        ends = [len(runs) * i // count for i in range(count + 1)]
+        out.extend((True, runs[a:b]) for a, b in zip(ends, ends[1:]))
     return out
 
 

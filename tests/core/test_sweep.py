@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from mps_core import load_scene, simulate
+from mps_core import load_scene, scene_from_text, simulate
 from mps_core.analysis import loads
 from mps_core.analysis.sweep import (
     Axis,
@@ -266,8 +266,11 @@ def test_axis_values_are_what_the_scene_receives():
     assert [r.scene.solver.iterations for r in runs] == [1, 2]
 
 
-#: working (locked, no events): its runs share vectorised batches; 2.4 crank revolutions
+#: working (locked, no events) with exact derivatives: its runs share vectorised batches from two
+#: runs on (with central differences from MIN_BATCH's 20); 2.4 crank revolutions
 WORKING = dict(t_end=0.35, dt=5e-4)
+EXACT_TEXT = load_scene("working").text.replace('derivatives = "central"', 'derivatives = "autodiff"')
+EXACT = scene_from_text(EXACT_TEXT)
 MASS_SPEED = ["bodies.slider.mass_kg=80:120:3", "effects.motor.crank_speed_rad_s=40,45"]
 
 
@@ -283,9 +286,28 @@ def _same_figures(a: dict, b: dict) -> None:
             assert a[k] == b[k], k
 
 
+def test_which_runs_go_in_batches():
+    """Batches of at least MIN_BATCH runs of one group, one a worker where they are enough, as
+    even as they can be; the rest one by one (nothing is run here)."""
+    from mps_core.analysis.sweep import MIN_BATCH, tasks
+
+    def shape(scene, n, workers, times=WORKING, **kw):
+        runs = plan(scene, [f"bodies.slider.mass_kg=80:120:{n}"], **times)
+        return [(batch, len(rs)) for batch, rs in tasks(runs, workers, **kw)]
+
+    assert MIN_BATCH["central"] == 20
+    assert shape("working", 6, 1) == [(False, 1)] * 6  # central differences: too few
+    assert shape("working", 45, 2) == [(True, 22), (True, 23)]
+    assert shape("working", 45, 2, vectorise=False) == [(False, 1)] * 45
+    assert shape(EXACT, 6, 2) == [(True, 3), (True, 3)]
+    assert shape(EXACT, 7, 1, batch_size=3) == [(True, 2), (True, 2), (True, 3)]
+    # press-cycle has commands and events: never a batch
+    assert shape("press-cycle", 3, 1, times=SHORT) == [(False, 1)] * 3
+
+
 def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
-    vec = sweep("working", MASS_SPEED, workers=1, **WORKING)
-    one = sweep("working", MASS_SPEED, workers=1, vectorise=False, **WORKING)
+    vec = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
+    one = sweep(EXACT, MASS_SPEED, workers=1, vectorise=False, **WORKING)
     assert vec.vectorised == 6 and one.vectorised == 0
     assert [r["status"] for r in vec.rows] == ["ok"] * 6
     for a, b in zip(vec.rows, one.rows):
@@ -293,15 +315,15 @@ def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
     # the rows differ run by run (each scene's own masses and motor in the batch)
     assert len({r["|F_found|.peak"] for r in vec.rows}) == 6
     # two worker processes, a batch of three each
-    two = sweep("working", MASS_SPEED, workers=2, **WORKING)
+    two = sweep(EXACT, MASS_SPEED, workers=2, **WORKING)
     assert two.vectorised == 6
     for a, b in zip(two.rows, vec.rows):
         _same_figures(a, b)
     # runs that cannot share the pass (rk8: not a vectorised solver) go on their own beside
     # the batch, with the same rows as one by one
     vary = ["solver.method=linear-acceleration,rk8", "bodies.slider.mass_kg=80,120"]
-    mixed = sweep("working", vary, workers=1, **WORKING)
-    alone = sweep("working", vary, workers=1, vectorise=False, **WORKING)
+    mixed = sweep(EXACT, vary, workers=1, **WORKING)
+    alone = sweep(EXACT, vary, workers=1, vectorise=False, **WORKING)
     assert mixed.vectorised == 2 and [r["status"] for r in mixed.rows] == ["ok"] * 4
     for a, b in zip(mixed.rows, alone.rows):
         _same_figures(a, b)
@@ -309,14 +331,14 @@ def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
 
 def test_vectorised_batches_on_a_dask_cluster():
     distributed = pytest.importorskip("dask.distributed")
-    local = sweep("working", MASS_SPEED, workers=1, **WORKING)
+    local = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
     with (
         distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
         ) as cluster,
         distributed.Client(cluster) as client,
     ):
-        dask = sweep("working", MASS_SPEED, client=client, **WORKING)
+        dask = sweep(EXACT, MASS_SPEED, client=client, **WORKING)
     assert dask.vectorised == 6  # two batches, one a worker
     for a, b in zip(dask.rows, local.rows):
         _same_figures(a, b)
@@ -332,20 +354,29 @@ def test_an_interrupted_vectorised_sweep_keeps_every_row_of_its_batches(tmp_path
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        sweep(
-            "working", MASS_SPEED, out=out, workers=1, batch_size=3, on_row=stop_at_the_second_row, **WORKING
-        )
+        sweep(EXACT, MASS_SPEED, out=out, workers=1, batch_size=3, on_row=stop_at_the_second_row, **WORKING)
     # the batch of three was recorded whole before its rows were told
     assert len((out / "runs.jsonl").read_text().splitlines()) == 3
-    again = sweep("working", MASS_SPEED, out=out, workers=1, batch_size=3, **WORKING)
+    again = sweep(EXACT, MASS_SPEED, out=out, workers=1, batch_size=3, **WORKING)
     assert again.computed == 3 and again.vectorised == 3 and len(again.rows) == 6
-    whole = sweep("working", MASS_SPEED, workers=1, **WORKING)
+    whole = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
     for a, b in zip(again.rows, whole.rows):
         _same_figures(a, b)
 
 
 def test_the_command_vectorises_unless_told_not_to(tmp_path):
-    base = ["sweep", "working", "--vary", "bodies.slider.mass_kg=80,120", "--t-end", "0.35", "--dt", "0.0005"]
+    scene = tmp_path / "working-exact.toml"
+    scene.write_text(EXACT_TEXT)
+    base = [
+        "sweep",
+        str(scene),
+        "--vary",
+        "bodies.slider.mass_kg=80,120",
+        "--t-end",
+        "0.35",
+        "--dt",
+        "0.0005",
+    ]
     vec = _mps(*base, "--workers", "1", "--out", str(tmp_path / "v"))
     assert vec.returncode == 0, vec.stderr
     assert "2 of the runs computed now in vectorised batches" in vec.stdout
