@@ -353,12 +353,19 @@ BATCH_STATES = 2_000_000
 MIN_BATCH = {"central": 20, "autodiff": 2}
 
 
-def tasks(todo: Sequence[Run], workers: int, vectorise: bool = True, batch_size: int = 1000) -> list:
+def tasks(
+    todo: Sequence[Run],
+    workers: int,
+    vectorise: bool = True,
+    batch_size: int = 1000,
+    min_batch: int | None = None,
+) -> list:
     """The sweep's runs as tasks ``(batch, runs)``: the runs whose scenes can share a
     vectorised pass (:func:`mps_core.run.batch.group_key`; at least :data:`MIN_BATCH` of them)
     in batches of at most ``batch_size`` runs and :data:`BATCH_STATES` scene-steps, split so
     that each of the ``workers`` gets one where they are enough, the batches of a group as
-    even as they can be; every other run a task of its own."""
+    even as they can be; every other run a task of its own. ``min_batch``: the fewest runs of a
+    batch instead of :data:`MIN_BATCH`'s."""
     from ..run.batch import group_key
 
     groups: dict = {}
@@ -366,7 +373,7 @@ def tasks(todo: Sequence[Run], workers: int, vectorise: bool = True, batch_size:
         groups.setdefault(group_key(r.scene) if vectorise else None, []).append(r)
     out: list = []
     for key, runs in groups.items():
-        least = MIN_BATCH.get(runs[0].scene.solver.scheme, 2) if key is not None else 0
+        least = MIN_BATCH.get(runs[0].scene.solver.scheme, 2) if min_batch is None else min_batch
         if key is None or len(runs) < least:
             out.extend((False, [r]) for r in runs)
             continue
@@ -482,6 +489,7 @@ def sweep(
     on_row: Callable[[dict, int, int], None] | None = None,
     vectorise: bool = True,
     batch_size: int = 1000,
+    min_batch: int | None = None,
 ) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.
 
@@ -490,8 +498,9 @@ def sweep(
     ``runs.jsonl`` keeps every row as it comes (runs already there are not computed again).
     ``on_row(row, done, total)`` is called in this process after each row. ``vectorise``:
     the runs whose scenes can share a vectorised pass (scenes without events with a
-    fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` (their
-    rows the same, to round-off); False: every run on its own."""
+    fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` and at
+    least ``min_batch`` runs (by default :data:`MIN_BATCH`'s by derivative scheme), their rows
+    the same, to round-off; False: every run on its own."""
     vary = list(vary)
     runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
     keys = list(runs[0].values)
@@ -531,12 +540,14 @@ def sweep(
     n = workers if workers is not None else (os.cpu_count() or 1)
     if batch_size < 1:
         raise SweepError(f"batch_size {batch_size}: expected an integer >= 1")
+    if min_batch is not None and min_batch < 1:
+        raise SweepError(f"min_batch {min_batch}: expected an integer >= 1 (or None)")
     if client is not None:
         try:
             width = len(client.scheduler_info().get("workers", {})) or n
         except Exception:  # a client that does not say: as many as local workers
             width = n
-        work = tasks(todo, width, vectorise, batch_size)
+        work = tasks(todo, width, vectorise, batch_size, min_batch)
         futures = {
             client.submit(_work, [r.scene for r in runs], structure, batch, pure=False): runs
             for batch, runs in work
@@ -546,10 +557,10 @@ def sweep(
         for fut in as_completed(list(futures)):
             take(futures[fut], fut.result())
     elif n <= 1 or len(todo) <= 1:
-        for batch, task_runs in tasks(todo, 1, vectorise, batch_size):
+        for batch, task_runs in tasks(todo, 1, vectorise, batch_size, min_batch):
             take(task_runs, _work([r.scene for r in task_runs], structure, batch))
     else:
-        _in_processes(tasks(todo, n, vectorise, batch_size), n, structure, take)
+        _in_processes(tasks(todo, n, vectorise, batch_size, min_batch), n, structure, take)
     result.rows = [rows[i] for i in sorted(rows)]
     return result
 

@@ -155,7 +155,7 @@ def vectorised(
             for label, m, vec in ways:
                 vary = [f"bodies.slider.mass_kg=80:120:{m}"]
                 c0 = time.process_time()
-                res = sweep(base, vary, vectorise=vec, batch_size=max(m, 1), **kw)
+                res = sweep(base, vary, vectorise=vec, batch_size=m, min_batch=1, **kw)
                 cpu = time.process_time() - c0
                 if cpu < best.get(label, {}).get("cpu_s", math.inf):
                     best.setdefault(label, {}).update(

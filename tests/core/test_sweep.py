@@ -297,6 +297,7 @@ def test_which_runs_go_in_batches():
 
     assert MIN_BATCH["central"] == 20
     assert shape("working", 6, 1) == [(False, 1)] * 6  # central differences: too few
+    assert shape("working", 6, 1, min_batch=2) == [(True, 6)]  # unless asked
     assert shape("working", 45, 2) == [(True, 22), (True, 23)]
     assert shape("working", 45, 2, vectorise=False) == [(False, 1)] * 45
     assert shape(EXACT, 6, 2) == [(True, 3), (True, 3)]
