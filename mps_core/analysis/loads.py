@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
+from scipy.interpolate import CubicSpline
 from scipy.optimize import brentq
 
 from ..dynamics.reactions import DESCRIPTIONS
@@ -68,7 +68,8 @@ def harmonics(samples, n: int = N_HARMONICS) -> tuple[float, np.ndarray, np.ndar
 
 
 def resample(t, y, t0: float, period: float, samples: int) -> np.ndarray:
-    """y at t0 + j·period/samples (j = 0…samples−1) by a cubic spline through (t, y)."""
+    """y at t0 + j·period/samples (j = 0…samples−1) by a cubic spline through (t, y) (``y``
+    with more columns than one: each column's, one row an instant)."""
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     tq = t0 + period * np.arange(samples) / samples
@@ -111,8 +112,7 @@ def _crossings(t, phi, phi_dot):
     for i in idx:
         level = TWO_PI * max(k[i], k[i + 1])
         if phi_dot is not None:
-            sp = CubicHermiteSpline(t[i : i + 2], phi[i : i + 2], phi_dot[i : i + 2])
-            f = lambda s, sp=sp, level=level: float(sp(s)) - level  # noqa: E731
+            f = _hermite(float(t[i]), float(t[i + 1]), phi[i : i + 2], phi_dot[i : i + 2], level)
         else:
             ts, ps = t[i : i + 2], phi[i : i + 2]
             f = lambda s, ts=ts, ps=ps, level=level: float(np.interp(s, ts, ps)) - level  # noqa: E731
@@ -124,6 +124,22 @@ def _crossings(t, phi, phi_dot):
         else:
             out.append(float(t[i + 1]))
     return out
+
+
+def _hermite(t0: float, t1: float, p, d, level: float):
+    """s ↦ H(s) − level, H the cubic Hermite interpolant of (p, d) at t0 and t1 (the cubic of
+    :class:`scipy.interpolate.CubicHermiteSpline` on one interval), on floats."""
+    h = t1 - t0
+    p0, p1, d0, d1 = float(p[0]), float(p[1]), float(d[0]), float(d[1])
+    slope = (p1 - p0) / h
+    c2 = (3.0 * slope - 2.0 * d0 - d1) / h
+    c3 = (d0 + d1 - 2.0 * slope) / (h * h)
+
+    def f(s: float) -> float:
+        x = s - t0
+        return ((c3 * x + c2) * x + d0) * x + p0 - level
+
+    return f
 
 
 def last_cycle(t, phi, phi_dot=None, structure=None, mode: str | None = "locked") -> Cycle:
@@ -202,29 +218,41 @@ def _meaning(name: str, cols: tuple[str, ...]) -> str:
     return f"magnitude of the {base}"
 
 
-def _figures(name: str, unit: str, meaning: str, ys: np.ndarray, inside: np.ndarray, n: int) -> dict:
-    """One quantity's figures: ``ys`` its cycle resampled, ``inside`` its samples in the cycle
-    (the peak is over both)."""
-    mean, amp, ph = harmonics(ys, n)
-    peak = float(np.max(np.abs(np.concatenate([inside, ys]))))
-    tiny = 1e-9 * max(peak, 1e-300)
-    return {
-        "name": name,
-        "unit": unit,
-        "meaning": meaning,
-        "mean": mean,
-        "peak": peak,
-        "rms": float(np.sqrt(np.mean(ys**2))),
-        "rms_dynamic": float(np.sqrt(np.mean((ys - mean) ** 2))),
-        "harmonics": [
+def _figures(quantities: list, ys: np.ndarray, inside: np.ndarray, n: int) -> list[dict]:
+    """The quantities' figures: ``quantities`` their (name, unit, meaning), ``ys`` their cycle
+    resampled (one row a quantity), ``inside`` their samples in the cycle (a row each; the
+    peak is over both). Each row as :func:`harmonics` and the means would take it alone (a
+    row's sums in its own order), all rows in one call each."""
+    N = ys.shape[1]
+    if N <= 2 * n:
+        harmonics(ys[0], n)  # its error
+    c = np.fft.rfft(ys, axis=1) / N
+    means = c[:, 0].real
+    amps = 2.0 * np.abs(c[:, 1 : n + 1])
+    phases = np.degrees(np.angle(c[:, 1 : n + 1]))
+    peaks = np.maximum(np.max(np.abs(inside), axis=1, initial=0.0), np.max(np.abs(ys), axis=1))
+    rms = np.sqrt(np.mean(ys**2, axis=1))
+    rms_dynamic = np.sqrt(np.mean((ys - means[:, None]) ** 2, axis=1))
+    out = []
+    for j, (name, unit, meaning) in enumerate(quantities):
+        tiny = 1e-9 * max(float(peaks[j]), 1e-300)
+        amp, ph = amps[j].tolist(), phases[j].tolist()
+        out.append(
             {
-                "k": k + 1,
-                "amplitude": float(amp[k]),
-                "phase_deg": (float(math.degrees(ph[k])) if amp[k] > tiny else None),
+                "name": name,
+                "unit": unit,
+                "meaning": meaning,
+                "mean": float(means[j]),
+                "peak": float(peaks[j]),
+                "rms": float(rms[j]),
+                "rms_dynamic": float(rms_dynamic[j]),
+                "harmonics": [
+                    {"k": k + 1, "amplitude": amp[k], "phase_deg": (ph[k] if amp[k] > tiny else None)}
+                    for k in range(n)
+                ],
             }
-            for k in range(n)
-        ],
-    }
+        )
+    return out
 
 
 def load_report(
@@ -256,7 +284,7 @@ def load_report(
     N = max(64, 1 << int(math.ceil(math.log2(max(steps, 2 * n + 2)))))
     sl = slice(max(cyc.i0 - 3, 0), min(cyc.i1 + 4, t.size))
     inside = (t >= cyc.t0) & (t <= cyc.t1)
-    quantities = []
+    found, window = [], []
     for name, cols, unit in QUANTITIES:
         if any(c not in columns for c in cols):
             continue
@@ -264,8 +292,14 @@ def load_report(
         y = arr[0] if len(arr) == 1 else np.hypot(arr[0], arr[1])
         if not np.any(y[sl] != 0.0):
             continue  # no such joint in this structure
-        ys = resample(t[sl], y[sl], cyc.t0, cyc.period, N)
-        quantities.append(_figures(name, unit, _meaning(name, cols), ys, y[inside], n))
+        found.append((name, unit, _meaning(name, cols)))
+        window.append(y)
+    quantities = []
+    if found:
+        # one spline through every quantity's steps (their common times), one row a quantity
+        Y = np.stack(window)
+        ys = np.ascontiguousarray(resample(t[sl], Y[:, sl].T, cyc.t0, cyc.period, N).T)
+        quantities = _figures(found, ys, Y[:, inside], n)
     checks = {}
     for c in ("residual_force_N", "residual_moment_Nm", "balance_residual_N", "balance_residual_Nm"):
         if c in columns:

@@ -18,6 +18,12 @@ row is appended to ``runs.jsonl`` as soon as it is done, so that a sweep started
 same arguments after Ctrl-C or a lost worker computes only the runs still missing. A run that
 fails (a scene that cannot be simulated, no steady cycle) is a row with its error.
 
+Runs whose scenes can share a vectorised pass (:mod:`mps_core.run.batch`: scenes without events
+or commands, e.g. ``locked`` ones of ``working``, with a fixed-step solver, alike but for masses,
+initial state and effect parameters) go
+in batches, each batch a task: its rows, the same as the runs' one by one to round-off, are
+recorded together as it ends. ``vectorise=False`` runs every run on its own.
+
 The table is a list of rows (dicts); :meth:`Sweep.records` gives a numpy record array (numpy
 only: the core depends on nothing heavier, and a record array reads into pandas with
 ``pandas.DataFrame.from_records`` where one wants it).
@@ -296,10 +302,89 @@ def run_one(scene: Scene, structure: str = "locked") -> tuple[dict, float]:
         return {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}, time.process_time() - c0
 
 
-def _task(scene: Scene, structure: str) -> tuple[dict, float, float]:
+#: what a task gives for each run: its row, the CPU seconds of its simulation and of all of
+#: it, and whether it ran in a vectorised batch
+Result = tuple[dict, float, float, bool]
+
+
+def _task(scene: Scene, structure: str) -> Result:
     c0 = time.process_time()
     row, sim_cpu = run_one(scene, structure)
-    return row, sim_cpu, time.process_time() - c0
+    return row, sim_cpu, time.process_time() - c0, False
+
+
+def run_batch(scenes: Sequence[Scene], structure: str = "locked") -> list[Result]:
+    """The rows of scenes that share one vectorised pass (:func:`mps_core.run.batch.run_batch`),
+    each with its share of the CPU seconds (the simulation's, and all of it); where they
+    cannot share it after all, each run on its own (:func:`run_one`)."""
+    from ..run.batch import run_batch as simulate_batch
+
+    c0 = time.process_time()
+    try:
+        trajectories = simulate_batch(scenes)
+    except Exception:  # NotVectorisable, or anything the pass met: the runs one by one
+        return [_task(sc, structure) for sc in scenes]
+    sim_cpu = (time.process_time() - c0) / len(scenes)
+    out = []
+    for sc, traj in zip(scenes, trajectories):
+        c1 = time.process_time()
+        try:
+            report = loads.load_report(traj.columns, mode=structure, events=traj.events, source=sc.name)
+            row = {"status": "ok", "error": "", **figures(report)}
+        except Exception as exc:  # as run_one: a run without a report is a row with its error
+            row = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+        out.append((row, sim_cpu, sim_cpu + time.process_time() - c1, True))
+    return out
+
+
+def _work(scenes: list[Scene], structure: str, batch: bool) -> list[Result]:
+    """One task of a sweep: a vectorised batch, or one run (a list of one scene)."""
+    return run_batch(scenes, structure) if batch else [_task(sc, structure) for sc in scenes]
+
+
+#: scene-steps a vectorised batch of a sweep holds at most (its columns and the reactions' inputs:
+#: about 0.5 kB each at the batch's peak)
+BATCH_STATES = 2_000_000
+
+
+#: the fewest runs a vectorised batch takes, by derivative scheme (fewer go one by one): with
+#: central differences a batch's step costs about the same from 10 to 40 runs, and a batch of
+#: 10 more than its runs one by one (``mps bench sweep --vectorised``, docs/loads.md)
+MIN_BATCH = {"central": 20, "autodiff": 2}
+
+
+def tasks(
+    todo: Sequence[Run],
+    workers: int,
+    vectorise: bool = True,
+    batch_size: int = 1000,
+    min_batch: int | None = None,
+) -> list:
+    """The sweep's runs as tasks ``(batch, runs)``: the runs whose scenes can share a
+    vectorised pass (:func:`mps_core.run.batch.group_key`; at least :data:`MIN_BATCH` of them)
+    in batches of at most ``batch_size`` runs and :data:`BATCH_STATES` scene-steps, split so
+    that each of the ``workers`` gets one where they are enough, the batches of a group as
+    even as they can be; every other run a task of its own. ``min_batch``: the fewest runs of a
+    batch instead of :data:`MIN_BATCH`'s."""
+    from ..run.batch import group_key
+
+    groups: dict = {}
+    for r in todo:
+        groups.setdefault(group_key(r.scene) if vectorise else None, []).append(r)
+    out: list = []
+    for key, runs in groups.items():
+        least = MIN_BATCH.get(runs[0].scene.solver.scheme, 2) if min_batch is None else min_batch
+        if key is None or len(runs) < least:
+            out.extend((False, [r]) for r in runs)
+            continue
+        sc = runs[0].scene
+        steps = max(1, int(round(sc.t_end / sc.dt))) + 1
+        share = max(least, -(-len(runs) // max(1, workers)))
+        size = min(batch_size, max(1, BATCH_STATES // steps), share)
+        count = -(-len(runs) // size)  # as many batches, as even as they can be
+        ends = [len(runs) * i // count for i in range(count + 1)]
+        out.extend((True, runs[a:b]) for a, b in zip(ends, ends[1:]))
+    return out
 
 
 # -- the sweep ------------------------------------------------------------------------------
@@ -310,6 +395,8 @@ class Sweep:
     keys: list
     rows: list
     computed: int = 0
+    #: of the runs computed, those that ran in vectorised batches
+    vectorised: int = 0
     cpu_s: float = 0.0
     simulation_cpu_s: float = 0.0
 
@@ -400,13 +487,20 @@ def sweep(
     client: Any = None,
     out: str | Path | None = None,
     on_row: Callable[[dict, int, int], None] | None = None,
+    vectorise: bool = True,
+    batch_size: int = 1000,
+    min_batch: int | None = None,
 ) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.
 
     ``workers``: local processes (default: the machine's cores; 1 runs here, in this
     process); ``client``: a ``dask.distributed.Client`` instead. ``out``: a folder whose
     ``runs.jsonl`` keeps every row as it comes (runs already there are not computed again).
-    ``on_row(row, done, total)`` is called in this process after each row."""
+    ``on_row(row, done, total)`` is called in this process after each row. ``vectorise``:
+    the runs whose scenes can share a vectorised pass (scenes without events with a
+    fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` and at
+    least ``min_batch`` runs (by default :data:`MIN_BATCH`'s by derivative scheme), their rows
+    the same, to round-off; False: every run on its own."""
     vary = list(vary)
     runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
     keys = list(runs[0].values)
@@ -424,70 +518,93 @@ def sweep(
             todo.append(r)
     result = Sweep(keys, [])
 
-    def take(r: Run, row: dict, sim_cpu: float, cpu: float) -> None:
-        full = {"run": r.index, "key": r.key, **r.values, **row}
-        rows[r.index] = full
-        result.computed += 1
-        result.cpu_s += cpu
-        result.simulation_cpu_s += sim_cpu
+    def take(task_runs: list[Run], results: list[Result]) -> None:
+        """A task's rows: all of them recorded first, then each told (a Ctrl-C in ``on_row``
+        loses none of a batch's rows)."""
+        made = []
+        for r, (row, sim_cpu, cpu, batched) in zip(task_runs, results):
+            full = {"run": r.index, "key": r.key, **r.values, **row}
+            rows[r.index] = full
+            made.append(full)
+            result.computed += 1
+            result.vectorised += batched
+            result.cpu_s += cpu
+            result.simulation_cpu_s += sim_cpu
         if record is not None:
             with record.open("a") as fh:
-                fh.write(json.dumps(full, default=_json_default) + "\n")
+                fh.write("".join(json.dumps(full, default=_json_default) + "\n" for full in made))
         if on_row is not None:
-            on_row(full, len(rows), len(runs))
+            for i, full in enumerate(made):
+                on_row(full, len(rows) - len(made) + i + 1, len(runs))
 
     n = workers if workers is not None else (os.cpu_count() or 1)
+    if batch_size < 1:
+        raise SweepError(f"batch_size {batch_size}: expected an integer >= 1")
+    if min_batch is not None and min_batch < 1:
+        raise SweepError(f"min_batch {min_batch}: expected an integer >= 1 (or None)")
     if client is not None:
-        futures = {client.submit(_task, r.scene, structure, pure=False): r for r in todo}
+        try:
+            width = len(client.scheduler_info().get("workers", {})) or n
+        except Exception:  # a client that does not say: as many as local workers
+            width = n
+        work = tasks(todo, width, vectorise, batch_size, min_batch)
+        futures = {
+            client.submit(_work, [r.scene for r in runs], structure, batch, pure=False): runs
+            for batch, runs in work
+        }
         from dask.distributed import as_completed
 
         for fut in as_completed(list(futures)):
-            take(futures[fut], *fut.result())
+            take(futures[fut], fut.result())
     elif n <= 1 or len(todo) <= 1:
-        for r in todo:
-            take(r, *_task(r.scene, structure))
+        for batch, task_runs in tasks(todo, 1, vectorise, batch_size, min_batch):
+            take(task_runs, _work([r.scene for r in task_runs], structure, batch))
     else:
-        _in_processes(todo, n, structure, take)
+        _in_processes(tasks(todo, n, vectorise, batch_size, min_batch), n, structure, take)
     result.rows = [rows[i] for i in sorted(rows)]
     return result
 
 
-def _in_processes(todo: list[Run], n: int, structure: str, take: Callable) -> None:
-    """The runs on ``n`` local worker processes, each row taken as it comes. A worker that
-    dies (killed, out of memory) breaks its pool: the runs not yet returned go to a new one.
-    Three breaks with no row between them end the sweep (the rows taken are kept). The workers
-    leave Ctrl-C to this process: the runs not started are dropped, those under way end and
-    are kept."""
+def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
+    """The tasks (:func:`tasks`) on ``n`` local worker processes, each task's rows taken as
+    they come. A worker that dies (killed, out of memory) breaks its pool: the tasks not yet
+    returned go to a new one. Three breaks with no row between them end the sweep (the rows
+    taken are kept). The workers leave Ctrl-C to this process: the tasks not started are
+    dropped, those under way end and are kept."""
     left, breaks = list(todo), 0
     while left:
         pool = ProcessPoolExecutor(max_workers=min(n, len(left)), initializer=_ignore_sigint)
-        pending = {pool.submit(_task, r.scene, structure): r for r in left}
+        pending = {
+            pool.submit(_work, [r.scene for r in runs], structure, batch): (batch, runs)
+            for batch, runs in left
+        }
         try:
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     if isinstance(fut.exception(), BrokenProcessPool):
                         continue
-                    take(pending.pop(fut), *fut.result())
+                    take(pending.pop(fut)[1], fut.result())
                     breaks = 0
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
                     break
         except KeyboardInterrupt:
             for fut in [f for f in pending if not f.cancel()]:
                 if fut.exception() is None:
-                    take(pending.pop(fut), *fut.result())
+                    take(pending.pop(fut)[1], fut.result())
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
         for fut in [f for f in pending if f.done() and f.exception() is None]:
-            take(pending.pop(fut), *fut.result())  # ended as the pool broke
+            take(pending.pop(fut)[1], fut.result())  # ended as the pool broke
         left = list(pending.values())
         if left:
             breaks += 1
             if breaks >= 3:
                 raise SweepError(
                     f"the worker processes died three times with no run ending "
-                    f"between ({len(left)} run(s) left; the rows taken are kept)"
+                    f"between ({sum(len(runs) for _, runs in left)} run(s) left; the rows "
+                    "taken are kept)"
                 )
 
 

@@ -61,6 +61,21 @@ def register(subparsers) -> None:
         metavar="NAME",
         help="the working structure whose last full revolution is analysed (default locked)",
     )
+    p.add_argument(
+        "--no-vectorise",
+        dest="vectorise",
+        action="store_false",
+        help="every run on its own (by default the runs whose scenes allow it, ones without "
+        "events with a fixed-step solver such as working's, go in vectorised batches: the "
+        "same rows, to round-off)",
+    )
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=1000,
+        metavar="N",
+        help="runs a vectorised batch holds at most (default 1000)",
+    )
     p.add_argument("--force", action="store_true", help="write into a folder that holds another sweep")
     p.add_argument(
         "-q", "--quiet", action="store_true", help="no progress line (there is one on a terminal only)"
@@ -166,6 +181,8 @@ def run(args) -> int:
     _check_folder(out, spec, args.force)
     if args.workers is not None and args.workers < 1:
         raise sw.SweepError(f"--workers {args.workers}: expected an integer >= 1")
+    if args.batch_size < 1:
+        raise sw.SweepError(f"--batch-size {args.batch_size}: expected an integer >= 1")
     client = None
     if args.scheduler:
         try:
@@ -201,6 +218,8 @@ def run(args) -> int:
             client=client,
             out=out,
             on_row=progress,
+            vectorise=args.vectorise,
+            batch_size=args.batch_size,
         )
     except KeyboardInterrupt:
         progress.done()
@@ -221,6 +240,8 @@ def run(args) -> int:
         f"{len(result.rows)} runs ({result.computed} computed now, "
         f"{len(result.rows) - result.computed} kept from before), {len(failed)} failed"
     )
+    if result.vectorised:
+        print(f"  {result.vectorised} of the runs computed now in vectorised batches")
     for e in env:
         if e["figure"] in ("|F_found|.peak", "|F_found|.rms", "|F_found|.A1", "|F_found|.A2"):
             at = ", ".join(f"{k}={e[k]!r}" for k in result.keys)

@@ -5,6 +5,7 @@
     mps bench speed [CASE …] [--quick] [--out DIR]
     mps bench batch [--sizes N,…] [--steps N]
     mps bench sweep [--runs N] [--workers N] [--t-end S] [--dt S] [--no-dask]
+    mps bench sweep --vectorised [--sizes N,…] [--scheme central|autodiff|both] [--t-end S] [--dt S]
 
 CASE is ``paper`` (0.1 s), ``paper-long`` (1 s), ``press-cycle`` (where that preset exists) or
 any preset name or scene file (over its own t_end); by default every built-in case.
@@ -90,9 +91,25 @@ def register(subparsers) -> None:
     )
     w.add_argument("--runs", type=int, default=256, help="runs of the sweep (default 256)")
     w.add_argument("--workers", type=int, help="N (default: the machine's cores)")
-    w.add_argument("--t-end", type=float, default=1.0, help="end time of each run (default 1 s)")
-    w.add_argument("--dt", type=float, default=1e-3, help="output step (default 1 ms)")
+    w.add_argument("--t-end", type=float, help="end time of each run (default 1 s)")
+    w.add_argument("--dt", type=float, help="output step (default 1 ms)")
     w.add_argument("--no-dask", action="store_true", help="leave the Dask cluster out")
+    w.add_argument(
+        "--vectorised",
+        action="store_true",
+        help="instead: a sweep of working in this process, one run by one and in vectorised "
+        "batches of --sizes runs, the reactions and load reports included (mechanism-steps a "
+        "second; --t-end default 0.35 s, --dt 0.2 ms)",
+    )
+    w.add_argument(
+        "--sizes", default="10,100,1000", help="with --vectorised: batch sizes (default 10,100,1000)"
+    )
+    w.add_argument(
+        "--scheme",
+        choices=("central", "autodiff", "both"),
+        default="both",
+        help="with --vectorised: derivatives (default both)",
+    )
     w.set_defaults(func=_sweep)
 
 
@@ -151,6 +168,26 @@ def _batch(args) -> int:
 def _sweep(args) -> int:
     from . import sweep
 
-    rows = sweep.throughput(args.runs, args.workers, args.t_end, args.dt, dask=not args.no_dask)
+    if args.vectorised:
+        try:
+            sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
+        except ValueError:
+            sizes = []
+        if not sizes or min(sizes) < 1:
+            raise SystemExit(
+                f"mps bench sweep: --sizes {args.sizes!r}: expected integers >= 1, e.g. 10,100,1000"
+            )
+        schemes = ("central", "autodiff") if args.scheme == "both" else (args.scheme,)
+        t_end, dt = args.t_end or 0.35, args.dt or 2e-4
+        print(
+            f"vectorised sweep: working (locked), slider mass swept, linear acceleration, "
+            f"t_end {t_end:g} s, dt {dt:g} s, reactions and load reports; one process"
+        )
+        vec = sweep.vectorised(tuple(sizes), t_end, dt, schemes)
+        sweep.report_vectorised(vec)
+        return 0
+    rows = sweep.throughput(
+        args.runs, args.workers, args.t_end or 1.0, args.dt or 1e-3, dask=not args.no_dask
+    )
     sweep.report(rows)
     return 0

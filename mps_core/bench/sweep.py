@@ -7,10 +7,15 @@ of the base scene are built once in this process first; the worker processes, fo
 from them, and so does the one worker in this process, timed after them (a run whose effects'
 parameters differ builds kernels of its own: part of every way's figure). The cluster's
 spawned workers build their own.
+
+``--vectorised`` (:func:`vectorised`): mechanism-steps a second of a sweep of working (locked,
+no events) in one process, run by run and in vectorised batches (:mod:`mps_core.run.batch`),
+the joint reactions and each run's load report included, and where a batch's time goes.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -99,4 +104,110 @@ def report(rows: list[dict]) -> None:
         f"beside the simulations (one worker): {beside:.2f} CPU s of {one['cpu_s']:.2f} "
         f"({100 * beside / one['cpu_s']:.1f} %): the scenes built and checked "
         f"({one['plan_cpu_s']:.2f} s), the load reports and the rows"
+    )
+
+
+# -- vectorised sweeps ------------------------------------------------------------------------
+def _working(scheme: str):
+    """The working preset (locked, no events) with derivatives by ``scheme``."""
+    from ..scene import load_scene, scene_from_text
+
+    base = load_scene("working")
+    return scene_from_text(base.text.replace('derivatives = "central"', f'derivatives = "{scheme}"'))
+
+
+def vectorised(
+    sizes=(10, 100, 1000),
+    t_end: float = 0.35,
+    dt: float = 2e-4,
+    schemes=("central", "autodiff"),
+    alone: int = 10,
+    repeats: int = 2,
+    log=print,
+) -> list[dict]:
+    """Mechanism-steps a second of a sweep in this process (one worker), the joint reactions
+    and each run's load report included: working with the slider's mass swept, one run by one
+    (``alone`` runs) and in vectorised batches of each size (a sweep of that many runs, one
+    batch), interleaved, the best of ``repeats``; and where a batch's time goes (the stepping
+    with and without the reactions, the reports, the rest: the scenes built and grouped, the
+    rows)."""
+    from dataclasses import replace
+
+    from ..analysis.sweep import plan, sweep
+    from ..run.batch import run_batch
+
+    steps = int(round(t_end / dt))
+    rows = []
+    for scheme in schemes:
+        base = _working(scheme)
+        kw = dict(t_end=t_end, dt=dt, workers=1)
+        warm = ["bodies.slider.mass_kg=80:120:2"]
+        sweep(base, warm, **kw)  # the kernels of both paths built before any timing
+        sweep(base, warm, vectorise=False, **kw)
+        ways = [("one by one", alone, False)] + [(f"batches of {m}", m, True) for m in sizes]
+        best: dict = {}
+
+        def keep(label: str, key: str, cpu: float) -> None:
+            if cpu < best.setdefault(label, {}).get(key, math.inf):
+                best[label][key] = cpu
+
+        for _ in range(repeats):
+            for label, m, vec in ways:
+                vary = [f"bodies.slider.mass_kg=80:120:{m}"]
+                c0 = time.process_time()
+                res = sweep(base, vary, vectorise=vec, batch_size=m, min_batch=1, **kw)
+                cpu = time.process_time() - c0
+                if cpu < best.get(label, {}).get("cpu_s", math.inf):
+                    best.setdefault(label, {}).update(
+                        scheme=scheme,
+                        way=label,
+                        runs=m,
+                        steps=steps,
+                        cpu_s=cpu,
+                        steps_per_s=m * steps / cpu,
+                        simulation_cpu_s=res.simulation_cpu_s,
+                        reports_cpu_s=res.cpu_s - res.simulation_cpu_s,
+                        vectorised=res.vectorised,
+                        failed=sum(1 for r in res.rows if r["status"] != "ok"),
+                    )
+                log(f"  {scheme} {label}: {cpu:.2f} CPU s")
+                if vec:  # the batch alone, with and without the reactions, for their share
+                    scenes = [r.scene for r in plan(base, vary, t_end=t_end, dt=dt)]
+                    for key, rx in (("batch_cpu_s", True), ("batch_alone_cpu_s", False)):
+                        one = [replace(sc, reactions=rx) for sc in scenes]
+                        c0 = time.process_time()
+                        run_batch(one)
+                        keep(label, key, time.process_time() - c0)
+        for label, _m, _vec in ways:
+            row = best[label]
+            row["speedup"] = row["steps_per_s"] / best["one by one"]["steps_per_s"]
+            rows.append(row)
+    return rows
+
+
+def report_vectorised(rows: list[dict]) -> None:
+    print(
+        f"{'derivatives':12} {'way':18} {'runs':>5} {'CPU s':>7} {'steps/s':>10} {'× one':>6} "
+        f"{'stepping':>9} {'reactions':>9} {'reports':>8} {'rest':>6}"
+    )
+    for r in rows:
+        cpu = r["cpu_s"]
+        if "batch_cpu_s" in r:  # the sweep's own stepping, split as the batch alone splits
+            rx = max(0.0, r["batch_cpu_s"] - r["batch_alone_cpu_s"]) / r["batch_cpu_s"]
+            stepping = r["simulation_cpu_s"] * (1.0 - rx)
+            reactions = f"{100 * r['simulation_cpu_s'] * rx / cpu:8.0f}%"
+        else:
+            stepping, reactions = r["simulation_cpu_s"], ""
+        rest = cpu - r["simulation_cpu_s"] - r["reports_cpu_s"]
+        print(
+            f"{r['scheme']:12} {r['way']:18} {r['runs']:5d} {cpu:7.2f} {r['steps_per_s']:10,.0f} "
+            f"{r['speedup']:6.1f} {100 * stepping / cpu:8.0f}% {reactions:>9} "
+            f"{100 * r['reports_cpu_s'] / cpu:7.0f}% {100 * rest / cpu:5.0f}%"
+        )
+    print(
+        "(steps/s: mechanism-steps a second of the whole sweep in one process, the reactions and "
+        "each run's load report included; stepping: the simulation (one by one: with its "
+        "reactions); reactions: what they add to a batch (its stepping split as the same batch "
+        "run alone with and without them splits); reports: the load reports and rows; rest: "
+        "the scenes built, checked and grouped)"
     )

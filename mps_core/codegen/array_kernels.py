@@ -1,4 +1,5 @@
-"""An exact kernel's code run on arrays: the kinematics of many scenes in one call.
+"""An exact kernel's code run on arrays: the kinematics of many scenes in one call (and a
+reaction kernel's, :mod:`mps_core.codegen.reaction_kernels`, the same way).
 
 An exact kernel (:mod:`mps_core.codegen.exact_kernels`) is straight-line arithmetic on floats
 with ``cos``, ``sin`` and ``sqrt`` and, where the position function branches, a guard that
@@ -30,8 +31,9 @@ class ArrayBranchChanged(BranchChanged):
     """A guard of an array kernel failed for at least one scene."""
 
 
-#: ``    if [not ]test: _miss(args)``, the guard line of the kernels' writers
-_GUARD = re.compile(r"^(\s*)if (not )?(.+): _miss\(.*\)$")
+#: ``    if [not ]test: _miss(args)``, the guard line of the kernels' writers (a reaction
+#: kernel's pivots: ``_fallback()``)
+_GUARD = re.compile(r"^(\s*)if (not )?(.+): (_miss|_fallback)\(.*\)$")
 
 _CODE = Memo("codegen.array_kernels.code", 256)
 
@@ -65,6 +67,7 @@ def array_kernel(kernel):
         "_all": np.all,
         "_any": np.any,
         "_miss": _miss,
+        "_fallback": _miss,
     }
     exec(code, namespace)
     return namespace["kernel"]

@@ -73,7 +73,17 @@ class _Folding(Forward):
 PIVOT_GUARD = 1e-6
 
 
-def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from_kinematics: bool = False):
+def reaction_kernel(
+    engine,
+    view,
+    q,
+    system,
+    motion,
+    columns,
+    scale: float,
+    from_kinematics: bool = False,
+    masses: bool = False,
+):
     """The reaction kernel of ``view`` (traced at ``q``), or None where its premises do not
     hold. ``engine``: a :class:`~mps_core.dynamics.engine.PartialSystems` of the mechanism (its maps);
     ``system`` and ``motion``: the general path's Newton–Euler system at q (its unknowns, their
@@ -86,7 +96,12 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from
     :class:`~mps_core.dynamics.engine.Kinematics` keeps them from an exact kernel) instead of running
     the traced position function forward itself; what the trace folds (zeros, constants) is
     folded the same. Only for exact kinematics: from central differences they would carry
-    the scheme's error into every reaction."""
+    the scheme's error into every reaction.
+
+    ``masses``: the bodies' masses and inertias are an argument (``fn(q…, q̇…, q̈…, masses,
+    loads)``, ``masses`` the masses then the inertias in the mechanism's order) instead of the
+    engine's, folded in: one kernel for scenes that differ in them (a batch's,
+    :mod:`mps_core.run.batch`)."""
     traced = trace_view(view, q)
     if traced is None:
         return None
@@ -114,6 +129,7 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from
     order, pivots = _pivot_order(s[:, None] * E)
     key = (
         "reactions from kinematics" if from_kinematics else "reactions",
+        "masses given" if masses else "masses folded",
         kernel_key(engine, view),
         tape.key(),
         tuple(outputs),
@@ -137,6 +153,7 @@ def reaction_kernel(engine, view, q, system, motion, columns, scale: float, from
             order,
             [float(abs(p) / s[r]) for p, r in zip(pivots, order)],
             from_kinematics,
+            masses,
         ),
         f"<reaction kernel{' from kinematics' if from_kinematics else ''} {view.name}>",
         flat,
@@ -295,6 +312,7 @@ def _source(
     order,
     pivot_sizes,
     from_kinematics: bool = False,
+    masses: bool = False,
 ) -> str:
     """The reaction kernel's code: the bodies' motion and Newton–Euler's right side b, the
     joints' columns E, the least squares' leftover r, E u = b − r by the building state's
@@ -324,18 +342,23 @@ def _source(
             return (fw.add(val(r), offset[r] or None), fw.add(val(r + 1), offset[r + 1] or None))
 
     ops = _Ops(fw, w)
+    if masses:
+        given = [f"mb{k}" for k in range(nb)], [f"ib{k}" for k in range(nb)]
+        w.lines.insert(0, f"    {', '.join(given[0] + given[1])} = masses")
+    else:
+        given = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
     qs = [f"q{k}" for k in range(n)]
     vs = [f"vd{k}" for k in range(n)]
     accs = [f"a{k}" for k in range(n)]
     origin = pos("O") if "O" in names else (None, None)
     load_names = [f"l{c}{k}" for k in range(nb) for c in ("x", "y", "m")] + ["ffx", "ffy", "fmo", "mmot"]
     w.lines.insert(0, f"    {', '.join(load_names)} = loads")
-    motion = _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin)
+    motion = _bodies_motion(ops, engine, given, pos, grad, d2, omega, theta2, accs, origin)
     E = _joint_columns(ops, engine.mechanism, sysm.cols, pos, motion["G"])
     res = _leftover(ops, motion, nb, n, scale)
     u = _solve_by_pivots(ops, E, motion["b"], res, order, pivot_sizes, len(sysm.cols))
     out, frame = _frame_receives(ops, sysm.cols, u, columns, pos, origin)
-    _checks(ops, out, res, engine, motion, frame)
+    _checks(ops, out, res, given, motion, frame)
     ret = (
         f"    return [{', '.join(ops.code(out[c]) for c in columns)}], "
         f"[{', '.join(ops.code(x) for x in res)}]"
@@ -343,6 +366,7 @@ def _source(
     if unpack is not None:  # the lists' numbers the code above reads
         w.lines[1:1] = unpack()
     lists = ["xl", "jl", "wl", "cv"] if from_kinematics else []
+    lists += ["masses"] if masses else []
     return (
         f"def kernel({', '.join(qs + vs + accs + lists)}, loads):\n"
         + "\n".join(inline_once(live_lines(w.lines, ret) + [ret]))
@@ -350,12 +374,13 @@ def _source(
     )
 
 
-def _bodies_motion(ops, engine, pos, grad, d2, omega, theta2, accs, origin) -> dict:
+def _bodies_motion(ops, engine, given, pos, grad, d2, omega, theta2, accs, origin) -> dict:
     """Each body's centre G (and G − O), its Jacobian, accelerations (ẍ_G, ÿ_G, θ̈) and
-    angular rates' rows, and Newton–Euler's right side b = (m a − F, J α − M_G) a body."""
+    angular rates' rows, and Newton–Euler's right side b = (m a − F, J α − M_G) a body.
+    ``given``: the masses and the inertias (numbers, or the names of the arguments)."""
     add, sub, mul = ops.add, ops.sub, ops.mul
     names, n = engine.tables.names, len(accs)
-    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
+    mass, inertia = given
     ox, oy = origin
     G, g, JG, aG, alpha, W = [], [], [], [], [], []
     b = []
@@ -519,12 +544,12 @@ def _frame_receives(ops, cols, u, columns, pos, origin) -> tuple[dict, tuple]:
     return out, (RFx, RFy, RM)
 
 
-def _checks(ops, out, res, engine, motion, frame) -> None:
+def _checks(ops, out, res, given, motion, frame) -> None:
     """The checks' columns: the leftover's force and moment norms, and the balance of the
     whole (the momenta's rates against the loads and what the frame gives)."""
     add, sub, mul = ops.add, ops.sub, ops.mul
     nrow = len(res)
-    mass, inertia = engine.tables.mass.tolist(), engine.tables.inertia.tolist()
+    mass, inertia = given
     g, aG, alpha = motion["g"], motion["aG"], motion["alpha"]
     RFx, RFy, RM = frame
     out["residual_force_N"] = ops.norm([res[r] for r in range(nrow) if r % 3 != 2])

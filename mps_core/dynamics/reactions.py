@@ -512,6 +512,32 @@ def kernels_of(mechanism: Mechanism) -> _Kernels:
     return ks
 
 
+def array_reactions(mechanism: Mechanism, view: ChartView, q):
+    """The reactions of many states of ``view`` in one call, or None where the view has no
+    reaction kernel: the view's reaction kernel (built at ``q``, the bodies' masses and
+    inertias an argument) run on arrays (:mod:`mps_core.codegen.array_kernels`):
+    ``fn(q…, q̇…, q̈…, masses, loads) -> (values, residual)``, each an array a state (or a
+    float the same for all), ``values`` in :data:`REACTION_COLUMNS` order, ``masses`` the
+    bodies' masses then their inertias and ``loads`` as
+    :class:`~mps_core.codegen.reaction_kernels.LoadSums` gives them. A state where the kernel
+    does not hold (a pivot below its guard: a singular position) raises
+    :class:`~mps_core.codegen.array_kernels.ArrayBranchChanged`."""
+    from ..codegen.array_kernels import array_kernel
+    from ..codegen.reaction_kernels import reaction_kernel
+
+    ks = kernels_of(mechanism)
+    q = np.array(q, float)
+    try:
+        motion = body_motion(mechanism, view, q, np.zeros_like(q))
+        system = _System(mechanism, motion, active_joints(mechanism, view.frozen), None)
+        kernel = reaction_kernel(
+            ks.engine, view, q, system, motion, tuple(REACTION_COLUMNS), ks.scale, masses=True
+        )
+    except (ArithmeticError, ValueError):
+        return None
+    return None if kernel is None else array_kernel(kernel)
+
+
 def reaction_values(
     mechanism: Mechanism,
     effects,
@@ -942,6 +968,7 @@ __all__ = [
     "length_scale",
     "Reactions",
     "compute_reactions",
+    "array_reactions",
     "plastic_impact",
     "Impulses",
     "impulses",

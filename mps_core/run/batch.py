@@ -25,6 +25,14 @@ code does. With exact derivatives it runs the chart's exact kernel
 straight-line numpy code, A and h formed from them with each scene's masses. A scene that
 leaves the kernel's branch sends its group back to the one-by-one runs.
 
+With ``outputs.reactions`` (the scenes of a group alike) the trajectories carry the joint
+reactions and the foundation load (:data:`mps_core.dynamics.reactions.REACTION_COLUMNS`), as a
+scalar run's: each recorded step keeps its state and its effects' loads (from that step's
+evaluation), and after the run the chart view's reaction kernel, its masses and inertias an
+argument, runs on arrays over every step of every scene at once
+(:func:`mps_core.dynamics.reactions.array_reactions`). A state where the kernel does not hold
+(a singular position) sends the group back to the one-by-one runs.
+
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
 cluster (``dask.distributed.Client``), one vectorised batch a task.
 """
@@ -48,6 +56,10 @@ VECTOR_SOLVERS = ("linear-acceleration", "rk4")
 VECTOR_SCHEMES = ("central", "autodiff")
 
 
+#: states a call of the reaction kernel on arrays takes (its arrays stay in the caches)
+_REACTION_CHUNK = 4096
+
+
 class NotVectorisable(Exception):
     """A group of scenes cannot (or can no longer) share one vectorised pass."""
 
@@ -69,7 +81,7 @@ class BatchResult:
         return self.trajectories[i]
 
 
-def _group_key(scene: Scene):
+def group_key(scene: Scene):
     """Scenes with equal keys can share a vectorised pass (None: this scene cannot)."""
     s = scene.solver
     if (
@@ -98,7 +110,15 @@ def _group_key(scene: Scene):
         scene.t_end,
         scene.dt,
         scene.charts,
+        scene.reactions,
     )
+
+
+def run_batch(scenes) -> list:
+    """The trajectories of scenes of one group (equal :func:`group_key`) stepped together in
+    one vectorised pass; :class:`NotVectorisable` where they cannot (or can no longer) share
+    it."""
+    return _Batch(list(scenes)).run()
 
 
 def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult:
@@ -108,7 +128,7 @@ def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult
     vec = [False] * len(scenes)
     groups: dict = {}
     for i, sc in enumerate(scenes):
-        groups.setdefault(_group_key(sc), []).append(i)
+        groups.setdefault(group_key(sc), []).append(i)
     tasks = []
     for key, idx in groups.items():
         if key is None:
@@ -163,20 +183,30 @@ class _Batch:
         self.policy = first.charts
         self.structure = first.structure
         bodies = self.mech.bodies
-        per = [sc.mechanism().bodies for sc in scenes]
+        mechanisms = [sc.mechanism() for sc in scenes]  # each scene's masses and inertias
+        per = [mech.bodies for mech in mechanisms]
         self.mass = np.array([[b.mass for b in bs] for bs in per])  # (m, nb)
         self.inertia = np.array([[b.inertia for b in bs] for bs in per])
         self.rot = [k for k, b in enumerate(bodies) if b.rotates]
         self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
             self.rows[f"G_{b.name}"] = len(self.rows)
-        self._effects([sc.build_effects(sc.mechanism()) for sc in scenes])
+        self._effects([sc.build_effects(mech) for sc, mech in zip(scenes, mechanisms)])
         self.evaluations = 0
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
         self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
+        names = [b.name for b in bodies]
+        #: the body the effects along the guide act on, at C (springs, damper, blanking)
+        self._slider = names.index("slider") if "slider" in names else None
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
+        #: the joint reactions (the scenes' ``outputs.reactions``): at each recorded step its
+        #: state and the effects' loads (:meth:`_loads`), all solved after the run
+        self.reactions = bool(first.reactions)
+        self._states = np.empty(0)  # (q, q̇ or q̈, coordinate, scene, step)
+        self._loads_of = np.empty(0)  # (load, scene, step)
+        self._at_C = None  # the last evaluation's motor torque and force along x at C
 
     def _array_kernel(self, first: Scene):
         """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
@@ -367,6 +397,8 @@ class _Batch:
             for i in range(n):
                 Q[i] += torque * wk[i]
             power += torque * w
+        else:
+            torque = None
         xC = kin.x(c, 0)
         forces = []  # along the guide, at C
         if self.springs is not None:
@@ -386,6 +418,7 @@ class _Batch:
         for f in forces:
             for i in range(n):
                 Q[i] += f * jc[i]
+        self._at_C = (torque, sum(forces) if forces else None)
         return Q, power
 
     def _potential(self, kin):
@@ -426,6 +459,10 @@ class _Batch:
         name, its = self.settings.name, self.settings.iterations
         rows = {k: [] for k in COLUMNS}
         work = np.zeros(self.m)
+        if self.reactions:
+            nl = 3 * len(self.mech.bodies) + 4
+            self._states = np.empty((3, q.shape[1], self.m, n_steps + 1))
+            self._loads_of = np.zeros((nl, self.m, n_steps + 1))
 
         ev = self.evaluate
         qdd, A, kin, p_now = ev(t0, q, qd)
@@ -488,6 +525,82 @@ class _Batch:
         rows["E_impact"].append(np.zeros(self.m))
         rows["structure"].append(self.structure)
         rows["chart"].append(self.view.name)
+        if self.reactions:
+            k = len(rows["t"]) - 1
+            for j, x in enumerate((q, qd, qdd)):
+                self._states[j, :, :, k] = x.T
+            for j, x in enumerate(self._loads(kin)):
+                self._loads_of[j, :, k] = x
+
+    def _loads(self, kin) -> list:
+        """The effects' loads at a recorded state as the reaction kernel takes them
+        (:class:`~mps_core.codegen.reaction_kernels.LoadSums`): per body the force (x, y) and its
+        moment about O, then the frame's own (force x, y, moment about O) and the motor's
+        torque; from the state's evaluation (its kinematics, its motor torque and force at C)."""
+        nb = len(self.mech.bodies)
+        out: list = [0.0] * (3 * nb + 4)
+        o = self.rows.get("O")
+        ox, oy = (kin.x(o, 0), kin.x(o, 1)) if o is not None else (0.0, 0.0)
+        if self.weight_of is not None:
+            for b, row in enumerate(self.com_rows):
+                fx, fy = self.weight_of[b]
+                out[3 * b] += fx
+                out[3 * b + 1] += fy
+                out[3 * b + 2] += (kin.x(row, 0) - ox) * fy - (kin.x(row, 1) - oy) * fx
+        torque, f = self._at_C
+        if torque is not None:
+            k = self.motor["index"]
+            out[3 * k + 2] += torque
+            out[3 * nb + 2] -= torque  # the stator's
+            out[3 * nb + 3] += torque
+        if f is not None:  # along x at C on the slider, the frame the opposite
+            c = self.rows["C"]
+            k = self._slider
+            py = kin.x(c, 1) - oy
+            out[3 * k] += f
+            out[3 * k + 2] -= py * f
+            out[3 * nb] -= f
+            out[3 * nb + 2] += py * f
+        return out
+
+    def _reaction_columns(self) -> dict:
+        """The reaction columns, (scene, step) each, of the recorded states: the view's
+        reaction kernel on arrays (:func:`~mps_core.dynamics.reactions.array_reactions`), on
+        blocks of (scenes, steps) of about :data:`_REACTION_CHUNK` states a call."""
+        from ..codegen.array_kernels import ArrayBranchChanged
+        from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
+
+        fn = array_reactions(self.mech, self.view, self.q0[0])
+        if fn is None:
+            raise NotVectorisable("the chart view has no reaction kernel")
+        _, n, m, S = self._states.shape
+        # a mass or an inertia the scenes share is a number, the others one value a scene
+        masses = [
+            float(col[0]) if np.all(col == col[0]) else col[:, None]
+            for col in [*self.mass.T, *self.inertia.T]
+        ]
+        out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
+        # blocks of whole scenes (all their steps) where a scene's steps fit a call, else of
+        # a scene's steps
+        width = max(1, _REACTION_CHUNK // S)
+        height = min(S, _REACTION_CHUNK)
+        for j0 in range(0, m, width):
+            cols = slice(j0, j0 + width)
+            given = [x if isinstance(x, float) else x[cols] for x in masses]
+            for s0 in range(0, S, height):
+                rows = slice(s0, s0 + height)
+                args = [self._states[j, i, cols, rows] for j in range(3) for i in range(n)]
+                try:
+                    values, _residual = fn(*args, given, [x[cols, rows] for x in self._loads_of])
+                except ArrayBranchChanged:
+                    raise NotVectorisable("a scene's reactions are not unique at a step") from None
+                for c, v in zip(REACTION_COLUMNS, values):
+                    out[c][cols, rows] = v
+        # a NaN or an infinity anywhere makes the sum one
+        if not all(np.isfinite(v.sum()) for v in out.values()):
+            raise NotVectorisable("non-finite reactions")
+        self._states = self._loads_of = np.empty(0)
+        return out
 
     def _trajectories(self, rows):
         out = []
@@ -498,6 +611,8 @@ class _Batch:
             k: np.array(v) if k in ("structure", "chart") else np.array(v, dtype=float).T.copy()
             for k, v in rows.items()
         }
+        if self.reactions:
+            table.update(self._reaction_columns())
         for i, sc in enumerate(self.scenes):
             cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
             counts = {

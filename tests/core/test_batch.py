@@ -124,3 +124,33 @@ def test_a_scene_with_a_step_apart_from_its_outputs_runs_on_its_own():
     ref = simulate(scenes[0])
     assert np.array_equal(res[0].phi, ref.phi)
     assert res[0].counts["steps"] == 4 * res[1].counts["steps"]
+
+
+def test_reactions_in_the_batch_equal_one_by_one():
+    """The joint reactions and the foundation load of a batch (the view's reaction kernel on
+    arrays, the masses scene by scene) are the scalar run's, with central differences and with
+    exact derivatives, locked (working) and free (the seed's free fall, the rod's mass and
+    inertia swept); the checks' columns (round-off, or the scheme's error) to round-off of the
+    forces."""
+    from mps_core.dynamics.reactions import REACTION_COLUMNS
+
+    free = load_scene("free-fall").with_overrides(t_end=0.004)
+    for scheme in ("central", "autodiff"):
+        scenes = sweep(4, t_end=0.02)
+        for i in range(2):
+            b = dict(free.bodies)
+            b["rod"] = BodyData(20.0 + 2.0 * i, 0.036 + 0.004 * i, b["rod"].com)
+            scenes.append(replace(free, bodies=b, name=f"free-{i}"))
+        scenes = [replace(sc, reactions=True, solver=replace(sc.solver, scheme=scheme)) for sc in scenes]
+        res = simulate_many(scenes)
+        assert res.vectorised == [True] * 6
+        for sc, tr in zip(scenes, res):
+            ref = simulate(sc)
+            force = max(np.abs(ref[c]).max() for c, u in REACTION_COLUMNS.items() if u == "N")
+            moment = max(np.abs(ref[c]).max() for c, u in REACTION_COLUMNS.items() if u == "N*m")
+            for c, unit in REACTION_COLUMNS.items():
+                floor = 1e-9 * (force if unit == "N" else moment)
+                assert np.all(np.abs(tr[c] - ref[c]) <= 1e-9 * np.abs(ref[c]) + floor), (scheme, c)
+            assert np.abs(ref["F_found_x"]).max() > 1e3  # the loads, not zeros
+        # a heavier slider, a larger foundation load: the masses are each scene's own
+        assert np.abs(res[2]["F_found_x"]).max() > np.abs(res[0]["F_found_x"]).max()

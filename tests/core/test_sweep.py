@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from mps_core import load_scene, simulate
+from mps_core import load_scene, scene_from_text, simulate
 from mps_core.analysis import loads
 from mps_core.analysis.sweep import (
     Axis,
@@ -264,3 +264,143 @@ def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
 def test_axis_values_are_what_the_scene_receives():
     runs = plan("press-cycle", [Axis("solver.corrector_iterations", (1, 2))], **SHORT)
     assert [r.scene.solver.iterations for r in runs] == [1, 2]
+
+
+#: working (locked, no events) with exact derivatives: its runs share vectorised batches from two
+#: runs on (with central differences from MIN_BATCH's 20); 2.4 crank revolutions
+WORKING = dict(t_end=0.35, dt=5e-4)
+EXACT_TEXT = load_scene("working").text.replace('derivatives = "central"', 'derivatives = "autodiff"')
+EXACT = scene_from_text(EXACT_TEXT)
+MASS_SPEED = ["bodies.slider.mass_kg=80:120:3", "effects.motor.crank_speed_rad_s=40,45"]
+
+
+def _same_figures(a: dict, b: dict) -> None:
+    """Equal rows, each figure to 1e-9 of itself or of its quantity's peak (a mean that
+    cancels to nearly zero, e.g. F_found_y's, carries the round-off of the peak's size)."""
+    assert a.keys() == b.keys()
+    for k in a:
+        if isinstance(a[k], float):
+            scale = max(abs(b[k]), abs(b.get(k.rsplit(".", 1)[0] + ".peak", 0.0)))
+            assert abs(a[k] - b[k]) <= 1e-9 * scale, (k, a[k], b[k])
+        else:
+            assert a[k] == b[k], k
+
+
+def test_which_runs_go_in_batches():
+    """Batches of at least MIN_BATCH runs of one group, one a worker where they are enough, as
+    even as they can be; the rest one by one (nothing is run here)."""
+    from mps_core.analysis.sweep import MIN_BATCH, tasks
+
+    def shape(scene, n, workers, times=WORKING, **kw):
+        runs = plan(scene, [f"bodies.slider.mass_kg=80:120:{n}"], **times)
+        return [(batch, len(rs)) for batch, rs in tasks(runs, workers, **kw)]
+
+    assert MIN_BATCH["central"] == 20
+    assert shape("working", 6, 1) == [(False, 1)] * 6  # central differences: too few
+    assert shape("working", 6, 1, min_batch=2) == [(True, 6)]  # unless asked
+    assert shape("working", 45, 2) == [(True, 22), (True, 23)]
+    assert shape("working", 45, 2, vectorise=False) == [(False, 1)] * 45
+    assert shape(EXACT, 6, 2) == [(True, 3), (True, 3)]
+    assert shape(EXACT, 7, 1, batch_size=3) == [(True, 2), (True, 2), (True, 3)]
+    # press-cycle has commands and events: never a batch
+    assert shape("press-cycle", 3, 1, times=SHORT) == [(False, 1)] * 3
+
+
+def test_a_vectorised_sweep_gives_the_rows_of_the_runs_one_by_one():
+    vec = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
+    one = sweep(EXACT, MASS_SPEED, workers=1, vectorise=False, **WORKING)
+    assert vec.vectorised == 6 and one.vectorised == 0
+    assert [r["status"] for r in vec.rows] == ["ok"] * 6
+    for a, b in zip(vec.rows, one.rows):
+        _same_figures(a, b)
+    # the rows differ run by run (each scene's own masses and motor in the batch)
+    assert len({r["|F_found|.peak"] for r in vec.rows}) == 6
+    # two worker processes, a batch of three each
+    two = sweep(EXACT, MASS_SPEED, workers=2, **WORKING)
+    assert two.vectorised == 6
+    for a, b in zip(two.rows, vec.rows):
+        _same_figures(a, b)
+    # runs that cannot share the pass (rk8: not a vectorised solver) go on their own beside
+    # the batch, with the same rows as one by one
+    vary = ["solver.method=linear-acceleration,rk8", "bodies.slider.mass_kg=80,120"]
+    mixed = sweep(EXACT, vary, workers=1, **WORKING)
+    alone = sweep(EXACT, vary, workers=1, vectorise=False, **WORKING)
+    assert mixed.vectorised == 2 and [r["status"] for r in mixed.rows] == ["ok"] * 4
+    for a, b in zip(mixed.rows, alone.rows):
+        _same_figures(a, b)
+
+
+def test_vectorised_batches_on_a_dask_cluster():
+    distributed = pytest.importorskip("dask.distributed")
+    local = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        dask = sweep(EXACT, MASS_SPEED, client=client, **WORKING)
+    assert dask.vectorised == 6  # two batches, one a worker
+    for a, b in zip(dask.rows, local.rows):
+        _same_figures(a, b)
+
+
+def test_an_interrupted_vectorised_sweep_keeps_every_row_of_its_batches(tmp_path):
+    out = tmp_path / "v"
+    seen = []
+
+    def stop_at_the_second_row(row, done, total):
+        seen.append(row["run"])
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sweep(EXACT, MASS_SPEED, out=out, workers=1, batch_size=3, on_row=stop_at_the_second_row, **WORKING)
+    # the batch of three was recorded whole before its rows were told
+    assert len((out / "runs.jsonl").read_text().splitlines()) == 3
+    again = sweep(EXACT, MASS_SPEED, out=out, workers=1, batch_size=3, **WORKING)
+    assert again.computed == 3 and again.vectorised == 3 and len(again.rows) == 6
+    whole = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
+    for a, b in zip(again.rows, whole.rows):
+        _same_figures(a, b)
+
+
+def test_the_command_vectorises_unless_told_not_to(tmp_path):
+    scene = tmp_path / "working-exact.toml"
+    scene.write_text(EXACT_TEXT)
+    base = [
+        "sweep",
+        str(scene),
+        "--vary",
+        "bodies.slider.mass_kg=80,120",
+        "--t-end",
+        "0.35",
+        "--dt",
+        "0.0005",
+    ]
+    vec = _mps(*base, "--workers", "1", "--out", str(tmp_path / "v"))
+    assert vec.returncode == 0, vec.stderr
+    assert "2 of the runs computed now in vectorised batches" in vec.stdout
+    one = _mps(*base, "--workers", "1", "--no-vectorise", "--out", str(tmp_path / "o"))
+    assert one.returncode == 0 and "vectorised" not in one.stdout, one.stderr
+    tables = []
+    for d in ("v", "o"):
+        with (tmp_path / d / "sweep.csv").open() as fh:
+            tables.append(list(csv.DictReader(fh)))
+    for a, b in zip(*tables):
+        assert a.keys() == b.keys() and a["status"] == b["status"] == "ok"
+        assert math.isclose(float(a["|F_found|.peak"]), float(b["|F_found|.peak"]), rel_tol=1e-9)
+    bad = _mps(*base, "--batch-size", "0", "--out", str(tmp_path / "b"))
+    assert bad.returncode == 2 and "--batch-size 0: expected an integer >= 1" in bad.stderr
+
+
+def test_the_vectorised_sweep_benchmark_counts_what_it_ran():
+    from mps_core.bench.sweep import report_vectorised, vectorised
+
+    rows = vectorised(sizes=(3,), alone=2, repeats=1, schemes=("autodiff",), log=lambda *_: None, **WORKING)
+    one, batch = rows
+    assert (one["way"], one["runs"], one["vectorised"]) == ("one by one", 2, 0)
+    assert (batch["runs"], batch["vectorised"], batch["failed"]) == (3, 3, 0)
+    assert batch["steps"] == 700 and batch["steps_per_s"] == 3 * 700 / batch["cpu_s"]
+    assert batch["simulation_cpu_s"] + batch["reports_cpu_s"] <= batch["cpu_s"]
+    report_vectorised(rows)
