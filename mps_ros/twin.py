@@ -670,6 +670,27 @@ class Timings:
         return self.max
 
 
+def _check_pacing(
+    pacing, real_time_factor, publish_every, lead, command_delay, release_slice, release_period
+):
+    """A :class:`Runner`'s pacing settings, each checked: ValueError names the first that is
+    out of its range and what it expects."""
+    if pacing not in PACINGS:
+        raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
+    if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
+        raise ValueError(f"real_time_factor {real_time_factor!r}: expected a positive number")
+    if int(publish_every) < 1:
+        raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
+    if not (lead >= 0 and math.isfinite(lead)):
+        raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
+    if not (0 <= command_delay <= 1.0):
+        raise ValueError(f"command_delay {command_delay!r}: expected 0 to 1 s")
+    if not (release_slice == 0 or 1e-4 <= release_slice <= 0.1):
+        raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or 0.0001 to 0.1 s")
+    if not (release_period >= 0 and math.isfinite(release_period)):
+        raise ValueError(f"release_period {release_period!r}: expected a number of seconds >= 0")
+
+
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
@@ -702,20 +723,9 @@ class Runner:
         release_slice: float = 1e-4,
         freeze_gc: bool = False,
     ):
-        if pacing not in PACINGS:
-            raise ValueError(f"pacing {pacing!r}: expected one of {', '.join(PACINGS)}")
-        if not (real_time_factor > 0 and math.isfinite(real_time_factor)):
-            raise ValueError(f"real_time_factor {real_time_factor!r}: expected a positive number")
-        if int(publish_every) < 1:
-            raise ValueError(f"publish_every {publish_every!r}: expected an integer >= 1")
-        if not (lead >= 0 and math.isfinite(lead)):
-            raise ValueError(f"lead {lead!r}: expected a number of seconds >= 0")
-        if not (0 <= command_delay <= 1.0):
-            raise ValueError(f"command_delay {command_delay!r}: expected 0 to 1 s")
-        if not (release_slice == 0 or 1e-4 <= release_slice <= 0.1):
-            raise ValueError(f"release_slice {release_slice!r}: expected 0 (the system's) or 0.0001 to 0.1 s")
-        if not (release_period >= 0 and math.isfinite(release_period)):
-            raise ValueError(f"release_period {release_period!r}: expected a number of seconds >= 0")
+        _check_pacing(
+            pacing, real_time_factor, publish_every, lead, command_delay, release_slice, release_period
+        )
         self.twin = twin
         #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
         #: step's period; only that where the twin cannot come back to a checkpoint)
