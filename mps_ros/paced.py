@@ -126,45 +126,58 @@ class PacedInProcess:
                             and not inbox
                         ):
                             cond.wait(0.002)
-                k, msgs, c1 = r._timed_step(deadline, clock)
-                t_ns = twin.t_ns
-                entry = _Release(
-                    k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals()
-                )
-                r._staging = entry.msgs
-                if msgs is not None:
-                    entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
-                # no time ahead: an impact's impulses wait for the next step's spare time
-                r._emit_events(twin.new_events(hold=not ahead), t_ns)
-                if c1 >= next_diag:
-                    next_diag = c1 + r.period
-                    r._diagnostics(t_ns)
-                r._staging = None
-                if ahead:
-                    entry.cp = twin.checkpoint()
-                with cond:
-                    # the releasing thread waits for its head's deadline, which a step
-                    # queued behind it does not move: it is woken only where it has none
-                    idle = not queue
-                    queue.append(entry)
-                    if idle:
-                        cond.notify_all()
+                next_diag = self._step_queued(deadline, ahead, next_diag)
         except Exception as exc:
             r._failed(exc)
             raise
         finally:
-            r._staging = None
-            with cond:
-                self._ahead_done = True
-                self._flush = r._stop.is_set() or r.error is not None
-                cond.notify_all()
-            if releaser.is_alive():
-                releaser.join()
-            self._hand_over(released, later)
-            r._flush_logs()
-            r._later_logs = None
-            r._end()
+            self._end(releaser, later)
         return r.stats()
+
+    def _step_queued(self, deadline: float, ahead: bool, next_diag: float) -> float:
+        """One step computed and queued for its release (its messages, events, the
+        diagnostics where due, its checkpoint); the next diagnostics' time."""
+        r = self.runner
+        twin, queue, cond = r.twin, self._queue, self._cond
+        k, msgs, c1 = r._timed_step(deadline, time.perf_counter)
+        t_ns = twin.t_ns
+        entry = _Release(k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals())
+        r._staging = entry.msgs
+        if msgs is not None:
+            entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
+        # no time ahead: an impact's impulses wait for the next step's spare time
+        r._emit_events(twin.new_events(hold=not ahead), t_ns)
+        if c1 >= next_diag:
+            next_diag = c1 + r.period
+            r._diagnostics(t_ns)
+        r._staging = None
+        if ahead:
+            entry.cp = twin.checkpoint()
+        with cond:
+            # the releasing thread waits for its head's deadline, which a step queued behind
+            # it does not move: it is woken only where it has none
+            idle = not queue
+            queue.append(entry)
+            if idle:
+                cond.notify_all()
+        return next_diag
+
+    def _end(self, releaser: threading.Thread, later: list) -> None:
+        """The run's end, however it ends: the releasing thread lets go of what is queued (at
+        once, where the run was stopped) and ends, the last released steps handed over, the
+        log lines said, the run's end."""
+        r, cond = self.runner, self._cond
+        r._staging = None
+        with cond:
+            self._ahead_done = True
+            self._flush = r._stop.is_set() or r.error is not None
+            cond.notify_all()
+        if releaser.is_alive():
+            releaser.join()
+        self._hand_over(self._released_steps, later)
+        r._flush_logs()
+        r._later_logs = None
+        r._end()
 
     def _release_loop(self, live) -> None:
         """The releasing thread: each queued step's messages to the live sinks once its
