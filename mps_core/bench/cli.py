@@ -19,9 +19,18 @@ from .accuracy import FAMILIES
 
 
 def register(subparsers) -> None:
+    """``mps bench`` and its commands."""
     p = subparsers.add_parser("bench", help="benchmarks: work-precision study, speed")
     sub = p.add_subparsers(dest="bench", required=True)
 
+    _register_accuracy(sub)
+    _register_speed(sub)
+    _register_batch(sub)
+    _register_sweep(sub)
+
+
+def _register_accuracy(sub) -> None:
+    """``mps bench accuracy``: the work-precision study."""
     a = sub.add_parser("accuracy", help="work-precision study against an exact reference")
     a.add_argument(
         "cases",
@@ -60,6 +69,9 @@ def register(subparsers) -> None:
     a.add_argument("--no-plot", action="store_true", help="no PNG")
     a.set_defaults(func=_accuracy)
 
+
+def _register_speed(sub) -> None:
+    """``mps bench speed``: CPU a step, the effects' cost."""
     s = sub.add_parser("speed", help="CPU per step, real-time factor at 1 kHz, cost of effects")
     s.add_argument(
         "cases",
@@ -71,6 +83,9 @@ def register(subparsers) -> None:
     s.add_argument("--out", metavar="DIR", help="also write speed.csv there")
     s.set_defaults(func=_speed)
 
+
+def _register_batch(sub) -> None:
+    """``mps bench batch``: scenes stepped together."""
     b = sub.add_parser(
         "batch", help="batch mode: mechanism-steps per second against the number of scenes stepped together"
     )
@@ -86,6 +101,9 @@ def register(subparsers) -> None:
     )
     b.set_defaults(func=_batch)
 
+
+def _register_sweep(sub) -> None:
+    """``mps bench sweep``: mps sweep's throughput."""
     w = sub.add_parser(
         "sweep", help="mps sweep's throughput: one worker, N local worker processes, a Dask LocalCluster"
     )
