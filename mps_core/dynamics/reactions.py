@@ -538,6 +538,21 @@ def array_reactions(mechanism: Mechanism, view: ChartView, q):
     return None if kernel is None else array_kernel(kernel)
 
 
+def _last_that_holds(ks, view: ChartView, effects, moving: bool):
+    """The entry of the function that last answered ``view`` (:func:`reaction_values`), where it
+    still holds: the same effects, unchanged since, and the same kind of kinematics; else None."""
+    last = ks.last.get(view)
+    if (
+        last is not None
+        and last[0][0] == last[1]
+        and last[2] is effects
+        and last[3] == len(effects)
+        and last[6] is moving
+    ):
+        return last
+    return None
+
+
 def reaction_values(
     mechanism: Mechanism,
     effects,
@@ -564,14 +579,8 @@ def reaction_values(
     if lists and scale is None:
         # the view's last function that held, for the same effects in the same state:
         # straight to it (the lookups below made it)
-        last = ks.last.get(view)
-        if (
-            last is not None
-            and last[0][0] == last[1]
-            and last[2] is effects
-            and last[3] == len(effects)
-            and last[6] is moving
-        ):
+        last = _last_that_holds(ks, view, effects, moving)
+        if last is not None:
             try:
                 v = kin._vl if kin._vl is not None else kin._v()
                 values, residual = (
@@ -667,6 +676,12 @@ def compute_reactions(
             return Reactions(
                 float(t), dict(zip(REACTION_COLUMNS, values)), np.array(residual), unknowns, len(unknowns)
             )
+    return _least_squares(mechanism, effects, view, t, q, qd, qdd, kin, drive, scale)
+
+
+def _least_squares(mechanism, effects, view, t, q, qd, qdd, kin, drive, scale) -> Reactions:
+    """:func:`compute_reactions`' general path: the joints' unknowns by least squares over the
+    bodies' equations of motion, the frame's share, the foundation load and the checks."""
     q = np.asarray(q, dtype=float)
     qd = np.asarray(qd, dtype=float)
     qdd = np.asarray(qdd, dtype=float)
