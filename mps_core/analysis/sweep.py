@@ -543,19 +543,7 @@ def sweep(
     if min_batch is not None and min_batch < 1:
         raise SweepError(f"min_batch {min_batch}: expected an integer >= 1 (or None)")
     if client is not None:
-        try:
-            width = len(client.scheduler_info().get("workers", {})) or n
-        except Exception:  # a client that does not say: as many as local workers
-            width = n
-        work = tasks(todo, width, vectorise, batch_size, min_batch)
-        futures = {
-            client.submit(_work, [r.scene for r in runs], structure, batch, pure=False): runs
-            for batch, runs in work
-        }
-        from dask.distributed import as_completed
-
-        for fut in as_completed(list(futures)):
-            take(futures[fut], fut.result())
+        _on_cluster(client, todo, n, (vectorise, batch_size, min_batch), structure, take)
     elif n <= 1 or len(todo) <= 1:
         for batch, task_runs in tasks(todo, 1, vectorise, batch_size, min_batch):
             take(task_runs, _work([r.scene for r in task_runs], structure, batch))
@@ -563,6 +551,24 @@ def sweep(
         _in_processes(tasks(todo, n, vectorise, batch_size, min_batch), n, structure, take)
     result.rows = [rows[i] for i in sorted(rows)]
     return result
+
+
+def _on_cluster(client, todo: list, n: int, batching: tuple, structure: str, take) -> None:
+    """The runs to do as tasks of a Dask cluster (``client``), as many as its workers (``n``
+    where it does not say), each task's rows taken as it completes."""
+    try:
+        width = len(client.scheduler_info().get("workers", {})) or n
+    except Exception:  # a client that does not say: as many as local workers
+        width = n
+    work = tasks(todo, width, *batching)
+    futures = {
+        client.submit(_work, [r.scene for r in runs], structure, batch, pure=False): runs
+        for batch, runs in work
+    }
+    from dask.distributed import as_completed
+
+    for fut in as_completed(list(futures)):
+        take(futures[fut], fut.result())
 
 
 def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
