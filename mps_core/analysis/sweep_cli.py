@@ -183,15 +183,7 @@ def run(args) -> int:
         raise sw.SweepError(f"--workers {args.workers}: expected an integer >= 1")
     if args.batch_size < 1:
         raise sw.SweepError(f"--batch-size {args.batch_size}: expected an integer >= 1")
-    client = None
-    if args.scheduler:
-        try:
-            from dask.distributed import Client
-        except ModuleNotFoundError:
-            raise sw.SweepError(
-                "--scheduler needs dask.distributed: install the batch extra (pip install -e '.[batch]')"
-            ) from None
-        client = Client(args.scheduler)
+    client = _client(args.scheduler)
     out.mkdir(exist_ok=True)
     with written_whole(out / OUTPUTS["spec"]) as tmp:
         Path(tmp).write_text(json.dumps(spec, indent=1) + "\n")
@@ -234,7 +226,25 @@ def run(args) -> int:
         if client is not None:
             client.close()
     progress.done()
-    env = _write_outputs(result, out, scene.name)
+    _summary(result, _write_outputs(result, out, scene.name), out)
+    return 0
+
+
+def _client(scheduler: str | None):
+    """A client of the Dask scheduler at ``scheduler`` (None: no cluster)."""
+    if not scheduler:
+        return None
+    try:
+        from dask.distributed import Client
+    except ModuleNotFoundError:
+        raise sw.SweepError(
+            "--scheduler needs dask.distributed: install the batch extra (pip install -e '.[batch]')"
+        ) from None
+    return Client(scheduler)
+
+
+def _summary(result, env: list, out: Path) -> None:
+    """What the sweep did, its foundation load's envelope, its failures, the files written."""
     failed = [r for r in result.rows if r.get("status") != "ok"]
     print(
         f"{len(result.rows)} runs ({result.computed} computed now, "
@@ -253,4 +263,3 @@ def run(args) -> int:
         + ", ".join(str(out / OUTPUTS[k]) for k in ("table", "envelope", "spec"))
         + ("" if not (out / OUTPUTS["figure"]).exists() else f", {out / OUTPUTS['figure']}")
     )
-    return 0
