@@ -106,27 +106,11 @@ def reaction_kernel(
     if traced is None:
         return None
     flat, tape, outputs, args, free = traced
-    n = view.n
-    mech = engine.mechanism
     sysm = system
-    E = sysm.E
-    nb = len(mech.bodies)
-    m = E.shape[1]
-    if m + n != 3 * nb:
+    premises = _premises(engine.mechanism, sysm.E, motion, view.n, scale)
+    if premises is None:
         return None
-    rows = motion.com_rows(mech)
-    Jb = np.zeros((3 * nb, n))
-    Jb[0::3] = motion.J[rows, 0]
-    Jb[1::3] = motion.J[rows, 1]
-    Jb[2::3] = motion.W
-    s = np.ones(3 * nb)
-    s[2::3] = 1.0 / scale
-    if np.linalg.norm(Jb.T @ E) > 1e-9 * np.linalg.norm(Jb) * np.linalg.norm(E):
-        return None  # a joint that does work: not this kernel's system
-    sv = np.linalg.svd(s[:, None] * E, compute_uv=False)
-    if sv[-1] <= 1e-9 * sv[0]:
-        return None  # not unique at the building state
-    order, pivots = _pivot_order(s[:, None] * E)
+    s, order, pivots = premises
     key = (
         "reactions from kinematics" if from_kinematics else "reactions",
         "masses given" if masses else "masses folded",
@@ -162,6 +146,29 @@ def reaction_kernel(
     )
     kernel.flat, kernel.chart = flat, view.name
     return kernel
+
+
+def _premises(mech, E, motion, n: int, scale: float):
+    """Whether the kernel's system holds at the building state: as many unknowns as the bodies'
+    equations less the chart's coordinates, no joint that does work, a unique solution. Then
+    (the rows' scales, the pivot order, the pivots); else None."""
+    nb = len(mech.bodies)
+    if E.shape[1] + n != 3 * nb:
+        return None
+    rows = motion.com_rows(mech)
+    Jb = np.zeros((3 * nb, n))
+    Jb[0::3] = motion.J[rows, 0]
+    Jb[1::3] = motion.J[rows, 1]
+    Jb[2::3] = motion.W
+    s = np.ones(3 * nb)
+    s[2::3] = 1.0 / scale
+    if np.linalg.norm(Jb.T @ E) > 1e-9 * np.linalg.norm(Jb) * np.linalg.norm(E):
+        return None  # a joint that does work: not this kernel's system
+    sv = np.linalg.svd(s[:, None] * E, compute_uv=False)
+    if sv[-1] <= 1e-9 * sv[0]:
+        return None  # not unique at the building state
+    order, pivots = _pivot_order(s[:, None] * E)
+    return s, order, pivots
 
 
 _ASSIGNED = re.compile(r"^    ([A-Za-z_][A-Za-z_0-9]*) = ")
