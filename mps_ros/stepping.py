@@ -205,13 +205,13 @@ class Hold:
 class _Ahead:
     """The stepping process's loop: the twin stepped up to ``lead`` wall seconds ahead of the
     steps' deadlines, each step's messages written down the pipe as soon as the lead is full
-    (or its deadline is near), a checkpoint kept for each step not yet past, and each command
-    applied at the boundary the ROS process chose for it (coming back to that step's
-    checkpoint, or stepping on to it).
+    (or its deadline is near), a checkpoint kept every :attr:`EVERY` steps not yet past, and
+    each command applied at the boundary the ROS process chose for it (coming back to the last
+    checkpoint at or before it and stepping again to it, or stepping on to it).
 
     ``afap`` (as fast as possible): no deadlines; the twin steps on while it is fewer than
     :attr:`AHEAD` steps past the last step the node has released (frame ``K``), the steps
-    written :attr:`BATCH` at a time, a checkpoint kept for each step the node may still hold."""
+    written :attr:`BATCH` at a time, the checkpoints kept as far back as the node may hold."""
 
     #: steps written at once at most; a step due within this (wall s) goes at once
     BATCH, NEAR = 16, 0.002
