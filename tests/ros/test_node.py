@@ -497,7 +497,9 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
     params = dict(
         pacing="realtime",
         dt=DT,
-        t_end=30.0,
+        # longer than the test can take: it ends the run itself (SIGTERM), however far its
+        # listener, which takes every topic, lags the node on a busy machine
+        t_end=600.0,
         scene_commands=False,
         recording=str(rec),
         wait_for_subscribers=1,
@@ -637,7 +639,7 @@ def test_one_node_a_name(ros, tmp_path):
     params = dict(
         pacing="realtime",
         dt=DT,
-        t_end=60.0,
+        t_end=600.0,  # longer than the test can take: it kills the node itself
         recording=str(first_rec),
         wait_for_subscribers=1,
         wait_timeout=30.0,
