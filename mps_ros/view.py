@@ -290,22 +290,10 @@ def convert(
     return out
 
 
-def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
-    cols = rep.columns
-    g = scene.geometry
-    n = t.size
-    l1 = g.l1 * 1e3
-    w = SLIDER[0] * l1  # slider half width (across), mm
-    h = SLIDER[1] * l1  # slider half height (along), mm
-    xc = np.asarray(cols["x_C"], float) * 1e3
-    x_top = None if scene.x_top is None else scene.x_top * 1e3
-    if extent is not None:
-        lo, hi = extent
-    else:
-        lo = min(float(np.nanmin(xc)), -l1) - h - 0.3 * l1
-        hi = max(float(np.nanmax(xc)), x_top if x_top is not None else -math.inf) + h + 0.3 * l1
+def _frame(rr, log, l1, w, h, x_top, lo, hi) -> float:
+    """The press's frame, static: the guide's rails and axis over ``lo`` to ``hi`` (mm along
+    the guide), the bearing at O, the top stop's ledges; the rails' distance from the axis."""
     rail = w + 0.1 * l1
-    # the frame: static
     strips = [
         np.array([[-rail, -lo], [-rail, -hi]]),
         np.array([[rail, -lo], [rail, -hi]]),
@@ -328,6 +316,24 @@ def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
         "mechanism/frame",
         lambda: rr.LineStrips2D(strips, colors=colors, labels=labels, radii=[-1.0] * len(strips)),
     )
+    return rail
+
+
+def _mechanism(rr, log, rep, scene, t, view, extent=None) -> tuple:
+    cols = rep.columns
+    g = scene.geometry
+    n = t.size
+    l1 = g.l1 * 1e3
+    w = SLIDER[0] * l1  # slider half width (across), mm
+    h = SLIDER[1] * l1  # slider half height (along), mm
+    xc = np.asarray(cols["x_C"], float) * 1e3
+    x_top = None if scene.x_top is None else scene.x_top * 1e3
+    if extent is not None:
+        lo, hi = extent
+    else:
+        lo = min(float(np.nanmin(xc)), -l1) - h - 0.3 * l1
+        hi = max(float(np.nanmax(xc)), x_top if x_top is not None else -math.inf) + h + 0.3 * l1
+    rail = _frame(rr, log, l1, w, h, x_top, lo, hi)
     # Static styles never carry a component that is sent in time: a static value would hide
     # the temporal one (Rerun's rule), so they are logged with from_fields.
     # links: crank O-A, rod A-B, rocker B-C at every step
