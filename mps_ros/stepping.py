@@ -81,7 +81,7 @@ import threading
 import time
 
 from .os_threads import widen_pipe
-from .twin import Command, Runner, Twin, to_json, to_ns
+from .twin import Command, Runner, Twin, to_json
 
 _HEAD = struct.Struct("<cI")
 
@@ -314,7 +314,7 @@ class _Ahead:
                 if c1 > deadline + behind and not warned:
                     warned = True
                     self._say_behind(k, c1 - deadline)
-                t_ns = to_ns(twin.t)
+                t_ns = twin.t_ns
                 staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
                 runner._staging = staged
                 runner._emit_events(twin.new_events(hold=not ahead), t_ns)

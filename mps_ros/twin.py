@@ -1045,7 +1045,7 @@ class Runner:
     def _begin(self) -> None:
         """The run's start event and the first state, then the commands already waiting."""
         twin = self.twin
-        t_ns = to_ns(twin.t)
+        t_ns = twin.t_ns
         self._emit_events(
             [
                 {
@@ -1075,7 +1075,7 @@ class Runner:
         self.cpu_end = time.process_time()
         self.thread_cpu = time.thread_time() - self.thread_cpu_start
         reason = self.stop_reason or "end"
-        t_ns = to_ns(twin.t)
+        t_ns = twin.t_ns
         self._refusals.close()
         end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
         if self.error:
@@ -1112,7 +1112,7 @@ class Runner:
                     if reply is None:
                         continue
                 _k, msgs, p0 = self._timed_step(math.inf, clock)  # no deadline: no miss
-                t_ns = to_ns(twin.t)
+                t_ns = twin.t_ns
                 if msgs is not None:
                     self._publish_step(msgs, t_ns)
                 else:
@@ -1160,7 +1160,7 @@ class Runner:
         """Paused: simulated time holds; commands are taken at this step; the diagnostics say
         STALE once a period (with the sinks' statuses), nothing else goes out. Returns when
         resumed or stopped (None), or with the reply of a step asked for meanwhile."""
-        t_ns = to_ns(self.twin.t)
+        t_ns = self.twin.t_ns
         hw = hardware_id(self.twin.scene.name)
         next_diag = 0.0
         while self._paused.is_set() and not self._stop.is_set():
