@@ -366,22 +366,20 @@ class PressTwin(LifecycleNode):
             derivatives=p["derivatives"] or None,
         )
         tw = self.twin
-        afap = p["pacing"] != "realtime"
         spec = {
             "scene": p["scene"],
             "twin": twin,
             "runner": self._pacing(p),
             "grid": [tw.t0, tw.t_end, tw.n],
             "hardware_id": hardware_id(tw.scene.name),
-            "afap": afap,
+            "afap": p["pacing"] != "realtime",
         }
         return SteppingProcess(
             spec,
             self.ros_sink,
             self._log,
             Gate(p["command_burst"], p["command_rate"]),
-            # no deadlines to keep: a run as fast as possible never takes a core from the others
-            0 if afap else p["realtime_priority"],
+            _priority(p),
         )
 
     # -- callbacks (executor thread): queue only ------------------------------------------
@@ -572,7 +570,7 @@ class PressTwin(LifecycleNode):
         stop.wait(self.p["start_delay"])
         if stop.is_set():
             self.runner.request_stop("signal")
-        if not self.split and self.p["pacing"] == "realtime":
+        if not self.split:
             self._set_priority()
         self.get_logger().info("stepping starts")
         return self.runner.run()
@@ -601,7 +599,7 @@ class PressTwin(LifecycleNode):
         (it sleeps between steps; the machine's real-time throttling still bounds it), so a
         step is not kept waiting by ordinary processes. Where the system does not allow it (no
         CAP_SYS_NICE, no such policy) the run goes on at normal priority, with a warning."""
-        prio = self.p["realtime_priority"]
+        prio = _priority(self.p)
         if not prio:
             return
         from .stepping import HOW_TO_ALLOW, ask_fifo
@@ -628,6 +626,12 @@ class PressTwin(LifecycleNode):
                 pub.wait_for_all_acked(rclpy.duration.Duration(seconds=left))
             except Exception:
                 pass
+
+
+def _priority(p: dict) -> int:
+    """The SCHED_FIFO priority the run asks for: ``realtime_priority`` in realtime pacing; none
+    as fast as possible (no deadlines to keep: it never takes a core from the others)."""
+    return p["realtime_priority"] if p["pacing"] == "realtime" else 0
 
 
 def claim_recording(path) -> tuple[Path, bool]:
