@@ -25,13 +25,16 @@ code does. With exact derivatives it runs the chart's exact kernel
 straight-line numpy code, A and h formed from them with each scene's masses. A scene that
 leaves the kernel's branch sends its group back to the one-by-one runs.
 
-With ``outputs.reactions`` (the scenes of a group alike) the trajectories carry the joint
-reactions and the foundation load (:data:`mps_core.dynamics.reactions.REACTION_COLUMNS`), as a
-scalar run's: each recorded step keeps its state and its effects' loads (from that step's
-evaluation), and after the run the chart view's reaction kernel, its masses and inertias an
-argument, runs on arrays over every step of every scene at once
-(:func:`mps_core.dynamics.reactions.array_reactions`). A state where the kernel does not hold
-(a singular position) sends the group back to the one-by-one runs.
+The effects' parameters are arrays of one value a scene
+(:class:`~mps_core.run.batch_effects.EffectArrays`: their forces, power, potential energy and
+loads). What each step records goes into arrays allocated for the run
+(:class:`~mps_core.run.batch_record.BatchRecord`). With ``outputs.reactions`` (the scenes of a
+group alike) the trajectories carry the joint reactions and the foundation load
+(:data:`mps_core.dynamics.reactions.REACTION_COLUMNS`), as a scalar run's: each recorded step
+keeps its state and its effects' loads (from that step's evaluation), and after the run the
+chart view's reaction kernel, its masses and inertias an argument, runs on arrays over every
+step of every scene at once (:func:`mps_core.dynamics.reactions.array_reactions`). A state where
+the kernel does not hold (a singular position) sends the group back to the one-by-one runs.
 
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
 cluster (``dask.distributed.Client``), one vectorised batch a task.
@@ -46,18 +49,15 @@ import numpy as np
 
 from ..derivatives.stencil import stencil
 from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
-from ..names import COLUMNS
 from ..scene import Scene, load_scene
 from ..solvers import SOLVERS
+from .batch_effects import EffectArrays
+from .batch_record import BatchRecord, ReactionsNotSolved
 from .trajectory import Trajectory
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
 VECTOR_SOLVERS = ("linear-acceleration", "rk4")
 VECTOR_SCHEMES = ("central", "autodiff")
-
-
-#: states a call of the reaction kernel on arrays takes (its arrays stay in the caches)
-_REACTION_CHUNK = 4096
 
 
 class NotVectorisable(Exception):
@@ -181,7 +181,6 @@ class _Batch:
         self.q0, self.qd0 = np.array(q0), np.array(qd0)
         self.settings = first.solver
         self.policy = first.charts
-        self.structure = first.structure
         bodies = self.mech.bodies
         mechanisms = [sc.mechanism() for sc in scenes]  # each scene's masses and inertias
         per = [mech.bodies for mech in mechanisms]
@@ -191,22 +190,21 @@ class _Batch:
         self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
             self.rows[f"G_{b.name}"] = len(self.rows)
-        self._effects([sc.build_effects(mech) for sc, mech in zip(scenes, mechanisms)])
+        self.effects = EffectArrays(
+            self.mech,
+            self.rows,
+            self.mass,
+            first.structure,
+            [sc.build_effects(mech) for sc, mech in zip(scenes, mechanisms)],
+        )
         self.evaluations = 0
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
-        # by body, contiguous: the centres of mass' rows, masses, inertias, weights (m g)
-        self.com_rows = [self.rows[f"G_{b.name}"] for b in bodies]
-        names = [b.name for b in bodies]
-        #: the body the effects along the guide act on, at C (springs, damper, blanking)
-        self._slider = names.index("slider") if "slider" in names else None
+        # by body, contiguous: the centres of mass' rows, masses, inertias
+        self.com_rows = self.effects.com_rows
         self.mass_of = [self.mass[:, b].copy() for b in range(len(bodies))]
         self.inertia_of = [self.inertia[:, b].copy() for b in range(len(bodies))]
-        #: the joint reactions (the scenes' ``outputs.reactions``): at each recorded step its
-        #: state and the effects' loads (:meth:`_loads`), all solved after the run
+        #: the joint reactions (the scenes' ``outputs.reactions``), solved after the run
         self.reactions = bool(first.reactions)
-        self._states = np.empty(0)  # (q, q̇ or q̈, coordinate, scene, step)
-        self._loads_of = np.empty(0)  # (load, scene, step)
-        self._at_C = None  # the last evaluation's motor torque and force along x at C
 
     def _array_kernel(self, first: Scene):
         """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
@@ -221,54 +219,6 @@ class _Batch:
         if kernel is None:
             raise NotVectorisable("the chart has no exact kernel")
         return array_kernel(kernel)
-
-    # -- effects, as parameter arrays ------------------------------------------------------
-    def _effects(self, lists):
-        def take(cls):
-            found = [[e for e in lst if type(e) is cls] for lst in lists]
-            return [f[0] for f in found] if all(found) else None
-
-        g = take(Gravity)
-        bodies = self.mech.bodies
-        # each body's weight (m g, x and y), one array a component: None without gravity
-        self.weight_of = (
-            None
-            if g is None
-            else [
-                [self.mass[:, b] * np.array([e.g[c] for e in g]) for c in (0, 1)] for b in range(len(bodies))
-            ]
-        )
-        mo = take(Motor)
-        if mo is not None:
-            self.motor = {
-                "index": [b.name for b in bodies].index(mo[0].body),
-                "ratio": np.array([e.ratio for e in mo]),
-                "eff": np.array([e.efficiency for e in mo]),
-                "wsync": np.array([e.data.omega_sync for e in mo]),
-                "mk": np.array([e.data.breakdown_torque for e in mo]),
-                "sk": np.array([e.data.breakdown_slip for e in mo]),
-                "on": np.array([1.0 if e.enabled else 0.0 for e in mo]),
-            }
-        else:
-            self.motor = None
-        sp = take(RetentionSprings)
-        self.springs = (
-            None
-            if sp is None
-            else (np.array([e.k for e in sp]), np.array([e.f0 for e in sp]), np.array([e.x_top for e in sp]))
-        )
-        da = take(SliderDamper)
-        self.damper = None if da is None else np.array([e.c for e in da])
-        bl = take(Blanking)
-        self.blanking = (
-            None
-            if bl is None
-            else (
-                np.array([e.f for e in bl]),
-                np.array([e.x_contact for e in bl]),
-                np.array([e.pb for e in bl]),
-            )
-        )
 
     # -- the vectorised engine ------------------------------------------------------------------
     def evaluate(self, t, q, qd):
@@ -352,7 +302,7 @@ class _Batch:
 
     def _solve(self, t, kin, qd, A, h):
         """q̈ = A⁻¹(Q − h) with the effects' Q: (q̈, A, the kinematics, the power)."""
-        Q, power = self._forces(t, kin, list(qd.T))
+        Q, power = self.effects.forces(kin, list(qd.T))
         n = qd.shape[1]
         r = [Q[i] - h[:, i] for i in range(n)]
         if n == 1:
@@ -368,78 +318,13 @@ class _Batch:
         self.evaluations += 1
         return qdd, A, kin, power
 
-    def _forces(self, t, kin, v):
-        """Generalized forces of the effects (one array a coordinate) and the power of the
-        non-conservative ones; ``v``: q̇, one array a coordinate."""
-        n, m = len(v), self.m
-        Q = [np.zeros(m) for _ in range(n)]
-        power = np.zeros(m)
-        c = self.rows["C"]
-        jc = kin.jac(c, 0)  # ∂x_C/∂q
-        vC = sum(jc[i] * v[i] for i in range(n))
-        if self.weight_of is not None:
-            for b, row in enumerate(self.com_rows):
-                for cc in (0, 1):
-                    jg, mg = kin.jac(row, cc), self.weight_of[b][cc]
-                    for i in range(n):
-                        Q[i] += mg * jg[i]
-        if self.motor is not None:
-            mo = self.motor
-            wk = kin.omega(mo["index"])
-            w = sum(wk[i] * v[i] for i in range(n))
-            s = 1.0 - mo["ratio"] * w / mo["wsync"]
-            torque = (
-                mo["on"]
-                * mo["ratio"]
-                * mo["eff"]
-                * (2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
-            )
-            for i in range(n):
-                Q[i] += torque * wk[i]
-            power += torque * w
-        else:
-            torque = None
-        xC = kin.x(c, 0)
-        forces = []  # along the guide, at C
-        if self.springs is not None:
-            k, f0, xt = self.springs
-            forces.append(f0 + k * (xt - xC))
-        if self.damper is not None:
-            f = -self.damper * vC
-            forces.append(f)
-            power += f * vC
-        if self.blanking is not None and self.structure == "locked":
-            fmax, xcon, pb = self.blanking
-            p = xcon - xC
-            on = (vC < 0.0) & (p > 0.0) & (p < pb)
-            f = np.where(on, fmax * np.sin(np.pi * np.clip(p, 0.0, None) / pb), 0.0)
-            forces.append(f)
-            power += f * vC
-        for f in forces:
-            for i in range(n):
-                Q[i] += f * jc[i]
-        self._at_C = (torque, sum(forces) if forces else None)
-        return Q, power
-
-    def _potential(self, kin):
-        V = np.zeros(self.m)
-        if self.weight_of is not None:
-            for b, row in enumerate(self.com_rows):
-                for cc in (0, 1):
-                    V -= self.weight_of[b][cc] * kin.x(row, cc)
-        if self.springs is not None:
-            k, f0, xt = self.springs
-            s = xt - kin.x(self.rows["C"], 0)
-            V += f0 * s + 0.5 * k * s * s
-        return V
-
     def _check(self, kin, A):
         """The chart must stay regular and the step stable, for every scene."""
         pose = {p: (kin.x(k, 0), kin.x(k, 1)) for p, k in self.rows.items()}
         if np.any(np.asarray(self.view.chart.regularity(pose)) < self.policy.switch_below):
             raise NotVectorisable("a scene would change chart")
-        if self.springs is not None:
-            k = self.springs[0]
+        if self.effects.springs is not None:
+            k = self.effects.springs[0]
             j = np.stack(
                 [np.broadcast_to(x, (self.m,)) for x in kin.jac(self.rows["C"], 0)], axis=1
             )  # (m, n)
@@ -457,16 +342,21 @@ class _Batch:
         self.dt = (t_end - t0) / n_steps
         q, qd = self.q0.copy(), self.qd0.copy()
         name, its = self.settings.name, self.settings.iterations
-        rows = {k: [] for k in COLUMNS}
         work = np.zeros(self.m)
-        if self.reactions:
-            nl = 3 * len(self.mech.bodies) + 4
-            self._states = np.empty((3, q.shape[1], self.m, n_steps + 1))
-            self._loads_of = np.zeros((nl, self.m, n_steps + 1))
+        record = BatchRecord(
+            self.m,
+            n_steps,
+            q.shape[1],
+            self.view,
+            self.effects.structure,
+            self.rows["C"],
+            self.effects,
+            self.reactions,
+        )
 
         ev = self.evaluate
         qdd, A, kin, p_now = ev(t0, q, qd)
-        self._record(rows, t0, q, qd, qdd, A, kin, work)
+        record.record(t0, q, qd, qdd, A, kin, work)
         t = t0
         for k in range(1, n_steps + 1):
             self._check(kin, A)  # as the driver does at each step's start
@@ -499,120 +389,19 @@ class _Batch:
             work = work + 0.5 * (p_now + p_new) * (t1 - t)
             p_now = p_new
             q, qd, t = q1, qd1, t1
-            self._record(rows, t, q, qd, qdd, A, kin, work)
-        return self._trajectories(rows)
+            record.record(t, q, qd, qdd, A, kin, work)
+        return self._trajectories(record)
 
-    def _record(self, rows, t, q, qd, qdd, A, kin, work):
-        # the structure's coordinates: phi free (locked), psi frozen; free: phi and psi free
-        names = [c.name for c in self.view.coordinates]
-        frozen = self.view.frozen
-        rows["t"].append(np.full(self.m, t))
-        for nm in ("phi", "psi"):
-            if nm in names:
-                k = names.index(nm)
-                rows[nm].append(q[:, k].copy())
-                rows[nm + "_dot"].append(qd[:, k].copy())
-                rows[nm + "_ddot"].append(qdd[:, k].copy())
-            else:
-                rows[nm].append(np.full(self.m, frozen[nm]))
-                rows[nm + "_dot"].append(np.zeros(self.m))
-                rows[nm + "_ddot"].append(np.zeros(self.m))
-        rows["x_C"].append(np.array(np.broadcast_to(kin.x(self.rows["C"], 0), (self.m,))))
-        n = qd.shape[1]
-        rows["T"].append(0.5 * sum(qd[:, i] * A[:, i, j] * qd[:, j] for i in range(n) for j in range(n)))
-        rows["V"].append(self._potential(kin))
-        rows["W"].append(work.copy())
-        rows["E_impact"].append(np.zeros(self.m))
-        rows["structure"].append(self.structure)
-        rows["chart"].append(self.view.name)
-        if self.reactions:
-            k = len(rows["t"]) - 1
-            for j, x in enumerate((q, qd, qdd)):
-                self._states[j, :, :, k] = x.T
-            for j, x in enumerate(self._loads(kin)):
-                self._loads_of[j, :, k] = x
-
-    def _loads(self, kin) -> list:
-        """The effects' loads at a recorded state as the reaction kernel takes them
-        (:class:`~mps_core.codegen.reaction_kernels.LoadSums`): per body the force (x, y) and its
-        moment about O, then the frame's own (force x, y, moment about O) and the motor's
-        torque; from the state's evaluation (its kinematics, its motor torque and force at C)."""
-        nb = len(self.mech.bodies)
-        out: list = [0.0] * (3 * nb + 4)
-        o = self.rows.get("O")
-        ox, oy = (kin.x(o, 0), kin.x(o, 1)) if o is not None else (0.0, 0.0)
-        if self.weight_of is not None:
-            for b, row in enumerate(self.com_rows):
-                fx, fy = self.weight_of[b]
-                out[3 * b] += fx
-                out[3 * b + 1] += fy
-                out[3 * b + 2] += (kin.x(row, 0) - ox) * fy - (kin.x(row, 1) - oy) * fx
-        torque, f = self._at_C
-        if torque is not None:
-            k = self.motor["index"]
-            out[3 * k + 2] += torque
-            out[3 * nb + 2] -= torque  # the stator's
-            out[3 * nb + 3] += torque
-        if f is not None:  # along x at C on the slider, the frame the opposite
-            c = self.rows["C"]
-            k = self._slider
-            py = kin.x(c, 1) - oy
-            out[3 * k] += f
-            out[3 * k + 2] -= py * f
-            out[3 * nb] -= f
-            out[3 * nb + 2] += py * f
-        return out
-
-    def _reaction_columns(self) -> dict:
-        """The reaction columns, (scene, step) each, of the recorded states: the view's
-        reaction kernel on arrays (:func:`~mps_core.dynamics.reactions.array_reactions`), on
-        blocks of (scenes, steps) of about :data:`_REACTION_CHUNK` states a call."""
-        from ..codegen.array_kernels import ArrayBranchChanged
-        from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
-
-        fn = array_reactions(self.mech, self.view, self.q0[0])
-        if fn is None:
-            raise NotVectorisable("the chart view has no reaction kernel")
-        _, n, m, S = self._states.shape
-        # a mass or an inertia the scenes share is a number, the others one value a scene
-        masses = [
-            float(col[0]) if np.all(col == col[0]) else col[:, None]
-            for col in [*self.mass.T, *self.inertia.T]
-        ]
-        out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
-        # blocks of whole scenes (all their steps) where a scene's steps fit a call, else of
-        # a scene's steps
-        width = max(1, _REACTION_CHUNK // S)
-        height = min(S, _REACTION_CHUNK)
-        for j0 in range(0, m, width):
-            cols = slice(j0, j0 + width)
-            given = [x if isinstance(x, float) else x[cols] for x in masses]
-            for s0 in range(0, S, height):
-                rows = slice(s0, s0 + height)
-                args = [self._states[j, i, cols, rows] for j in range(3) for i in range(n)]
-                try:
-                    values, _residual = fn(*args, given, [x[cols, rows] for x in self._loads_of])
-                except ArrayBranchChanged:
-                    raise NotVectorisable("a scene's reactions are not unique at a step") from None
-                for c, v in zip(REACTION_COLUMNS, values):
-                    out[c][cols, rows] = v
-        # a NaN or an infinity anywhere makes the sum one
-        if not all(np.isfinite(v.sum()) for v in out.values()):
-            raise NotVectorisable("non-finite reactions")
-        self._states = self._loads_of = np.empty(0)
-        return out
-
-    def _trajectories(self, rows):
+    def _trajectories(self, record: BatchRecord):
         out = []
-        nsteps = len(rows["t"]) - 1
+        nsteps = record.k - 1
         per_step = (1 + self.settings.iterations) if self.settings.name == "linear-acceleration" else 4
-        # each column once as (scene, step): a scene's column is then one row of it
-        table = {
-            k: np.array(v) if k in ("structure", "chart") else np.array(v, dtype=float).T.copy()
-            for k, v in rows.items()
-        }
+        table = record.columns()
         if self.reactions:
-            table.update(self._reaction_columns())
+            try:
+                table.update(record.reaction_columns(self.mech, self.q0[0], self.mass, self.inertia))
+            except ReactionsNotSolved as exc:
+                raise NotVectorisable(str(exc)) from None
         for i, sc in enumerate(self.scenes):
             cols = {k: v if k in ("structure", "chart") else v[i] for k, v in table.items()}
             counts = {
