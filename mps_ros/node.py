@@ -149,6 +149,91 @@ class NameTaken(RuntimeError):
 DISCOVERY_S = 2.5
 
 
+class RunConfig:
+    """A run's settings from the node's parameters (read and checked): the twin, the runner's
+    pacing, whether the twin steps in a process of its own, and the runner (or the stepping
+    process) that steps it. The same for every run of the node (a reset's too)."""
+
+    def __init__(self, p: dict, name: str):
+        self.p = p
+        #: the node's fully qualified name, without its leading slash (its diagnostics' name)
+        self.name = name
+
+    def twin(self) -> Twin:
+        """The scene's twin, new (:class:`ParameterError` where the scene cannot be loaded)."""
+        p = self.p
+        try:
+            return Twin(p["scene"], **self._twin_settings())
+        except (MpsError, OSError, ValueError) as exc:
+            raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
+
+    def _twin_settings(self) -> dict:
+        p = self.p
+        return dict(
+            dt=p["dt"] or None,
+            t_end=p["t_end"] or None,
+            outputs=p["outputs"],
+            scene_commands=p["scene_commands"],
+            markers_hz=p["markers_hz"],
+            markers_scale=p["markers_scale"],
+            derivatives=p["derivatives"] or None,
+        )
+
+    def splits(self, twin: Twin) -> bool:
+        """Whether ``twin`` steps in a process of its own (:mod:`mps_ros.stepping`): asked for
+        (``stepping_process``), in realtime pacing or where the twin can come back to a step."""
+        p = self.p
+        return p["stepping_process"] and (p["pacing"] == "realtime" or twin.rewindable)
+
+    def pacing(self) -> dict:
+        """The runner's settings from the parameters, the same in the node's process and in a
+        stepping process of its own."""
+        p = self.p
+        return dict(
+            real_time_factor=p["real_time_factor"],
+            lead=p["lead"],
+            command_delay=p["command_delay"],
+            release_period=p["release_period"],
+            release_slice=p["release_slice"],
+            freeze_gc=True,
+            publish_every=p["publish_every"],
+            diagnostics_period=p["diagnostics_period"],
+            name=self.name,
+        )
+
+    def gate(self) -> Gate:
+        return Gate(self.p["command_burst"], self.p["command_rate"])
+
+    def runner(self, twin: Twin, sink, inbox: Inbox, log) -> Runner:
+        """The runner that steps ``twin`` in this process, publishing through ``sink``."""
+        p = self.p
+        return Runner(
+            twin,
+            sinks=[sink],
+            pacing=p["pacing"],
+            inbox=inbox,
+            gate=self.gate(),
+            log=log,
+            **self.pacing(),
+        )
+
+    def stepping_process(self, twin: Twin, sink, log):
+        """The stepping process that steps the scene of ``twin`` (not started), its releases
+        published through ``sink``."""
+        from .releasing import SteppingProcess
+
+        p = self.p
+        spec = {
+            "scene": p["scene"],
+            "twin": dict(self._twin_settings(), outputs=list(p["outputs"])),
+            "runner": self.pacing(),
+            "grid": [twin.t0, twin.t_end, twin.n],
+            "hardware_id": hardware_id(twin.scene.name),
+            "afap": p["pacing"] != "realtime",
+        }
+        return SteppingProcess(spec, sink, log, self.gate(), _priority(p))
+
+
 class PressTwin(LifecycleNode):
     """The node, a managed one (``rclpy.lifecycle``). Construct (its parameters declared and
     checked), configure (:meth:`configure`: the scene, the publishers, the kernels, the
@@ -162,6 +247,8 @@ class PressTwin(LifecycleNode):
         self._recording_reserved = False
         declare(self, default_scene or DEFAULT_SCENE)
         self.p = read(self)
+        #: the run's settings from the parameters (every run of the node alike)
+        self.config = RunConfig(self.p, self.get_fully_qualified_name().lstrip("/"))
         self.twin = self.runner = self.recorder = self.recording_sink = None
         self.pubs: dict[str, object] = {}
         self.names: dict[str, str] = {}
@@ -230,7 +317,7 @@ class PressTwin(LifecycleNode):
         """The scene, the publishers, the command subscription and services, the run
         (:meth:`new_run`)."""
         p = self.p
-        self.twin = self._twin()
+        self.twin = self.config.twin()
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=p["qos_depth"],
@@ -284,41 +371,24 @@ class PressTwin(LifecycleNode):
         self.ros_sink = RosSink(self.pubs)
         self.new_run(self.twin)
 
-    def _twin(self) -> Twin:
-        p = self.p
-        try:
-            return Twin(
-                p["scene"],
-                dt=p["dt"] or None,
-                t_end=p["t_end"] or None,
-                outputs=p["outputs"],
-                scene_commands=p["scene_commands"],
-                markers_hz=p["markers_hz"],
-                markers_scale=p["markers_scale"],
-                derivatives=p["derivatives"] or None,
-            )
-        except (MpsError, OSError, ValueError) as exc:
-            raise ParameterError(f"scene {p['scene']!r}: {exc}") from None
-
     def new_run(self, twin: Twin | None = None) -> None:
         """A run of the scene from its start: the twin (``twin``, or a new one), the runner (or
         the stepping process, started and its kernels built), the recording opened (after a
         reset, a new file beside the last: :func:`next_recording`). Paused from its start
         where the node is inactive."""
-        p = self.p
         self.runs += 1
         if twin is None:
-            self.twin = self._twin()
+            self.twin = self.config.twin()
         self.closed = False
         #: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this process
         #: publishes what it releases and forwards the commands (as fast as possible, where
         #: the twin can come back to a step: a command's boundary is the last step released)
-        self.split = p["stepping_process"] and (p["pacing"] == "realtime" or self.twin.rewindable)
+        self.split = self.config.splits(self.twin)
         if self.split:
-            self.runner = self._stepping_process(p)
+            self.runner = self.config.stepping_process(self.twin, self.ros_sink, self._log)
             self.inbox = self.runner.inbox
         else:
-            self.runner = self._runner(p)
+            self.runner = self.config.runner(self.twin, self.ros_sink, self.inbox, self._log)
         rec = self.open_recording()
         if rec is not None:
             self.get_logger().info(f"recording to {rec.path}")
@@ -326,61 +396,6 @@ class PressTwin(LifecycleNode):
         self.runner.prepare()
         if self.inactive:
             self.runner.pause()
-
-    def _pacing(self, p: dict) -> dict:
-        """The runner's settings from the parameters, the same in the node's process and in a
-        stepping process of its own."""
-        return dict(
-            real_time_factor=p["real_time_factor"],
-            lead=p["lead"],
-            command_delay=p["command_delay"],
-            release_period=p["release_period"],
-            release_slice=p["release_slice"],
-            freeze_gc=True,
-            publish_every=p["publish_every"],
-            diagnostics_period=p["diagnostics_period"],
-            name=self.get_fully_qualified_name().lstrip("/"),
-        )
-
-    def _runner(self, p: dict) -> Runner:
-        return Runner(
-            self.twin,
-            sinks=[self.ros_sink],
-            pacing=p["pacing"],
-            inbox=self.inbox,
-            gate=Gate(p["command_burst"], p["command_rate"]),
-            log=self._log,
-            **self._pacing(p),
-        )
-
-    def _stepping_process(self, p: dict):
-        from .releasing import SteppingProcess
-
-        twin = dict(
-            dt=p["dt"] or None,
-            t_end=p["t_end"] or None,
-            outputs=list(p["outputs"]),
-            scene_commands=p["scene_commands"],
-            markers_hz=p["markers_hz"],
-            markers_scale=p["markers_scale"],
-            derivatives=p["derivatives"] or None,
-        )
-        tw = self.twin
-        spec = {
-            "scene": p["scene"],
-            "twin": twin,
-            "runner": self._pacing(p),
-            "grid": [tw.t0, tw.t_end, tw.n],
-            "hardware_id": hardware_id(tw.scene.name),
-            "afap": p["pacing"] != "realtime",
-        }
-        return SteppingProcess(
-            spec,
-            self.ros_sink,
-            self._log,
-            Gate(p["command_burst"], p["command_rate"]),
-            _priority(p),
-        )
 
     # -- callbacks (executor thread): queue only ------------------------------------------
     def _log(self, level: str, text: str):
