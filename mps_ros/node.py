@@ -250,8 +250,10 @@ class PressTwin(LifecycleNode):
         #: the run's settings from the parameters (every run of the node alike)
         self.config = RunConfig(self.p, self.get_fully_qualified_name().lstrip("/"))
         self.twin = self.runner = self.recorder = self.recording_sink = None
-        self.pubs: dict[str, object] = {}
-        self.names: dict[str, str] = {}
+        #: the publishers, the command subscription and services (made at configure)
+        self.endpoints: Endpoints | None = None
+        #: the commands from outside (the callbacks of the subscription and services)
+        self.commands = Commands(self)
         self.closed = False
         self.priority_got = 0
         self.split = False
@@ -262,8 +264,6 @@ class PressTwin(LifecycleNode):
         self.ending = threading.Event()
         self.inactive = False  # deactivated (paused)
         self.runs = 0  # runs begun (a reset begins another)
-        self.reset_wanted = False
-        self.run_started = threading.Event()  # the run after a reset has begun
 
     # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -316,59 +316,10 @@ class PressTwin(LifecycleNode):
     def configure(self) -> None:
         """The scene, the publishers, the command subscription and services, the run
         (:meth:`new_run`)."""
-        p = self.p
         self.twin = self.config.twin()
-        qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=p["qos_depth"],
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.VOLATILE,
-        )
-        outputs = set(self.twin.outputs)
-        latched = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-        #: topics recorded but not published: their type cannot be imported here
-        self.unpublished: list[str] = []
-        for t in TOPICS:
-            if t.output and t.output not in outputs:
-                continue
-            if t.msgtype not in MSG_CLASSES:
-                self.unpublished.append(t.key)
-                self.names[t.key] = resolve(t.key, self.get_name(), self.get_namespace())
-                continue
-            # no QoS event handlers (rclpy's default: two a publisher, each one more entity
-            # that the executor goes through for every command it takes; a subscriber that
-            # asks for an incompatible QoS is told so by its own node)
-            pub = self.create_publisher(
-                MSG_CLASSES[t.msgtype],
-                t.key,
-                latched if t.key in LATCHED else qos,
-                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
-            )
-            self.pubs[t.key] = pub
-            self.names[t.key] = pub.topic_name
+        self.endpoints = Endpoints(self, self.twin.outputs, self.p["qos_depth"])
         self.inbox = Inbox()
-        # every command is kept until the run loop answers it (a flood is refused, one answer
-        # each); what a sender's middleware loses on the way is counted (message-lost events)
-        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-        self.mode_sub = self.create_subscription(
-            String,
-            MODE.key,
-            self._on_mode,
-            mode_qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost),
-        )
-        self.names[MODE.key] = self.mode_sub.topic_name
-        self.trigger_services = [
-            self.create_service(Trigger, f"~/{w}", self._service(w)) for w in COMMAND_WORDS
-        ]
-        self.step_service = self.create_service(Trigger, "~/step", self._on_step)
-        self.reset_service = self.create_service(Trigger, "~/reset", self._on_reset)
-        self.ros_sink = RosSink(self.pubs)
+        self.endpoints.listen(self, self.commands)
         self.new_run(self.twin)
 
     def new_run(self, twin: Twin | None = None) -> None:
@@ -385,10 +336,10 @@ class PressTwin(LifecycleNode):
         #: the twin can come back to a step: a command's boundary is the last step released)
         self.split = self.config.splits(self.twin)
         if self.split:
-            self.runner = self.config.stepping_process(self.twin, self.ros_sink, self._log)
+            self.runner = self.config.stepping_process(self.twin, self.endpoints.sink, self._log)
             self.inbox = self.runner.inbox
         else:
-            self.runner = self.config.runner(self.twin, self.ros_sink, self.inbox, self._log)
+            self.runner = self.config.runner(self.twin, self.endpoints.sink, self.inbox, self._log)
         rec = self.open_recording()
         if rec is not None:
             self.get_logger().info(f"recording to {rec.path}")
@@ -397,7 +348,7 @@ class PressTwin(LifecycleNode):
         if self.inactive:
             self.runner.pause()
 
-    # -- callbacks (executor thread): queue only ------------------------------------------
+    # -- the runner's log (any of its threads) ------------------------------------------------
     def _log(self, level: str, text: str):
         lg = self.get_logger()
         # one call site a severity: rclpy's logger insists
@@ -408,101 +359,6 @@ class PressTwin(LifecycleNode):
         else:
             lg.info(text)
 
-    def _on_lost(self, info) -> None:
-        n = int(info.total_count_change)
-        if self.runner is not None:
-            self.runner.commands_lost += n
-        self.get_logger().warning(
-            f"{n} command(s) lost on the way to {self.names[MODE.key]} ({info.total_count} in all)"
-        )
-
-    def _on_mode(self, msg: String):
-        if self.closed:
-            # answered all the same (not recorded: the recording is finished)
-            self.get_logger().warning(f"refused command {msg.data[:40]!r}: the run has ended")
-            ack = {
-                "t": self.twin.t,
-                "command": shown(msg.data, 64),
-                "accepted": False,
-                "reason": "the run has ended",
-                "source": "topic",
-                "structure": self.twin.sim.structure,
-            }
-            pub = self.pubs.get("~/mode/status")
-            if pub is not None:
-                try:
-                    pub.publish(String(data=to_json(ack)))
-                except Exception:  # destroyed at shutdown
-                    pass
-            return
-        self.inbox.put(Command(msg.data, "topic"))
-
-    def _on_reset(self, request, response):
-        """``~/reset``: this run ends (its recording finished) and a new one begins at the
-        scene's start, recorded to a new file (paused where the node is inactive)."""
-        if not self.activated.is_set() or self.runner is None:
-            response.success, response.message = False, "refused: the run has not started"
-            return response
-        runs = self.runs
-        self.run_started.clear()
-        self.reset_wanted = True
-        self.runner.resume()
-        self.runner.request_stop("reset")
-        if not self.run_started.wait(120.0) or self.runs == runs:
-            response.success, response.message = False, "no new run: the node is ending"
-            return response
-        where = f"recording to {self.recorder.path}" if self.recorder is not None else "not recording"
-        response.success = True
-        response.message = f"reset: a new run from t = {self.twin.t0:g} s, {where}"
-        return response
-
-    def _on_step(self, request, response):
-        """``~/step``: one step while the node is deactivated (paused)."""
-        done = threading.Event()
-        box = {}
-
-        def reply(t):
-            box["t"] = t
-            done.set()
-
-        why = (
-            self.runner.step_paused(reply)
-            if self.activated.is_set()
-            else ("the run has not started: ~/step takes a step while it is deactivated")
-        )
-        if why is not None:
-            response.success, response.message = False, f"refused: {why}"
-        elif not done.wait(10.0):
-            response.success, response.message = False, "no answer: the step did not come"
-        else:
-            response.success, response.message = True, f"stepped to t = {box['t']:.6f} s"
-        return response
-
-    def _service(self, word: str):
-        def callback(request, response):
-            if self.closed:
-                response.success, response.message = False, "refused: the run has ended"
-                return response
-            done = threading.Event()
-            box = {}
-
-            def reply(ack):
-                box["ack"] = ack
-                done.set()
-
-            self.inbox.put(Command(word, "service", reply))
-            if not done.wait(10.0):
-                response.success, response.message = False, "no answer: the run is not stepping"
-                return response
-            ack = box["ack"]
-            response.success = bool(ack["accepted"])
-            response.message = (
-                f"{word} applied at t = {ack['t']:.6f} s" if ack["accepted"] else f"refused: {ack['reason']}"
-            )
-            return response
-
-        return callback
-
     # -- the run ----------------------------------------------------------------------------
     def _wait_for_peers(self, stop: threading.Event) -> None:
         n_sub, n_cmd = self.p["wait_for_subscribers"], self.p["wait_for_commanders"]
@@ -510,8 +366,8 @@ class PressTwin(LifecycleNode):
             return
         deadline = time.monotonic() + self.p["wait_timeout"]
         while not stop.is_set():
-            subs = min(pub.get_subscription_count() for pub in self.pubs.values())
-            cmds = self.count_publishers(self.names[MODE.key])
+            subs = min(pub.get_subscription_count() for pub in self.endpoints.pubs.values())
+            cmds = self.count_publishers(self.endpoints.names[MODE.key])
             if subs >= n_sub and cmds >= n_cmd:
                 return
             if time.monotonic() > deadline:
@@ -553,28 +409,28 @@ class PressTwin(LifecycleNode):
             max_s=self.p["recording_max_s"],
         )
         self.recording_sink = RecordingSink(
-            self.recorder, names=dict(self.names), qos=offered_qos(self.p["qos_depth"]), log=self._log
+            self.recorder,
+            names=dict(self.endpoints.names),
+            qos=offered_qos(self.p["qos_depth"]),
+            log=self._log,
         )
         self.runner.sinks.append(self.recording_sink)
         return self.recorder
 
     def run(self, stop: threading.Event) -> dict:
         tw = self.twin
+        names, unpublished = self.endpoints.names, self.endpoints.unpublished
         self.get_logger().info(
             f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
             f"{self.p['pacing']}"
             + (f" x{self.p['real_time_factor']:g}" if self.p["pacing"] == "realtime" else "")
             + f", outputs {', '.join(tw.outputs)}"
-            + (
-                ""
-                if self.p["scene_commands"]
-                else f", scene commands off (listening on {self.names[MODE.key]})"
-            )
+            + ("" if self.p["scene_commands"] else f", scene commands off (listening on {names[MODE.key]})")
         )
-        if self.unpublished:
-            types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in self.unpublished})
+        if unpublished:
+            types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in unpublished})
             self.get_logger().warning(
-                f"{', '.join(self.names[k] for k in self.unpublished)}: recorded, not "
+                f"{', '.join(names[k] for k in unpublished)}: recorded, not "
                 f"published ({', '.join(types)} cannot be imported here; a full ROS install "
                 "has it)"
             )
@@ -629,6 +485,70 @@ class PressTwin(LifecycleNode):
         self.priority_got = prio
         self.get_logger().info(f"stepping and publishing threads: SCHED_FIFO, priority {prio}")
 
+
+class Endpoints:
+    """The node's ROS side, made at configure and kept for every run (a reset's too): a
+    publisher a topic of the twin's outputs (latched where the topic is), the sink that
+    publishes a run's messages on them, the ``~/mode`` subscription and the command services
+    (:meth:`listen`), and each topic's name as resolved."""
+
+    def __init__(self, node: LifecycleNode, outputs, qos_depth: int):
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=qos_depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        outputs = set(outputs)
+        latched = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.pubs: dict[str, object] = {}
+        self.names: dict[str, str] = {}
+        #: topics recorded but not published: their type cannot be imported here
+        self.unpublished: list[str] = []
+        for t in TOPICS:
+            if t.output and t.output not in outputs:
+                continue
+            if t.msgtype not in MSG_CLASSES:
+                self.unpublished.append(t.key)
+                self.names[t.key] = resolve(t.key, node.get_name(), node.get_namespace())
+                continue
+            # no QoS event handlers (rclpy's default: two a publisher, each one more entity
+            # that the executor goes through for every command it takes; a subscriber that
+            # asks for an incompatible QoS is told so by its own node)
+            pub = node.create_publisher(
+                MSG_CLASSES[t.msgtype],
+                t.key,
+                latched if t.key in LATCHED else qos,
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+            )
+            self.pubs[t.key] = pub
+            self.names[t.key] = pub.topic_name
+        self.sink = RosSink(self.pubs)
+
+    def listen(self, node: LifecycleNode, commands: Commands) -> None:
+        """The ``~/mode`` subscription and the command services, answered by ``commands``."""
+        # every command is kept until the run loop answers it (a flood is refused, one answer
+        # each); what a sender's middleware loses on the way is counted (message-lost events)
+        mode_qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        self.mode_sub = node.create_subscription(
+            String,
+            MODE.key,
+            commands.on_mode,
+            mode_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=commands.on_lost),
+        )
+        self.names[MODE.key] = self.mode_sub.topic_name
+        self.trigger_services = [
+            node.create_service(Trigger, f"~/{w}", commands.service(w)) for w in COMMAND_WORDS
+        ]
+        self.step_service = node.create_service(Trigger, "~/step", commands.on_step)
+        self.reset_service = node.create_service(Trigger, "~/reset", commands.on_reset)
+
     def drain(self, timeout: float = 1.0) -> None:
         """Give the subscribers a bounded time to acknowledge what was published (the writers
         learn of acknowledgements at their heartbeats: this mostly waits out ``timeout``)."""
@@ -641,6 +561,122 @@ class PressTwin(LifecycleNode):
                 pub.wait_for_all_acked(rclpy.duration.Duration(seconds=left))
             except Exception:
                 pass
+
+
+class Commands:
+    """The commands from outside, the callbacks of the ``~/mode`` subscription and the
+    services (the executor's thread: they only queue; the run loop applies a command at the
+    next step boundary and answers): ``~/mode`` (answered at once where the run has ended),
+    ``~/engage``... (their answer awaited), ``~/step`` (one step while the node is paused) and
+    ``~/reset`` (this run ended and a new one begun: :attr:`reset_wanted`, and the run loop
+    sets :attr:`run_started` once the new run has begun, or will not)."""
+
+    def __init__(self, node: PressTwin):
+        self.node = node
+        self.reset_wanted = False
+        self.run_started = threading.Event()  # the run after a reset has begun
+
+    def on_lost(self, info) -> None:
+        node = self.node
+        n = int(info.total_count_change)
+        if node.runner is not None:
+            node.runner.commands_lost += n
+        node.get_logger().warning(
+            f"{n} command(s) lost on the way to {node.endpoints.names[MODE.key]} ({info.total_count} in all)"
+        )
+
+    def on_mode(self, msg: String):
+        node = self.node
+        if node.closed:
+            # answered all the same (not recorded: the recording is finished)
+            node.get_logger().warning(f"refused command {msg.data[:40]!r}: the run has ended")
+            ack = {
+                "t": node.twin.t,
+                "command": shown(msg.data, 64),
+                "accepted": False,
+                "reason": "the run has ended",
+                "source": "topic",
+                "structure": node.twin.sim.structure,
+            }
+            pub = node.endpoints.pubs.get("~/mode/status")
+            if pub is not None:
+                try:
+                    pub.publish(String(data=to_json(ack)))
+                except Exception:  # destroyed at shutdown
+                    pass
+            return
+        node.inbox.put(Command(msg.data, "topic"))
+
+    def on_reset(self, request, response):
+        """``~/reset``: this run ends (its recording finished) and a new one begins at the
+        scene's start, recorded to a new file (paused where the node is inactive)."""
+        node = self.node
+        if not node.activated.is_set() or node.runner is None:
+            response.success, response.message = False, "refused: the run has not started"
+            return response
+        runs = node.runs
+        self.run_started.clear()
+        self.reset_wanted = True
+        node.runner.resume()
+        node.runner.request_stop("reset")
+        if not self.run_started.wait(120.0) or node.runs == runs:
+            response.success, response.message = False, "no new run: the node is ending"
+            return response
+        where = f"recording to {node.recorder.path}" if node.recorder is not None else "not recording"
+        response.success = True
+        response.message = f"reset: a new run from t = {node.twin.t0:g} s, {where}"
+        return response
+
+    def on_step(self, request, response):
+        """``~/step``: one step while the node is deactivated (paused)."""
+        node = self.node
+        done = threading.Event()
+        box = {}
+
+        def reply(t):
+            box["t"] = t
+            done.set()
+
+        why = (
+            node.runner.step_paused(reply)
+            if node.activated.is_set()
+            else ("the run has not started: ~/step takes a step while it is deactivated")
+        )
+        if why is not None:
+            response.success, response.message = False, f"refused: {why}"
+        elif not done.wait(10.0):
+            response.success, response.message = False, "no answer: the step did not come"
+        else:
+            response.success, response.message = True, f"stepped to t = {box['t']:.6f} s"
+        return response
+
+    def service(self, word: str):
+        """The callback of the service ``~/WORD``: the command queued, its answer awaited."""
+        node = self.node
+
+        def callback(request, response):
+            if node.closed:
+                response.success, response.message = False, "refused: the run has ended"
+                return response
+            done = threading.Event()
+            box = {}
+
+            def reply(ack):
+                box["ack"] = ack
+                done.set()
+
+            node.inbox.put(Command(word, "service", reply))
+            if not done.wait(10.0):
+                response.success, response.message = False, "no answer: the run is not stepping"
+                return response
+            ack = box["ack"]
+            response.success = bool(ack["accepted"])
+            response.message = (
+                f"{word} applied at t = {ack['t']:.6f} s" if ack["accepted"] else f"refused: {ack['reason']}"
+            )
+            return response
+
+        return callback
 
 
 def _priority(p: dict) -> int:
@@ -756,7 +792,7 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
             discard_recording(node.recorder.path, node._recording_reserved)
         print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
         return 2, False
-    node.drain()
+    node.endpoints.drain()
     why = node.runner.stop_reason or "end"
     node.get_logger().info(
         f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
@@ -796,15 +832,15 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         else:
             node.get_logger().error(f"recording incomplete ({failure})")
             code = code or 1
-    again = node.reset_wanted and not (stop.is_set() or node.ending.is_set())
+    again = node.commands.reset_wanted and not (stop.is_set() or node.ending.is_set())
     if again:
-        node.reset_wanted = False
+        node.commands.reset_wanted = False
         try:
             node.new_run()
         except (ParameterError, MpsError, OSError) as exc:
             node.get_logger().error(f"reset: no new run: {exc}")
             again, code = False, 2
-    node.run_started.set()  # a reset waiting for its answer: the new run, or none
+    node.commands.run_started.set()  # a reset waiting for its answer: the new run, or none
     return code, again
 
 
