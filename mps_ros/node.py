@@ -757,16 +757,10 @@ def _split_argv(argv):
 def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
     """The node's run, from its start to its end, its recording finished and its last lines
     said: (the exit status, whether another run follows: a reset, its run begun)."""
-    code = 0
-    recording_error = None
     taken = None
     try:
         stats = node.run(stop)
-        if node.split and node.runner.error_kind == "simulation":
-            code = 2  # the stepping process said why (its log line)
-        elif node.split and node.runner.error:
-            node.get_logger().error(f"the run failed: {node.runner.error}")
-            code = 1
+        code = _status(node)
     except NameTaken as exc:
         taken = exc
     except MpsError as exc:
@@ -779,20 +773,65 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         node.get_logger().error(f"the run could not start: {exc}")
         return 2, False
     finally:
-        node.closed = True
-        if node.recorder is not None:
-            try:
-                node.recorder.finish()
-            except OSError as exc:  # said when it happened (the sink's line)
-                recording_error = str(exc)
-        if node.split:
-            node.runner.close()
+        recording_error = _closed(node)
     if taken is not None:  # nothing ran: the recording begun is not one
         if node.recorder is not None:
             discard_recording(node.recorder.path, node._recording_reserved)
         print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
         return 2, False
     node.endpoints.drain()
+    _say_run_end(node, stats)
+    if node.recorder is not None:
+        failure = node.recording_sink.failure or recording_error
+        if failure is None:
+            node.get_logger().info(
+                f"recording finished: {node.recorder.path} ({node.recorder.messages} messages)"
+            )
+        else:
+            node.get_logger().error(f"recording incomplete ({failure})")
+            code = code or 1
+    again = node.commands.reset_wanted and not (stop.is_set() or node.ending.is_set())
+    if again:
+        node.commands.reset_wanted = False
+        try:
+            node.new_run()
+        except (ParameterError, MpsError, OSError) as exc:
+            node.get_logger().error(f"reset: no new run: {exc}")
+            again, code = False, 2
+    node.commands.run_started.set()  # a reset waiting for its answer: the new run, or none
+    return code, again
+
+
+def _status(node: PressTwin) -> int:
+    """The exit status of a run that ended without an exception: 2 where its simulation failed
+    in the stepping process (which said why: its log line), 1 where the stepping process failed
+    otherwise, else 0."""
+    if node.split and node.runner.error_kind == "simulation":
+        return 2
+    if node.split and node.runner.error:
+        node.get_logger().error(f"the run failed: {node.runner.error}")
+        return 1
+    return 0
+
+
+def _closed(node: PressTwin) -> str | None:
+    """The run closed, however it ended: commands refused from now on, its recording finished,
+    its stepping process ended. Why the recording could not be finished (said when it
+    happened: the sink's line), or None."""
+    node.closed = True
+    recording_error = None
+    if node.recorder is not None:
+        try:
+            node.recorder.finish()
+        except OSError as exc:
+            recording_error = str(exc)
+    if node.split:
+        node.runner.close()
+    return recording_error
+
+
+def _say_run_end(node: PressTwin, stats: dict) -> None:
+    """The run's last line: how it ended and its statistics (``mps bench`` reads it)."""
     why = node.runner.stop_reason or "end"
     node.get_logger().info(
         f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
@@ -823,25 +862,6 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         + f"{stats['commands_accepted']} commands applied, {stats['commands_refused']} refused, "
         f"{stats['commands_lost']} lost"
     )
-    if node.recorder is not None:
-        failure = node.recording_sink.failure or recording_error
-        if failure is None:
-            node.get_logger().info(
-                f"recording finished: {node.recorder.path} ({node.recorder.messages} messages)"
-            )
-        else:
-            node.get_logger().error(f"recording incomplete ({failure})")
-            code = code or 1
-    again = node.commands.reset_wanted and not (stop.is_set() or node.ending.is_set())
-    if again:
-        node.commands.reset_wanted = False
-        try:
-            node.new_run()
-        except (ParameterError, MpsError, OSError) as exc:
-            node.get_logger().error(f"reset: no new run: {exc}")
-            again, code = False, 2
-    node.commands.run_started.set()  # a reset waiting for its answer: the new run, or none
-    return code, again
 
 
 def main(argv=None) -> int:
@@ -855,21 +875,11 @@ def main(argv=None) -> int:
     scene, ros = _split_argv(argv)
     stop = threading.Event()
     runner_box: dict = {}
-
-    def on_signal(signum, _frame):
-        name = signal.Signals(signum).name
-        stop.set()
-        node = runner_box.get("node")
-        if node is not None and node.runner is not None:
-            node.runner.resume()
-            node.runner.request_stop(name)
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = _stop_on_signals(stop, runner_box)
     rclpy.init(args=[NODE_NAME, *ros], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
     executor = None
     thread = None
-    code = 0
     try:
         try:
             node = PressTwin(scene)
@@ -879,42 +889,12 @@ def main(argv=None) -> int:
         runner_box["node"] = node
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-
-        def spin():
-            try:
-                executor.spin()
-            except ExternalShutdownException:
-                pass
-            except Exception as exc:  # a callback failed: the run must not go on deaf
-                if node.runner is None or node.runner.stop_reason is None:
-                    node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
-                    node._end("error")
-
-        thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
-        thread.start()
-        if node.p["autostart"]:
-            node.trigger_configure()
-            if node.configure_error is None:
-                node.trigger_activate()
-        else:
-            node.get_logger().info(
-                "autostart false: unconfigured, waiting for a lifecycle manager "
-                f"({node.get_fully_qualified_name()}/change_state: configure, activate)"
-            )
+        thread = _spin_in_background(node, executor)
+        _start(node)
         while not (node.activated.is_set() or node.ending.is_set() or stop.is_set()):
             stop.wait(0.05)
         if not node.activated.is_set():  # never activated: what was begun is not a run
-            if node.split:
-                node.runner.close()
-            if node.recorder is not None:
-                with contextlib.suppress(OSError):
-                    node.recorder.finish()
-                discard_recording(node.recorder.path, node._recording_reserved)
-            if node.configure_error is not None:
-                print(f"press_twin: error: {node.configure_error}", file=sys.stderr, flush=True)
-                return 2
-            node.get_logger().info("ended before its run started")
-            return 0
+            return _never_ran(node)
 
         code = 0
         again = True
@@ -932,6 +912,70 @@ def main(argv=None) -> int:
         rclpy.try_shutdown()
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def _stop_on_signals(stop: threading.Event, runner_box: dict) -> dict:
+    """SIGINT and SIGTERM set ``stop`` and stop the run of the node in ``runner_box`` (once
+    there is one); the handlers they had before, to put back."""
+
+    def on_signal(signum, _frame):
+        name = signal.Signals(signum).name
+        stop.set()
+        node = runner_box.get("node")
+        if node is not None and node.runner is not None:
+            node.runner.resume()
+            node.runner.request_stop(name)
+
+    return {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
+
+def _spin_in_background(node: PressTwin, executor: SingleThreadedExecutor) -> threading.Thread:
+    """The executor spun in a thread of its own (the node's callbacks), started; a callback
+    that fails ends the node's run."""
+
+    def spin():
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except Exception as exc:  # a callback failed: the run must not go on deaf
+            if node.runner is None or node.runner.stop_reason is None:
+                node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
+                node._end("error")
+
+    thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
+    thread.start()
+    return thread
+
+
+def _start(node: PressTwin) -> None:
+    """``autostart``: the node configured and activated at once; else it waits, unconfigured,
+    for a lifecycle manager."""
+    if node.p["autostart"]:
+        node.trigger_configure()
+        if node.configure_error is None:
+            node.trigger_activate()
+    else:
+        node.get_logger().info(
+            "autostart false: unconfigured, waiting for a lifecycle manager "
+            f"({node.get_fully_qualified_name()}/change_state: configure, activate)"
+        )
+
+
+def _never_ran(node: PressTwin) -> int:
+    """A node that ended before its run started (never activated): what was begun is undone
+    (the stepping process ended, the recording discarded); its exit status."""
+    if node.split:
+        node.runner.close()
+    if node.recorder is not None:
+        with contextlib.suppress(OSError):
+            node.recorder.finish()
+        discard_recording(node.recorder.path, node._recording_reserved)
+    if node.configure_error is not None:
+        print(f"press_twin: error: {node.configure_error}", file=sys.stderr, flush=True)
+        return 2
+    node.get_logger().info("ended before its run started")
+    return 0
 
 
 if __name__ == "__main__":
