@@ -287,49 +287,22 @@ def _realtime(
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
-    probe = subprocess.Popen(
-        [sys.executable, "-m", "mps_ros.bench", "probe"]
-        + (["--deserialize"] if deserialize else [])
-        + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
-        + ([f"--commands-every={commands_every}"] if commands_every else [])
-        + ([f"--flood={flood}"] if flood else []),
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=open(tmp / "probe.log", "wb"),
-        text=True,
-        start_new_session=True,
-    )
+    probe = _probe(env, tmp / "probe.log", deserialize, commands_every, flood)
     try:
-        cpu0 = wall0 = None
         log = tmp / "rt.log"
         end = time.monotonic() + 60
         while time.monotonic() < end and "stepping starts" not in log.read_text():
             time.sleep(0.01)
         # from the run's start (its kernels already built), after its first lead is banked
         time.sleep(0.2)
-        mine, kids = _node_processes(node.pid)  # the node's; the recording process
-        cpu0, wall0 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
-        kid0 = sum(_cpu_seconds(k) for k in kids)
-        sub0 = _cpu_seconds(probe.pid)
-        threads0 = _all_threads(mine)
-        threads1, wall_t = dict(threads0), wall0  # the last reading of each thread
-        cpu1 = wall1 = kid1 = sub1 = None
-        rss0 = rss1 = None
+        usage = _Usage(node.pid, probe.pid)
         ended = False
         while node.poll() is None and not ended:
             # up to the run's end (not the process's shutdown after it)
             text = log.read_text()
             ended = "run ended at t = " in text or "run stopped (" in text
             try:
-                cpu1, wall1 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
-                kid1 = sum(_cpu_seconds(k) for k in kids)
-                sub1 = _cpu_seconds(probe.pid)
-                if not ended:  # a thread that ends keeps its last reading
-                    threads1.update(_all_threads(mine))
-                    wall_t = time.monotonic()
-                rss1 = _rss_mb(node.pid)
-                if rss0 is None and wall1 - wall0 >= 5.0:
-                    rss0 = rss1
+                usage.read(ended)
             except (FileNotFoundError, ProcessLookupError):
                 break
             time.sleep(0.05)
@@ -337,35 +310,103 @@ def _realtime(
         out, _ = probe.communicate(timeout=60)
         got = json.loads(out.strip().splitlines()[-1])
         st = _final_stats(log.read_text())
-        st["cpu_share"] = (cpu1 - cpu0) / (wall1 - wall0) if wall1 else float("nan")
-        st["recorder_cpu_share"] = (kid1 - kid0) / (wall1 - wall0) if wall1 and kids else float("nan")
-        st["subscriber_cpu_share"] = (sub1 - sub0) / (wall1 - wall0) if wall1 else float("nan")
-        st["node_processes"] = len(mine)
-        st["cpu_per_step_us"] = st["cpu_share"] * 1e3  # at 1 kHz, realtime x1
-        st["rss_start_mb"], st["rss_end_mb"] = rss0, rss1
-        st["subscriber_msgs_per_s"] = got["rate"]
-        st["subscriber_received"] = got["received"]
-        # by topic: the recording holds every message the node published, and no other
-        try:
-            from .topics import MODE, resolve
-
-            published = recorded_counts(tmp / "rt.mcap")
-            published.pop(resolve(MODE.key), None)  # recorded as received, not published
-            for topic in got.get("unknown", []):  # recorded, not published here
-                published.pop(topic, None)
-            st["lost_by_topic"] = lost_by_topic(published, got.get("by_topic", {}))
-        except (OSError, RuntimeError) as exc:  # the other figures still stand
-            st["lost_by_topic"], st["recording_error"] = None, str(exc)
-        st["drift_ms"] = got.get("drift_ms")
-        st["flood_s"] = got.get("flood_s")
-        st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
+        usage.figures(st)
+        _subscriber_figures(st, got, tmp / "rt.mcap")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
-        st["threads"] = _thread_table(threads0, threads1, wall_t - wall0) if wall_t > wall0 else []
+        st["threads"] = usage.threads()
         st["loop_us"] = loop
         return st
     finally:
         stop_group(node)
         stop_group(probe)
+
+
+def _probe(env, log_path: Path, deserialize, commands_every, flood) -> subprocess.Popen:
+    """The external subscriber (:func:`probe`), started in a session of its own; its JSON line
+    on its stdout, its log at ``log_path``."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "mps_ros.bench", "probe"]
+        + (["--deserialize"] if deserialize else [])
+        + ([] if PROBE_EXECUTOR == "single" else ["--events-executor"])
+        + ([f"--commands-every={commands_every}"] if commands_every else [])
+        + ([f"--flood={flood}"] if flood else []),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=open(log_path, "wb"),
+        text=True,
+        start_new_session=True,
+    )
+
+
+class _Usage:
+    """The CPU, threads and memory of the node's processes (the node, its stepping process;
+    its recording processes apart) and of the subscriber's, from ``/proc``: read first at
+    construction (the run's start), then at each :meth:`read` up to the run's end."""
+
+    def __init__(self, node_pid: int, probe_pid: int):
+        self.node_pid, self.probe_pid = node_pid, probe_pid
+        self.mine, self.kids = _node_processes(node_pid)  # the node's; the recording process
+        self.cpu0, self.wall0 = sum(_cpu_seconds(k) for k in self.mine), time.monotonic()
+        self.kid0 = sum(_cpu_seconds(k) for k in self.kids)
+        self.sub0 = _cpu_seconds(probe_pid)
+        self.threads0 = _all_threads(self.mine)
+        self.threads1, self.wall_t = dict(self.threads0), self.wall0  # the last reading of each thread
+        self.cpu1 = self.wall1 = self.kid1 = self.sub1 = None
+        self.rss0 = self.rss1 = None
+
+    def read(self, ended: bool) -> None:
+        """A reading (``ended``: the run has ended, its threads' last readings kept); raises
+        FileNotFoundError or ProcessLookupError where a process is gone."""
+        mine, kids = self.mine, self.kids
+        self.cpu1, self.wall1 = sum(_cpu_seconds(k) for k in mine), time.monotonic()
+        self.kid1 = sum(_cpu_seconds(k) for k in kids)
+        self.sub1 = _cpu_seconds(self.probe_pid)
+        if not ended:  # a thread that ends keeps its last reading
+            self.threads1.update(_all_threads(mine))
+            self.wall_t = time.monotonic()
+        self.rss1 = _rss_mb(self.node_pid)
+        if self.rss0 is None and self.wall1 - self.wall0 >= 5.0:
+            self.rss0 = self.rss1
+
+    def figures(self, st: dict) -> None:
+        """The shares of a core (the node's, its recording's, the subscriber's), the node's
+        processes, its CPU a step and its memory at 5 s and at the end, into ``st``."""
+        wall0, wall1 = self.wall0, self.wall1
+        st["cpu_share"] = (self.cpu1 - self.cpu0) / (wall1 - wall0) if wall1 else float("nan")
+        st["recorder_cpu_share"] = (
+            (self.kid1 - self.kid0) / (wall1 - wall0) if wall1 and self.kids else float("nan")
+        )
+        st["subscriber_cpu_share"] = (self.sub1 - self.sub0) / (wall1 - wall0) if wall1 else float("nan")
+        st["node_processes"] = len(self.mine)
+        st["cpu_per_step_us"] = st["cpu_share"] * 1e3  # at 1 kHz, realtime x1
+        st["rss_start_mb"], st["rss_end_mb"] = self.rss0, self.rss1
+
+    def threads(self) -> list[dict]:
+        """:func:`_thread_table` from the first reading to each thread's last."""
+        if self.wall_t > self.wall0:
+            return _thread_table(self.threads0, self.threads1, self.wall_t - self.wall0)
+        return []
+
+
+def _subscriber_figures(st: dict, got: dict, recording: Path) -> None:
+    """What the subscriber received (its JSON line ``got``) into ``st``: messages a second and
+    in all, the messages lost by topic (against the ``recording``, which holds every message
+    the node published, and no other), the drift and the flood's time."""
+    st["subscriber_msgs_per_s"] = got["rate"]
+    st["subscriber_received"] = got["received"]
+    try:
+        from .topics import MODE, resolve
+
+        published = recorded_counts(recording)
+        published.pop(resolve(MODE.key), None)  # recorded as received, not published
+        for topic in got.get("unknown", []):  # recorded, not published here
+            published.pop(topic, None)
+        st["lost_by_topic"] = lost_by_topic(published, got.get("by_topic", {}))
+    except (OSError, RuntimeError) as exc:  # the other figures still stand
+        st["lost_by_topic"], st["recording_error"] = None, str(exc)
+    st["drift_ms"] = got.get("drift_ms")
+    st["flood_s"] = got.get("flood_s")
+    st["drift_end_to_end_ms"] = got.get("drift_end_to_end_ms")
 
 
 def recorded_counts(path) -> dict[str, int]:
