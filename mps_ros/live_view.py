@@ -208,36 +208,8 @@ def run_live(
         + (f"saving to {save}" if save is not None else f"streaming to {connect or 'a viewer on 127.0.0.1'}")
     )
     out = _Frames(node_name, scene, rec, scale, extent)
-    log_frame = out.log
-    max_lag = 0.0
-    t_start = time.monotonic()
-    period = 1.0 / hz
     try:
-        nxt = time.monotonic()
-        while not stop.is_set():
-            nxt += period
-            time.sleep(max(0.0, nxt - time.monotonic()))
-            if not taker.is_alive():
-                raise ReplayError("the view stopped taking the node's messages")
-            ended = inbox.ended
-            log_frame(inbox.take())
-            newest, last_logged = inbox.last_ns, out.last_logged
-            if newest is not None and last_logged is not None:
-                max_lag = max(max_lag, newest * 1e-9 - last_logged)
-            if ended:
-                # the run's end came on its own topic: the steps still on their way (other
-                # topics, other queues) are taken too, up to the end's time or a quiet second
-                reached = inbox.end_ns is None or (
-                    last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns
-                )
-                if reached:
-                    break
-                if time.monotonic() - inbox.last_arrival > 1.0:
-                    log_frame(inbox.take(whole=True))  # what a topic never completed
-                    break
-            if duration is not None and time.monotonic() - t_start >= duration:
-                log_frame(inbox.take(whole=True))
-                break
+        max_lag = _follow(inbox, out, taker, stop, 1.0 / hz, duration)
     finally:
         taking.set()
         taker.join(timeout=2.0)
@@ -247,6 +219,53 @@ def run_live(
             signal.signal(s, h)
         rec.flush()
         rr.disconnect(recording=rec)
+    return _figures(out, max_lag, viewer)
+
+
+def _follow(
+    inbox: _Inbox,
+    out: _Frames,
+    taker: threading.Thread,
+    stop: threading.Event,
+    period: float,
+    duration: float | None,
+) -> float:
+    """A frame every ``period`` wall seconds, of what ``inbox`` took since the last one, until
+    the run's end (its last steps logged, or a quiet second after it), ``duration`` wall
+    seconds or ``stop``: the largest lag of the view behind the node (simulated s)."""
+    log_frame = out.log
+    max_lag = 0.0
+    t_start = time.monotonic()
+    nxt = time.monotonic()
+    while not stop.is_set():
+        nxt += period
+        time.sleep(max(0.0, nxt - time.monotonic()))
+        if not taker.is_alive():
+            raise ReplayError("the view stopped taking the node's messages")
+        ended = inbox.ended
+        log_frame(inbox.take())
+        newest, last_logged = inbox.last_ns, out.last_logged
+        if newest is not None and last_logged is not None:
+            max_lag = max(max_lag, newest * 1e-9 - last_logged)
+        if ended:
+            # the run's end came on its own topic: the steps still on their way (other
+            # topics, other queues) are taken too, up to the end's time or a quiet second
+            reached = inbox.end_ns is None or (
+                last_logged is not None and round(last_logged * 1e9) >= inbox.end_ns
+            )
+            if reached:
+                break
+            if time.monotonic() - inbox.last_arrival > 1.0:
+                log_frame(inbox.take(whole=True))  # what a topic never completed
+                break
+        if duration is not None and time.monotonic() - t_start >= duration:
+            log_frame(inbox.take(whole=True))
+            break
+    return max_lag
+
+
+def _figures(out: _Frames, max_lag: float, viewer) -> dict:
+    """The figures of the run the view followed (:func:`run_live`'s answer)."""
     work = sorted(out.work)
     return {
         "frames": out.frames,
