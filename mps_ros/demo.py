@@ -80,21 +80,37 @@ r = AnyReader([Path('{p}')]); r.open(); [print(c.topic, c.msgtype, c.msgcount) f
 
 
 def main(args) -> int:
+    """``mps demo`` (see the module's doc); its exit status."""
     from mps_core import load_scene
+
+    scene = load_scene(args.scene)
+    out = _recording(args, scene)
+    env = ros_env()
+    _say_what(args, scene, env)
+    limit = 60.0 + scene.t_end / args.real_time_factor
+    node_rc, op_rc = _run_node_and_operator(_node_command(args, out), mps("operator", args.scene), env, limit)
+    return _report(out, node_rc, op_rc)
+
+
+def _recording(args, scene) -> Path:
+    """Where the node records: ``--out``, checked before the node starts (a path it could not
+    write, or an existing file, is refused), or a new file of its own, created empty."""
     from mps_core.files.outputs import check_outputs
 
     from .recording import new_recording
 
-    scene = load_scene(args.scene)
     if args.out:
-        # before the node starts: a path it could not write, or an existing file, is refused
         from .bag import is_bag
 
         out = Path(args.out)
         check_outputs({"--out": out}, inputs=[args.scene], folders={"--out"} if is_bag(out) else ())
-    else:
-        out = new_recording(scene.name)  # created empty, this run's own
-    env = ros_env()
+        return out
+    return new_recording(scene.name)  # created empty, this run's own
+
+
+def _say_what(args, scene, env: dict) -> None:
+    """The demo's first lines: the scene, its pacing and the operator's commands; the ROS
+    domain, its discovery range and where the logs go."""
     cmds = ", ".join(f"{w} at {t:g} s" for t, w in scene.commands) or "none"
     print(
         f"demo: scene {scene.name}, {scene.t_end:g} s in realtime (x{args.real_time_factor:g}) "
@@ -107,7 +123,12 @@ def main(args) -> int:
         f"logs in {env['ROS_LOG_DIR']}",
         flush=True,
     )
-    node_cmd = mps(
+
+
+def _node_command(args, out: Path) -> list[str]:
+    """The node's command line: realtime, the scene's own commands off (the operator sends
+    them), recording to ``out``, waiting for the operator before it starts."""
+    return mps(
         "node",
         args.scene,
         "--ros-args",
@@ -128,14 +149,18 @@ def main(args) -> int:
         "-p",
         "start_delay:=1.0",
     )
-    op_cmd = mps("operator", args.scene)
+
+
+def _run_node_and_operator(node_cmd: list[str], op_cmd: list[str], env: dict, limit: float) -> tuple:
+    """The node and the operator, each in a session of its own, the node given ``limit`` wall
+    seconds to finish (then stopped) and the operator 15 more; no process left behind: (the
+    node's exit code, the operator's)."""
     procs = []
     try:
         node = subprocess.Popen(node_cmd, env=env, start_new_session=True)
         procs.append(node)
         op = subprocess.Popen(op_cmd, env=env, start_new_session=True)
         procs.append(op)
-        limit = 60.0 + scene.t_end / args.real_time_factor
         try:
             node_rc = node.wait(limit)
         except subprocess.TimeoutExpired:
@@ -150,6 +175,11 @@ def main(args) -> int:
     finally:
         for p in procs:
             stop_group(p)
+    return node_rc, op_rc
+
+
+def _report(out: Path, node_rc, op_rc) -> int:
+    """Where the recording is, what it holds and how to view it; the demo's exit status."""
     print(flush=True)
     if not out.exists():
         print(f"demo: no recording was written (node exit code {node_rc})", file=sys.stderr)
