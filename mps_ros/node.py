@@ -239,7 +239,9 @@ class PressTwin(LifecycleNode):
     checked), configure (:meth:`configure`: the scene, the publishers, the kernels, the
     stepping process, the recording), activate (the run may start: :meth:`run` blocks until it
     ends or is stopped), deactivate and activate again (pause and go on), cleanup or shutdown
-    (the run ends, its recording finished)."""
+    (the run ends, its recording finished). Its parts: the run's settings (:class:`RunConfig`),
+    the publishers, subscription and services (:class:`Endpoints`) and the commands that come
+    through them (:class:`Commands`)."""
 
     def __init__(self, default_scene: str | None = None, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -318,7 +320,7 @@ class PressTwin(LifecycleNode):
         (:meth:`new_run`)."""
         self.twin = self.config.twin()
         self.endpoints = Endpoints(self, self.twin.outputs, self.p["qos_depth"])
-        self.inbox = Inbox()
+        self.inbox = Inbox()  # before the subscription that fills it
         self.endpoints.listen(self, self.commands)
         self.new_run(self.twin)
 
