@@ -26,7 +26,6 @@ from __future__ import annotations
 import collections
 import json
 import math
-import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -39,23 +38,14 @@ from mps_core.scene.settings import COMMANDS
 
 from . import diagnostics
 from .diagnostics import hardware_id
-from .topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, OUTPUTS, WRENCHES
-
-_RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
-_CLOCK_HEAD = b"\x00\x01\x00\x00"  # CDR, little endian
-_time = struct.Struct("<iI").pack
+from .step_messages import StepMessages, stamp
+from .topics import BY_KEY, OUTPUTS
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
 #: a word's place in :data:`COMMANDS` (and in :meth:`Twin.refusals`)
 COMMAND_INDEX = {word: i for i, word in enumerate(COMMANDS)}
 
 PACINGS = ("realtime", "as_fast_as_possible")
-
-
-def stamp(t: float) -> dict:
-    """builtin_interfaces/Time of a simulated time (s), to the nearest nanosecond."""
-    ns = int(round(t * 1e9))
-    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
 
 
 def to_ns(t: float) -> int:
@@ -90,7 +80,8 @@ def check_outputs(outputs: Iterable[str]) -> tuple[str, ...]:
 
 
 class Twin:
-    """A scene stepped on a fixed grid, with its messages.
+    """A scene stepped on a fixed grid, with its messages
+    (:class:`~mps_ros.step_messages.StepMessages`).
 
     ``dt``/``t_end``: override the scene's (None: the scene's); so does ``derivatives`` (the
     scheme of the Lagrange equations' derivatives: ``central``, the seed's finite differences,
@@ -136,29 +127,12 @@ class Twin:
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
         self.dt = (self.t_end - self.t0) / self.n
         self.k = 0
-        # ~/markers at a display rate: every so many steps, never more often than the steps
-        if not (markers_hz > 0 and math.isfinite(markers_hz)):
-            raise ValueError(f"markers_hz {markers_hz!r}: expected a positive number")
-        self.marker_every = max(1, int(round(1.0 / (markers_hz * self.dt))))
-        self.markers = None
-        if "markers" in self.outputs:
-            from .markers import N_PER_M, MarkerLayout
-
-            self.markers = MarkerLayout.of_scene(
-                scene, self._wrenches() or (), N_PER_M if markers_scale is None else markers_scale
-            )
-        self._marker_presets: dict = {}
-        self.frames = None
-        if "tf" in self.outputs:
-            from .frames import TfLayout
-
-            self.frames = TfLayout.of_scene(scene)
-        self._tf = None  # /tf's kept buffer (state_payloads)
-        self._structure_sent: str | None = None
-        self._static_sent = False  # /tf_static has gone out
+        #: the step's messages, as dicts and encoded, and the latched ones sent
+        self.step_messages = StepMessages(
+            scene, self.outputs, self.solve_reactions, self.dt, markers_hz, markers_scale
+        )
         self._holding = False  # new_events() holds this step's events
         self._refusals: dict[tuple, tuple] = {}  # refusals(), by what they depend on
-        self._js = None  # the per-step messages' kept buffers (state_payloads)
 
     def warm_up(self, seconds: float = 1.0, tries: int = 10, trial: float = 0.06) -> None:
         """Do once, before a paced run's clock starts, what its first steps would otherwise do
@@ -229,11 +203,13 @@ class Twin:
 
     def checkpoint(self) -> tuple:
         """The twin's state at this step boundary (see :meth:`Simulation.checkpoint`)."""
-        return (self.k, self._structure_sent, self._static_sent, self._holding, self.sim.checkpoint())
+        m = self.step_messages
+        return (self.k, m.structure_sent, m.static_sent, self._holding, self.sim.checkpoint())
 
     def restore(self, cp: tuple) -> None:
         """Back to a :meth:`checkpoint`: the steps computed since are forgotten."""
-        self.k, self._structure_sent, self._static_sent, self._holding, sim = cp
+        m = self.step_messages
+        self.k, m.structure_sent, m.static_sent, self._holding, sim = cp
         self.sim.restore(sim)
 
     # -- commands -------------------------------------------------------------------------
@@ -304,119 +280,12 @@ class Twin:
         xb, yb = kin.xy("B")
         return ([phi, math.atan2(yb - ya, xb - xa), psi, x], [phi_dot, kin.rate("rod"), psi_dot, x_dot])
 
-    def _effort(self, rx) -> list:
-        return [rx[_RX["M_motor"]], math.nan, rx[_RX["M_latch"]], rx[_RX["F_stop"]]]
-
-    def _wrenches(self) -> tuple:
-        o = self.outputs
-        if not self.solve_reactions:
-            return ()
-        wrenches = WRENCHES if "reactions" in o else ()
-        if "foundation" in o:
-            wrenches = (*wrenches, FOUNDATION)
-        return wrenches
-
     def state_messages(self) -> list[tuple[str, dict]]:
         """The messages of the present step as dicts (topic key, message), in publishing order:
         what :meth:`state_payloads` encodes, for readers and tests. ``~/structure`` is among
         them where the structure differs from the last one :meth:`state_payloads` sent, and
         ``/tf_static`` until it has sent it."""
-        out: list[tuple[str, dict]] = []
-        o = self.outputs
-        sim = self.sim
-        t = sim.t
-        st = stamp(t)
-        if "clock" in o:
-            out.append(("/clock", {"clock": st}))
-        if self.frames is not None:
-            if not self._static_sent:
-                out.append(("/tf_static", self.frames.static_message(st)))
-            out.append(("/tf", self.frames.message(st, self._frame_values())))
-        rx = self.reaction_list()
-        if "joint_states" in o:
-            pos, vel = self.joint_values()
-            effort = self._effort(rx) if rx is not None else []
-            out.append(
-                (
-                    "joint_states",
-                    {
-                        "header": {"stamp": st, "frame_id": FRAME_ID},
-                        "name": list(JOINT_NAMES),
-                        "position": [float(v) for v in pos],
-                        "velocity": [float(v) for v in vel],
-                        "effort": [float(v) for v in effort],
-                    },
-                )
-            )
-        for w in self._wrenches():
-            fx, fy = (0.0 if c is None else float(rx[_RX[c]]) for c in w.force)
-            mz = 0.0 if w.torque is None else float(rx[_RX[w.torque]])
-            out.append(
-                (
-                    w.key,
-                    {
-                        "header": {"stamp": st, "frame_id": w.frame_id},
-                        "wrench": {
-                            "force": {"x": fx, "y": fy, "z": 0.0},
-                            "torque": {"x": 0.0, "y": 0.0, "z": mz},
-                        },
-                    },
-                )
-            )
-        if "structure" in o and sim.structure != self._structure_sent:
-            out.append(("~/structure", {"data": sim.structure}))
-        if self.markers is not None and self.k % self.marker_every == 0:
-            out.append(("~/markers", self.markers.message(st, self._marker_values(rx), sim.structure)))
-        return out
-
-    def _frame_values(self) -> list:
-        kin = self.sim.solver.current.kin
-        return self.frames.at(kin.xy("A"), kin.xy("B"), kin.xy("C"))
-
-    def _marker_values(self, rx) -> list:
-        sim = self.sim
-        phi, _, psi, _, x_c, _ = sim.joint_state()
-        return self.markers.values(phi, psi, x_c, rx)
-
-    def _make_presets(self) -> None:
-        from .cdr import Preset, joint_state, wrench_stamped
-
-        effort = 4 if self.solve_reactions else 0
-
-        def js(st, f):
-            return {
-                "header": {"stamp": st, "frame_id": FRAME_ID},
-                "name": list(JOINT_NAMES),
-                "position": f[0:4],
-                "velocity": f[4:8],
-                "effort": f[8 : 8 + effort],
-            }
-
-        def wrench(frame_id):
-            def make(st, f):
-                return {
-                    "header": {"stamp": st, "frame_id": frame_id},
-                    "wrench": {
-                        "force": {"x": f[0], "y": f[1], "z": 0.0},
-                        "torque": {"x": 0.0, "y": 0.0, "z": f[2]},
-                    },
-                }
-
-            return make
-
-        self._js = Preset(joint_state, js, 8 + effort)
-        self._wr = [
-            (
-                w.key,
-                Preset(
-                    wrench_stamped,
-                    wrench(w.frame_id),
-                    3,
-                    take=[None if c is None else _RX[c] for c in (*w.force, w.torque)],
-                ).pack,
-            )
-            for w in self._wrenches()
-        ]
+        return self.step_messages.dicts(self)
 
     def state_payloads(self) -> list[tuple[str, bytes]]:
         """The messages of the present step, encoded (CDR): (topic key, bytes), in publishing
@@ -424,62 +293,7 @@ class Twin:
         kept buffer with this step's values packed in; ``~/structure`` goes out when the
         structure changes (and at the first step), ``/tf_static`` at the first step: the node
         offers them latched."""
-        if self._js is None:
-            self._make_presets()
-        o = self.outputs
-        sim = self.sim
-        ns = int(round(sim.t * 1e9))
-        sec, nsec = ns // 1_000_000_000, ns % 1_000_000_000
-        out = []
-        if "clock" in o:
-            out.append(("/clock", _CLOCK_HEAD + _time(sec, nsec)))
-        if self.frames is not None:
-            if self._tf is None:
-                from .cdr import Preset, generic_encoder
-                from .frames import MSGTYPE
-
-                self._tf = Preset(generic_encoder(MSGTYPE), self.frames.message, self.frames.nfloats).pack
-            if not self._static_sent:
-                from .cdr import generic_encoder
-                from .frames import MSGTYPE
-
-                self._static_sent = True
-                out.append(
-                    (
-                        "/tf_static",
-                        generic_encoder(MSGTYPE)(self.frames.static_message({"sec": sec, "nanosec": nsec})),
-                    )
-                )
-            out.append(("/tf", self._tf(sec, nsec, self._frame_values())))
-        rx = self.reaction_list()
-        if "joint_states" in o:
-            pos, vel = self.joint_values()
-            vals = pos + vel
-            if rx is not None:
-                vals += self._effort(rx)
-            out.append(("joint_states", self._js.pack(sec, nsec, vals)))
-        for key, pack in self._wr:
-            out.append((key, pack(sec, nsec, rx)))
-        if "structure" in o:
-            s = sim.structure
-            if s != self._structure_sent:
-                from .cdr import string
-
-                self._structure_sent = s
-                out.append(("~/structure", string({"data": s})))
-        if self.markers is not None and self.k % self.marker_every == 0:
-            s = sim.structure
-            preset = self._marker_presets.get(s)
-            if preset is None:
-                from .cdr import Preset, generic_encoder
-                from .markers import MSGTYPE
-
-                layout = self.markers
-                preset = self._marker_presets[s] = Preset(
-                    generic_encoder(MSGTYPE), lambda st, f: layout.message(st, f, s), layout.nfloats
-                )
-            out.append(("~/markers", preset.pack(sec, nsec, self._marker_values(rx))))
-        return out
+        return self.step_messages.payloads(self)
 
     def new_events(self, hold: bool = False) -> list[dict]:
         """The events logged since the last call. They are handed over, not kept: the
