@@ -67,8 +67,8 @@ class PacedInProcess:
         twin = r.twin
         clock = time.perf_counter
         step = twin.dt / r.rtf  # a step's period on the wall clock
-        ahead = twin.rewindable and r.lead > step
-        lead = r.lead if ahead else step
+        ahead = twin.rewindable and r.realtime.lead > step
+        lead = r.realtime.lead if ahead else step
         r.prepare()
         r._start_clocks()
         queue, cond, released = self._queue, self._cond, self._released_steps
@@ -78,7 +78,7 @@ class PacedInProcess:
         # to a release's deadline, or while one is going out, when steps are queued ahead
         guard = min(self.RELEASE_GUARD, 0.5 * step)
         # a release goes out this long after the deadline of the first step it sends
-        self._release_delay = delay = max(0.0, r.release_period - step)
+        self._release_delay = delay = max(0.0, r.realtime.release_period - step)
         refill = 0.2 * lead if ahead else 0.0
         releaser = threading.Thread(
             target=self._release_loop, args=(live,), name=f"{r.name}-release", daemon=True
@@ -189,7 +189,7 @@ class PacedInProcess:
         # named for top -H and /proc; a short scheduler slice, so that the subscribers'
         # threads its messages wake preempt it less often (Linux 6.12 on; elsewhere not)
         name_thread("mps-release")
-        ask = r.release_slice_asked
+        ask = r.realtime.release_slice
         r.release_slice = ask if ask and short_slice(ask) else None
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
@@ -294,7 +294,7 @@ class PacedInProcess:
                 if refusal is not None:
                     at = self._boundary(c.wall, ahead)
                 else:
-                    at = self._boundary(c.wall + r.command_delay, ahead)
+                    at = self._boundary(c.wall + r.realtime.command_delay, ahead)
                     refusal = at.refusals[COMMANDS.index(word)]
                     if refusal is None:
                         last = queue[-1] if queue else self._released

@@ -266,8 +266,8 @@ class _Ahead:
         runner, twin, afap = self.runner, self.twin, self.afap
         clock = time.perf_counter
         step = twin.dt / runner.rtf
-        ahead = twin.rewindable and (afap or runner.lead > step)
-        lead = runner.lead if ahead else step
+        ahead = twin.rewindable and (afap or runner.realtime.lead > step)
+        lead = runner.realtime.lead if ahead else step
         # checkpoints kept, by step
         keep = (self.AHEAD + self.BATCH + 100) if afap else int(math.ceil(2.0 * lead / step)) + 100
         keep += self.EVERY

@@ -505,6 +505,35 @@ def _check_pacing(
         raise ValueError(f"release_period {release_period!r}: expected a number of seconds >= 0")
 
 
+@dataclass(frozen=True)
+class RealtimeSettings:
+    """What a :class:`Runner` in realtime pacing is asked for beyond its pace (its keywords of
+    the same names, checked there)."""
+
+    #: how far ahead of its deadline (wall s) a step may be computed (at least one step's
+    #: period; only that where the twin cannot come back to a checkpoint)
+    lead: float = 0.1
+    #: steps computed ahead: a command takes effect at the first step boundary at least this
+    #: long (wall s) after it arrived, so that the steps redone after it (a command's first
+    #: steps cost more: events, new charts) are ready by their deadlines; at most the lead,
+    #: where the steps ahead end
+    command_delay: float = 0.0
+    #: the releasing thread wakes about once per this many wall seconds and sends every step
+    #: whose deadline has passed, so a step goes out at most this less one step's period after
+    #: its deadline; up to one step's period (0 too): each at its deadline
+    release_period: float = 0.0
+    #: the scheduler slice (s) the releasing thread asks for, where the system grants one
+    #: (:func:`mps_ros.os_threads.short_slice`); 0: it asks for none
+    release_slice: float = 1e-4
+    #: simulated seconds run ahead in :meth:`Runner.prepare` (:meth:`Twin.warm_up`)
+    warm_up: float = 1.0
+    #: once prepared: the objects made so far (scene, kernels, ROS) are frozen out of the
+    #: garbage collector's passes (``gc.freeze``), so that a full collection during the run
+    #: scans only what the run made since (milliseconds, not tens of them, holding the
+    #: interpreter); a process-wide choice, the node's
+    freeze_gc: bool = False
+
+
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
@@ -541,27 +570,16 @@ class Runner:
             pacing, real_time_factor, publish_every, lead, command_delay, release_slice, release_period
         )
         self.twin = twin
-        #: realtime: how far ahead of its deadline (wall s) a step may be computed (at least one
-        #: step's period; only that where the twin cannot come back to a checkpoint)
-        self.lead = float(lead)
-        #: realtime, steps computed ahead: a command takes effect at the first step boundary
-        #: at least this long (wall s) after it arrived, so that the steps redone after it
-        #: (a command's first steps cost more: events, new charts) are ready by their
-        #: deadlines; at most the lead, where the steps ahead end
-        self.command_delay = float(command_delay)
-        #: realtime: the releasing thread wakes about once per this many wall seconds and sends
-        #: every step whose deadline has passed, so a step goes out at most this less one step's
-        #: period after its deadline; up to one step's period (0 too): each at its deadline
-        self.release_period = float(release_period)
-        #: realtime: the scheduler slice (s) the releasing thread asks for, where the system
-        #: grants one (:func:`mps_ros.os_threads.short_slice`); 0: it asks for none
-        self.release_slice_asked = float(release_slice)
-        #: realtime, once prepared: the objects made so far (scene, kernels, ROS) are frozen
-        #: out of the garbage collector's passes (``gc.freeze``), so that a full collection
-        #: during the run scans only what the run made since (milliseconds, not tens of them,
-        #: holding the interpreter); a process-wide choice, the node's
-        self.freeze_gc = bool(freeze_gc)
-        self.warm_up = float(warm_up)  # simulated seconds run ahead in prepare()
+        #: realtime: the lead, the commands' delay, the releases' period and slice, the warm-up,
+        #: the collector frozen
+        self.realtime = RealtimeSettings(
+            lead=float(lead),
+            command_delay=float(command_delay),
+            release_period=float(release_period),
+            release_slice=float(release_slice),
+            warm_up=float(warm_up),
+            freeze_gc=bool(freeze_gc),
+        )
         self.sinks = list(sinks)
         self.pacing = pacing
         self.rtf = float(real_time_factor)
@@ -837,15 +855,16 @@ class Runner:
         if self._prepared:
             return
         self._prepared = True
-        if self.pacing == "realtime" and self.warm_up > 0:
-            self.twin.warm_up(self.warm_up)
+        rt = self.realtime
+        if self.pacing == "realtime" and rt.warm_up > 0:
+            self.twin.warm_up(rt.warm_up)
         keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.twin.outputs]
         for k in keys:
             self._encode(k)
         for s in self.sinks:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
-        if self.freeze_gc and self.pacing == "realtime":
+        if rt.freeze_gc and self.pacing == "realtime":
             import gc
 
             gc.collect()
