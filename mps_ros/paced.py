@@ -70,7 +70,7 @@ class PacedInProcess:
         ahead = twin.rewindable and r.realtime.lead > step
         lead = r.realtime.lead if ahead else step
         r.prepare()
-        r._start_clocks()
+        r.clocks.start()
         queue, cond, released = self._queue, self._cond, self._released_steps
         live = [s for s in r.sinks if getattr(s, "live", False)]
         later = [s for s in r.sinks if not getattr(s, "live", False)]
@@ -83,7 +83,7 @@ class PacedInProcess:
         releaser = threading.Thread(
             target=self._release_loop, args=(live,), name=f"{r.name}-release", daemon=True
         )
-        next_diag = r.wall_start + r.period
+        next_diag = r.clocks.wall_start + r.period
         try:
             # the run's start, t0's state and the commands already waiting go out at the
             # schedule's start; with steps computed ahead, that is once the first of them are
@@ -92,7 +92,7 @@ class PacedInProcess:
             r._staging = first.msgs
             r._begin()
             r._staging = None
-            r.wall_start = first.deadline = clock() + (lead - step)
+            r.clocks.wall_start = first.deadline = clock() + (lead - step)
             if ahead:
                 first.cp = twin.checkpoint()
             queue.append(first)
@@ -100,14 +100,14 @@ class PacedInProcess:
             releaser.start()
             if ahead:
                 r._later_logs = []
-            t0, rtf, inbox = twin.t0, r.rtf, r.inbox
+            t0, rtf, inbox, clocks = twin.t0, r.rtf, r.inbox, r.clocks
             while not twin.done and not r._stop.is_set():
                 if released:
                     self._hand_over(released, later)
                 if inbox:
                     self._commands_ahead(ahead)
                     continue
-                deadline = r.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
+                deadline = clocks.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
                 wait = deadline - lead - clock()
                 if wait > 0.0:
                     if r._later_logs:
@@ -189,8 +189,9 @@ class PacedInProcess:
         # named for top -H and /proc; a short scheduler slice, so that the subscribers'
         # threads its messages wake preempt it less often (Linux 6.12 on; elsewhere not)
         name_thread("mps-release")
+        m = r.measurements
         ask = r.realtime.release_slice
-        r.release_slice = ask if ask and short_slice(ask) else None
+        m.release_slice = ask if ask and short_slice(ask) else None
         clock = time.perf_counter
         queue, cond, released = self._queue, self._cond, self._released_steps
         delay = self._release_delay
@@ -238,15 +239,15 @@ class PacedInProcess:
                     r.log("error", f"publishing failed at t = {head.t_ns * 1e-9:.6f} s: {r.error}")
                 r.request_stop("error")
             p1 = clock()
-            r.messages += n
+            m.messages += n
             released.append(head)
             with cond:
                 self._releasing = False
                 cond.notify_all()
             if head.state:
-                r.publish_times.add(p1 - p0)
+                m.publish_times.add(p1 - p0)
                 late = p1 - head.deadline
-                r.latencies.add(late if late > 0.0 else 0.0)
+                m.latencies.add(late if late > 0.0 else 0.0)
 
     @staticmethod
     def _hand_over(released: collections.deque, sinks) -> None:
@@ -314,7 +315,7 @@ class PacedInProcess:
                     cond.notify_all()
                 continue
             if at is not last:
-                r.steps_recomputed += last.k - at.k
+                r.measurements.steps_recomputed += last.k - at.k
                 twin.restore(at.cp)
             entry = _Release(twin.k, twin.t_ns, at.deadline, [], False, None)
             r._staging = entry.msgs

@@ -273,7 +273,7 @@ class _Ahead:
         keep += self.EVERY
         refill = 0.2 * lead if ahead else 0.0
         self._begin(ahead, 0.0 if afap else lead - step)
-        next_diag = runner.wall_start + runner.period
+        next_diag = runner.clocks.wall_start + runner.period
         commands, stop = self.commands, runner._stop
         # a schedule this far behind (wall s) is said once: the run cannot keep real time
         behind, warned = max(0.1, lead), False
@@ -322,7 +322,7 @@ class _Ahead:
                     next_diag = c1 + runner.period
                     runner._diagnostics(t_ns)
                 runner._staging = None
-                runner.messages += sum(1 for m in staged if not m[3])
+                runner.measurements.messages += sum(1 for m in staged if not m[3])
                 if ahead and k % self.EVERY == 0:
                     cps = self.cps
                     cps[k] = twin.checkpoint()
@@ -342,12 +342,12 @@ class _Ahead:
         first entry, due ``lead`` wall seconds from now (the first steps computed meanwhile)."""
         runner, twin = self.runner, self.twin
         runner.prepare()
-        runner._start_clocks()
+        runner.clocks.start()
         staged: list = []
         runner._staging = staged
         runner._begin()
         runner._staging = None
-        self.wall_start = runner.wall_start = time.perf_counter() + lead
+        self.wall_start = runner.clocks.wall_start = time.perf_counter() + lead
         self.k0 = twin.k
         if ahead:
             self.cps[twin.k] = twin.checkpoint()
@@ -371,7 +371,7 @@ class _Ahead:
             runner._end()
         finally:
             runner._staging = None
-        runner.messages += sum(1 for m in staged if not m[3])
+        runner.measurements.messages += sum(1 for m in staged if not m[3])
         self._entry(twin.k, self.deadline(twin.k), False, staged)
         try:
             self.flush()
@@ -402,7 +402,7 @@ class _Ahead:
         if twin.k > k:
             j = max((j for j in self.cps if j <= k), default=None)
             if j is not None:
-                runner.steps_recomputed += twin.k - k
+                runner.measurements.steps_recomputed += twin.k - k
                 twin.restore(self.cps[j])
                 for j in [j for j in self.cps if j > k]:
                     del self.cps[j]
@@ -488,7 +488,7 @@ class _FromTheNode:
         elif kind == b"O":
             paused = marshal.loads(payload)
             hold.shift += paused
-            runner.wall_start += paused
+            runner.clocks.wall_start += paused
             hold.paused = False
         self.wake.set()
 

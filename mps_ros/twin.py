@@ -534,6 +534,63 @@ class RealtimeSettings:
     freeze_gc: bool = False
 
 
+class RunClocks:
+    """A run's clocks, from :meth:`start` to :meth:`stop`: the wall clock
+    (``time.perf_counter``; a paced run's schedule starts at ``wall_start``, moved on by its
+    pauses), the process's CPU, and the CPU of the thread that steps."""
+
+    def __init__(self):
+        self.wall_start = 0.0
+        self.wall_end = 0.0
+        self.cpu_start = 0.0
+        self.cpu_end: float | None = None
+        self.thread_start = time.thread_time()
+        self.thread_cpu: float | None = None
+
+    def start(self) -> None:
+        self.wall_start = time.perf_counter()
+        self.cpu_start = time.process_time()
+        self.thread_start = time.thread_time()
+
+    def stop(self) -> None:
+        self.wall_end = time.perf_counter()
+        self.cpu_end = time.process_time()
+        self.thread_cpu = time.thread_time() - self.thread_start
+
+    def wall(self) -> float:
+        """Wall seconds from the start to the stop (to now, before it)."""
+        return (self.wall_end or time.perf_counter()) - self.wall_start
+
+    def cpu(self) -> float:
+        """The process's CPU seconds from the start to the stop (to now, before it)."""
+        return (self.cpu_end if self.cpu_end is not None else time.process_time()) - self.cpu_start
+
+    def thread(self) -> float:
+        """The stepping thread's CPU seconds from the start to the stop (to now, before it)."""
+        return self.thread_cpu if self.thread_cpu is not None else time.thread_time() - self.thread_start
+
+
+class Measurements:
+    """What a run measures of itself (:meth:`Runner.stats`, /diagnostics): the step times
+    (compute: advance + messages), the publish times (a step's messages to the sinks) and, in
+    realtime pacing, the latencies (publish done − deadline), as :class:`Timings`; the deadline
+    misses, the messages and events sent, the steps recomputed (realtime: computed ahead,
+    dropped for a command); ``release_slice``: the releasing thread's scheduler slice (s) as
+    granted (realtime; None: the system's); ``window``: the counters the last /diagnostics
+    saw."""
+
+    def __init__(self):
+        self.step_times = Timings()
+        self.publish_times = Timings()
+        self.latencies = Timings()
+        self.misses = 0
+        self.messages = 0
+        self.events = 0
+        self.steps_recomputed = 0
+        self.release_slice: float | None = None
+        self.window = diagnostics.Window()
+
+
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
@@ -593,28 +650,16 @@ class Runner:
         self._stop = threading.Event()
         self._paused = threading.Event()  # as fast as possible: held (pause())
         self._step_replies: collections.deque = collections.deque()  # step_paused()
-        # measurements
-        self.step_times = Timings()  # compute: advance + messages (s)
-        self.latencies = Timings()  # realtime: publish done - deadline (s)
-        self.publish_times = Timings()  # emitting a step's messages to the sinks (s)
-        self.misses = 0
-        self._window = diagnostics.Window()  # the counters the last /diagnostics saw
+        #: step and publish times, latencies, counts (:class:`Measurements`)
+        self.measurements = Measurements()
+        self.clocks = RunClocks()
         #: commands refused (of which as floods) and lost in the node's process, where the
         #: run steps in a process of its own (its gate answers there): said in /diagnostics
         self.elsewhere = (0, 0, 0)
-        self.messages = 0
-        self.steps_recomputed = 0  # realtime: computed ahead, dropped for a command
         self.commands_accepted = 0
         self.commands_refused = 0
         self.commands_lost = 0  # told by the transport (the node's QoS events)
-        self.events = 0
-        self.wall_start = 0.0
-        self.wall_end = 0.0
-        self.cpu_start = 0.0
-        self.cpu_end: float | None = None
         self._prepared = False
-        #: realtime: the releasing thread's scheduler slice (s) as granted; None: the system's
-        self.release_slice: float | None = None
         self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None  # the release being filled (realtime)
@@ -622,8 +667,6 @@ class Runner:
         #: (a line through rclpy's logger costs about 0.6 ms: not in the steps after a command)
         self._later_logs: list | None = None
         self._refusals = RefusalLog(lambda level, text: self._say(level, text))
-        self.thread_cpu_start = time.thread_time()
-        self.thread_cpu: float | None = None
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to end after the step in progress (from a signal handler or thread)."""
@@ -652,7 +695,7 @@ class Runner:
             return
         err = None
         if not received:
-            self.messages += 1
+            self.measurements.messages += 1
         for s in self.sinks:  # every sink gets it, though another one fails
             try:
                 if not received:
@@ -665,11 +708,12 @@ class Runner:
             raise err
 
     def _emit_events(self, events, t_ns):
+        m = self.measurements
         if "events" not in self.twin.outputs:
-            self.events += len(events)
+            m.events += len(events)
             return
         for ev in events:
-            self.events += 1
+            m.events += 1
             self._emit("~/events", {"data": to_json(ev)}, t_ns)
 
     def _publish_step(self, payloads, t_ns):
@@ -678,7 +722,7 @@ class Runner:
         if self._staging is not None:  # realtime: into the step's release
             self._staging.extend((key, data, t_ns, False) for key, data in payloads)
         else:
-            self.messages += len(payloads)
+            self.measurements.messages += len(payloads)
             msgs = None
             for s in self.sinks:
                 emit_all = getattr(s, "emit_all", None)
@@ -777,50 +821,43 @@ class Runner:
 
     # -- diagnostics ----------------------------------------------------------------------
     def stats(self) -> dict:
-        wall = (self.wall_end or time.perf_counter()) - self.wall_start
-        sim = self.twin.t - self.twin.t0
-        st, pt = self.step_times, self.publish_times
+        clocks, m, twin = self.clocks, self.measurements, self.twin
+        wall = clocks.wall()
+        sim = twin.t - twin.t0
+        st, pt = m.step_times, m.publish_times
         out = {
             "pacing": self.pacing,
             "real_time_factor_target": self.rtf if self.pacing == "realtime" else math.inf,
             "real_time_factor": sim / wall if wall > 0 else math.nan,
             "sim_time": sim,
             "wall_time": wall,
-            "steps": self.twin.k,
-            "t": self.twin.t,
+            "steps": twin.k,
+            "t": twin.t,
             "step_time_p50_ms": st.percentile(50) * 1e3,
             "step_time_p99_ms": st.percentile(99) * 1e3,
             "step_time_max_ms": st.max * 1e3,
             "publish_time_p50_ms": pt.percentile(50) * 1e3,
             "publish_time_p99_ms": pt.percentile(99) * 1e3,
-            "deadline_misses": self.misses,
-            "steps_recomputed": self.steps_recomputed,
-            "messages": self.messages,
-            "events": self.events,
+            "deadline_misses": m.misses,
+            "steps_recomputed": m.steps_recomputed,
+            "messages": m.messages,
+            "events": m.events,
             "commands_accepted": self.commands_accepted,
             "commands_refused": self.commands_refused,
             "commands_lost": self.commands_lost,
-            "cpu_time": (self.cpu_end if self.cpu_end is not None else time.process_time()) - self.cpu_start,
+            "cpu_time": clocks.cpu(),
             # the stepping thread's own CPU (steps, messages, commands; not the publishing
             # thread, the middleware's threads or the recording process)
-            "step_thread_cpu_per_step_us": (
-                (
-                    self.thread_cpu
-                    if self.thread_cpu is not None
-                    else time.thread_time() - self.thread_cpu_start
-                )
-                / max(1, self.twin.k)
-                * 1e6
-            ),
+            "step_thread_cpu_per_step_us": clocks.thread() / max(1, twin.k) * 1e6,
         }
         # the whole process's CPU over the run (every thread: stepping, releasing, the
         # middleware's; not the recording process), from the clocks' start to the run's end
-        out["process_cpu_per_step_us"] = out["cpu_time"] / max(1, self.twin.k) * 1e6
+        out["process_cpu_per_step_us"] = out["cpu_time"] / max(1, twin.k) * 1e6
         if self.pacing == "realtime":
             # the releasing thread's own scheduler slice (0: none was granted)
-            out["release_slice_ms"] = (self.release_slice or 0.0) * 1e3
-        if self.latencies.n:
-            lat = self.latencies
+            out["release_slice_ms"] = (m.release_slice or 0.0) * 1e3
+        if m.latencies.n:
+            lat = m.latencies
             out["latency_p50_ms"] = lat.percentile(50) * 1e3
             out["latency_p99_ms"] = lat.percentile(99) * 1e3
         return out
@@ -835,7 +872,9 @@ class Runner:
         refused += self.commands_refused
         floods += self.gate.floods
         lost += self.commands_lost
-        new = self._window.since(misses=s["deadline_misses"], steps=self.twin.k, floods=floods, lost=lost)
+        new = self.measurements.window.since(
+            misses=s["deadline_misses"], steps=self.twin.k, floods=floods, lost=lost
+        )
         hw = hardware_id(self.twin.scene.name)
         statuses = [
             diagnostics.pacing(self.name, hw, s, new["misses"], new["steps"], self.pacing == "realtime"),
@@ -870,11 +909,6 @@ class Runner:
             gc.collect()
             gc.freeze()
 
-    def _start_clocks(self) -> None:
-        self.wall_start = time.perf_counter()
-        self.cpu_start = time.process_time()
-        self.thread_cpu_start = time.thread_time()
-
     def _begin(self) -> None:
         """The run's start event and the first state, then the commands already waiting."""
         twin = self.twin
@@ -904,9 +938,7 @@ class Runner:
         """The run's last messages: commands still waiting refused, the last events, the
         diagnostics and the end event (never lost over a late error)."""
         twin = self.twin
-        self.wall_end = time.perf_counter()
-        self.cpu_end = time.process_time()
-        self.thread_cpu = time.thread_time() - self.thread_cpu_start
+        self.clocks.stop()
         reason = self.stop_reason or "end"
         t_ns = twin.t_ns
         self._refusals.close()
@@ -934,8 +966,9 @@ class Runner:
         twin = self.twin
         clock = time.perf_counter
         self.prepare()
-        self._start_clocks()
-        next_diag = self.wall_start + self.period
+        self.clocks.start()
+        next_diag = self.clocks.wall_start + self.period
+        publish_times = self.measurements.publish_times
         try:
             self._begin()
             reply = None
@@ -950,7 +983,7 @@ class Runner:
                     self._publish_step(msgs, t_ns)
                 else:
                     self._emit_events(twin.new_events(), t_ns)
-                self.publish_times.add(clock() - p0)
+                publish_times.add(clock() - p0)
                 self._take_commands()
                 for s in self.sinks:
                     s.tick(None)
@@ -1020,9 +1053,10 @@ class Runner:
         k = twin.k
         msgs = twin.state_payloads() if (k % self.every == 0 or twin.done) else None
         c1 = clock()
-        self.step_times.add(c1 - c0)
+        m = self.measurements
+        m.step_times.add(c1 - c0)
         if c1 > deadline:
-            self.misses += 1
+            m.misses += 1
         return k, msgs, c1
 
 

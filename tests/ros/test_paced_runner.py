@@ -67,7 +67,7 @@ def test_released_at_deadlines_and_the_same_to_every_sink():
     assert st["steps"] == round(T_END / DT)
     # never before the deadline (t0's at the schedule's start)
     for wall, t_ns in live.walls:
-        assert wall >= runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF - 1e-6
+        assert wall >= runner.clocks.wall_start + (t_ns * 1e-9 - tw.t0) / RTF - 1e-6
     assert [m for m in rec.got if not m[3]] == live.got
     stamps = [t for _, t in live.walls]
     assert stamps == sorted(stamps) and len(stamps) == round(T_END / DT) + 1
@@ -120,7 +120,7 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
     # the run keeps its schedule; where it runs behind (a busy machine), the last step
     # computed as the command came (the one going out, or one after it), which is earlier;
     # never before the step that was going out when it was sent
-    deadline = [runner.wall_start + k * DT / RTF for k in range(round(T_END / DT) + 1)]
+    deadline = [runner.clocks.wall_start + k * DT / RTF for k in range(round(T_END / DT) + 1)]
     last = next(k for k, d in enumerate(deadline) if d >= sent["wall"])
     j = round(acks[0]["t"] / DT)
     assert abs(acks[0]["t"] - tw.time_of(j)) < 1e-12 and K <= j <= last, (acks, j, last)
@@ -168,7 +168,9 @@ def test_a_release_period_sends_the_steps_due_together_never_early_and_the_same_
             release_period=rp,
         )
         runner.run()
-        late = [wall - (runner.wall_start + (t_ns * 1e-9 - tw.t0) / RTF) for wall, t_ns in live.walls[1:]]
+        late = [
+            wall - (runner.clocks.wall_start + (t_ns * 1e-9 - tw.t0) / RTF) for wall, t_ns in live.walls[1:]
+        ]
         # the wake-ups: states sent less than a fifth of a period apart went out together
         walls = [w for w, _ in live.walls[1:]]
         wakes = 1 + sum(1 for a, b in zip(walls, walls[1:]) if b - a > 0.2 * period)
@@ -463,7 +465,7 @@ def test_the_pacing_status_warns_while_deadlines_are_missed_and_clears_after():
     said = []
     for misses in (0, 3, 3, 5, 5, 11, 11):  # ten steps a report
         tw.k += 10
-        runner.misses = misses
+        runner.measurements.misses = misses
         runner._diagnostics(0)
         status = sent[-1]["status"][0]
         assert status["name"] == "press_twin: pacing"
@@ -601,7 +603,7 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
         def emit(self, key, data, t_ns):
             if t_ns >= 100_000_000 and not self.stalled:
                 self.stalled = True
-                due = runner.wall_start + (t_ns * 1e-9 + 0.2) / runner.rtf
+                due = runner.clocks.wall_start + (t_ns * 1e-9 + 0.2) / runner.rtf
                 wait_until(
                     lambda: time.perf_counter() >= due,
                     30,
@@ -630,7 +632,7 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
 
     runner._emit = keep
     runner.run()
-    assert runner.misses > 0
+    assert runner.measurements.misses > 0
     last_trouble = max(i for i, lv in enumerate(levels) if lv != 0)
     assert levels[last_trouble] in (1, 2)
     assert 0 in levels[last_trouble + 1 :], levels
