@@ -99,8 +99,8 @@ class PacedInProcess:
             self._released = first
             releaser.start()
             if ahead:
-                r._later_logs = []
-            t0, rtf, inbox, clocks = twin.t0, r.rtf, r.inbox, r.clocks
+                r.commands.lines.hold()
+            t0, rtf, inbox, clocks, lines = twin.t0, r.rtf, r.inbox, r.clocks, r.commands.lines
             while not twin.done and not r._stop.is_set():
                 if released:
                     self._hand_over(released, later)
@@ -110,8 +110,8 @@ class PacedInProcess:
                 deadline = clocks.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
                 wait = deadline - lead - clock()
                 if wait > 0.0:
-                    if r._later_logs:
-                        r._flush_logs()
+                    if lines.held:
+                        lines.flush()
                         continue
                     # a full lead: sleep until a part of it is spent, then refill it in a
                     # burst of steps (one wake-up for several steps)
@@ -175,8 +175,7 @@ class PacedInProcess:
         if releaser.is_alive():
             releaser.join()
         self._hand_over(self._released_steps, later)
-        r._flush_logs()
-        r._later_logs = None
+        r.commands.lines.end()
         r._end()
 
     def _release_loop(self, live) -> None:
@@ -287,10 +286,10 @@ class PacedInProcess:
         queued right after its boundary and the steps computed beyond it stand. Any other comes
         back to its boundary's checkpoint, drops the steps beyond it, and is applied there."""
         r = self.runner
-        twin, queue, cond = r.twin, self._queue, self._cond
+        twin, queue, cond, commands = r.twin, self._queue, self._cond, r.commands
         for c in r.inbox.drain():
             word = c.word if isinstance(c.word, str) else str(c.word)
-            refusal = r.gate.check(word)
+            refusal = commands.gate.check(word)
             with cond:
                 if refusal is not None:
                     at = self._boundary(c.wall, ahead)
@@ -305,7 +304,7 @@ class PacedInProcess:
                 entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure, at.refusals)
                 r._staging = entry.msgs
                 try:
-                    r._answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
+                    commands.answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
                 finally:
                     r._staging = None
                 with cond:
@@ -320,7 +319,7 @@ class PacedInProcess:
             entry = _Release(twin.k, twin.t_ns, at.deadline, [], False, None)
             r._staging = entry.msgs
             try:
-                r._take_commands([c], gated=True)
+                commands.take([c], gated=True)
             finally:
                 r._staging = None
             entry.structure, entry.refusals = twin.sim.structure, twin.refusals()

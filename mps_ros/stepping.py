@@ -274,7 +274,7 @@ class _Ahead:
         refill = 0.2 * lead if ahead else 0.0
         self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.clocks.wall_start + runner.period
-        commands, stop = self.commands, runner._stop
+        commands, stop, lines = self.commands, runner._stop, runner.commands.lines
         # a schedule this far behind (wall s) is said once: the run cannot keep real time
         behind, warned = max(0.1, lead), False
         try:
@@ -303,8 +303,8 @@ class _Ahead:
                     wait = deadline - lead - clock()
                     if wait > 0.0:
                         self.flush()
-                        if runner._later_logs:
-                            runner._flush_logs()
+                        if lines.held:
+                            lines.flush()
                             continue
                         wait += refill
                         self.wake.wait(wait if wait < 0.05 else 0.05)
@@ -352,7 +352,7 @@ class _Ahead:
         if ahead:
             self.cps[twin.k] = twin.checkpoint()
         self._entry(twin.k, self.deadline(twin.k), True, staged)
-        runner._later_logs = []
+        runner.commands.lines.hold()
 
     def _end(self) -> None:
         """The run's end, however it ends: what is pending written, the log lines said, the
@@ -363,8 +363,7 @@ class _Ahead:
             self.flush()
         except BrokenPipeError:
             pass
-        runner._flush_logs()
-        runner._later_logs = None
+        runner.commands.lines.end()
         staged: list = []
         runner._staging = staged
         try:
@@ -412,7 +411,7 @@ class _Ahead:
         staged: list = []
         runner._staging = staged
         try:
-            runner._take_commands([Command(word, source, reply, wall)], gated=True)
+            runner.commands.take([Command(word, source, reply, wall)], gated=True)
         finally:
             runner._staging = None
         if ahead:
@@ -478,7 +477,7 @@ class _FromTheNode:
             self.asked.update(json.loads(payload))
             self.go.set()
         elif kind == b"N":
-            runner.elsewhere = marshal.loads(payload)
+            runner.commands.elsewhere = marshal.loads(payload)
         elif kind == b"Z":
             hold.paused = True
         elif kind == b"T":

@@ -450,6 +450,128 @@ class RefusalLog:
             self.quiet = 0
 
 
+class HeldLog:
+    """A run's log (``log(level, text)``), whose lines may be held back and said later: in
+    realtime pacing with steps banked, the commands' lines are said when the lead is full (a
+    line through rclpy's logger costs about 0.6 ms: not in the steps after a command)."""
+
+    def __init__(self, log: Callable[[str, str], None]):
+        self.log = log
+        #: the lines held back (None: each is said at once)
+        self.held: list | None = None
+
+    def say(self, level: str, text: str) -> None:
+        if self.held is not None:
+            self.held.append((level, text))
+        else:
+            self.log(level, text)
+
+    def hold(self) -> None:
+        """From now on, each line held back until :meth:`flush`."""
+        self.held = []
+
+    def flush(self) -> None:
+        """The lines held back, said."""
+        held = self.held
+        if held:
+            self.held = []
+            for level, text in held:
+                self.log(level, text)
+
+    def end(self) -> None:
+        """The lines held back said, and each line said at once from now on."""
+        self.flush()
+        self.held = None
+
+
+class RunCommands:
+    """The commands of a :class:`Runner`'s run, each taken at the present step boundary
+    (:meth:`take`): past the gate, applied to the twin or refused, and answered
+    (:meth:`answer`: ``~/mode`` as received, ``~/mode/status``, a log line, its reply); those
+    still waiting at the run's end refused (:meth:`refuse_pending`).
+
+    Counted: ``accepted``, ``refused``, ``lost`` (told by the transport: the node's QoS
+    events) and ``elsewhere`` (refused, of which as floods, and lost in the node's process,
+    where the run steps in a process of its own and its gate answers there: said in
+    /diagnostics). ``lines``: the commands' log lines, held back while steps are banked;
+    ``refusals``: the refusals' lines, a flood's once a second."""
+
+    def __init__(self, runner: Runner, gate: Gate, log: Callable[[str, str], None]):
+        self.runner = runner
+        self.gate = gate
+        self.lines = HeldLog(log)
+        self.refusals = RefusalLog(self.lines.say)
+        self.accepted = 0
+        self.refused = 0
+        self.lost = 0
+        self.elsewhere = (0, 0, 0)
+
+    def take(self, cmds: list[Command], gated: bool = False) -> None:
+        """Apply ``cmds`` at the present step boundary, each answered on ``~/mode/status`` and
+        by its reply (``gated``: they passed the gate already)."""
+        r = self.runner
+        twin = r.twin
+        t = twin.t
+        t_ns = to_ns(t)
+        for c in cmds:
+            word = c.word if isinstance(c.word, str) else str(c.word)
+            reason = None if gated else self.gate.check(word)
+            if reason is None:
+                ok, reason = twin.command(word.strip())
+            else:
+                ok = False
+            self.answer(c, word, ok, reason, t, twin.sim.structure)
+            # a command's event (and what it set off) goes out at once, before the next
+            # command's answer
+            r._emit_events(twin.new_events(), t_ns)
+
+    def answer(self, c: Command, word: str, ok: bool, reason, t: float, structure: str) -> None:
+        """A command as received, and its answer (``~/mode/status``, the log, its reply)."""
+        r = self.runner
+        t_ns = to_ns(t)
+        r._send("~/mode", r._encode("~/mode")({"data": word}), t_ns, received=True)
+        ack = {
+            "t": t,
+            "command": shown(word, 64),
+            "accepted": ok,
+            "reason": reason,
+            "source": c.source,
+            "structure": structure,
+        }
+        if ok:
+            self.accepted += 1
+            self.lines.say("info", f"command {word.strip()!r} ({c.source}) applied at t = {t:.6f} s")
+        else:
+            self.refused += 1
+            self.refusals.refused(word, c.source, t, reason, c.wall)
+        r._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
+        if c.reply is not None:
+            try:
+                c.reply(ack)
+            except Exception:  # a reply must never take the run down
+                pass
+
+    def refuse_pending(self, reason: str) -> None:
+        """Answer commands still waiting (the run is over): refused, never silently lost."""
+        twin = self.runner.twin
+        for c in self.runner.inbox.drain():
+            ack = {
+                "t": twin.t,
+                "command": shown(str(c.word), 64),
+                "accepted": False,
+                "reason": reason,
+                "source": c.source,
+                "structure": twin.sim.structure,
+            }
+            self.refused += 1
+            self.lines.log("warn", f"refused command {shown(str(c.word))!r} ({c.source}): {reason}")
+            if c.reply is not None:
+                try:
+                    c.reply(ack)
+                except Exception:
+                    pass
+
+
 # -- the run --------------------------------------------------------------------------------
 class Timings:
     """Durations (s) kept as a histogram of 1 % wide bins from 1 µs to 100 s: percentiles to
@@ -600,8 +722,12 @@ class Runner:
     ``emit_all(msgs)`` gets each step's state in one call instead (``(key, data, t_ns,
     received)`` each, in order; the sink leaves out what it does not take).
 
-    Step and publish times, and in realtime pacing the latency after each step's deadline, are
-    kept as :class:`Timings` (percentiles to 1 %, memory flat over any run length)."""
+    Its parts: ``realtime``, the settings of realtime pacing (:class:`RealtimeSettings`);
+    ``commands``, the commands taken, answered and counted (:class:`RunCommands`);
+    ``measurements``, step and publish times, and in realtime pacing the latency after each
+    step's deadline, as :class:`Timings` (percentiles to 1 %, memory flat over any run
+    length), with the run's counts (:class:`Measurements`); ``clocks``, the run's clocks
+    (:class:`RunClocks`)."""
 
     def __init__(
         self,
@@ -627,8 +753,10 @@ class Runner:
             pacing, real_time_factor, publish_every, lead, command_delay, release_slice, release_period
         )
         self.twin = twin
-        #: realtime: the lead, the commands' delay, the releases' period and slice, the warm-up,
-        #: the collector frozen
+        self.pacing = pacing
+        self.rtf = float(real_time_factor)
+        self.every = int(publish_every)
+        self.period = float(diagnostics_period)
         self.realtime = RealtimeSettings(
             lead=float(lead),
             command_delay=float(command_delay),
@@ -638,35 +766,30 @@ class Runner:
             freeze_gc=bool(freeze_gc),
         )
         self.sinks = list(sinks)
-        self.pacing = pacing
-        self.rtf = float(real_time_factor)
-        self.every = int(publish_every)
-        self.period = float(diagnostics_period)
         self.inbox = inbox if inbox is not None else Inbox()
-        self.gate = gate or Gate()
         self.log = log or (lambda level, text: None)
         self.name = name
+        self.commands = RunCommands(self, gate or Gate(), self.log)
+        self.measurements = Measurements()
+        self.clocks = RunClocks()
         self.stop_reason: str | None = None
+        self.error: str | None = None
         self._stop = threading.Event()
         self._paused = threading.Event()  # as fast as possible: held (pause())
         self._step_replies: collections.deque = collections.deque()  # step_paused()
-        #: step and publish times, latencies, counts (:class:`Measurements`)
-        self.measurements = Measurements()
-        self.clocks = RunClocks()
-        #: commands refused (of which as floods) and lost in the node's process, where the
-        #: run steps in a process of its own (its gate answers there): said in /diagnostics
-        self.elsewhere = (0, 0, 0)
-        self.commands_accepted = 0
-        self.commands_refused = 0
-        self.commands_lost = 0  # told by the transport (the node's QoS events)
         self._prepared = False
-        self.error: str | None = None
         self._encoders: dict = {}
         self._staging: list | None = None  # the release being filled (realtime)
-        #: realtime with steps banked: the commands' log lines, written when the lead is full
-        #: (a line through rclpy's logger costs about 0.6 ms: not in the steps after a command)
-        self._later_logs: list | None = None
-        self._refusals = RefusalLog(lambda level, text: self._say(level, text))
+
+    @property
+    def commands_lost(self) -> int:
+        """Commands lost on the way (:attr:`RunCommands.lost`: the node's QoS events count
+        them)."""
+        return self.commands.lost
+
+    @commands_lost.setter
+    def commands_lost(self, n: int) -> None:
+        self.commands.lost = n
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to end after the step in progress (from a signal handler or thread)."""
@@ -739,89 +862,16 @@ class Runner:
         if events:
             self._emit_events(events, t_ns)
 
-    def _take_commands(self, cmds=None, gated: bool = False) -> None:
-        """Apply the commands given (None: those waiting in the inbox) at the present step
-        boundary, each answered on ``~/mode/status`` and by its reply (``gated``: they passed
-        the gate already)."""
-        if cmds is None:
-            cmds = self.inbox.drain()
-        if not cmds:
-            return
-        twin = self.twin
-        t = twin.t
-        t_ns = to_ns(t)
-        for c in cmds:
-            word = c.word if isinstance(c.word, str) else str(c.word)
-            reason = None if gated else self.gate.check(word)
-            if reason is None:
-                ok, reason = twin.command(word.strip())
-            else:
-                ok = False
-            self._answer(c, word, ok, reason, t, twin.sim.structure)
-            # a command's event (and what it set off) goes out at once, before the next
-            # command's answer
-            self._emit_events(twin.new_events(), t_ns)
-
-    def _say(self, level: str, text: str) -> None:
-        if self._later_logs is not None:
-            self._later_logs.append((level, text))
-        else:
-            self.log(level, text)
-
-    def _flush_logs(self) -> None:
-        logs = self._later_logs
-        if logs:
-            self._later_logs = []
-            for level, text in logs:
-                self.log(level, text)
-
-    def _answer(self, c: Command, word: str, ok: bool, reason, t: float, structure: str):
-        """A command as received, and its answer (``~/mode/status``, the log, its reply)."""
-        t_ns = to_ns(t)
-        self._send("~/mode", self._encode("~/mode")({"data": word}), t_ns, received=True)
-        ack = {
-            "t": t,
-            "command": shown(word, 64),
-            "accepted": ok,
-            "reason": reason,
-            "source": c.source,
-            "structure": structure,
-        }
-        if ok:
-            self.commands_accepted += 1
-            self._say("info", f"command {word.strip()!r} ({c.source}) applied at t = {t:.6f} s")
-        else:
-            self.commands_refused += 1
-            self._refusals.refused(word, c.source, t, reason, c.wall)
-        self._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
-        if c.reply is not None:
-            try:
-                c.reply(ack)
-            except Exception:  # a reply must never take the run down
-                pass
-
-    def refuse_pending(self, reason: str) -> None:
-        """Answer commands still waiting (the run is over): refused, never silently lost."""
-        for c in self.inbox.drain():
-            ack = {
-                "t": self.twin.t,
-                "command": shown(str(c.word), 64),
-                "accepted": False,
-                "reason": reason,
-                "source": c.source,
-                "structure": self.twin.sim.structure,
-            }
-            self.commands_refused += 1
-            self.log("warn", f"refused command {shown(str(c.word))!r} ({c.source}): {reason}")
-            if c.reply is not None:
-                try:
-                    c.reply(ack)
-                except Exception:
-                    pass
+    def _take_commands(self) -> None:
+        """The commands waiting in the inbox, each taken at the present step boundary
+        (:meth:`RunCommands.take`)."""
+        cmds = self.inbox.drain()
+        if cmds:
+            self.commands.take(cmds)
 
     # -- diagnostics ----------------------------------------------------------------------
     def stats(self) -> dict:
-        clocks, m, twin = self.clocks, self.measurements, self.twin
+        clocks, m, cmds, twin = self.clocks, self.measurements, self.commands, self.twin
         wall = clocks.wall()
         sim = twin.t - twin.t0
         st, pt = m.step_times, m.publish_times
@@ -842,9 +892,9 @@ class Runner:
             "steps_recomputed": m.steps_recomputed,
             "messages": m.messages,
             "events": m.events,
-            "commands_accepted": self.commands_accepted,
-            "commands_refused": self.commands_refused,
-            "commands_lost": self.commands_lost,
+            "commands_accepted": cmds.accepted,
+            "commands_refused": cmds.refused,
+            "commands_lost": cmds.lost,
             "cpu_time": clocks.cpu(),
             # the stepping thread's own CPU (steps, messages, commands; not the publishing
             # thread, the middleware's threads or the recording process)
@@ -868,10 +918,11 @@ class Runner:
         if "diagnostics" not in self.twin.outputs:
             return
         s = self.stats()
-        refused, floods, lost = self.elsewhere
-        refused += self.commands_refused
-        floods += self.gate.floods
-        lost += self.commands_lost
+        cmds = self.commands
+        refused, floods, lost = cmds.elsewhere
+        refused += cmds.refused
+        floods += cmds.gate.floods
+        lost += cmds.lost
         new = self.measurements.window.since(
             misses=s["deadline_misses"], steps=self.twin.k, floods=floods, lost=lost
         )
@@ -879,7 +930,7 @@ class Runner:
         statuses = [
             diagnostics.pacing(self.name, hw, s, new["misses"], new["steps"], self.pacing == "realtime"),
             diagnostics.commands(
-                self.name, hw, self.commands_accepted, refused, floods, lost, new["floods"], new["lost"]
+                self.name, hw, cmds.accepted, refused, floods, lost, new["floods"], new["lost"]
             ),
         ]
         statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
@@ -941,12 +992,12 @@ class Runner:
         self.clocks.stop()
         reason = self.stop_reason or "end"
         t_ns = twin.t_ns
-        self._refusals.close()
+        self.commands.refusals.close()
         end = {"t": twin.t, "kind": "run-end", "reason": reason, "steps": twin.k}
         if self.error:
             end["error"] = self.error
         for part in (
-            lambda: self.refuse_pending(
+            lambda: self.commands.refuse_pending(
                 "the run has ended" if reason == "end" else f"the run is stopping ({reason})"
             ),
             lambda: self._emit_events(twin.new_events(), t_ns),

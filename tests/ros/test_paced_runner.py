@@ -507,7 +507,7 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
     level, v = status()
     assert level == 1 and v["commands_refused_as_floods"] == "2", v
     assert status()[0] == 0
-    runner.elsewhere = (4, 3, 0)  # the node's process: 4 refused there, 3 as floods
+    runner.commands.elsewhere = (4, 3, 0)  # the node's process: 4 refused there, 3 as floods
     level, v = status()
     assert level == 1 and (v["commands_refused"], v["commands_refused_as_floods"]) == ("6", "5")
     runner.commands_lost = 1
