@@ -40,12 +40,28 @@ class PacedInProcess:
 
     def __init__(self, runner):
         self.runner = runner
+        twin, rt = runner.twin, runner.realtime
+        #: a step's period on the wall clock
+        self.step = step = twin.dt / runner.rtf
+        #: steps are computed ahead of their deadlines (a command comes back to a checkpoint)
+        self.ahead = ahead = twin.rewindable and rt.lead > step
+        self.lead = rt.lead if ahead else step
+        # the steps and the releases share the interpreter: a step is not begun this close
+        # to a release's deadline, or while one is going out, when steps are queued ahead
+        self.guard = min(self.RELEASE_GUARD, 0.5 * step)
+        #: a full lead: the stepping thread sleeps until this much of it is spent
+        self.refill = 0.2 * self.lead if ahead else 0.0
+        #: the sinks each step goes to at its deadline (the ROS publishers), and after it
+        #: (the recorder)
+        self.live = [s for s in runner.sinks if getattr(s, "live", False)]
+        self.later = [s for s in runner.sinks if not getattr(s, "live", False)]
         self._queue: collections.deque[_Release] = collections.deque()
         self._cond = threading.Condition()
         self._released: _Release | None = None
         self._flush = self._ahead_done = self._releasing = False
         self._released_steps: collections.deque[_Release] = collections.deque()
-        self._release_delay = 0.0
+        # a release goes out this long after the deadline of the first step it sends
+        self._release_delay = max(0.0, rt.release_period - step)
 
     def run(self) -> dict:
         """Realtime pacing. The stepping thread (this one) computes steps up to ``lead``
@@ -64,75 +80,79 @@ class PacedInProcess:
         command. Nothing is released before its deadline, so what the sinks get is what a run
         that stepped in time would have given them."""
         r = self.runner
-        twin = r.twin
-        clock = time.perf_counter
-        step = twin.dt / r.rtf  # a step's period on the wall clock
-        ahead = twin.rewindable and r.realtime.lead > step
-        lead = r.realtime.lead if ahead else step
         r.prepare()
         r.clocks.start()
-        queue, cond, released = self._queue, self._cond, self._released_steps
-        live = [s for s in r.sinks if getattr(s, "live", False)]
-        later = [s for s in r.sinks if not getattr(s, "live", False)]
-        # the steps and the releases share the interpreter: a step is not begun this close
-        # to a release's deadline, or while one is going out, when steps are queued ahead
-        guard = min(self.RELEASE_GUARD, 0.5 * step)
-        # a release goes out this long after the deadline of the first step it sends
-        self._release_delay = delay = max(0.0, r.realtime.release_period - step)
-        refill = 0.2 * lead if ahead else 0.0
         releaser = threading.Thread(
-            target=self._release_loop, args=(live,), name=f"{r.name}-release", daemon=True
+            target=self._release_loop, args=(self.live,), name=f"{r.name}-release", daemon=True
         )
         next_diag = r.clocks.wall_start + r.period
         try:
-            # the run's start, t0's state and the commands already waiting go out at the
-            # schedule's start; with steps computed ahead, that is once the first of them are
-            # (the schedule's first steps would otherwise find none banked)
-            first = _Release(twin.k, twin.t_ns, 0.0, [], True, None, twin.sim.structure, twin.refusals())
-            r._staging = first.msgs
-            r._begin()
-            r._staging = None
-            r.clocks.wall_start = first.deadline = clock() + (lead - step)
-            if ahead:
-                first.cp = twin.checkpoint()
-            queue.append(first)
-            self._released = first
-            releaser.start()
-            if ahead:
-                r.commands.lines.hold()
-            t0, rtf, inbox, clocks, lines = twin.t0, r.rtf, r.inbox, r.clocks, r.commands.lines
-            while not twin.done and not r._stop.is_set():
-                if released:
-                    self._hand_over(released, later)
-                if inbox:
-                    self._commands_ahead(ahead)
-                    continue
-                deadline = clocks.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
-                wait = deadline - lead - clock()
-                if wait > 0.0:
-                    if lines.held:
-                        lines.flush()
-                        continue
-                    # a full lead: sleep until a part of it is spent, then refill it in a
-                    # burst of steps (one wake-up for several steps)
-                    wait += refill
-                    inbox.wait(wait if wait < 0.05 else 0.05)
-                    continue
-                if ahead and queue:
-                    with cond:
-                        while (
-                            (self._releasing or (queue and queue[0].deadline + delay - clock() < guard))
-                            and not r._stop.is_set()
-                            and not inbox
-                        ):
-                            cond.wait(0.002)
-                next_diag = self._step_queued(deadline, ahead, next_diag)
+            self._start(releaser)
+            self._step_ahead(next_diag)
         except Exception as exc:
             r._failed(exc)
             raise
         finally:
-            self._end(releaser, later)
+            self._end(releaser)
         return r.stats()
+
+    def _start(self, releaser: threading.Thread) -> None:
+        """The run's start, t0's state and the commands already waiting, queued to go out at
+        the schedule's start; with steps computed ahead, that is once the first of them are
+        (the schedule's first steps would otherwise find none banked). The releasing thread
+        started; with steps computed ahead, the commands' log lines held back from now on."""
+        r = self.runner
+        twin = r.twin
+        first = _Release(twin.k, twin.t_ns, 0.0, [], True, None, twin.sim.structure, twin.refusals())
+        r._staging = first.msgs
+        r._begin()
+        r._staging = None
+        r.clocks.wall_start = first.deadline = time.perf_counter() + (self.lead - self.step)
+        if self.ahead:
+            first.cp = twin.checkpoint()
+        self._queue.append(first)
+        self._released = first
+        releaser.start()
+        if self.ahead:
+            r.commands.lines.hold()
+
+    def _step_ahead(self, next_diag: float) -> None:
+        """The stepping thread's loop, to the run's end or a stop: the released steps handed
+        to the other sinks, the commands taken as they come, each step computed and queued
+        once its deadline is within the lead (the commands' log lines said where it is full)."""
+        r = self.runner
+        twin, clocks, inbox, stop, lines = r.twin, r.clocks, r.inbox, r._stop, r.commands.lines
+        clock = time.perf_counter
+        queue, cond, released, later = self._queue, self._cond, self._released_steps, self.later
+        ahead, lead, guard, refill = self.ahead, self.lead, self.guard, self.refill
+        delay = self._release_delay
+        t0, rtf = twin.t0, r.rtf
+        while not twin.done and not stop.is_set():
+            if released:
+                self._hand_over(released, later)
+            if inbox:
+                self._commands_ahead(ahead)
+                continue
+            deadline = clocks.wall_start + (twin.time_of(twin.k + 1) - t0) / rtf
+            wait = deadline - lead - clock()
+            if wait > 0.0:
+                if lines.held:
+                    lines.flush()
+                    continue
+                # a full lead: sleep until a part of it is spent, then refill it in a
+                # burst of steps (one wake-up for several steps)
+                wait += refill
+                inbox.wait(wait if wait < 0.05 else 0.05)
+                continue
+            if ahead and queue:
+                with cond:
+                    while (
+                        (self._releasing or (queue and queue[0].deadline + delay - clock() < guard))
+                        and not stop.is_set()
+                        and not inbox
+                    ):
+                        cond.wait(0.002)
+            next_diag = self._step_queued(deadline, ahead, next_diag)
 
     def _step_queued(self, deadline: float, ahead: bool, next_diag: float) -> float:
         """One step computed and queued for its release (its messages, events, the
@@ -162,7 +182,7 @@ class PacedInProcess:
                 cond.notify_all()
         return next_diag
 
-    def _end(self, releaser: threading.Thread, later: list) -> None:
+    def _end(self, releaser: threading.Thread) -> None:
         """The run's end, however it ends: the releasing thread lets go of what is queued (at
         once, where the run was stopped) and ends, the last released steps handed over, the
         log lines said, the run's end."""
@@ -174,7 +194,7 @@ class PacedInProcess:
             cond.notify_all()
         if releaser.is_alive():
             releaser.join()
-        self._hand_over(self._released_steps, later)
+        self._hand_over(self._released_steps, self.later)
         r.commands.lines.end()
         r._end()
 
