@@ -180,7 +180,7 @@ class Boundaries:
         self._limits[self._gen] = kb
         self._last_boundary = kb
         self._gen += 1
-        self.run._out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen)))
+        self.run.child.out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen)))
 
     def take_waiting(self) -> None:
         """The commands that waited for an answer, in order (the lock held), each once the
@@ -297,6 +297,62 @@ class Boundaries:
                 pass
 
 
+class SteppingChild:
+    """The stepping process itself (``python -m mps_ros.stepping``), from the node's side:
+    started with its settings (``spec``), ready once it has built its twin and its kernels
+    (:meth:`wait_ready`), its frames written (``out``) and read (``reader``), its end waited
+    for (:meth:`wait`) and its pipes closed (:meth:`close`)."""
+
+    def __init__(self, spec: dict):
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "mps_ros.stepping"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+        )
+        self.out = FrameWriter(self.proc.stdin.fileno())
+        widen_pipe(self.proc.stdin.fileno())
+        self.reader = FrameReader(self.proc.stdout.fileno())
+        self.out.frame(b"I", json.dumps(spec).encode())
+        self.pid: int | None = None
+
+    def wait_ready(self, log) -> None:
+        """Until it says it is ready (its log lines said meanwhile); OSError with its reason
+        where it ended or failed first."""
+        while True:
+            got = self.reader.read()
+            if not got:
+                self.proc.wait(10)
+                raise OSError(
+                    f"the stepping process ended before it was ready ({_exit_words(self.proc.returncode)})"
+                )
+            for kind, payload in got:
+                if kind == b"L":
+                    log(*marshal.loads(payload))
+                elif kind == b"R":
+                    reply = json.loads(payload)
+                    if not reply.get("ready"):
+                        self.proc.wait(10)
+                        raise OSError(reply.get("error", "the stepping process failed"))
+                    self.pid = reply["pid"]
+                    return
+
+    def wait(self, timeout: float) -> None:
+        """Until it has ended; killed where it has not within ``timeout`` s."""
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def close(self) -> None:
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
     :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
@@ -330,17 +386,15 @@ class SteppingProcess:
         self.error: str | None = None
         self.error_kind: str | None = None
         self._lost = 0
-        self.pid: int | None = None
+        #: the stepping process itself, once started (:meth:`prepare`)
+        self.child: SteppingChild | None = None
         self.priority_got: int | None = None
         self.latencies = Timings()
         self.publish_times = Timings()
         self.messages = 0
         self.k_released: int | None = None
         self.structure = ""
-        self._proc: subprocess.Popen | None = None
         self._lock = threading.Lock()  # the held steps, the generation, the replies
-        self._out: FrameWriter | None = None
-        self._reader: FrameReader | None = None
         self._queue: collections.deque[_Entry] = collections.deque()
         self._released: _Entry | None = None
         self._stats: dict = {}
@@ -379,9 +433,9 @@ class SteppingProcess:
     def _tell_counts(self) -> None:
         """This process's command counts (refused here, of which as floods; lost) to the
         stepping process, whose /diagnostics say them."""
-        if self._out is not None:
+        if self.child is not None:
             refused, floods = self.boundaries.commands_refused, self.boundaries.gate.floods
-            self._out.frame(b"N", marshal.dumps((refused, floods, self._lost)))
+            self.child.out.frame(b"N", marshal.dumps((refused, floods, self._lost)))
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -390,16 +444,7 @@ class SteppingProcess:
         if self._prepared:
             return
         self._prepared = True
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "mps_ros.stepping"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            bufsize=0,
-        )
-        self._out = FrameWriter(self._proc.stdin.fileno())
-        widen_pipe(self._proc.stdin.fileno())
-        self._reader = FrameReader(self._proc.stdout.fileno())
-        self._out.frame(b"I", json.dumps(self.spec).encode())
+        self.child = SteppingChild(self.spec)
         keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.spec["twin"]["outputs"]]
         for s in self.sinks:
             if hasattr(s, "prepare"):
@@ -410,23 +455,7 @@ class SteppingProcess:
             # the recording's status: its encoder made now, not at the first release (a
             # quarter of a second here, holding this interpreter's lock)
             self._diagnostics_encoder = encoder(BY_KEY["/diagnostics"].msgtype)
-        while True:
-            got = self._reader.read()
-            if not got:
-                self._proc.wait(10)
-                raise OSError(
-                    f"the stepping process ended before it was ready ({_exit_words(self._proc.returncode)})"
-                )
-            for kind, payload in got:
-                if kind == b"L":
-                    self.log(*marshal.loads(payload))
-                elif kind == b"R":
-                    reply = json.loads(payload)
-                    if not reply.get("ready"):
-                        self._proc.wait(10)
-                        raise OSError(reply.get("error", "the stepping process failed"))
-                    self.pid = reply["pid"]
-                    return
+        self.child.wait_ready(self.log)
 
     # -- commands and stops (any thread) ------------------------------------------------------
     def command(self, cmd: Command) -> None:
@@ -448,7 +477,7 @@ class SteppingProcess:
                 return "the run has ended"
             if self._paused_at is None:
                 self._paused_at = time.perf_counter()
-                self._out.frame(b"Z", b"")
+                self.child.out.frame(b"Z", b"")
         return None
 
     def step_paused(self, reply) -> str | None:
@@ -461,7 +490,7 @@ class SteppingProcess:
                 return "the node is active: ~/step takes a step while it is deactivated"
             self._step_replies.append(reply)
             if len(self._step_replies) > sum(1 for e in self._queue if e.state):
-                self._out.frame(b"T", b"")
+                self.child.out.frame(b"T", b"")
         return None
 
     def resume(self) -> None:
@@ -480,13 +509,13 @@ class SteppingProcess:
             for e in self._queue:
                 e.deadline += d
             self.boundaries.shift(d)
-            self._out.frame(b"O", marshal.dumps(d))
+            self.child.out.frame(b"O", marshal.dumps(d))
 
     def request_stop(self, reason: str) -> None:
         if self.stop_reason is None:
             self.stop_reason = reason
-        if self._out is not None:
-            self._out.frame(b"S", reason.encode())
+        if self.child is not None:
+            self.child.out.frame(b"S", reason.encode())
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> dict:
@@ -494,10 +523,11 @@ class SteppingProcess:
         death: :attr:`error` says so)."""
         self.prepare()
         self._scheduling()
-        self._out.frame(b"G", json.dumps({"priority": self.priority}).encode())
+        out, reader = self.child.out, self.child.reader
+        out.frame(b"G", json.dumps({"priority": self.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
-        fd = self._reader.fd
+        fd = reader.fd
         queue, lock, boundaries = self._queue, self._lock, self.boundaries
         end = None
         eof = False
@@ -514,7 +544,7 @@ class SteppingProcess:
             if self.afap and self._released is not None and self._released.k != told:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self._released.k
-                self._out.frame(b"K", marshal.dumps(told))
+                out.frame(b"K", marshal.dumps(told))
             if self._paused_at is not None and now >= self._next_status:
                 self._stale(now)
             if (end is not None or eof) and not queue:
@@ -532,7 +562,7 @@ class SteppingProcess:
             # the next deadline, or what the stepping process sends, whichever comes first
             if not select.select([fd], [], [], wait if wait > 0.0 else 0.0)[0]:
                 continue
-            got = self._reader.read()
+            got = reader.read()
             if not got:
                 eof = True
                 continue
@@ -714,23 +744,19 @@ class SteppingProcess:
             )
 
     def _finish(self, end: dict | None) -> dict:
-        proc = self._proc
+        child = self.child
         if end is None:  # the stepping process died
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+            child.wait(10)
             self.error = (
-                f"the stepping process (pid {proc.pid}) ended without finishing "
-                f"the run ({_exit_words(proc.returncode)})"
+                f"the stepping process (pid {child.proc.pid}) ended without finishing "
+                f"the run ({_exit_words(child.proc.returncode)})"
             )
             self.error_kind = "died"
             self.stop_reason = "error"
             k = self.k_released or 0
             self._stats = {"steps": k, "t": self._time_of(k)}
         else:
-            proc.wait(30)
+            child.proc.wait(30)
             self._stats = end["stats"]
             self.stop_reason = end.get("stop_reason") or self.stop_reason
             self.error = end.get("error")
@@ -780,21 +806,13 @@ class SteppingProcess:
 
     def close(self) -> None:
         """End the stepping process if it is still there (the node is going away)."""
-        proc = self._proc
-        if proc is None:
+        child = self.child
+        if child is None:
             return
-        if proc.poll() is None:
+        if child.proc.poll() is None:
             self.request_stop("the node is shutting down")
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
-        for f in (proc.stdin, proc.stdout):
-            try:
-                f.close()
-            except OSError:
-                pass
+            child.wait(30)
+        child.close()
 
 
 def _exit_words(code: int | None) -> str:
