@@ -1,8 +1,9 @@
-"""The node's side of a split run: the steps its stepping process (:mod:`mps_ros.stepping`)
-computed, held and released at their deadlines (or as they come, as fast as possible), to the
-ROS publishers first and then to the recorder; the commands taken as they arrive, each at its
-boundary (:class:`Boundaries`); the stepping process started, watched and ended. See
-:mod:`mps_ros.stepping` for the frames, the commands' rules and the faults."""
+"""The node's side of a split run (:class:`SteppingProcess`): the steps its stepping process
+(:mod:`mps_ros.stepping`) computed, held and released at their deadlines (or as they come, as
+fast as possible), to the ROS publishers first and then to the recorder (:class:`Publication`);
+the commands taken as they arrive, each at its boundary (:class:`Boundaries`); the stepping
+process started, watched and ended (:class:`SteppingChild`). See :mod:`mps_ros.stepping` for
+the frames, the commands' rules and the faults."""
 
 from __future__ import annotations
 
@@ -353,6 +354,126 @@ class SteppingChild:
                 pass
 
 
+class Publication:
+    """The steps released (:meth:`release`): each published (``sink.emit_all``: the ROS
+    publishers) and then recorded (``sinks``: the recorder; one that fails is said once and
+    dropped, and the run steps on), measured (publish times and, paced, the latency after its
+    deadline; the messages published; ``first``, the schedule's start, and ``last``, the
+    last release), and the recording's /diagnostics status said once a diagnostics period and
+    at once where it has stopped (:meth:`recording_status`), published and recorded after the
+    step's messages."""
+
+    def __init__(self, spec: dict, sink, log):
+        self.spec = spec
+        self.afap = bool(spec.get("afap"))
+        self.sink = sink
+        self.sinks: list = []  # the others: the recorder
+        self.log = log
+        self.latencies = Timings()
+        self.publish_times = Timings()
+        self.messages = 0
+        self.first: float | None = None  # the schedule's start (wall s)
+        self.last = 0.0  # the last release (wall s)
+        self.k_released: int | None = None
+        self.structure = ""
+        self.failure: str | None = None  # why the recording stopped, where it did
+        self.next_status = 0.0  # the recording's next status (wall s)
+        self.diagnostics_encoder = None
+        #: the statuses' name prefix (the node's) and hardware_id
+        self.named = (spec["runner"].get("name", "press_twin"), spec.get("hardware_id", "mps"))
+
+    def prepare(self) -> None:
+        """The sinks' channels; the recording status's encoder."""
+        keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.spec["twin"]["outputs"]]
+        for s in self.sinks:
+            if hasattr(s, "prepare"):
+                s.prepare(keys)
+        if "diagnostics" in self.spec["twin"]["outputs"]:
+            from .cdr import encoder
+
+            # the recording's status: its encoder made now, not at the first release (a
+            # quarter of a second here, holding this interpreter's lock)
+            self.diagnostics_encoder = encoder(BY_KEY["/diagnostics"].msgtype)
+
+    def release(self, head: _Entry, clock) -> None:
+        msgs = head.msgs
+        p0 = clock()
+        self.messages += self.sink.emit_all(msgs)
+        p1 = clock()
+        if self.first is None:
+            self.first = head.deadline
+        self.last = p1
+        self.k_released, self.structure = head.k, head.structure
+        if head.state:
+            self.publish_times.add(p1 - p0)
+            if not self.afap:
+                late = p1 - head.deadline
+                self.latencies.add(late if late > 0.0 else 0.0)
+        said = False  # the recording's failure, first seen at this step
+        for s in self.sinks:
+            try:
+                s.emit_all(msgs)
+                s.tick(head.deadline)
+            except Exception as exc:  # a sink that fails: said once, dropped, step on
+                self.log("error", f"recording failed at step {head.k}: {type(exc).__name__}: {exc}")
+                self.sinks = [x for x in self.sinks if x is not s]
+                if self.failure is None:
+                    self.failure = f"{type(exc).__name__}: {exc}"
+                    said = True
+            else:
+                if self.failure is None and getattr(s, "failure", None):
+                    self.failure = s.failure
+                    said = True
+        if said or p1 >= self.next_status:
+            self.next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
+            self.recording_status(msgs)
+
+    def stale(self, now: float, t: float | None) -> None:
+        """Paused: the diagnostics say so (pacing STALE, the recording's status), once a
+        diagnostics period, stamped ``t``, the time of the step released last (None: none
+        was); published and recorded."""
+        self.next_status = now + float(self.spec["runner"].get("diagnostics_period", 1.0))
+        if "diagnostics" not in self.spec["twin"]["outputs"] or t is None:
+            return
+        from . import diagnostics
+
+        name, hw = self.named
+        self.statuses_out(
+            [diagnostics.paused(name, hw, t)]
+            + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
+            to_ns(t),
+        )
+
+    def recording_status(self, msgs: list) -> None:
+        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
+        diagnostics period and at once where it has stopped, stamped with the step released:
+        published and recorded (where the recording goes on) after the step's messages. None
+        where the run publishes no diagnostics or records nothing."""
+        if "diagnostics" not in self.spec["twin"]["outputs"]:
+            return
+        from . import diagnostics
+
+        name, hw = self.named
+        statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
+        if self.failure is not None and not any(x["level"] == diagnostics.ERROR for x in statuses):
+            # the sink itself gave up (dropped): its failure said all the same
+            statuses.append(diagnostics.recording(name, hw, "", 0, 0, self.failure))
+        if statuses:
+            self.statuses_out(statuses, msgs[0][2] if msgs else 0)
+
+    def statuses_out(self, statuses: list, t_ns: int) -> None:
+        """A /diagnostics message of ``statuses`` (stamped ``t_ns``) after the step released:
+        published, and recorded where the recording goes on."""
+        from .diagnostics import array
+
+        out = [("/diagnostics", self.diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
+        self.messages += self.sink.emit_all(out)
+        for s in self.sinks:
+            if getattr(s, "failure", None) is None:
+                s.emit_all(out)
+                s.tick(None)
+
+
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
     :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
@@ -370,50 +491,47 @@ class SteppingProcess:
     ``spec``: the stepping process's settings (``scene``; ``twin``: :class:`Twin`'s keywords;
     ``runner``: :class:`Runner`'s). ``log(level, text)``; ``gate``: the command gate;
     ``priority``: the SCHED_FIFO priority asked for the stepping process and this process's
-    publishing thread (0: none)."""
+    publishing thread (0: none).
+
+    Its parts: ``child``, the stepping process itself (:class:`SteppingChild`);
+    ``publication``, the steps released, published and recorded (:class:`Publication`);
+    ``boundaries``, the commands (:class:`Boundaries`)."""
 
     def __init__(self, spec: dict, sink, log, gate: Gate, priority: int = 0):
         self.spec = spec
         #: as fast as possible: each step released as it comes, a command applied at the
         #: boundary of the last step released (the steps held beyond it computed again)
         self.afap = bool(spec.get("afap"))
-        self.sink = sink
-        self.sinks: list = []  # the others: the recorder
         self.log = log
-        self.priority = int(priority)
         self.inbox = ForwardingInbox(self)
         self.stop_reason: str | None = None
         self.error: str | None = None
         self.error_kind: str | None = None
+        self.priority = int(priority)
         self._lost = 0
+        self.priority_got: int | None = None
+        self._this_refused: str | None = None
         #: the stepping process itself, once started (:meth:`prepare`)
         self.child: SteppingChild | None = None
-        self.priority_got: int | None = None
-        self.latencies = Timings()
-        self.publish_times = Timings()
-        self.messages = 0
-        self.k_released: int | None = None
-        self.structure = ""
+        #: the steps released: published, recorded, measured
+        self.publication = Publication(spec, sink, log)
         self._lock = threading.Lock()  # the held steps, the generation, the replies
         self._queue: collections.deque[_Entry] = collections.deque()
         self._released: _Entry | None = None
         self._stats: dict = {}
         self._prepared = False
-        self._first: float | None = None  # the schedule's start (wall s)
-        self._last = 0.0  # the last release (wall s)
         self._ended = False
-        self._this_refused: str | None = None
-        self._failure: str | None = None  # why the recording stopped, where it did
-        self._next_status = 0.0  # the recording's next status (wall s)
         self._paused_at: float | None = None  # paused (the node inactive) since (wall s)
         self.paused_s = 0.0  # wall seconds paused so far
         #: the replies of the steps asked for while paused (~/step), in order
         self._step_replies: collections.deque = collections.deque()
-        self._diagnostics_encoder = None
-        #: the statuses' name prefix (the node's) and hardware_id
-        self._named = (spec["runner"].get("name", "press_twin"), spec.get("hardware_id", "mps"))
         #: the commands, each at its boundary
         self.boundaries = Boundaries(self, gate, log)
+
+    @property
+    def sinks(self) -> list:
+        """The sinks after the publishers: the recorder (:attr:`Publication.sinks`)."""
+        return self.publication.sinks
 
     @property
     def commands_refused(self) -> int:
@@ -445,16 +563,7 @@ class SteppingProcess:
             return
         self._prepared = True
         self.child = SteppingChild(self.spec)
-        keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.spec["twin"]["outputs"]]
-        for s in self.sinks:
-            if hasattr(s, "prepare"):
-                s.prepare(keys)
-        if "diagnostics" in self.spec["twin"]["outputs"]:
-            from .cdr import encoder
-
-            # the recording's status: its encoder made now, not at the first release (a
-            # quarter of a second here, holding this interpreter's lock)
-            self._diagnostics_encoder = encoder(BY_KEY["/diagnostics"].msgtype)
+        self.publication.prepare()
         self.child.wait_ready(self.log)
 
     # -- commands and stops (any thread) ------------------------------------------------------
@@ -523,7 +632,7 @@ class SteppingProcess:
         death: :attr:`error` says so)."""
         self.prepare()
         self._scheduling()
-        out, reader = self.child.out, self.child.reader
+        out, reader, pub = self.child.out, self.child.reader, self.publication
         out.frame(b"G", json.dumps({"priority": self.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
@@ -533,7 +642,7 @@ class SteppingProcess:
         eof = False
         told = -1  # as fast as possible: the last step released that the stepping process knows of
         if self.afap:
-            self._first = clock()  # the run's start: the first step goes out as it comes
+            pub.first = clock()  # the run's start: the first step goes out as it comes
         import select
 
         while True:
@@ -545,8 +654,9 @@ class SteppingProcess:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self._released.k
                 out.frame(b"K", marshal.dumps(told))
-            if self._paused_at is not None and now >= self._next_status:
-                self._stale(now)
+            if self._paused_at is not None and now >= pub.next_status:
+                released = self._released
+                pub.stale(now, None if released is None else self._time_of(released.k))
             if (end is not None or eof) and not queue:
                 break
             if eof:
@@ -572,7 +682,7 @@ class SteppingProcess:
                     boundaries.take_waiting()
         boundaries.end()
         self.ros_cpu = time.process_time() - cpu0
-        for s in self.sinks:
+        for s in pub.sinks:
             s.tick(None)
         return self._finish(end)
 
@@ -605,7 +715,7 @@ class SteppingProcess:
     def _release_due(self, now: float, flush, clock) -> None:
         """Every held step whose deadline has passed by ``now`` (as fast as possible: every
         one held; paused: those asked for), released in order; ``flush``: all held."""
-        queue, lock = self._queue, self._lock
+        queue, lock, release = self._queue, self._lock, self.publication.release
         while True:
             reply = None
             with lock:
@@ -620,7 +730,7 @@ class SteppingProcess:
                 head = self._released = queue.popleft()
                 if head.state and self._paused_at is not None and self._step_replies:
                     reply = self._step_replies.popleft()
-            self._release(head, clock)
+            release(head, clock)
             if reply is not None:
                 try:
                     reply(self._time_of(head.k))
@@ -649,84 +759,6 @@ class SteppingProcess:
                     self._ended = True
         return end
 
-    def _release(self, head: _Entry, clock) -> None:
-        msgs = head.msgs
-        p0 = clock()
-        self.messages += self.sink.emit_all(msgs)
-        p1 = clock()
-        if self._first is None:
-            self._first = head.deadline
-        self._last = p1
-        self.k_released, self.structure = head.k, head.structure
-        if head.state:
-            self.publish_times.add(p1 - p0)
-            if not self.afap:
-                late = p1 - head.deadline
-                self.latencies.add(late if late > 0.0 else 0.0)
-        said = False  # the recording's failure, first seen at this step
-        for s in self.sinks:
-            try:
-                s.emit_all(msgs)
-                s.tick(head.deadline)
-            except Exception as exc:  # a sink that fails: said once, dropped, step on
-                self.log("error", f"recording failed at step {head.k}: {type(exc).__name__}: {exc}")
-                self.sinks = [x for x in self.sinks if x is not s]
-                if self._failure is None:
-                    self._failure = f"{type(exc).__name__}: {exc}"
-                    said = True
-            else:
-                if self._failure is None and getattr(s, "failure", None):
-                    self._failure = s.failure
-                    said = True
-        if said or p1 >= self._next_status:
-            self._next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
-            self._recording_status(msgs)
-
-    def _stale(self, now: float) -> None:
-        """Paused: the diagnostics say so (pacing STALE, the recording's status), once a
-        diagnostics period, stamped with the step released last; published and recorded."""
-        self._next_status = now + float(self.spec["runner"].get("diagnostics_period", 1.0))
-        if "diagnostics" not in self.spec["twin"]["outputs"] or self._released is None:
-            return
-        from . import diagnostics
-
-        name, hw = self._named
-        t = self._time_of(self._released.k)
-        self._statuses_out(
-            [diagnostics.paused(name, hw, t)]
-            + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
-            to_ns(t),
-        )
-
-    def _recording_status(self, msgs: list) -> None:
-        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
-        diagnostics period and at once where it has stopped, stamped with the step released:
-        published and recorded (where the recording goes on) after the step's messages. None
-        where the run publishes no diagnostics or records nothing."""
-        if "diagnostics" not in self.spec["twin"]["outputs"]:
-            return
-        from . import diagnostics
-
-        name, hw = self._named
-        statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
-        if self._failure is not None and not any(x["level"] == diagnostics.ERROR for x in statuses):
-            # the sink itself gave up (dropped): its failure said all the same
-            statuses.append(diagnostics.recording(name, hw, "", 0, 0, self._failure))
-        if statuses:
-            self._statuses_out(statuses, msgs[0][2] if msgs else 0)
-
-    def _statuses_out(self, statuses: list, t_ns: int) -> None:
-        """A /diagnostics message of ``statuses`` (stamped ``t_ns``) after the step released:
-        published, and recorded where the recording goes on."""
-        from .diagnostics import array
-
-        out = [("/diagnostics", self._diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
-        self.messages += self.sink.emit_all(out)
-        for s in self.sinks:
-            if getattr(s, "failure", None) is None:
-                s.emit_all(out)
-                s.tick(None)
-
     def _priority_said(self, got: dict) -> None:
         prio = self.priority
         if not prio:
@@ -753,7 +785,7 @@ class SteppingProcess:
             )
             self.error_kind = "died"
             self.stop_reason = "error"
-            k = self.k_released or 0
+            k = self.publication.k_released or 0
             self._stats = {"steps": k, "t": self._time_of(k)}
         else:
             child.proc.wait(30)
@@ -766,25 +798,26 @@ class SteppingProcess:
     def stats(self) -> dict:
         """The stepping process's statistics, with this process's publication figures (the
         latency is measured here, after each step's publishes) and the CPU of both."""
+        pub = self.publication
         s = dict(self._stats)
         steps = max(1, int(s.get("steps", 0) or 0))
-        if self.latencies.n:
-            s["latency_p50_ms"] = self.latencies.percentile(50) * 1e3
-            s["latency_p99_ms"] = self.latencies.percentile(99) * 1e3
-        if self.publish_times.n:
-            s["publish_time_p50_ms"] = self.publish_times.percentile(50) * 1e3
-            s["publish_time_p99_ms"] = self.publish_times.percentile(99) * 1e3
+        if pub.latencies.n:
+            s["latency_p50_ms"] = pub.latencies.percentile(50) * 1e3
+            s["latency_p99_ms"] = pub.latencies.percentile(99) * 1e3
+        if pub.publish_times.n:
+            s["publish_time_p50_ms"] = pub.publish_times.percentile(50) * 1e3
+            s["publish_time_p99_ms"] = pub.publish_times.percentile(99) * 1e3
         ros = getattr(self, "ros_cpu", None)
         step_cpu = s.get("cpu_time")
         if ros is not None and step_cpu is not None:
             s["stepping_process_cpu_per_step_us"] = step_cpu / steps * 1e6
             s["ros_process_cpu_per_step_us"] = ros / steps * 1e6
             s["process_cpu_per_step_us"] = (step_cpu + ros) / steps * 1e6
-        s["messages"] = self.messages
-        if self._first is not None and "sim_time" in s and self._last > self._first:
+        s["messages"] = pub.messages
+        if pub.first is not None and "sim_time" in s and pub.last > pub.first:
             # from the schedule's start to the last release (the steps were computed ahead),
             # the pauses left out
-            s["wall_time"] = self._last - self._first - self.paused_s
+            s["wall_time"] = pub.last - pub.first - self.paused_s
             s["real_time_factor"] = s["sim_time"] / s["wall_time"]
         s["commands_lost"] = self.commands_lost
         s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused
