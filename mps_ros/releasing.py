@@ -474,6 +474,61 @@ class Publication:
                 s.tick(None)
 
 
+class Scheduling:
+    """The real-time scheduling of a split run: ``priority``, the SCHED_FIFO priority asked
+    for the stepping process and this process's publishing thread (0: none); this process's
+    scheduling for the run (:meth:`apply`); what the stepping process said it got
+    (:meth:`said`; ``got``: the run's ``realtime_priority``)."""
+
+    def __init__(self, priority: int, log):
+        self.priority = int(priority)
+        self.log = log
+        self.got: int | None = None
+        self.refused_here: str | None = None  # why SCHED_FIFO was refused this process
+
+    def apply(self, release_slice: float) -> None:
+        """This process's scheduling for the run: SCHED_FIFO where asked and allowed (its
+        other threads one below), else a short slice (``release_slice`` s; 0: none) for the
+        publishing thread; the objects made so far frozen out of the collector's passes."""
+        import gc
+
+        from .os_threads import name_thread, short_slice
+
+        if self.priority:
+            self.refused_here = ask_fifo(self.priority)
+            if not self.refused_here:
+                # the rest of this process one below: never ahead of the releases, never
+                # behind an ordinary process while holding what the releases need
+                fifo_for_the_others(max(1, self.priority - 1))
+        if not self.priority or self.refused_here:
+            # under the fair scheduler: a short slice, so that this thread, woken at each
+            # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
+            if release_slice:
+                short_slice(release_slice)
+        name_thread("mps-publish")
+        # what the node made so far (rclpy, the publishers, the scene) out of the collector's
+        # passes: a full collection during the run scans only what the run made since
+        gc.collect()
+        gc.freeze()
+
+    def said(self, got: dict) -> None:
+        """What the stepping process said of its priority (frame ``P``), logged."""
+        prio = self.priority
+        if not prio:
+            return
+        why = got.get("refused") or self.refused_here
+        if why is None:
+            self.got = prio
+            self.log("info", f"stepping process and publishing thread: SCHED_FIFO, priority {prio}")
+        else:
+            self.got = 0
+            self.log(
+                "warn",
+                f"realtime_priority {prio}: SCHED_FIFO refused here ({why}); "
+                f"stepping at normal priority; {HOW_TO_ALLOW}",
+            )
+
+
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
     :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
@@ -495,7 +550,8 @@ class SteppingProcess:
 
     Its parts: ``child``, the stepping process itself (:class:`SteppingChild`);
     ``publication``, the steps released, published and recorded (:class:`Publication`);
-    ``boundaries``, the commands (:class:`Boundaries`)."""
+    ``scheduling``, the run's real-time scheduling (:class:`Scheduling`); ``boundaries``, the
+    commands (:class:`Boundaries`)."""
 
     def __init__(self, spec: dict, sink, log, gate: Gate, priority: int = 0):
         self.spec = spec
@@ -507,14 +563,12 @@ class SteppingProcess:
         self.stop_reason: str | None = None
         self.error: str | None = None
         self.error_kind: str | None = None
-        self.priority = int(priority)
         self._lost = 0
-        self.priority_got: int | None = None
-        self._this_refused: str | None = None
         #: the stepping process itself, once started (:meth:`prepare`)
         self.child: SteppingChild | None = None
         #: the steps released: published, recorded, measured
         self.publication = Publication(spec, sink, log)
+        self.scheduling = Scheduling(priority, log)
         self._lock = threading.Lock()  # the held steps, the generation, the replies
         self._queue: collections.deque[_Entry] = collections.deque()
         self._released: _Entry | None = None
@@ -631,9 +685,9 @@ class SteppingProcess:
         """Go; release each step at its deadline until the stepping process's end (or its
         death: :attr:`error` says so)."""
         self.prepare()
-        self._scheduling()
+        self.scheduling.apply(0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4))
         out, reader, pub = self.child.out, self.child.reader, self.publication
-        out.frame(b"G", json.dumps({"priority": self.priority}).encode())
+        out.frame(b"G", json.dumps({"priority": self.scheduling.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
         fd = reader.fd
@@ -686,32 +740,6 @@ class SteppingProcess:
             s.tick(None)
         return self._finish(end)
 
-    def _scheduling(self) -> None:
-        """This process's scheduling for the run: SCHED_FIFO where asked and allowed (its
-        other threads one below), else a short slice for the publishing thread; the objects
-        made so far frozen out of the collector's passes."""
-        import gc
-
-        from .os_threads import name_thread, short_slice
-
-        if self.priority:
-            self._this_refused = ask_fifo(self.priority)
-            if not self._this_refused:
-                # the rest of this process one below: never ahead of the releases, never
-                # behind an ordinary process while holding what the releases need
-                fifo_for_the_others(max(1, self.priority - 1))
-        if not self.priority or self._this_refused:
-            # under the fair scheduler: a short slice, so that this thread, woken at each
-            # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
-            ask = 0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4)
-            if ask:
-                short_slice(ask)
-        name_thread("mps-publish")
-        # what the node made so far (rclpy, the publishers, the scene) out of the collector's
-        # passes: a full collection during the run scans only what the run made since
-        gc.collect()
-        gc.freeze()
-
     def _release_due(self, now: float, flush, clock) -> None:
         """Every held step whose deadline has passed by ``now`` (as fast as possible: every
         one held; paused: those asked for), released in order; ``flush``: all held."""
@@ -752,28 +780,12 @@ class SteppingProcess:
             elif kind == b"L":
                 self.log(*marshal.loads(payload))
             elif kind == b"P":
-                self._priority_said(json.loads(payload))
+                self.scheduling.said(json.loads(payload))
             elif kind == b"E":
                 end = json.loads(payload)
                 with self._lock:
                     self._ended = True
         return end
-
-    def _priority_said(self, got: dict) -> None:
-        prio = self.priority
-        if not prio:
-            return
-        why = got.get("refused") or self._this_refused
-        if why is None:
-            self.priority_got = prio
-            self.log("info", f"stepping process and publishing thread: SCHED_FIFO, priority {prio}")
-        else:
-            self.priority_got = 0
-            self.log(
-                "warn",
-                f"realtime_priority {prio}: SCHED_FIFO refused here ({why}); "
-                f"stepping at normal priority; {HOW_TO_ALLOW}",
-            )
 
     def _finish(self, end: dict | None) -> dict:
         child = self.child
@@ -821,7 +833,7 @@ class SteppingProcess:
             s["real_time_factor"] = s["sim_time"] / s["wall_time"]
         s["commands_lost"] = self.commands_lost
         s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused
-        s["realtime_priority"] = self.priority_got or 0
+        s["realtime_priority"] = self.scheduling.got or 0
         for k in (
             "step_time_p50_ms",
             "step_time_p99_ms",
