@@ -337,18 +337,21 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
             runner.close()
         got = rec.got
         # refused once: in the node's process where its boundary's step was held (the usual
-        # case), else by the stepping process at that boundary (a machine too busy to have
-        # computed it ahead); st counts both
+        # case), else by the stepping process at that boundary (a machine too busy for the
+        # node to hold that step yet: the steps computed beyond it are then redone); st
+        # counts both
         assert runner.commands_refused <= 1
+        in_the_node = runner.commands_refused == 1
     else:
         live = Sink(True, on_clock)
         runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05, warm_up=0.0)
         st = runner.run()
         got = live.got
+        in_the_node = True
     expected = REFUSED[", ".join(words)]
     assert st["commands_refused"] == 1
     assert st["commands_accepted"] == sum(1 for *_w, ok, _r in expected if ok)
-    if len(words) == 1:
+    if len(words) == 1 and in_the_node:
         assert st["steps_recomputed"] == 0
     acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in got if k == "~/mode/status"]
     assert [(a["command"], a["accepted"], a["reason"]) for a in acks] == expected
