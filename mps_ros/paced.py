@@ -300,7 +300,7 @@ class PacedInProcess:
         return last if d is None else [e for e in steps if e.deadline <= d][-1]
 
     def _commands_ahead(self, ahead: bool) -> None:
-        """Apply the commands waiting, each at its step boundary (see :meth:`_run_paced`). One
+        """Apply the commands waiting, each at its step boundary (see :meth:`run`). One
         the gate refuses (a flood, an empty or overlong word), or the machine would refuse at
         its boundary (the step's :attr:`_Release.refusals`), changes nothing: its answer is
         queued right after its boundary and the steps computed beyond it stand. Any other comes

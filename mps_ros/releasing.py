@@ -68,7 +68,7 @@ class Boundaries:
         self.run = run
         self.gate = gate
         #: a command takes effect at the first step boundary at least this long (wall s) after
-        #: it arrived (see :attr:`Runner.command_delay`)
+        #: it arrived (see :attr:`~mps_ros.twin.RealtimeSettings.command_delay`)
         self.command_delay = float(run.spec["runner"].get("command_delay", 0.0))
         self.commands_refused = 0
         self._string = string
