@@ -375,7 +375,6 @@ class Publication:
         self.first: float | None = None  # the schedule's start (wall s)
         self.last = 0.0  # the last release (wall s)
         self.k_released: int | None = None
-        self.structure = ""
         self.failure: str | None = None  # why the recording stopped, where it did
         self.next_status = 0.0  # the recording's next status (wall s)
         self.diagnostics_encoder = None
@@ -403,7 +402,7 @@ class Publication:
         if self.first is None:
             self.first = head.deadline
         self.last = p1
-        self.k_released, self.structure = head.k, head.structure
+        self.k_released = head.k
         if head.state:
             self.publish_times.add(p1 - p0)
             if not self.afap:
