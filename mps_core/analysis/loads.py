@@ -154,11 +154,11 @@ def last_cycle(t, phi, phi_dot=None, structure=None, mode: str | None = "locked"
                 f"no step of the run is in the {mode!r} structure (the "
                 "working mode); the load report needs a steady working cycle"
             )
-        # the last run of consecutive steps in the mode
+        # the last run of consecutive steps in the mode: from after the last step before its
+        # end that is not in it
         end = int(np.nonzero(ok)[0][-1])
-        start = end
-        while start > 0 and ok[start - 1]:
-            start -= 1
+        out = np.nonzero(~ok[:end])[0]
+        start = int(out[-1]) + 1 if out.size else 0
         t, phi = t[start : end + 1], phi[start : end + 1]
         pd = None if pd is None else pd[start : end + 1]
     else:
