@@ -484,6 +484,8 @@ class Scheduling:
         self.log = log
         self.got: int | None = None
         self.refused_here: str | None = None  # why SCHED_FIFO was refused this process
+        #: the publishing thread's scheduler slice as granted (s; 0: none, the system's own)
+        self.slice_granted = 0.0
 
     def apply(self, release_slice: float) -> None:
         """This process's scheduling for the run: SCHED_FIFO where asked and allowed (its
@@ -502,8 +504,8 @@ class Scheduling:
         if not self.priority or self.refused_here:
             # under the fair scheduler: a short slice, so that this thread, woken at each
             # deadline, preempts a busy neighbour at once (Linux 6.12 on; elsewhere nothing)
-            if release_slice:
-                short_slice(release_slice)
+            if release_slice and short_slice(release_slice):
+                self.slice_granted = release_slice
         name_thread("mps-publish")
         # what the node made so far (rclpy, the publishers, the scene) out of the collector's
         # passes: a full collection during the run scans only what the run made since
@@ -833,6 +835,8 @@ class SteppingProcess:
         s["commands_lost"] = self.commands_lost
         s["commands_refused"] = s.get("commands_refused", 0) + self.commands_refused
         s["realtime_priority"] = self.scheduling.got or 0
+        if not self.afap:  # the publishing thread is this process's: its slice, not the stepping's
+            s["release_slice_ms"] = self.scheduling.slice_granted * 1e3
         for k in (
             "step_time_p50_ms",
             "step_time_p99_ms",

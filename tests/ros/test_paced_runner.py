@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import threading
 import time
 
 import pytest
@@ -38,6 +39,17 @@ class Sink:
 
     def tick(self, deadline=None):
         pass
+
+
+def _slice_here() -> float:
+    """The scheduler slice (ms) this system grants a thread that asks for 0.1 ms (0: none)."""
+    from mps_ros.os_threads import short_slice
+
+    box: list = []
+    t = threading.Thread(target=lambda: box.append(short_slice(1e-4)))
+    t.start()
+    t.join()
+    return 0.1 if box[0] else 0.0
 
 
 def _events(sink):
@@ -342,6 +354,8 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
         # counts both
         assert runner.commands_refused <= 1
         in_the_node = runner.commands_refused == 1
+        # the publishing thread (this process's) asked for a short slice: as granted here
+        assert st["release_slice_ms"] == pytest.approx(_slice_here())
     else:
         live = Sink(True, on_clock)
         runner = Runner(tw, sinks=[live], pacing="realtime", real_time_factor=RTF, lead=0.05, warm_up=0.0)
