@@ -129,7 +129,7 @@ def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult
     groups: dict = {}
     for i, sc in enumerate(scenes):
         groups.setdefault(group_key(sc), []).append(i)
-    tasks = []
+    tasks: list[tuple[str, list[int]]] = []
     for key, idx in groups.items():
         if key is None:
             tasks.extend(("single", [i]) for i in idx)
