@@ -6,6 +6,8 @@ recording on shutdown."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 pytest.importorskip("rclpy")
@@ -31,10 +33,37 @@ def _uninterrupted(tmp_path, t_end: float) -> dict:
     return read_all(ref)
 
 
+def _answered(client, timeout: float = 60.0) -> None:
+    """Until the node's ``~/change_state`` has answered this client once: a request no
+    transition has (an unknown label: refused, nothing changes, nothing logged), sent again each
+    second until an answer to one of them comes back. The first answers of a service can be
+    lost where the node has not yet matched the client's reader (Fast DDS: "failed to send
+    response (timeout)", seen on a busy machine), and a transition itself must not be sent
+    twice."""
+    from lifecycle_msgs.srv import ChangeState
+
+    if getattr(client, "answered", False):
+        return
+    req = ChangeState.Request()
+    req.transition.label = "no-such-transition"
+    futures: list = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if not futures or time.monotonic() >= futures[-1][0] + 1.0:
+            futures.append((time.monotonic(), client.call_async(req)))
+        if any(f.done() for _, f in futures):
+            assert not next(f for _, f in futures if f.done()).result().success
+            client.answered = True
+            return
+        time.sleep(0.002)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for ~/change_state to answer")
+
+
 def _change(node, client, transition_id: int, timeout: float = 60.0) -> bool:
     from lifecycle_msgs.srv import ChangeState
 
     assert client.wait_for_service(timeout_sec=timeout), "no ~/change_state service"
+    _answered(client, timeout)
     req = ChangeState.Request()
     req.transition.id = transition_id
     fut = client.call_async(req)
