@@ -46,17 +46,16 @@ def _answered(client, timeout: float = 60.0) -> None:
         return
     req = ChangeState.Request()
     req.transition.label = "no-such-transition"
-    futures: list = []
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if not futures or time.monotonic() >= futures[-1][0] + 1.0:
-            futures.append((time.monotonic(), client.call_async(req)))
-        if any(f.done() for _, f in futures):
-            assert not next(f for _, f in futures if f.done()).result().success
-            client.answered = True
-            return
-        time.sleep(0.002)
-    raise AssertionError(f"timed out after {timeout:g} s waiting for ~/change_state to answer")
+    sent: list = []  # (when, the future of its answer)
+
+    def answered() -> bool:
+        if not sent or time.monotonic() >= sent[-1][0] + 1.0:
+            sent.append((time.monotonic(), client.call_async(req)))
+        return any(f.done() for _, f in sent)
+
+    wait_until(answered, timeout, "~/change_state to answer a request")
+    assert not next(f for _, f in sent if f.done()).result().success
+    client.answered = True
 
 
 def _change(node, client, transition_id: int, timeout: float = 60.0) -> bool:
