@@ -267,20 +267,26 @@ def figures(report: dict) -> dict:
     """A load report as one row's figures: each quantity's mean, peak, RMS, dynamic RMS and
     harmonic amplitudes (``|F_found|.peak``, ``|F_found|.A1``…), the cycle's period and mean
     crank speed, and the impacts' count and largest foundation impulse."""
-    row: dict = {
-        "period_s": report["cycle"]["period_s"],
-        "crank_speed_rad_s": report["cycle"]["crank_speed_mean_rad_s"],
-    }
-    for q in report["quantities"]:
-        for f in FIGURES:
-            row[f"{q['name']}.{f}"] = q[f]
-        for h in q["harmonics"]:
-            row[f"{q['name']}.A{h['k']}"] = h["amplitude"]
+    quantities = [
+        (q["name"], [q[f] for f in FIGURES], [h["amplitude"] for h in q["harmonics"]])
+        for q in report["quantities"]
+    ]
+    return _row(report["cycle"]["period_s"], quantities, report["transients"])
+
+
+def _row(period: float, quantities, transients) -> dict:
+    """A row's figures: ``quantities`` (name, the :data:`FIGURES`, the amplitudes A_1…A_n)."""
+    row: dict = {"period_s": period, "crank_speed_rad_s": loads.TWO_PI / period}
+    for name, values, amplitudes in quantities:
+        for f, v in zip(FIGURES, values):
+            row[f"{name}.{f}"] = v
+        for k, a in enumerate(amplitudes, 1):
+            row[f"{name}.A{k}"] = a
     found = [
         math.hypot(
             ev.get("impulses_Ns", {}).get("F_found_x", 0.0), ev.get("impulses_Ns", {}).get("F_found_y", 0.0)
         )
-        for ev in report["transients"]
+        for ev in transients
     ]
     row["impacts"] = len(found)
     row["impulse_found_max_Ns"] = max(found) if found else 0.0
@@ -314,26 +320,33 @@ def _task(scene: Scene, structure: str) -> Result:
 
 
 def run_batch(scenes: Sequence[Scene], structure: str = "locked") -> list[Result]:
-    """The rows of scenes that share one vectorised pass (:func:`mps_core.run.batch.run_batch`),
-    each with its share of the CPU seconds (the simulation's, and all of it); where they
-    cannot share it after all, each run on its own (:func:`run_one`)."""
-    from ..run.batch import run_batch as simulate_batch
+    """The rows of scenes that share one vectorised pass (:mod:`mps_core.run.batch`), their
+    load reports made together (:mod:`.batch_loads`), each with its share of the CPU seconds
+    (the simulation's, and all of it); where they cannot share it after all, each run on its
+    own (:func:`run_one`)."""
+    from ..run.batch import _Batch
+    from .batch_loads import RunFigures, batch_figures
 
     c0 = time.process_time()
     try:
-        trajectories = simulate_batch(scenes)
+        states = _Batch(list(scenes)).run_states()
+        sim_cpu = (time.process_time() - c0) / len(scenes)
+        c1 = time.process_time()
+        results = batch_figures(states, structure)
     except Exception:  # NotVectorisable, or anything the pass met: the runs one by one
         return [_task(sc, structure) for sc in scenes]
-    sim_cpu = (time.process_time() - c0) / len(scenes)
+    report_cpu = (time.process_time() - c1) / len(scenes)
     out = []
-    for sc, traj in zip(scenes, trajectories):
-        c1 = time.process_time()
-        try:
-            report = loads.load_report(traj.columns, mode=structure, events=traj.events, source=sc.name)
-            row = {"status": "ok", "error": "", **figures(report)}
-        except Exception as exc:  # as run_one: a run without a report is a row with its error
-            row = {"status": "failed", "error": f"{type(exc).__name__}: {exc}"}
-        out.append((row, sim_cpu, sim_cpu + time.process_time() - c1, True))
+    for res in results:
+        if isinstance(res, RunFigures):
+            quantities = [
+                (name, v[: len(FIGURES)], v[len(FIGURES) :])
+                for name, v in zip(res.names, res.values.tolist())
+            ]
+            row = {"status": "ok", "error": "", **_row(res.period, quantities, ())}
+        else:  # as run_one: a run without a report is a row with its error
+            row = {"status": "failed", "error": f"{type(res).__name__}: {res}"}
+        out.append((row, sim_cpu, sim_cpu + report_cpu, True))
     return out
 
 

@@ -53,6 +53,7 @@ from ..scene import Scene, load_scene
 from ..solvers import SOLVERS
 from .batch_effects import EffectArrays
 from .batch_record import BatchRecord, ReactionsNotSolved
+from .batch_states import BatchStates
 from .trajectory import Trajectory
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
@@ -336,23 +337,51 @@ class _Batch:
 
     # -- the run ----------------------------------------------------------------------------------
     def run(self):
-        sc = self.scenes[0]
-        t0, t_end = 0.0, sc.t_end
-        n_steps = max(1, int(round((t_end - t0) / sc.dt)))
-        self.dt = (t_end - t0) / n_steps
-        q, qd = self.q0.copy(), self.qd0.copy()
-        name, its = self.settings.name, self.settings.iterations
-        work = np.zeros(self.m)
+        """The scenes' trajectories."""
         record = BatchRecord(
             self.m,
-            n_steps,
-            q.shape[1],
+            self._steps(),
+            self.q0.shape[1],
             self.view,
             self.effects.structure,
             self.rows["C"],
             self.effects,
             self.reactions,
         )
+        self._step(record)
+        return self._trajectories(record)
+
+    def run_states(self) -> BatchStates:
+        """The scenes' states and loads at every step, their reactions solved on the steps
+        one asks for (:class:`~mps_core.run.batch_states.BatchStates`), and no trajectory."""
+        states = BatchStates(
+            self.m,
+            self._steps(),
+            self.q0.shape[1],
+            self.view,
+            self.effects,
+            self.mech,
+            self.q0[0],
+            self.mass,
+            self.inertia,
+        )
+        self._step(states)
+        return states
+
+    def _steps(self) -> int:
+        """The run's steps; sets :attr:`dt`."""
+        t_end = self.scenes[0].t_end
+        n_steps = max(1, int(round(t_end / self.scenes[0].dt)))
+        self.dt = t_end / n_steps
+        return n_steps
+
+    def _step(self, record) -> None:
+        """Steps every scene from 0 to the end time, each state into ``record``."""
+        t0, t_end = 0.0, self.scenes[0].t_end
+        n_steps = self._steps()
+        q, qd = self.q0.copy(), self.qd0.copy()
+        name, its = self.settings.name, self.settings.iterations
+        work = np.zeros(self.m)
 
         ev = self.evaluate
         qdd, A, kin, p_now = ev(t0, q, qd)
@@ -390,7 +419,6 @@ class _Batch:
             p_now = p_new
             q, qd, t = q1, qd1, t1
             record.record(t, q, qd, qdd, A, kin, work)
-        return self._trajectories(record)
 
     def _trajectories(self, record: BatchRecord):
         out = []

@@ -76,39 +76,47 @@ class BatchRecord:
         return {c: out[c] for c in COLUMNS}
 
     def reaction_columns(self, mech, q, mass, inertia) -> dict:
-        """The reaction columns, (scene, state) each, of the recorded states: the view's
-        reaction kernel (built at ``q``) on arrays, ``mass`` and ``inertia`` (scene, body), on
-        blocks of (scenes, states) of about :data:`REACTION_CHUNK` states a call. Raises
-        :class:`ReactionsNotSolved` where the view has no such kernel, or a state's reactions
-        are not unique or not finite."""
-        from ..codegen.array_kernels import ArrayBranchChanged
-        from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
-
-        fn = array_reactions(mech, self.view, q)
-        if fn is None:
-            raise ReactionsNotSolved("the chart view has no reaction kernel")
-        _, n, m, S = self.states.shape
-        # a mass or an inertia the scenes share is a number, the others one value a scene
-        masses = [float(col[0]) if np.all(col == col[0]) else col[:, None] for col in [*mass.T, *inertia.T]]
-        out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
-        # blocks of whole scenes (all their states) where a scene's states fit a call, else of
-        # a scene's states
-        width = max(1, REACTION_CHUNK // S)
-        height = min(S, REACTION_CHUNK)
-        for j0 in range(0, m, width):
-            cols = slice(j0, j0 + width)
-            given = [x if isinstance(x, float) else x[cols] for x in masses]
-            for s0 in range(0, S, height):
-                rows = slice(s0, s0 + height)
-                args = [self.states[j, i, cols, rows] for j in range(3) for i in range(n)]
-                try:
-                    values, _residual = fn(*args, given, [x[cols, rows] for x in self.loads])
-                except ArrayBranchChanged:
-                    raise ReactionsNotSolved("a scene's reactions are not unique at a step") from None
-                for c, v in zip(REACTION_COLUMNS, values):
-                    out[c][cols, rows] = v
-        # a NaN or an infinity anywhere makes the sum one
-        if not all(np.isfinite(v.sum()) for v in out.values()):
-            raise ReactionsNotSolved("non-finite reactions")
+        """The reaction columns, (scene, state) each, of the recorded states
+        (:func:`solve_reactions`)."""
+        _, n, _, _ = self.states.shape
+        args = [self.states[j, i] for j in range(3) for i in range(n)]
+        out = solve_reactions(mech, self.view, q, mass, inertia, args, list(self.loads))
         self.states = self.loads = np.empty(0)
         return out
+
+
+def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list) -> dict:
+    """The reaction columns of states given as arrays (scene, state): ``args`` q…, q̇…, q̈… and
+    ``loads`` the effects' loads, each of that shape; the view's reaction kernel (built at
+    ``q``) on arrays, ``mass`` and ``inertia`` (scene, body), on blocks of (scenes, states) of
+    about :data:`REACTION_CHUNK` states a call. Raises :class:`ReactionsNotSolved` where the
+    view has no such kernel, or a state's reactions are not unique or not finite."""
+    from ..codegen.array_kernels import ArrayBranchChanged
+    from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
+
+    fn = array_reactions(mech, view, q)
+    if fn is None:
+        raise ReactionsNotSolved("the chart view has no reaction kernel")
+    m, S = args[0].shape
+    # a mass or an inertia the scenes share is a number, the others one value a scene
+    masses = [float(col[0]) if np.all(col == col[0]) else col[:, None] for col in [*mass.T, *inertia.T]]
+    out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
+    # blocks of whole scenes (all their states) where a scene's states fit a call, else of
+    # a scene's states
+    width = max(1, REACTION_CHUNK // S)
+    height = min(S, REACTION_CHUNK)
+    for j0 in range(0, m, width):
+        cols = slice(j0, j0 + width)
+        given = [x if isinstance(x, float) else x[cols] for x in masses]
+        for s0 in range(0, S, height):
+            rows = slice(s0, s0 + height)
+            try:
+                values, _residual = fn(*[a[cols, rows] for a in args], given, [x[cols, rows] for x in loads])
+            except ArrayBranchChanged:
+                raise ReactionsNotSolved("a scene's reactions are not unique at a step") from None
+            for c, v in zip(REACTION_COLUMNS, values):
+                out[c][cols, rows] = v
+    # a NaN or an infinity anywhere makes the sum one
+    if not all(np.isfinite(v.sum()) for v in out.values()):
+        raise ReactionsNotSolved("non-finite reactions")
+    return out

@@ -1,0 +1,76 @@
+"""What a vectorised batch keeps for its runs' load reports (:mod:`mps_core.run.batch`): each
+step's state (q, q̇, q̈) and its effects' loads, one contiguous row a step, and the joint
+reactions of the steps a caller names (a window of each scene's steps, e.g. its last crank
+revolution), solved then by the chart view's reaction kernel on arrays.
+
+A load report reads the reactions over one crank revolution near the run's end; solving them
+there only, and keeping no other column, is what makes a batch of a sweep cheaper than its
+trajectories (:class:`~mps_core.run.batch_record.BatchRecord`), with the same values at those
+steps: a step's reactions depend on that step's state and loads alone."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .batch_record import ReactionsNotSolved, solve_reactions
+
+
+class BatchStates:
+    """The states and loads of ``m`` scenes over ``steps`` steps (``steps + 1`` states) of the
+    chart view ``view`` (``n`` coordinates), ``effects`` the scenes'
+    :class:`~mps_core.run.batch_effects.EffectArrays`; ``mech`` the mechanism, ``q`` a state
+    to build the reaction kernel at, ``mass`` and ``inertia`` each scene's (scene, body)."""
+
+    def __init__(self, m: int, steps: int, n: int, view, effects, mech, q, mass, inertia):
+        S = steps + 1
+        self.m, self.n, self.view, self.effects = m, n, view, effects
+        self._solver = (mech, q, mass, inertia)
+        self.structure = effects.structure
+        self.k = 0  # the states recorded
+        self.t = np.empty(S)
+        #: (state, q or q̇ or q̈, coordinate, scene) and (state, load, scene)
+        self.states = np.empty((S, 3, n, m))
+        self.loads = np.zeros((S, 3 * effects.nb + 4, m))
+        self._names = [c.name for c in view.coordinates]
+
+    def record(self, t, q, qd, qdd, A, kin, work) -> None:
+        """The state at ``t`` of every scene (the arguments of
+        :meth:`~mps_core.run.batch_record.BatchRecord.record`; ``A`` and ``work`` unused)."""
+        k = self.k
+        self.t[k] = t
+        row = self.states[k]
+        row[0] = q.T
+        row[1] = qd.T
+        row[2] = qdd.T
+        loads = self.loads[k]
+        for j, x in enumerate(self.effects.loads(kin)):
+            loads[j] = x
+        self.k = k + 1
+
+    def coordinate(self, name: str, derivative: int = 0) -> np.ndarray | None:
+        """A coordinate (``derivative`` 1: its rate, 2: its acceleration) over the steps, as
+        (step, scene); None where the view holds it frozen."""
+        if name not in self._names:
+            return None
+        return self.states[: self.k, derivative, self._names.index(name)]
+
+    def reactions(self, steps: np.ndarray, scenes=None) -> dict:
+        """The reaction columns at ``steps`` (scene, j: a step's index for each scene) of
+        ``scenes`` (their indices; None: every scene), each of that shape, with each scene's
+        masses and inertias. Raises
+        :class:`~mps_core.run.batch_record.ReactionsNotSolved` as
+        :meth:`~mps_core.run.batch_record.BatchRecord.reaction_columns` does."""
+        steps = np.asarray(steps)
+        if steps.size == 0:
+            raise ReactionsNotSolved("no step asked for")
+        which = np.arange(self.m) if scenes is None else np.asarray(scenes)
+        first = int(steps.min())
+        # the steps from the first asked for, one contiguous row a scene's value (a transposed
+        # copy of that block), then each scene's own steps taken from its row
+        block = np.ascontiguousarray(np.moveaxis(self.states[first : self.k][..., which], 0, -1))
+        loads = np.ascontiguousarray(np.moveaxis(self.loads[first : self.k][..., which], 0, -1))
+        at = steps - first
+        args = [np.take_along_axis(block[j, i], at, axis=1) for j in range(3) for i in range(self.n)]
+        given = [np.take_along_axis(x, at, axis=1) for x in loads]
+        mech, q, mass, inertia = self._solver
+        return solve_reactions(mech, self.view, q, mass[which], inertia[which], args, given)

@@ -1,0 +1,100 @@
+"""The load reports of a vectorised batch's runs at once (mps_core.analysis.batch_loads): each
+run's figures as the load report of its own trajectory gives them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mps_core import scene_from_text
+from mps_core.analysis import batch_loads, loads
+from mps_core.analysis.sweep import FIGURES, figures, plan
+from mps_core.run.batch import _Batch, run_batch
+from tests.core.test_sweep import EXACT_TEXT
+
+#: working with exact derivatives, 0.35 s at 0.5 ms: 2.4 crank revolutions a run
+EXACT = scene_from_text(EXACT_TEXT)
+TIMES = dict(t_end=0.35, dt=5e-4)
+
+
+def _scenes(vary, **times):
+    return [r.scene for r in plan(EXACT, vary, **(times or TIMES))]
+
+
+def _rows_of_trajectories(scenes):
+    """Each run's figures from its trajectory (the batch's trajectories, reactions and all)."""
+    out = []
+    for tr in run_batch(scenes):
+        try:
+            out.append(figures(loads.load_report(tr.columns, events=tr.events)))
+        except loads.LoadReportError as exc:
+            out.append(exc)
+    return out
+
+
+def _as_row(res: batch_loads.RunFigures) -> dict:
+    row = {"period_s": res.period, "crank_speed_rad_s": loads.TWO_PI / res.period}
+    for name, v in zip(res.names, res.values.tolist()):
+        row.update({f"{name}.{f}": x for f, x in zip(FIGURES, v)})
+        row.update({f"{name}.A{k}": x for k, x in enumerate(v[len(FIGURES) :], 1)})
+    return row
+
+
+def test_each_run_has_the_figures_of_its_own_load_report():
+    # the crank speeds differ: the runs' cycles span different numbers of steps (their splines
+    # of different lengths in one block)
+    scenes = _scenes(["bodies.slider.mass_kg=80:120:3", "effects.motor.crank_speed_rad_s=38,45"])
+    got = batch_figures_of(scenes)
+    want = _rows_of_trajectories(scenes)
+    steps = set()
+    for res, row in zip(got, want):
+        assert isinstance(res, batch_loads.RunFigures)
+        mine = _as_row(res)
+        theirs = {k: v for k, v in row.items() if k not in ("impacts", "impulse_found_max_Ns")}
+        assert mine.keys() == theirs.keys()
+        for k, v in theirs.items():
+            scale = max(abs(v), abs(theirs.get(k.rsplit(".", 1)[0] + ".peak", 0.0)))
+            assert abs(mine[k] - v) <= 1e-11 * scale, (k, mine[k], v)
+        steps.add(round(res.period / TIMES["dt"]))
+    assert len(steps) > 1  # the cycles differ in length
+
+
+def batch_figures_of(scenes):
+    return batch_loads.batch_figures(_Batch(scenes).run_states())
+
+
+def test_the_cycles_are_the_reports_cycles():
+    # 2.4 to 4 revolutions: the first run has no revolution before its last (no change)
+    scenes = _scenes(["effects.motor.crank_speed_rad_s=30,40,50"], t_end=0.5, dt=5e-4)
+    states = _Batch(scenes).run_states()
+    phi = np.ascontiguousarray(states.coordinate("phi").T)
+    phi_dot = np.ascontiguousarray(states.coordinate("phi", 1).T)
+    cyc = batch_loads.cycles(states.t, phi, phi_dot)
+    assert not cyc.errors and math.isnan(cyc.change[0]) and not math.isnan(cyc.change[2])
+    for r in range(len(scenes)):
+        want = loads.last_cycle(states.t, phi[r], phi_dot[r])
+        assert abs(cyc.t0[r] - want.t0) <= 2e-15 and abs(cyc.period[r] - want.period) <= 4e-15
+        assert (cyc.i0[r], cyc.i1[r]) == (want.i0, want.i1)
+        if math.isnan(want.period_change):
+            assert math.isnan(cyc.change[r])
+        else:
+            assert math.isclose(cyc.change[r], want.period_change, rel_tol=1e-9, abs_tol=1e-15)
+
+
+def test_a_run_without_a_full_revolution_gets_the_reports_error():
+    # from 0 deg the crank passes 360 deg once in 0.2 s; from 300 deg, twice
+    scenes = _scenes(["initial.phi_deg=0,300"], t_end=0.2, dt=5e-4)
+    got = batch_figures_of(scenes)
+    want = _rows_of_trajectories(scenes)
+    assert isinstance(got[0], loads.LoadReportError) and isinstance(want[0], loads.LoadReportError)
+    assert str(got[0]) == str(want[0]) and "no full crank revolution" in str(got[0])
+    assert isinstance(got[1], batch_loads.RunFigures) and isinstance(want[1], dict)
+    assert math.isclose(got[1].period, want[1]["period_s"], rel_tol=1e-12)
+
+
+def test_a_batch_in_another_structure_is_refused():
+    states = _Batch(_scenes(["bodies.slider.mass_kg=80,90"])).run_states()
+    with pytest.raises(ValueError, match="'free'"):
+        batch_loads.batch_figures(states, mode="free")
