@@ -13,6 +13,7 @@ any preset name or scene file (over its own t_end); by default every built-in ca
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from .accuracy import FAMILIES
@@ -199,9 +200,10 @@ def _sweep(args) -> int:
         t_end, dt = args.t_end or 0.35, args.dt or 2e-4
         print(
             f"vectorised sweep: working (locked), slider mass swept, linear acceleration, "
-            f"t_end {t_end:g} s, dt {dt:g} s, reactions and load reports; one process"
+            f"t_end {t_end:g} s, dt {dt:g} s, reactions and load reports; one process, "
+            f"then {args.workers or os.cpu_count() or 1} worker processes"
         )
-        vec = sweep.vectorised(tuple(sizes), t_end, dt, schemes)
+        vec = sweep.vectorised(tuple(sizes), t_end, dt, schemes, workers=args.workers)
         sweep.report_vectorised(vec)
         return 0
     rows = sweep.throughput(

@@ -123,27 +123,29 @@ def vectorised(
     schemes=("central", "autodiff"),
     alone: int = 10,
     repeats: int = 2,
+    workers: int | None = None,
     log=print,
 ) -> list[dict]:
-    """Mechanism-steps a second of a sweep in this process (one worker), the joint reactions
-    and each run's load report included: working with the slider's mass swept, one run by one
-    (``alone`` runs) and in vectorised batches of each size (a sweep of that many runs, one
-    batch), interleaved, the best of ``repeats``; and where a batch's time goes (the stepping
-    with and without the reactions, the reports, the rest: the scenes built and grouped, the
-    rows)."""
-    from dataclasses import replace
-
+    """Mechanism-steps a second of a sweep, the joint reactions and each run's load report
+    included: working with the slider's mass swept, in this process (one worker) one run by
+    one (``alone`` runs) and in vectorised batches of each size (a sweep of that many runs, one
+    batch), interleaved, the best of ``repeats`` in CPU seconds; then on ``workers`` local
+    worker processes (the machine's cores), a batch of the largest size each, in wall-clock
+    seconds; and where a batch's time goes (its stepping, the reactions, the load reports, the
+    rest: the scenes built and grouped, the rows)."""
+    from ..analysis.batch_loads import batch_figures
     from ..analysis.sweep import plan, sweep
-    from ..run.batch import run_batch
+    from ..run.batch import _Batch
 
     steps = int(round(t_end / dt))
+    n = workers or os.cpu_count() or 1
     rows = []
     for scheme in schemes:
         base = _working(scheme)
-        kw = dict(t_end=t_end, dt=dt, workers=1)
+        kw = dict(t_end=t_end, dt=dt)
         warm = ["bodies.slider.mass_kg=80:120:2"]
-        sweep(base, warm, **kw)  # the kernels of both paths built before any timing
-        sweep(base, warm, vectorise=False, **kw)
+        sweep(base, warm, workers=1, **kw)  # the kernels of both paths built before any timing
+        sweep(base, warm, workers=1, vectorise=False, **kw)
         ways = [("one by one", alone, False)] + [(f"batches of {m}", m, True) for m in sizes]
         best: dict = {}
 
@@ -155,7 +157,7 @@ def vectorised(
             for label, m, vec in ways:
                 vary = [f"bodies.slider.mass_kg=80:120:{m}"]
                 c0 = time.process_time()
-                res = sweep(base, vary, vectorise=vec, batch_size=m, min_batch=1, **kw)
+                res = sweep(base, vary, workers=1, vectorise=vec, batch_size=m, min_batch=1, **kw)
                 cpu = time.process_time() - c0
                 if cpu < best.get(label, {}).get("cpu_s", math.inf):
                     best.setdefault(label, {}).update(
@@ -171,43 +173,69 @@ def vectorised(
                         failed=sum(1 for r in res.rows if r["status"] != "ok"),
                     )
                 log(f"  {scheme} {label}: {cpu:.2f} CPU s")
-                if vec:  # the batch alone, with and without the reactions, for their share
-                    scenes = [r.scene for r in plan(base, vary, t_end=t_end, dt=dt)]
-                    for key, rx in (("batch_cpu_s", True), ("batch_alone_cpu_s", False)):
-                        one = [replace(sc, reactions=rx) for sc in scenes]
-                        c0 = time.process_time()
-                        run_batch(one)
-                        keep(label, key, time.process_time() - c0)
+                if vec:  # the batch alone: its reactions' share of its reports
+                    scenes = [r.scene for r in plan(base, vary, **kw)]
+                    c0 = time.process_time()
+                    states = _Batch(scenes).run_states()
+                    batch_figures(states)
+                    keep(label, "batch_cpu_s", time.process_time() - c0)
+                    keep(label, "batch_reactions_cpu_s", states.reaction_cpu_s)
         for label, _m, _vec in ways:
             row = best[label]
             row["speedup"] = row["steps_per_s"] / best["one by one"]["steps_per_s"]
             rows.append(row)
+        m = max(sizes)
+        label = f"{n} workers, batches of {m}"
+        vary = [f"bodies.slider.mass_kg=80:120:{n * m}"]
+        w0 = time.perf_counter()
+        res = sweep(base, vary, workers=n, batch_size=m, min_batch=1, **kw)
+        wall = time.perf_counter() - w0
+        log(f"  {scheme} {label}: {wall:.2f} s")
+        rows.append(
+            {
+                "scheme": scheme,
+                "way": label,
+                "runs": n * m,
+                "steps": steps,
+                "wall_s": wall,
+                "steps_per_s": n * m * steps / wall,
+                "speedup": n * m * steps / wall / best["one by one"]["steps_per_s"],
+                "vectorised": res.vectorised,
+                "failed": sum(1 for r in res.rows if r["status"] != "ok"),
+            }
+        )
     return rows
 
 
 def report_vectorised(rows: list[dict]) -> None:
     print(
-        f"{'derivatives':12} {'way':18} {'runs':>5} {'CPU s':>7} {'steps/s':>10} {'× one':>6} "
+        f"{'derivatives':12} {'way':22} {'runs':>5} {'seconds':>11} {'steps/s':>10} {'× one':>6} "
         f"{'stepping':>9} {'reactions':>9} {'reports':>8} {'rest':>6}"
     )
     for r in rows:
+        if "wall_s" in r:  # the machine's workers: wall-clock seconds, no split
+            print(
+                f"{r['scheme']:12} {r['way']:22} {r['runs']:5d} {r['wall_s']:6.2f} wall "
+                f"{r['steps_per_s']:10,.0f} {r['speedup']:6.1f}"
+            )
+            continue
         cpu = r["cpu_s"]
-        if "batch_cpu_s" in r:  # the sweep's own stepping, split as the batch alone splits
-            rx = max(0.0, r["batch_cpu_s"] - r["batch_alone_cpu_s"]) / r["batch_cpu_s"]
-            stepping = r["simulation_cpu_s"] * (1.0 - rx)
-            reactions = f"{100 * r['simulation_cpu_s'] * rx / cpu:8.0f}%"
+        if "batch_cpu_s" in r:  # the sweep's reports, split as the batch alone's split
+            share = min(1.0, r["batch_reactions_cpu_s"] / max(r["reports_cpu_s"], 1e-12))
+            reactions = f"{100 * r['reports_cpu_s'] * share / cpu:8.0f}%"
+            reports = r["reports_cpu_s"] * (1.0 - share)
         else:
-            stepping, reactions = r["simulation_cpu_s"], ""
+            reactions, reports = "", r["reports_cpu_s"]
         rest = cpu - r["simulation_cpu_s"] - r["reports_cpu_s"]
         print(
-            f"{r['scheme']:12} {r['way']:18} {r['runs']:5d} {cpu:7.2f} {r['steps_per_s']:10,.0f} "
-            f"{r['speedup']:6.1f} {100 * stepping / cpu:8.0f}% {reactions:>9} "
-            f"{100 * r['reports_cpu_s'] / cpu:7.0f}% {100 * rest / cpu:5.0f}%"
+            f"{r['scheme']:12} {r['way']:22} {r['runs']:5d} {cpu:7.2f} CPU {r['steps_per_s']:10,.0f} "
+            f"{r['speedup']:6.1f} {100 * r['simulation_cpu_s'] / cpu:8.0f}% {reactions:>9} "
+            f"{100 * reports / cpu:7.0f}% {100 * rest / cpu:5.0f}%"
         )
     print(
-        "(steps/s: mechanism-steps a second of the whole sweep in one process, the reactions and "
-        "each run's load report included; stepping: the simulation (one by one: with its "
-        "reactions); reactions: what they add to a batch (its stepping split as the same batch "
-        "run alone with and without them splits); reports: the load reports and rows; rest: "
-        "the scenes built, checked and grouped)"
+        "(steps/s: mechanism-steps a second of the whole sweep, the reactions and each run's load "
+        "report included: in one process (CPU seconds), or on the workers (wall-clock seconds); "
+        "stepping: the simulation (one by one: with its reactions); reactions: a batch's, solved "
+        "on each run's cycle; reports: the load reports and rows; rest: the scenes built, "
+        "checked and grouped)"
     )

@@ -10,6 +10,8 @@ steps: a step's reactions depend on that step's state and loads alone."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from .batch_record import ReactionsNotSolved, solve_reactions
@@ -32,6 +34,9 @@ class BatchStates:
         self.states = np.empty((S, 3, n, m))
         self.loads = np.zeros((S, 3 * effects.nb + 4, m))
         self._names = [c.name for c in view.coordinates]
+        self._tail: tuple | None = None  # the steps the reactions take, rearranged
+        #: the process's CPU seconds :meth:`reactions` took so far
+        self.reaction_cpu_s = 0.0
 
     def record(self, t, q, qd, qdd, A, kin, work) -> None:
         """The state at ``t`` of every scene (the arguments of
@@ -54,23 +59,33 @@ class BatchStates:
             return None
         return self.states[: self.k, derivative, self._names.index(name)]
 
-    def reactions(self, steps: np.ndarray, scenes=None) -> dict:
+    def reactions(self, steps: np.ndarray, scenes=None, first: int | None = None) -> dict:
         """The reaction columns at ``steps`` (scene, j: a step's index for each scene) of
         ``scenes`` (their indices; None: every scene), each of that shape, with each scene's
-        masses and inertias. Raises
+        masses and inertias; ``first``: the first step any call will ask for (the steps from
+        it on are then rearranged once for all calls). Raises
         :class:`~mps_core.run.batch_record.ReactionsNotSolved` as
         :meth:`~mps_core.run.batch_record.BatchRecord.reaction_columns` does."""
+        c0 = time.process_time()
         steps = np.asarray(steps)
         if steps.size == 0:
             raise ReactionsNotSolved("no step asked for")
         which = np.arange(self.m) if scenes is None else np.asarray(scenes)
-        first = int(steps.min())
-        # the steps from the first asked for, one contiguous row a scene's value (a transposed
-        # copy of that block), then each scene's own steps taken from its row
-        block = np.ascontiguousarray(np.moveaxis(self.states[first : self.k][..., which], 0, -1))
-        loads = np.ascontiguousarray(np.moveaxis(self.loads[first : self.k][..., which], 0, -1))
-        at = steps - first
-        args = [np.take_along_axis(block[j, i], at, axis=1) for j in range(3) for i in range(self.n)]
-        given = [np.take_along_axis(x, at, axis=1) for x in loads]
+        start = int(steps.min()) if first is None else min(first, int(steps.min()))
+        if self._tail is None or self._tail[0] > start:
+            # the steps from ``start`` on, a scene's values one contiguous row (a transposed
+            # copy): (q or q̇ or q̈, coordinate, scene, step) and (load, scene, step)
+            self._tail = (
+                start,
+                np.ascontiguousarray(np.moveaxis(self.states[start : self.k], 0, -1)),
+                np.ascontiguousarray(np.moveaxis(self.loads[start : self.k], 0, -1)),
+            )
+        start, block, loads = self._tail
+        at = steps - start
+        args = [np.take_along_axis(block[j, i, which], at, axis=1) for j in range(3) for i in range(self.n)]
+        given = [np.take_along_axis(x[which], at, axis=1) for x in loads]
         mech, q, mass, inertia = self._solver
-        return solve_reactions(mech, self.view, q, mass[which], inertia[which], args, given)
+        try:
+            return solve_reactions(mech, self.view, q, mass[which], inertia[which], args, given)
+        finally:
+            self.reaction_cpu_s += time.process_time() - c0
