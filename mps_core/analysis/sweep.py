@@ -31,7 +31,6 @@ only: the core depends on nothing heavier, and a record array reads into pandas 
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import itertools
 import json
@@ -247,7 +246,7 @@ def plan(
     raw0.setdefault("outputs", {})["reactions"] = True
     runs = []
     for i, point in enumerate(_points(axes, samples, seed)):
-        raw = copy.deepcopy(raw0)
+        raw = _copy(raw0)
         values = dict(zip(keys, point))
         for k, v in values.items():
             set_field(raw, k, v)
@@ -260,6 +259,16 @@ def plan(
         key = hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:16]
         runs.append(Run(i, values, sc, key))
     return runs
+
+
+def _copy(value):
+    """A parsed scene file's copy: its tables and arrays new, the values (numbers, strings,
+    dates: none of them mutable) shared (what ``copy.deepcopy`` gives, a few times faster)."""
+    if isinstance(value, dict):
+        return {k: _copy(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy(v) for v in value]
+    return value
 
 
 # -- one run --------------------------------------------------------------------------------

@@ -49,6 +49,7 @@ import numpy as np
 
 from ..derivatives.stencil import stencil
 from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
+from ..model.press import SEED_BODIES
 from ..scene import Scene, load_scene
 from ..solvers import SOLVERS
 from .batch_effects import EffectArrays
@@ -169,10 +170,11 @@ class _Batch:
         first = scenes[0]
         self.mech = first.mechanism()
         self.m = len(scenes)
+        linkage = first.linkage()  # the initial states: the geometry's alone
         views = []
         q0, qd0 = [], []
         for sc in scenes:
-            view, q, qd = sc.initial_state(self.mech)
+            view, q, qd = sc.initial_state(linkage)
             views.append(view.name)
             q0.append(q)
             qd0.append(qd)
@@ -183,10 +185,11 @@ class _Batch:
         self.settings = first.solver
         self.policy = first.charts
         bodies = self.mech.bodies
-        mechanisms = [sc.mechanism() for sc in scenes]  # each scene's masses and inertias
-        per = [mech.bodies for mech in mechanisms]
-        self.mass = np.array([[b.mass for b in bs] for bs in per])  # (m, nb)
-        self.inertia = np.array([[b.inertia for b in bs] for bs in per])
+        # each scene's masses and inertias (a group's scenes differ in nothing else of a body;
+        # a body a scene does not name is the seed's, as in its mechanism)
+        per = [[sc.bodies.get(b.name, SEED_BODIES[b.name]) for b in bodies] for sc in scenes]
+        self.mass = np.array([[d.mass for d in ds] for ds in per])  # (m, nb)
+        self.inertia = np.array([[d.inertia for d in ds] for ds in per])
         self.rot = [k for k, b in enumerate(bodies) if b.rotates]
         self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
@@ -196,7 +199,7 @@ class _Batch:
             self.rows,
             self.mass,
             first.structure,
-            [sc.build_effects(mech) for sc, mech in zip(scenes, mechanisms)],
+            [sc.build_effects(self.mech) for sc in scenes],
         )
         self.evaluations = 0
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None

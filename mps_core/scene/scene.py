@@ -154,6 +154,19 @@ class Scene:
             )
         return mech
 
+    def linkage(self) -> PressMechanism:
+        """The mechanism of the scene's geometry, lock angle and top stop with the seed's
+        bodies: for what depends on the geometry alone (the charts and their views, an
+        initial state assembled), one object for every scene that shares it, whatever its
+        bodies (a sweep over masses builds it once)."""
+        key = (self.geometry, self.psi_lock, self.x_top)
+        mech = _LINKAGES.get(key)
+        if mech is None:
+            mech = _LINKAGES.keep(
+                key, PressMechanism(self.geometry, psi_lock=self.psi_lock, x_top=self.x_top)
+            )
+        return mech
+
     def build_effects(self, mechanism) -> list:
         """The effects the scene lists, and only those (a spring's damping is its own unit)."""
         out = []
@@ -171,6 +184,8 @@ class Scene:
 
 #: mechanisms by what makes them (:meth:`Scene.mechanism`)
 _MECHANISMS = Memo("scene.mechanisms", 64)
+#: mechanisms with the seed's bodies by their geometry (:meth:`Scene.linkage`)
+_LINKAGES = Memo("scene.linkages", 64)
 
 
 # -- field checks -------------------------------------------------------------------------
@@ -730,8 +745,7 @@ def _check_across_tables(scene: Scene) -> None:
     for i, (ts, _name) in enumerate(scene.commands):
         if ts > scene.t_end:
             raise SceneError(f"commands[{i}].t_s", ts, f"a time within t_end_s = {scene.t_end:g}")
-    mech = scene.mechanism()
-    view, q, _ = scene.initial_state(mech)
+    view, q, _ = scene.initial_state(scene.linkage())  # the geometry's: the bodies play no part
     psi = scene.initial["psi"]
     if scene.structure == "held" and psi is not None:
         pose = view.positions(list(q))
