@@ -90,13 +90,17 @@ def group_key(scene: Scene):
         s.name not in VECTOR_SOLVERS or s.scheme not in VECTOR_SCHEMES or scene.commands or s.step is not None
     ):  # a step apart from the outputs: the scene's own run
         return None
-    mech = scene.mechanism()
-    effects = scene.build_effects(mech)
+    effects = scene.build_effects(scene.linkage())
     if any(not isinstance(e, VECTOR_EFFECTS) for e in effects):
         return None
     if scene.structure == "held":
         return None
-    bodies = tuple((b.name, b.origin, b.toward, b.length, b.com) for b in mech.bodies)
+    # the bodies' frames follow from the geometry; their centres of mass as the scene gives
+    # them (None: the seed's for that geometry)
+    bodies = tuple(
+        (name, None if d.com is None else tuple(map(float, d.com)))
+        for name, d in sorted(scene.bodies.items())
+    )
     return (
         scene.geometry,
         scene.assembly,

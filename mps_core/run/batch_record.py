@@ -87,7 +87,8 @@ class BatchRecord:
 
 def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list) -> dict:
     """The reaction columns of states given as arrays (scene, state): ``args`` q…, q̇…, q̈… and
-    ``loads`` the effects' loads, each of that shape; the view's reaction kernel (built at
+    ``loads`` the effects' loads, each of that shape (a load may also be a number, or (scene,
+    1): the same at every state); the view's reaction kernel (built at
     ``q``) on arrays, ``mass`` and ``inertia`` (scene, body), on blocks of (scenes, states) of
     about :data:`REACTION_CHUNK` states a call. Raises :class:`ReactionsNotSolved` where the
     view has no such kernel, or a state's reactions are not unique or not finite."""
@@ -110,8 +111,9 @@ def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list) -> di
         given = [x if isinstance(x, float) else x[cols] for x in masses]
         for s0 in range(0, S, height):
             rows = slice(s0, s0 + height)
+            at = [x if isinstance(x, float) else x[cols, rows] for x in loads]
             try:
-                values, _residual = fn(*[a[cols, rows] for a in args], given, [x[cols, rows] for x in loads])
+                values, _residual = fn(*[a[cols, rows] for a in args], given, at)
             except ArrayBranchChanged:
                 raise ReactionsNotSolved("a scene's reactions are not unique at a step") from None
             for c, v in zip(REACTION_COLUMNS, values):

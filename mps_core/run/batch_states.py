@@ -32,7 +32,11 @@ class BatchStates:
         self.t = np.empty(S)
         #: (state, q or q̇ or q̈, coordinate, scene) and (state, load, scene)
         self.states = np.empty((S, 3, n, m))
-        self.loads = np.zeros((S, 3 * effects.nb + 4, m))
+        #: the loads no state changes (their values), and the indices of the others, kept
+        #: at every step
+        self.steady = effects.steady_loads()
+        self.varying = [j for j, x in enumerate(self.steady) if x is None]
+        self.loads = np.zeros((S, len(self.varying), m))
         self._names = [c.name for c in view.coordinates]
         self._tail: tuple | None = None  # the steps the reactions take, rearranged
         #: the process's CPU seconds :meth:`reactions` took so far
@@ -47,9 +51,9 @@ class BatchStates:
         row[0] = q.T
         row[1] = qd.T
         row[2] = qdd.T
-        loads = self.loads[k]
-        for j, x in enumerate(self.effects.loads(kin)):
-            loads[j] = x
+        loads, every = self.loads[k], self.effects.loads(kin)
+        for j, i in enumerate(self.varying):
+            loads[j] = every[i]
         self.k = k + 1
 
     def coordinate(self, name: str, derivative: int = 0) -> np.ndarray | None:
@@ -74,7 +78,7 @@ class BatchStates:
         start = int(steps.min()) if first is None else min(first, int(steps.min()))
         if self._tail is None or self._tail[0] > start:
             # the steps from ``start`` on, a scene's values one contiguous row (a transposed
-            # copy): (q or q̇ or q̈, coordinate, scene, step) and (load, scene, step)
+            # copy): (q or q̇ or q̈, coordinate, scene, step) and (varying load, scene, step)
             self._tail = (
                 start,
                 np.ascontiguousarray(np.moveaxis(self.states[start : self.k], 0, -1)),
@@ -83,7 +87,11 @@ class BatchStates:
         start, block, loads = self._tail
         at = steps - start
         args = [np.take_along_axis(block[j, i, which], at, axis=1) for j in range(3) for i in range(self.n)]
-        given = [np.take_along_axis(x[which], at, axis=1) for x in loads]
+        kept = iter(np.take_along_axis(x[which], at, axis=1) for x in loads)
+        given = [
+            next(kept) if x is None else x if isinstance(x, float) else np.asarray(x)[which, None]
+            for x in self.steady
+        ]
         mech, q, mass, inertia = self._solver
         try:
             return solve_reactions(mech, self.view, q, mass[which], inertia[which], args, given)

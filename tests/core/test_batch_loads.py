@@ -61,6 +61,40 @@ def test_each_run_has_the_figures_of_its_own_load_report():
     assert len(steps) > 1  # the cycles differ in length
 
 
+def test_forces_along_the_guide_change_the_slider_s_and_the_frame_s_loads():
+    # springs with damping and a blanking force act at C: the loads that no state changes
+    # without them (the slider's weight along the guide, the frame's) change at every step
+    text = EXACT_TEXT.replace("assembly = 1", "assembly = 1\nx_top_mm = 25.5").replace(
+        "[solver]",
+        """[[effects]]
+type = "springs"
+stiffness_n_m = 20000.0
+preload_n = 2500.0
+damping_n_s_m = 300.0
+
+[[effects]]
+type = "blanking"
+perimeter_mm = 62.83
+thickness_mm = 1.0
+shear_strength_mpa = 320.0
+contact_mm = -3.0
+
+[solver]""",
+    )
+    scenes = [
+        r.scene for r in plan(scene_from_text(text), ["effects.blanking.thickness_mm=0.5,1.5"], **TIMES)
+    ]
+    states = _Batch(scenes).run_states()
+    assert len(states.varying) > 6  # the weights' moments, the motor's torque, and these
+    got = batch_loads.batch_figures(states)
+    want = _rows_of_trajectories(scenes)
+    for res, row in zip(got, want):
+        mine = _as_row(res)
+        for k in ("|F_found|.peak", "F_found_x.rms", "F_C_x.A1", "N_guide.peak"):
+            assert math.isclose(mine[k], row[k], rel_tol=1e-11), k
+    assert got[0].values.tolist() != got[1].values.tolist()
+
+
 def batch_figures_of(scenes):
     return batch_loads.batch_figures(_Batch(scenes).run_states())
 
