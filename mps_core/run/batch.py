@@ -206,6 +206,7 @@ class _Batch:
             [sc.build_effects(self.mech) for sc in scenes],
         )
         self.evaluations = 0
+        self._terms: tuple | None = None  # A's and h's terms (:meth:`_exact_terms`)
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias
         self.com_rows = self.effects.com_rows
@@ -288,25 +289,49 @@ class _Batch:
         except ArrayBranchChanged as exc:
             raise NotVectorisable(str(exc)) from None
         kin = _Kinematics(xl, jl, wl, n, m)
-        nb = len(self.mech.bodies)
-        A = np.empty((m, n, n))
-        h = np.empty((m, n))
-        for i in range(n):
-            # h_i = Σ m v*_G,i·G̈ + J ω*_i θ̈ (at q̈ = 0); A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j
-            terms = []
-            for b, row in enumerate(self.com_rows):
-                for c in (0, 1):
-                    terms.append((self.mass_of[b], kin.jac(row, c)[i], conv[nb + 2 * b + c]))
-                terms.append((self.inertia_of[b], kin.omega(b)[i], conv[b]))
-            h[:, i] = _weighted(terms, m)
-            for j in range(i, n):
-                terms = []
-                for b, row in enumerate(self.com_rows):
-                    for c in (0, 1):
-                        terms.append((self.mass_of[b], kin.jac(row, c)[i], kin.jac(row, c)[j]))
-                    terms.append((self.inertia_of[b], kin.omega(b)[i], kin.omega(b)[j]))
-                A[:, i, j] = A[:, j, i] = _weighted(terms, m)
+        # A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j and h_i = Σ m v*_G,i·G̈ + J ω*_i θ̈ (at q̈ = 0):
+        # one term a body's centre of mass' component or its rotation, those whose analogs
+        # the kernel gives as arrays (the others are zero)
+        if self._terms is None:
+            self._terms = self._exact_terms(kin, conv)
+        weights, rows, cols, plain = self._terms
+        analogs = jl + wl  # the points' analogs, then the bodies' angular ones
+        if plain:  # every one an array
+            J = np.stack([analogs[r] for r in rows])
+            G = np.stack([conv[c] for c in cols])
+        else:
+            J = np.stack([np.broadcast_to(analogs[r], (m,)) for r in rows])
+            G = np.stack([np.broadcast_to(conv[c], (m,)) for c in cols])
+        J = J.reshape(len(cols), n, m)  # (term, i, scene); G (term, scene)
+        WJ = weights * J
+        A = np.einsum("kim,kjm->mij", WJ, J)
+        h = np.einsum("kim,km->mi", WJ, G)
         return self._solve(t, kin, qd, A, h)
+
+    def _exact_terms(self, kin, conv):
+        """The terms of A and h: their weights (term, 1, scene), where their analogs are in
+        the kernel's analogs then angular analogs (term by coordinate), where their
+        convective accelerations are in ``conv``, and whether all of those are arrays (the
+        kernel's code gives each entry always as an array or always as a number); a term
+        whose analogs are all the number 0 left out."""
+        nb, n = len(self.mech.bodies), kin.n
+        analogs = list(kin.jl) + list(kin.wl)
+        weights, rows, cols = [], [], []
+        for b, row in enumerate(self.com_rows):
+            for k, w, c in (
+                ((2 * row) * n, self.mass_of[b], nb + 2 * b),
+                ((2 * row + 1) * n, self.mass_of[b], nb + 2 * b + 1),
+                (len(kin.jl) + b * n, self.inertia_of[b], b),
+            ):
+                if all(isinstance(x, float) and x == 0.0 for x in analogs[k : k + n]):
+                    continue
+                weights.append(w)
+                rows.extend(range(k, k + n))
+                cols.append(c)
+        plain = all(isinstance(analogs[r], np.ndarray) for r in rows) and all(
+            isinstance(kin_conv, np.ndarray) for kin_conv in (conv[c] for c in cols)
+        )
+        return np.array(weights)[:, None, :], rows, cols, plain
 
     def _solve(self, t, kin, qd, A, h):
         """q̈ = A⁻¹(Q − h) with the effects' Q: (q̈, A, the kinematics, the power)."""
@@ -478,16 +503,6 @@ class _Kinematics:
 
     def omega(self, body: int) -> list:
         return self.wl[body * self.n : (body + 1) * self.n]
-
-
-def _weighted(terms, m: int):
-    """Σ w·x·y over (w, x, y), the terms where x or y is the float 0.0 left out."""
-    acc = np.zeros(m)
-    for w, x, y in terms:
-        if (isinstance(x, float) and x == 0.0) or (isinstance(y, float) and y == 0.0):
-            continue
-        acc += w * (x * y)
-    return acc
 
 
 def throughput(sizes=(1, 10, 100, 1000), steps: int = 200, scheme: str = "central") -> list[dict]:
