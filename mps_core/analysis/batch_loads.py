@@ -98,7 +98,7 @@ def batch_figures(states, mode: str | None = "locked", n: int = N_HARMONICS) -> 
         rows = np.array(block)
         L = int(length[rows].max())
         at = np.minimum(start[rows, None] + np.arange(L), S - 1)  # (run, j)
-        reactions = states.reactions(at, rows, first=int(start[ok].min()))
+        reactions = states.reactions(at, rows)
         for r, res in zip(block, _block(t, at, length[rows], reactions, cyc, rows, int(N[block[0]]), n)):
             out[r] = res
     return out

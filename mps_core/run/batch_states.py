@@ -38,7 +38,6 @@ class BatchStates:
         self.varying = [j for j, x in enumerate(self.steady) if x is None]
         self.loads = np.zeros((S, len(self.varying), m))
         self._names = [c.name for c in view.coordinates]
-        self._tail: tuple | None = None  # the steps the reactions take, rearranged
         #: the process's CPU seconds :meth:`reactions` took so far
         self.reaction_cpu_s = 0.0
 
@@ -63,37 +62,25 @@ class BatchStates:
             return None
         return self.states[: self.k, derivative, self._names.index(name)]
 
-    def reactions(self, steps: np.ndarray, scenes=None, first: int | None = None) -> dict:
+    def reactions(self, steps: np.ndarray, scenes=None) -> dict:
         """The reaction columns at ``steps`` (scene, j: a step's index for each scene) of
         ``scenes`` (their indices; None: every scene), each of that shape, with each scene's
-        masses and inertias; ``first``: the first step any call will ask for (the steps from
-        it on are then rearranged once for all calls). Raises
+        masses and inertias. Raises
         :class:`~mps_core.run.batch_record.ReactionsNotSolved` as
         :meth:`~mps_core.run.batch_record.BatchRecord.reaction_columns` does."""
         c0 = time.process_time()
         steps = np.asarray(steps)
         if steps.size == 0:
             raise ReactionsNotSolved("no step asked for")
-        which = np.arange(self.m) if scenes is None else np.asarray(scenes)
-        start = int(steps.min()) if first is None else min(first, int(steps.min()))
-        if self._tail is None or self._tail[0] > start:
-            # the steps from ``start`` on, a scene's values one contiguous row (a transposed
-            # copy): (q or q̇ or q̈, coordinate, scene, step) and (varying load, scene, step)
-            self._tail = (
-                start,
-                np.ascontiguousarray(np.moveaxis(self.states[start : self.k], 0, -1)),
-                np.ascontiguousarray(np.moveaxis(self.loads[start : self.k], 0, -1)),
-            )
-        start, block, loads = self._tail
-        at = steps - start
-        args = [np.take_along_axis(block[j, i, which], at, axis=1) for j in range(3) for i in range(self.n)]
-        kept = iter(np.take_along_axis(x[which], at, axis=1) for x in loads)
+        which = (np.arange(self.m) if scenes is None else np.asarray(scenes))[:, None]
+        args = [self.states[steps, j, i, which] for j in range(3) for i in range(self.n)]
+        kept = iter(self.loads[steps, j, which] for j in range(len(self.varying)))
         given = [
-            next(kept) if x is None else x if isinstance(x, float) else np.asarray(x)[which, None]
+            next(kept) if x is None else x if isinstance(x, float) else np.asarray(x)[which]
             for x in self.steady
         ]
         mech, q, mass, inertia = self._solver
         try:
-            return solve_reactions(mech, self.view, q, mass[which], inertia[which], args, given)
+            return solve_reactions(mech, self.view, q, mass[which[:, 0]], inertia[which[:, 0]], args, given)
         finally:
             self.reaction_cpu_s += time.process_time() - c0
