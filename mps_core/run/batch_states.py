@@ -1,5 +1,6 @@
 """What a vectorised batch keeps for its runs' load reports (:mod:`mps_core.run.batch`): each
-step's state (q, q̇, q̈) and its effects' loads, one contiguous row a step, and the joint
+step's state (q, q̇, q̈) and those of its effects' loads that a state changes (the others are
+kept once), one contiguous row a step, and the joint
 reactions of the steps a caller names (a window of each scene's steps, e.g. its last crank
 revolution), solved then by the chart view's reaction kernel on arrays.
 
@@ -30,10 +31,10 @@ class BatchStates:
         self.structure = effects.structure
         self.k = 0  # the states recorded
         self.t = np.empty(S)
-        #: (state, q or q̇ or q̈, coordinate, scene) and (state, load, scene)
+        #: (state, q or q̇ or q̈, coordinate, scene)
         self.states = np.empty((S, 3, n, m))
-        #: the loads no state changes (their values), and the indices of the others, kept
-        #: at every step
+        #: the loads no state changes (their values), the indices of the others, and those
+        #: at every step: (state, load of :attr:`varying`, scene)
         self.steady = effects.steady_loads()
         self.varying = [j for j, x in enumerate(self.steady) if x is None]
         self.loads = np.zeros((S, len(self.varying), m))
