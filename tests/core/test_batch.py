@@ -12,22 +12,23 @@ from mps_core.run.batch import simulate_many
 COLS = ("phi", "phi_dot", "phi_ddot", "psi", "x_C", "T", "V", "W")
 
 
-def sweep(n, t_end=0.05):
-    """working with the slider's mass, the motor's reduction and a blanking force swept."""
-    base = load_scene("working").with_overrides(t_end=t_end, dt=1e-4)
-    blank = scene_from_text(
-        base.text.replace(
-            "[solver]",
-            """[[effects]]
+#: a blanking force's effect table, to put before a scene file's [solver]
+BLANKING = """[[effects]]
 type = "blanking"
 perimeter_mm = 62.83
 thickness_mm = 1.0
 shear_strength_mpa = 320.0
 contact_mm = -3.0
 
-[solver]""",
-        )
-    ).with_overrides(t_end=t_end, dt=1e-4)
+"""
+
+
+def sweep(n, t_end=0.05):
+    """working with the slider's mass, the motor's reduction and a blanking force swept."""
+    base = load_scene("working").with_overrides(t_end=t_end, dt=1e-4)
+    blank = scene_from_text(base.text.replace("[solver]", BLANKING + "[solver]")).with_overrides(
+        t_end=t_end, dt=1e-4
+    )
     out = []
     for i in range(n):
         sc = blank if i % 2 else base

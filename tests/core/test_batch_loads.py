@@ -12,6 +12,7 @@ from mps_core import scene_from_text
 from mps_core.analysis import batch_loads, loads
 from mps_core.analysis.sweep import FIGURES, figures, plan
 from mps_core.run.batch import _Batch, run_batch
+from tests.core.test_batch import BLANKING
 from tests.core.test_sweep import EXACT_TEXT
 
 #: working with exact derivatives, 0.35 s at 0.5 ms: 2.4 crank revolutions a run
@@ -72,14 +73,9 @@ stiffness_n_m = 20000.0
 preload_n = 2500.0
 damping_n_s_m = 300.0
 
-[[effects]]
-type = "blanking"
-perimeter_mm = 62.83
-thickness_mm = 1.0
-shear_strength_mpa = 320.0
-contact_mm = -3.0
-
-[solver]""",
+"""
+        + BLANKING
+        + "[solver]",
     )
     scenes = [
         r.scene for r in plan(scene_from_text(text), ["effects.blanking.thickness_mm=0.5,1.5"], **TIMES)
