@@ -185,7 +185,11 @@ class Listener:
     def send(self, word: str) -> None:
         self.mode.publish(self.String(data=word))
 
-    def call(self, word: str, timeout: float = 10.0):
+    def call(self, word: str, timeout: float = 30.0):
+        """A Trigger service's answer. The reply is taken by this listener's executor, which
+        takes every topic of a real-time run beside it: on a busy machine (the node's threads
+        at real-time priority, tests beside it) it lags the node, as the waits on its topics
+        allow for (30 s)."""
         cli = self.services[word]
         assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
         fut = cli.call_async(self.Trigger.Request())
