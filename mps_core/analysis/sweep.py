@@ -333,12 +333,12 @@ def run_batch(scenes: Sequence[Scene], structure: str = "locked") -> list[Result
     load reports made together (:mod:`.batch_loads`), each with its share of the CPU seconds
     (the simulation's, and all of it); where they cannot share it after all, each run on its
     own (:func:`run_one`)."""
-    from ..run.batch import _Batch
+    from ..run.batch import run_states
     from .batch_loads import RunFigures, batch_figures
 
     c0 = time.process_time()
     try:
-        states = _Batch(list(scenes)).run_states()
+        states = run_states(scenes)
         sim_cpu = (time.process_time() - c0) / len(scenes)
         c1 = time.process_time()
         results = batch_figures(states, structure)

@@ -135,7 +135,7 @@ def vectorised(
     rest: the scenes built and grouped, the rows)."""
     from ..analysis.batch_loads import batch_figures
     from ..analysis.sweep import plan, sweep
-    from ..run.batch import _Batch
+    from ..run.batch import run_states
 
     steps = int(round(t_end / dt))
     n = workers or os.cpu_count() or 1
@@ -176,7 +176,7 @@ def vectorised(
                 if vec:  # the batch alone: its reactions' share of its reports
                     scenes = [r.scene for r in plan(base, vary, **kw)]
                     c0 = time.process_time()
-                    states = _Batch(scenes).run_states()
+                    states = run_states(scenes)
                     batch_figures(states)
                     keep(label, "batch_cpu_s", time.process_time() - c0)
                     keep(label, "batch_reactions_cpu_s", states.reaction_cpu_s)

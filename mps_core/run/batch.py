@@ -36,6 +36,11 @@ chart view's reaction kernel, its masses and inertias an argument, runs on array
 step of every scene at once (:func:`mps_core.dynamics.reactions.array_reactions`). A state where
 the kernel does not hold (a singular position) sends the group back to the one-by-one runs.
 
+:func:`run_states` steps a group the same way but keeps no trajectory: each step's state and
+the loads that a state changes, the reactions solved afterwards at the steps one asks for
+(:class:`~mps_core.run.batch_states.BatchStates`); a sweep's batches make their runs' load
+reports from them (:mod:`mps_core.analysis.batch_loads`).
+
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
 cluster (``dask.distributed.Client``), one vectorised batch a task.
 """
@@ -125,6 +130,14 @@ def run_batch(scenes) -> list:
     one vectorised pass; :class:`NotVectorisable` where they cannot (or can no longer) share
     it."""
     return _Batch(list(scenes)).run()
+
+
+def run_states(scenes) -> BatchStates:
+    """The states of scenes of one group stepped together, as :func:`run_batch` steps them,
+    kept for their load reports (:class:`~mps_core.run.batch_states.BatchStates`: each step's
+    state and loads, the reactions solved at the steps asked for) rather than as
+    trajectories; :class:`NotVectorisable` where they cannot share the pass."""
+    return _Batch(list(scenes)).run_states()
 
 
 def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult:

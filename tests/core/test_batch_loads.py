@@ -11,7 +11,7 @@ import pytest
 from mps_core import scene_from_text
 from mps_core.analysis import batch_loads, loads
 from mps_core.analysis.sweep import FIGURES, figures, plan
-from mps_core.run.batch import _Batch, run_batch
+from mps_core.run.batch import run_batch, run_states
 from tests.core.test_batch import BLANKING
 from tests.core.test_sweep import EXACT_TEXT
 
@@ -80,7 +80,7 @@ damping_n_s_m = 300.0
     scenes = [
         r.scene for r in plan(scene_from_text(text), ["effects.blanking.thickness_mm=0.5,1.5"], **TIMES)
     ]
-    states = _Batch(scenes).run_states()
+    states = run_states(scenes)
     assert len(states.varying) > 6  # the weights' moments, the motor's torque, and these
     got = batch_loads.batch_figures(states)
     want = _rows_of_trajectories(scenes)
@@ -92,13 +92,13 @@ damping_n_s_m = 300.0
 
 
 def batch_figures_of(scenes):
-    return batch_loads.batch_figures(_Batch(scenes).run_states())
+    return batch_loads.batch_figures(run_states(scenes))
 
 
 def test_the_cycles_are_the_reports_cycles():
     # 2.4 to 4 revolutions: the first run has no revolution before its last (no change)
     scenes = _scenes(["effects.motor.crank_speed_rad_s=30,40,50"], t_end=0.5, dt=5e-4)
-    states = _Batch(scenes).run_states()
+    states = run_states(scenes)
     phi = np.ascontiguousarray(states.coordinate("phi").T)
     phi_dot = np.ascontiguousarray(states.coordinate("phi", 1).T)
     cyc = batch_loads.cycles(states.t, phi, phi_dot)
@@ -125,6 +125,6 @@ def test_a_run_without_a_full_revolution_gets_the_reports_error():
 
 
 def test_a_batch_in_another_structure_is_refused():
-    states = _Batch(_scenes(["bodies.slider.mass_kg=80,90"])).run_states()
+    states = run_states(_scenes(["bodies.slider.mass_kg=80,90"]))
     with pytest.raises(ValueError, match="'free'"):
         batch_loads.batch_figures(states, mode="free")
