@@ -17,6 +17,7 @@ branch the kernel was traced on (the caller runs the scenes another way).
 
 from __future__ import annotations
 
+import ast
 import re
 
 import numpy as np
@@ -51,15 +52,43 @@ def _array_source(source: str) -> str:
     return "\n".join(out) + "\n"
 
 
+def _without(source: str, drop: tuple[int, ...]) -> str:
+    """A kernel's straight-line code with the return tuple's places ``drop`` made None, and the
+    assignments that only they read left out (the guards, and what they read, stay)."""
+    tree = ast.parse(source)
+    fn = tree.body[0]
+    assert isinstance(fn, ast.FunctionDef)
+    ret = fn.body[-1]
+    assert isinstance(ret, ast.Return) and isinstance(ret.value, ast.Tuple)
+    for i in drop:
+        ret.value.elts[i] = ast.Constant(None)
+    needed = {node.id for node in ast.walk(ret) if isinstance(node, ast.Name)}
+    body: list[ast.stmt] = []
+    for stmt in reversed(fn.body[:-1]):
+        target = stmt.targets[0] if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 else None
+        if isinstance(target, ast.Name) and target.id not in needed:
+            continue
+        body.append(stmt)
+        needed |= {node.id for node in ast.walk(stmt) if isinstance(node, ast.Name)}
+    fn.body = [*reversed(body), ret]
+    return ast.unparse(tree) + "\n"
+
+
 def _miss():
     raise ArrayBranchChanged("a scene left the branch of the kernel")
 
 
-def array_kernel(kernel):
-    """The array form of an exact kernel (see the module's docstring)."""
-    code = _CODE.get(kernel.source)
+def array_kernel(kernel, drop: tuple[int, ...] = ()):
+    """The array form of an exact kernel (see the module's docstring); ``drop``: the places
+    of its return tuple that the caller does not read (None there, and nothing computed for
+    them alone)."""
+    key = (kernel.source, drop)
+    code = _CODE.get(key)
     if code is None:
-        code = _CODE.keep(kernel.source, compile(_array_source(kernel.source), "<array kernel>", "exec"))
+        source = _array_source(kernel.source)
+        if drop:
+            source = _without(source, drop)
+        code = _CODE.keep(key, compile(source, "<array kernel>", "exec"))
     namespace = {
         "cos": np.cos,
         "sin": np.sin,

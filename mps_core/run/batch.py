@@ -240,7 +240,8 @@ class _Batch:
         kernel = exact_kernel(engine, view, q)
         if kernel is None:
             raise NotVectorisable("the chart has no exact kernel")
-        return array_kernel(kernel)
+        # A and h in its return hold the first scene's masses: the batch forms its own
+        return array_kernel(kernel, drop=(3, 4))
 
     # -- the vectorised engine ------------------------------------------------------------------
     def evaluate(self, t, q, qd):

@@ -57,6 +57,13 @@ def test_an_array_kernel_gives_each_element_what_the_float_kernel_gives(k):
         vs.append(v)
     assert len(qs) >= 4
     arrays = array_kernel(kernel)(*np.array(qs).T, *np.array(vs).T)
+    # without A and h (what a batch does not read): None there, the rest the same
+    pruned = array_kernel(kernel, drop=(3, 4))(*np.array(qs).T, *np.array(vs).T)
+    assert pruned[3] is None and pruned[4] is None
+    for a, b in zip(
+        _flat([p for j, p in enumerate(pruned) if j not in (3, 4)]), _flat(arrays[:3] + arrays[5:])
+    ):
+        assert np.array_equal(np.broadcast_to(a, (len(qs),)), np.broadcast_to(b, (len(qs),)))
     got = [np.broadcast_to(x, (len(qs),)) for x in _flat(arrays)]
     for i, (q, v) in enumerate(zip(qs, vs)):
         want = _flat(kernel(*q, *v))
