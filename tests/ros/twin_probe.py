@@ -138,6 +138,7 @@ class Listener:
             for w in ("engage", "disengage", "stop", "start")
         }
         self.Trigger = Trigger
+        self.calls = 0  # the service calls made
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -185,19 +186,26 @@ class Listener:
     def send(self, word: str) -> None:
         self.mode.publish(self.String(data=word))
 
-    def call(self, word: str, timeout: float = 30.0):
-        """A Trigger service's answer. The reply is taken by this listener's executor, which
-        takes every topic of a real-time run beside it: on a busy machine (the node's threads
-        at real-time priority, tests beside it) it lags the node, as the waits on its topics
-        allow for (30 s)."""
+    def call(self, word: str, timeout: float = 30.0, tries: int = 1):
+        """A Trigger service's answer, asked up to ``tries`` times (``timeout`` each): only
+        for a request that asking again does not change (a refusal). The reply is taken by
+        this listener's executor, which also takes every topic of a real-time run: on a busy
+        machine it lags the node, as the waits on its topics allow for (30 s). In two clean
+        clones' runs with both test workers busy, the node refused a second ``stop`` and its
+        answer never came (none within 10 s, then 30 s; the node's log reported no failure to
+        send it)."""
         cli = self.services[word]
-        assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
-        fut = cli.call_async(self.Trigger.Request())
-        end = time.monotonic() + timeout
-        while not fut.done() and time.monotonic() < end:
-            time.sleep(0.005)
-        assert fut.done(), f"no answer from service {word}"
-        return fut.result()
+        for _ in range(tries):
+            assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
+            fut = cli.call_async(self.Trigger.Request())
+            self.calls += 1
+            end = time.monotonic() + timeout
+            while not fut.done() and time.monotonic() < end:
+                time.sleep(0.005)
+            if fut.done():
+                return fut.result()
+            cli.remove_pending_request(fut)
+        raise AssertionError(f"no answer from service {word} ({tries} asked)")
 
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
