@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from pathlib import Path
 
 from mps_ros.topics import MODE, TOPICS, resolve
@@ -139,6 +140,7 @@ class Listener:
         }
         self.Trigger = Trigger
         self.calls = 0  # the service calls made
+        self.spin_error: str | None = None  # why the executor's thread ended, if it did
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -147,8 +149,8 @@ class Listener:
     def _spin(self):
         try:
             self.executor.spin()
-        except Exception:
-            pass
+        except Exception as exc:  # kept: a listener that stops taking messages says why
+            self.spin_error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
 
     def _cb(self, name):
         def cb(msg):
@@ -180,7 +182,12 @@ class Listener:
         return any(e.get("kind") == "run-end" for e in self.events())
 
     def wait_for(self, cond, timeout: float, what: str, poll: float = 0.002):
-        return wait_until(cond, timeout, what, poll)
+        try:
+            return wait_until(cond, timeout, what, poll)
+        except AssertionError as exc:
+            if self.spin_error:
+                raise AssertionError(f"{exc} (the listener's executor ended: {self.spin_error})") from None
+            raise
 
     # -- sending ---------------------------------------------------------------------------
     def send(self, word: str) -> None:
@@ -205,7 +212,10 @@ class Listener:
             if fut.done():
                 return fut.result()
             cli.remove_pending_request(fut)
-        raise AssertionError(f"no answer from service {word} ({tries} asked)")
+        raise AssertionError(
+            f"no answer from service {word} ({tries} asked; the listener's executor "
+            + (f"ended: {self.spin_error})" if self.spin_error else f"alive: {self.thread.is_alive()})")
+        )
 
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
