@@ -134,8 +134,13 @@ class Listener:
             String, self.mode_topic, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         )
         self.String = String
+        # the services' clients on a node of their own, spun by the thread that calls them
+        # (:meth:`call`), not by the executor thread that takes the topics
+        self.client_node = Node(f"{self.node.get_name()}_calls")
+        self.client_executor = SingleThreadedExecutor()
+        self.client_executor.add_node(self.client_node)
         self.services = {
-            w: self.node.create_client(Trigger, f"/{node_name}/{w}")
+            w: self.client_node.create_client(Trigger, f"/{node_name}/{w}")
             for w in ("engage", "disengage", "stop", "start")
         }
         self.Trigger = Trigger
@@ -195,20 +200,16 @@ class Listener:
 
     def call(self, word: str, timeout: float = 30.0, tries: int = 1):
         """A Trigger service's answer, asked up to ``tries`` times (``timeout`` each): only
-        for a request that asking again does not change (a refusal). The reply is taken by
-        this listener's executor, which also takes every topic of a real-time run: on a busy
-        machine it lags the node, as the waits on its topics allow for (30 s). In two clean
-        clones' runs with both test workers busy, the node refused a second ``stop`` and its
-        answer never came (none within 10 s, then 30 s; the node's log reported no failure to
-        send it)."""
+        for a request that asking again does not change (a refusal). The calling thread spins
+        the clients' own node until the answer comes: in clean clones' runs, a client spun by
+        the executor thread that takes the topics, called from this thread, got no more
+        answers after its first (the node's log showed every request answered)."""
         cli = self.services[word]
         for _ in range(tries):
             assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
             fut = cli.call_async(self.Trigger.Request())
             self.calls += 1
-            end = time.monotonic() + timeout
-            while not fut.done() and time.monotonic() < end:
-                time.sleep(0.005)
+            self.client_executor.spin_until_future_complete(fut, timeout_sec=timeout)
             if fut.done():
                 return fut.result()
             cli.remove_pending_request(fut)
@@ -220,6 +221,8 @@ class Listener:
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
         self.thread.join(timeout=3.0)
+        self.client_executor.shutdown(timeout_sec=2.0)
+        self.client_node.destroy_node()
         self.node.destroy_node()
 
 
