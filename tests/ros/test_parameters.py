@@ -4,6 +4,7 @@ description) as ``ros2 param describe`` would show it."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -53,12 +54,22 @@ def test_a_running_node_describes_each_parameter(ros, tmp_path):
                 poll=0.05,
             )
             names = [p.name for p in PARAMETERS]
-            fut = describe.call_async(DescribeParameters.Request(names=names))
-            ros.spin_until_future_complete(node, fut, timeout_sec=30)
-            got = {d.name: d for d in fut.result().descriptors}
-            fut = get.call_async(GetParameters.Request(names=["t_end", "real_time_factor"]))
-            ros.spin_until_future_complete(node, fut, timeout_sec=30)
-            values = fut.result().values
+
+            def answer(client, request):
+                # asked again every 5 s until answered (both requests only read): a node that
+                # has not yet matched this client's reader drops its answer ("failed to send
+                # response (timeout)", seen in a clean clone's run)
+                end = time.monotonic() + 60.0
+                while time.monotonic() < end:
+                    fut = client.call_async(request)
+                    ros.spin_until_future_complete(node, fut, timeout_sec=5.0)
+                    if fut.done():
+                        return fut.result()
+                    client.remove_pending_request(fut)
+                raise AssertionError(f"no answer from {client.srv_name} in 60 s")
+
+            got = {d.name: d for d in answer(describe, DescribeParameters.Request(names=names)).descriptors}
+            values = answer(get, GetParameters.Request(names=["t_end", "real_time_factor"])).values
             assert proc.alive(), proc.log()
     finally:
         node.destroy_node()
