@@ -185,7 +185,7 @@ def vectorised(
             row["speedup"] = row["steps_per_s"] / best["one by one"]["steps_per_s"]
             rows.append(row)
         m = max(sizes)
-        label = f"{n} workers, batches of {m}"
+        label = f"{n} worker{'s' if n > 1 else ''}, batches of {m}"
         vary = [f"bodies.slider.mass_kg=80:120:{n * m}"]
         w0 = time.perf_counter()
         res = sweep(base, vary, workers=n, batch_size=m, min_batch=1, **kw)

@@ -397,8 +397,10 @@ def test_the_command_vectorises_unless_told_not_to(tmp_path):
 def test_the_vectorised_sweep_benchmark_counts_what_it_ran():
     from mps_core.bench.sweep import report_vectorised, vectorised
 
+    # one worker process for the machine's row: the test takes no more than its own core
+    # (the ROS tests beside it in `make test` keep real time on the other)
     rows = vectorised(
-        sizes=(3,), alone=2, repeats=1, schemes=("autodiff",), workers=2, log=lambda *_: None, **WORKING
+        sizes=(3,), alone=2, repeats=1, schemes=("autodiff",), workers=1, log=lambda *_: None, **WORKING
     )
     one, batch, machine = rows
     assert (one["way"], one["runs"], one["vectorised"]) == ("one by one", 2, 0)
@@ -406,12 +408,11 @@ def test_the_vectorised_sweep_benchmark_counts_what_it_ran():
     assert batch["steps"] == 700 and batch["steps_per_s"] == 3 * 700 / batch["cpu_s"]
     assert batch["simulation_cpu_s"] + batch["reports_cpu_s"] <= batch["cpu_s"]
     assert 0.0 < batch["batch_reactions_cpu_s"] < batch["batch_cpu_s"]
-    # two worker processes, a batch of three each
     assert (machine["way"], machine["runs"], machine["vectorised"], machine["failed"]) == (
-        "2 workers, batches of 3",
-        6,
-        6,
+        "1 worker, batches of 3",
+        3,
+        3,
         0,
     )
-    assert machine["steps_per_s"] == 6 * 700 / machine["wall_s"]
+    assert machine["steps_per_s"] == 3 * 700 / machine["wall_s"]
     report_vectorised(rows)
