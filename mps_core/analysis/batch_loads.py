@@ -142,15 +142,7 @@ def _passage(t, phi, phi_dot, turns, i):
     r = np.arange(len(i))
     ta, tb = t[i], t[i + 1]
     level = TWO_PI * np.maximum(turns[r, i], turns[r, i + 1])
-    p0, p1, d0, d1 = phi[r, i], phi[r, i + 1], phi_dot[r, i], phi_dot[r, i + 1]
-    h = tb - ta
-    slope = (p1 - p0) / h
-    c2 = (3.0 * slope - 2.0 * d0 - d1) / h
-    c3 = (d0 + d1 - 2.0 * slope) / (h * h)
-
-    def f(s):
-        x = s - ta
-        return ((c3 * x + c2) * x + d0) * x + p0 - level
+    f = loads.hermite_minus(ta, tb, phi[r, i], phi[r, i + 1], phi_dot[r, i], phi_dot[r, i + 1], level)
 
     fa, fb = f(ta), f(tb)
     a, b = ta.copy(), tb.copy()

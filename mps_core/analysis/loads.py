@@ -129,13 +129,18 @@ def _crossings(t, phi, phi_dot):
 def _hermite(t0: float, t1: float, p, d, level: float):
     """s ↦ H(s) − level, H the cubic Hermite interpolant of (p, d) at t0 and t1 (the cubic of
     :class:`scipy.interpolate.CubicHermiteSpline` on one interval), on floats."""
+    return hermite_minus(t0, t1, float(p[0]), float(p[1]), float(d[0]), float(d[1]), level)
+
+
+def hermite_minus(t0, t1, p0, p1, d0, d1, level):
+    """s ↦ H(s) − level, H the cubic Hermite interpolant of the values p0, p1 and slopes d0,
+    d1 at t0 and t1: on floats, or on arrays of many intervals at once."""
     h = t1 - t0
-    p0, p1, d0, d1 = float(p[0]), float(p[1]), float(d[0]), float(d[1])
     slope = (p1 - p0) / h
     c2 = (3.0 * slope - 2.0 * d0 - d1) / h
     c3 = (d0 + d1 - 2.0 * slope) / (h * h)
 
-    def f(s: float) -> float:
+    def f(s):
         x = s - t0
         return ((c3 * x + c2) * x + d0) * x + p0 - level
 
