@@ -549,7 +549,7 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             # the latch is still open (the usual case: tens of ms), the latch's reason after
             locked = lis.wait_for(
                 lambda: [e["t"] for e in lis.events() if e.get("kind") == "latch-closes"],
-                10,
+                30,
                 "the latch to close",
             )[0]
             assert both[0]["t"] < locked
@@ -566,7 +566,7 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
             # its answer on ~/mode/status goes out at its step's deadline, after the reply
             lis.wait_for(
                 lambda: lis.acks() and lis.acks()[-1]["command"] == "start",
-                10,
+                30,
                 "start's answer on ~/mode/status",
             )
             # a flood: 40 at once; a few pass the gate (and are refused on their merits)
