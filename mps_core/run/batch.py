@@ -47,6 +47,7 @@ cluster (``dask.distributed.Client``), one vectorised batch a task.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -405,7 +406,8 @@ class _Batch:
             self._steps(),
             self.q0.shape[1],
             self.view,
-            self.effects,
+            self.effects.structure,
+            self._loads_at,
             self.mech,
             self.q0[0],
             self.mass,
@@ -413,6 +415,30 @@ class _Batch:
         )
         self._step(states)
         return states
+
+    def _loads_at(self, q: list, qd: list, scenes: np.ndarray) -> list:
+        """The effects' loads (:meth:`~mps_core.run.batch_effects.EffectArrays.loads`) at states
+        given as (scene, j) arrays of each coordinate, ``scenes`` (scene, 1) their scenes'
+        indices: this batch's evaluation of those states, each entry a number or of that
+        shape."""
+        g, L = q[0].shape
+        at = self._at(np.repeat(scenes[:, 0], L))
+        _, _, kin, _ = at.evaluate(
+            0.0, np.stack([x.ravel() for x in q], axis=1), np.stack([x.ravel() for x in qd], axis=1)
+        )
+        return [np.reshape(x, (g, L)) if np.ndim(x) else float(x) for x in at.effects.loads(kin)]
+
+    def _at(self, scenes: np.ndarray) -> _Batch:
+        """This batch for the scenes ``scenes`` (indices, one a state to evaluate: a scene may
+        come many times), their masses and effects gathered in that order."""
+        out = copy.copy(self)
+        out.m = len(scenes)
+        out.mass, out.inertia = self.mass[scenes], self.inertia[scenes]
+        out.mass_of = [x[scenes] for x in self.mass_of]
+        out.inertia_of = [x[scenes] for x in self.inertia_of]
+        out.effects = self.effects.take(scenes)
+        out._terms = None  # weighted by the masses
+        return out
 
     def _steps(self) -> int:
         """The run's steps; sets :attr:`dt`."""

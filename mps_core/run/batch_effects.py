@@ -11,6 +11,7 @@ number.
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -147,29 +148,24 @@ class EffectArrays:
             V += f0 * s + 0.5 * k * s * s
         return V
 
-    def steady_loads(self) -> list:
-        """The entries of :meth:`loads` that no state changes, with their values (a number,
-        or an array of one a scene), and None for those a state changes: the weights' forces
-        (where nothing along the guide adds to the slider's), the frame's force across the
-        guide, and every load no effect gives (0.0)."""
-        nb = self.nb
-        out: list = [0.0] * (3 * nb + 4)
-        if self.weight_of is not None:
-            for b in range(nb):
-                out[3 * b], out[3 * b + 1] = self.weight_of[b]
-                out[3 * b + 2] = None  # the weight's moment about O: the body moves
-        if self.motor is not None:
-            k = self.motor["index"]
-            out[3 * k + 2] = out[3 * nb + 2] = out[3 * nb + 3] = None
-        along_guide = (
-            self.springs is not None
-            or self.damper is not None
-            or (self.blanking is not None and self.structure == "locked")
-        )
-        if along_guide:  # :attr:`at_C`'s force, on the slider and the frame
-            k = self.slider
-            assert k is not None, "a force along the guide with no slider"
-            out[3 * k] = out[3 * k + 2] = out[3 * nb] = out[3 * nb + 2] = None
+    def take(self, scenes: np.ndarray) -> EffectArrays:
+        """These effects for the scenes ``scenes`` (indices, one a state to evaluate: a scene
+        may come many times), their parameters gathered in that order."""
+
+        def pick(x):
+            if isinstance(x, np.ndarray):
+                return x[scenes]
+            if isinstance(x, (list, tuple)):
+                return type(x)(pick(v) for v in x)
+            if isinstance(x, dict):
+                return {k: pick(v) for k, v in x.items()}
+            return x
+
+        out = copy.copy(self)
+        out.m = len(scenes)
+        out.weight_of, out.motor = pick(self.weight_of), pick(self.motor)
+        out.springs, out.damper, out.blanking = pick(self.springs), pick(self.damper), pick(self.blanking)
+        out.at_C = (None, None)
         return out
 
     def loads(self, kin) -> list:
