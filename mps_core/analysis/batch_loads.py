@@ -12,9 +12,9 @@ The method is the report's (:mod:`.loads`), on arrays of all runs:
 * the joint reactions solved at each run's cycle's steps only (the steps the report's spline
   goes through, three beyond each end);
 * the not-a-knot cubic spline through those steps (scipy's :class:`~scipy.interpolate.CubicSpline`
-  system, solved a run at a time by LAPACK's tridiagonal solver, every quantity of the run one
-  right-hand side), evaluated at each run's N uniform instants of its cycle;
-* the discrete Fourier transform of every run and quantity in one call.
+  system on the batch's uniform steps, solved for a block of runs and every quantity at once:
+  :func:`_slopes`), evaluated at each run's N uniform instants of its cycle;
+* the discrete Fourier transform of a block's runs and quantities in one call.
 
 A run whose report cannot be made (no full revolution, a cycle outside its steps) gets the
 report's own error, as :func:`~mps_core.analysis.loads.load_report` raises it.
@@ -29,8 +29,10 @@ import numpy as np
 from . import loads
 from .loads import N_HARMONICS, QUANTITIES, TWO_PI, LoadReportError
 
-#: runs a block of the resampling and the transform takes (its arrays: about 20 MB each)
-BLOCK = 128
+#: runs a block of the resampling and the transform takes: its arrays (quantity, run, sample)
+#: of about 5 MB each pass through the caches faster than blocks of 128 runs' 20 MB (a sixth
+#: less CPU for a batch's reports, ``mps bench sweep --vectorised``'s setting)
+BLOCK = 32
 
 
 @dataclass(frozen=True)
@@ -186,7 +188,8 @@ def _block(t, at, length, reactions, cyc, rows, N: int, n: int) -> list:
         )
     active = np.nonzero(found.any(axis=1))[0]  # the quantities some run of the block has
     Y = Y[active] if active.size < len(QUANTITIES) else Y
-    ys = _resample(_times(t, at, length), Y, length, tq - first[:, None])  # (quantity, run, sample)
+    h = (t[-1] - t[0]) / max(1, t.size - 1)  # the batch's step: its times are uniform
+    ys = _resample(Y, length, h, tq - first[:, None])  # (quantity, run, sample)
     c = np.fft.rfft(ys, axis=2)
     c /= N
     means = c[:, :, 0].real
@@ -217,34 +220,15 @@ def _block(t, at, length, reactions, cyc, rows, N: int, n: int) -> list:
     return out
 
 
-def _times(t, at, length):
-    """Each run's steps' times from its first (run, j), beyond its own ``length`` continued by
-    whole steps (its spline's padding)."""
-    g, L = at.shape
-    x = t[at] - t[at[:, 0]][:, None]
-    beyond = np.arange(L) >= length[:, None]
-    if beyond.any():
-        dt = (t[-1] - t[0]) / max(1, t.size - 1)
-        j = np.broadcast_to(np.arange(L), (g, L))
-        last = x[np.arange(g), length - 1][:, None]
-        x = np.where(beyond, last + (j - length[:, None] + 1) * dt, x)
-    return x
-
-
-def _resample(x, Y, length, u):
-    """The not-a-knot cubic splines through (x, Y) (x: (run, j), Y: (quantity, run, j)), each
-    run's first ``length`` points its own, at ``u`` (run, sample): (quantity, run, sample)."""
-    s = _slopes(x, Y, length)
+def _resample(Y, length, h, u):
+    """The not-a-knot cubic splines through ``Y`` (quantity, run, j) at the knots j·h, each
+    run's first ``length`` knots its own, at ``u`` (run, sample): (quantity, run, sample)."""
+    s = _slopes(Y, length, h)
     # each sample's interval, as PPoly finds it (the last interval for a sample beyond it)
-    g, L = x.shape
-    idx = np.empty(u.shape, dtype=np.intp)
-    for r in range(g):
-        k = int(length[r])
-        idx[r] = np.clip(np.searchsorted(x[r, :k], u[r], side="right") - 1, 0, k - 2)
+    Q, g, L = Y.shape
+    idx = np.clip(np.floor(u / h).astype(np.intp), 0, (length - 2)[:, None])
     # the cubic Hermite interpolant of the values and the slopes at the interval's ends
-    x0 = np.take_along_axis(x, idx, axis=1)
-    h = np.take_along_axis(x, idx + 1, axis=1) - x0
-    tau = (u - x0) / h
+    tau = u / h - idx
     tau2 = tau * tau
     tau3 = tau2 * tau
     w = (
@@ -254,7 +238,6 @@ def _resample(x, Y, length, u):
         (tau3 - tau2) * h,
     )
     flat = np.arange(g)[:, None] * L + idx  # (run, sample): the interval's start in (run, j)
-    Q = Y.shape[0]
     Yf, sf = Y.reshape(Q, g * L), s.reshape(Q, g * L)
     return (
         w[0] * np.take(Yf, flat, axis=1)
@@ -264,56 +247,71 @@ def _resample(x, Y, length, u):
     )
 
 
-def _slopes(x, Y, length):
-    """The splines' first derivatives at their points (as ``Y``): scipy's not-a-knot system
-    (:class:`~scipy.interpolate.CubicSpline`) of every run (at least 4 points), solved for all
-    runs and quantities at once by elimination without pivoting (the system is diagonally
-    dominant but for its first and last rows, whose pivots stay about h/2), a run's padding
-    identity rows."""
-    g, L = x.shape
+#: the rows of a spline's system eliminated one by one from its start: beyond them the pivots
+#: of its interior rows equal their limit 2 + √3 to the last bit (they approach it by a factor
+#: (2 − √3)² a row), and the elimination is a filter of constant coefficients
+SETTLED = 20
+
+
+def _slopes(Y, length, h):
+    """The splines' first derivatives at their knots j·h (as ``Y``: (quantity, run, j), a
+    run's first ``length`` knots its own): scipy's not-a-knot system
+    (:class:`~scipy.interpolate.CubicSpline`) on a uniform grid, divided by h,
+
+        row 0:  s_0 + 2 s_1 = (5 σ_0 + σ_1) / 2,
+        row j:  s_{j-1} + 4 s_j + s_{j+1} = 3 (σ_{j-1} + σ_j),
+        last:   2 s_{l-1} + s_l = (σ_{l-2} + 5 σ_{l-1}) / 2,
+
+    σ_j = (y_{j+1} − y_j) / h, solved for all runs and quantities at once by elimination
+    without pivoting (diagonally dominant but for the end rows, whose pivots are 1 and
+    2√3 − 3). Its pivots are the same for every run but at its last row: the first
+    :data:`SETTLED` rows are eliminated one by one, the rest (and the substitution back) by a
+    first-order recursive filter (:func:`scipy.signal.lfilter`); each run's last row is
+    eliminated on its own, and its rows beyond are zero."""
+    from scipy.signal import lfilter
+
+    Q, g, L = Y.shape
     if int(length.min()) < 4:
         raise ValueError(f"a cycle of {int(length.min())} steps: too few for the batch's splines")
     r = np.arange(g)
     last = length - 1
-    own = np.arange(L) < length[:, None]
-    dx = np.diff(x, axis=1)  # (run, j)
-    slope = np.diff(Y, axis=2) / dx  # (quantity, run, j)
-    # the tridiagonal matrix, (j, run): its diagonal D, above it U (A[j, j+1]), below it W
-    # (A[j+1, j])
-    D = np.ones((g, L))
-    D[:, 1:-1] = 2.0 * (dx[:, :-1] + dx[:, 1:])
-    D[:, 0] = dx[:, 1]
-    D[r, last] = dx[r, last - 1]
-    D[~own] = 1.0
-    U = np.zeros((g, L))
-    U[:, 1:-1] = dx[:, :-1]
-    U[:, 0] = x[:, 2] - x[:, 0]
-    U[np.arange(L) >= last[:, None]] = 0.0
-    W = np.zeros((g, L))
-    W[:, :-2] = dx[:, 1:]
-    W[r, last - 1] = x[r, last] - x[r, last - 2]
-    W[np.arange(L) >= last[:, None]] = 0.0
-    B = np.zeros_like(Y)  # (quantity, run, j)
-    B[:, :, 1:-1] = 3.0 * (dx[:, 1:] * slope[:, :, :-1] + dx[:, :-1] * slope[:, :, 1:])
-    w = x[:, 2] - x[:, 0]
-    B[:, :, 0] = ((dx[:, 0] + 2.0 * w) * dx[:, 1] * slope[:, :, 0] + dx[:, 0] ** 2 * slope[:, :, 1]) / w
-    w = x[r, last] - x[r, last - 2]
-    d1, d2 = dx[r, last - 1], dx[r, last - 2]
-    B[:, r, last] = (d1**2 * slope[:, r, last - 2] + (2.0 * w + d1) * d2 * slope[:, r, last - 1]) / w
-    B[:, ~own] = 0.0
-    # elimination, a row j of every run and quantity at a time
-    b = np.ascontiguousarray(np.moveaxis(B, 2, 0))  # (j, quantity, run)
-    D, U, W = D.T.copy(), U.T.copy(), W.T.copy()
-    for j in range(1, L):
-        f = W[j - 1] / D[j - 1]
-        D[j] -= f * U[j - 1]
-        b[j] -= f * b[j - 1]
-    inv = 1.0 / D
-    b[L - 1] *= inv[L - 1]
-    for j in range(L - 2, -1, -1):
-        b[j] -= U[j] * b[j + 1]
-        b[j] *= inv[j]
-    return np.moveaxis(b, 0, 2)
+    sig = np.diff(Y, axis=2) / h  # (quantity, run, j)
+    b = np.empty_like(Y)
+    b[..., 0] = 2.5 * sig[..., 0] + 0.5 * sig[..., 1]
+    b[..., 1:-1] = 3.0 * (sig[..., :-1] + sig[..., 1:])
+    b[..., -1] = 0.0
+    # the interior rows' pivots: row j's is 4 − 1 / row (j − 1)'s (row 0's is 1, row 1's 2)
+    J = min(SETTLED, L)
+    pivots = [1.0, 2.0]
+    while len(pivots) < J:
+        pivots.append(4.0 - 1.0 / pivots[-1])
+    limit = 2.0 + np.sqrt(3.0)
+    for j in range(1, J):
+        b[..., j] -= b[..., j - 1] / pivots[j - 1]
+    if L > J:
+        zi = b[..., J - 1 : J] / -limit
+        b[..., J:] = lfilter([1.0], [1.0, 1.0 / limit], b[..., J:], axis=-1, zi=zi)[0]
+    # each run's last row: (2, 1) below the pivot of the row before it
+    pivot = np.array(pivots[:J] + [limit])
+    before, at_last = pivot[np.minimum(last - 1, J)], pivot[np.minimum(last, J)]
+    f = 2.0 / before
+    b_last = 0.5 * sig[:, r, last - 2] + 2.5 * sig[:, r, last - 1] - f * b[:, r, last - 1]
+    # the substitution back divides row j by its pivot, the last row's by ``1 − f`` where the
+    # rows' pivot ``at_last`` stands: its right-hand side scaled to match
+    b[:, r, last] = b_last * (at_last / (1.0 - f))
+    b[:, np.arange(L) > last[:, None]] = 0.0
+    s = np.empty_like(b)
+    if L > J:
+        c = 1.0 / limit
+        s[..., J:] = lfilter([c], [1.0, c], b[..., : J - 1 : -1], axis=-1)[..., ::-1]
+        nxt = s[..., J]
+    else:
+        nxt = np.zeros((Q, g))
+    for j in range(J - 1, 0, -1):
+        s[..., j] = (b[..., j] - nxt) / pivots[j]
+        nxt = s[..., j]
+    s[..., 0] = b[..., 0] - 2.0 * nxt
+    return s
 
 
 __all__ = ["BLOCK", "RunFigures", "batch_figures", "cycles"]

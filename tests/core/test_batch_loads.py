@@ -127,3 +127,28 @@ def test_a_batch_in_another_structure_is_refused():
     states = run_states(_scenes(["bodies.slider.mass_kg=80,90"]))
     with pytest.raises(ValueError, match="'free'"):
         batch_loads.batch_figures(states, mode="free")
+
+
+@pytest.mark.parametrize(
+    "lengths",
+    [
+        [4, 5, 7],  # fewer than the rows eliminated one by one
+        [4, batch_loads.SETTLED - 1, batch_loads.SETTLED, batch_loads.SETTLED + 1, batch_loads.SETTLED + 2],
+        [600, 797, 800],  # a cycle's, in a block of unequal lengths
+    ],
+)
+def test_the_splines_slopes_are_scipys_not_a_knot_splines(lengths):
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(len(lengths))
+    h, L = 2e-4, max(lengths)
+    Y = np.sin(np.arange(L) * h * 60.0 + rng.uniform(0, 6, (3, len(lengths), 1))) * rng.uniform(
+        1e2, 1e5, (3, len(lengths), 1)
+    ) + rng.normal(0, 1.0, (3, len(lengths), L))
+    s = batch_loads._slopes(Y, np.array(lengths), h)
+    for r, k in enumerate(lengths):
+        x = np.arange(k) * h
+        for q in range(3):
+            want = CubicSpline(x, Y[q, r, :k])(x, 1)
+            assert np.max(np.abs(s[q, r, :k] - want)) <= 1e-12 * np.max(np.abs(want)), (k, q)
+            assert not s[q, r, k:].any()  # a run's rows beyond its own
