@@ -419,9 +419,21 @@ class _Batch:
     def _loads_at(self, q: list, qd: list, scenes: np.ndarray) -> list:
         """The effects' loads (:meth:`~mps_core.run.batch_effects.EffectArrays.loads`) at states
         given as (scene, j) arrays of each coordinate, ``scenes`` (scene, 1) their scenes'
-        indices: this batch's evaluation of those states, each entry a number or of that
-        shape."""
+        indices: this batch's evaluation of those states, each entry a number or an array of
+        that shape or (scene, 1)."""
         g, L = q[0].shape
+        if self._kernel is not None:  # the kinematics alone, on the (scene, j) arrays
+            from ..codegen.array_kernels import ArrayBranchChanged
+
+            try:
+                xl, jl, wl, _, _, _ = self._kernel(*q, *qd)
+            except ArrayBranchChanged as exc:
+                raise NotVectorisable(str(exc)) from None
+            kin = _Kinematics(xl, jl, wl, len(q), g)
+            effects = self.effects.take(scenes[:, 0], states=L)
+            effects.forces(kin, qd)
+            return [x if np.ndim(x) else float(x) for x in effects.loads(kin)]
+        # by differences: the batch's evaluation, one scene a state
         at = self._at(np.repeat(scenes[:, 0], L))
         _, _, kin, _ = at.evaluate(
             0.0, np.stack([x.ravel() for x in q], axis=1), np.stack([x.ravel() for x in qd], axis=1)

@@ -27,7 +27,7 @@ class EffectArrays:
     def __init__(self, mech, rows: dict, mass: np.ndarray, structure: str, lists):
         bodies = mech.bodies
         names = [b.name for b in bodies]
-        self.m = mass.shape[0]
+        self.m: int | tuple[int, int] = mass.shape[0]  # the shape of one value a scene
         self.structure = structure
         self.com_rows = [rows[f"G_{b.name}"] for b in bodies]
         self.c = rows["C"]
@@ -148,13 +148,14 @@ class EffectArrays:
             V += f0 * s + 0.5 * k * s * s
         return V
 
-    def take(self, scenes: np.ndarray) -> EffectArrays:
+    def take(self, scenes: np.ndarray, states: int | None = None) -> EffectArrays:
         """These effects for the scenes ``scenes`` (indices, one a state to evaluate: a scene
-        may come many times), their parameters gathered in that order."""
+        may come many times), their parameters gathered in that order; with ``states``, for
+        kinematics of shape (scene, states): the parameters (scene, 1)."""
 
         def pick(x):
             if isinstance(x, np.ndarray):
-                return x[scenes]
+                return x[scenes] if states is None else x[scenes, None]
             if isinstance(x, (list, tuple)):
                 return type(x)(pick(v) for v in x)
             if isinstance(x, dict):
@@ -162,7 +163,7 @@ class EffectArrays:
             return x
 
         out = copy.copy(self)
-        out.m = len(scenes)
+        out.m = len(scenes) if states is None else (len(scenes), states)  # its forces' shape
         out.weight_of, out.motor = pick(self.weight_of), pick(self.motor)
         out.springs, out.damper, out.blanking = pick(self.springs), pick(self.damper), pick(self.blanking)
         out.at_C = (None, None)
@@ -177,25 +178,29 @@ class EffectArrays:
         out: list = [0.0] * (3 * nb + 4)
         o = self.o
         ox, oy = (kin.x(o, 0), kin.x(o, 1)) if o is not None else (0.0, 0.0)
+
+        def add(i: int, x) -> None:  # never in place: an entry may take a larger shape
+            out[i] = out[i] + x
+
         if self.weight_of is not None:
             for b, row in enumerate(self.com_rows):
                 fx, fy = self.weight_of[b]
-                out[3 * b] += fx
-                out[3 * b + 1] += fy
-                out[3 * b + 2] += (kin.x(row, 0) - ox) * fy - (kin.x(row, 1) - oy) * fx
+                add(3 * b, fx)
+                add(3 * b + 1, fy)
+                add(3 * b + 2, (kin.x(row, 0) - ox) * fy - (kin.x(row, 1) - oy) * fx)
         torque, f = self.at_C
         if torque is not None:
             assert self.motor is not None
             k = self.motor["index"]
-            out[3 * k + 2] += torque
-            out[3 * nb + 2] -= torque  # the stator's
-            out[3 * nb + 3] += torque
+            add(3 * k + 2, torque)
+            add(3 * nb + 2, -torque)  # the stator's
+            add(3 * nb + 3, torque)
         if f is not None:  # along x at C on the slider, the frame the opposite
             k = self.slider
             assert k is not None, "a force along the guide with no slider"
             py = kin.x(self.c, 1) - oy
-            out[3 * k] += f
-            out[3 * k + 2] -= py * f
-            out[3 * nb] -= f
-            out[3 * nb + 2] += py * f
+            add(3 * k, f)
+            add(3 * k + 2, -py * f)
+            add(3 * nb, -f)
+            add(3 * nb + 2, py * f)
         return out

@@ -85,17 +85,20 @@ class BatchRecord:
         return out
 
 
-def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list) -> dict:
+def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list, fn=None) -> dict:
     """The reaction columns of states given as arrays (scene, state): ``args`` q…, q̇…, q̈… and
     ``loads`` the effects' loads, each of that shape (a load may also be a number, or (scene,
     1): the same at every state); the view's reaction kernel (built at
     ``q``) on arrays, ``mass`` and ``inertia`` (scene, body), on blocks of (scenes, states) of
-    about :data:`REACTION_CHUNK` states a call. Raises :class:`ReactionsNotSolved` where the
-    view has no such kernel, or a state's reactions are not unique or not finite."""
+    about :data:`REACTION_CHUNK` states a call; ``fn`` that kernel where the caller has it
+    already (:func:`~mps_core.dynamics.reactions.array_reactions`). Raises
+    :class:`ReactionsNotSolved` where the view has no such kernel, or a state's reactions are
+    not unique or not finite."""
     from ..codegen.array_kernels import ArrayBranchChanged
     from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
 
-    fn = array_reactions(mech, view, q)
+    if fn is None:
+        fn = array_reactions(mech, view, q)
     if fn is None:
         raise ReactionsNotSolved("the chart view has no reaction kernel")
     m, S = args[0].shape
@@ -111,7 +114,7 @@ def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list) -> di
         given = [x if isinstance(x, float) else x[cols] for x in masses]
         for s0 in range(0, S, height):
             rows = slice(s0, s0 + height)
-            at = [x if isinstance(x, float) else x[cols, rows] for x in loads]
+            at = [x if isinstance(x, float) else x[cols, rows] if x.shape[1] > 1 else x[cols] for x in loads]
             try:
                 values, _residual = fn(*[a[cols, rows] for a in args], given, at)
             except ArrayBranchChanged:

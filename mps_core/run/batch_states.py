@@ -35,6 +35,7 @@ class BatchStates:
         self.m, self.n, self.view, self.structure = m, n, view, structure
         self._loads_at = loads_at
         self._solver = (mech, q, mass, inertia)
+        self._kernel = None  # the reaction kernel on arrays, once built
         self.k = 0  # the states recorded
         self.t = np.empty(S)
         #: (state, q or q̇ or q̈, coordinate, scene)
@@ -77,7 +78,13 @@ class BatchStates:
         args = [self.states[steps, j, i, which] for j in range(3) for i in range(self.n)]
         given = self._loads_at(args[: self.n], args[self.n : 2 * self.n], which)
         mech, q, mass, inertia = self._solver
+        if self._kernel is None:  # built once: a batch's reports ask for many blocks
+            from ..dynamics.reactions import array_reactions
+
+            self._kernel = array_reactions(mech, self.view, q)
         try:
-            return solve_reactions(mech, self.view, q, mass[which[:, 0]], inertia[which[:, 0]], args, given)
+            return solve_reactions(
+                mech, self.view, q, mass[which[:, 0]], inertia[which[:, 0]], args, given, self._kernel
+            )
         finally:
             self.reaction_cpu_s += time.process_time() - c0
