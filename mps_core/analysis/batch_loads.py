@@ -32,7 +32,7 @@ from .loads import N_HARMONICS, QUANTITIES, TWO_PI, LoadReportError
 #: runs a block of the resampling and the transform takes: its arrays (quantity, run, sample)
 #: of about 5 MB each pass through the caches faster than blocks of 128 runs' 20 MB (a sixth
 #: less CPU for a batch's reports, ``mps bench sweep --vectorised``'s setting)
-BLOCK = 32
+BLOCK = 16
 
 
 @dataclass(frozen=True)

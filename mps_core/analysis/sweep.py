@@ -31,6 +31,7 @@ only: the core depends on nothing heavier, and a record array reads into pandas 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -246,7 +247,9 @@ def plan(
     raw0.setdefault("outputs", {})["reactions"] = True
     runs = []
     for i, point in enumerate(_points(axes, samples, seed)):
-        raw = _copy(raw0)
+        # the base's own parse, changed in place: each run sets every varied key before its
+        # scene is built and its key taken (and a scene is built without changing its file)
+        raw = raw0
         values = dict(zip(keys, point))
         for k, v in values.items():
             set_field(raw, k, v)
@@ -259,16 +262,6 @@ def plan(
         key = hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:16]
         runs.append(Run(i, values, sc, key))
     return runs
-
-
-def _copy(value):
-    """A parsed scene file's copy: its tables and arrays new, the values (numbers, strings,
-    dates: none of them mutable) shared (what ``copy.deepcopy`` gives, a few times faster)."""
-    if isinstance(value, dict):
-        return {k: _copy(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_copy(v) for v in value]
-    return value
 
 
 # -- one run --------------------------------------------------------------------------------
@@ -287,10 +280,7 @@ def _row(period: float, quantities, transients) -> dict:
     """A row's figures: ``quantities`` (name, the :data:`FIGURES`, the amplitudes A_1…A_n)."""
     row: dict = {"period_s": period, "crank_speed_rad_s": loads.TWO_PI / period}
     for name, values, amplitudes in quantities:
-        for f, v in zip(FIGURES, values):
-            row[f"{name}.{f}"] = v
-        for k, a in enumerate(amplitudes, 1):
-            row[f"{name}.A{k}"] = a
+        row.update(zip(_columns(name, len(amplitudes)), itertools.chain(values, amplitudes)))
     found = [
         math.hypot(
             ev.get("impulses_Ns", {}).get("F_found_x", 0.0), ev.get("impulses_Ns", {}).get("F_found_y", 0.0)
@@ -300,6 +290,13 @@ def _row(period: float, quantities, transients) -> dict:
     row["impacts"] = len(found)
     row["impulse_found_max_Ns"] = max(found) if found else 0.0
     return row
+
+
+@functools.cache
+def _columns(name: str, harmonics: int) -> tuple[str, ...]:
+    """A quantity's columns: its :data:`FIGURES`, then its amplitudes A_1…A_n (made once: the
+    rows of a sweep share them, in memory and in what the workers send back)."""
+    return tuple(f"{name}.{f}" for f in FIGURES) + tuple(f"{name}.A{k}" for k in range(1, harmonics + 1))
 
 
 def run_one(scene: Scene, structure: str = "locked") -> tuple[dict, float]:

@@ -264,6 +264,33 @@ def test_the_command_writes_the_table_the_envelope_and_resumes(tmp_path):
 def test_axis_values_are_what_the_scene_receives():
     runs = plan("press-cycle", [Axis("solver.corrector_iterations", (1, 2))], **SHORT)
     assert [r.scene.solver.iterations for r in runs] == [1, 2]
+    # two keys of one table, two of the effects, a command: each run's own, none another's
+    # (the runs' files are one, changed run by run: a scene keeps none of its tables)
+    runs = plan(
+        "press-cycle",
+        [
+            "bodies.slider.mass_kg=80,90",
+            "bodies.crank.mass_kg=4,5",
+            "effects.motor.crank_speed_rad_s=40,45",
+            "effects.blanking.thickness_mm=1,2",
+            "commands.engage.t_s=0.1,0.2",
+        ],
+        **SHORT,
+    )
+    got = []
+    for r in runs:
+        params = {e.kind: e.params for e in r.scene.effects}
+        got.append(
+            (
+                r.scene.bodies["slider"].mass,
+                r.scene.bodies["crank"].mass,
+                params["motor"]["crank_speed"],
+                params["blanking"]["thickness"] * 1e3,
+                dict((w, t) for t, w in r.scene.commands)["engage"],
+            )
+        )
+    assert got == [tuple(r.values.values()) for r in runs] and len(set(got)) == 32
+    assert plan("press-cycle", ["bodies.slider.mass_kg=85"], **SHORT)[0].scene.bodies["crank"].mass == 4.6
 
 
 #: working (locked, no events) with exact derivatives: its runs share vectorised batches from two
