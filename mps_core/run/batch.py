@@ -376,7 +376,10 @@ class _Batch:
             j = np.stack(
                 [np.broadcast_to(x, (self.m,)) for x in kin.jac(self.rows["C"], 0)], axis=1
             )  # (m, n)
-            w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
+            if j.shape[1] == 1:  # one coordinate: A is a number a scene
+                w2 = k * (j[:, 0] * j[:, 0] / A[:, 0, 0])
+            else:
+                w2 = k * np.einsum("mi,mij,mj->m", j, np.linalg.inv(A), j)
             lim = SOLVERS[self.settings.name].stability_limit
             t_min = 2.0 * math.pi / np.sqrt(np.maximum(w2, 1e-300))
             if np.any(self.dt > 0.9 * lim * t_min):

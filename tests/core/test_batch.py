@@ -155,3 +155,25 @@ def test_reactions_in_the_batch_equal_one_by_one():
             assert np.abs(ref["F_found_x"]).max() > 1e3  # the loads, not zeros
         # a heavier slider, a larger foundation load: the masses are each scene's own
         assert np.abs(res[2]["F_found_x"]).max() > np.abs(res[0]["F_found_x"]).max()
+
+
+def test_a_batch_whose_step_the_springs_would_subdivide_runs_one_by_one(monkeypatch):
+    """The retention springs' shortest period against the solver's stability limit, checked at
+    every step for every scene (one coordinate: k j² / A): past it the group runs one by one,
+    where each run subdivides its steps."""
+    from mps_core.solvers import SOLVERS
+
+    text = (
+        load_scene("working")
+        .text.replace("assembly = 1", "assembly = 1\nx_top_mm = 25.5")
+        .replace(
+            "[solver]",
+            '[[effects]]\ntype = "springs"\nstiffness_n_m = 20000.0\npreload_n = 2500.0\n\n[solver]',
+        )
+    )
+    scenes = [scene_from_text(text).with_overrides(t_end=0.002, dt=1e-4)] * 2
+    assert simulate_many(scenes).vectorised == [True, True]
+    # the springs' period 2π sqrt(A / (k j²)) is seconds near φ = 0 (infinite at it, where
+    # j = ∂x_C/∂φ = 0): a limit of a billionth of it puts a step of 0.1 ms past it
+    monkeypatch.setattr(SOLVERS["linear-acceleration"], "stability_limit", 1e-9)
+    assert simulate_many(scenes).vectorised == [False, False]
