@@ -50,6 +50,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -220,7 +221,7 @@ class _Batch:
             [sc.build_effects(self.mech) for sc in scenes],
         )
         self.evaluations = 0
-        self._terms: tuple | None = None  # A's and h's terms (:meth:`_exact_terms`)
+        self._terms: Any = None  # sums A's and h's terms (:meth:`_exact_terms`), once made
         self._kernel = self._array_kernel(first) if self.settings.scheme == "autodiff" else None
         # by body, contiguous: the centres of mass' rows, masses, inertias
         self.com_rows = self.effects.com_rows
@@ -306,29 +307,18 @@ class _Batch:
         kin = _Kinematics(xl, jl, wl, n, m)
         # A_ij = Σ m v*_G,i·v*_G,j + J ω*_i ω*_j and h_i = Σ m v*_G,i·G̈ + J ω*_i θ̈ (at q̈ = 0):
         # one term a body's centre of mass' component or its rotation, those whose analogs
-        # the kernel gives as arrays (the others are zero)
+        # the kernel gives (the others are zero), summed by code made for them once
         if self._terms is None:
             self._terms = self._exact_terms(kin, conv)
-        weights, rows, cols, plain = self._terms
-        analogs = jl + wl  # the points' analogs, then the bodies' angular ones
-        if plain:  # every one an array
-            J = np.stack([analogs[r] for r in rows])
-            G = np.stack([conv[c] for c in cols])
-        else:
-            J = np.stack([np.broadcast_to(analogs[r], (m,)) for r in rows])
-            G = np.stack([np.broadcast_to(conv[c], (m,)) for c in cols])
-        J = J.reshape(len(cols), n, m)  # (term, i, scene); G (term, scene)
-        WJ = weights * J
-        A = np.einsum("kim,kjm->mij", WJ, J)
-        h = np.einsum("kim,km->mi", WJ, G)
+        A, h = self._terms(jl + wl, conv, m)
         return self._solve(t, kin, qd, A, h)
 
     def _exact_terms(self, kin, conv):
-        """The terms of A and h: their weights (term, 1, scene), where their analogs are in
-        the kernel's analogs then angular analogs (term by coordinate), where their
-        convective accelerations are in ``conv``, and whether all of those are arrays (the
-        kernel's code gives each entry always as an array or always as a number); a term
-        whose analogs are all the number 0 left out."""
+        """A function ``(analogs, conv, m) -> (A, h)`` that sums A's and h's terms: straight-line
+        numpy code over the terms whose analogs the kernel gives (in its analogs, then its
+        angular analogs, one a coordinate; a term whose analogs are all the number 0 left
+        out), their convective accelerations in ``conv``, weighted by each scene's mass or
+        inertia; A symmetric by construction."""
         nb, n = len(self.mech.bodies), kin.n
         analogs = list(kin.jl) + list(kin.wl)
         weights, rows, cols = [], [], []
@@ -341,12 +331,28 @@ class _Batch:
                 if all(isinstance(x, float) and x == 0.0 for x in analogs[k : k + n]):
                     continue
                 weights.append(w)
-                rows.extend(range(k, k + n))
+                rows.append(list(range(k, k + n)))
                 cols.append(c)
-        plain = all(isinstance(analogs[r], np.ndarray) for r in rows) and all(
-            isinstance(kin_conv, np.ndarray) for kin_conv in (conv[c] for c in cols)
-        )
-        return np.array(weights)[:, None, :], rows, cols, plain
+        terms = range(len(cols))
+        lines = ["def a_and_h(an, cv, m):"]
+        lines += [f"    t{k}_{i} = w[{k}] * an[{rows[k][i]}]" for k in terms for i in range(n)]
+        lines.append(f"    A = empty((m, {n}, {n}))")
+        lines.append(f"    h = empty((m, {n}))")
+        for i in range(n):
+            for j in range(i, n):
+                lines.append(
+                    f"    A[:, {i}, {j}] = "
+                    + (" + ".join(f"t{k}_{i} * an[{rows[k][j]}]" for k in terms) or "0.0")
+                )
+                if j > i:
+                    lines.append(f"    A[:, {j}, {i}] = A[:, {i}, {j}]")
+            lines.append(
+                f"    h[:, {i}] = " + (" + ".join(f"t{k}_{i} * cv[{cols[k]}]" for k in terms) or "0.0")
+            )
+        lines.append("    return A, h")
+        namespace = {"w": weights, "empty": np.empty}
+        exec(compile("\n".join(lines), "<batch A and h>", "exec"), namespace)
+        return namespace["a_and_h"]
 
     def _solve(self, t, kin, qd, A, h):
         """q̈ = A⁻¹(Q − h) with the effects' Q: (q̈, A, the kinematics, the power)."""

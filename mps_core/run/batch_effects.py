@@ -61,6 +61,14 @@ class EffectArrays:
                 "on": np.array([1.0 if e.enabled else 0.0 for e in mo]),
             }
         )
+        if self.motor is not None:  # the torque's factors that no state changes
+            mo = self.motor
+            mo["gain"] = mo["on"] * mo["ratio"] * mo["eff"]
+            mo["2mk"] = 2.0 * mo["mk"]
+            mo["sk2"] = mo["sk"] * mo["sk"]
+        #: gravity's terms of the generalized forces: (row, component, coordinate, weight),
+        #: found at the first evaluation
+        self._weighed: list | None = None
         sp = take(RetentionSprings)
         self.springs = (
             None
@@ -83,33 +91,33 @@ class EffectArrays:
         self.at_C: tuple = (None, None)
 
     def forces(self, kin, v) -> tuple[list, np.ndarray]:
-        """Generalized forces (one array a coordinate) and the power of the non-conservative
-        effects; ``v``: q̇, one array a coordinate. Keeps the motor's torque and the force
-        along x at C in :attr:`at_C` for :meth:`loads`."""
-        n, m = len(v), self.m
-        Q = [np.zeros(m) for _ in range(n)]
-        power = np.zeros(m)
+        """Generalized forces (one array, or a number, a coordinate) and the power of the
+        non-conservative effects; ``v``: q̇, one array a coordinate. Keeps the motor's torque
+        and the force along x at C in :attr:`at_C` for :meth:`loads`."""
+        n = len(v)
+        Q: list = [0.0] * n
+        power = np.zeros(self.m)
         jc = kin.jac(self.c, 0)  # ∂x_C/∂q
         vC = sum(jc[i] * v[i] for i in range(n))
         if self.weight_of is not None:
-            for b, row in enumerate(self.com_rows):
-                for cc in (0, 1):
-                    jg, mg = kin.jac(row, cc), self.weight_of[b][cc]
-                    for i in range(n):
-                        Q[i] += mg * jg[i]
+            if self._weighed is None:  # the analogs the kinematics give as numbers 0 are left out
+                self._weighed = [
+                    (row, cc, i, self.weight_of[b][cc])
+                    for b, row in enumerate(self.com_rows)
+                    for cc in (0, 1)
+                    for i in range(n)
+                    if not (isinstance(kin.jac(row, cc)[i], float) and kin.jac(row, cc)[i] == 0.0)
+                ]
+            for row, cc, i, mg in self._weighed:
+                Q[i] = Q[i] + mg * kin.jac(row, cc)[i]
         if self.motor is not None:
             mo = self.motor
             wk = kin.omega(mo["index"])
             w = sum(wk[i] * v[i] for i in range(n))
             s = 1.0 - mo["ratio"] * w / mo["wsync"]
-            torque = (
-                mo["on"]
-                * mo["ratio"]
-                * mo["eff"]
-                * (2.0 * mo["mk"] * s * mo["sk"] / (s * s + mo["sk"] * mo["sk"]))
-            )
+            torque = mo["gain"] * (mo["2mk"] * s * mo["sk"] / (s * s + mo["sk2"]))
             for i in range(n):
-                Q[i] += torque * wk[i]
+                Q[i] = Q[i] + torque * wk[i]
             power += torque * w
         else:
             torque = None
@@ -131,7 +139,7 @@ class EffectArrays:
             power += f * vC
         for f in forces:
             for i in range(n):
-                Q[i] += f * jc[i]
+                Q[i] = Q[i] + f * jc[i]
         self.at_C = (torque, sum(forces) if forces else None)
         return Q, power
 
@@ -167,6 +175,7 @@ class EffectArrays:
         out.weight_of, out.motor = pick(self.weight_of), pick(self.motor)
         out.springs, out.damper, out.blanking = pick(self.springs), pick(self.damper), pick(self.blanking)
         out.at_C = (None, None)
+        out._weighed = None  # its weights gathered
         return out
 
     def loads(self, kin) -> list:
