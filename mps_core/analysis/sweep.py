@@ -361,9 +361,15 @@ def _work(scenes: list[Scene], structure: str, batch: bool) -> list[Result]:
     return run_batch(scenes, structure) if batch else [_task(sc, structure) for sc in scenes]
 
 
-#: scene-steps a vectorised batch of a sweep holds at most (its columns and the reactions' inputs:
-#: about 0.5 kB each at the batch's peak)
-BATCH_STATES = 2_000_000
+#: scene-steps a vectorised batch of a sweep holds at most: each step's state, and the blocks of
+#: its load reports; about 90 B each at the batch's peak (working, 1000 to 3000 runs of 1751
+#: steps: 0.25 to 0.55 GB resident, the process's own included)
+BATCH_STATES = 6_000_000
+
+#: runs a vectorised batch of a sweep holds at most, unless told: a batch's step costs numpy's
+#: calls more than their arithmetic at a thousand runs (working with exact derivatives: a run
+#: 20 to 25 % cheaper in batches of 2000, about the same in 3000)
+BATCH_SIZE = 2000
 
 
 #: the fewest runs a vectorised batch takes, by derivative scheme (fewer go one by one): with
@@ -376,7 +382,7 @@ def tasks(
     todo: Sequence[Run],
     workers: int,
     vectorise: bool = True,
-    batch_size: int = 1000,
+    batch_size: int = BATCH_SIZE,
     min_batch: int | None = None,
 ) -> list:
     """The sweep's runs as tasks ``(batch, runs)``: the runs whose scenes can share a
@@ -507,7 +513,7 @@ def sweep(
     out: str | Path | None = None,
     on_row: Callable[[dict, int, int], None] | None = None,
     vectorise: bool = True,
-    batch_size: int = 1000,
+    batch_size: int = BATCH_SIZE,
     min_batch: int | None = None,
 ) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.

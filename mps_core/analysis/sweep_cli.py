@@ -72,9 +72,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--batch-size",
         type=int,
-        default=1000,
+        default=sw.BATCH_SIZE,
         metavar="N",
-        help="runs a vectorised batch holds at most (default 1000)",
+        help=f"runs a vectorised batch holds at most (default {sw.BATCH_SIZE})",
     )
     p.add_argument("--force", action="store_true", help="write into a folder that holds another sweep")
     p.add_argument(

@@ -121,7 +121,10 @@ def _register_sweep(sub) -> None:
         "second; --t-end default 0.35 s, --dt 0.2 ms)",
     )
     w.add_argument(
-        "--sizes", default="10,100,1000", help="with --vectorised: batch sizes (default 10,100,1000)"
+        "--sizes",
+        default="10,100,1000,2000",
+        help="with --vectorised: batch sizes (default 10,100,1000,2000; a sweep's batches hold "
+        "2000 runs unless told)",
     )
     w.add_argument(
         "--scheme",

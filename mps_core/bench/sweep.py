@@ -117,7 +117,7 @@ def _working(scheme: str):
 
 
 def vectorised(
-    sizes=(10, 100, 1000),
+    sizes=(10, 100, 1000, 2000),
     t_end: float = 0.35,
     dt: float = 2e-4,
     schemes=("central", "autodiff"),
