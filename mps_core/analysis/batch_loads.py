@@ -29,6 +29,9 @@ import numpy as np
 from . import loads
 from .loads import N_HARMONICS, QUANTITIES, TWO_PI, LoadReportError
 
+#: the reaction columns the reports read
+COLUMNS = frozenset(c for _name, cols, _unit in QUANTITIES for c in cols)
+
 #: runs a block of the resampling and the transform takes: its arrays (quantity, run, sample)
 #: of about 3 MB each stay in the caches and the allocator's reach; blocks of 8 to 256 runs
 #: were tried in turns, 8 and 16 the fastest, 128 about a third slower
@@ -100,7 +103,7 @@ def batch_figures(states, mode: str | None = "locked", n: int = N_HARMONICS) -> 
         rows = np.array(block)
         L = int(length[rows].max())
         at = np.minimum(start[rows, None] + np.arange(L), S - 1)  # (run, j)
-        reactions = states.reactions(at, rows)
+        reactions = states.reactions(at, rows, COLUMNS)
         for r, res in zip(block, _block(t, at, length[rows], reactions, cyc, rows, int(N[block[0]]), n)):
             out[r] = res
     return out

@@ -52,16 +52,23 @@ def _array_source(source: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def _without(source: str, drop: tuple[int, ...]) -> str:
-    """A kernel's straight-line code with the return tuple's places ``drop`` made None, and the
-    assignments that only they read left out (the guards, and what they read, stay)."""
+def _without(source: str, drop: tuple) -> str:
+    """A kernel's straight-line code with the return tuple's places ``drop`` made None (a
+    place ``(i, j)``: item j of the list at place i), and the assignments that only they read
+    left out (the guards, and what they read, stay)."""
     tree = ast.parse(source)
     fn = tree.body[0]
     assert isinstance(fn, ast.FunctionDef)
     ret = fn.body[-1]
     assert isinstance(ret, ast.Return) and isinstance(ret.value, ast.Tuple)
-    for i in drop:
-        ret.value.elts[i] = ast.Constant(None)
+    for place in drop:
+        if isinstance(place, tuple):
+            i, j = place
+            items = ret.value.elts[i]
+            assert isinstance(items, ast.List)
+            items.elts[j] = ast.Constant(None)
+        else:
+            ret.value.elts[place] = ast.Constant(None)
     needed = {node.id for node in ast.walk(ret) if isinstance(node, ast.Name)}
     body: list[ast.stmt] = []
     for stmt in reversed(fn.body[:-1]):
@@ -78,10 +85,10 @@ def _miss():
     raise ArrayBranchChanged("a scene left the branch of the kernel")
 
 
-def array_kernel(kernel, drop: tuple[int, ...] = ()):
+def array_kernel(kernel, drop: tuple = ()):
     """The array form of an exact kernel (see the module's docstring); ``drop``: the places
-    of its return tuple that the caller does not read (None there, and nothing computed for
-    them alone)."""
+    of its return tuple that the caller does not read, or ``(place, item)`` of a list there
+    (None there, and nothing computed for them alone)."""
     key = (kernel.source, drop)
     code = _CODE.get(key)
     if code is None:

@@ -512,7 +512,7 @@ def kernels_of(mechanism: Mechanism) -> _Kernels:
     return ks
 
 
-def array_reactions(mechanism: Mechanism, view: ChartView, q):
+def array_reactions(mechanism: Mechanism, view: ChartView, q, columns=None):
     """The reactions of many states of ``view`` in one call, or None where the view has no
     reaction kernel: the view's reaction kernel (built at ``q``, the bodies' masses and
     inertias an argument) run on arrays (:mod:`mps_core.codegen.array_kernels`):
@@ -521,7 +521,9 @@ def array_reactions(mechanism: Mechanism, view: ChartView, q):
     bodies' masses then their inertias and ``loads`` as
     :class:`~mps_core.codegen.reaction_kernels.LoadSums` gives them. A state where the kernel
     does not hold (a pivot below its guard: a singular position) raises
-    :class:`~mps_core.codegen.array_kernels.ArrayBranchChanged`."""
+    :class:`~mps_core.codegen.array_kernels.ArrayBranchChanged`. ``columns``: the
+    :data:`REACTION_COLUMNS` the caller reads (None: all); the others' values are None, the
+    residual is None, and nothing is computed for them alone."""
     from ..codegen.array_kernels import array_kernel
     from ..codegen.reaction_kernels import reaction_kernel
 
@@ -535,7 +537,12 @@ def array_reactions(mechanism: Mechanism, view: ChartView, q):
         )
     except (ArithmeticError, ValueError):
         return None
-    return None if kernel is None else array_kernel(kernel)
+    if kernel is None:
+        return None
+    if columns is None:
+        return array_kernel(kernel)
+    unread = tuple((0, j) for j, c in enumerate(REACTION_COLUMNS) if c not in columns)
+    return array_kernel(kernel, drop=(*unread, 1))
 
 
 def _last_that_holds(ks, view: ChartView, effects, moving: bool):

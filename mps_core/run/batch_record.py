@@ -85,26 +85,28 @@ class BatchRecord:
         return out
 
 
-def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list, fn=None) -> dict:
+def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list, fn=None, columns=None) -> dict:
     """The reaction columns of states given as arrays (scene, state): ``args`` q…, q̇…, q̈… and
     ``loads`` the effects' loads, each of that shape (a load may also be a number, or (scene,
     1): the same at every state); the view's reaction kernel (built at
     ``q``) on arrays, ``mass`` and ``inertia`` (scene, body), on blocks of (scenes, states) of
     about :data:`REACTION_CHUNK` states a call; ``fn`` that kernel where the caller has it
-    already (:func:`~mps_core.dynamics.reactions.array_reactions`). Raises
+    already (:func:`~mps_core.dynamics.reactions.array_reactions`, built for ``columns``);
+    ``columns``: those of :data:`~mps_core.dynamics.reactions.REACTION_COLUMNS` to solve
+    (None: all). Raises
     :class:`ReactionsNotSolved` where the view has no such kernel, or a state's reactions are
     not unique or not finite."""
     from ..codegen.array_kernels import ArrayBranchChanged
     from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
 
     if fn is None:
-        fn = array_reactions(mech, view, q)
+        fn = array_reactions(mech, view, q, columns)
     if fn is None:
         raise ReactionsNotSolved("the chart view has no reaction kernel")
     m, S = args[0].shape
     # a mass or an inertia the scenes share is a number, the others one value a scene
     masses = [float(col[0]) if np.all(col == col[0]) else col[:, None] for col in [*mass.T, *inertia.T]]
-    out = {c: np.empty((m, S)) for c in REACTION_COLUMNS}
+    out = {c: np.empty((m, S)) for c in REACTION_COLUMNS if columns is None or c in columns}
     # blocks of whole scenes (all their states) where a scene's states fit a call, else of
     # a scene's states
     width = max(1, REACTION_CHUNK // S)
@@ -120,7 +122,8 @@ def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list, fn=No
             except ArrayBranchChanged:
                 raise ReactionsNotSolved("a scene's reactions are not unique at a step") from None
             for c, v in zip(REACTION_COLUMNS, values):
-                out[c][cols, rows] = v
+                if c in out:
+                    out[c][cols, rows] = v
     # a NaN or an infinity anywhere makes the sum one
     if not all(np.isfinite(v.sum()) for v in out.values()):
         raise ReactionsNotSolved("non-finite reactions")

@@ -35,7 +35,7 @@ class BatchStates:
         self.m, self.n, self.view, self.structure = m, n, view, structure
         self._loads_at = loads_at
         self._solver = (mech, q, mass, inertia)
-        self._kernel = None  # the reaction kernel on arrays, once built
+        self._kernels: dict = {}  # the reaction kernels on arrays, by the columns they solve
         self.k = 0  # the states recorded
         self.t = np.empty(S)
         #: (state, q or q̇ or q̈, coordinate, scene)
@@ -64,10 +64,11 @@ class BatchStates:
             return None
         return self.states[: self.k, derivative, self._names.index(name)]
 
-    def reactions(self, steps: np.ndarray, scenes=None) -> dict:
+    def reactions(self, steps: np.ndarray, scenes=None, columns=None) -> dict:
         """The reaction columns at ``steps`` (scene, j: a step's index for each scene) of
         ``scenes`` (their indices; None: every scene), each of that shape, with each scene's
-        masses and inertias. Raises
+        masses and inertias; ``columns``: those to solve (None: all of
+        :data:`~mps_core.dynamics.reactions.REACTION_COLUMNS`). Raises
         :class:`~mps_core.run.batch_record.ReactionsNotSolved` as
         :meth:`~mps_core.run.batch_record.BatchRecord.reaction_columns` does."""
         c0 = time.process_time()
@@ -78,13 +79,22 @@ class BatchStates:
         args = [self.states[steps, j, i, which] for j in range(3) for i in range(self.n)]
         given = self._loads_at(args[: self.n], args[self.n : 2 * self.n], which)
         mech, q, mass, inertia = self._solver
-        if self._kernel is None:  # built once: a batch's reports ask for many blocks
+        key = None if columns is None else frozenset(columns)
+        if key not in self._kernels:  # built once: a batch's reports ask for many blocks
             from ..dynamics.reactions import array_reactions
 
-            self._kernel = array_reactions(mech, self.view, q)
+            self._kernels[key] = array_reactions(mech, self.view, q, key)
         try:
             return solve_reactions(
-                mech, self.view, q, mass[which[:, 0]], inertia[which[:, 0]], args, given, self._kernel
+                mech,
+                self.view,
+                q,
+                mass[which[:, 0]],
+                inertia[which[:, 0]],
+                args,
+                given,
+                self._kernels[key],
+                key,
             )
         finally:
             self.reaction_cpu_s += time.process_time() - c0

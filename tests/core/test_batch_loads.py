@@ -152,3 +152,17 @@ def test_the_splines_slopes_are_scipys_not_a_knot_splines(lengths):
             want = CubicSpline(x, Y[q, r, :k])(x, 1)
             assert np.max(np.abs(s[q, r, :k] - want)) <= 1e-12 * np.max(np.abs(want)), (k, q)
             assert not s[q, r, k:].any()  # a run's rows beyond its own
+
+
+def test_the_reports_reactions_are_the_full_kernels_columns_bit_for_bit():
+    # the reports' kernel computes only the columns they read (no residuals): those the same
+    from mps_core.dynamics.reactions import REACTION_COLUMNS
+
+    states = run_states(_scenes(["bodies.slider.mass_kg=80,90,100"]))
+    steps = np.broadcast_to(np.arange(0, states.k, 7), (3, len(range(0, states.k, 7))))
+    every = states.reactions(steps)
+    some = states.reactions(steps, columns=batch_loads.COLUMNS)
+    assert set(some) == set(batch_loads.COLUMNS) < set(every) == set(REACTION_COLUMNS)
+    assert "residual_force_N" not in some
+    for c, v in some.items():
+        assert np.array_equal(v, every[c]), c
