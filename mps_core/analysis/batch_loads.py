@@ -77,10 +77,8 @@ def batch_figures(states, mode: str | None = "locked", n: int = N_HARMONICS) -> 
     phi_dot = states.coordinate("phi", 1)
     if phi is None or phi_dot is None:
         raise ValueError("the batch's crank angle is frozen")
-    phi = np.ascontiguousarray(phi.T)  # (run, step)
-    phi_dot = np.ascontiguousarray(phi_dot.T)
     cyc = cycles(t, phi, phi_dot, mode)
-    m, S = phi.shape
+    S, m = phi.shape
     out: list = [None] * m
     for r, err in cyc.errors.items():
         out[r] = err
@@ -110,23 +108,24 @@ def batch_figures(states, mode: str | None = "locked", n: int = N_HARMONICS) -> 
 
 
 def cycles(t, phi, phi_dot, mode: str | None = "locked") -> _Cycles:
-    """The last full crank revolution of each run: ``phi`` and ``phi_dot`` (run, step) at the
+    """The last full crank revolution of each run: ``phi`` and ``phi_dot`` (step, run) at the
     steps' times ``t``, every step in the structure ``mode``."""
-    m, S = phi.shape
+    S, m = phi.shape
     turns = np.floor(phi / TWO_PI + 1e-12)
-    run, step = np.nonzero(turns[:, 1:] != turns[:, :-1])  # the steps after which φ passes 2πk
+    step, run = np.nonzero(turns[1:] != turns[:-1])  # the steps after which φ passes 2πk
+    order = np.argsort(run, kind="stable")  # by run, each run's by step
+    step, run = step[order], run[order]
     count = np.bincount(run, minlength=m)
     end = np.cumsum(count)
     cross = np.full((m, 3), np.nan)  # the last three passages' times, the last first
     for j in range(3):
         has = count > j
         i = step[end[has] - 1 - j]
-        r = np.nonzero(has)[0]
-        cross[has, j] = _passage(t, phi[r], phi_dot[r], turns[r], i)
+        cross[has, j] = _passage(t, phi, phi_dot, turns, i, np.nonzero(has)[0])
     errors = {}
     for k in np.nonzero(count < 2)[0].tolist():
         try:  # the report's own message
-            loads.last_cycle(t, phi[k], phi_dot[k], None, mode)
+            loads.last_cycle(t, phi[:, k], phi_dot[:, k], None, mode)
         except LoadReportError as exc:
             errors[k] = exc
         else:  # cannot be: the report found two passages where these are fewer
@@ -140,14 +139,14 @@ def cycles(t, phi, phi_dot, mode: str | None = "locked") -> _Cycles:
     return _Cycles(t0, period, change, np.maximum(i0, 0), np.minimum(i1, S - 1), errors)
 
 
-def _passage(t, phi, phi_dot, turns, i):
-    """The times at which φ passes its multiple of 2π between steps ``i`` and ``i + 1`` (one
-    a run of ``phi``, ``phi_dot``, ``turns``): the report's rule (:func:`loads._crossings`)
-    with bisection on the cubic Hermite interpolant, to the last bit."""
-    r = np.arange(len(i))
+def _passage(t, phi, phi_dot, turns, i, r):
+    """The times at which φ passes its multiple of 2π between steps ``i`` and ``i + 1`` of
+    runs ``r`` (``phi``, ``phi_dot``, ``turns``: (step, run)): the report's rule
+    (:func:`loads._crossings`) with bisection on the cubic Hermite interpolant, to the last
+    bit."""
     ta, tb = t[i], t[i + 1]
-    level = TWO_PI * np.maximum(turns[r, i], turns[r, i + 1])
-    f = loads.hermite_minus(ta, tb, phi[r, i], phi[r, i + 1], phi_dot[r, i], phi_dot[r, i + 1], level)
+    level = TWO_PI * np.maximum(turns[i, r], turns[i + 1, r])
+    f = loads.hermite_minus(ta, tb, phi[i, r], phi[i + 1, r], phi_dot[i, r], phi_dot[i + 1, r], level)
 
     fa, fb = f(ta), f(tb)
     a, b = ta.copy(), tb.copy()

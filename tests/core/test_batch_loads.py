@@ -98,12 +98,11 @@ def test_the_cycles_are_the_reports_cycles():
     # 2.4 to 4 revolutions: the first run has no revolution before its last (no change)
     scenes = _scenes(["effects.motor.crank_speed_rad_s=30,40,50"], t_end=0.5, dt=5e-4)
     states = run_states(scenes)
-    phi = np.ascontiguousarray(states.coordinate("phi").T)
-    phi_dot = np.ascontiguousarray(states.coordinate("phi", 1).T)
+    phi, phi_dot = states.coordinate("phi"), states.coordinate("phi", 1)  # (step, run)
     cyc = batch_loads.cycles(states.t, phi, phi_dot)
     assert not cyc.errors and math.isnan(cyc.change[0]) and not math.isnan(cyc.change[2])
     for r in range(len(scenes)):
-        want = loads.last_cycle(states.t, phi[r], phi_dot[r])
+        want = loads.last_cycle(states.t, phi[:, r], phi_dot[:, r])
         assert abs(cyc.t0[r] - want.t0) <= 2e-15 and abs(cyc.period[r] - want.period) <= 4e-15
         assert (cyc.i0[r], cyc.i1[r]) == (want.i0, want.i1)
         if math.isnan(want.period_change):
