@@ -220,10 +220,6 @@ def _base_raw(scene: Scene) -> dict:
     return tomllib.loads(scene.text)
 
 
-#: runs a sweep on local worker processes plans in them (fewer: in this process)
-PARALLEL_PLAN = 1000
-
-
 def plan(
     scene: Scene | str,
     vary: Iterable[str | Axis],
@@ -232,11 +228,8 @@ def plan(
     seed: int = 0,
     t_end: float | None = None,
     dt: float | None = None,
-    workers: int = 1,
 ) -> list[Run]:
-    """Every run of a sweep, each scene built and validated (nothing is run); on ``workers``
-    local processes, in as many parts, where the runs are :data:`PARALLEL_PLAN` or more (the
-    same runs, and the same first error)."""
+    """Every run of a sweep, each scene built and validated (nothing is run)."""
     base = scene if isinstance(scene, Scene) else load_scene(scene)
     axes = [a if isinstance(a, Axis) else parse_axis(a) for a in vary]
     if not axes:
@@ -252,30 +245,16 @@ def plan(
         solver.pop("steps", None)
         solver["dt_s"] = float(dt)
     raw0.setdefault("outputs", {})["reactions"] = True
-    points = list(_points(axes, samples, seed))
-    if workers <= 1 or len(points) < PARALLEL_PLAN:
-        return _plan_part((raw0, base.name, base.origin, keys, 0, points))
-    size = -(-len(points) // workers)
-    parts = [
-        (raw0, base.name, base.origin, keys, i, points[i : i + size]) for i in range(0, len(points), size)
-    ]
-    with ProcessPoolExecutor(max_workers=len(parts), initializer=_ignore_sigint) as pool:
-        # in order: the first part's error first, as in one process
-        return [r for runs in pool.map(_plan_part, parts) for r in runs]
-
-
-def _plan_part(part: tuple) -> list[Run]:
-    """The runs of ``points`` (a sweep's, from the ``first``-th) of a parsed scene file."""
-    raw, name, origin, keys, first, points = part
     runs = []
-    for i, point in enumerate(points, first):
-        # the file's parse changed in place: each run sets every varied key before its scene
-        # is built and its key taken (and a scene is built without changing its file)
+    for i, point in enumerate(_points(axes, samples, seed)):
+        # the base's own parse, changed in place: each run sets every varied key before its
+        # scene is built and its key taken (and a scene is built without changing its file)
+        raw = raw0
         values = dict(zip(keys, point))
         for k, v in values.items():
             set_field(raw, k, v)
         try:
-            sc = scene_from_dict(raw, name=name, origin=origin)
+            sc = scene_from_dict(raw, name=base.name, origin=base.origin)
         except SceneError as exc:
             shown = ", ".join(f"{k}={v!r}" for k, v in values.items())
             raise SweepError(f"run {i} ({shown}): {exc}") from None
@@ -536,7 +515,6 @@ def sweep(
     vectorise: bool = True,
     batch_size: int = BATCH_SIZE,
     min_batch: int | None = None,
-    planned: list[Run] | None = None,
 ) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.
 
@@ -547,14 +525,9 @@ def sweep(
     the runs whose scenes can share a vectorised pass (scenes without events with a
     fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` and at
     least ``min_batch`` runs (by default :data:`MIN_BATCH`'s by derivative scheme), their rows
-    the same, to round-off; False: every run on its own. ``planned``: what :func:`plan` gave
-    for these arguments, where the caller has it (it is not made again)."""
+    the same, to round-off; False: every run on its own."""
     vary = list(vary)
-    n = workers if workers is not None else (os.cpu_count() or 1)
-    runs = planned
-    if runs is None:
-        local = n if client is None else 1  # a cluster's sweep plans here
-        runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt, workers=local)
+    runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
     keys = list(runs[0].values)
     record = Path(out) / RUNS_FILE if out is not None else None
     done = read_runs(record) if record is not None else {}
@@ -589,6 +562,7 @@ def sweep(
             for i, full in enumerate(made):
                 on_row(full, len(rows) - len(made) + i + 1, len(runs))
 
+    n = workers if workers is not None else (os.cpu_count() or 1)
     if batch_size < 1:
         raise SweepError(f"batch_size {batch_size}: expected an integer >= 1")
     if min_batch is not None and min_batch < 1:

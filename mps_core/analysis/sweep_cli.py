@@ -176,17 +176,13 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     out = Path(args.out)
     spec = _spec(args, scene)
+    # every run's scene is built and checked before anything runs
+    runs = sw.plan(scene, args.vary, samples=args.samples, seed=args.seed, t_end=args.t_end, dt=args.dt)
+    _check_folder(out, spec, args.force)
     if args.workers is not None and args.workers < 1:
         raise sw.SweepError(f"--workers {args.workers}: expected an integer >= 1")
     if args.batch_size < 1:
         raise sw.SweepError(f"--batch-size {args.batch_size}: expected an integer >= 1")
-    # every run's scene is built and checked before anything runs (on the worker processes
-    # where the sweep has them)
-    local = 1 if args.scheduler else (args.workers or os.cpu_count() or 1)
-    runs = sw.plan(
-        scene, args.vary, samples=args.samples, seed=args.seed, t_end=args.t_end, dt=args.dt, workers=local
-    )
-    _check_folder(out, spec, args.force)
     client = _client(args.scheduler)
     out.mkdir(exist_ok=True)
     with written_whole(out / OUTPUTS["spec"]) as tmp:
@@ -216,7 +212,6 @@ def run(args) -> int:
             on_row=progress,
             vectorise=args.vectorise,
             batch_size=args.batch_size,
-            planned=runs,
         )
     except KeyboardInterrupt:
         progress.done()

@@ -93,25 +93,6 @@ def test_bad_specs_fail_before_any_run_naming_the_key():
         plan("press-cycle", ["bodies.slider.mass_kg=80,120"], samples=4)
 
 
-def test_a_sweep_on_worker_processes_plans_there_the_same_runs(monkeypatch):
-    import mps_core.analysis.sweep as sweep_module
-
-    monkeypatch.setattr(sweep_module, "PARALLEL_PLAN", 4)
-    vary = ["bodies.slider.mass_kg=80:120:5", "effects.motor.crank_speed_rad_s=40,45"]
-    here = plan("press-cycle", vary, **SHORT)
-    there = plan("press-cycle", vary, workers=3, **SHORT)
-    assert [(r.index, r.values, r.key, r.scene) for r in there] == [
-        (r.index, r.values, r.key, r.scene) for r in here
-    ]
-    # the first run the scene refuses, as in one process: runs 6 and 7 (of parts 0 to 4,
-    # 5 to 9) and 9
-    bad = ["effects.blanking.thickness_mm=" + ",".join(["1.0"] * 6 + ["-1.0", "-2.0", "1.0", "-3.0"])]
-    with pytest.raises(SweepError, match=r"^run 6 \(effects.blanking.thickness_mm=-1.0\)"):
-        plan("press-cycle", bad, **SHORT)
-    with pytest.raises(SweepError, match=r"^run 6 \(effects.blanking.thickness_mm=-1.0\)"):
-        plan("press-cycle", bad, workers=2, **SHORT)
-
-
 def test_a_grid_is_the_product_and_a_sample_a_latin_hypercube():
     runs = plan("press-cycle", [THICKNESS, "effects.motor.crank_speed_rad_s=40,45"], **SHORT)
     assert [tuple(r.values.values()) for r in runs] == [(t, w) for t in (0.5, 1.25, 2.0) for w in (40, 45)]
