@@ -515,6 +515,7 @@ def sweep(
     vectorise: bool = True,
     batch_size: int = BATCH_SIZE,
     min_batch: int | None = None,
+    planned: list[Run] | None = None,
 ) -> Sweep:
     """Run a sweep (see the module's notes) and return its table.
 
@@ -525,9 +526,12 @@ def sweep(
     the runs whose scenes can share a vectorised pass (scenes without events with a
     fixed-step solver, :mod:`mps_core.run.batch`) go in batches of up to ``batch_size`` and at
     least ``min_batch`` runs (by default :data:`MIN_BATCH`'s by derivative scheme), their rows
-    the same, to round-off; False: every run on its own."""
+    the same, to round-off; False: every run on its own. ``planned``: what :func:`plan` gave
+    for these arguments, where the caller has it (it is not made again)."""
     vary = list(vary)
-    runs = plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
+    runs = (
+        planned if planned is not None else plan(scene, vary, samples=samples, seed=seed, t_end=t_end, dt=dt)
+    )
     keys = list(runs[0].values)
     record = Path(out) / RUNS_FILE if out is not None else None
     done = read_runs(record) if record is not None else {}

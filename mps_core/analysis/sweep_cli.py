@@ -212,6 +212,7 @@ def run(args) -> int:
             on_row=progress,
             vectorise=args.vectorise,
             batch_size=args.batch_size,
+            planned=runs,
         )
     except KeyboardInterrupt:
         progress.done()
