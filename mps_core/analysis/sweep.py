@@ -362,8 +362,8 @@ def _work(scenes: list[Scene], structure: str, batch: bool) -> list[Result]:
 
 
 #: scene-steps a vectorised batch of a sweep holds at most: each step's state, and the blocks of
-#: its load reports; about 90 B each at the batch's peak (working, 1000 to 3000 runs of 1751
-#: steps: 0.25 to 0.55 GB resident, the process's own included)
+#: its load reports; about 50 B each at the batch's peak (working, 1000 to 3400 runs of 1751
+#: steps: 0.20 to 0.42 GB resident, the process's own included; docs/loads.md)
 BATCH_STATES = 6_000_000
 
 #: runs a vectorised batch of a sweep holds at most, unless told: a batch's step costs numpy's
