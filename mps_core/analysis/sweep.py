@@ -368,7 +368,8 @@ BATCH_STATES = 6_000_000
 
 #: runs a vectorised batch of a sweep holds at most, unless told: a batch's step costs numpy's
 #: calls more than their arithmetic at a thousand runs (working with exact derivatives: a run
-#: 20 to 25 % cheaper in batches of 2000, about the same in 3000)
+#: 20 to 33 % cheaper in batches of 2000 in ``mps bench sweep --vectorised``'s two runs of
+#: docs/loads.md, 5 to 20 % in temporary scripts; none clearly cheaper in 3000 or 3400)
 BATCH_SIZE = 2000
 
 
