@@ -4,14 +4,13 @@ description) as ``ros2 param describe`` would show it."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("rclpy")
 
-from twin_probe import NodeProcess, wait_until
+from twin_probe import NodeProcess, ask, wait_until
 
 from mps_ros.parameters import BY_NAME, PARAMETERS, markdown_table
 
@@ -59,14 +58,12 @@ def test_a_running_node_describes_each_parameter(ros, tmp_path):
                 # asked again every 5 s until answered (both requests only read): a node that
                 # has not yet matched this client's reader drops its answer ("failed to send
                 # response (timeout)", seen in a clean clone's run)
-                end = time.monotonic() + 60.0
-                while time.monotonic() < end:
-                    fut = client.call_async(request)
-                    ros.spin_until_future_complete(node, fut, timeout_sec=5.0)
-                    if fut.done():
-                        return fut.result()
-                    client.remove_pending_request(fut)
-                raise AssertionError(f"no answer from {client.srv_name} in 60 s")
+                def spin(fut, seconds):
+                    ros.spin_until_future_complete(node, fut, timeout_sec=seconds)
+
+                got, _ = ask(client, request, spin, 5.0, 12)
+                assert got is not None, f"no answer from {client.srv_name} in 60 s"
+                return got
 
             got = {d.name: d for d in answer(describe, DescribeParameters.Request(names=names)).descriptors}
             values = answer(get, GetParameters.Request(names=["t_end", "real_time_factor"])).values

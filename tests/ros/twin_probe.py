@@ -87,6 +87,19 @@ def wait_until(cond, timeout: float, what: str, poll: float = 0.002):
     raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
 
 
+def ask(client, request, spin, timeout: float, tries: int):
+    """A service's answer, or None: ``request`` sent on ``client`` up to ``tries`` times, each
+    answer waited for ``timeout`` s by ``spin(future, timeout)``; only for a request that
+    asking again does not change. Also gives how many were sent."""
+    for sent in range(1, tries + 1):
+        fut = client.call_async(request)
+        spin(fut, timeout)
+        if fut.done():
+            return fut.result(), sent
+        client.remove_pending_request(fut)
+    return None, tries
+
+
 def stop_group(proc, grace: float = 5.0) -> None:
     """End a test's process group (None: nothing started)."""
     if proc is not None:
@@ -205,14 +218,17 @@ class Listener:
         the executor thread that takes the topics, called from this thread, got no more
         answers after its first (the node's log showed every request answered)."""
         cli = self.services[word]
-        for _ in range(tries):
-            assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
-            fut = cli.call_async(self.Trigger.Request())
-            self.calls += 1
-            self.client_executor.spin_until_future_complete(fut, timeout_sec=timeout)
-            if fut.done():
-                return fut.result()
-            cli.remove_pending_request(fut)
+        assert cli.wait_for_service(timeout_sec=timeout), f"service {word} not available"
+        answer, sent = ask(
+            cli,
+            self.Trigger.Request(),
+            lambda fut, s: self.client_executor.spin_until_future_complete(fut, timeout_sec=s),
+            timeout,
+            tries,
+        )
+        self.calls += sent
+        if answer is not None:
+            return answer
         raise AssertionError(
             f"no answer from service {word} ({tries} asked; the listener's executor "
             + (f"ended: {self.spin_error})" if self.spin_error else f"alive: {self.thread.is_alive()})")
