@@ -519,8 +519,8 @@ def _commands(raw) -> tuple:
     return tuple(sorted(out))
 
 
-def _meta(top: _Table, name: str) -> tuple[str, str]:
-    meta = _Table(top.get("scene", {}), "scene")
+def _meta(data, name: str) -> tuple[str, str]:
+    meta = _Table(data, "scene")
     sname = meta.get("name", name)
     if not isinstance(sname, str) or not sname:
         raise SceneError("scene.name", sname, "a non-empty string")
@@ -532,9 +532,9 @@ def _meta(top: _Table, name: str) -> tuple[str, str]:
     return sname, desc
 
 
-def _mechanism(top: _Table) -> tuple[PressGeometry, int, float | None]:
+def _mechanism(data) -> tuple[PressGeometry, int, float | None]:
     """[mechanism]: the geometry, the assembly, the top stop's position (m, or None)."""
-    mt = _Table(top.get("mechanism", {}), "mechanism", _UNIT_HINTS["mechanism"])
+    mt = _Table(data, "mechanism", _UNIT_HINTS["mechanism"])
     mtype = mt.get("type", "press")
     _choice("mechanism.type", mtype, ("press",))
     l1 = _positive("mechanism.l1_mm", mt.get("l1_mm", 15.0), unit=" (mm)") / 1000.0
@@ -562,9 +562,9 @@ def _mechanism(top: _Table) -> tuple[PressGeometry, int, float | None]:
     return PressGeometry(l1, l2, l3), assembly, x_top
 
 
-def _bodies(top: _Table) -> dict:
+def _bodies(data) -> dict:
     """[bodies.NAME]: each body's mass, inertia and centre of mass (the seed's by default)."""
-    bt = _Table(top.get("bodies", {}), "bodies")
+    bt = _Table(data, "bodies")
     bodies = {}
     for bname in BODY_NAMES:
         raw_b = bt.get(bname)
@@ -598,9 +598,9 @@ def _bodies(top: _Table) -> dict:
     return bodies
 
 
-def _structure(top: _Table) -> tuple[str, float, str]:
+def _structure(data) -> tuple[str, float, str]:
     """[structure]: the initial structure, the lock angle, the change point's rule."""
-    stt = _Table(top.get("structure", {}), "structure", _UNIT_HINTS["structure"])
+    stt = _Table(data, "structure", _UNIT_HINTS["structure"])
     structure = stt.get("initial", "free")
     _choice("structure.initial", structure, STRUCTURES)
     psi_lock = math.radians(_num("structure.psi_lock_deg", stt.get("psi_lock_deg", 0.0)))
@@ -610,9 +610,9 @@ def _structure(top: _Table) -> tuple[str, float, str]:
     return structure, psi_lock, change_point
 
 
-def _initial(top: _Table, structure: str) -> dict:
+def _initial(data, structure: str) -> dict:
     """[initial]: the initial state, SI."""
-    it = _Table(top.get("initial", {}), "initial", _UNIT_HINTS["initial"])
+    it = _Table(data, "initial", _UNIT_HINTS["initial"])
     phi = math.radians(_num("initial.phi_deg", it.get("phi_deg", required=True)))
     phi_dot = _num("initial.phi_dot_rad_s", it.get("phi_dot_rad_s", 0.0))
     psi_deg = it.get("psi_deg")
@@ -624,10 +624,9 @@ def _initial(top: _Table, structure: str) -> dict:
     return {"phi": phi, "phi_dot": phi_dot, "psi": psi, "psi_dot": psi_dot}
 
 
-def _effects(top: _Table, x_top: float | None, structure: str, commands: tuple) -> tuple:
+def _effects(raw_effects, x_top: float | None, structure: str, commands: tuple) -> tuple:
     """[[effects]]: each once, with what it needs from the mechanism, the structure and the
     commands that act through it."""
-    raw_effects = top.get("effects", [])
     if not isinstance(raw_effects, list):
         raise SceneError("effects", raw_effects, "an array of tables [[effects]]")
     effects = tuple(_effect(i, e) for i, e in enumerate(raw_effects))
@@ -662,9 +661,9 @@ def _effects(top: _Table, x_top: float | None, structure: str, commands: tuple) 
     return effects
 
 
-def _solver(top: _Table) -> tuple[SolverSettings, float, float]:
+def _solver(data) -> tuple[SolverSettings, float, float]:
     """[solver]: the settings, the end time and the output step (s)."""
-    sv = _Table(top.get("solver", {}), "solver", _UNIT_HINTS["solver"])
+    sv = _Table(data, "solver", _UNIT_HINTS["solver"])
     method = sv.get("method", "linear-acceleration")
     _choice("solver.method", method, SOLVERS)
     scheme = sv.get("derivatives", "central")
@@ -701,9 +700,9 @@ def _solver(top: _Table) -> tuple[SolverSettings, float, float]:
     return settings, t_end, float(dt)
 
 
-def _outputs(top: _Table) -> bool:
+def _outputs(data) -> bool:
     """[outputs]: whether the reactions (and the foundation load) are computed."""
-    ot = _Table(top.get("outputs", {}), "outputs")
+    ot = _Table(data, "outputs")
     reactions = ot.get("reactions", False)
     if not isinstance(reactions, bool):
         raise SceneError("outputs.reactions", reactions, "true or false")
@@ -711,9 +710,9 @@ def _outputs(top: _Table) -> bool:
     return reactions
 
 
-def _charts(top: _Table) -> ChartPolicy:
+def _charts(data) -> ChartPolicy:
     """[charts]: when to change chart, and when a configuration is singular."""
-    ct = _Table(top.get("charts", {}), "charts")
+    ct = _Table(data, "charts")
     switching = ct.get("switching", True)
     if not isinstance(switching, bool):
         raise SceneError("charts.switching", switching, "true or false")
@@ -760,20 +759,37 @@ def _check_across_tables(scene: Scene) -> None:
             )
 
 
+#: each table's parse by its content: the sweeps build thousands of scenes that differ in a
+#: field or two (:mod:`mps_core.analysis.sweep`), and a table seen before gives what its
+#: parser gave then (a parser is a function of its table and the arguments it is given)
+_TABLES = Memo("scene.tables", 1024)
+
+
+def _parsed(parse, data, *args):
+    """``parse(data, *args)``, remembered by the table's text (``repr``: TOML's values, and
+    1, 1.0 and true apart); a dict it gives is copied (a scene's own); an error is not kept
+    (the same table raises it again)."""
+    key = (parse, repr(data), args)
+    out = _TABLES.get(key)
+    if out is None:
+        out = _TABLES.keep(key, parse(data, *args))
+    return dict(out) if isinstance(out, dict) else out
+
+
 def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
     """A validated scene from a parsed TOML document: one parser a table, in the order the
     tables are checked, then what crosses tables."""
     top = _Table(raw, "scene file")
-    sname, desc = _meta(top, name)
-    geometry, assembly, x_top = _mechanism(top)
-    bodies = _bodies(top)
-    structure, psi_lock, change_point = _structure(top)
-    initial = _initial(top, structure)
-    commands = _commands(top.get("commands", []))
-    effects = _effects(top, x_top, structure, commands)
-    solver, t_end, dt = _solver(top)
-    reactions = _outputs(top)
-    charts = _charts(top)
+    sname, desc = _parsed(_meta, top.get("scene", {}), name)
+    geometry, assembly, x_top = _parsed(_mechanism, top.get("mechanism", {}))
+    bodies = _parsed(_bodies, top.get("bodies", {}))
+    structure, psi_lock, change_point = _parsed(_structure, top.get("structure", {}))
+    initial = _parsed(_initial, top.get("initial", {}), structure)
+    commands = _parsed(_commands, top.get("commands", []))
+    effects = _parsed(_effects, top.get("effects", []), x_top, structure, commands)
+    solver, t_end, dt = _parsed(_solver, top.get("solver", {}))
+    reactions = _parsed(_outputs, top.get("outputs", {}))
+    charts = _parsed(_charts, top.get("charts", {}))
     top.done()
     scene = Scene(
         sname,

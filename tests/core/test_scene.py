@@ -161,3 +161,28 @@ def test_overrides_are_validated():
         s.with_overrides(dt=-1.0)
     with pytest.raises(SceneError, match="solver.method"):
         s.with_overrides(solver="euler")
+
+
+def test_a_table_read_before_gives_its_own_parse_again():
+    """The tables' parses are kept by their text (scene._TABLES): a scene built again from the
+    same tables equals the first; 1, 1.0 and true stay apart; a refused table is refused
+    again; a scene's dicts are its own."""
+    import tomllib
+
+    from mps_core.scene import scene_from_dict
+
+    raw = tomllib.loads(PAPER_TEXT)
+    a, b = scene_from_dict(raw), scene_from_dict(raw)
+    assert a == b and a.bodies is not b.bodies and a.initial is not b.initial
+    a.bodies["slider"] = None
+    assert scene_from_dict(raw).bodies == b.bodies
+    raw.setdefault("outputs", {})["reactions"] = True
+    assert scene_from_dict(raw).reactions is True
+    for bad in (1, 1.0, "true"):
+        raw["outputs"]["reactions"] = bad
+        for _ in range(2):
+            with pytest.raises(SceneError, match="outputs.reactions"):
+                scene_from_dict(raw)
+    raw["outputs"]["reactions"] = False
+    raw["bodies"]["slider"]["mass_kg"] = 90
+    assert scene_from_dict(raw).bodies["slider"].mass == 90 and not scene_from_dict(raw).reactions
