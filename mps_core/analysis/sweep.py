@@ -245,6 +245,9 @@ def plan(
         solver.pop("steps", None)
         solver["dt_s"] = float(dt)
     raw0.setdefault("outputs", {})["reactions"] = True
+    # the file's text as JSON, its tables in order: those no key varies written once
+    varied = {k.split(".")[0] for k in keys}
+    fixed = {t: _json(v) for t, v in raw0.items() if t not in varied}
     runs = []
     for i, point in enumerate(_points(axes, samples, seed)):
         # the base's own parse, changed in place: each run sets every varied key before its
@@ -258,10 +261,20 @@ def plan(
         except SceneError as exc:
             shown = ", ".join(f"{k}={v!r}" for k, v in values.items())
             raise SweepError(f"run {i} ({shown}): {exc}") from None
-        text = json.dumps(raw, sort_keys=True, default=str)
-        key = hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:16]
-        runs.append(Run(i, values, sc, key))
+        text = ", ".join(f"{json.dumps(t)}: {fixed.get(t) or _json(raw[t])}" for t in sorted(raw))
+        runs.append(Run(i, values, sc, run_key("{" + text + "}")))
     return runs
+
+
+def _json(data) -> str:
+    """A scene file's part as :func:`run_key` reads it."""
+    return json.dumps(data, sort_keys=True, default=str)
+
+
+def run_key(text: str) -> str:
+    """A run's key: of the code's version and its scene file as JSON (its tables and their
+    keys in order: :func:`_json` of the whole file)."""
+    return hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:16]
 
 
 # -- one run --------------------------------------------------------------------------------

@@ -109,6 +109,23 @@ def test_a_grid_is_the_product_and_a_sample_a_latin_hypercube():
     assert [r.key for r in again] == [r.key for r in sampled]
 
 
+def test_a_runs_key_is_its_whole_file_as_json():
+    import tomllib
+
+    from mps_core.analysis.sweep import run_key
+
+    runs = plan("press-cycle", [THICKNESS, "bodies.slider.mass_kg=80,90"], **SHORT)
+    for r in runs:
+        raw = tomllib.loads(load_scene("press-cycle").text)
+        raw["solver"].pop("steps", None)
+        raw["solver"].update(t_end_s=1.0, dt_s=1e-3)
+        raw.setdefault("outputs", {})["reactions"] = True
+        for k, v in r.values.items():
+            set_field(raw, k, v)
+        assert r.key == run_key(json.dumps(raw, sort_keys=True, default=str))
+    assert len({r.key for r in runs}) == 6
+
+
 def test_each_row_is_the_load_report_of_its_own_run():
     result = sweep("press-cycle", [THICKNESS], workers=1, **SHORT)
     assert result.computed == 3 and [r["status"] for r in result.rows] == ["ok"] * 3
