@@ -192,15 +192,17 @@ def _block(t, at, length, reactions, cyc, rows, N: int, n: int) -> list:
     Y = Y[active] if active.size < len(QUANTITIES) else Y
     h = (t[-1] - t[0]) / max(1, t.size - 1)  # the batch's step: its times are uniform
     ys = _resample(Y, length, h, tq - first[:, None])  # (quantity, run, sample)
+    # the coefficients times N (N a power of two: dividing by it, where read, is exact)
     c = np.fft.rfft(ys, axis=2)
-    c /= N
-    means = c[:, :, 0].real
-    amps = 2.0 * np.abs(c[:, :, 1 : n + 1])  # (quantity, run, k)
+    means = c[:, :, 0].real / N
+    amps = (2.0 / N) * np.abs(c[:, :, 1 : n + 1])  # (quantity, run, k)
     # the mean squares by Parseval's theorem: of y − mean, every coefficient but the first
-    # (the others twice, as rfft gives half of them, but N/2's)
-    power = c.real**2 + c.imag**2
-    dynamic = 2.0 * power[:, :, 1:].sum(axis=2) - power[:, :, N // 2]
-    rms = np.sqrt(dynamic + power[:, :, 0])
+    # (the others twice, as rfft gives half of them, but N/2's); the squares of the real and
+    # imaginary parts in one pass (k's at 2k and 2k + 1)
+    sq = c.view(np.float64) ** 2
+    zero, middle = sq[:, :, 0] + sq[:, :, 1], sq[:, :, N] + sq[:, :, N + 1]
+    dynamic = (2.0 * sq[:, :, 2:].sum(axis=2) - middle) / (N * N)
+    rms = np.sqrt(dynamic + zero / (N * N))
     rms_dynamic = np.sqrt(dynamic)
     inside = (tt >= t0[:, None]) & (tt <= (t0 + period)[:, None]) & own
     peaks = np.maximum.reduce(
