@@ -10,8 +10,10 @@ import numpy as np
 
 from ..names import COLUMNS
 
-#: states a call of the reaction kernel on arrays takes (its arrays stay in the caches)
-REACTION_CHUNK = 4096
+#: states a call of the reaction kernel on arrays takes: a batch's load reports ask for blocks
+#: of 16 runs of about 850 steps (working at 0.2 ms), one call each (in a temporary script,
+#: 4096 to 32768 in turns: 16384 the quickest, by about a tenth of the reactions' time)
+REACTION_CHUNK = 16384
 
 _TEXT = ("structure", "chart")
 
