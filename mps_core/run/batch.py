@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ..codegen.array_kernels import ArrayBranchChanged
 from ..derivatives.stencil import stencil
 from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
 from ..model.press import SEED_BODIES
@@ -297,8 +298,6 @@ class _Batch:
     def _evaluate_exact(self, t, q, qd):
         """:meth:`evaluate` with exact derivatives: the kinematics from the array kernel, A
         and h from them with each scene's masses and inertias."""
-        from ..codegen.array_kernels import ArrayBranchChanged
-
         m, n = q.shape
         try:
             xl, jl, wl, _, _, conv = self._kernel(*q.T, *qd.T)
@@ -367,7 +366,7 @@ class _Batch:
             qdd = np.stack([(a11 * r[0] - a01 * r[1]) / det, (a00 * r[1] - a01 * r[0]) / det], axis=1)
         else:
             qdd = np.linalg.solve(A, np.stack(r, axis=1)[..., None])[..., 0]
-        if not np.all(np.isfinite(qdd)):
+        if not np.isfinite(qdd.sum()):  # a NaN or an infinity anywhere: the sum's
             raise NotVectorisable("non-finite accelerations")
         self.evaluations += 1
         return qdd, A, kin, power
@@ -432,8 +431,6 @@ class _Batch:
         that shape or (scene, 1)."""
         g, L = q[0].shape
         if self._kernel is not None:  # the kinematics alone, on the (scene, j) arrays
-            from ..codegen.array_kernels import ArrayBranchChanged
-
             try:
                 xl, jl, wl, _, _, _ = self._kernel(*q, *qd)
             except ArrayBranchChanged as exc:

@@ -98,7 +98,8 @@ class EffectArrays:
         Q: list = [0.0] * n
         power = np.zeros(self.m)
         jc = kin.jac(self.c, 0)  # ∂x_C/∂q
-        vC = sum(jc[i] * v[i] for i in range(n))
+        reads_speed = self.damper is not None or self.blanking is not None
+        vC = sum(jc[i] * v[i] for i in range(n)) if reads_speed else 0.0  # the slider's speed
         if self.weight_of is not None:
             if self._weighed is None:  # the analogs the kinematics give as numbers 0 are left out
                 self._weighed = [
