@@ -177,3 +177,26 @@ def test_a_batch_whose_step_the_springs_would_subdivide_runs_one_by_one(monkeypa
     # j = ∂x_C/∂φ = 0): a limit of a billionth of it puts a step of 0.1 ms past it
     monkeypatch.setattr(SOLVERS["linear-acceleration"], "stability_limit", 1e-9)
     assert simulate_many(scenes).vectorised == [False, False]
+
+
+@pytest.mark.parametrize("bad", ["a singular A", "a NaN in h", "both signs of infinity"])
+def test_a_scene_whose_accelerations_are_not_finite_takes_its_group_one_by_one(bad):
+    """One scene's q̈ not finite ends the group's pass (NotVectorisable: the group runs one
+    by one), whatever the other scenes' values."""
+    from mps_core.run.batch import NotVectorisable, _Batch
+
+    scenes = sweep(5)[0::2]  # three without blanking: one group
+    batch = _Batch(scenes)
+    qdd, A, kin, _ = batch.evaluate(0.0, batch.q0, batch.qd0)
+    assert np.isfinite(qdd).all()
+    A, h = A.copy(), np.zeros_like(qdd)
+    batch._solve(0.0, kin, batch.qd0, A, h)  # finite
+    if bad == "a NaN in h":
+        h[1, 0] = np.nan
+    else:  # (Q − h) / 0, of each sign where asked
+        A[1] = 0.0
+        if bad == "both signs of infinity":
+            A[2] = 0.0
+            h[1, 0], h[2, 0] = -1e9, 1e9
+    with pytest.raises(NotVectorisable, match="non-finite"), np.errstate(all="ignore"):
+        batch._solve(0.0, kin, batch.qd0, A, h)
