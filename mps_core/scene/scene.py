@@ -568,34 +568,36 @@ def _bodies(data) -> dict:
     bodies = {}
     for bname in BODY_NAMES:
         raw_b = bt.get(bname)
-        d = SEED_BODIES[bname]
-        if raw_b is None:
-            bodies[bname] = d
-            continue
-        b = _Table(raw_b, f"bodies.{bname}", _UNIT_HINTS["body"])
-        mass = _positive(f"bodies.{bname}.mass_kg", b.get("mass_kg", d.mass), unit=" (kg)")
-        inertia = _num(
-            f"bodies.{bname}.inertia_kg_m2",
-            b.get("inertia_kg_m2", d.inertia),
-            "a moment of inertia >= 0 (kg·m²)",
-        )
-        if inertia < 0:
-            raise SceneError(f"bodies.{bname}.inertia_kg_m2", inertia, "a moment of inertia >= 0 (kg·m²)")
-        com = b.get("com_mm")
-        if com is not None:
-            if (
-                not isinstance(com, list)
-                or len(com) != 2
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in com)
-            ):
-                raise SceneError(
-                    f"bodies.{bname}.com_mm", com, "two numbers [along, across] in mm in the body frame"
-                )
-            com = (com[0] / 1000.0, com[1] / 1000.0)
-        b.done()
-        bodies[bname] = BodyData(mass, inertia, com)
+        bodies[bname] = SEED_BODIES[bname] if raw_b is None else _parsed(_body, raw_b, bname)
     bt.done()
     return bodies
+
+
+def _body(data, bname: str) -> BodyData:
+    """[bodies.NAME]: one body's (its fields the seed's where not given)."""
+    d = SEED_BODIES[bname]
+    b = _Table(data, f"bodies.{bname}", _UNIT_HINTS["body"])
+    mass = _positive(f"bodies.{bname}.mass_kg", b.get("mass_kg", d.mass), unit=" (kg)")
+    inertia = _num(
+        f"bodies.{bname}.inertia_kg_m2",
+        b.get("inertia_kg_m2", d.inertia),
+        "a moment of inertia >= 0 (kg·m²)",
+    )
+    if inertia < 0:
+        raise SceneError(f"bodies.{bname}.inertia_kg_m2", inertia, "a moment of inertia >= 0 (kg·m²)")
+    com = b.get("com_mm")
+    if com is not None:
+        if (
+            not isinstance(com, list)
+            or len(com) != 2
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in com)
+        ):
+            raise SceneError(
+                f"bodies.{bname}.com_mm", com, "two numbers [along, across] in mm in the body frame"
+            )
+        com = (com[0] / 1000.0, com[1] / 1000.0)
+    b.done()
+    return BodyData(mass, inertia, com)
 
 
 def _structure(data) -> tuple[str, float, str]:
