@@ -247,7 +247,7 @@ def plan(
     raw0.setdefault("outputs", {})["reactions"] = True
     # the file's text as JSON, its tables in order: those no key varies written once
     varied = {k.split(".")[0] for k in keys}
-    fixed = {t: _json(v) for t, v in raw0.items() if t not in varied}
+    fixed = {t: f"{json.dumps(t)}: {_json(v)}" for t, v in raw0.items() if t not in varied}
     runs = []
     for i, point in enumerate(_points(axes, samples, seed)):
         # the base's own parse, changed in place: each run sets every varied key before its
@@ -261,7 +261,7 @@ def plan(
         except SceneError as exc:
             shown = ", ".join(f"{k}={v!r}" for k, v in values.items())
             raise SweepError(f"run {i} ({shown}): {exc}") from None
-        text = ", ".join(f"{json.dumps(t)}: {fixed.get(t) or _json(raw[t])}" for t in sorted(raw))
+        text = ", ".join(fixed.get(t) or f"{json.dumps(t)}: {_json(raw[t])}" for t in sorted(raw))
         runs.append(Run(i, values, sc, run_key("{" + text + "}")))
     return runs
 
