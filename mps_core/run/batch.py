@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from ..caches import Memo
 from ..codegen.array_kernels import ArrayBranchChanged
 from ..derivatives.stencil import stencil
 from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
@@ -98,8 +99,8 @@ def group_key(scene: Scene):
         s.name not in VECTOR_SOLVERS or s.scheme not in VECTOR_SCHEMES or scene.commands or s.step is not None
     ):  # a step apart from the outputs: the scene's own run
         return None
-    effects = scene.build_effects(scene.linkage())
-    if any(not isinstance(e, VECTOR_EFFECTS) for e in effects):
+    kinds = _effect_kinds(scene)
+    if kinds is None:
         return None
     if scene.structure == "held":
         return None
@@ -116,7 +117,7 @@ def group_key(scene: Scene):
         scene.x_top,
         scene.structure,
         scene.psi_lock,
-        tuple(sorted(type(e).__name__ for e in effects)),
+        kinds,
         s.name,
         s.scheme,
         s.delta,
@@ -126,6 +127,27 @@ def group_key(scene: Scene):
         scene.charts,
         scene.reactions,
     )
+
+
+#: :func:`_effect_kinds` by the effects' tuple a scene holds (the same tuple, kept with it, for
+#: the scenes whose effect tables are alike: :func:`mps_core.scene.scene_from_dict` keeps them)
+_KINDS = Memo("batch.effect_kinds", 256)
+
+
+def _effect_kinds(scene: Scene) -> tuple | None:
+    """The names of the classes of the effects a scene builds, sorted (None: one of them is
+    not vectorised)."""
+    kept = _KINDS.get(id(scene.effects))
+    if kept is not None and kept[0] is scene.effects:
+        return kept[1]
+    effects = scene.build_effects(scene.linkage())
+    kinds = (
+        None
+        if any(not isinstance(e, VECTOR_EFFECTS) for e in effects)
+        else tuple(sorted(type(e).__name__ for e in effects))
+    )
+    _KINDS.keep(id(scene.effects), (scene.effects, kinds))
+    return kinds
 
 
 def run_batch(scenes) -> list:

@@ -200,3 +200,17 @@ def test_a_scene_whose_accelerations_are_not_finite_takes_its_group_one_by_one(b
             h[1, 0], h[2, 0] = -1e9, 1e9
     with pytest.raises(NotVectorisable, match="non-finite"), np.errstate(all="ignore"):
         batch._solve(0.0, kin, batch.qd0, A, h)
+
+
+def test_group_keys_follow_each_scenes_own_effects():
+    """The effects' kinds are kept by the effects' tuple a scene holds (batch._KINDS): scenes
+    alike but for their effects get keys of their own effects, in any order."""
+    from mps_core.run.batch import group_key
+    from mps_core.scene import EffectSpec
+
+    base, blank = sweep(2)
+    latch = replace(base, effects=base.effects + (EffectSpec("latch", {}),))
+    for sc in (base, blank, latch, base, latch, blank):
+        assert group_key(sc) == group_key(replace(sc, effects=tuple(list(sc.effects))))
+    assert group_key(latch) is None and None not in (group_key(base), group_key(blank))
+    assert group_key(base) != group_key(blank)
