@@ -236,12 +236,19 @@ class _Batch:
         self.rows = {p: k for k, p in enumerate(self.mech.points)}
         for b in bodies:
             self.rows[f"G_{b.name}"] = len(self.rows)
+        # each scene's effects, built once for the scenes that share their specs' tuple (what
+        # a builder reads of a scene beside them: the top stop's position, the lock angle)
+        built: dict = {}
+        for sc in scenes:
+            key = (id(sc.effects), sc.x_top, sc.psi_lock)
+            if key not in built:
+                built[key] = sc.build_effects(self.mech)
         self.effects = EffectArrays(
             self.mech,
             self.rows,
             self.mass,
             first.structure,
-            [sc.build_effects(self.mech) for sc in scenes],
+            [built[id(sc.effects), sc.x_top, sc.psi_lock] for sc in scenes],
         )
         self.evaluations = 0
         self._terms: Any = None  # sums A's and h's terms (:meth:`_exact_terms`), once made
