@@ -12,8 +12,9 @@ The method is the report's (:mod:`.loads`), on arrays of all runs:
 * the joint reactions solved at each run's cycle's steps only (the steps the report's spline
   goes through, three beyond each end);
 * the not-a-knot cubic spline through those steps (scipy's :class:`~scipy.interpolate.CubicSpline`
-  system on the batch's uniform steps, solved for a block of runs and every quantity at once:
-  :func:`_slopes`), evaluated at each run's N uniform instants of its cycle;
+  system on the batch's uniform steps, solved by LAPACK for the runs of a block of one length
+  and every quantity at once: :func:`_slopes`), evaluated at each run's N uniform instants of
+  its cycle;
 * the discrete Fourier transform of a block's runs and quantities in one call.
 
 A run whose report cannot be made (no full revolution, a cycle outside its steps) gets the
@@ -251,70 +252,41 @@ def _resample(Y, length, h, u):
     )
 
 
-#: the rows of a spline's system eliminated one by one from its start: beyond them the pivots
-#: of its interior rows equal their limit 2 + √3 to the last bit (they approach it by a factor
-#: (2 − √3)² a row), and the elimination is a filter of constant coefficients
-SETTLED = 20
-
-
 def _slopes(Y, length, h):
     """The splines' first derivatives at their knots j·h (as ``Y``: (quantity, run, j), a
-    run's first ``length`` knots its own): scipy's not-a-knot system
+    run's first ``length`` knots its own, its rows beyond zero): scipy's not-a-knot system
     (:class:`~scipy.interpolate.CubicSpline`) on a uniform grid, divided by h,
 
         row 0:  s_0 + 2 s_1 = (5 σ_0 + σ_1) / 2,
         row j:  s_{j-1} + 4 s_j + s_{j+1} = 3 (σ_{j-1} + σ_j),
         last:   2 s_{l-1} + s_l = (σ_{l-2} + 5 σ_{l-1}) / 2,
 
-    σ_j = (y_{j+1} − y_j) / h, solved for all runs and quantities at once by elimination
-    without pivoting (diagonally dominant but for the end rows, whose pivots are 1 and
-    2√3 − 3). Its pivots are the same for every run but at its last row: the first
-    :data:`SETTLED` rows are eliminated one by one, the rest (and the substitution back) by a
-    first-order recursive filter (:func:`scipy.signal.lfilter`); each run's last row is
-    eliminated on its own, and its rows beyond are zero."""
-    from scipy.signal import lfilter
+    σ_j = (y_{j+1} − y_j) / h: tridiagonal, one matrix for the runs of one length, solved
+    by LAPACK (``gtsv``) for all of them and every quantity in one call."""
+    from scipy.linalg.lapack import dgtsv
 
     Q, g, L = Y.shape
     if int(length.min()) < 4:
         raise ValueError(f"a cycle of {int(length.min())} steps: too few for the batch's splines")
-    r = np.arange(g)
-    last = length - 1
     sig = np.diff(Y, axis=2) / h  # (quantity, run, j)
-    b = np.empty_like(Y)
-    b[..., 0] = 2.5 * sig[..., 0] + 0.5 * sig[..., 1]
-    b[..., 1:-1] = 3.0 * (sig[..., :-1] + sig[..., 1:])
-    b[..., -1] = 0.0
-    # the interior rows' pivots: row j's is 4 − 1 / row (j − 1)'s (row 0's is 1, row 1's 2)
-    J = min(SETTLED, L)
-    pivots = [1.0, 2.0]
-    while len(pivots) < J:
-        pivots.append(4.0 - 1.0 / pivots[-1])
-    limit = 2.0 + np.sqrt(3.0)
-    for j in range(1, J):
-        b[..., j] -= b[..., j - 1] / pivots[j - 1]
-    if L > J:
-        zi = b[..., J - 1 : J] / -limit
-        b[..., J:] = lfilter([1.0], [1.0, 1.0 / limit], b[..., J:], axis=-1, zi=zi)[0]
-    # each run's last row: (2, 1) below the pivot of the row before it
-    pivot = np.array(pivots[:J] + [limit])
-    before, at_last = pivot[np.minimum(last - 1, J)], pivot[np.minimum(last, J)]
-    f = 2.0 / before
-    b_last = 0.5 * sig[:, r, last - 2] + 2.5 * sig[:, r, last - 1] - f * b[:, r, last - 1]
-    # the substitution back divides row j by its pivot, the last row's by ``1 − f`` where the
-    # rows' pivot ``at_last`` stands: its right-hand side scaled to match
-    b[:, r, last] = b_last * (at_last / (1.0 - f))
-    b[:, np.arange(L) > last[:, None]] = 0.0
-    s = np.empty_like(b)
-    if L > J:
-        c = 1.0 / limit
-        s[..., J:] = lfilter([c], [1.0, c], b[..., : J - 1 : -1], axis=-1)[..., ::-1]
-        nxt = s[..., J]
-    else:
-        nxt = np.zeros((Q, g))
-    for j in range(J - 1, 0, -1):
-        s[..., j] = (b[..., j] - nxt) / pivots[j]
-        nxt = s[..., j]
-    s[..., 0] = b[..., 0] - 2.0 * nxt
+    s = np.zeros_like(Y)
+    for n in np.unique(length).tolist():
+        runs = np.nonzero(length == n)[0]
+        last = n - 1
+        sg = sig[:, runs, :last]
+        b = np.empty((Q, len(runs), n))  # the right-hand sides, each contiguous
+        b[..., 0] = 2.5 * sg[..., 0] + 0.5 * sg[..., 1]
+        np.add(sg[..., :-1], sg[..., 1:], out=b[..., 1:last])
+        b[..., 1:last] *= 3.0
+        b[..., last] = 0.5 * sg[..., last - 2] + 2.5 * sg[..., last - 1]
+        below, above = np.ones(last), np.ones(last)
+        below[-1], above[0] = 2.0, 2.0
+        diagonal = np.full(n, 4.0)
+        diagonal[0] = diagonal[-1] = 1.0
+        *_, x, info = dgtsv(below, diagonal, above, b.reshape(-1, n).T, overwrite_b=1)
+        if info != 0:  # cannot be: the system is regular for every n >= 4
+            raise ValueError(f"the batch's spline system of {n} knots is singular (LAPACK info {info})")
+        s[:, runs, :n] = x.T.reshape(Q, len(runs), n)
     return s
 
 

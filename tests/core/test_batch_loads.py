@@ -131,9 +131,10 @@ def test_a_batch_in_another_structure_is_refused():
 @pytest.mark.parametrize(
     "lengths",
     [
-        [4, 5, 7],  # fewer than the rows eliminated one by one
-        [4, batch_loads.SETTLED - 1, batch_loads.SETTLED, batch_loads.SETTLED + 1, batch_loads.SETTLED + 2],
+        [4, 5, 7],  # the fewest knots
+        [4, 19, 20, 21, 22],
         [600, 797, 800],  # a cycle's, in a block of unequal lengths
+        [851, 850, 851, 851, 850],  # runs of one length share a system
     ],
 )
 def test_the_splines_slopes_are_scipys_not_a_knot_splines(lengths):
