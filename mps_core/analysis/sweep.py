@@ -440,10 +440,10 @@ class Sweep:
     simulation_cpu_s: float = 0.0
 
     def columns(self) -> list[str]:
-        cols = ["run", "key", *self.keys, "status", "error"]
-        for r in self.rows:
-            cols += [c for c in r if c not in cols]
-        return cols
+        cols = dict.fromkeys(["run", "key", *self.keys, "status", "error"])
+        for r in self.rows:  # each column where a row first has it
+            cols.update(dict.fromkeys(r))
+        return list(cols)
 
     def records(self) -> np.recarray:
         """The table as a numpy record array (NaN where a failed run has no figure)."""
@@ -467,15 +467,22 @@ class Sweep:
         for c in self.columns():
             if c in ("run", "key", "status", "error") or c in self.keys:
                 continue
+            values = [r.get(c) for r in ok]
             best = None
-            for r in ok:
-                v = r.get(c)
-                if (
-                    isinstance(v, (int, float))
-                    and math.isfinite(v)
-                    and (best is None or abs(v) > abs(best[0]))
-                ):
-                    best = (v, r)
+            if values and all(type(v) is float for v in values):  # a figure of every run
+                size = np.abs(np.array(values))
+                size[~np.isfinite(size)] = -1.0
+                k = int(np.argmax(size))  # the first of the largest, as below
+                if size[k] >= 0.0:
+                    best = (values[k], ok[k])
+            else:
+                for v, r in zip(values, ok):
+                    if (
+                        isinstance(v, (int, float))
+                        and math.isfinite(v)
+                        and (best is None or abs(v) > abs(best[0]))
+                    ):
+                        best = (v, r)
             if best is not None:
                 out.append(
                     {
@@ -675,10 +682,9 @@ def write_csv(rows: list[dict], columns: list[str], path: str | Path) -> Path:
 
     path = Path(path)
     with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow({c: ("" if r.get(c) is None else r.get(c)) for c in columns})
+        w = csv.writer(fh)
+        w.writerow(columns)
+        w.writerows([v if (v := r.get(c)) is not None else "" for c in columns] for r in rows)
     return path
 
 

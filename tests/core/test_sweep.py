@@ -460,3 +460,29 @@ def test_the_vectorised_sweep_benchmark_counts_what_it_ran():
     )
     assert machine["steps_per_s"] == 3 * 700 / machine["wall_s"]
     report_vectorised(rows)
+
+
+def test_the_envelope_takes_each_figures_largest_magnitude_over_the_runs_that_ended(tmp_path):
+    """Each figure's value of largest magnitude over the runs that ended, the first run of a
+    tie, finite numbers only (a NaN, an infinity, a word or a missing value passed over); the
+    table and the envelope as CSV, a column where a row first has it."""
+    from mps_core.analysis.sweep import Sweep, write_csv
+
+    nan, inf = math.nan, math.inf
+    rows = [
+        {"run": 0, "key": "a", "k": 1, "status": "ok", "error": "", "F.peak": 2.0, "F.mean": -3.0, "n": 1},
+        {"run": 1, "key": "b", "k": 2, "status": "ok", "error": "", "F.peak": nan, "F.mean": 3.0, "n": 4},
+        {"run": 2, "key": "c", "k": 3, "status": "failed", "error": "E: x"},
+        {"run": 3, "key": "d", "k": 4, "status": "ok", "error": "", "F.peak": inf, "F.mean": 1.0, "n": "?"},
+        {"run": 4, "key": "e", "k": 5, "status": "ok", "error": "", "F.peak": -2.0, "F.mean": 0.5, "x": nan},
+    ]
+    rows[2]["F.peak"] = 99.0  # a failed run's figure is not the envelope's
+    result = Sweep(["k"], rows)
+    assert result.columns() == ["run", "key", "k", "status", "error", "F.peak", "F.mean", "n", "x"]
+    env = {e["figure"]: (e["value"], e["run"], e["k"]) for e in result.envelope()}
+    assert env == {"F.peak": (2.0, 0, 1), "F.mean": (-3.0, 0, 1), "n": (4, 1, 2)}
+    write_csv(rows, result.columns(), tmp_path / "t.csv")
+    with (tmp_path / "t.csv").open() as fh:
+        table = list(csv.reader(fh))
+    assert table[0] == result.columns() and table[3] == ["2", "c", "3", "failed", "E: x", "99.0", "", "", ""]
+    assert table[2][5] == "nan" and len(table) == 6
