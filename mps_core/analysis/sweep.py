@@ -403,8 +403,9 @@ def tasks(
     vectorised pass (:func:`mps_core.run.batch.group_key`; at least :data:`MIN_BATCH` of them)
     in batches of at most ``batch_size`` runs and :data:`BATCH_STATES` scene-steps, split so
     that each of the ``workers`` gets one where they are enough, the batches of a group as
-    even as they can be; every other run a task of its own. ``min_batch``: the fewest runs of a
-    batch instead of :data:`MIN_BATCH`'s."""
+    even as they can be and, where there are more than the workers, as many as a multiple of
+    them (the workers' last batches end together); every other run a task of its own.
+    ``min_batch``: the fewest runs of a batch instead of :data:`MIN_BATCH`'s."""
     from ..run.batch import group_key
 
     groups: dict = {}
@@ -421,6 +422,9 @@ def tasks(
         share = max(least, -(-len(runs) // max(1, workers)))
         size = min(batch_size, max(1, BATCH_STATES // steps), share)
         count = -(-len(runs) // size)  # as many batches, as even as they can be
+        even = -(-count // workers) * workers  # a multiple of the workers: none ends alone
+        if count > workers and len(runs) // even >= least:
+            count = even
         ends = [len(runs) * i // count for i in range(count + 1)]
         out.extend((True, runs[a:b]) for a, b in zip(ends, ends[1:]))
     return out

@@ -346,6 +346,10 @@ def test_which_runs_go_in_batches():
     assert shape("working", 45, 2, vectorise=False) == [(False, 1)] * 45
     assert shape(EXACT, 6, 2) == [(True, 3), (True, 3)]
     assert shape(EXACT, 7, 1, batch_size=3) == [(True, 2), (True, 2), (True, 3)]
+    # more batches than workers: a multiple of them (each worker's last ends with the others')
+    assert shape(EXACT, 9, 2, batch_size=3) == [(True, 2), (True, 2), (True, 2), (True, 3)]
+    assert shape(EXACT, 13, 3, batch_size=3) == [(True, 2)] * 5 + [(True, 3)]
+    assert shape(EXACT, 7, 2, batch_size=3) == [(True, 2), (True, 2), (True, 3)]  # not below 2
     # press-cycle has commands and events: never a batch
     assert shape("press-cycle", 3, 1, times=SHORT) == [(False, 1)] * 3
 
