@@ -286,34 +286,33 @@ class _Batch:
         pts = q[:, None, :] + offsets[None] * d  # (m, S, n)
         pose = self.view.positions([pts[..., i] for i in range(n)])
         S = pts.shape[1]
-        shape = (self.m, S)
-        rows = [
-            np.broadcast_to(np.asarray(pose[p][k], float), shape) for p in self.mech.points for k in (0, 1)
-        ]
-        for b in self.mech.bodies:
-            gx, gy = b.com_of(pose)
-            rows += [
-                np.broadcast_to(np.asarray(gx, float), shape),
-                np.broadcast_to(np.asarray(gy, float), shape),
-            ]
-        X = np.stack(rows, axis=1).reshape(self.m, -1, 2, S)  # (m, NP, 2, S)
-        if not np.all(np.isfinite(X)):
+        points, bodies = self.mech.points, self.mech.bodies
+        # the points' and the centres of mass's positions at every stencil point: a number
+        # (a fixed point's) or one a scene and point
+        X = np.empty((self.m, len(points) + len(bodies), 2, S))
+        for r, p in enumerate(points):
+            X[:, r, 0], X[:, r, 1] = pose[p][0], pose[p][1]
+        for r, b in enumerate(bodies, len(points)):
+            X[:, r, 0], X[:, r, 1] = b.com_of(pose)
+        if not np.isfinite(X.sum()):  # a NaN or an infinity anywhere: the sum's
             raise NotVectorisable("a stencil point left the chart")
         V = (X[..., plus] - X[..., minus]) / (2.0 * d)  # (m, NP, 2, nbase, n)
         base = np.array([0] + [k for i in range(n) for k in (1 + 2 * i, 2 + 2 * i)])
-        nb = len(self.mech.bodies)
+        nb = len(bodies)
         W = np.zeros((self.m, nb, len(base), n))
+        Xb = X[..., base]  # (m, NP, 2, nbase)
         for k in self.rot:
-            b = self.mech.bodies[k]
+            b = bodies[k]
             p, qq = self.rows[b.origin], self.rows[b.toward]
-            R = X[:, qq][..., base] - X[:, p][..., base]  # (m, 2, nbase)
+            R = Xb[:, qq] - Xb[:, p]  # (m, 2, nbase)
             VR = V[:, qq] - V[:, p]  # (m, 2, nbase, n)
             r2 = R[:, 0] ** 2 + R[:, 1] ** 2
             W[:, k] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
-        com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
+        com = [self.rows[f"G_{b.name}"] for b in bodies]
         VG = V[:, com]  # (m, nb, 2, nbase, n)
-        Ab = np.einsum("mb,mbkci,mbkcj->mcij", self.mass, VG, VG) + np.einsum(
-            "mb,mbci,mbcj->mcij", self.inertia, W, W
+        # each term weighted first: two operands an einsum (three cost it three times as much)
+        Ab = np.einsum("mbkci,mbkcj->mcij", self.mass[:, :, None, None, None] * VG, VG) + np.einsum(
+            "mbci,mbcj->mcij", self.inertia[:, :, None, None] * W, W
         )
         A = Ab[:, 0]
         dA = (Ab[:, 1::2] - Ab[:, 2::2]) / (2.0 * d)[None, :, None, None]
