@@ -387,9 +387,9 @@ BATCH_SIZE = 2000
 
 
 #: the fewest runs a vectorised batch takes, by derivative scheme (fewer go one by one): with
-#: central differences a batch's step costs about the same from 10 to 40 runs, and a batch of
-#: 10 more than its runs one by one (``mps bench sweep --vectorised``, docs/loads.md)
-MIN_BATCH = {"central": 20, "autodiff": 2}
+#: central differences a batch of 5 runs costs 1.1 to 1.3 times its runs one by one, and a
+#: batch of 10 0.7 to 0.8 times (``mps bench sweep --vectorised --sizes 2,5,10``, docs/loads.md)
+MIN_BATCH = {"central": 10, "autodiff": 2}
 
 
 def tasks(

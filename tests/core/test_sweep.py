@@ -311,7 +311,7 @@ def test_axis_values_are_what_the_scene_receives():
 
 
 #: working (locked, no events) with exact derivatives: its runs share vectorised batches from two
-#: runs on (with central differences from MIN_BATCH's 20); 2.4 crank revolutions
+#: runs on (with central differences from MIN_BATCH's 10); 2.4 crank revolutions
 WORKING = dict(t_end=0.35, dt=5e-4)
 EXACT_TEXT = load_scene("working").text.replace('derivatives = "central"', 'derivatives = "autodiff"')
 EXACT = scene_from_text(EXACT_TEXT)
@@ -339,8 +339,9 @@ def test_which_runs_go_in_batches():
         runs = plan(scene, [f"bodies.slider.mass_kg=80:120:{n}"], **times)
         return [(batch, len(rs)) for batch, rs in tasks(runs, workers, **kw)]
 
-    assert MIN_BATCH["central"] == 20
+    assert MIN_BATCH["central"] == 10
     assert shape("working", 6, 1) == [(False, 1)] * 6  # central differences: too few
+    assert shape("working", 10, 1) == [(True, 10)]
     assert shape("working", 6, 1, min_batch=2) == [(True, 6)]  # unless asked
     assert shape("working", 45, 2) == [(True, 22), (True, 23)]
     assert shape("working", 45, 2, vectorise=False) == [(False, 1)] * 45
