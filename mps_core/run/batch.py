@@ -47,7 +47,6 @@ cluster (``dask.distributed.Client``), one vectorised batch a task.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -281,36 +280,8 @@ class _Batch:
         if self._kernel is not None:
             return self._evaluate_exact(t, q, qd)
         n = q.shape[1]
-        offsets, plus, minus = stencil(n)
-        d = self.settings.delta * self.view.scales
-        pts = q[:, None, :] + offsets[None] * d  # (m, S, n)
-        pose = self.view.positions([pts[..., i] for i in range(n)])
-        S = pts.shape[1]
-        points, bodies = self.mech.points, self.mech.bodies
-        # the points' and the centres of mass's positions at every stencil point: a number
-        # (a fixed point's) or one a scene and point
-        X = np.empty((self.m, len(points) + len(bodies), 2, S))
-        for r, p in enumerate(points):
-            X[:, r, 0], X[:, r, 1] = pose[p][0], pose[p][1]
-        for r, b in enumerate(bodies, len(points)):
-            X[:, r, 0], X[:, r, 1] = b.com_of(pose)
-        if not np.isfinite(X.sum()):  # a NaN or an infinity anywhere: the sum's
-            raise NotVectorisable("a stencil point left the chart")
-        # (m, NP, 2, nbase, n), contiguous (the einsums below take a third of the time they
-        # take on the strided array indexing gives)
-        V = (np.take(X, plus, axis=-1) - np.take(X, minus, axis=-1)) / (2.0 * d)
-        base = np.array([0] + [k for i in range(n) for k in (1 + 2 * i, 2 + 2 * i)])
-        nb = len(bodies)
-        W = np.zeros((self.m, nb, len(base), n))
-        Xb = X[..., base]  # (m, NP, 2, nbase)
-        for k in self.rot:
-            b = bodies[k]
-            p, qq = self.rows[b.origin], self.rows[b.toward]
-            R = Xb[:, qq] - Xb[:, p]  # (m, 2, nbase)
-            VR = V[:, qq] - V[:, p]  # (m, 2, nbase, n)
-            r2 = R[:, 0] ** 2 + R[:, 1] ** 2
-            W[:, k] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
-        com = [self.rows[f"G_{b.name}"] for b in bodies]
+        X, V, W, d = self._differences(q, 1 + 2 * n)
+        com = [self.rows[f"G_{b.name}"] for b in self.mech.bodies]
         VG = np.take(V, com, axis=1)  # (m, nb, 2, nbase, n)
         # each term weighted first: two operands an einsum (three cost it three times as much)
         Ab = np.einsum("mbkci,mbkcj->mcij", self.mass[:, :, None, None, None] * VG, VG) + np.einsum(
@@ -319,11 +290,51 @@ class _Batch:
         A = Ab[:, 0]
         dA = (Ab[:, 1::2] - Ab[:, 2::2]) / (2.0 * d)[None, :, None, None]
         h = np.einsum("mkij,mj,mk->mi", dA, qd, qd) - 0.5 * np.einsum("mijk,mj,mk->mi", dA, qd, qd)
-        J = V[:, :, :, 0, :]  # (m, NP, 2, n) at q
-        W0 = W[:, :, 0, :]  # (m, nb, n)
-        X0 = X[..., 0]  # (m, NP, 2)
-        kin = _Kinematics.of_tables(X0, J, W0)
-        return self._solve(t, kin, qd, A, h)
+        return self._solve(t, self._kinematics_at_q(X, V, W), qd, A, h)
+
+    def _differences(self, q, bases: int):
+        """The central differences at states q (m, n), from the stencil's first ``bases`` base
+        points (:func:`~mps_core.derivatives.stencil.stencil`: 1, the analogs at q alone; 1 +
+        2n, also at q ± Δe_i, for the mass matrix's derivatives) and only the stencil points
+        they need: ``(X, V, W, Δ)``, the points' and centres of mass's positions (m, NP, 2,
+        points), their analogs (m, NP, 2, bases, n) and the bodies' angular analogs (m, nb,
+        bases, n) at each base point."""
+        m, n = q.shape
+        offsets, plus, minus = stencil(n)
+        plus, minus = plus[:bases], minus[:bases]
+        S = int(max(plus.max(), minus.max())) + 1  # the points the bases' differences read
+        d = self.settings.delta * self.view.scales
+        pts = q[:, None, :] + offsets[None, :S] * d  # (m, S, n)
+        pose = self.view.positions([pts[..., i] for i in range(n)])
+        points, bodies = self.mech.points, self.mech.bodies
+        # the points' and the centres of mass's positions at every stencil point: a number
+        # (a fixed point's) or one a state and point
+        X = np.empty((m, len(points) + len(bodies), 2, S))
+        for r, p in enumerate(points):
+            X[:, r, 0], X[:, r, 1] = pose[p][0], pose[p][1]
+        for r, b in enumerate(bodies, len(points)):
+            X[:, r, 0], X[:, r, 1] = b.com_of(pose)
+        if not np.isfinite(X.sum()):  # a NaN or an infinity anywhere: the sum's
+            raise NotVectorisable("a stencil point left the chart")
+        # (m, NP, 2, bases, n), contiguous (the einsums of A take a third of the time they take
+        # on the strided array indexing gives)
+        V = (np.take(X, plus, axis=-1) - np.take(X, minus, axis=-1)) / (2.0 * d)
+        base = np.arange(bases)  # the base points are the stencil's first
+        W = np.zeros((m, len(bodies), bases, n))
+        Xb = X[..., base]  # (m, NP, 2, bases)
+        for k in self.rot:
+            b = bodies[k]
+            p, qq = self.rows[b.origin], self.rows[b.toward]
+            R = Xb[:, qq] - Xb[:, p]  # (m, 2, bases)
+            VR = V[:, qq] - V[:, p]  # (m, 2, bases, n)
+            r2 = R[:, 0] ** 2 + R[:, 1] ** 2
+            W[:, k] = (R[:, 0, :, None] * VR[:, 1] - R[:, 1, :, None] * VR[:, 0]) / r2[..., None]
+        return X, V, W, d
+
+    @staticmethod
+    def _kinematics_at_q(X, V, W) -> _Kinematics:
+        """The kinematics at the stencil's first base point, q (:meth:`_differences`)."""
+        return _Kinematics.of_tables(X[..., 0], V[:, :, :, 0, :], W[:, :, 0, :])
 
     def _evaluate_exact(self, t, q, qd):
         """:meth:`evaluate` with exact derivatives: the kinematics from the array kernel, A
@@ -469,24 +480,13 @@ class _Batch:
             effects = self.effects.take(scenes[:, 0], states=L)
             effects.forces(kin, qd)
             return [x if np.ndim(x) else float(x) for x in effects.loads(kin)]
-        # by differences: the batch's evaluation, one scene a state
-        at = self._at(np.repeat(scenes[:, 0], L))
-        _, _, kin, _ = at.evaluate(
-            0.0, np.stack([x.ravel() for x in q], axis=1), np.stack([x.ravel() for x in qd], axis=1)
-        )
-        return [np.reshape(x, (g, L)) if np.ndim(x) else float(x) for x in at.effects.loads(kin)]
-
-    def _at(self, scenes: np.ndarray) -> _Batch:
-        """This batch for the scenes ``scenes`` (indices, one a state to evaluate: a scene may
-        come many times), their masses and effects gathered in that order."""
-        out = copy.copy(self)
-        out.m = len(scenes)
-        out.mass, out.inertia = self.mass[scenes], self.inertia[scenes]
-        out.mass_of = [x[scenes] for x in self.mass_of]
-        out.inertia_of = [x[scenes] for x in self.inertia_of]
-        out.effects = self.effects.take(scenes)
-        out._terms = None  # weighted by the masses
-        return out
+        # by differences: the analogs at the states alone (the stencil's first points: the
+        # same kinematics as the run's evaluations, without the mass matrix), one scene a state
+        X, V, W, _ = self._differences(np.stack([x.ravel() for x in q], axis=1), 1)
+        kin = self._kinematics_at_q(X, V, W)
+        effects = self.effects.take(np.repeat(scenes[:, 0], L))
+        effects.forces(kin, [x.ravel() for x in qd])
+        return [np.reshape(x, (g, L)) if np.ndim(x) else float(x) for x in effects.loads(kin)]
 
     def _steps(self) -> int:
         """The run's steps; sets :attr:`dt`."""
