@@ -387,8 +387,8 @@ BATCH_SIZE = 2000
 
 
 #: the fewest runs a vectorised batch takes, by derivative scheme (fewer go one by one): with
-#: central differences a batch of 5 runs costs 1.1 to 1.3 times its runs one by one, and a
-#: batch of 10 0.67 to 0.83 times (``mps bench sweep --vectorised``, five runs, docs/loads.md)
+#: central differences a batch of 5 runs costs 1.1 to 1.4 times its runs one by one, and a
+#: batch of 10 0.6 to 0.8 times (``mps bench sweep --vectorised``, docs/loads.md)
 MIN_BATCH = {"central": 10, "autodiff": 2}
 
 
