@@ -408,6 +408,7 @@ def tasks(
     ``min_batch``: the fewest runs of a batch instead of :data:`MIN_BATCH`'s."""
     from ..run.batch import group_key
 
+    width = max(1, workers)
     groups: dict = {}
     for r in todo:
         groups.setdefault(group_key(r.scene) if vectorise else None, []).append(r)
@@ -419,11 +420,11 @@ def tasks(
             continue
         sc = runs[0].scene
         steps = max(1, int(round(sc.t_end / sc.dt))) + 1
-        share = max(least, -(-len(runs) // max(1, workers)))
+        share = max(least, -(-len(runs) // width))
         size = min(batch_size, max(1, BATCH_STATES // steps), share)
         count = -(-len(runs) // size)  # as many batches, as even as they can be
-        even = -(-count // workers) * workers  # a multiple of the workers: none ends alone
-        if count > workers and len(runs) // even >= least:
+        even = -(-count // width) * width  # a multiple of the workers: none ends alone
+        if count > width and len(runs) // even >= least:
             count = even
         ends = [len(runs) * i // count for i in range(count + 1)]
         out.extend((True, runs[a:b]) for a, b in zip(ends, ends[1:]))
