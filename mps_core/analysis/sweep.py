@@ -381,7 +381,7 @@ BATCH_STATES = 6_000_000
 
 #: runs a vectorised batch of a sweep holds at most, unless told: a batch's step costs numpy's
 #: calls more than their arithmetic at a thousand runs (working with exact derivatives: a run
-#: 9 and 11 % cheaper in batches of 2000 than of 1000 in ``mps bench sweep --vectorised``'s two
+#: 8 and 10 % cheaper in batches of 2000 than of 1000 in ``mps bench sweep --vectorised``'s two
 #: runs of docs/loads.md; on two workers, 4000 runs in batches of 2000 quicker than of 1000 or
 #: 1400 in a temporary script; none clearly cheaper in 3000 or 3400)
 BATCH_SIZE = 2000
