@@ -87,6 +87,17 @@ _HEAD = struct.Struct("<cI")
 
 
 # -- frames -----------------------------------------------------------------------------------
+#: the wall seconds over which a realtime run's rate is judged first (the whole run if shorter)
+RATE_WINDOW = 1.0
+#: a rate below this share of the one real time asks is said (once): the run falls behind
+RATE_SHORT = 0.9
+
+
+def achieved_rate(steps: int, wall: float) -> float:
+    """Return the steps a wall second that ``steps`` made in ``wall`` seconds."""
+    return steps / wall if wall > 0.0 else math.inf
+
+
 class FrameWriter:
     """Frames to a file descriptor, one writer at a time (the threads of a process share it)."""
 
@@ -275,8 +286,11 @@ class _Ahead:
         self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.clocks.wall_start + runner.period
         commands, stop, lines = self.commands, runner._stop, runner.commands.lines
-        # a schedule this far behind (wall s) is said once: the run cannot keep real time
-        behind, warned = max(0.1, lead), False
+        # the rate achieved is judged once a wall second has passed (or at the run's end, if
+        # sooner), and any time the schedule falls this far behind (wall s): said once
+        behind, self.warned = max(0.1, lead), afap
+        self.begun = begun = clock()
+        judge = begun + RATE_WINDOW
         try:
             while not twin.done and not stop.is_set():
                 if commands and twin.k >= commands[0][4]:
@@ -311,9 +325,9 @@ class _Ahead:
                         self.wake.clear()
                         continue
                 k, msgs, c1 = runner._timed_step(deadline, clock)
-                if c1 > deadline + behind and not warned:
-                    warned = True
-                    self._say_behind(k, c1 - deadline)
+                if (c1 >= judge or c1 > deadline + behind) and not (self.warned or self.hold.paused):
+                    judge = math.inf
+                    self._judge_rate(k, c1, late=c1 > deadline + behind)
                 t_ns = twin.t_ns
                 staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
                 runner._staging = staged
@@ -364,6 +378,8 @@ class _Ahead:
         except BrokenPipeError:
             pass
         runner.commands.lines.end()
+        if not (self.warned or self.hold.paused) and twin.k > self.k0:
+            self._judge_rate(twin.k, time.perf_counter(), late=False)
         staged: list = []
         runner._staging = staged
         try:
@@ -377,20 +393,21 @@ class _Ahead:
         except BrokenPipeError:
             pass
 
-    def _say_behind(self, k: int, late: float) -> None:
-        """One warning: the steps cost more than their period (the run goes on, late)."""
+    def _judge_rate(self, k: int, now: float, late: bool) -> None:
+        """Warn once where the steps so far came slower than real time asks, or ``late``."""
         runner, twin = self.runner, self.twin
         period = twin.dt / runner.rtf
-        steps = max(1, k - self.k0)
-        rate = steps / (steps * period + late)
+        rate = achieved_rate(k - self.k0, now - self.begun - self.hold.shift)
+        if not (late or rate < RATE_SHORT / period):
+            return
+        self.warned = True
         runner.log(
             "warn",
-            f"cannot keep real time: step {k} (t = {twin.t:.6g} s) came "
-            f"{late * 1e3:.0f} ms after its deadline; the node makes about "
-            f"{rate:.0f} steps a wall second where real time needs "
-            f"{1.0 / period:.0f} (a step every {period * 1e3:.3g} ms): give a "
-            "larger dt or a smaller real_time_factor (the run goes on, behind "
-            "its schedule)",
+            f"cannot keep real time: {k - self.k0} steps to t = {twin.t:.6g} s took "
+            f"{now - self.begun - self.hold.shift:.3g} wall s, about {rate:.0f} steps a wall "
+            f"second where real time needs {1.0 / period:.0f} (a step every "
+            f"{period * 1e3:.3g} ms): give a larger dt or a smaller real_time_factor (the run "
+            "goes on, behind its schedule)",
         )
 
     def _command(self, cmd: tuple, ahead: bool) -> None:

@@ -6,11 +6,13 @@ where the system refuses it, and the run goes on)."""
 from __future__ import annotations
 
 import os
+import re
 import resource
 import shutil
 import signal
 import subprocess
 import threading
+from types import SimpleNamespace
 
 import pytest
 
@@ -21,7 +23,7 @@ from twin_probe import Listener, NodeProcess, ns, wait_until
 
 from mps_ros.bench import _children as _kids
 from mps_ros.bench import _cmdline
-from mps_ros.stepping import FrameReader, FrameWriter
+from mps_ros.stepping import FrameReader, FrameWriter, Hold, _Ahead
 
 DT = 1e-3
 
@@ -171,13 +173,52 @@ def test_fifo_where_the_system_allows_it(tmp_path):
 
 
 def test_a_node_that_cannot_keep_real_time_says_so_once(tmp_path):
-    """40 000 steps a wall second asked (0.1 ms steps at x4): no machine steps that in
-    Python; the node says so once, early, and runs on to its end."""
-    params = dict(pacing="realtime", dt=1e-4, real_time_factor=4.0, t_end=0.5, recording="none")
+    """Ten million steps a wall second asked (0.1 ms steps at x1000): no machine steps that in
+    Python, however fast; the node says so once, with the rate it measured, and runs on to
+    its end."""
+    params = dict(pacing="realtime", dt=1e-4, real_time_factor=1000.0, t_end=0.5, recording="none")
     with NodeProcess(tmp_path, params, name="slow") as node:
         rc = node.wait(120)
         log = node.log()
     warnings = [ln for ln in log.splitlines() if "cannot keep real time" in ln]
     assert rc == 0 and len(warnings) == 1, log
-    assert "where real time needs 40000" in warnings[0] and "larger dt" in warnings[0]
+    assert "where real time needs 10000000" in warnings[0] and "larger dt" in warnings[0]
+    said = re.search(
+        r"(\d+) steps to t = \S+ s took (\S+) wall s, about (\d+) steps a wall second", warnings[0]
+    )
+    assert said, warnings[0]
+    steps, wall, rate = int(said[1]), float(said[2]), int(said[3])
+    assert 0 < steps <= 5000 and abs(rate - steps / wall) <= 0.01 * rate + 1
     assert "run ended at t = 0.5 s after 5000 steps" in log
+
+
+class _Said:
+    def __init__(self):
+        self.lines = []
+
+    def log(self, level, text):
+        self.lines.append((level, text))
+
+
+def _judged(steps: int, wall: float, dt: float = 1e-3, rtf: float = 1.0, paused_s: float = 0.0):
+    """What a stepping process says of ``steps`` made in ``wall`` seconds (no node: the
+    judgement alone, on made-up clocks)."""
+    ahead = _Ahead.__new__(_Ahead)
+    ahead.runner = runner = _Said()
+    runner.rtf = rtf
+    ahead.twin = SimpleNamespace(dt=dt, t=steps * dt)
+    ahead.hold = Hold()
+    ahead.hold.shift = paused_s
+    ahead.k0, ahead.begun, ahead.warned = 0, 100.0, False
+    ahead._judge_rate(steps, 100.0 + wall + paused_s, late=False)
+    return runner.lines
+
+
+def test_a_run_that_falls_a_third_behind_is_said_with_the_rate_it_made():
+    # 1 kHz asked, 630 steps in a wall second made (the 2.5 of 4 of a slow machine)
+    (said,) = _judged(630, 1.0)
+    assert said[0] == "warn" and "about 630 steps a wall second where real time needs 1000" in said[1]
+    (said,) = _judged(2500, 1.0, dt=1e-4, rtf=4.0)
+    assert "about 2500 steps a wall second where real time needs 40000" in said[1]
+    # keeping up, or within a tenth of it (a busy moment), or a pause (not counted): nothing said
+    assert _judged(1000, 1.0) == [] and _judged(950, 1.0) == [] and _judged(1000, 1.0, paused_s=5.0) == []
