@@ -12,13 +12,15 @@ SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import math
+import signal
 import sys
 import time
 
 from . import __version__
-from .errors import MpsError
+from .errors import Interrupted, MpsError, raise_interrupted, signal_name
 from .scene import load_scene, preset_names
 from .solvers import ADAPTIVE_SOLVERS, SOLVERS
 
@@ -70,10 +72,18 @@ def _parser() -> argparse.ArgumentParser:
         help="compute the joint reactions and the foundation load at every step "
         "(adds their columns to --csv)",
     )
-    r.add_argument("--csv", metavar="FILE", help="write one row per step to FILE")
-    r.add_argument("--events", metavar="FILE", help="write the event log (JSON lines) to FILE")
     r.add_argument(
-        "--force", action="store_true", help="replace an output file that exists (never the scene itself)"
+        "--csv", metavar="FILE", help="write one row per step to FILE (- : standard output; a FIFO or device)"
+    )
+    r.add_argument(
+        "--events",
+        metavar="FILE",
+        help="write the event log (JSON lines) to FILE (- : standard output; a FIFO or device)",
+    )
+    r.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an output file that exists (a regular file only; never the scene itself)",
     )
     r.add_argument(
         "-q",
@@ -94,6 +104,12 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the commands that SIGTERM interrupts as Ctrl-C does (the others, the ROS node's among them,
+#: handle their signals themselves)
+INTERRUPTIBLE = ("run", "loads", "sweep", "recover")
+#: the commands whose outputs are written whole at their end: interrupted, they wrote nothing
+WRITTEN_AT_THE_END = ("loads", "recover")
+
 #: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
 PLUGINS = (
     "mps_core.analysis.loads_cli",
@@ -105,11 +121,26 @@ PLUGINS = (
 
 
 def _run(args) -> int:
-    from .files.outputs import check_outputs
+    from .files.outputs import STDOUT, check_outputs
 
     # before anything runs: a results path that cannot be written, or that would destroy the
     # scene or an existing file, is refused now, not after the run
-    check_outputs({"--csv": args.csv, "--events": args.events}, inputs=[args.scene], force=args.force)
+    check_outputs(
+        {"--csv": args.csv, "--events": args.events},
+        inputs=[args.scene],
+        force=args.force,
+        streams={"--csv", "--events"},
+    )
+    if STDOUT in (args.csv, args.events):
+        # standard output carries an output: what the command says goes to standard error
+        stdout = sys.stdout
+        with contextlib.redirect_stdout(sys.stderr):
+            return _run_checked(args, stdout)
+    return _run_checked(args, sys.stdout)
+
+
+def _run_checked(args, stdout) -> int:
+    """Run ``mps run`` once its outputs are checked; ``stdout``: where ``-`` writes."""
     scene = load_scene(args.scene)
     scene = scene.with_overrides(
         t_end=args.t_end,
@@ -143,16 +174,27 @@ def _run(args) -> int:
         # what was computed up to the failure still goes to the outputs asked for, marked
         partial = getattr(exc, "partial", None)
         if partial is not None and len(partial):
-            _write_outputs(args, partial, failure=str(exc))
+            _write_outputs(args, partial, stdout, failure=str(exc))
             _say_coarse(partial, scene)
         raise
+    except KeyboardInterrupt as exc:
+        progress.done()
+        partial = getattr(exc, "partial", None)
+        said = signal_name(exc)
+        kept = "nothing kept"
+        if partial is not None and len(partial) and (args.csv or args.events):
+            written = _write_outputs(args, partial, stdout, failure=f"interrupted ({said})", quiet=True)
+            kept = ", ".join(written) + f", marked partial (up to t = {float(partial.t[-1]):.6g} s)"
+        elif not (args.csv or args.events):
+            kept = "nothing kept (no --csv or --events asked for)"
+        raise Interrupted(said, kept) from None
     finally:
         progress.done()
     cpu = time.process_time() - c0
     _summary(scene, traj, cpu)
     if args.reactions:
         _reactions_summary(traj, observer)
-    _write_outputs(args, traj)
+    _write_outputs(args, traj, stdout)
     _say_coarse(traj, scene)
     return 0
 
@@ -230,18 +272,21 @@ def _say_coarse(traj, scene) -> None:
         print(f"mps: warning: {said}", file=sys.stderr)
 
 
-def _write_outputs(args, traj, failure: str | None = None) -> None:
-    """``--csv`` and ``--events``, each written whole; ``failure``: the run stopped with this
-    error, and what it computed is marked partial (the CSV's last line a ``# partial: ...``
-    comment, the event log's last row a ``run-failed`` event)."""
+def _write_outputs(args, traj, stdout, failure: str | None = None, quiet: bool = False) -> list[str]:
+    """Write ``--csv`` and ``--events``, each whole; return what was written, one phrase each.
+
+    ``failure``: the run stopped with this error (or was interrupted), and what it computed is
+    marked partial (the CSV's last line a ``# partial: ...`` comment, the event log's last row a
+    ``run-failed`` event); ``stdout``: where ``-`` writes; ``quiet``: nothing printed."""
     import json
 
     from .files.outputs import written_whole
 
     t_last = float(traj.t[-1])
     note = "" if failure is None else f" (partial: up to t = {t_last:.6g} s, where the run stopped)"
+    written = []
     if args.csv:
-        with written_whole(args.csv) as tmp:
+        with written_whole(args.csv, stdout) as tmp:
             if args.reactions:
                 from .dynamics.reactions import write_csv
 
@@ -251,18 +296,33 @@ def _write_outputs(args, traj, failure: str | None = None) -> None:
             if failure is not None:
                 with tmp.open("a") as fh:
                     fh.write(f"# partial: the run stopped at t = {t_last!r} s: {failure}\n")
-        print(f"wrote {len(traj)} rows to {args.csv}{note}")
+        written.append(f"{len(traj)} rows in {_where(args.csv)}")
     if args.events:
-        with written_whole(args.events) as tmp:
+        with written_whole(args.events, stdout) as tmp:
             traj.events_to_jsonl(tmp)
             if failure is not None:
                 with tmp.open("a") as fh:
                     fh.write(json.dumps({"t": t_last, "kind": "run-failed", "error": failure}) + "\n")
-        print(f"wrote {len(traj.events)} events to {args.events}{note}")
+        written.append(f"{len(traj.events)} events in {_where(args.events)}")
+    if not quiet:
+        for phrase in written:
+            n, what, _in, where = phrase.split(" ", 3)
+            print(f"wrote {n} {what} to {where}{note}")
+    return written
+
+
+def _where(path) -> str:
+    """Name an output for a message (``-``: standard output)."""
+    from .files.outputs import STDOUT
+
+    return "standard output" if str(path) == STDOUT else str(path)
 
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if args.command in INTERRUPTIBLE:
+        # SIGTERM ends these commands as Ctrl-C does: what they keep is kept and said
+        signal.signal(signal.SIGTERM, raise_interrupted)
     try:
         if args.command == "run":
             return _run(args)
@@ -279,6 +339,11 @@ def main(argv=None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"mps: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        said = signal_name(exc)
+        kept = getattr(exc, "kept", "") or ("nothing written" if args.command in WRITTEN_AT_THE_END else "")
+        print(f"mps {args.command}: interrupted ({said})" + (f": {kept}" if kept else ""), file=sys.stderr)
+        return 128 + int(getattr(signal, said))
     return 1
 
 

@@ -79,3 +79,25 @@ def config_in_degrees(values: dict) -> dict:
         else:
             out[k] = float(v) if isinstance(v, (int, float)) else v
     return out
+
+
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by a signal (Ctrl-C's SIGINT, or SIGTERM); ``kept``: what it kept, and
+    where, said in the command's one line."""
+
+    def __init__(self, signal_name: str = "SIGINT", kept: str = ""):
+        self.signal_name = signal_name
+        self.kept = kept
+        super().__init__(f"interrupted ({signal_name})" + (f": {kept}" if kept else ""))
+
+
+def signal_name(exc: BaseException) -> str:
+    """Return the signal an interruption came from: SIGTERM where it says so, else SIGINT."""
+    return getattr(exc, "signal_name", "SIGINT")
+
+
+def raise_interrupted(signum: int, _frame: object) -> None:
+    """Raise :class:`Interrupted` for signal ``signum`` (a handler for SIGTERM)."""
+    import signal
+
+    raise Interrupted(signal.Signals(signum).name)

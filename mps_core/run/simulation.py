@@ -104,6 +104,14 @@ def _check_settings(solver: SolverSettings, change_point: str) -> None:
             )
 
 
+def _whole_rows(traj: Trajectory) -> Trajectory:
+    """Return ``traj`` with every column cut to the rows all of them hold (an interruption
+    can fall between a row and its observers' columns)."""
+    n = min(len(v) for v in traj.columns.values())
+    traj.columns = {k: v[:n] for k, v in traj.columns.items()}
+    return traj
+
+
 class Simulation:
     """One run of a mechanism: structures, events, commands, charts."""
 
@@ -467,10 +475,11 @@ class Simulation:
                 if progress is not None:
                     progress(tk)
             return rec.trajectory()
-        except MpsError as exc:
-            # what was computed up to the failure, for a caller that writes it (marked partial)
+        except (MpsError, KeyboardInterrupt) as exc:
+            # what was computed up to the failure or the interruption (Ctrl-C), for a caller
+            # that writes it (marked partial): the rows recorded whole
             try:
-                exc.partial = rec.trajectory()
+                exc.partial = _whole_rows(rec.trajectory())
             except Exception:
                 exc.partial = None
             raise

@@ -1,6 +1,15 @@
 """Outputs never destroy: a path checked before the run, never an input, never an existing file
 unless --force, written whole (a temporary name renamed when complete)."""
 
+import json
+import os
+import pty
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import threading
 from importlib import resources
 
 import pytest
@@ -152,3 +161,108 @@ def test_mps_view_save_is_checked_before_reading(tmp_path, capsys):
     for save, words in ((tmp_path, "a directory"), (sample, "the command's input")):
         assert main(["view", str(sample), "--save", str(save), "--no-spawn", "--force"]) == 2
         assert words in capsys.readouterr().err
+
+
+# -- streams: written into, never renamed over ------------------------------------------------
+def _read_fifo_in_background(fifo):
+    """Open ``fifo`` for reading in a thread; the thread and a list that gets its bytes."""
+    got = []
+    t = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    t.start()
+    return t, got
+
+
+def test_a_fifo_is_written_into_and_stays_a_fifo(tmp_path, capsys):
+    fifo = tmp_path / "ff"
+    os.mkfifo(fifo)
+    reader, got = _read_fifo_in_background(fifo)
+    # no --force needed (nothing is replaced); with it, the same
+    assert main(["run", "paper", "--t-end", "0.01", "--dt", "0.001", "--csv", str(fifo), "--force"]) == 0
+    reader.join(60)
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    rows = got[0].decode().splitlines()
+    assert rows[0].startswith("t,phi,") and len(rows) == 12
+    assert f"wrote 11 rows to {fifo}" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ff"]  # no temporary file beside it
+
+
+def test_a_full_device_is_an_error_and_stays_a_device(tmp_path, capsys):
+    full = tmp_path / "full"
+    try:  # a /dev/full of the test's own (1, 7), so that nothing of the machine's is at stake
+        os.mknod(full, 0o666 | stat.S_IFCHR, os.makedev(1, 7))
+    except (PermissionError, OSError) as exc:
+        pytest.skip(f"cannot make a device node here: {exc}")
+    assert main(["run", "paper", "--t-end", "0.01", "--dt", "0.001", "--csv", str(full), "--force"]) == 2
+    out, err = capsys.readouterr()
+    assert "wrote" not in out and f"{full}: No space left on device" in err
+    assert stat.S_ISCHR(full.stat().st_mode)
+
+
+def test_dash_is_standard_output_and_the_summary_goes_to_standard_error(capsys):
+    assert main(["run", "paper", "--t-end", "0.01", "--dt", "0.001", "--csv", "-"]) == 0
+    out, err = capsys.readouterr()
+    rows = out.splitlines()
+    assert rows[0].startswith("t,phi,") and len(rows) == 12 and all(r.count(",") == 13 for r in rows)
+    assert "scene paper" in err and "wrote 11 rows to standard output" in err
+    assert main(["run", "paper", "--events", "-", "--csv", "-"]) == 2
+    assert "also the --" in capsys.readouterr().err
+
+
+def test_a_stream_is_refused_where_an_output_must_be_a_file(tmp_path):
+    fifo = tmp_path / "ff"
+    os.mkfifo(fifo)
+    with pytest.raises(OutputFileError, match="a FIFO; expected a file path"):
+        check_outputs({"recording": fifo}, force=True)
+    with pytest.raises(OutputFileError, match="standard output; expected a file path"):
+        check_outputs({"recording": "-"})
+    sock = socket.socket(socket.AF_UNIX)
+    try:
+        sock.bind(str(tmp_path / "s"))
+        with pytest.raises(OutputFileError, match="a socket; expected a file path, a FIFO"):
+            check_outputs({"--csv": tmp_path / "s"}, force=True, streams={"--csv"})
+    finally:
+        sock.close()
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+
+
+# -- interrupted: one line, what was kept, exit 128 + the signal ------------------------------
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_mps_run_interrupted_keeps_what_it_computed_and_says_so_in_one_line(tmp_path, sig):
+    """A long run interrupted once its progress line shows (on a terminal): exit 128 + the
+    signal, one line naming what was kept where, no traceback; the CSV and the event log hold
+    the rows computed, marked partial."""
+    csv, events = tmp_path / "c.csv", tmp_path / "e.jsonl"
+    cmd = [sys.executable, "-m", "mps_core.cli", "run", "press-cycle", "--t-end", "100", "--dt", "1e-4"]
+    cmd += ["--csv", str(csv), "--events", str(events)]
+    master, slave = pty.openpty()  # the progress line is shown on a terminal only
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=slave, cwd=tmp_path)
+    os.close(slave)
+    said = b""
+    try:
+        while b"%" not in said:  # the progress line: the run is stepping
+            said += os.read(master, 4096)
+        proc.send_signal(sig)
+        proc.wait(120)
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # the terminal's other end closed
+                break
+            if not chunk:
+                break
+            said += chunk
+    finally:
+        proc.kill()
+        os.close(master)
+    lines = [ln for ln in said.decode(errors="replace").replace("\r", "\n").splitlines() if "mps" in ln]
+    assert proc.returncode == 128 + sig, said
+    name = signal.Signals(sig).name
+    assert len(lines) == 1 and lines[0].startswith(f"mps run: interrupted ({name}): "), lines
+    assert f"rows in {csv}" in lines[0] and f"events in {events}" in lines[0] and "marked partial" in lines[0]
+    assert b"Traceback" not in said
+    rows = csv.read_text().splitlines()
+    assert rows[-1].startswith("# partial: the run stopped at t = ") and rows[-1].endswith(
+        f"interrupted ({name})"
+    )
+    assert len(rows) >= 3 and f"{len(rows) - 2} rows in" in lines[0]
+    assert json.loads(events.read_text().splitlines()[-1])["error"] == f"interrupted ({name})"
