@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import sys
 from pathlib import Path
 
 from ..dynamics.reactions import ReactionObserver, read_csv
@@ -32,8 +33,8 @@ def register(subparsers) -> None:
         help="preset name, scene file (TOML), a CSV from mps run --reactions --csv, "
         "or an MCAP recording (mps record, the node)",
     )
-    p.add_argument("--json", metavar="FILE", help="write the report as JSON")
-    p.add_argument("--csv", metavar="FILE", help="write one row a quantity as CSV")
+    p.add_argument("--json", metavar="FILE", help="write the report as JSON (- : standard output)")
+    p.add_argument("--csv", metavar="FILE", help="write one row a quantity as CSV (- : standard output)")
     p.add_argument("--png", metavar="FILE", help="draw the figure (time series + harmonics)")
     p.add_argument(
         "--harmonics",
@@ -53,7 +54,11 @@ def register(subparsers) -> None:
     p.add_argument(
         "--events", metavar="FILE", help="a recording's event log (JSON lines) for the transients' impulses"
     )
-    p.add_argument("--force", action="store_true", help="replace an output file that exists (never an input)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an output file that exists (a regular file only; never an input)",
+    )
     p.add_argument(
         "-q",
         "--quiet",
@@ -143,7 +148,9 @@ def _events(path) -> list[dict]:
 
 
 def run(args) -> int:
-    from ..files.outputs import check_outputs, written_whole
+    import contextlib
+
+    from ..files.outputs import STDOUT, check_outputs
 
     if not 1 <= args.harmonics <= 50:
         raise loads.LoadReportError(f"--harmonics = {args.harmonics}: expected 1 to 50")
@@ -152,7 +159,19 @@ def run(args) -> int:
         {"--json": args.json, "--csv": args.csv, "--png": args.png},
         inputs=[args.source, args.events],
         force=args.force,
+        streams={"--json", "--csv"},
     )
+    stdout = sys.stdout
+    # standard output carries an output: the table and what the command says go to stderr
+    quiet = STDOUT in (args.json, args.csv)
+    with contextlib.redirect_stdout(sys.stderr) if quiet else contextlib.nullcontext():
+        return _report(args, stdout)
+
+
+def _report(args, stdout) -> int:
+    """Make the report and write its outputs; ``stdout``: where ``-`` writes."""
+    from ..files.outputs import written_whole
+
     columns, events, name = _columns(args)
     report = loads.load_report(columns, n=args.harmonics, mode=args.structure, events=events, source=name)
     print(loads.format_table(report))
@@ -162,7 +181,7 @@ def run(args) -> int:
         (args.png, lambda tmp: loads.write_png(report, columns, tmp)),
     ):
         if path:
-            with written_whole(path) as tmp:
+            with written_whole(path, stdout) as tmp:
                 write(tmp)
-            print(f"wrote {path}")
+            print(f"wrote {'standard output' if path == '-' else path}")
     return 0

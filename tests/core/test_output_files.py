@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 from importlib import resources
+from pathlib import Path
 
 import pytest
 
@@ -266,3 +267,12 @@ def test_mps_run_interrupted_keeps_what_it_computed_and_says_so_in_one_line(tmp_
     )
     assert len(rows) >= 3 and f"{len(rows) - 2} rows in" in lines[0]
     assert json.loads(events.read_text().splitlines()[-1])["error"] == f"interrupted ({name})"
+
+
+def test_mps_loads_writes_its_json_to_standard_output(capsys):
+    sample = Path(__file__).parents[2] / "recordings" / "sample_press-cycle.mcap"
+    pytest.importorskip("mcap")
+    assert main(["loads", str(sample), "--json", "-"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["source"] == "sample_press-cycle.mcap"
+    assert "wrote standard output" in err and "foundation" in err
