@@ -65,6 +65,9 @@ def _outputs(text):
 
 
 def _record(args) -> int:
+    import os
+    from pathlib import Path
+
     from mps_core.files.outputs import check_outputs
 
     from .bag import is_bag
@@ -81,15 +84,22 @@ def _record(args) -> int:
             file=sys.stderr,
         )
         return 2
+    out = Path(args.out)
+    # a recording replaced (--force) is replaced only by one that finished: the new one is
+    # written under a temporary name beside it until then
+    replacing = not bag and out.exists()
+    target = out.with_name(f".{out.stem}.{os.getpid()}.partial{out.suffix}") if replacing else out
 
     def log(level, text):
+        if level == "error" and text.startswith("the run stopped at"):
+            return  # said in the command's last line, with what was kept
         if level != "info" or args.verbose:
             print(f"[{level}] {text}", file=sys.stderr)
 
     try:
         path, stats, counts = record(
             args.scene,
-            args.out,
+            target,
             dt=args.dt,
             t_end=args.t_end,
             outputs=_outputs(args.outputs),
@@ -102,10 +112,42 @@ def _record(args) -> int:
             compression=args.compression,
             max_bytes=int(args.max_mb * 1e6),
             max_s=args.max_s,
+            file_name=out.name,
         )
     except ValueError as exc:
+        _drop(target, replacing)
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
+    except BaseException as exc:  # the run failed: what it recorded is kept, the old file too
+        kept = _keep(target, out, replacing)
+        if kept is None:
+            raise
+        print(f"mps: error: {exc}; {_kept_line(kept, out, replacing)}", file=sys.stderr)
+        if getattr(exc, "record_stats", None):
+            _say_coarse(exc.record_stats)
+        return 2
+    reason = stats["stop_reason"]
+    if stats["recording_failure"] is not None:
+        kept = _keep(target, out, replacing) or target
+        why = stats["recording_failure"].removeprefix(f"recording {str(target)!r}: ")
+        print(
+            f"mps record: error: recording {str(kept)!r} stopped at t = "
+            f"{stats['recording_failed_at']:.6g} s: {why}; "
+            f"{_kept_line(kept, out, replacing, cut_short=True)}",
+            file=sys.stderr,
+        )
+        return 1
+    if reason in ("SIGINT", "SIGTERM"):
+        kept = _keep(target, out, replacing) or target
+        print(
+            f"mps record: interrupted ({reason}) at t = {stats['t']:.6g} s after {stats['steps']} "
+            f"steps; {_kept_line(kept, out, replacing)}",
+            file=sys.stderr,
+        )
+        return 128 + int(getattr(__import__("signal"), reason))
+    if replacing:
+        os.replace(target, out)
+        path = out
     total = sum(counts.values())
     print(
         f"recorded {stats['steps']} steps to t = {stats['sim_time']:g} s in "
@@ -114,7 +156,80 @@ def _record(args) -> int:
     )
     for topic, n in sorted(counts.items()):
         print(f"  {topic:32s} {n}")
+    _say_coarse(stats)
     return 0
+
+
+def _drop(target, replacing: bool) -> None:
+    """Remove the temporary recording of a run that did not start (the old file stays)."""
+    import contextlib
+    import os
+
+    if replacing:
+        with contextlib.suppress(OSError):
+            os.unlink(target)
+
+
+def _keep(target, out, replacing: bool):
+    """Return where a recording that did not finish its run is kept (None: nothing was).
+
+    Where it was to replace ``out``, it goes beside it under a name of its own
+    (``NAME-partial.mcap``, ``-partial-2``...), and ``out`` stays as it was."""
+    import os
+    from pathlib import Path
+
+    target = Path(target)
+    if not target.exists():
+        return None
+    if not replacing:
+        return target
+    first = out.with_name(f"{out.stem}-partial{out.suffix}")
+    for i in range(1, 1000):
+        kept = first if i == 1 else first.with_name(f"{first.stem}-{i}{first.suffix}")
+        try:
+            os.link(target, kept)  # never over a file that is there
+        except FileExistsError:
+            continue
+        os.unlink(target)
+        return kept
+    return target
+
+
+def _kept_line(kept, out, replacing: bool, cut_short: bool = False) -> str:
+    """Say what a recording that did not finish its run keeps, and where."""
+    from .recording import intact
+
+    try:
+        got = intact(kept)
+    except (OSError, ValueError):
+        got = None
+    if got is None or not got.messages:
+        what = f"{str(kept)!r} holds no message"
+    else:
+        what = f"{str(kept)!r} keeps {got.messages} messages to t = {got.end_ns * 1e-9:.6g} s" + (
+            "" if got.complete else " in its whole chunks"
+        )
+    if cut_short and got is not None and not got.complete:
+        what += f" (complete it with `mps recover {kept} OUT.mcap` where there is room)"
+    if replacing:
+        what += f"; {str(out)!r} is as it was"
+    return what
+
+
+def _say_coarse(stats) -> None:
+    """Warn (stderr) where the run's step was coarse for its fastest motion, as ``mps run``."""
+    import numpy as np
+
+    from mps_core.run.trajectory import Trajectory, coarse_step
+    from mps_core.solvers import ADAPTIVE_SOLVERS
+
+    if stats["solver"] in ADAPTIVE_SOLVERS:  # their steps follow their error estimates
+        return
+    phi_dot, psi_dot = stats["fastest_rates"]
+    traj = Trajectory({"phi_dot": np.array([phi_dot]), "psi_dot": np.array([psi_dot])})
+    said = coarse_step(traj, stats["solver_step"])
+    if said:
+        print(f"mps: warning: {said}", file=sys.stderr)
 
 
 def _recover(args) -> int:
@@ -134,6 +249,8 @@ def _recover(args) -> int:
         # whole or not at all: a disk that fills up leaves no half-written file behind
         with written_whole(dst) as tmp:
             rep = recover(src, tmp, name=dst.name)
+            if not rep.messages:  # an empty recording is no recovery: nothing is written
+                raise ValueError(_nothing_to_recover(src, rep))
     except OSError as exc:  # the disk full: nothing of OUT is left behind
         print(f"mps: error: output {str(dst)!r}: {exc.strerror or exc}; nothing written", file=sys.stderr)
         return 2
@@ -146,6 +263,15 @@ def _recover(args) -> int:
         f"{len(rep.topics)} topics -> {dst}"
     )
     return 0
+
+
+def _nothing_to_recover(src, rep) -> str:
+    """Say that ``src`` holds no whole chunk, so no message, to recover."""
+    return (
+        f"recording {str(src)!r}: no message to recover ({rep.chunks} whole chunks"
+        + ("" if rep.truncated_at is None else f", cut short at byte {rep.truncated_at}")
+        + "); nothing written"
+    )
 
 
 def _recover_bag(args) -> int:
@@ -164,6 +290,8 @@ def _recover_bag(args) -> int:
     tmp = partial_name(dst)
     try:
         rep = recover_bag(src, tmp, name=dst.name)
+        if not rep.messages:
+            raise ValueError(_nothing_to_recover(src, rep))
         tmp.replace(dst)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -153,12 +153,15 @@ class Recorder:
         compression: str = "zstd",
         max_bytes: int = 0,
         max_s: float = 0.0,
+        file_name: str = "",
     ):
         from mps_core import __version__
 
         from .bag import is_bag
 
         self.path = Path(path)
+        #: the name its rosbag2 record gives a file that is renamed once finished (not a bag's)
+        self.file_name = file_name
         self.bag = is_bag(self.path)
         self.max_bytes = int(max_bytes) if self.bag else 0
         self.max_ns = int(round(float(max_s) * 1e9)) if self.bag else 0
@@ -258,7 +261,8 @@ class Recorder:
         try:
             self._w.flush()
             by_id = {c.id: (t, c.msgtype, c.qos) for t, c in self._channels.items()}
-            self._w.add_metadata("rosbag2", rosbag2_record(self.file.name, self._w, by_id))
+            name = self.file_name if self.file_name and not self.bag else self.file.name
+            self._w.add_metadata("rosbag2", rosbag2_record(name, self._w, by_id))
             self._w.finish()
         finally:
             self._stream.close()
@@ -337,6 +341,7 @@ class BackgroundRecorder:
         compression: str = "zstd",
         max_bytes: int = 0,
         max_s: float = 0.0,
+        file_name: str = "",
     ):
         import json
         import subprocess
@@ -362,6 +367,7 @@ class BackgroundRecorder:
             "compression": compression,
             "max_bytes": int(max_bytes),
             "max_s": float(max_s),
+            "file_name": file_name,
         }
         self._frame(b"I", json.dumps(settings).encode())
         reply = self._reply()
@@ -674,12 +680,15 @@ class RecordingSink:
         #: why the recording stopped (the disk full...); the run goes on without it
         self.failure: str | None = None
         self.dropped = 0  # messages not recorded since it stopped
+        #: the simulated time (s) of the messages that could not be written
+        self.failed_at: float | None = None
         self._t_ns = 0
 
     def _failed(self, exc: Exception) -> None:
         if self.log is None:
             raise exc
         self.failure = str(exc)
+        self.failed_at = self._t_ns * 1e-9
         path = getattr(self.rec, "path", None)
         self.log(
             "error",
@@ -842,6 +851,21 @@ def _records(path: Path, report: Recovered | None = None):
         report.truncated_at = pos
 
 
+def intact(path) -> Recovered:
+    """Return what :func:`recover` would copy of ``path`` (its messages, their last log time,
+    whether the file is complete), without writing anything."""
+    report = Recovered()
+    first = None
+    for kind, r in _records(Path(path), report):
+        if kind == "message":
+            report.messages += 1
+            first = r.log_time if first is None else min(first, r.log_time)
+            report.end_ns = max(report.end_ns, r.log_time)
+            report.topics[r.channel_id] = report.topics.get(r.channel_id, 0) + 1
+    report.start_ns = first or 0
+    return report
+
+
 def recover(src, dst, name: str | None = None, renamed: bool = False) -> Recovered:
     """Copy what is intact in ``src`` (e.g. a recording whose writer was killed: no footer, the
     last chunk cut short) into a complete MCAP file ``dst``: header, metadata, schemas, channels
@@ -967,14 +991,18 @@ def record(
     progress: bool = False,
     max_bytes: int = 0,
     max_s: float = 0.0,
+    file_name: str = "",
 ) -> tuple[Path, dict, dict]:
     """The node's recording made without ROS: run ``scene`` with the scene's own commands and
     write every message the node would publish to ``out``; ``background``: written by a
     :class:`BackgroundRecorder` (another process), else in this one; ``progress``: a progress
     line on standard error where it is a terminal (:class:`~mps_core.run.progress.Progress`);
     ``compression``: the chunks' (``zstd``, ``lz4``, ``none``); ``out`` a bag directory (not
-    ending in ``.mcap``): its files split at ``max_bytes`` or ``max_s`` (:class:`Recorder`).
-    Returns (path, stats, counts)."""
+    ending in ``.mcap``): its files split at ``max_bytes`` or ``max_s`` (:class:`Recorder`);
+    ``file_name``: the name ``out`` is renamed to once finished, for its rosbag2 record.
+    Returns (path, stats, counts); the stats say why the run stopped (``stop_reason``), and
+    where the recording could not be written, why and from when (``recording_failure``,
+    ``recording_failed_at``)."""
     import signal
 
     from .topics import OUTPUTS
@@ -993,11 +1021,17 @@ def record(
         compression=compression,
         max_bytes=max_bytes,
         max_s=max_s,
+        file_name=file_name,
     )
-    sink = RecordingSink(rec, qos=offered_qos(DEPTH))
+
+    def recording_failed(_level, _text):  # a recording that cannot be written ends the run
+        runner.request_stop("recording-failed")
+
+    sink = RecordingSink(rec, qos=offered_qos(DEPTH), log=recording_failed)
+    watch = _WatchSink(twin, shown)
     runner = Runner(
         twin,
-        sinks=[sink, _ProgressSink(twin, shown)],
+        sinks=[sink, watch],
         pacing=pacing,
         real_time_factor=real_time_factor,
         publish_every=publish_every,
@@ -1011,21 +1045,48 @@ def record(
 
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, stop)
+    failed = True
+
+    def outcome(stats: dict) -> dict:
+        """``stats`` with why the run stopped, the recording's failure and the run's step."""
+        stats["stop_reason"] = runner.stop_reason or "end"
+        stats["recording_failure"] = sink.failure
+        stats["recording_failed_at"] = sink.failed_at
+        stats["fastest_rates"] = watch.fastest
+        solver = twin.sim.settings
+        stats["solver"] = solver.name
+        stats["solver_step"] = solver.step if solver.step is not None else twin.dt
+        return stats
+
     try:
         stats = runner.run()
+        failed = False
+    except BaseException as exc:  # what the run did up to its error, for the caller to say
+        exc.record_stats = outcome({"t": twin.t, "steps": twin.k})  # type: ignore[attr-defined]
+        raise
     finally:
         shown.done()
-        rec.finish()
-        for sig, h in old.items():
-            signal.signal(sig, h)
-    return rec.path, stats, rec.counts()
+        try:
+            rec.finish()
+        except OSError:
+            # the file could not be finished: what failed is said already (the recording's
+            # failure, or the run's error on its way out)
+            if not failed and sink.failure is None:
+                raise
+        finally:
+            for sig, h in old.items():
+                signal.signal(sig, h)
+    return rec.path, outcome(stats), rec.counts()
 
 
-class _ProgressSink:
-    """A run's sink that only shows how far the run has got (at each step's tick)."""
+class _WatchSink:
+    """A run's sink that shows how far the run has got and keeps its fastest crank and rocker
+    rates (for the coarse-step warning), at each step's tick."""
 
     def __init__(self, twin, progress):
         self.twin, self.progress = twin, progress
+        #: the largest |phi_dot| and |psi_dot| so far (rad/s)
+        self.fastest = [0.0, 0.0]
 
     def emit(self, key, data, t_ns) -> None:
         pass
@@ -1034,7 +1095,14 @@ class _ProgressSink:
         pass
 
     def tick(self, deadline: float | None = None) -> None:
-        self.progress(self.twin.t)
+        twin = self.twin
+        self.progress(twin.t)
+        _phi, phi_dot, _psi, psi_dot, _x, _x_dot = twin.sim.joint_state()
+        fastest = self.fastest
+        if abs(phi_dot) > fastest[0]:
+            fastest[0] = abs(phi_dot)
+        if abs(psi_dot) > fastest[1]:
+            fastest[1] = abs(psi_dot)
 
 
 def _run_metadata(twin, source, pacing, rtf, publish_every) -> dict:
@@ -1062,6 +1130,7 @@ __all__ = [
     "BackgroundRecorder",
     "RecordingSink",
     "recover",
+    "intact",
     "record",
     "read_metadata",
     "msgdef",

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import random
 import signal
+import stat
 import subprocess
 from pathlib import Path
 
@@ -236,42 +238,124 @@ def test_recover_a_file_cut_short(tmp_path):
     read_all(tmp_path / "head-rec.mcap")
 
 
-def test_mps_record_finishes_the_file_on_sigint(tmp_path):
+@pytest.mark.parametrize("force", [False, True], ids=["new", "force"])
+def test_mps_record_finishes_the_file_on_sigint(tmp_path, force):
+    """Ctrl-C: the file finished and readable, one line saying where it is and to which t,
+    exit 130, no traceback; over a recording (--force), that one is kept as it was and the
+    new one goes beside it."""
     out = tmp_path / "int.mcap"
-    proc = subprocess.Popen(
-        mps_cmd(
-            "record",
-            "press-cycle",
-            "--out",
-            str(out),
-            "--pacing",
-            "realtime",
-            "--dt",
-            "0.001",
-            "--t-end",
-            "60",
-        ),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )
+    old = b""
+    if force:
+        assert mps_main(["record", "paper", "--out", str(out), "--t-end", "0.01"]) == 0
+        old = out.read_bytes()
+    cmd = mps_cmd("record", "press-cycle", "--out", str(out), "--pacing", "realtime", "--dt", "0.001")
+    cmd += ["--t-end", "60", *(["--force"] if force else [])]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    written = tmp_path / "int-partial.mcap" if force else out
     try:
         # the header first, then a chunk of steps (written within a second of stepping):
         # the run is under way once the file has grown past its header
-        wait_until(lambda: out.exists() and out.stat().st_size >= 1000, 60, "the file's header")
-        head = out.stat().st_size
-        wait_until(lambda: out.stat().st_size > head, 60, "a chunk of steps in the file")
+        def growing():
+            if not force:
+                return out if out.exists() else None
+            return next(iter(tmp_path.glob(".int.*.partial.mcap")), None)
+
+        wait_until(lambda: growing() and growing().stat().st_size >= 1000, 60, "the file's header")
+        head = growing().stat().st_size
+        wait_until(lambda: growing().stat().st_size > head, 60, "a chunk of steps in the file")
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(20) == 0
+        assert proc.wait(20) == 130
+        said = proc.stdout.read().decode()
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(5)
         proc.stdout.close()
-    back = read_all(out)  # complete: rosbags reads it as it is
+    lines = said.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mps record: interrupted (SIGINT) at t = "), said
+    assert f"{str(written)!r} keeps " in lines[0] and "messages to t = " in lines[0]
+    if force:
+        assert out.read_bytes() == old and f"{str(out)!r} is as it was" in lines[0]
+    back = read_all(written)  # complete: rosbags reads it as it is
     end_ev = json.loads(back["/press_twin/events"][-1][1].data)
     assert end_ev["kind"] == "run-end" and end_ev["reason"] == "SIGINT"
     assert len(back["/joint_states"]) > 10
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({out.name, written.name})
+
+
+def test_mps_record_force_that_fails_keeps_the_old_recording(tmp_path, capsys):
+    """A run that fails (chart switching off: the crank cannot pass the chart's edge) over a
+    recording: the old one as it was, the new one beside it, one line saying both."""
+    out = tmp_path / "keep.mcap"
+    assert mps_main(["record", "paper", "--out", str(out), "--t-end", "0.01"]) == 0
+    old = out.read_bytes()
+    scene = tmp_path / "stuck.toml"
+    scene.write_text(load_scene("press-cycle").text + "\n[charts]\nswitching = false\n")
+    capsys.readouterr()
+    assert mps_main(["record", str(scene), "--out", str(out), "--dt", "0.001", "--force", "-q"]) == 2
+    _out, err = capsys.readouterr()
+    assert err.count("\n") == 1 and err.startswith("mps: error: t = ") and "chart switching is off" in err
+    kept = tmp_path / "keep-partial.mcap"
+    assert f"{str(kept)!r} keeps " in err and f"{str(out)!r} is as it was" in err
+    assert out.read_bytes() == old
+    end_ev = json.loads(read_all(kept)["/press_twin/events"][-1][1].data)
+    assert end_ev["kind"] == "run-end" and end_ev["reason"] == "error"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep-partial.mcap", "keep.mcap", "stuck.toml"]
+
+
+def test_mps_record_on_a_full_disk_says_what_was_kept_and_how_to_complete_it(tmp_path):
+    """A real full disk (a 300 kB tmpfs in a mount namespace of the test's own): one line
+    naming the file, the disk full, what it keeps to which t and the recover command, exit 1;
+    the command it names completes the file."""
+    import shutil
+
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare here to mount a small file system")
+    small = tmp_path / "small"
+    small.mkdir()
+    rec = small / "r.mcap"
+    script = f'mount -t tmpfs -o size=300k tmpfs {small} && exec "$@"'
+    cmd = ["unshare", "-rm", "sh", "-c", script, "sh", *mps_cmd("record", "press-cycle")]
+    cmd += ["--out", str(rec), "--dt", "0.001", "-q"]
+    got = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    if "mount" in got.stderr and "mps" not in got.stderr:
+        pytest.skip(f"cannot mount a small file system here: {got.stderr.strip()}")
+    lines = got.stderr.splitlines()
+    assert got.returncode == 1 and len(lines) == 1, got.stderr
+    line = lines[0]
+    assert line.startswith(f"mps record: error: recording {str(rec)!r} stopped at t = ")
+    assert "No space left on device" in line and "messages to t = " in line
+    assert f"`mps recover {rec} OUT.mcap`" in line
+    assert "Traceback" not in got.stderr
+
+
+def test_mps_recover_of_a_file_with_no_whole_chunk_writes_nothing(tmp_path, capsys):
+    good = tmp_path / "good.mcap"
+    assert mps_main(["record", "paper", "--out", str(good), "--t-end", "0.01"]) == 0
+    before = good.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(before[:600])  # the header and a little: no whole chunk
+    capsys.readouterr()
+    assert mps_main(["recover", str(cut), str(good), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no message to recover" in err and "nothing written" in err
+    assert good.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "good.mcap"]
+
+
+def test_mps_record_warns_of_a_coarse_step_as_mps_run_does(tmp_path, capsys):
+    out = str(tmp_path / "c.mcap")
+    assert mps_main(["record", "press-cycle", "--out", out, "--dt", "0.05", "--t-end", "0.5", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "mps: warning: the step 0.05 s is coarse for this run" in err
+
+
+def test_a_recording_is_never_written_into_a_stream(tmp_path, capsys):
+    fifo = tmp_path / "ff.mcap"
+    os.mkfifo(fifo)
+    assert mps_main(["record", "paper", "--out", str(fifo), "--t-end", "0.01", "--force"]) == 2
+    assert "a FIFO; expected a file path" in capsys.readouterr().err
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
 
 
 def test_gate_refuses_empty_long_and_floods():
