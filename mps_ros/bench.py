@@ -913,7 +913,7 @@ def _node_arguments(p) -> None:
         type=float,
         default=None,
         metavar="S",
-        help="the node's command_delay (default: the node's, 0)",
+        help="the node's command_delay (default: the node's, 0.05 s)",
     )
 
 
@@ -1017,7 +1017,7 @@ def _print_realtime(a, r: dict) -> None:
             else ""
         )
         + (
-            f", command_delay {'0 (default)' if a.command_delay is None else a.command_delay} s"
+            f", command_delay {'0.05 (default)' if a.command_delay is None else a.command_delay} s"
             if a.commands_every or a.flood
             else ""
         )

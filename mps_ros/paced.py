@@ -74,8 +74,9 @@ class PacedInProcess:
         step that costs more than the period (an impact, a chart change, the machine busy for
         a moment) is absorbed by the steps computed ahead instead of coming out late. A
         command that arrives at wall time w is applied at the first step boundary whose
-        deadline is not before w + ``command_delay`` (one the gate refuses is answered at w's
-        boundary, and changes nothing): the twin comes back to that step's checkpoint (the steps
+        deadline is not before w + ``command_delay`` (one the gate refuses is answered at that
+        boundary too, so that the answers keep the commands' order, and changes nothing):
+        the twin comes back to that step's checkpoint (the steps
         computed beyond it are dropped, never released) and goes on from there with the
         command. Nothing is released before its deadline, so what the sinks get is what a run
         that stepped in time would have given them."""
@@ -311,10 +312,10 @@ class PacedInProcess:
             word = c.word if isinstance(c.word, str) else str(c.word)
             refusal = commands.gate.check(word)
             with cond:
-                if refusal is not None:
-                    at = self._boundary(c.wall, ahead)
-                else:
-                    at = self._boundary(c.wall + r.realtime.command_delay, ahead)
+                # every command at the boundary of its wall time and the delay, so that the
+                # answers go out in the order the commands came
+                at = self._boundary(c.wall + r.realtime.command_delay, ahead)
+                if refusal is None:
                     refusal = at.refusals[COMMANDS.index(word)]
                     if refusal is None:
                         last = queue[-1] if queue else self._released
@@ -328,9 +329,12 @@ class PacedInProcess:
                 finally:
                     r._staging = None
                 with cond:
-                    # right after its boundary (or first, where that went out meanwhile)
-                    i = next((n for n, e in enumerate(queue) if e is at), -1)
-                    queue.insert(i + 1, entry)
+                    # right after its boundary and the answers given there (or first, where
+                    # that went out meanwhile)
+                    i = next((n for n, e in enumerate(queue) if e is at), -1) + 1
+                    while i < len(queue) and queue[i].k == at.k:
+                        i += 1
+                    queue.insert(i, entry)
                     cond.notify_all()
                 continue
             if at is not last:

@@ -229,11 +229,11 @@ PARAMETERS: tuple[Parameter, ...] = (
     ),
     P(
         "command_delay",
-        0.0,
+        0.05,
         "realtime pacing with steps banked: a command takes effect at the "
-        "first step boundary at least this many wall seconds after it arrives (0: the first "
-        "boundary after it arrives), time for the stepping process to redo the steps after it "
-        "with steps still banked; see Steps and pacing",
+        "first step boundary at least this many wall seconds after it arrives (a fixed, stated "
+        "delay; 0: the first boundary after it arrives, at the cost of deadlines), time for the "
+        "stepping process to redo the steps after it with steps still banked; see Steps and pacing",
         lo=0.0,
         hi=1.0,
     ),

@@ -163,7 +163,9 @@ class Boundaries:
         wall = cmd.wall + self.command_delay
         kb = None if refusal is not None else self._step_at(wall)
         if kb is None:
-            self._refuse(cmd, word, refusal or "the run has not started", self._boundary(cmd.wall))
+            # at the boundary every command of that wall time has, so that the answers go out
+            # in the order the commands came
+            self._refuse(cmd, word, refusal or "the run has not started", self._boundary(wall))
             return
         at = self._settled(wall, kb)
         if at is not None and at.refusals[COMMAND_INDEX[word]] is not None:

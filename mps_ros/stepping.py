@@ -23,9 +23,10 @@ never hold a step back.
 
 **Commands.** The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both
 processes. A command that arrives at wall time w is taken in the ROS process at once: the gate
-(a flood, an empty, overlong or unknown word) answers it there, at the boundary of w, and the
-stepping is not disturbed; any other's boundary is the first step whose deadline is not before
-w + ``command_delay``, among the last released and those held (the delay leaves the stepping
+(a flood, an empty, overlong or unknown word) answers it there, at its boundary, and the
+stepping is not disturbed; every command's boundary (so the answers keep the commands' order)
+is the first step whose deadline is not before w + ``command_delay``, among the last released
+and those held (the delay leaves the stepping
 process time to redo the steps after it, whose first cost more: the command's events, charts
 met for the first time). Where the step held there says that the machine would refuse it
 (an ``engage`` while engaging; each step carries :meth:`Twin.refusals`), it is answered there
