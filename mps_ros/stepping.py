@@ -582,6 +582,13 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         from mps_core import MpsError
 
         error_kind = "simulation" if isinstance(exc, MpsError) else "error"
+        if runner.error is None:  # it failed before its loop (its start): said all the same
+            runner._failed(exc)
+        if error_kind == "error":  # not the simulation's: where it came from
+            import traceback
+
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            log("error", f"{type(exc).__name__} at {where.filename}:{where.lineno} in {where.name}")
     stats = runner.stats()
     stats["structure"] = twin.sim.structure
     out.frame(
