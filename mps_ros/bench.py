@@ -283,7 +283,7 @@ def _realtime(
     steps, env, tmp, deserialize, outputs, params, derivatives, commands_every=None, flood=0
 ) -> dict:
     t_end = steps * 1e-3
-    loop = loop_cost(min(steps, 3000), outputs, derivatives)
+    loop = loop_cost(steps, outputs, derivatives)  # the same steps as the run's
     if outputs:
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
@@ -315,10 +315,104 @@ def _realtime(
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
         st["threads"] = usage.threads()
         st["loop_us"] = loop
-        return st
     finally:
         stop_group(node)
         stop_group(probe)
+    st["ros_floor_us"] = ros_floor(env, tmp, tmp / "rt.mcap", deserialize)
+    return st
+
+
+def ros_floor(env, tmp: Path, recording: Path, deserialize: bool = False) -> float:
+    """CPU µs a step of rclpy publishing a run's messages, already serialized, to the same
+    subscriber in a bare loop: the recording's messages, step by step, on publishers with the
+    node's QoS, in a process of its own (:func:`publish_floor`); the floor under the node's
+    ROS process. NaN where it could not be measured."""
+    probe = _probe(env, tmp / "floor-probe.log", deserialize, None, 0)
+    pub = subprocess.Popen(
+        [sys.executable, "-m", "mps_ros.bench", "floor", str(recording)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=open(tmp / "floor.log", "wb"),
+        start_new_session=True,
+    )
+    try:
+        out, _ = pub.communicate(timeout=600)
+        probe.communicate(timeout=60)
+        return float(json.loads(out.strip().splitlines()[-1])["cpu_us_per_step"])
+    except (subprocess.TimeoutExpired, ValueError, IndexError, KeyError):
+        return math.nan
+    finally:
+        stop_group(pub)
+        stop_group(probe)
+
+
+def publish_floor(recording: str) -> int:
+    """The floor's publisher (``python -m mps_ros.bench floor REC.mcap``): the node's
+    publishers (its name, topics, QoS and middleware settings), each step's recorded messages
+    published as they are (serialized) in a bare loop once the subscriber has joined every
+    topic; prints one JSON line (the steps, CPU µs a step of the process and of the loop's
+    thread)."""
+    from .node import MSG_CLASSES, env_defaults
+
+    env_defaults()
+    import rclpy
+    from mcap.reader import make_reader
+    from rclpy.event_handler import PublisherEventCallbacks
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from .topics import DEPTH, LATCHED, TOPICS, resolve
+
+    steps: list[list] = []
+    last = None
+    with open(recording, "rb") as fh:
+        for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            if message.log_time != last:
+                steps.append([])
+                last = message.log_time
+            steps[-1].append((channel.topic, message.data))
+    rclpy.init()
+    node = Node("press_twin")
+    qos = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+    latched = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    raw, pubs = {}, []
+    for t in TOPICS:
+        if t.msgtype not in MSG_CLASSES or t.key == "~/mode":
+            continue
+        p = node.create_publisher(
+            MSG_CLASSES[t.msgtype],
+            resolve(t.key),
+            latched if t.key in LATCHED else qos,
+            event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+        )
+        pubs.append(p)
+        raw[p.topic_name] = p.handle.publish_raw
+    end = time.monotonic() + 30
+    while time.monotonic() < end and not all(p.get_subscription_count() for p in pubs):
+        time.sleep(0.01)
+    time.sleep(0.5)  # the subscriber's side of discovery settled
+    steps = [[(raw[topic], data) for topic, data in step if topic in raw] for step in steps]
+    cpu0, th0 = time.process_time(), time.thread_time()
+    for step in steps:
+        for publish, data in step:
+            publish(data)
+    cpu, th = time.process_time() - cpu0, time.thread_time() - th0
+    n = max(1, len(steps))
+    print(json.dumps({"steps": n, "cpu_us_per_step": cpu / n * 1e6, "thread_us_per_step": th / n * 1e6}))
+    time.sleep(1.0)  # the last messages delivered before the publishers go
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
 def _probe(env, log_path: Path, deserialize, commands_every, flood) -> subprocess.Popen:
@@ -792,6 +886,8 @@ def main(argv=None) -> int:
         return 0
     if a.what == "writer":
         return _writer()
+    if a.what == "floor":
+        return publish_floor(a.recording)
     env = ros_env()
     os.environ.update(
         {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR", "RMW_IMPLEMENTATION")}
@@ -826,8 +922,9 @@ def _parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=("all", "realtime", "afap", "table", "soak", "wakeup", "writer", "probe"),
+        choices=("all", "realtime", "afap", "table", "soak", "wakeup", "writer", "probe", "floor"),
     )
+    p.add_argument("recording", nargs="?", help="floor: the recording whose messages are published")
     p.add_argument(
         "--minutes",
         type=float,
@@ -1052,14 +1149,19 @@ def _print_realtime(a, r: dict) -> None:
         f"{r['node_processes']} process(es); not the recording process)"
         + (
             f": stepping process {r['stepping_process_cpu_us']:.0f} us, ROS process "
-            f"{r['ros_process_cpu_us']:.0f} us"
+            f"{r['ros_process_cpu_us']:.0f} us\n"
+            f"{'':30s}stepping process {r['stepping_process_cpu_us'] / r['loop_us']:.2f}× "
+            f"the same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: stepped, "
+            f"messages made, checkpoint; no ROS, no waiting)\n"
+            f"{'':30s}ROS process {r['ros_process_cpu_us'] / r['ros_floor_us']:.2f}× "
+            f"the floor here ({r['ros_floor_us']:.0f} us a step: rclpy publishing the same "
+            f"serialized messages to the same subscriber in a bare loop)"
             if r["stepping_process_cpu_us"] == r["stepping_process_cpu_us"]
             else ""
         )
         + "\n"
         f"                              {r['process_cpu_us'] / r['loop_us']:.2f}× the "
-        f"same steps' work in a plain loop here ({r['loop_us']:.0f} us a step: "
-        f"stepped, messages made, checkpoint; no ROS, no waiting)\n"
+        f"same steps' work in a plain loop here (the whole node)\n"
         f"                              {r['cpu_per_step_us']:.0f} us a step from "
         f"outside ({100 * r['cpu_share']:.0f} % of one core, /proc from 0.2 s after "
         f"the start to the run's end); the recording process "
