@@ -13,6 +13,7 @@ is read as a path.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -42,6 +43,19 @@ from ..solvers import ADAPTIVE_SOLVERS, SOLVERS
 from .settings import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
 
 BODY_NAMES = ("crank", "rod", "rocker", "slider")
+#: the top-level tables of a scene file, in the order they are checked
+SECTIONS = (
+    "scene",
+    "mechanism",
+    "bodies",
+    "structure",
+    "initial",
+    "commands",
+    "effects",
+    "solver",
+    "outputs",
+    "charts",
+)
 STRUCTURES = ("free", "locked", "held")
 
 
@@ -778,10 +792,23 @@ def _parsed(parse, data, *args):
     return dict(out) if isinstance(out, dict) else out
 
 
+def _check_sections(raw: dict) -> None:
+    """Refuse a top-level table the scene file does not know, before any table is read.
+
+    A misspelt ``[inital]`` would otherwise leave ``[initial]`` empty and be reported as its
+    first missing value."""
+    for key in raw:
+        if key not in SECTIONS:
+            near = difflib.get_close_matches(key, SECTIONS, n=1)
+            hint = f" (did you mean [{near[0]}]?)" if near else ""
+            raise SceneError("section", key, "one of the sections " + ", ".join(SECTIONS) + hint)
+
+
 def scene_from_dict(raw: dict, *, name: str = "scene", text: str = "", origin: str = "") -> Scene:
-    """A validated scene from a parsed TOML document: one parser a table, in the order the
-    tables are checked, then what crosses tables."""
+    """A validated scene from a parsed TOML document: its sections known, one parser a table,
+    in the order the tables are checked, then what crosses tables."""
     top = _Table(raw, "scene file")
+    _check_sections(raw)
     sname, desc = _parsed(_meta, top.get("scene", {}), name)
     geometry, assembly, x_top = _parsed(_mechanism, top.get("mechanism", {}))
     bodies = _parsed(_bodies, top.get("bodies", {}))

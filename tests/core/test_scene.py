@@ -83,7 +83,7 @@ BAD = [
     ),
     (edit("switch_below = 0.5", "switch_below = 1e-5"), "charts.switch_below", "between"),
     (edit("switching = true", 'switching = "yes"'), "charts.switching", "true or false"),
-    (PAPER_TEXT + "\n[extras]\nx = 1\n", "scene file.extras", "no such key"),
+    (PAPER_TEXT + "\n[extras]\nx = 1\n", "section", "one of the sections scene, mechanism, bodies"),
     ("this is = = not toml", "scene file", "valid TOML"),
     (PAPER_TEXT + '\n[[effects]]\ntype = "gravity"\n', "effects", "each effect once"),
 ]
@@ -137,6 +137,34 @@ def test_bad_scene_is_refused_with_a_clear_message(text, field, expected):
     msg = str(info.value)
     assert msg.startswith(field) or f"{field} =" in msg, msg
     assert expected in msg, msg
+
+
+@pytest.mark.parametrize(
+    "header,misspelt,meant",
+    [
+        ("[initial]", "inital", "initial"),
+        ("[solver]", "sovler", "solver"),
+        ("[[effects]]", "effect", "effects"),
+    ],
+)
+def test_a_misspelt_section_is_named_before_what_it_leaves_missing(header, misspelt, meant):
+    text = PC_TEXT.replace(header, header.replace(meant, misspelt))
+    assert text != PC_TEXT
+    with pytest.raises(SceneError) as info:
+        scene_from_text(text)
+    err = info.value
+    assert (err.field, err.value) == ("section", misspelt), str(err)
+    assert f"(did you mean [{meant}]?)" in str(err)
+    assert "scene, mechanism, bodies, structure, initial, commands, effects, solver, outputs, charts" in str(
+        err
+    )
+
+
+def test_an_unknown_section_far_from_any_is_named_without_a_guess():
+    with pytest.raises(SceneError) as info:
+        scene_from_text(PC_TEXT + "\n[zzz]\nx = 1\n")
+    assert str(info.value).startswith("section = 'zzz': expected one of the sections scene, ")
+    assert "did you mean" not in str(info.value)
 
 
 def test_messages_are_all_different():
