@@ -44,10 +44,34 @@ def _node(args) -> int:
 
 
 def _operator(args) -> int:
-    mod = _ros_import("mps_ros.operator")
-    if mod is None:
-        return 2
-    return mod.run_operator(args)
+    """Check the schedule, then start the operator (rclpy); SIGINT and SIGTERM from here on
+    end it with one line (``mps_ros.operator``)."""
+    import signal
+
+    if args.at:
+        try:
+            schedule = sorted(_at_command(item) for item in args.at)
+        except ValueError as exc:  # one line, as a bad scene's (no usage: nothing else is wrong)
+            print(f"mps operator: error: argument --at: {exc}", file=sys.stderr)
+            return 2
+    else:
+        from mps_core import load_scene
+
+        schedule = sorted((float(t), w) for t, w in load_scene(args.scene).commands)
+    stop: dict = {"signum": None}
+
+    def on_signal(signum, _frame):
+        stop["signum"] = signum
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        mod = _ros_import("mps_ros.operator")
+        if mod is None:
+            return 2
+        return mod.run_operator(args, schedule, stop)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def _demo(args) -> int:
@@ -317,6 +341,26 @@ def _positive(text):
     return v
 
 
+def _at_command(text):
+    """Parse ``--at T:WORD``: a time in seconds >= 0 and a command word the node knows (else
+    ValueError naming the value, the part at fault and what was expected)."""
+    from mps_core.scene.settings import COMMANDS
+
+    t_text, colon, word = text.partition(":")
+    if not colon:
+        raise ValueError(f"{text!r}: expected T:WORD, e.g. 0.008:engage")
+    try:
+        t = float(t_text)
+    except ValueError:
+        t = math.nan
+    if not (math.isfinite(t) and t >= 0):
+        raise ValueError(f"{text!r}: T = {t_text.strip()!r}: expected a time in seconds >= 0")
+    word = word.strip()
+    if word not in COMMANDS:
+        raise ValueError(f"{text!r}: WORD = {word!r}: expected one of " + ", ".join(COMMANDS))
+    return t, word
+
+
 def _count(text):
     try:
         v = int(text)
@@ -359,13 +403,18 @@ def _register_node(sub) -> None:
 
 def _register_operator(sub) -> None:
     """``mps operator``: mode commands sent at simulated times."""
+    from mps_core.scene.settings import COMMANDS
+
     o = sub.add_parser(
         "operator",
         help="send mode commands to press_twin at simulated times",
         description="A small ROS 2 client: watches /clock and sends each command "
         "on /press_twin/mode when the simulated time reaches it "
         "(default: the scene's own [[commands]]), prints the node's "
-        "answers, and ends with the run.",
+        "answers, and ends with the run. Exit status: 0 every command "
+        "applied; 1 one refused, unanswered or not sent, or no node "
+        "answered within --wait; 2 bad input (checked before anything is "
+        "sent); 130 on SIGINT (Ctrl-C), 143 on SIGTERM.",
     )
     o.add_argument(
         "scene",
@@ -378,9 +427,18 @@ def _register_operator(sub) -> None:
         action="append",
         metavar="T:WORD",
         default=None,
-        help="send WORD at simulated time T (s) instead of the scene's commands; repeat",
+        help=f"send WORD ({', '.join(COMMANDS)}) at simulated time T (s) >= 0 instead of the "
+        "scene's commands; repeat",
     )
     o.add_argument("--node", default="/press_twin", help="the node's name (default /press_twin)")
+    o.add_argument(
+        "--wait",
+        type=_positive,
+        default=10.0,
+        metavar="S",
+        help="give up when no node has subscribed to the mode topic after this many wall seconds "
+        "(default 10)",
+    )
     o.add_argument(
         "--timeout", type=_positive, default=120.0, help="give up after this many wall seconds (default 120)"
     )

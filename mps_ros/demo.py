@@ -88,7 +88,9 @@ def main(args) -> int:
     env = ros_env()
     _say_what(args, scene, env)
     limit = 60.0 + scene.t_end / args.real_time_factor
-    node_rc, op_rc = _run_node_and_operator(_node_command(args, out), mps("operator", args.scene), env, limit)
+    # the operator is started with the node: it waits for it as long as the node may take to start
+    op_cmd = mps("operator", args.scene, "--wait", "60")
+    node_rc, op_rc = _run_node_and_operator(_node_command(args, out), op_cmd, env, limit)
     return _report(out, node_rc, op_rc)
 
 

@@ -3,18 +3,24 @@ reaches a scheduled command, sends it on ``/press_twin/mode`` (std_msgs/String),
 the press's panel would; prints the node's answers (``~/mode/status``) and ends with the run
 (the node's ``run-end`` event), or when the node is gone.
 
-    mps operator [SCENE] [--at T:WORD ...] [--node /press_twin]
+    mps operator [SCENE] [--at T:WORD ...] [--node /press_twin] [--wait S] [--timeout S]
 
 A command goes out on the first ``/clock`` at or after its time; the node applies it at the next
 step boundary after it arrives, so it takes effect a step or so after the scheduled time, and
 the node's answer says exactly when.
+
+The schedule is checked before rclpy starts (``mps operator`` parses ``--at``, the scene is
+loaded there): a bad word or time is one line and exit status 2. When it does not end with the
+run, one line says why, what was sent and what was not: no node subscribed to the mode topic
+within ``--wait`` seconds, ``--timeout`` reached, the node gone, or a signal. Exit status: 0
+every command sent and applied; 1 one refused, unanswered or not sent, or no node; 2 bad input;
+130 on SIGINT (Ctrl-C) and 143 on SIGTERM (128 + the signal's number), no traceback.
 """
 
 from __future__ import annotations
 
 import json
 import signal
-import sys
 import time
 
 from .node import env_defaults
@@ -26,21 +32,6 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
-
-
-def schedule_of(args) -> list[tuple[float, str]]:
-    if args.at:
-        out = []
-        for item in args.at:
-            t, _, word = item.partition(":")
-            try:
-                out.append((float(t), word.strip()))
-            except ValueError:
-                raise SystemExit(f"mps operator: --at {item!r}: expected T:WORD, e.g. 0.008:engage") from None
-        return sorted(out)
-    from mps_core import load_scene
-
-    return sorted((float(t), w) for t, w in load_scene(args.scene).commands)
 
 
 def say(text: str) -> None:
@@ -114,61 +105,66 @@ class Operator(Node):
             say(f"the run ended at t = {ev['t']:.4f} s ({ev.get('reason')})")
 
 
-def run_operator(args) -> int:
-    schedule = schedule_of(args)
-    stop = {"flag": False}
+def outcome(why: str, sent, todo) -> str:
+    """Say in one line why the operator ends, which words it sent and which it did not."""
+    line = f"{why}: sent " + (", ".join(sent) or "nothing")
+    return line + ("; not sent: " + ", ".join(todo) if todo else "")
 
-    def on_signal(signum, _frame):
-        stop["flag"] = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+def run_operator(args, schedule: list[tuple[float, str]], stop: dict) -> int:
+    """Send ``schedule`` (time, word) to the node; its exit status (see the module's doc).
+
+    ``stop["signum"]`` is set by the caller's SIGINT and SIGTERM handlers (installed before
+    rclpy was imported); the run ends at the next look."""
+    if stop["signum"] is not None:  # before rclpy started: nothing to say to anyone
+        why = f"stopped by {signal.Signals(stop['signum']).name} before it started"
+        say(outcome(why, [], [w for _, w in schedule]))
+        return 128 + stop["signum"]
     rclpy.init(args=["press_operator"], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     op = Operator(args.node, schedule)
+    topic = op.pub.topic_name
     say(
-        "will send "
-        + (", ".join(f"{w!r} at t = {t:g} s" for t, w in schedule) or "nothing")
-        + f" on {op.pub.topic_name}"
+        "will send " + (", ".join(f"{w!r} at t = {t:g} s" for t, w in schedule) or "nothing") + f" on {topic}"
     )
     start = time.monotonic()
+    heard = False  # a node has subscribed to the mode topic
+    why = None  # why it ends, when not with the run
     code = 0
     try:
-        while not stop["flag"] and not op.ended:
+        while not op.ended:
+            if stop["signum"] is not None:
+                why = f"stopped by {signal.Signals(stop['signum']).name}"
+                code = 128 + stop["signum"]
+                break
             rclpy.spin_once(op, timeout_sec=0.05)
             now = time.monotonic()
+            heard = heard or op.pub.get_subscription_count() > 0
+            if not heard and now - start > args.wait:
+                why, code = f"no node answered on {topic} in {args.wait:g} s", 1
+                break
             if now - start > args.timeout:
-                say(f"giving up after {args.timeout:g} s")
-                code = 1
+                why, code = f"gave up after {args.timeout:g} s (--timeout)", 1
                 break
             if (
                 op.last_clock_wall is not None
                 and now - op.last_clock_wall > 5.0
                 and op.count_publishers("/clock") == 0
             ):
-                say("the node is gone")
+                why = "the node is gone"
                 break
-        # answers to the last commands may still be on their way
-        end = time.monotonic() + 1.0
-        while len(op.acks) < len(op.sent) and time.monotonic() < end:
-            rclpy.spin_once(op, timeout_sec=0.05)
-        refused = [a for a in op.acks if not a.get("accepted")]
-        if op.todo:
+        if stop["signum"] is None:
+            # answers to the last commands may still be on their way
+            end = time.monotonic() + 1.0
+            while len(op.acks) < len(op.sent) and time.monotonic() < end and stop["signum"] is None:
+                rclpy.spin_once(op, timeout_sec=0.05)
+        if why is not None:
+            say(outcome(why, [w for _, _, w in op.sent], [w for _, w in op.todo]))
+        elif op.todo:
             say("not sent (the run ended first): " + ", ".join(w for _, w in op.todo))
+        refused = [a for a in op.acks if not a.get("accepted")]
         if refused or len(op.acks) < len(op.sent) or op.todo:
             code = code or 1
         return code
     finally:
         op.destroy_node()
         rclpy.try_shutdown()
-        for s, h in old.items():
-            signal.signal(s, h)
-
-
-if __name__ == "__main__":
-    import argparse
-
-    p = argparse.ArgumentParser()
-    p.add_argument("scene", nargs="?", default="press-cycle")
-    p.add_argument("--at", action="append")
-    p.add_argument("--node", default="/press_twin")
-    p.add_argument("--timeout", type=float, default=120.0)
-    sys.exit(run_operator(p.parse_args()))
