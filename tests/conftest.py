@@ -1,9 +1,13 @@
-"""Shared fixtures. Every process a test starts stays on loopback with its own ROS domain."""
+"""Shared fixtures. Every process a test starts stays on loopback with its own ROS domain, and
+keeps generated code in a folder of the session's own (never the user's cache)."""
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +15,11 @@ import pytest
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", "43")
+# the disk cache of generated code (mps_core.codegen.disk_cache): one folder a test process,
+# which the processes it starts share, removed at its end
+_CACHE = tempfile.mkdtemp(prefix="mps-test-cache-")
+os.environ["MPS_CACHE_DIR"] = _CACHE
+atexit.register(shutil.rmtree, _CACHE, True)
 
 sys.path.insert(0, str(Path(__file__).parent))
 
