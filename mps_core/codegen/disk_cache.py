@@ -114,7 +114,7 @@ def encode(x, h) -> None:
         h.update(b"b%d:" % len(x))
         h.update(x)
     elif isinstance(x, (tuple, list)):
-        h.update(b"(%d:" % len(x))
+        h.update((b"(%d:" if isinstance(x, tuple) else b"[%d:") % len(x))
         for y in x:
             encode(y, h)
         h.update(b")")
