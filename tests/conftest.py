@@ -17,13 +17,13 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", "43")
 # the disk cache of generated code (mps_core.codegen.disk_cache): one folder a test process,
 # which the processes it starts share, removed at its end
-_CACHE = tempfile.mkdtemp(prefix="mps-test-cache-")
-os.environ["MPS_CACHE_DIR"] = _CACHE
-atexit.register(shutil.rmtree, _CACHE, True)
+os.environ["MPS_CACHE_DIR"] = tempfile.mkdtemp(prefix="mps-test-cache-")
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 from reference import press_exact as pe
+
+atexit.register(shutil.rmtree, os.environ["MPS_CACHE_DIR"], True)
 
 
 @pytest.fixture(scope="session")
