@@ -27,7 +27,7 @@ before). A folder that cannot be written, or a full disk, leaves the run generat
 (one debug line of this module's logger), never failing it.
 
 **Bound.** The folder is kept under :data:`BOUND_BYTES` (all versions together): a process's
-first write and every 64th look at its size and remove the oldest entries, down to three
+first write and every 256th look at its size and remove the oldest entries, down to three
 quarters of the bound. ``mps cache clear`` removes every entry; ``mps cache info`` says where
 the store is and what it holds.
 """
@@ -256,7 +256,7 @@ class KernelStore:
                     pass
         COUNTS["written"] += 1
         self._writes += 1
-        if self._writes % 64 == 1:
+        if self._writes % 256 == 1:
             self.prune()
 
     def _files(self) -> list[tuple[float, int, Path]]:
