@@ -267,7 +267,7 @@ def _write_outputs(args, traj, failure: str | None = None) -> None:
 
 
 def _cache(action: str) -> int:
-    """``mps cache info`` and ``mps cache clear``."""
+    """Say where the kernel cache is and what it holds (``mps cache info``), or empty it (``clear``)."""
     from .codegen import disk_cache
 
     store = disk_cache.store()

@@ -123,7 +123,7 @@ def encode(x, h) -> None:
 
 
 def _folder_from_environment() -> Path | None:
-    """The kernels' folder the environment names, or None (the store off)."""
+    """Return the kernels' folder the environment names, or None (the store off)."""
     given = os.environ.get("MPS_CACHE_DIR", "").strip()
     if given.lower() in ("off", "none", "0", "no", "false"):
         return None
@@ -168,7 +168,7 @@ class Entry:
 
 
 def _parse(data: bytes, digest: str, version: str) -> list[bytes] | None:
-    """The items of an entry's bytes, where its header records ``digest`` and ``version`` and
+    """Return the items of an entry's bytes, where its header records ``digest`` and ``version`` and
     its content matches its hash; else None."""
     if not data.startswith(MAGIC):
         return None
@@ -180,7 +180,7 @@ def _parse(data: bytes, digest: str, version: str) -> list[bytes] | None:
         sizes = [int(n) for n in head["sizes"]]
         ok = head["digest"] == digest and head["version"] == version
         sha = head["sha256"]
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, RecursionError):
         return None
     body = data[end + 1 :]
     if not ok or any(n < 0 for n in sizes) or sum(sizes) != len(body):
@@ -206,11 +206,11 @@ class KernelStore:
 
     @property
     def here(self) -> Path:
-        """This generator version's folder."""
+        """Return this generator version's folder."""
         return self.folder / self.version[:16]
 
     def entry(self, kind: str, key) -> Entry | None:
-        """The entry of ``kind`` under ``key``; None where the key cannot be written exactly
+        """Return the entry of ``kind`` under ``key``; None where the key cannot be written exactly
         or the generator's version is unknown."""
         if not self.version:
             return None
@@ -260,7 +260,7 @@ class KernelStore:
             self.prune()
 
     def _files(self) -> list[tuple[float, int, Path]]:
-        """(mtime, size, path) of every file under the folder (every version's)."""
+        """List (mtime, size, path) of every file under the folder (every version's)."""
         out = []
         try:
             versions = list(os.scandir(self.folder))
@@ -301,7 +301,7 @@ class KernelStore:
                 pass
 
     def info(self) -> dict:
-        """Where the store is and what it holds: entries and bytes, this version's and all."""
+        """Say where the store is and what it holds: entries and bytes, this version's and all."""
         files = [f for f in self._files() if not f[2].name.startswith(".tmp-")]
         mine = [f for f in files if f[2].parent.name == self.version[:16]]
         return {
@@ -325,7 +325,7 @@ _STORE: list = [None]
 
 
 def store() -> KernelStore | None:
-    """The store the environment names now (see the module's notes), or None where it is off."""
+    """Return the store the environment names now (see the module's notes), or None where it is off."""
     folder = _folder_from_environment()
     if folder is None:
         return None
@@ -336,19 +336,19 @@ def store() -> KernelStore | None:
 
 
 def entry(kind: str, key) -> Entry | None:
-    """The entry of ``kind`` under ``key`` in the store (None: no store, or a key it cannot
-    write)."""
+    """Return the entry of ``kind`` under ``key`` in the store (None: no store, or a key it
+    cannot write)."""
     s = store()
     return None if s is None else s.entry(kind, key)
 
 
 def code_items(source: str, code: types.CodeType) -> list[bytes]:
-    """An entry's items for generated code: its source text and its compiled code."""
+    """Return an entry's items for generated code: its source text and its compiled code."""
     return [source.encode("utf-8", "surrogatepass"), marshal.dumps(code)]
 
 
 def code_from(items: list[bytes] | None):
-    """(code, source) of an entry's items, or None where they are not generated code."""
+    """Return (code, source) of an entry's items, or None where they are not generated code."""
     if items is None or len(items) != 2:
         return None
     try:

@@ -142,7 +142,7 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None, d
 
 
 def made(key, source, label: str, depends=()) -> tuple:
-    """(code object, source text) of generated code: the disk cache's entry for (``key``,
+    """Return (code object, source text) of generated code: the disk cache's entry for (``key``,
     ``label``, ``depends``) where it holds a valid one, else ``source()`` generated and
     compiled as ``label`` (and written there). ``key`` and ``depends`` together determine the
     source: the entry is what a generation here would give."""
@@ -314,7 +314,7 @@ _TABLES: dict = {}
 
 
 def _tables_kind(tables: Tables) -> tuple:
-    """What makes two tables equal for generated code."""
+    """Return what makes two tables equal for generated code."""
     off = None if tables.offset is None else tables.offset.tobytes()
     return (
         tables.MT.shape,
@@ -341,7 +341,7 @@ _OWN = object()
 
 
 def _tables_digest(tables: Tables):
-    """The tables' SHA-256, with their arrays' types and the names of their rows and bodies; a
+    """Return the tables' SHA-256, with their arrays' types and the names of their rows and bodies; a
     value of this process's own (the tables' number beside :data:`_OWN`) where a part cannot be
     written out exactly."""
     h = hashlib.sha256()

@@ -375,7 +375,7 @@ def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
 
 
 def _parts_from(items) -> tuple | None:
-    """kernel_parts from a disk cache entry's items (seven lists of code), or None."""
+    """Return kernel_parts from a disk cache entry's items (seven lists of code), or None."""
     if items is None or len(items) != 1:
         return None
     try:

@@ -332,7 +332,7 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
 
 
 def _tail_source(n, tape, slots, outputs, forces) -> str:
-    """The central tail's code (:func:`central_tail`): the traced tape, the finiteness check of
+    """Write the central tail's code (:func:`central_tail`): the traced tape, the finiteness check of
     q̈ (``outputs``' nodes), and (Q, Q_nc, q̈) returned (``forces``: Q's and Q_nc's nodes)."""
     body: list = []
     code = emit_tape(body, tape, slots)

@@ -199,7 +199,7 @@ def with_loads(kernel, sums):
 
 
 def _with_loads_source(kernel_source: str, sums_source: str) -> str:
-    """The code of :func:`with_loads` from a reaction kernel's and a load sums' code."""
+    """Write the code of :func:`with_loads` from a reaction kernel's and a load sums' code."""
     head, unpack, *body = kernel_source.rstrip("\n").split("\n")
     targets, eq, rhs = unpack.strip().partition(" = ")
     if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq and rhs == "loads"):
@@ -815,7 +815,7 @@ def traced_sums(sums: LoadSums, t: float, kin):
 
 
 def _sums_source(tape, slots, nodes) -> str:
-    """The traced load sums' code (:func:`traced_sums`): the tape, and the sums (``nodes``:
+    """Write the traced load sums' code (:func:`traced_sums`): the tape, and the sums (``nodes``:
     their nodes or constants) returned."""
     body: list = []
     code = emit_tape(body, tape, slots)
