@@ -6,7 +6,8 @@ full, before the next entry is kept: what it held is made again where asked for,
 costs time, never a result. Long sweeps of many different scenes in one process stay within
 the bounds (``mps sweep``: every mechanism and every set of effect parameters makes code of its
 own). :func:`clear` empties them all (between independent workloads, or to measure a run from
-cold); :func:`sizes` says what they hold.
+cold: with the disk cache off, ``MPS_CACHE_DIR=off``, :mod:`mps_core.codegen.disk_cache`, which
+keeps generated code for the next process); :func:`sizes` says what they hold.
 """
 
 from __future__ import annotations

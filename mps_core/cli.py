@@ -5,8 +5,11 @@
                   [--no-chart-switching] [--reactions] [--csv FILE] [--events FILE] [--force]
                   [--quiet]
     mps scenes
+    mps cache info | clear
 
-SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file.
+SCENE is a preset name (``mps scenes`` lists them) or the path of a scene file. ``mps cache``:
+the generated code kept on disk (:mod:`mps_core.codegen.disk_cache`), where and how much, or
+removed.
 """
 
 from __future__ import annotations
@@ -93,6 +96,8 @@ def _parser() -> argparse.ArgumentParser:
     )
 
     sub.add_parser("scenes", help="list the preset scenes")
+    c = sub.add_parser("cache", help="the generated code kept on disk: where and how much, or remove it")
+    c.add_argument("action", choices=("info", "clear"), help="info: where, entries, bytes; clear: remove all")
     for name in PLUGINS:
         try:
             mod = importlib.import_module(name)
@@ -318,6 +323,28 @@ def _where(path) -> str:
     return "standard output" if str(path) == STDOUT else str(path)
 
 
+def _cache(action: str) -> int:
+    """Say where the kernel cache is and what it holds (``mps cache info``), or empty it (``clear``)."""
+    from .codegen import disk_cache
+
+    store = disk_cache.store()
+    if store is None:
+        print("kernel cache: off (MPS_CACHE_DIR=off)")
+        return 0
+    if action == "clear":
+        files, size = store.clear()
+        print(f"kernel cache: removed {files} file(s), {size / 1024:.1f} KiB, from {store.folder}")
+        return 0
+    i = store.info()
+    print(f"kernel cache: {i['folder']}")
+    print(f"this version ({i['version']}): {i['entries']} entries, {i['bytes'] / 1024:.1f} KiB")
+    print(
+        f"all versions: {i['all_entries']} entries, {i['all_bytes'] / 1024:.1f} KiB "
+        f"(bound {i['bound'] / 2**20:.0f} MiB)"
+    )
+    return 0
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if args.command in INTERRUPTIBLE:
@@ -330,6 +357,8 @@ def main(argv=None) -> int:
             for n in preset_names():
                 print(n)
             return 0
+        if args.command == "cache":
+            return _cache(args.action)
         if hasattr(args, "func"):
             return int(args.func(args) or 0)
     except MpsError as exc:

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..caches import Memo
 from ..derivatives.tracing import BranchChanged
+from .emitter import made
 
 __all__ = ["ArrayBranchChanged", "array_kernel"]
 
@@ -92,10 +93,12 @@ def array_kernel(kernel, drop: tuple = ()):
     key = (kernel.source, drop)
     code = _CODE.get(key)
     if code is None:
-        source = _array_source(kernel.source)
-        if drop:
-            source = _without(source, drop)
-        code = _CODE.keep(key, compile(source, "<array kernel>", "exec"))
+
+        def source() -> str:
+            out = _array_source(kernel.source)
+            return _without(out, drop) if drop else out
+
+        code = _CODE.keep(key, made(("array kernel",) + key, source, "<array kernel>")[0])
     namespace = {
         "cos": np.cos,
         "sin": np.sin,

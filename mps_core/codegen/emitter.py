@@ -12,6 +12,7 @@ over its lines, and the engine's tables they read.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 import types
@@ -24,6 +25,7 @@ import numpy as np
 
 from ..caches import Memo
 from ..derivatives.tracing import BranchChanged
+from . import disk_cache
 
 __all__ = [
     "COMPARE",
@@ -37,6 +39,7 @@ __all__ = [
     "kernel_key",
     "live_lines",
     "load",
+    "made",
     "view_arguments",
 ]
 
@@ -55,8 +58,9 @@ class Tables:
     named rows, the rotating bodies' link vectors and a finiteness check (transposed, see
     :class:`~mps_core.dynamics.maps.MechanismMaps`); ``offset``: the centres of mass' constant
     offsets (None: all zero); ``fixed_points``: the mechanism's fixed points. ``npoints`` (named rows) and
-    ``npts`` (points) are counts; ``number`` is equal for equal tables (what compiled code is
-    keyed by)."""
+    ``npts`` (points) are counts; ``number`` is equal for equal tables in a process, ``digest``
+    for equal tables in any process (what generated code is keyed by: the SHA-256 of them all,
+    or a value of the process's own where one cannot be written out)."""
 
     point_names: tuple[str, ...]
     names: Mapping[str, int]
@@ -70,6 +74,7 @@ class Tables:
     npoints: int = field(init=False)
     npts: int = field(init=False)
     number: int = field(init=False)
+    digest: object = field(init=False)
 
     def __post_init__(self):
         put = object.__setattr__
@@ -78,6 +83,7 @@ class Tables:
         put(self, "npoints", len(self.names))
         put(self, "npts", len(self.point_names))
         put(self, "number", _tables_number(self))
+        put(self, "digest", _tables_digest(self))
 
 
 class Writer:
@@ -108,17 +114,18 @@ _CODE = Memo("codegen.emitter.code", 1024)
 _SERIAL = [0]
 
 
-def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
+def load(key, source, label: str, flat, chart: str, extra: dict | None = None, depends=()):
     """The function ``kernel`` of generated code, compiled once per ``key`` (``source()`` gives
-    the code). Its namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``,
-    and ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
+    the code; :func:`made`, ``depends``: what the code depends on besides ``key``). Its
+    namespace: ``F`` (the position function), math's ``cos``, ``sin``, ``sqrt``, and
+    ``_miss(*args)``, what a failed guard calls: the position function at ``args``, which
     raises its own error where the point is outside its domain; otherwise
     :class:`~mps_core.derivatives.tracing.BranchChanged`; and what ``extra`` adds."""
     code = _CODE.get(key)
     if code is None:
-        src = source()
+        compiled, src = made(key, source, label, depends)
         _SERIAL[0] += 1
-        code = _CODE.keep(key, (compile(src, label, "exec"), src, _SERIAL[0]))
+        code = _CODE.keep(key, (compiled, src, _SERIAL[0]))
 
     def miss(*a):
         flat(*a)
@@ -132,6 +139,24 @@ def load(key, source, label: str, flat, chart: str, extra: dict | None = None):
     #: a number of its own for each code made (never given twice): a short key for tables
     kernel.serial = code[2]
     return kernel
+
+
+def made(key, source, label: str, depends=()) -> tuple:
+    """Return (code object, source text) of generated code: the disk cache's entry for (``key``,
+    ``label``, ``depends``) where it holds a valid one, else ``source()`` generated and
+    compiled as ``label`` (and written there). ``key`` and ``depends`` together determine the
+    source: the entry is what a generation here would give."""
+    entry = disk_cache.entry("code", (key, label, depends))
+    if entry is not None:
+        hit = disk_cache.code_from(entry.read())
+        if hit is not None:
+            return hit
+    src = source()
+    disk_cache.COUNTS["generated"] += 1
+    code = compile(src, label, "exec")
+    if entry is not None:
+        entry.write(disk_cache.code_items(src, code))
+    return code, src
 
 
 _FUNCTION_KEYS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -275,7 +300,7 @@ COMPARE = {"gt": ">", "ge": ">=", "lt": "<", "le": "<=", "eq": "==", "ne": "!="}
 def kernel_key(engine, view, plan=None) -> tuple:
     """What a kernel's code depends on besides its own program (``plan``: the stencil's Δ)."""
     return (
-        engine.tables.number,
+        engine.tables.digest,
         view.chart.name,
         view.chart.size,
         tuple(view.free),
@@ -288,9 +313,10 @@ def kernel_key(engine, view, plan=None) -> tuple:
 _TABLES: dict = {}
 
 
-def _tables_number(tables: Tables) -> int:
+def _tables_kind(tables: Tables) -> tuple:
+    """Return what makes two tables equal for generated code."""
     off = None if tables.offset is None else tables.offset.tobytes()
-    kind = (
+    return (
         tables.MT.shape,
         tables.MT.tobytes(),
         off,
@@ -300,7 +326,36 @@ def _tables_number(tables: Tables) -> int:
         tables.point_names,
         tables.fixed_points,
     )
+
+
+def _tables_number(tables: Tables) -> int:
+    kind = _tables_kind(tables)
     number = _TABLES.get(kind)
     if number is None:
         number = _TABLES[kind] = len(_TABLES) + 1
     return number
+
+
+#: what a key holds in place of a digest that cannot be written out (the disk cache refuses it)
+_OWN = object()
+
+
+def _tables_digest(tables: Tables):
+    """Return the tables' SHA-256, with their arrays' types and the names of their rows and bodies; a
+    value of this process's own (the tables' number beside :data:`_OWN`) where a part cannot be
+    written out exactly."""
+    h = hashlib.sha256()
+    arrays = (tables.MT, tables.mass, tables.inertia) + (() if tables.offset is None else (tables.offset,))
+    try:
+        disk_cache.encode(
+            (
+                _tables_kind(tables),
+                tuple(a.dtype.str for a in arrays),
+                tuple(tables.names.items()),
+                tuple(tables.body_index.items()),
+            ),
+            h,
+        )
+    except TypeError:
+        return (_OWN, tables.number)
+    return h.hexdigest()

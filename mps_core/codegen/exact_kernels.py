@@ -28,10 +28,12 @@ evaluates on jets).
 
 from __future__ import annotations
 
+import json
 import math
 
 from ..caches import Memo
 from ..derivatives.tracing import BranchChanged, TracingError, trace_at
+from . import disk_cache
 from .emitter import (
     COMPARE,
     MAX_N,
@@ -356,13 +358,37 @@ def kernel_parts(engine, view, tape, outputs, args, free, key=None) -> tuple:
     (a local's name or a float literal), each number it returns: the positions, analogs and
     angular analogs (the layout of :class:`~mps_core.dynamics.engine.Kinematics`), A's entries
     (n = 1: a; n = 2: a00, a01, a11), h, and θ̈ at q̈ = 0 of every body followed by every
-    centre of mass's (ẍ, ÿ) at q̈ = 0. Kept by ``key``."""
+    centre of mass's (ẍ, ÿ) at q̈ = 0. Kept by ``key`` (in the process, and on disk:
+    :mod:`~mps_core.codegen.disk_cache`)."""
     if key is not None and key in _PARTS:
         return _PARTS[key]
-    parts = _parts(engine, view, tape, outputs, args, free)
+    entry = None if key is None else disk_cache.entry("exact kernel parts", key)
+    parts = None if entry is None else _parts_from(entry.read())
+    if parts is None:
+        parts = _parts(engine, view, tape, outputs, args, free)
+        disk_cache.COUNTS["generated"] += 1
+        if entry is not None:
+            entry.write([json.dumps(parts).encode()])
     if key is not None:
         _PARTS.keep(key, parts)
     return parts
+
+
+def _parts_from(items) -> tuple | None:
+    """Return kernel_parts from a disk cache entry's items (seven lists of code), or None."""
+    if items is None or len(items) != 1:
+        return None
+    try:
+        parts = json.loads(items[0])
+    except ValueError:
+        return None
+    if not (
+        isinstance(parts, list)
+        and len(parts) == 7
+        and all(isinstance(p, list) and all(isinstance(x, str) for x in p) for p in parts)
+    ):
+        return None
+    return tuple(parts)
 
 
 def _parts(engine, view, tape, outputs, args, free) -> tuple:

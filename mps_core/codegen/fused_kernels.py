@@ -319,27 +319,34 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     if traced is None:
         return None
     Q, Qnc, qdd = traced
-    body: list = []
-    code = emit_tape(body, tape, slots)
-    out = [code(_node(x)) for x in qdd]
-    check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
-    if check:
-        body.append(f"    if {check}: return None")
-    fq = [code(_node(x)) for x in Q + Qnc]
-    ret = f"    return [{', '.join(fq[:n])}], [{', '.join(fq[n:])}], [{', '.join(out)}]"
-    vs = [f"vd{k}" for k in range(n)]
-    src = (
-        f"def kernel(t, {', '.join(vs)}, xl, jl, wl, A, h):\n"
-        + "\n".join(inline_once(live_lines(body, ret) + [ret]))
-        + "\n"
-    )
+    outputs = [_node(x) for x in qdd]
+    forces = [_node(x) for x in Q + Qnc]
     return load(
-        ("central tail", src),
-        lambda: src,
+        ("central tail", n, tape.key(), tuple(slots), tuple(outputs), tuple(forces)),
+        lambda: _tail_source(n, tape, slots, outputs, forces),
         f"<effects and solve {view.name}>",
         None,
         view.name,
         {"tanh": math.tanh, "_Branch": ForceLawBranch},
+    )
+
+
+def _tail_source(n, tape, slots, outputs, forces) -> str:
+    """Write the central tail's code (:func:`central_tail`): the traced tape, the finiteness check of
+    q̈ (``outputs``' nodes), and (Q, Q_nc, q̈) returned (``forces``: Q's and Q_nc's nodes)."""
+    body: list = []
+    code = emit_tape(body, tape, slots)
+    out = [code(x) for x in outputs]
+    check = " or ".join(f"{x} - {x} != 0.0" for x in out if not _is_float(x))
+    if check:
+        body.append(f"    if {check}: return None")
+    fq = [code(x) for x in forces]
+    ret = f"    return [{', '.join(fq[:n])}], [{', '.join(fq[n:])}], [{', '.join(out)}]"
+    vs = [f"vd{k}" for k in range(n)]
+    return (
+        f"def kernel(t, {', '.join(vs)}, xl, jl, wl, A, h):\n"
+        + "\n".join(inline_once(live_lines(body, ret) + [ret]))
+        + "\n"
     )
 
 

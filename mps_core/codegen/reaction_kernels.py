@@ -122,6 +122,7 @@ def reaction_kernel(
         float(scale),
         tuple(order),
     )
+    sizes = [float(abs(p) / s[r]) for p, r in zip(pivots, order)]
     kernel = load(
         key,
         lambda: _source(
@@ -135,7 +136,7 @@ def reaction_kernel(
             columns,
             scale,
             order,
-            [float(abs(p) / s[r]) for p, r in zip(pivots, order)],
+            sizes,
             from_kinematics,
             masses,
         ),
@@ -143,6 +144,7 @@ def reaction_kernel(
         flat,
         view.name,
         {"_fallback": _fallback},
+        depends=tuple(sizes),  # the pivots' guards: the building state's (not in the key)
     )
     kernel.flat, kernel.chart = flat, view.name
     return kernel
@@ -185,11 +187,24 @@ def with_loads(kernel, sums):
     made = _WITH_LOADS.get(key)
     if made is not None:
         return made
-    head, unpack, *body = kernel.source.rstrip("\n").split("\n")
+    made = load(
+        ("reactions with loads", kernel.source, sums.source),
+        lambda: _with_loads_source(kernel.source, sums.source),
+        f"<reaction kernel with loads {kernel.chart}>",
+        kernel.flat,
+        kernel.chart,
+        {"_fallback": _fallback, "tanh": math.tanh, "_Branch": BranchChanged},
+    )
+    return _WITH_LOADS.keep(key, made)
+
+
+def _with_loads_source(kernel_source: str, sums_source: str) -> str:
+    """Write the code of :func:`with_loads` from a reaction kernel's and a load sums' code."""
+    head, unpack, *body = kernel_source.rstrip("\n").split("\n")
     targets, eq, rhs = unpack.strip().partition(" = ")
     if not (head.startswith("def kernel(") and head.endswith(", loads):") and eq and rhs == "loads"):
         raise ValueError("with_loads: not a reaction kernel's source")
-    s_lines = sums.source.rstrip("\n").split("\n")[1:]
+    s_lines = sums_source.rstrip("\n").split("\n")[1:]
     ret = s_lines.pop()
     if not (ret.startswith("    return [") and ret.endswith("]")):
         raise ValueError("with_loads: not a load sums' source")
@@ -218,18 +233,9 @@ def with_loads(kernel, sums):
     ]
     given = {x.strip() for x in params.split(",")}
     lists = ", ".join(x for x in ("xl", "jl", "wl", "vl") if x not in given)
-    src = (
+    return (
         "\n".join([f"def kernel(t, {params}, {lists}):", *inline_once(live_lines(lines, ret) + [ret])]) + "\n"
     )
-    made = load(
-        key,
-        lambda: src,
-        f"<reaction kernel with loads {kernel.chart}>",
-        kernel.flat,
-        kernel.chart,
-        {"_fallback": _fallback, "tanh": math.tanh, "_Branch": BranchChanged},
-    )
-    return _WITH_LOADS.keep(key, made)
 
 
 _WITH_LOADS = Memo("codegen.reaction_kernels.with_loads", 256)
@@ -796,13 +802,26 @@ def traced_sums(sums: LoadSums, t: float, kin):
             return None
     except Exception:
         return None
+    nodes = tuple(x.index if isinstance(x, Traced) else float(x) for x in out)
+    key = ("load sums", tape.key(), tuple(slots), nodes)
+    return load(
+        key,
+        lambda: _sums_source(tape, slots, nodes),
+        "<load sums>",
+        None,
+        "",
+        {"tanh": math.tanh, "_Branch": BranchChanged},
+    )
+
+
+def _sums_source(tape, slots, nodes) -> str:
+    """Write the traced load sums' code (:func:`traced_sums`): the tape, and the sums (``nodes``:
+    their nodes or constants) returned."""
     body: list = []
     code = emit_tape(body, tape, slots)
-    items = [code(x.index) if isinstance(x, Traced) else repr(float(x)) for x in out]
+    items = [code(x) if isinstance(x, int) else repr(x) for x in nodes]
     ret = f"    return [{', '.join(items)}]"
-    src = "def kernel(t, xl, jl, wl, vl):\n" + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n"
-    key = ("load sums", src)
-    return load(key, lambda: src, "<load sums>", None, "", {"tanh": math.tanh, "_Branch": BranchChanged})
+    return "def kernel(t, xl, jl, wl, vl):\n" + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n"
 
 
 def _arm(point, names, xl, ox, oy) -> tuple[float, float]:
