@@ -24,11 +24,11 @@ import time
 
 from . import __version__
 from .errors import Interrupted, MpsError, raise_interrupted, signal_name
-from .scene import load_scene, preset_names
-from .solvers import ADAPTIVE_SOLVERS, SOLVERS
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .solvers import SOLVERS
+
     p = argparse.ArgumentParser(prog="mps", description="Digital twin of a crank press.")
     p.add_argument("--version", action="version", version=f"mps {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
@@ -146,6 +146,8 @@ def _run(args) -> int:
 
 def _run_checked(args, stdout) -> int:
     """Run ``mps run`` once its outputs are checked; ``stdout``: where ``-`` writes."""
+    from .scene import load_scene
+
     scene = load_scene(args.scene)
     scene = scene.with_overrides(
         t_end=args.t_end,
@@ -218,6 +220,8 @@ def _summary(scene, traj, cpu: float) -> None:
         detail += f", delta = {math.degrees(s.delta):g} deg"
     if s.name == "linear-acceleration":
         detail += f", {s.iterations} correction(s) a step"
+    from .solvers import ADAPTIVE_SOLVERS
+
     if s.name in ADAPTIVE_SOLVERS:
         detail += f", rtol = {s.rtol:g}, atol = {s.atol:g}"
     print(f"solver {s.name} ({detail})")
@@ -270,6 +274,8 @@ def _say_coarse(traj, scene) -> None:
     from .run.trajectory import coarse_step
 
     s = scene.solver
+    from .solvers import ADAPTIVE_SOLVERS
+
     if s.name in ADAPTIVE_SOLVERS:  # their steps follow their error estimates
         return
     said = coarse_step(traj, s.step if s.step is not None else scene.dt)
@@ -346,14 +352,22 @@ def _cache(action: str) -> int:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    if args.command in INTERRUPTIBLE:
-        # SIGTERM ends these commands as Ctrl-C does: what they keep is kept and said
-        signal.signal(signal.SIGTERM, raise_interrupted)
+    # a signal while the command starts (its imports take most of a second) ends it with one
+    # line, as one later does; the commands that handle their signals themselves then do so
+    old = signal.signal(signal.SIGTERM, raise_interrupted)
+    try:
+        args = _parser().parse_args(argv)
+    except KeyboardInterrupt as exc:
+        print(f"mps: interrupted ({signal_name(exc)}) while starting: nothing done", file=sys.stderr)
+        return 128 + int(getattr(signal, signal_name(exc)))
+    if args.command not in INTERRUPTIBLE:
+        signal.signal(signal.SIGTERM, old)
     try:
         if args.command == "run":
             return _run(args)
         if args.command == "scenes":
+            from .scene import preset_names
+
             for n in preset_names():
                 print(n)
             return 0

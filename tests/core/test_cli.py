@@ -115,3 +115,24 @@ def test_progress_line_on_a_terminal_only():
     # a run to a pipe: the summary only
     r = mps("run", "paper")
     assert r.returncode == 0 and "\r" not in r.stdout + r.stderr and r.stderr == ""
+
+
+def test_a_signal_while_mps_starts_is_one_line():
+    """Ctrl-C (or SIGTERM) while ``mps`` imports what its command needs: one line, exit 128 +
+    the signal, no traceback. The signal is made to come at the import of the solvers (what
+    most of the start's second is spent on), in a process of its own."""
+    for name in ("SIGINT", "SIGTERM"):
+        code = (
+            "import os, signal, sys\n"
+            "class Arrives:\n"
+            "    def find_spec(self, fullname, path=None, target=None):\n"
+            "        if fullname == 'mps_core.solvers':\n"
+            f"            os.kill(os.getpid(), signal.{name})\n"
+            "        return None\n"
+            "sys.meta_path.insert(0, Arrives())\n"
+            "from mps_core.cli import main\n"
+            "sys.exit(main(['run', 'paper', '--t-end', '0.01']))\n"
+        )
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        assert p.returncode == 128 + {"SIGINT": 2, "SIGTERM": 15}[name], (name, p.stderr)
+        assert p.stderr == f"mps: interrupted ({name}) while starting: nothing done\n" and p.stdout == ""
