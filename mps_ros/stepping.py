@@ -337,7 +337,8 @@ class _Ahead:
                     next_diag = c1 + runner.period
                     runner._diagnostics(t_ns)
                 runner._staging = None
-                runner.measurements.messages += sum(1 for m in staged if not m[3])
+                # a step's messages and its events' (none of them a command as received)
+                runner.measurements.messages += len(staged)
                 if ahead and k % self.EVERY == 0:
                     cps = self.cps
                     cps[k] = twin.checkpoint()
