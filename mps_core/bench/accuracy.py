@@ -238,6 +238,7 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
         return row
     cpu, traj, n = run_setting(case, s, dt, repeats, budget, MAX_EVALUATIONS)
     c = traj.counts
+    row["setting"], row["setting_dt"] = s, dt  # to time it beside a peer (not CSV columns)
     row.update(
         steps=c["steps"],
         evaluations=c["evaluations"],
@@ -400,6 +401,38 @@ def versus(rows, peer: str = "mujoco"):
     return out
 
 
+def side_by_side(case: Case, pairs, rounds: int = 9, budget: float = 20.0):
+    """Time each (MuJoCo row, cheapest mps row) pair of :func:`versus` again, the two engines'
+    runs in turns (MuJoCo, mps, MuJoCo, mps…), so that both meet the machine as it is at the
+    same moments; returns, for each pair, (median CPU s of MuJoCo's runs, of the mps setting's,
+    the median of the rounds' ratios mps / MuJoCo, the spread of those ratios (their
+    interquartile range over their median), the rounds). ``budget``: CPU seconds a pair may
+    take (fewer rounds where it would take more; at least three)."""
+    from .mujoco_peer import run_mujoco
+
+    out = []
+    for p, best, _ratio in pairs:
+        if best is None or best.get("setting") is None:
+            out.append(None)
+            continue
+        every = max(p["dt"], GRID)
+        t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
+        mj, mine, ratios, used = [], [], [], 0.0
+        for i in range(max(3, rounds)):
+            a = run_mujoco(case.scene, case.t_end, t_grid, p["dt"]).cpu
+            b, _traj, _n = run_setting(case, best["setting"], best["setting_dt"], repeats=1)
+            mj.append(a)
+            mine.append(b)
+            ratios.append(b / a)
+            used += a + b
+            if i >= 2 and used >= budget:
+                break
+        q = statistics.quantiles(ratios, n=4) if len(ratios) >= 2 else [ratios[0]] * 3
+        mid = statistics.median(ratios)
+        out.append((statistics.median(mj), statistics.median(mine), mid, (q[2] - q[0]) / mid, len(ratios)))
+    return out
+
+
 def describe(r) -> str:
     if r is None:
         return "-"
@@ -505,7 +538,17 @@ def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0
             except Exception as exc:  # a setting that fails (unstable, singular) is a result
                 log(f"  {s.label} at {dt:g}: failed ({type(exc).__name__}: {exc})")
         delta = [] if quick or out else delta_study(case, ref)
-        out[case.name] = {"rows": rows, "delta": delta, "reference": ref, "case": case}
+        vs = versus(rows)
+        if vs:
+            log(f"  against MuJoCo: {len(vs)} points timed again, the two engines' runs in turns")
+        side = side_by_side(case, vs, rounds=max(3, repeats)) if vs else []
+        out[case.name] = {
+            "rows": rows,
+            "delta": delta,
+            "reference": ref,
+            "case": case,
+            "versus": list(zip(vs, side)),
+        }
     return out
 
 
@@ -536,34 +579,44 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
             if any(r["solver"] == "mujoco" for r in rows):
                 p += ", MuJoCo " + ("-" if mj is None else f"{mj['cpu_per_sim_s']:.3g} s")
             log(f"   {tgt:.0e} rad: {b}   [{p}]")
-        vs = versus(rows)
+        vs = res.get("versus") or [(v, None) for v in versus(rows)]
         if vs:
+            t_end = res["case"].t_end
             log(
                 f"\n-- {name}: against MuJoCo (RK4 from Python, motor torque at every stage; "
-                "CPU s per simulated s) --"
+                "CPU s per simulated s, each pair timed in turns) --"
             )
             log(
                 f"   {'max φ error':>11}  {'MuJoCo':>22}  {'cheapest mps at least as accurate':<58}"
-                f"  {'ratio mps/MuJoCo':>16}  {'its evaluations alone/MuJoCo':>28}"
-                f"  {'MuJoCo/bare mj_step':>19}"
+                f"  {'ratio mps/MuJoCo':>16}  {'spread':>6}  {'rounds':>6}"
+                f"  {'its evaluations alone/MuJoCo':>28}  {'MuJoCo/bare mj_step':>19}"
             )
-            for p, best, ratio in vs:
-                mj = f"dt {p['dt'] * 1e3:.4g} ms: {p['cpu_per_sim_s']:.3g}"
-                b = "-" if best is None else f"{describe(best)}: {best['cpu_per_sim_s']:.3g}"
-                rt = "-" if ratio is None else f"{ratio:.2f}"
+            for (p, best, ratio), side in vs:
+                mj_cpu = p["cpu_s"] if side is None else side[0]
+                mj = f"dt {p['dt'] * 1e3:.4g} ms: {mj_cpu / t_end:.3g}"
+                mine = None if best is None else (best["cpu_s"] if side is None else side[1])
+                b = "-" if best is None else f"{describe(best)}: {mine / t_end:.3g}"
+                rt = "-" if ratio is None else f"{ratio if side is None else side[2]:.2f}"
+                spread = "-" if side is None else f"{100 * side[3]:.0f} %"
+                rounds = "-" if side is None else str(side[4])
                 alone = None if best is None else best.get("alone_cpu_s")
-                al = f"{alone / p['cpu_s']:.2f}" if alone else "-"
+                al = f"{alone / mj_cpu:.2f}" if alone else "-"
                 bare = p.get("bare_cpu_s")
                 br = f"{p['cpu_s'] / bare:.2f}" if bare else "-"
-                log(f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {al:>28}  {br:>19}")
-            closure = max(p.get("closure_m", 0.0) for p, _, _ in vs)
+                log(
+                    f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {spread:>6}  {rounds:>6}"
+                    f"  {al:>28}  {br:>19}"
+                )
+            closure = max(p.get("closure_m", 0.0) for (p, _, _), _side in vs)
             log(
                 "   MuJoCo: integrator RK4, contacts off, the closure at B an equality connect "
                 "with solref (2 dt, 1), solimp (0.9999, 0.9999, 0.001): its soft constraint "
                 f"opens by up to {closure:.1e} m over these runs (mps_core/bench/mujoco_peer.py); "
                 "its CPU is the stepping's (mj_RungeKutta, then mj_forward for the new state's "
                 "accelerations), against a bare mj_step loop of the same model in the last "
-                "column; 'its evaluations alone': the mps setting's evaluations times one q̈ "
+                "column; 'ratio mps/MuJoCo': the median of the rounds' ratios, the two engines' "
+                "runs in turns, 'spread' their interquartile range over that median; "
+                "'its evaluations alone': the mps setting's evaluations times one q̈ "
                 "by its charts' fused functions at the run's states (steps from "
                 f"{ALONE_FROM * 1e3:g} ms), what no driver of those steps can go below"
             )
