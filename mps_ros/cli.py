@@ -146,6 +146,9 @@ def _record(args) -> int:
         kept = _keep(target, out, replacing)
         if kept is None:
             raise
+        if isinstance(exc, KeyboardInterrupt):  # before the run's own handlers were set
+            print(f"mps record: interrupted (SIGINT); {_kept_line(kept, out, replacing)}", file=sys.stderr)
+            return 130
         print(f"mps: error: {exc}; {_kept_line(kept, out, replacing)}", file=sys.stderr)
         if getattr(exc, "record_stats", None):
             _say_coarse(exc.record_stats)
