@@ -401,35 +401,48 @@ def versus(rows, peer: str = "mujoco"):
     return out
 
 
-def side_by_side(case: Case, pairs, rounds: int = 9, budget: float = 20.0):
-    """Time each (MuJoCo row, cheapest mps row) pair of :func:`versus` again, the two engines'
-    runs in turns (MuJoCo, mps, MuJoCo, mps…), so that both meet the machine as it is at the
-    same moments; returns, for each pair, (median CPU s of MuJoCo's runs, of the mps setting's,
-    the median of the rounds' ratios mps / MuJoCo, the spread of those ratios (their
-    interquartile range over their median), the rounds). ``budget``: CPU seconds a pair may
-    take (fewer rounds where it would take more; at least three)."""
+def side_by_side(case: Case, pairs, rows, rounds: int = 9, budget: float = 20.0, candidates: int = 3):
+    """Time each MuJoCo point of :func:`versus` again beside the engine's cheapest settings at
+    least as accurate (up to ``candidates`` of them, the cheapest by the study's own timing),
+    all their runs in turns (MuJoCo, each setting, MuJoCo, …), so that they meet the machine as
+    it is at the same moments; the setting whose rounds' ratios have the smallest median is the
+    point's. Returns, for each point, None (no setting as accurate) or (that setting's row,
+    median CPU s of MuJoCo's runs, of its runs, the median of the rounds' ratios mps / MuJoCo,
+    the spread of those ratios (their interquartile range over their median), the rounds).
+    ``budget``: CPU seconds a point may take (fewer rounds where it would take more; at least
+    three)."""
     from .mujoco_peer import run_mujoco
 
+    mine = [r for r in rows if r["solver"] not in PEERS and r.get("setting") is not None]
     out = []
-    for p, best, _ratio in pairs:
-        if best is None or best.get("setting") is None:
+    for p, _best, _ratio in pairs:
+        ok = sorted((r for r in mine if r["max_err_phi"] <= p["max_err_phi"]), key=lambda r: r["cpu_s"])
+        ok = ok[: max(1, candidates)]
+        if not ok:
             out.append(None)
             continue
         every = max(p["dt"], GRID)
         t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
-        mj, mine, ratios, used = [], [], [], 0.0
+        mj: list[float] = []
+        times: list[list[float]] = [[] for _ in ok]
+        used = 0.0
         for i in range(max(3, rounds)):
             a = run_mujoco(case.scene, case.t_end, t_grid, p["dt"]).cpu
-            b, _traj, _n = run_setting(case, best["setting"], best["setting_dt"], repeats=1)
             mj.append(a)
-            mine.append(b)
-            ratios.append(b / a)
-            used += a + b
+            used += a
+            for r, got in zip(ok, times):
+                b, _traj, _n = run_setting(case, r["setting"], r["setting_dt"], repeats=1)
+                got.append(b)
+                used += b
             if i >= 2 and used >= budget:
                 break
-        q = statistics.quantiles(ratios, n=4) if len(ratios) >= 2 else [ratios[0]] * 3
-        mid = statistics.median(ratios)
-        out.append((statistics.median(mj), statistics.median(mine), mid, (q[2] - q[0]) / mid, len(ratios)))
+        ratios = [[b / a for a, b in zip(mj, got)] for got in times]
+        k = min(range(len(ok)), key=lambda n: statistics.median(ratios[n]))
+        rs = ratios[k]
+        mid = statistics.median(rs)
+        q = statistics.quantiles(rs, n=4)
+        spread = (q[2] - q[0]) / mid
+        out.append((ok[k], statistics.median(mj), statistics.median(times[k]), mid, spread, len(rs)))
     return out
 
 
@@ -541,7 +554,7 @@ def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0
         vs = versus(rows)
         if vs:
             log(f"  against MuJoCo: {len(vs)} points timed again, the two engines' runs in turns")
-        side = side_by_side(case, vs, rounds=max(3, repeats)) if vs else []
+        side = side_by_side(case, vs, rows, rounds=max(3, repeats)) if vs else []
         out[case.name] = {
             "rows": rows,
             "delta": delta,
@@ -592,13 +605,15 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
                 f"  {'its evaluations alone/MuJoCo':>28}  {'MuJoCo/bare mj_step':>19}"
             )
             for (p, best, ratio), side in vs:
-                mj_cpu = p["cpu_s"] if side is None else side[0]
+                if side is not None:  # timed in turns: its setting, the CPU and ratio of then
+                    best, mj_cpu, mine, ratio, spread, rounds = side
+                else:
+                    mj_cpu, mine, spread, rounds = p["cpu_s"], best and best["cpu_s"], None, None
                 mj = f"dt {p['dt'] * 1e3:.4g} ms: {mj_cpu / t_end:.3g}"
-                mine = None if best is None else (best["cpu_s"] if side is None else side[1])
                 b = "-" if best is None else f"{describe(best)}: {mine / t_end:.3g}"
-                rt = "-" if ratio is None else f"{ratio if side is None else side[2]:.2f}"
-                spread = "-" if side is None else f"{100 * side[3]:.0f} %"
-                rounds = "-" if side is None else str(side[4])
+                rt = "-" if ratio is None else f"{ratio:.2f}"
+                spread = "-" if spread is None else f"{100 * spread:.0f} %"
+                rounds = "-" if rounds is None else str(rounds)
                 alone = None if best is None else best.get("alone_cpu_s")
                 al = f"{alone / mj_cpu:.2f}" if alone else "-"
                 bare = p.get("bare_cpu_s")

@@ -116,7 +116,8 @@ def test_mujoco_rows_converge_as_its_soft_constraint_says_and_are_compared(quick
         assert ratio == pytest.approx(best["cpu_s"] / p["cpu_s"])
     # each pair timed again, the two engines' runs in turns: at least three rounds each
     assert [v for v, _side in quick_study["versus"]] == vs
-    for _v, (mj, mine, ratio, spread, rounds) in quick_study["versus"]:
+    for (p, _best, _ratio), (best, mj, mine, ratio, spread, rounds) in quick_study["versus"]:
+        assert best["max_err_phi"] <= p["max_err_phi"] and best["solver"] not in accuracy.PEERS
         assert rounds >= 3 and mj > 0 and mine > 0 and ratio > 0 and spread >= 0
     said = []
     accuracy.report({"paper": quick_study}, None, plot=False, log=said.append)
