@@ -120,8 +120,8 @@ PLUGINS = (
     "mps_core.analysis.loads_cli",
     "mps_core.analysis.sweep_cli",
     "mps_core.bench.cli",
-    "mps_ros.cli",
-    "mps_ros.view_cli",
+    "mps_ros.commands.cli",
+    "mps_ros.commands.view",
 )
 
 

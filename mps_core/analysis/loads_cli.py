@@ -7,7 +7,7 @@ SCENE is a preset name or a scene file: it is run with reactions. RECORDING is a
 ``mps run SCENE --reactions --csv FILE`` (one row a step, the reaction columns included), with
 its event log (``--events FILE``, JSON lines from ``mps run --events``) for the transients; or an
 MCAP recording (``mps record``, the node), which holds its own event log and scene: it is read by
-:mod:`mps_ros.replay`, imported only then (``mps_core`` never imports mcap), with no
+:mod:`mps_ros.recording.replay`, imported only then (``mps_core`` never imports mcap), with no
 re-simulation. The report (see :mod:`mps_core.analysis.loads`) is printed as a table; ``--json``/``--csv``
 write it for tools and ``--png`` draws the figure.
 """
@@ -95,7 +95,7 @@ def _mcap_columns(args):
             "--events applies to a CSV recording; an MCAP recording holds its own event log"
         )
     try:
-        replay = importlib.import_module("mps_ros.replay")
+        replay = importlib.import_module("mps_ros.recording.replay")
     except ModuleNotFoundError as exc:
         raise loads.LoadReportError(
             f"reading the MCAP recording {src!r} needs the package {exc.name!r}, which is not "

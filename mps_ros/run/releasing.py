@@ -1,8 +1,8 @@
 """The node's side of a split run (:class:`SteppingProcess`): the steps its stepping process
-(:mod:`mps_ros.stepping`) computed, held and released at their deadlines (or as they come, as
+(:mod:`mps_ros.run.stepping`) computed, held and released at their deadlines (or as they come, as
 fast as possible), to the ROS publishers first and then to the recorder (:class:`Publication`);
 the commands taken as they arrive, each at its boundary (:class:`Boundaries`); the stepping
-process started, watched and ended (:class:`SteppingChild`). See :mod:`mps_ros.stepping` for
+process started, watched and ended (:class:`SteppingChild`). See :mod:`mps_ros.run.stepping` for
 the frames, the commands' rules and the faults."""
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import sys
 import threading
 import time
 
-from .os_threads import widen_pipe
+from ..os_threads import widen_pipe
+from ..wire.topics import BY_KEY
 from .stepping import HOW_TO_ALLOW, FrameReader, FrameWriter, ask_fifo, fifo_for_the_others
-from .topics import BY_KEY
 from .twin import COMMAND_INDEX, Command, Gate, RefusalLog, Timings, shown, to_json, to_ns
 
 
@@ -63,12 +63,12 @@ class Boundaries:
     whose steps are held (its lock, the steps held and the last released, its pipe)."""
 
     def __init__(self, run: SteppingProcess, gate: Gate, log):
-        from .cdr import string
+        from ..wire.cdr import string
 
         self.run = run
         self.gate = gate
         #: a command takes effect at the first step boundary at least this long (wall s) after
-        #: it arrived (see :attr:`~mps_ros.twin.RealtimeSettings.command_delay`)
+        #: it arrived (see :attr:`~mps_ros.run.twin.RealtimeSettings.command_delay`)
         self.command_delay = float(run.spec["runner"].get("command_delay", 0.0))
         self.commands_refused = 0
         self._string = string
@@ -301,14 +301,14 @@ class Boundaries:
 
 
 class SteppingChild:
-    """The stepping process itself (``python -m mps_ros.stepping``), from the node's side:
+    """The stepping process itself (``python -m mps_ros.run.stepping``), from the node's side:
     started with its settings (``spec``), ready once it has built its twin and its kernels
     (:meth:`wait_ready`), its frames written (``out``) and read (``reader``), its end waited
     for (:meth:`wait`) and its pipes closed (:meth:`close`)."""
 
     def __init__(self, spec: dict):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "mps_ros.stepping"],
+            [sys.executable, "-m", "mps_ros.run.stepping"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             bufsize=0,
@@ -390,7 +390,7 @@ class Publication:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
         if "diagnostics" in self.spec["twin"]["outputs"]:
-            from .cdr import encoder
+            from ..wire.cdr import encoder
 
             # the recording's status: its encoder made now, not at the first release (a
             # quarter of a second here, holding this interpreter's lock)
@@ -436,7 +436,7 @@ class Publication:
         self.next_status = now + float(self.spec["runner"].get("diagnostics_period", 1.0))
         if "diagnostics" not in self.spec["twin"]["outputs"] or t is None:
             return
-        from . import diagnostics
+        from ..wire import diagnostics
 
         name, hw = self.named
         self.statuses_out(
@@ -446,13 +446,13 @@ class Publication:
         )
 
     def recording_status(self, msgs: list) -> None:
-        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
+        """The recording's /diagnostics status (:func:`mps_ros.wire.diagnostics.recording`), once a
         diagnostics period and at once where it has stopped, stamped with the step released:
         published and recorded (where the recording goes on) after the step's messages. None
         where the run publishes no diagnostics or records nothing."""
         if "diagnostics" not in self.spec["twin"]["outputs"]:
             return
-        from . import diagnostics
+        from ..wire import diagnostics
 
         name, hw = self.named
         statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
@@ -465,7 +465,7 @@ class Publication:
     def statuses_out(self, statuses: list, t_ns: int) -> None:
         """A /diagnostics message of ``statuses`` (stamped ``t_ns``) after the step released:
         published, and recorded where the recording goes on."""
-        from .diagnostics import array
+        from ..wire.diagnostics import array
 
         out = [("/diagnostics", self.diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
         self.messages += self.sink.emit_all(out)
@@ -495,7 +495,7 @@ class Scheduling:
         publishing thread; the objects made so far frozen out of the collector's passes."""
         import gc
 
-        from .os_threads import name_thread, short_slice
+        from ..os_threads import name_thread, short_slice
 
         if self.priority:
             self.refused_here = ask_fifo(self.priority)
@@ -534,7 +534,7 @@ class Scheduling:
 
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
-    :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
+    :class:`~mps_ros.run.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
     ``stop_reason``, ``error``, ``commands_lost``, ``inbox``, ``sinks``).
 
     It holds the steps the stepping process has computed ahead and releases each at its

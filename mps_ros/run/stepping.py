@@ -1,11 +1,11 @@
 """The live node's stepping process: the twin stepped in an interpreter of its own.
 
-The node (:mod:`mps_ros.node`) does not step the twin itself. It starts
-``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and uses the
-same :class:`~mps_ros.twin.Runner`'s parts (the run's start and end messages, events,
+The node (:mod:`mps_ros.ros.node`) does not step the twin itself. It starts
+``python -m mps_ros.run.stepping``, which builds the same :class:`~mps_ros.run.twin.Twin` and uses the
+same :class:`~mps_ros.run.twin.Runner`'s parts (the run's start and end messages, events,
 diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
 keeps a checkpoint of every ``_Ahead.EVERY``-th step, and writes each step's messages, already
-encoded, down a pipe. The node's process (:mod:`mps_ros.releasing`) holds them and publishes
+encoded, down a pipe. The node's process (:mod:`mps_ros.run.releasing`) holds them and publishes
 each at its deadline, then hands it to the recorder: its interpreter is not shared with the
 stepping, so a step being computed (or a stepping thread that another process preempts while it
 holds its interpreter's lock) never holds a publication back, and a step's eleven publishes
@@ -13,13 +13,13 @@ never hold a step back.
 
 ::
 
-    ROS process (mps_ros.node)                     stepping process (python -m mps_ros.stepping)
+    ROS process (mps_ros.ros.node)                     stepping process (python -m mps_ros.run.stepping)
       executor thread: ~/mode, services: gate,  ── C ──▶  a command at its boundary, numbered
         boundary, refusals answered here
       main thread: holds the steps, publishes   ◀── M ──  each step computed ahead, encoded
         each at its deadline, then records it   ◀── A, L, P, E ── answers, log lines, the end
         │
-        ▼ recording process (python -m mps_ros.recording)
+        ▼ recording process (python -m mps_ros.recording.background)
 
 **Commands.** The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both
 processes. A command that arrives at wall time w is taken in the ROS process at once: the gate
@@ -81,7 +81,7 @@ import sys
 import threading
 import time
 
-from .os_threads import widen_pipe
+from ..os_threads import widen_pipe
 from .twin import Command, Runner, Twin, to_json
 
 _HEAD = struct.Struct("<cI")
@@ -525,7 +525,7 @@ class _FromTheNode:
 
 
 def serve(fd_in: int = 0, fd_out: int = 1) -> int:
-    """The stepping process (``python -m mps_ros.stepping``): settings, ready, go, the run,
+    """The stepping process (``python -m mps_ros.run.stepping``): settings, ready, go, the run,
     its end; see the module's docstring."""
     parent = os.getppid()
     _set_parent_death_signal()
@@ -573,7 +573,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     # (Python's default: 5 ms, five steps)
     sys.setswitchinterval(2e-4)
     out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio, "refused": why}).encode())
-    from .os_threads import name_thread
+    from ..os_threads import name_thread
 
     name_thread("mps-step")
     error_kind = None

@@ -62,7 +62,7 @@ def test_missing_package_says_what_to_install(monkeypatch, capsys):
     real = loads_cli.importlib.import_module
 
     def fake(name, *a):
-        if name == "mps_ros.replay":
+        if name == "mps_ros.recording.replay":
             raise ModuleNotFoundError("No module named 'mcap'", name="mcap")
         return real(name, *a)
 
@@ -88,7 +88,7 @@ def test_core_imports_no_mcap_rerun_or_ros():
 def test_recording_holds_the_impulses_of_the_live_run(recordings, tmp_path, capsys):
     """press-cycle has plastic impacts (latch, stop): the recording carries their impulses and
     its report lists the same transients as the live run of the same scene and step."""
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, _, _ = record("press-cycle", recordings / "press-cycle-impulses.mcap", dt=1e-3, t_end=0.6)
     rec, _ = _report([str(path)], tmp_path, "rec", capsys)
