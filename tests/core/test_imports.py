@@ -89,11 +89,33 @@ def test_the_core_imports_no_ros():
             assert not lines, (m, lines)
 
 
+def test_the_core_names_no_ros_module():
+    """Not even in a string or a docstring: the ROS side's commands and readers are found through
+    entry points (``mps_core.plugins``), so no text of ``mps_core`` names a module of ``mps_ros``."""
+    for m, p in _modules().items():
+        if m.startswith("mps_core"):
+            lines = [ln.strip() for ln in p.read_text().splitlines() if "mps_ros" in ln]
+            assert not lines, (m, lines)
+
+
+def test_the_commands_of_mps_ros_are_entry_points():
+    """The entry points in pyproject.toml name modules that exist (the editable install reads them)."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    modules = _modules()
+    for group in ("mps.commands", "mps.recordings"):
+        for name, target in project["entry-points"][group].items():
+            module, _, attr = target.partition(":")
+            assert module in modules, (group, name, target)
+            assert f"def {attr}(" in modules[module].read_text(), (group, name, target)
+
+
 #: mps_core's layers, lowest first: a module imports (at its top or inside a function) from its
 #: own layer and the layers below only. The shared vocabulary (errors, names) is below all;
 #: ``mps_core`` itself (the public facade) is imported by the commands only.
 LAYERS = (
-    ("mps_core.errors", "mps_core.names", "mps_core.version", "mps_core.caches"),
+    ("mps_core.errors", "mps_core.names", "mps_core.version", "mps_core.caches", "mps_core.plugins"),
     ("mps_core.files",),
     ("mps_core.derivatives",),
     ("mps_core.solvers",),

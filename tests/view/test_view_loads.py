@@ -59,17 +59,15 @@ def test_mcap_sniffed_by_its_magic(working_mcap, tmp_path, capsys):
 def test_missing_package_says_what_to_install(monkeypatch, capsys):
     from mps_core.analysis import loads_cli
 
-    real = loads_cli.importlib.import_module
-
-    def fake(name, *a):
-        if name == "mps_ros.recording.replay":
+    class Missing:  # the reader's entry point, its package's dependency not installed
+        def load(self):
             raise ModuleNotFoundError("No module named 'mcap'", name="mcap")
-        return real(name, *a)
 
-    monkeypatch.setattr(loads_cli.importlib, "import_module", fake)
-    assert main(["loads", "some.mcap"]) == 2
-    err = capsys.readouterr().err
-    assert "needs the package 'mcap'" in err and "pip install" in err
+    for found in (Missing(), None):  # a reader that cannot load; no reader at all
+        monkeypatch.setattr(loads_cli, "reader", lambda fmt, found=found: found)
+        assert main(["loads", "some.mcap"]) == 2
+        err = capsys.readouterr().err
+        assert "needs the package 'mcap'" in err and "pip install" in err
 
 
 def test_core_imports_no_mcap_rerun_or_ros():
