@@ -4,12 +4,12 @@ fed down a pipe (``python -m mps_ros.recording.background``), off the stepping l
 from __future__ import annotations
 
 import marshal
-import os
 import struct
 import time
 from pathlib import Path
 
 from ..os_threads import widen_pipe
+from ..wire.pipe import HEAD, Frame, PolledFrameReader
 from .recorder import Recorder
 
 
@@ -27,9 +27,9 @@ class BackgroundRecorder:
     stepping process is gone, so a crashed run still leaves a complete file. Killed with its
     process group (SIGKILL), it leaves a file that :func:`recover` completes.
 
-    The pipe's frames: one byte (``I`` the recorder's settings as JSON, ``C`` a channel as
-    JSON, ``B`` a batch of messages, ``S`` a batch of steps, ``F`` flush, ``E`` finish), the
-    payload's length (u32), the payload; a batch is records of (channel u16, time ns i64,
+    The pipe's frames (:mod:`mps_ros.wire.pipe`): ``Frame.SETTINGS`` the recorder's settings as
+    JSON, ``CHANNEL`` a channel as JSON, ``BATCH`` a batch of messages, ``STEPS`` a batch of
+    steps, ``FLUSH`` flush, ``END`` finish; a batch is records of (channel u16, time ns i64,
     length u32, CDR bytes); a batch of steps is the :mod:`marshal` dump (one interpreter
     writes and reads it) of (the keys' channel ids where they grew, else None; the steps'
     lists of (key, CDR bytes, t_ns, received)). The
@@ -79,7 +79,7 @@ class BackgroundRecorder:
             "max_s": float(max_s),
             "file_name": file_name,
         }
-        self._frame(b"I", json.dumps(settings).encode())
+        self._frame(Frame.SETTINGS, json.dumps(settings).encode())
         reply = self._reply()
         if not reply.get("ready"):
             self._proc.wait(10)
@@ -101,7 +101,7 @@ class BackgroundRecorder:
         self.error: str | None = None
 
     def _frame(self, kind: bytes, payload: bytes) -> None:
-        data = kind + _FRAME_LEN(len(payload)) + payload
+        data = HEAD.pack(kind, len(payload)) + payload
         view = memoryview(data)
         try:
             while view:
@@ -125,7 +125,7 @@ class BackgroundRecorder:
         if cid is None:
             cid = self._ids[topic] = len(self._ids)
             self._counts.append(0)
-            self._frame(b"C", json.dumps([cid, topic, msgtype, qos]).encode())
+            self._frame(Frame.CHANNEL, json.dumps([cid, topic, msgtype, qos]).encode())
         return cid
 
     def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
@@ -170,16 +170,16 @@ class BackgroundRecorder:
             ids = self._ids_of_keys
             grew = ids is not None and len(ids) != self._ids_sent
             self._ids_sent = len(ids) if ids is not None else 0
-            self._frame(b"S", marshal.dumps((dict(ids) if grew else None, self._steps)))
+            self._frame(Frame.STEPS, marshal.dumps((dict(ids) if grew else None, self._steps)))
             self._steps = []
         if self._batch:
-            self._frame(b"B", b"".join(self._batch))
+            self._frame(Frame.BATCH, b"".join(self._batch))
             self._batch = []
         self._last = time.monotonic()
 
     def flush(self) -> None:
         self._send()
-        self._frame(b"F", b"")
+        self._frame(Frame.FLUSH, b"")
 
     def counts(self) -> dict[str, int]:
         """Messages by topic: those the writing process wrote, once :meth:`finish` has its
@@ -205,12 +205,12 @@ class BackgroundRecorder:
         try:
             if self.error is not None:
                 reply = {"error": self.error}
-                self._frame(b"E", b"")
+                self._frame(Frame.END, b"")
                 self._out.close()
             else:
                 if self._batch or self._steps:
                     self._send()
-                self._frame(b"E", b"")
+                self._frame(Frame.END, b"")
                 self._out.close()
                 reply = self._reply()
         except (BrokenPipeError, ConnectionResetError, OSError):
@@ -226,40 +226,8 @@ class BackgroundRecorder:
         self._written_counts = reply.get("counts")
 
 
-_FRAME_LEN = struct.Struct("<I").pack
 _RECORD = struct.Struct("<HqI").pack
 _RECORD_HEAD = struct.Struct("<HqI")
-
-
-class _PipeFrames:
-    """Whole frames from the stepping process's pipe (see :class:`BackgroundRecorder`)."""
-
-    def __init__(self, fd: int):
-        self.fd = fd
-        self.buf = bytearray()
-        self.eof = False  # the other end closed
-
-    def read(self, timeout: float | None) -> list[tuple[bytes, bytes]]:
-        """Whole frames read so far (waiting up to ``timeout`` for more)."""
-        import select
-
-        buf = self.buf
-        if not self.eof and select.select([self.fd], [], [], timeout)[0]:
-            chunk = os.read(self.fd, 1 << 20)
-            if chunk:
-                buf.extend(chunk)
-            else:
-                self.eof = True
-        got = []
-        pos = 0
-        while len(buf) - pos >= 5:
-            (n,) = struct.unpack_from("<I", buf, pos + 1)
-            if len(buf) - pos - 5 < n:
-                break
-            got.append((bytes(buf[pos : pos + 1]), bytes(buf[pos + 5 : pos + 5 + n])))
-            pos += 5 + n
-        del buf[:pos]
-        return got
 
 
 def _write_from_pipe() -> int:
@@ -270,7 +238,7 @@ def _write_from_pipe() -> int:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    frames = _PipeFrames(sys.stdin.fileno())
+    frames = PolledFrameReader(sys.stdin.fileno())
     out = sys.stdout
 
     def answer(obj) -> None:
@@ -283,7 +251,7 @@ def _write_from_pipe() -> int:
     rec = None
     while rec is None:
         for kind, payload in frames.read(None):
-            if kind != b"I":
+            if kind != Frame.SETTINGS:
                 answer({"error": f"expected the settings first, got {kind!r}"})
                 return 2
             settings = json.loads(payload)
@@ -318,11 +286,11 @@ def _write_from_pipe() -> int:
     except Exception:
         pass
     while not done and not frames.eof:
-        done = any(kind == b"E" for kind, _ in frames.read(None))
+        done = any(kind == Frame.END for kind, _ in frames.read(None))
     return 1
 
 
-def _write_frames(rec: Recorder, frames: _PipeFrames) -> bool:
+def _write_frames(rec: Recorder, frames: PolledFrameReader) -> bool:
     """Write what comes down the pipe until the finish frame (True) or the pipe's end
     (False: the stepping process is gone; the file is finished all the same)."""
     import json
@@ -337,7 +305,7 @@ def _write_frames(rec: Recorder, frames: _PipeFrames) -> bool:
                 return False
             continue
         for kind, payload in got:
-            if kind == b"B":
+            if kind == Frame.BATCH:
                 write = rec.write
                 pos, end = 0, len(payload)
                 while pos < end:
@@ -347,7 +315,7 @@ def _write_frames(rec: Recorder, frames: _PipeFrames) -> bool:
                     write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
                     pos += n
                 rec.tick()
-            elif kind == b"S":
+            elif kind == Frame.STEPS:
                 ids, steps = marshal.loads(payload)
                 if ids is not None:
                     by_key = ids
@@ -357,13 +325,13 @@ def _write_frames(rec: Recorder, frames: _PipeFrames) -> bool:
                         topic, msgtype, qos = channels[by_key[key]]
                         write(topic, msgtype, data, t_ns, qos)
                 rec.tick()
-            elif kind == b"C":
+            elif kind == Frame.CHANNEL:
                 cid, topic, msgtype, qos = json.loads(payload)
                 channels[cid] = (topic, msgtype, qos)
                 rec.channel(topic, msgtype, qos)
-            elif kind == b"F":
+            elif kind == Frame.FLUSH:
                 rec.flush()
-            elif kind == b"E":
+            elif kind == Frame.END:
                 return True
 
 

@@ -18,8 +18,9 @@ import threading
 import time
 
 from ..os_threads import widen_pipe
+from ..wire.pipe import Frame, FrameReader, FrameWriter
 from ..wire.topics import BY_KEY
-from .stepping import HOW_TO_ALLOW, FrameReader, FrameWriter, ask_fifo, fifo_for_the_others
+from .stepping import HOW_TO_ALLOW, ask_fifo, fifo_for_the_others
 from .twin import COMMAND_INDEX, Command, Gate, RefusalLog, Timings, shown, to_json, to_ns
 
 
@@ -183,7 +184,9 @@ class Boundaries:
         self._limits[self._gen] = kb
         self._last_boundary = kb
         self._gen += 1
-        self.run.child.out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen)))
+        self.run.child.out.frame(
+            Frame.COMMAND, marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen))
+        )
 
     def take_waiting(self) -> None:
         """The commands that waited for an answer, in order (the lock held), each once the
@@ -316,7 +319,7 @@ class SteppingChild:
         self.out = FrameWriter(self.proc.stdin.fileno())
         widen_pipe(self.proc.stdin.fileno())
         self.reader = FrameReader(self.proc.stdout.fileno())
-        self.out.frame(b"I", json.dumps(spec).encode())
+        self.out.frame(Frame.SETTINGS, json.dumps(spec).encode())
         self.pid: int | None = None
 
     def wait_ready(self, log) -> None:
@@ -330,9 +333,9 @@ class SteppingChild:
                     f"the stepping process ended before it was ready ({_exit_words(self.proc.returncode)})"
                 )
             for kind, payload in got:
-                if kind == b"L":
+                if kind == Frame.LOG:
                     log(*marshal.loads(payload))
-                elif kind == b"R":
+                elif kind == Frame.READY:
                     reply = json.loads(payload)
                     if not reply.get("ready"):
                         self.proc.wait(10)
@@ -515,7 +518,7 @@ class Scheduling:
         gc.freeze()
 
     def said(self, got: dict) -> None:
-        """What the stepping process said of its priority (frame ``P``), logged."""
+        """What the stepping process said of its priority (frame ``PRIORITY``), logged."""
         prio = self.priority
         if not prio:
             return
@@ -610,7 +613,7 @@ class SteppingProcess:
         stepping process, whose /diagnostics say them."""
         if self.child is not None:
             refused, floods = self.boundaries.commands_refused, self.boundaries.gate.floods
-            self.child.out.frame(b"N", marshal.dumps((refused, floods, self._lost)))
+            self.child.out.frame(Frame.REFUSED, marshal.dumps((refused, floods, self._lost)))
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -643,7 +646,7 @@ class SteppingProcess:
                 return "the run has ended"
             if self._paused_at is None:
                 self._paused_at = time.perf_counter()
-                self.child.out.frame(b"Z", b"")
+                self.child.out.frame(Frame.PAUSE, b"")
         return None
 
     def step_paused(self, reply) -> str | None:
@@ -656,7 +659,7 @@ class SteppingProcess:
                 return "the node is active: ~/step takes a step while it is deactivated"
             self._step_replies.append(reply)
             if len(self._step_replies) > sum(1 for e in self._queue if e.state):
-                self.child.out.frame(b"T", b"")
+                self.child.out.frame(Frame.STEP, b"")
         return None
 
     def resume(self) -> None:
@@ -675,13 +678,13 @@ class SteppingProcess:
             for e in self._queue:
                 e.deadline += d
             self.boundaries.shift(d)
-            self.child.out.frame(b"O", marshal.dumps(d))
+            self.child.out.frame(Frame.RESUME, marshal.dumps(d))
 
     def request_stop(self, reason: str) -> None:
         if self.stop_reason is None:
             self.stop_reason = reason
         if self.child is not None:
-            self.child.out.frame(b"S", reason.encode())
+            self.child.out.frame(Frame.STOP, reason.encode())
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> dict:
@@ -690,7 +693,7 @@ class SteppingProcess:
         self.prepare()
         self.scheduling.apply(0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4))
         out, reader, pub = self.child.out, self.child.reader, self.publication
-        out.frame(b"G", json.dumps({"priority": self.scheduling.priority}).encode())
+        out.frame(Frame.GO, json.dumps({"priority": self.scheduling.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
         fd = reader.fd
@@ -710,7 +713,7 @@ class SteppingProcess:
             if self.afap and self._released is not None and self._released.k != told:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self._released.k
-                out.frame(b"K", marshal.dumps(told))
+                out.frame(Frame.RELEASED, marshal.dumps(told))
             if self._paused_at is not None and now >= pub.next_status:
                 released = self._released
                 pub.stale(now, None if released is None else self._time_of(released.k))
@@ -773,18 +776,18 @@ class SteppingProcess:
         answers given, log lines said, its priority; the run's end (returned, where it came)."""
         end = None
         for kind, payload in got:
-            if kind == b"M":
+            if kind == Frame.MESSAGES:
                 entry = _Entry(*marshal.loads(payload))
                 with self._lock:
                     self.boundaries.arrived(entry)
-            elif kind == b"A":
+            elif kind == Frame.ANSWER:
                 cid, ack = marshal.loads(payload)
                 self.boundaries.answer(cid, json.loads(ack))
-            elif kind == b"L":
+            elif kind == Frame.LOG:
                 self.log(*marshal.loads(payload))
-            elif kind == b"P":
+            elif kind == Frame.PRIORITY:
                 self.scheduling.said(json.loads(payload))
-            elif kind == b"E":
+            elif kind == Frame.END:
                 end = json.loads(payload)
                 with self._lock:
                     self._ended = True

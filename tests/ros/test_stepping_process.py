@@ -23,7 +23,8 @@ from twin_probe import Listener, NodeProcess, ns, wait_until
 
 from mps_ros.bench.suite import _children as _kids
 from mps_ros.bench.suite import _cmdline
-from mps_ros.run.stepping import FrameReader, FrameWriter, Hold, _Ahead
+from mps_ros.run.stepping import Hold, _Ahead
+from mps_ros.wire.pipe import FrameReader, FrameWriter
 
 DT = 1e-3
 
