@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 
 from ..commands.demo import ros_env, stop_group
+from ..ros.environment import env_defaults
 
 
 def _stat_cpu(stat: str) -> float:
@@ -352,8 +353,6 @@ def publish_floor(recording: str) -> int:
     published as they are (serialized) in a bare loop once the subscriber has joined every
     topic; prints one JSON line (the steps, CPU µs a step of the process and of the loop's
     thread)."""
-    from ..ros.node import MSG_CLASSES, env_defaults
-
     env_defaults()
     import rclpy
     from mcap.reader import make_reader
@@ -361,6 +360,7 @@ def publish_floor(recording: str) -> int:
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    from ..ros.node import MSG_CLASSES
     from ..wire.topics import DEPTH, LATCHED, TOPICS, resolve
 
     steps: list[list] = []
@@ -620,8 +620,6 @@ def _operator(node, every: float | None, state: dict, flood: int = 0) -> None:
 
 def probe() -> int:
     """The external subscriber: every topic of press_twin, reliable; prints one JSON line."""
-    from ..ros.node import env_defaults
-
     env_defaults()
     import rclpy
     from rclpy.node import Node

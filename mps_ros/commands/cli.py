@@ -23,8 +23,13 @@ ROS_MISSING = (
 
 
 def _ros_import(modname):
+    """Import the ROS module ``modname``, this process's ROS environment set first; None (and
+    what to install, said) where ROS is missing."""
     import importlib
 
+    from ..ros.environment import env_defaults
+
+    env_defaults()
     try:
         return importlib.import_module(modname)
     except ImportError as exc:

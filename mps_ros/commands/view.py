@@ -59,7 +59,10 @@ def run(args) -> int:
     if args.live:
         if args.recording:
             raise SystemExit("mps view: --live follows the running node: give no recording")
+        from ..ros.environment import env_defaults
         from ..view.live import run_live
+
+        env_defaults()  # before rclpy starts: loopback-only discovery unless set
 
         # before anything starts: never over an existing file without --force, never into a
         # folder that is not there

@@ -21,49 +21,33 @@ import contextlib
 import os
 import signal
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from mps_core import MpsError
+from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
+
+from ..run.twin import Command, Gate, Inbox, Runner, Twin, shown, to_json
+from ..wire.diagnostics import hardware_id
+from ..wire.topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve
+from .environment import env_defaults
+from .parameters import ParameterError, declare, read
+
 DEFAULT_SCENE = "press-cycle"
-
-
-#: the Fast DDS writer timers (reliable protocol only; the QoS comes from the code)
-FASTDDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
-
-
-def env_defaults() -> None:
-    """Loopback-only discovery, a temporary log folder and :data:`FASTDDS_PROFILE`'s writer
-    timers unless the environment says otherwise (set before rclpy starts)."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("ROS_LOG_DIR", os.path.join(tempfile.gettempdir(), "mps-ros-log"))
-    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
-
-
-env_defaults()
-
-import rclpy  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks  # noqa: E402
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-from visualization_msgs.msg import MarkerArray  # noqa: E402
-
-from mps_core import MpsError  # noqa: E402
-from mps_core.scene.settings import COMMANDS as COMMAND_WORDS  # noqa: E402
-
-from ..run.twin import Command, Gate, Inbox, Runner, Twin, shown, to_json  # noqa: E402
-from ..wire.diagnostics import hardware_id  # noqa: E402
-from ..wire.topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve  # noqa: E402
-from .parameters import ParameterError, declare, read  # noqa: E402
 
 MSG_CLASSES = {
     "rosgraph_msgs/msg/Clock": Clock,

@@ -171,10 +171,8 @@ def run_live(
 ) -> dict:
     """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
-    # the node's module first: loopback-only discovery unless set, before rclpy starts
     import rclpy
 
-    from ..ros.node import MSG_CLASSES  # noqa: F401  (imported for the environment it sets)
     from .offline import rerun_sdk
 
     if log is None:

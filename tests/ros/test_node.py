@@ -28,7 +28,7 @@ from twin_probe import Listener, NodeProcess, mps_cmd, ns, wait_until
 from mps_core import __version__, build, load_scene
 from mps_core.dynamics.reactions import compute_reactions
 from mps_ros.recording.recover import read_metadata
-from mps_ros.ros.node import FASTDDS_PROFILE
+from mps_ros.ros.environment import FASTDDS_PROFILE
 from mps_ros.wire.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve
 
 DT = 1e-3
@@ -728,8 +728,8 @@ def test_a_profile_named_by_the_environment_is_kept(tmp_path):
     mine = tmp_path / "mine.xml"
     env = {**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(mine)}
     code = (
-        "import os, mps_ros.ros.node as n; "
-        "print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], n.FASTDDS_PROFILE)"
+        "import os, mps_ros.ros.environment as e; e.env_defaults(); "
+        "print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], e.FASTDDS_PROFILE)"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
@@ -740,6 +740,16 @@ def test_a_profile_named_by_the_environment_is_kept(tmp_path):
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     ).stdout.split()
     assert out == [FASTDDS_PROFILE, FASTDDS_PROFILE] and Path(out[0]).is_file()
+
+
+def test_importing_the_node_sets_no_environment():
+    """The environment is set where a process starts (``env_defaults``), never at import."""
+    env = {k: v for k, v in os.environ.items() if k != "FASTRTPS_DEFAULT_PROFILES_FILE"}
+    code = "import os, mps_ros.ros.node; print(os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE', '-'))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert out == ["-"]
 
 
 def test_bad_parameters_are_refused_not_crashed(tmp_path):
