@@ -32,7 +32,10 @@ if not (here / "pyproject.toml").exists():
         install_requires=p["dependencies"],
         packages=find_packages(str(here), include=["mps_core*", "mps_ros*"]),
         package_data={k: list(v) for k, v in project["tool"]["setuptools"]["package-data"].items()},
-        entry_points={"console_scripts": [f"{k} = {v}" for k, v in p["scripts"].items()]},
+        entry_points={
+            "console_scripts": [f"{k} = {v}" for k, v in p["scripts"].items()],
+            **{g: [f"{k} = {v}" for k, v in eps.items()] for g, eps in p.get("entry-points", {}).items()},
+        },
     )
 
 dist = setup(data_files=DATA_FILES, **kwargs)

@@ -24,6 +24,7 @@ import time
 
 from . import __version__
 from .errors import Interrupted, MpsError, raise_interrupted, signal_name
+from .plugins import COMMANDS, found, load
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -99,13 +100,11 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("cache", help="the generated code kept on disk: where and how much, or remove it")
     c.add_argument("action", choices=("info", "clear"), help="info: where, entries, bytes; clear: remove all")
     for name in PLUGINS:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name is not None and name.startswith(exc.name):
-                continue
-            raise
-        mod.register(sub)
+        importlib.import_module(name).register(sub)
+    for ep in found(COMMANDS):
+        register = load(ep)
+        if register is not None:
+            register(sub)
     return p
 
 
@@ -115,13 +114,12 @@ INTERRUPTIBLE = ("run", "loads", "sweep", "recover")
 #: the commands whose outputs are written whole at their end: interrupted, they wrote nothing
 WRITTEN_AT_THE_END = ("loads", "recover")
 
-#: modules that add subcommands: each has ``register(subparsers)``, whose parser sets ``func``
+#: the core's modules that add subcommands: each has ``register(subparsers)``, whose parser sets
+#: ``func``; other packages add theirs through entry points (:data:`~.plugins.COMMANDS`)
 PLUGINS = (
     "mps_core.analysis.loads_cli",
     "mps_core.analysis.sweep_cli",
     "mps_core.bench.cli",
-    "mps_ros.cli",
-    "mps_ros.view_cli",
 )
 
 

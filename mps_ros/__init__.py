@@ -1,16 +1,18 @@
-"""mps_ros: the press twin's ROS 2 face and its recordings.
+"""mps_ros: the press twin's ROS 2 face and its recordings, in packages that import one way
+(lowest first; ``tests/core/test_imports.py`` holds the order):
 
-* :mod:`mps_ros.topics`: names (node, topics, types, frames, joints, wrenches), defined once;
-* :mod:`mps_ros.twin`: the run (steps, messages, commands, pacing, diagnostics), no ROS;
-* :mod:`mps_ros.cdr`: CDR encoders of the per-step messages (the bytes published and recorded);
-* :mod:`mps_ros.recording`: MCAP recordings (``mps record``, the node's recorder, ``recover``),
-  no ROS: mcap, mcap-ros2-support and rosbags;
-* :mod:`mps_ros.node`: the ROS 2 node ``press_twin`` (rclpy; ``mps node``);
-* :mod:`mps_ros.operator`: a small operator client sending mode commands (``mps operator``);
-* :mod:`mps_ros.demo`: node + operator on the default scene (``mps demo``, ``make run``);
-* :mod:`mps_ros.bench`: the node's benchmarks (``python -m mps_ros.bench``);
-* :mod:`mps_ros.cli`: those subcommands of ``mps``.
+* :mod:`mps_ros.os_threads`: the process's threads and pipes (Linux scheduling), no ROS;
+* :mod:`mps_ros.wire`: names (node, topics, types, frames, joints, wrenches), CDR, a step's
+  messages, markers, frames, diagnostics, defined once;
+* :mod:`mps_ros.recording`: MCAP recordings and bags written, recovered and read back, no rclpy
+  (mcap, mcap-ros2-support and rosbags);
+* :mod:`mps_ros.run`: the run (steps, messages, commands, pacing, sinks; ``mps record``), no
+  rclpy;
+* :mod:`mps_ros.ros`: the ROS 2 node ``press_twin``, its parameters, the operator client (the
+  runtime's only rclpy importers);
+* :mod:`mps_ros.view`: recordings and the running node in the Rerun viewer;
+* :mod:`mps_ros.commands`: the subcommands of ``mps`` this side adds; :mod:`mps_ros.bench`: the
+  node's benchmarks (``python -m mps_ros.bench``).
 
-Only :mod:`~mps_ros.node`, :mod:`~mps_ros.operator` and the benchmark's subscriber import rclpy
-(install the ``ros`` extra); importing this package never does.
+Importing this package, or any of its packages, never imports rclpy.
 """

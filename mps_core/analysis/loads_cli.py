@@ -7,19 +7,20 @@ SCENE is a preset name or a scene file: it is run with reactions. RECORDING is a
 ``mps run SCENE --reactions --csv FILE`` (one row a step, the reaction columns included), with
 its event log (``--events FILE``, JSON lines from ``mps run --events``) for the transients; or an
 MCAP recording (``mps record``, the node), which holds its own event log and scene: it is read by
-:mod:`mps_ros.replay`, imported only then (``mps_core`` never imports mcap), with no
-re-simulation. The report (see :mod:`mps_core.analysis.loads`) is printed as a table; ``--json``/``--csv``
-write it for tools and ``--png`` draws the figure.
+the reader that a package names for the format ``mcap`` (entry point group ``mps.recordings``),
+imported only then (``mps_core`` never imports mcap), with no re-simulation. The report (see
+:mod:`mps_core.analysis.loads`) is printed as a table; ``--json``/``--csv`` write it for tools
+and ``--png`` draws the figure.
 """
 
 from __future__ import annotations
 
-import importlib
 import json
 import sys
 from pathlib import Path
 
 from ..dynamics.reactions import ReactionObserver, read_csv
+from ..plugins import reader
 from . import loads
 
 
@@ -94,15 +95,18 @@ def _mcap_columns(args):
         raise loads.LoadReportError(
             "--events applies to a CSV recording; an MCAP recording holds its own event log"
         )
+    ep = reader("mcap")
     try:
-        replay = importlib.import_module("mps_ros.replay")
+        if ep is None:  # no package installed that reads MCAP
+            raise ModuleNotFoundError("no reader of MCAP recordings", name="mcap")
+        load_columns = ep.load()
     except ModuleNotFoundError as exc:
         raise loads.LoadReportError(
             f"reading the MCAP recording {src!r} needs the package {exc.name!r}, which is not "
             f"installed: install the viewer extra (pip install -e '.[view]') or convert "
             f"the run to CSV (mps run SCENE --reactions --csv FILE)"
         ) from None
-    return replay.load_columns(src)
+    return load_columns(src)
 
 
 def _columns(args):

@@ -22,7 +22,7 @@ SAMPLE = ROOT / "recordings" / "sample_press-cycle.mcap"
 def test_sample_is_small_and_complete():
     assert SAMPLE.is_file(), "recordings/sample_press-cycle.mcap is missing (see recordings/README.md)"
     assert SAMPLE.stat().st_size < 1_000_000
-    from mps_ros.recording import read_metadata
+    from mps_ros.recording.recover import read_metadata
 
     meta = read_metadata(SAMPLE)
     assert meta["scene"]["name"] == "press-cycle"
@@ -32,7 +32,7 @@ def test_sample_is_small_and_complete():
 
 
 def test_sample_reads_back_with_the_replay():
-    from mps_ros.replay import read_recording
+    from mps_ros.recording.replay import read_recording
 
     rep = read_recording(SAMPLE)
     assert rep.scene.name == "press-cycle"
@@ -53,7 +53,7 @@ def test_sample_reads_back_with_the_replay():
 def test_sample_reads_back_with_rosbags():
     from rosbags.highlevel import AnyReader
 
-    from mps_ros.topics import BY_KEY, resolve
+    from mps_ros.wire.topics import BY_KEY, resolve
 
     expected = {resolve(k): t.msgtype for k, t in BY_KEY.items()}
     with AnyReader([SAMPLE]) as reader:

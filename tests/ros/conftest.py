@@ -32,6 +32,11 @@ os.environ.pop("ROS_STATIC_PEERS", None)
 
 sys.path.insert(0, str(Path(__file__).parent))
 
+# the rest of a ROS process's environment (the middleware's profile), as the node's sets it
+from mps_ros.ros.environment import env_defaults  # noqa: E402
+
+env_defaults()
+
 
 def _children(pid: int) -> list[tuple[int, str]]:
     out = []

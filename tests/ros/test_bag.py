@@ -20,8 +20,8 @@ from test_bag_metadata import _holds_what_the_file_holds, _summary  # noqa: E402
 from twin_probe import NodeProcess  # noqa: E402
 
 from mps_core.cli import main as mps_main  # noqa: E402
-from mps_ros.replay import read_recording  # noqa: E402
-from mps_ros.topics import TYPE_HASHES  # noqa: E402
+from mps_ros.recording.replay import read_recording  # noqa: E402
+from mps_ros.wire.topics import TYPE_HASHES  # noqa: E402
 
 
 def _read_bag(path):

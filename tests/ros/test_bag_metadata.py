@@ -11,9 +11,11 @@ pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 yaml = pytest.importorskip("yaml")
 
-from mps_ros.recording import Recorder, RecordingSink, read_metadata, recover  # noqa: E402
-from mps_ros.topics import MSGTYPES, TYPE_HASHES  # noqa: E402
-from mps_ros.twin import Runner, Twin  # noqa: E402
+from mps_ros.recording.recorder import Recorder  # noqa: E402
+from mps_ros.recording.recover import read_metadata, recover  # noqa: E402
+from mps_ros.run.sinks import RecordingSink  # noqa: E402
+from mps_ros.run.twin import Runner, Twin  # noqa: E402
+from mps_ros.wire.topics import MSGTYPES, TYPE_HASHES  # noqa: E402
 
 
 def test_type_hashes_are_rosbags_jazzy_ones():
@@ -27,7 +29,7 @@ def test_type_hashes_are_rosbags_jazzy_ones():
 def test_type_hashes_are_what_rclpy_offers(ros):
     """Of the types importable here (tf2_msgs is not among the PyPI wheels: rosbags' hash
     alone vouches for it)."""
-    from mps_ros.node import MSG_CLASSES
+    from mps_ros.ros.node import MSG_CLASSES
 
     node = ros.create_node("type_hashes")
     importable = [m for m in MSGTYPES if m in MSG_CLASSES]

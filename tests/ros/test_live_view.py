@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "view"))
 from twin_probe import NodeProcess, mps_cmd, stop_group
 from view_helpers import read_rrd
 
-from mps_ros.topics import FOUNDATION, WRENCHES
-from mps_ros.view import FAMILIES
+from mps_ros.view.offline import FAMILIES
+from mps_ros.wire.topics import FOUNDATION, WRENCHES
 
 DT = 1e-3
 T_END = 0.5

@@ -15,7 +15,7 @@ pytest.importorskip("mcap")
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from mps_ros.mcap_writer import McapWriter
+from mps_ros.recording.mcap_writer import McapWriter
 
 LIBRARY_KINDS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "": CompressionType.NONE}
 
@@ -94,12 +94,12 @@ def test_same_bytes_as_the_mcap_library(compression, chunk_size):
 
 
 def test_the_recorder_file_reads_in_rosbags(tmp_path):
-    """A recording written through :class:`~mps_ros.recording.Recorder` (this writer) opens in
+    """A recording written through :class:`~mps_ros.recording.recorder.Recorder` (this writer) opens in
     rosbags, an independent reader, with every message."""
     pytest.importorskip("rosbags")
     from rosbags.highlevel import AnyReader
 
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, stats, counts = record(
         "press-cycle", tmp_path / "r.mcap", dt=1e-3, t_end=0.05, background=False, stop_on_signals=False
@@ -116,7 +116,7 @@ def test_the_ros2_profiles_names_are_the_libraries():
     from mcap.stream_reader import MAGIC_SIZE
     from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 
-    from mps_ros.mcap_writer import ENCODING_CDR, MAGIC, PROFILE_ROS2, SCHEMA_ROS2MSG
+    from mps_ros.recording.mcap_writer import ENCODING_CDR, MAGIC, PROFILE_ROS2, SCHEMA_ROS2MSG
 
     assert (PROFILE_ROS2, SCHEMA_ROS2MSG, ENCODING_CDR) == (
         Profile.ROS2,

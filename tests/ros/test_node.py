@@ -27,9 +27,9 @@ from twin_probe import Listener, NodeProcess, mps_cmd, ns, wait_until
 
 from mps_core import __version__, build, load_scene
 from mps_core.dynamics.reactions import compute_reactions
-from mps_ros.node import FASTDDS_PROFILE
-from mps_ros.recording import read_metadata
-from mps_ros.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve
+from mps_ros.recording.recover import read_metadata
+from mps_ros.ros.environment import FASTDDS_PROFILE
+from mps_ros.wire.topics import FOUNDATION, JOINT_NAMES, TOPICS, WRENCHES, resolve
 
 DT = 1e-3
 # long enough after the disengage (sent at t >= 0.06 s as this process sees /clock) that a
@@ -203,7 +203,7 @@ def test_markers_draw_the_joint_states_and_scale_the_reactions(commanded):
     """~/markers at the display rate (30 Hz: every 33rd step): the links', joints' and
     slider's points are A, B, C of the joint states at the same stamp and the scene's geometry
     (to 1e-9 m); each arrow is its wrench's force over the stated scale."""
-    from mps_ros.markers import N_PER_M
+    from mps_ros.wire.markers import N_PER_M
 
     got = commanded["got"]
     g = load_scene("press-cycle").geometry
@@ -251,7 +251,7 @@ def test_recording_read_back_by_rosbags(commanded):
     # /tf at every step and /tf_static once, recorded also where tf2_msgs is not importable
     # (then not published: tests/ros/test_recording.py checks their frames)
     assert len(rec["/tf"]) == len(rec["/joint_states"]) and len(rec["/tf_static"]) == 1
-    from mps_ros.node import MSG_CLASSES
+    from mps_ros.ros.node import MSG_CLASSES
 
     if "tf2_msgs/msg/TFMessage" not in MSG_CLASSES:
         assert (
@@ -728,7 +728,8 @@ def test_a_profile_named_by_the_environment_is_kept(tmp_path):
     mine = tmp_path / "mine.xml"
     env = {**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(mine)}
     code = (
-        "import os, mps_ros.node as n; print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], n.FASTDDS_PROFILE)"
+        "import os, mps_ros.ros.environment as e; e.env_defaults(); "
+        "print(os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'], e.FASTDDS_PROFILE)"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
@@ -739,6 +740,16 @@ def test_a_profile_named_by_the_environment_is_kept(tmp_path):
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     ).stdout.split()
     assert out == [FASTDDS_PROFILE, FASTDDS_PROFILE] and Path(out[0]).is_file()
+
+
+def test_importing_the_node_sets_no_environment():
+    """The environment is set where a process starts (``env_defaults``), never at import."""
+    env = {k: v for k, v in os.environ.items() if k != "FASTRTPS_DEFAULT_PROFILES_FILE"}
+    code = "import os, mps_ros.ros.node; print(os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE', '-'))"
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert out == ["-"]
 
 
 def test_bad_parameters_are_refused_not_crashed(tmp_path):

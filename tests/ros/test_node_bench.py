@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from mps_ros.bench import _lost_line, keep_logs, lost_by_topic, recorded_counts
+from mps_ros.bench.suite import _lost_line, keep_logs, lost_by_topic, recorded_counts
 
 SAMPLE = Path(__file__).resolve().parents[2] / "recordings" / "sample_press-cycle.mcap"
 

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from mps_ros.twin import Command, Gate, Runner, Twin
+from mps_ros.run.twin import Command, Gate, Runner, Twin
 
 DT = 1e-3
 T_END = 0.2
@@ -93,8 +93,9 @@ def test_a_command_comes_back_to_its_boundary_and_the_run_is_the_one_that_steppe
 ):
     from mcap.reader import make_reader
 
-    from mps_ros.recording import BackgroundRecorder, RecordingSink
-    from mps_ros.topics import resolve
+    from mps_ros.recording.background import BackgroundRecorder
+    from mps_ros.run.sinks import RecordingSink
+    from mps_ros.wire.topics import resolve
 
     K = 60  # the command is sent as step K's state goes out
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
@@ -319,8 +320,8 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     engaged; a second ``engage`` right after the first, while that one is being applied) is
     answered where its boundary's step says so, no step computed ahead is redone for it, and
     the run is the one that stepped in time."""
-    from mps_ros.releasing import SteppingProcess
-    from mps_ros.topics import OUTPUTS
+    from mps_ros.run.releasing import SteppingProcess
+    from mps_ros.wire.topics import OUTPUTS
 
     K = 60
     words = words.split(", ")
@@ -392,8 +393,8 @@ def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step
     steps computed beyond it are computed again, or, where the machine refuses it there, stand);
     the run is bit for bit the one given each command at that boundary in one process, and the
     recorder gets what was published, in the same order."""
-    from mps_ros.releasing import SteppingProcess
-    from mps_ros.topics import OUTPUTS
+    from mps_ros.run.releasing import SteppingProcess
+    from mps_ros.wire.topics import OUTPUTS
 
     plan = {40: "engage", 41: "engage", 150: "disengage"}  # at the step whose /clock went out
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)

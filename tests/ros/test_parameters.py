@@ -1,4 +1,4 @@
-"""The node's parameters come from one table (mps_ros.parameters): the docs' table is it, the
+"""The node's parameters come from one table (mps_ros.ros.parameters): the docs' table is it, the
 package's YAML file sets each one, and a running node describes each one (type, range,
 description) as ``ros2 param describe`` would show it."""
 
@@ -12,14 +12,14 @@ pytest.importorskip("rclpy")
 
 from twin_probe import NodeProcess, ask, wait_until
 
-from mps_ros.parameters import BY_NAME, PARAMETERS, markdown_table
+from mps_ros.ros.parameters import BY_NAME, PARAMETERS, markdown_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_the_docs_table_is_the_parameters_table():
     text = (ROOT / "docs" / "ros.md").read_text()
-    assert markdown_table() in text, "docs/ros.md: paste mps_ros.parameters.markdown_table()"
+    assert markdown_table() in text, "docs/ros.md: paste mps_ros.ros.parameters.markdown_table()"
 
 
 def test_the_package_yaml_sets_every_parameter_to_its_default_but_the_step():

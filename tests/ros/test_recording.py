@@ -24,11 +24,13 @@ from twin_probe import mps_cmd, wait_until
 
 from mps_core import __version__, build, load_scene
 from mps_core.cli import main as mps_main
-from mps_ros import twin as twin_mod
-from mps_ros.cdr import ENCODERS
-from mps_ros.recording import Recorder, generic_encoder, read_metadata, record, recover
-from mps_ros.topics import FOUNDATION, WRENCHES
-from mps_ros.twin import Gate, Twin
+from mps_ros.recording.recorder import Recorder
+from mps_ros.recording.recover import read_metadata, recover
+from mps_ros.run import twin as twin_mod
+from mps_ros.run.record import record
+from mps_ros.run.twin import Gate, Twin
+from mps_ros.wire.cdr import ENCODERS, generic_encoder
+from mps_ros.wire.topics import FOUNDATION, WRENCHES
 
 
 def read_all(path):
@@ -210,7 +212,7 @@ def test_only_the_outputs_asked_for(tmp_path, monkeypatch):
 def test_recover_a_file_cut_short(tmp_path):
     full = tmp_path / "full.mcap"
     twin = Twin("press-cycle", dt=0.001, t_end=0.2)
-    from mps_ros.recording import RecordingSink
+    from mps_ros.run.sinks import RecordingSink
 
     with Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text, chunk_size=16 * 1024) as rec:
         twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
@@ -450,7 +452,7 @@ def test_record_needs_no_rclpy(tmp_path):
 
 
 def test_record_and_recover_never_write_over_a_file(tmp_path, capsys):
-    from mps_ros.recording import MAGIC
+    from mps_ros.recording.mcap_writer import MAGIC
 
     rec = tmp_path / "r.mcap"
     assert mps_main(["record", "paper", "--out", str(rec), "--t-end", "0.01"]) == 0
@@ -483,7 +485,7 @@ def test_record_and_recover_never_write_over_a_file(tmp_path, capsys):
 
 
 def test_new_recordings_never_share_a_file(tmp_path, monkeypatch):
-    from mps_ros import recording
+    from mps_ros.recording import recorder as recording
 
     # two runs started in the same millisecond: the second gets a name of its own
     monkeypatch.setattr(
@@ -563,7 +565,8 @@ def test_a_recording_that_cannot_be_written_stops_alone(tmp_path, pacing, ros):
 
 @pytest.mark.parametrize("background", [False, True], ids=["recorder", "background"])
 def test_a_recorder_used_with_with_finishes_the_file_also_on_an_error(tmp_path, background):
-    from mps_ros.recording import BackgroundRecorder, RecordingSink
+    from mps_ros.recording.background import BackgroundRecorder
+    from mps_ros.run.sinks import RecordingSink
 
     path = tmp_path / "with.mcap"
     twin = Twin("press-cycle", dt=0.001, t_end=0.05, outputs=["joint_states", "clock"])

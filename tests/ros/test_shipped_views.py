@@ -10,9 +10,9 @@ from pathlib import Path
 
 import yaml
 
-from mps_ros.frames import BASE_FRAME, FIXED, MOVING
-from mps_ros.topics import BY_KEY, FOUNDATION, FRAME_ID, WRENCHES, resolve
-from mps_ros.twin import Twin
+from mps_ros.run.twin import Twin
+from mps_ros.wire.frames import BASE_FRAME, FIXED, MOVING
+from mps_ros.wire.topics import BY_KEY, FOUNDATION, FRAME_ID, WRENCHES, resolve
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 TOPICS = {resolve(k): t.msgtype for k, t in BY_KEY.items()}

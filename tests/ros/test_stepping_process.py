@@ -1,4 +1,4 @@
-"""The live node's stepping process (mps_ros.stepping): its frames, a SIGKILL of it mid-run (the
+"""The live node's stepping process (mps_ros.run.stepping): its frames, a SIGKILL of it mid-run (the
 node ends with one line naming it, nonzero; the recording is finished and reads back; no
 process is left), and the real-time scheduling it asks for by default (granted, or one warning
 where the system refuses it, and the run goes on)."""
@@ -21,9 +21,10 @@ pytest.importorskip("rosbags")
 
 from twin_probe import Listener, NodeProcess, ns, wait_until
 
-from mps_ros.bench import _children as _kids
-from mps_ros.bench import _cmdline
-from mps_ros.stepping import FrameReader, FrameWriter, Hold, _Ahead
+from mps_ros.bench.suite import _children as _kids
+from mps_ros.bench.suite import _cmdline
+from mps_ros.run.stepping import Hold, _Ahead
+from mps_ros.wire.pipe import FrameReader, FrameWriter
 
 DT = 1e-3
 
@@ -69,7 +70,7 @@ def test_a_killed_stepping_process_ends_the_node_with_one_line(ros, tmp_path):
     try:
         with NodeProcess(tmp_path, params, name="killed") as node:
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.5, 60, "/clock >= 0.5 s")
-            stepper = [k for k in _kids(node.pid) if "mps_ros.stepping" in _cmdline(k)]
+            stepper = [k for k in _kids(node.pid) if "mps_ros.run.stepping" in _cmdline(k)]
             assert len(stepper) == 1, _kids(node.pid)
             os.kill(stepper[0], signal.SIGKILL)
             t_kill = lis.clock()

@@ -19,10 +19,11 @@ pytest.importorskip("rosbags")
 
 from mps_core import build, load_scene
 from mps_core.dynamics.reactions import ReactionObserver
-from mps_ros.cdr import encoder
-from mps_ros.recording import BackgroundRecorder, RecordingSink
-from mps_ros.topics import BY_KEY
-from mps_ros.twin import Runner, Timings, Twin
+from mps_ros.recording.background import BackgroundRecorder
+from mps_ros.run.sinks import RecordingSink
+from mps_ros.run.twin import Runner, Timings, Twin
+from mps_ros.wire.cdr import encoder
+from mps_ros.wire.topics import BY_KEY
 
 
 def test_payloads_are_the_message_dicts_encoded_and_the_structure_is_latched():
@@ -135,8 +136,9 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
     out = tmp_path / "orphan.mcap"
     code = textwrap.dedent(f"""
         import os
-        from mps_ros.recording import BackgroundRecorder, RecordingSink
-        from mps_ros.twin import Runner, Twin
+        from mps_ros.recording.background import BackgroundRecorder
+        from mps_ros.run.sinks import RecordingSink
+        from mps_ros.run.twin import Runner, Twin
         tw = Twin("press-cycle", dt=1e-3, t_end=0.1)
         rec = BackgroundRecorder({str(out)!r}, flush_period=0.05)
         Runner(tw, sinks=[RecordingSink(rec)]).run()
@@ -163,7 +165,7 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
 def test_a_paced_recording_counts_what_was_written(tmp_path):
     """``mps record`` paced: the steps go to the recording process as lists (write_steps); its
     counts by topic are those the process wrote, and the file holds them."""
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, stats, counts = record(
         "press-cycle",

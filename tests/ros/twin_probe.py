@@ -12,7 +12,7 @@ import time
 import traceback
 from pathlib import Path
 
-from mps_ros.topics import MODE, TOPICS, resolve
+from mps_ros.wire.topics import MODE, TOPICS, resolve
 
 
 def mps_cmd(*args) -> list[str]:
@@ -103,7 +103,7 @@ def ask(client, request, spin, timeout: float, tries: int):
 def stop_group(proc, grace: float = 5.0) -> None:
     """End a test's process group (None: nothing started)."""
     if proc is not None:
-        from mps_ros.demo import stop_group as _stop_group
+        from mps_ros.commands.demo import stop_group as _stop_group
 
         _stop_group(proc, grace)
 
@@ -125,7 +125,7 @@ class Listener:
         from std_msgs.msg import String
         from std_srvs.srv import Trigger
 
-        from mps_ros.node import MSG_CLASSES
+        from mps_ros.ros.node import MSG_CLASSES
 
         self.rclpy = rclpy
         self.node = Node(f"probe_{os.getpid()}_{int(time.monotonic() * 1e3) % 100000}")

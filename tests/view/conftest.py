@@ -23,7 +23,7 @@ def recordings(tmp_path_factory):
 def cycle_mcap(recordings):
     """press-cycle at 1 kHz to 0.6 s: engage, latch closes, working strokes, disengage, latch
     opens, the slider back on its stop (all the twin's topics)."""
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, _, _ = record("press-cycle", recordings / "press-cycle.mcap", dt=1e-3, t_end=0.6)
     return Path(path)
@@ -33,7 +33,7 @@ def cycle_mcap(recordings):
 def working_mcap(recordings):
     """working (locked crank-slider) at its own settings but 2e-4 s steps, to 0.3 s: one full
     crank revolution for the load report."""
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, _, _ = record("working", recordings / "working.mcap", dt=2e-4, t_end=0.3)
     return Path(path)

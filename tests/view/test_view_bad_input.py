@@ -9,7 +9,7 @@ import pytest
 from view_helpers import cut_before_end, foreign_mcap
 
 from mps_core.cli import main
-from mps_ros.replay import ReplayError, read_recording
+from mps_ros.recording.replay import ReplayError, read_recording
 
 
 def _both(path, tmp_path, capsys) -> list[str]:

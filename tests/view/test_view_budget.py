@@ -15,8 +15,8 @@ import pytest
 
 rr = pytest.importorskip("rerun")
 
-from mps_ros import view as view_mod  # noqa: E402
-from mps_ros.replay import read_recording  # noqa: E402
+from mps_ros.recording.replay import read_recording  # noqa: E402
+from mps_ros.view import offline as view_mod  # noqa: E402
 
 MAX_SEND_COLUMNS = 40
 MAX_STATIC_LOGS = 40

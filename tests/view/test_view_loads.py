@@ -59,17 +59,15 @@ def test_mcap_sniffed_by_its_magic(working_mcap, tmp_path, capsys):
 def test_missing_package_says_what_to_install(monkeypatch, capsys):
     from mps_core.analysis import loads_cli
 
-    real = loads_cli.importlib.import_module
-
-    def fake(name, *a):
-        if name == "mps_ros.replay":
+    class Missing:  # the reader's entry point, its package's dependency not installed
+        def load(self):
             raise ModuleNotFoundError("No module named 'mcap'", name="mcap")
-        return real(name, *a)
 
-    monkeypatch.setattr(loads_cli.importlib, "import_module", fake)
-    assert main(["loads", "some.mcap"]) == 2
-    err = capsys.readouterr().err
-    assert "needs the package 'mcap'" in err and "pip install" in err
+    for found in (Missing(), None):  # a reader that cannot load; no reader at all
+        monkeypatch.setattr(loads_cli, "reader", lambda fmt, found=found: found)
+        assert main(["loads", "some.mcap"]) == 2
+        err = capsys.readouterr().err
+        assert "needs the package 'mcap'" in err and "pip install" in err
 
 
 def test_core_imports_no_mcap_rerun_or_ros():
@@ -88,7 +86,7 @@ def test_core_imports_no_mcap_rerun_or_ros():
 def test_recording_holds_the_impulses_of_the_live_run(recordings, tmp_path, capsys):
     """press-cycle has plastic impacts (latch, stop): the recording carries their impulses and
     its report lists the same transients as the live run of the same scene and step."""
-    from mps_ros.recording import record
+    from mps_ros.run.record import record
 
     path, _, _ = record("press-cycle", recordings / "press-cycle-impulses.mcap", dt=1e-3, t_end=0.6)
     rec, _ = _report([str(path)], tmp_path, "rec", capsys)

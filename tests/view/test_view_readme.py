@@ -21,7 +21,7 @@ def _section_blocks(title: str) -> list[str]:
 def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, capsys):
     pytest.importorskip("rerun")
     from mps_core.cli import main
-    from mps_ros import view
+    from mps_ros.view import offline as view
 
     started = []
 
@@ -48,7 +48,7 @@ def test_viewer_spawned_on_loopback_only(cycle_mcap, tmp_path, monkeypatch, caps
 def test_a_viewer_that_ends_at_once_is_an_error(cycle_mcap, tmp_path, monkeypatch, capsys):
     pytest.importorskip("rerun")
     from mps_core.cli import main
-    from mps_ros import view
+    from mps_ros.view import offline as view
 
     class DeadViewer:  # e.g. no usable display: it exits with an error at once
         def __init__(self, cmd, **kw):

@@ -1,4 +1,4 @@
-"""A recording read back (mps_ros.replay) against an independent reader (rosbags)."""
+"""A recording read back (mps_ros.recording.replay) against an independent reader (rosbags)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mps_ros.replay import DERIVED, read_recording
-from mps_ros.topics import BY_KEY, FOUNDATION, JOINT_NAMES, WRENCHES, resolve
+from mps_ros.recording.replay import DERIVED, read_recording
+from mps_ros.wire.topics import BY_KEY, FOUNDATION, JOINT_NAMES, WRENCHES, resolve
 
 
 def rosbags_read(path):
@@ -127,7 +127,7 @@ def test_topics_by_suffix_under_another_namespace(tmp_path):
     assert np.array_equal(rep.columns["phi"], [0.0, 0.1, 0.2])
     assert rep.scene is None
     with pytest.raises(Exception, match="--scene"):
-        from mps_ros.view import convert
+        from mps_ros.view.offline import convert
 
         pytest.importorskip("rerun")
         convert(rep)

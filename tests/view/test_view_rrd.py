@@ -14,9 +14,9 @@ from test_view_replay import rosbags_read
 from view_helpers import read_blueprint, read_rrd
 
 from mps_core.cli import main
-from mps_ros.replay import read_recording
-from mps_ros.topics import FOUNDATION, WRENCHES, resolve
-from mps_ros.view import BEARING, FAMILIES, MARKERS, positions, to_view
+from mps_ros.recording.replay import read_recording
+from mps_ros.view.offline import BEARING, FAMILIES, MARKERS, positions, to_view
+from mps_ros.wire.topics import FOUNDATION, WRENCHES, resolve
 
 
 @pytest.fixture(scope="module")

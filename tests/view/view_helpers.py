@@ -2,7 +2,7 @@
 synthetic one (10 s at 1 kHz in a fraction of a second) and MCAP files of other programs.
 
 The synthetic recording has the twin's layout (profile ros2, ros2msg schemas, cdr, the ``mps``
-and ``scene`` metadata records, the topics of :mod:`mps_ros.topics`). Its messages are encoded
+and ``scene`` metadata records, the topics of :mod:`mps_ros.wire.topics`). Its messages are encoded
 by mcap-ros2-support's encoder once a topic, then copied with their stamps and numbers written
 in place (positions from an independent CDR reading of that first message), so writing 120 000
 messages takes well under a second. Its motion is a locked crank-slider turning at a constant
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mps_ros.topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES, resolve
+from mps_ros.wire.topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES, resolve
 
 
 def _msgdef(msgtype: str) -> str:

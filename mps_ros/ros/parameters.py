@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 from mps_core.dynamics.engine import SCHEMES
 
-from .topics import OUTPUTS
-from .twin import PACINGS, check_outputs
+from ..run.twin import PACINGS, check_outputs
+from ..wire.topics import OUTPUTS
 
 
 class ParameterError(ValueError):
@@ -205,7 +205,7 @@ PARAMETERS: tuple[Parameter, ...] = (
         "stepping_process",
         True,
         "the twin steps in a process of its own "
-        "(`mps_ros/stepping.py`; as fast as possible, where the twin can come back to a step); "
+        "(`mps_ros/run/stepping.py`; as fast as possible, where the twin can come back to a step); "
         "false: in the node's process, a thread beside the publishing one in realtime pacing "
         "(both measured under Performance)",
     ),
@@ -319,7 +319,7 @@ def markdown_table() -> str:
 
 # -- the node's parameters declared and read -----------------------------------------------
 def declare(node, scene: str) -> None:
-    """Every parameter of :data:`~mps_ros.parameters.PARAMETERS`, typed and read-only, its
+    """Every parameter of :data:`~mps_ros.ros.parameters.PARAMETERS`, typed and read-only, its
     range enforced by rclpy: a value of the wrong type or out of range ends the node."""
     from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
     from rclpy.parameter import Parameter as Given

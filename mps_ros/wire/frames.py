@@ -14,10 +14,10 @@ show the press upright.
 
 The moving frames are parallel to ``press`` (a wrench stamped in one is about its origin, in
 the press frame's directions), at the joints' points from the joint states exactly as
-:func:`mps_ros.drawing.joint_points` says. ``/tf_static`` is published once, latched;
+:func:`mps_ros.wire.drawing.joint_points` says. ``/tf_static`` is published once, latched;
 ``/tf`` at every step. :class:`TfLayout` gives the messages and, like
-:class:`~mps_ros.markers.MarkerLayout`, the floats that change from one step to the next, so
-that a :class:`~mps_ros.cdr.Preset` keeps the encoded ``/tf`` message and packs only those.
+:class:`~mps_ros.wire.markers.MarkerLayout`, the floats that change from one step to the next, so
+that a :class:`~mps_ros.wire.cdr.Preset` keeps the encoded ``/tf`` message and packs only those.
 """
 
 from __future__ import annotations

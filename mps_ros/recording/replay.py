@@ -9,9 +9,9 @@ of a type this module does not parse itself).
 **Columns.** One row a ``joint_states`` message (a published step), named as
 :mod:`mps_core.names` and :data:`mps_core.dynamics.reactions.REACTION_COLUMNS` name them: ``t`` (the
 message's log time, s), ``phi``, ``psi``, ``x_C`` and their rates from the joints of
-:data:`~mps_ros.topics.JOINTS`, ``rod``/``rod_dot`` (the rod's angle), ``structure`` from
-``~/structure``, and every reaction column that a wrench of :data:`~mps_ros.topics.WRENCHES` or
-:data:`~mps_ros.topics.FOUNDATION` carries (``force.x``, ``force.y``, ``torque.z`` as the
+:data:`~mps_ros.wire.topics.JOINTS`, ``rod``/``rod_dot`` (the rod's angle), ``structure`` from
+``~/structure``, and every reaction column that a wrench of :data:`~mps_ros.wire.topics.WRENCHES` or
+:data:`~mps_ros.wire.topics.FOUNDATION` carries (``force.x``, ``force.y``, ``torque.z`` as the
 wrench's table says). ``phi_ddot`` and ``psi_ddot`` are not in a recording (JointState has no
 accelerations): they are the rates' central differences in time (``numpy.gradient``, second
 order), marked as derived in :data:`DERIVED`.
@@ -42,10 +42,10 @@ import numpy as np
 
 from mps_core.errors import MpsError
 
+from ..wire.topics import BY_KEY, FOUNDATION, JOINT_NAMES, MODE, NODE_NAME, WRENCHES, resolve
 from .mcap_writer import ENCODING_CDR, MAGIC
-from .topics import BY_KEY, FOUNDATION, JOINT_NAMES, MODE, NODE_NAME, WRENCHES, resolve
 
-#: the recording's metadata records (as :mod:`mps_ros.recording` writes them)
+#: the recording's metadata records (as :mod:`mps_ros.recording.recorder` writes them)
 META_SOFTWARE = "mps"
 META_SCENE = "scene"
 
@@ -62,7 +62,7 @@ JOINT_COLUMNS = {
     "rocker": ("psi", "psi_dot"),
     "slider": ("x_C", "x_C_dot"),
 }
-assert set(JOINT_COLUMNS) == set(JOINT_NAMES), "mps_ros.topics.JOINTS changed: update this map"
+assert set(JOINT_COLUMNS) == set(JOINT_NAMES), "mps_ros.wire.topics.JOINTS changed: update this map"
 
 
 class ReplayError(MpsError, ValueError):
@@ -390,7 +390,7 @@ def _scan_all(parts: list[Path]):
 
 def read_recording(path, *, check_version: bool = True) -> Replay:
     """Read a recording of the twin (see the module's doc): an MCAP file, or a bag directory
-    (:mod:`mps_ros.bag`) whose files are read in order as one."""
+    (:mod:`mps_ros.recording.bag`) whose files are read in order as one."""
     path = Path(path)
     if not path.exists():
         raise ReplayError(f"{path}: no such file")
@@ -415,7 +415,7 @@ def read_recording(path, *, check_version: bool = True) -> Replay:
             raise ReplayError(
                 f"{path}: an MCAP file{who} with none of the press twin's topics (expected "
                 f"{resolve('joint_states')} of type sensor_msgs/msg/JointState and the others "
-                f"of mps_ros.topics); it has: {have}"
+                f"of mps_ros.wire.topics); it has: {have}"
             )
         raise ReplayError(
             f"{path}: a recording{who} without joint states ({resolve('joint_states')}, "

@@ -3,8 +3,8 @@
 A process of its own subscribes to the node's topics (serialized: nothing is deserialized
 into Python messages), keeps what arrives, and at the display rate (``hz``, 30 a wall second)
 turns what arrived since the last frame into the same columns a recording gives
-(:func:`mps_ros.replay.replay_of_messages`) and logs them with the offline view's code
-(:func:`mps_ros.view.convert`): the same entities, blueprint and time line (``sim_time``), one
+(:func:`mps_ros.recording.replay.replay_of_messages`) and logs them with the offline view's code
+(:func:`mps_ros.view.offline.convert`): the same entities, blueprint and time line (``sim_time``), one
 ``send_columns`` an entity a frame. The arrows' scale and the drawing's extent are fixed from
 the scene beforehand (a live run has no percentile to take); the static parts go with the first
 frame. It follows a node started before or after it, and ends at the node's ``run-end`` event,
@@ -32,9 +32,9 @@ import uuid
 from pathlib import Path
 from types import SimpleNamespace
 
-from .drawing import SLIDER
-from .replay import ReplayError, replay_of_messages
-from .topics import BY_KEY, FOUNDATION, NODE_NAME, WRENCHES, resolve
+from ..recording.replay import ReplayError, replay_of_messages
+from ..wire.drawing import SLIDER
+from ..wire.topics import BY_KEY, FOUNDATION, NODE_NAME, WRENCHES, resolve
 
 #: the topics the view reads (the markers are the view's own drawing: not needed)
 KEYS = (
@@ -171,11 +171,9 @@ def run_live(
 ) -> dict:
     """Follow the node ``node_name`` (see the module's doc); returns the figures of the run:
     frames, steps logged, the last simulated time logged, ``max_lag_s``, frame work p50/max."""
-    # the node's module first: loopback-only discovery unless set, before rclpy starts
     import rclpy
 
-    from .node import MSG_CLASSES  # noqa: F401  (imported for the environment it sets)
-    from .view import _rr
+    from .offline import rerun_sdk
 
     if log is None:
 
@@ -185,10 +183,10 @@ def run_live(
     if not (hz > 0):
         raise ReplayError(f"--hz {hz!r}: expected a positive number of frames a second")
     if save is None and connect is None:
-        from .view import no_display
+        from .offline import no_display
 
         no_display()  # before anything is started
-    rr = _rr()
+    rr = rerun_sdk()
 
     scale = arrow_scale_n_per_m / 1e3  # N per mm
     extent = extent_mm(scene)
@@ -286,7 +284,7 @@ def _open_sink(rr, scene, extent, scale, save, connect):
     what any does: (the stream, the spawned viewer or None)."""
     import rerun.blueprint as rrb
 
-    from .view import FAMILIES, blueprint
+    from .offline import FAMILIES, blueprint
 
     rec = rr.RecordingStream("mps", recording_id=str(uuid.uuid4()))
     viewer = None
@@ -310,7 +308,7 @@ def _subscribe(node, inbox) -> list:
     with its inbox callback: [(subscription, callback)]."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from .node import MSG_CLASSES
+    from ..ros.node import MSG_CLASSES
 
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
     latched = QoSProfile(
@@ -340,7 +338,7 @@ class _Frames:
         self.work: list[float] = []
 
     def log(self, got: dict) -> None:
-        from .view import convert
+        from .offline import convert
 
         w0 = time.perf_counter()
         rep = replay_of_messages("live", got, self.node_name)
@@ -370,8 +368,8 @@ def _warm_up(rr, scene, node_name, scale, extent) -> None:
     """Do once, before following, what the first frame would otherwise do on the clock (the
     viewer library's and numpy's first calls): three steps of the scene, converted into a
     stream that is dropped."""
-    from .twin import Twin
-    from .view import convert
+    from ..run.twin import Twin
+    from .offline import convert
 
     tw = Twin(scene, t_end=3 * scene.dt)
     msgs: dict = {}
@@ -399,7 +397,7 @@ def _bounds(scene, extent):
 
 def _spawn():
     """A native viewer listening on 127.0.0.1 only; (process, its gRPC address)."""
-    from .view import rerun_executable
+    from .offline import rerun_executable
 
     exe = rerun_executable()
     if exe is None:

@@ -1,8 +1,8 @@
 """The node's side of a split run (:class:`SteppingProcess`): the steps its stepping process
-(:mod:`mps_ros.stepping`) computed, held and released at their deadlines (or as they come, as
+(:mod:`mps_ros.run.stepping`) computed, held and released at their deadlines (or as they come, as
 fast as possible), to the ROS publishers first and then to the recorder (:class:`Publication`);
 the commands taken as they arrive, each at its boundary (:class:`Boundaries`); the stepping
-process started, watched and ended (:class:`SteppingChild`). See :mod:`mps_ros.stepping` for
+process started, watched and ended (:class:`SteppingChild`). See :mod:`mps_ros.run.stepping` for
 the frames, the commands' rules and the faults."""
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ import sys
 import threading
 import time
 
-from .os_threads import widen_pipe
-from .stepping import HOW_TO_ALLOW, FrameReader, FrameWriter, ask_fifo, fifo_for_the_others
-from .topics import BY_KEY
+from ..os_threads import widen_pipe
+from ..wire.pipe import Frame, FrameReader, FrameWriter
+from ..wire.topics import BY_KEY
+from .stepping import HOW_TO_ALLOW, ask_fifo, fifo_for_the_others
 from .twin import COMMAND_INDEX, Command, Gate, RefusalLog, Timings, shown, to_json, to_ns
 
 
@@ -63,12 +64,12 @@ class Boundaries:
     whose steps are held (its lock, the steps held and the last released, its pipe)."""
 
     def __init__(self, run: SteppingProcess, gate: Gate, log):
-        from .cdr import string
+        from ..wire.cdr import string
 
         self.run = run
         self.gate = gate
         #: a command takes effect at the first step boundary at least this long (wall s) after
-        #: it arrived (see :attr:`~mps_ros.twin.RealtimeSettings.command_delay`)
+        #: it arrived (see :attr:`~mps_ros.run.twin.RealtimeSettings.command_delay`)
         self.command_delay = float(run.spec["runner"].get("command_delay", 0.0))
         self.commands_refused = 0
         self._string = string
@@ -183,7 +184,9 @@ class Boundaries:
         self._limits[self._gen] = kb
         self._last_boundary = kb
         self._gen += 1
-        self.run.child.out.frame(b"C", marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen)))
+        self.run.child.out.frame(
+            Frame.COMMAND, marshal.dumps((cid, word, cmd.source, cmd.wall, kb, self._gen))
+        )
 
     def take_waiting(self) -> None:
         """The commands that waited for an answer, in order (the lock held), each once the
@@ -301,14 +304,14 @@ class Boundaries:
 
 
 class SteppingChild:
-    """The stepping process itself (``python -m mps_ros.stepping``), from the node's side:
+    """The stepping process itself (``python -m mps_ros.run.stepping``), from the node's side:
     started with its settings (``spec``), ready once it has built its twin and its kernels
     (:meth:`wait_ready`), its frames written (``out``) and read (``reader``), its end waited
     for (:meth:`wait`) and its pipes closed (:meth:`close`)."""
 
     def __init__(self, spec: dict):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "mps_ros.stepping"],
+            [sys.executable, "-m", "mps_ros.run.stepping"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             bufsize=0,
@@ -316,7 +319,7 @@ class SteppingChild:
         self.out = FrameWriter(self.proc.stdin.fileno())
         widen_pipe(self.proc.stdin.fileno())
         self.reader = FrameReader(self.proc.stdout.fileno())
-        self.out.frame(b"I", json.dumps(spec).encode())
+        self.out.frame(Frame.SETTINGS, json.dumps(spec).encode())
         self.pid: int | None = None
 
     def wait_ready(self, log) -> None:
@@ -330,9 +333,9 @@ class SteppingChild:
                     f"the stepping process ended before it was ready ({_exit_words(self.proc.returncode)})"
                 )
             for kind, payload in got:
-                if kind == b"L":
+                if kind == Frame.LOG:
                     log(*marshal.loads(payload))
-                elif kind == b"R":
+                elif kind == Frame.READY:
                     reply = json.loads(payload)
                     if not reply.get("ready"):
                         self.proc.wait(10)
@@ -390,7 +393,7 @@ class Publication:
             if hasattr(s, "prepare"):
                 s.prepare(keys)
         if "diagnostics" in self.spec["twin"]["outputs"]:
-            from .cdr import encoder
+            from ..wire.cdr import encoder
 
             # the recording's status: its encoder made now, not at the first release (a
             # quarter of a second here, holding this interpreter's lock)
@@ -436,7 +439,7 @@ class Publication:
         self.next_status = now + float(self.spec["runner"].get("diagnostics_period", 1.0))
         if "diagnostics" not in self.spec["twin"]["outputs"] or t is None:
             return
-        from . import diagnostics
+        from ..wire import diagnostics
 
         name, hw = self.named
         self.statuses_out(
@@ -446,13 +449,13 @@ class Publication:
         )
 
     def recording_status(self, msgs: list) -> None:
-        """The recording's /diagnostics status (:func:`mps_ros.diagnostics.recording`), once a
+        """The recording's /diagnostics status (:func:`mps_ros.wire.diagnostics.recording`), once a
         diagnostics period and at once where it has stopped, stamped with the step released:
         published and recorded (where the recording goes on) after the step's messages. None
         where the run publishes no diagnostics or records nothing."""
         if "diagnostics" not in self.spec["twin"]["outputs"]:
             return
-        from . import diagnostics
+        from ..wire import diagnostics
 
         name, hw = self.named
         statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
@@ -465,7 +468,7 @@ class Publication:
     def statuses_out(self, statuses: list, t_ns: int) -> None:
         """A /diagnostics message of ``statuses`` (stamped ``t_ns``) after the step released:
         published, and recorded where the recording goes on."""
-        from .diagnostics import array
+        from ..wire.diagnostics import array
 
         out = [("/diagnostics", self.diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
         self.messages += self.sink.emit_all(out)
@@ -495,7 +498,7 @@ class Scheduling:
         publishing thread; the objects made so far frozen out of the collector's passes."""
         import gc
 
-        from .os_threads import name_thread, short_slice
+        from ..os_threads import name_thread, short_slice
 
         if self.priority:
             self.refused_here = ask_fifo(self.priority)
@@ -515,7 +518,7 @@ class Scheduling:
         gc.freeze()
 
     def said(self, got: dict) -> None:
-        """What the stepping process said of its priority (frame ``P``), logged."""
+        """What the stepping process said of its priority (frame ``PRIORITY``), logged."""
         prio = self.priority
         if not prio:
             return
@@ -534,7 +537,7 @@ class Scheduling:
 
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
-    :class:`~mps_ros.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
+    :class:`~mps_ros.run.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
     ``stop_reason``, ``error``, ``commands_lost``, ``inbox``, ``sinks``).
 
     It holds the steps the stepping process has computed ahead and releases each at its
@@ -610,7 +613,7 @@ class SteppingProcess:
         stepping process, whose /diagnostics say them."""
         if self.child is not None:
             refused, floods = self.boundaries.commands_refused, self.boundaries.gate.floods
-            self.child.out.frame(b"N", marshal.dumps((refused, floods, self._lost)))
+            self.child.out.frame(Frame.REFUSED, marshal.dumps((refused, floods, self._lost)))
 
     # -- start ------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -643,7 +646,7 @@ class SteppingProcess:
                 return "the run has ended"
             if self._paused_at is None:
                 self._paused_at = time.perf_counter()
-                self.child.out.frame(b"Z", b"")
+                self.child.out.frame(Frame.PAUSE, b"")
         return None
 
     def step_paused(self, reply) -> str | None:
@@ -656,7 +659,7 @@ class SteppingProcess:
                 return "the node is active: ~/step takes a step while it is deactivated"
             self._step_replies.append(reply)
             if len(self._step_replies) > sum(1 for e in self._queue if e.state):
-                self.child.out.frame(b"T", b"")
+                self.child.out.frame(Frame.STEP, b"")
         return None
 
     def resume(self) -> None:
@@ -675,13 +678,13 @@ class SteppingProcess:
             for e in self._queue:
                 e.deadline += d
             self.boundaries.shift(d)
-            self.child.out.frame(b"O", marshal.dumps(d))
+            self.child.out.frame(Frame.RESUME, marshal.dumps(d))
 
     def request_stop(self, reason: str) -> None:
         if self.stop_reason is None:
             self.stop_reason = reason
         if self.child is not None:
-            self.child.out.frame(b"S", reason.encode())
+            self.child.out.frame(Frame.STOP, reason.encode())
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> dict:
@@ -690,7 +693,7 @@ class SteppingProcess:
         self.prepare()
         self.scheduling.apply(0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4))
         out, reader, pub = self.child.out, self.child.reader, self.publication
-        out.frame(b"G", json.dumps({"priority": self.scheduling.priority}).encode())
+        out.frame(Frame.GO, json.dumps({"priority": self.scheduling.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
         fd = reader.fd
@@ -710,7 +713,7 @@ class SteppingProcess:
             if self.afap and self._released is not None and self._released.k != told:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self._released.k
-                out.frame(b"K", marshal.dumps(told))
+                out.frame(Frame.RELEASED, marshal.dumps(told))
             if self._paused_at is not None and now >= pub.next_status:
                 released = self._released
                 pub.stale(now, None if released is None else self._time_of(released.k))
@@ -773,18 +776,18 @@ class SteppingProcess:
         answers given, log lines said, its priority; the run's end (returned, where it came)."""
         end = None
         for kind, payload in got:
-            if kind == b"M":
+            if kind == Frame.MESSAGES:
                 entry = _Entry(*marshal.loads(payload))
                 with self._lock:
                     self.boundaries.arrived(entry)
-            elif kind == b"A":
+            elif kind == Frame.ANSWER:
                 cid, ack = marshal.loads(payload)
                 self.boundaries.answer(cid, json.loads(ack))
-            elif kind == b"L":
+            elif kind == Frame.LOG:
                 self.log(*marshal.loads(payload))
-            elif kind == b"P":
+            elif kind == Frame.PRIORITY:
                 self.scheduling.said(json.loads(payload))
-            elif kind == b"E":
+            elif kind == Frame.END:
                 end = json.loads(payload)
                 with self._lock:
                     self._ended = True

@@ -1,7 +1,7 @@
 """The twin's run, without ROS: steps a scene, turns each step into messages, takes commands,
 paces, measures, and hands every message to its sinks (the ROS publishers, the MCAP recorder).
 
-The node (:mod:`mps_ros.node`) and ``mps record`` run the same :class:`Runner` over the same
+The node (:mod:`mps_ros.ros.node`) and ``mps record`` run the same :class:`Runner` over the same
 :class:`Twin`, so a recording made with or without ROS holds the same messages, and what the
 node publishes is exactly what it records. Messages are plain dicts in the field layout of their
 ROS types (what the MCAP writer serializes and the node copies into rclpy messages).
@@ -17,7 +17,7 @@ wall seconds ahead and released by a thread of their own, never before their dea
 most ``release_period`` less one step's period after them (the thread wakes about once per
 ``release_period`` and sends every step that is due: a wake-up costs the machine more than a
 step's publishing), and a command comes back to the checkpoint of its boundary
-(:class:`~mps_ros.paced.PacedInProcess`); a step computed after its deadline is a *deadline miss* (it goes
+(:class:`~mps_ros.run.paced.PacedInProcess`); a step computed after its deadline is a *deadline miss* (it goes
 out late; the schedule is kept, so the run catches up when it can).
 """
 
@@ -36,10 +36,10 @@ import numpy as np
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.scene.settings import COMMANDS
 
-from . import diagnostics
-from .diagnostics import hardware_id
-from .step_messages import StepMessages, stamp
-from .topics import BY_KEY, OUTPUTS
+from ..wire import diagnostics
+from ..wire.diagnostics import hardware_id
+from ..wire.step_messages import StepMessages, stamp
+from ..wire.topics import BY_KEY, OUTPUTS
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
 #: a word's place in :data:`COMMANDS` (and in :meth:`Twin.refusals`)
@@ -81,13 +81,13 @@ def check_outputs(outputs: Iterable[str]) -> tuple[str, ...]:
 
 class Twin:
     """A scene stepped on a fixed grid, with its messages
-    (:class:`~mps_ros.step_messages.StepMessages`).
+    (:class:`~mps_ros.wire.step_messages.StepMessages`).
 
     ``dt``/``t_end``: override the scene's (None: the scene's); so does ``derivatives`` (the
     scheme of the Lagrange equations' derivatives: ``central``, the seed's finite differences,
     or ``autodiff``, exact). ``scene_commands``: False drops
     the scene's own [[commands]] schedule (an operator sends them instead). ``outputs``: the
-    subset of :data:`~mps_ros.topics.OUTPUTS` to produce; the reactions are solved only when
+    subset of :data:`~mps_ros.wire.topics.OUTPUTS` to produce; the reactions are solved only when
     ``reactions`` or ``foundation`` is among them."""
 
     def __init__(
@@ -272,7 +272,7 @@ class Twin:
         return None if rx is None else dict(zip(REACTION_COLUMNS, rx))
 
     def joint_values(self) -> tuple[list, list]:
-        """Positions and velocities of :data:`~mps_ros.topics.JOINT_NAMES`."""
+        """Positions and velocities of :data:`~mps_ros.wire.topics.JOINT_NAMES`."""
         sim = self.sim
         phi, phi_dot, psi, psi_dot, x, x_dot = sim.joint_state()
         kin = sim.solver.current.kin
@@ -716,7 +716,7 @@ class Measurements:
 class Runner:
     """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
     message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
-    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.cdr.encoder`
+    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.wire.cdr.encoder`
     for the others) and its simulated time in ns; a recorder also gets the commands received,
     ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. A sink with
     ``emit_all(msgs)`` gets each step's state in one call instead (``(key, data, t_ns,
@@ -802,7 +802,7 @@ class Runner:
     def _encode(self, key: str):
         enc = self._encoders.get(key)
         if enc is None:
-            from .cdr import encoder
+            from ..wire.cdr import encoder
 
             enc = self._encoders[key] = encoder(BY_KEY[key].msgtype)
         return enc
@@ -913,7 +913,7 @@ class Runner:
         return out
 
     def _diagnostics(self, t_ns: int) -> None:
-        """/diagnostics (:mod:`mps_ros.diagnostics`): pacing, commands, and the status of each
+        """/diagnostics (:mod:`mps_ros.wire.diagnostics`): pacing, commands, and the status of each
         sink that has one (the recording), about the window since the last."""
         if "diagnostics" not in self.twin.outputs:
             return

@@ -39,7 +39,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from .demo import ros_env, stop_group
+from ..commands.demo import ros_env, stop_group
+from ..ros.environment import env_defaults
 
 
 def _stat_cpu(stat: str) -> float:
@@ -113,10 +114,10 @@ def _node_processes(pid: int) -> tuple[list[int], list[int]]:
     node, rec = [pid], []
     for kid in _children(pid):
         line = _cmdline(kid)
-        if "mps_ros.stepping" in line:
+        if "mps_ros.run.stepping" in line:
             node.append(kid)
-            rec += [k for k in _children(kid) if "mps_ros.recording" in _cmdline(k)]
-        elif "mps_ros.recording" in line:
+            rec += [k for k in _children(kid) if "mps_ros.recording.background" in _cmdline(k)]
+        elif "mps_ros.recording.background" in line:
             rec.append(kid)
     return node, rec
 
@@ -206,8 +207,8 @@ def loop_cost(steps: int = 3000, outputs: str | None = None, derivatives: str | 
     beside a realtime run, it says what the same work costs this machine outside the node at
     that moment; the node's CPU a step is a multiple of it (the threads, the waiting, the
     middleware; the multiple itself varies from run to run on a virtual machine)."""
-    from .topics import OUTPUTS
-    from .twin import Twin
+    from ..run.twin import Twin
+    from ..wire.topics import OUTPUTS
 
     outs = outputs.split(",") if outputs else OUTPUTS
     tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=outs, derivatives=derivatives)
@@ -352,8 +353,6 @@ def publish_floor(recording: str) -> int:
     published as they are (serialized) in a bare loop once the subscriber has joined every
     topic; prints one JSON line (the steps, CPU µs a step of the process and of the loop's
     thread)."""
-    from .node import MSG_CLASSES, env_defaults
-
     env_defaults()
     import rclpy
     from mcap.reader import make_reader
@@ -361,7 +360,8 @@ def publish_floor(recording: str) -> int:
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from .topics import DEPTH, LATCHED, TOPICS, resolve
+    from ..ros.node import MSG_CLASSES
+    from ..wire.topics import DEPTH, LATCHED, TOPICS, resolve
 
     steps: list[list] = []
     last = None
@@ -489,7 +489,7 @@ def _subscriber_figures(st: dict, got: dict, recording: Path) -> None:
     st["subscriber_msgs_per_s"] = got["rate"]
     st["subscriber_received"] = got["received"]
     try:
-        from .topics import MODE, resolve
+        from ..wire.topics import MODE, resolve
 
         published = recorded_counts(recording)
         published.pop(resolve(MODE.key), None)  # recorded as received, not published
@@ -567,7 +567,7 @@ def afap(
 
 
 def record_only(tmp: Path, steps: int) -> dict:
-    from .recording import record
+    from ..run.record import record
 
     _, st, _ = record("press-cycle", tmp / "rec.mcap", dt=0.001, t_end=steps * 1e-3, stop_on_signals=False)
     return {
@@ -591,7 +591,7 @@ def _operator(node, every: float | None, state: dict, flood: int = 0) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
-    from .topics import MODE, resolve
+    from ..wire.topics import MODE, resolve
 
     pub = node.create_publisher(
         String, resolve(MODE.key), QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -620,8 +620,6 @@ def _operator(node, every: float | None, state: dict, flood: int = 0) -> None:
 
 def probe() -> int:
     """The external subscriber: every topic of press_twin, reliable; prints one JSON line."""
-    from .node import env_defaults
-
     env_defaults()
     import rclpy
     from rclpy.node import Node
@@ -730,8 +728,8 @@ def _subscribe_all(node, got: _Received, raw: bool) -> list[str]:
     ``got``; the topics of a type not importable here (the node records them only)."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from .node import MSG_CLASSES
-    from .topics import TOPICS, resolve
+    from ..ros.node import MSG_CLASSES
+    from ..wire.topics import TOPICS, resolve
 
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     unknown = []
@@ -802,7 +800,7 @@ def wakeup_costs(n: int = 2000) -> dict:
 
 
 def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
-    """CPU µs a message of the recording's MCAP writer (:class:`~mps_ros.mcap_writer.McapWriter`)
+    """CPU µs a message of the recording's MCAP writer (:class:`~mps_ros.recording.mcap_writer.McapWriter`)
     and of the ``mcap`` library's ``Writer``, given the same messages (press-cycle at 1 kHz,
     every output, ``steps`` steps: what the recording process writes) into memory, zstd chunks
     of 512 KiB; the two interleaved, best of ``rounds``; and whether the files were the same."""
@@ -810,9 +808,9 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
 
     from mcap.writer import CompressionType, Writer
 
-    from .mcap_writer import ENCODING_CDR, PROFILE_ROS2, SCHEMA_ROS2MSG, McapWriter
-    from .topics import OUTPUTS
-    from .twin import Twin
+    from ..recording.mcap_writer import ENCODING_CDR, PROFILE_ROS2, SCHEMA_ROS2MSG, McapWriter
+    from ..run.twin import Twin
+    from ..wire.topics import OUTPUTS
 
     tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=OUTPUTS)
     msgs = []
@@ -1059,7 +1057,7 @@ def _writer() -> int:
     print(
         f"the recording's MCAP writer, {r['messages']} messages of press-cycle at 1 kHz "
         f"({r['per_step']:.0f} a step), zstd chunks of 512 KiB, best of 5, CPU:\n"
-        f"  mps_ros.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
+        f"  mps_ros.recording.mcap_writer.McapWriter   {r['mps_us']:5.2f} us a message\n"
         f"  the mcap library's Writer         {r['mcap_us']:5.2f} us a message "
         f"({r['mcap_us'] / r['mps_us']:.1f}x)\n"
         f"  the same bytes                    {'yes' if r['same_bytes'] else 'NO'}"
@@ -1179,7 +1177,7 @@ def _print_realtime(a, r: dict) -> None:
 def _table(a, env, tmp: Path) -> list:
     """``table``: the node as fast as possible by outputs."""
     rows = []
-    from .topics import OUTPUTS
+    from ..wire.topics import OUTPUTS
 
     no_markers = ",".join(o for o in OUTPUTS if o != "markers")
     for label, outs, rec in (

@@ -1,11 +1,11 @@
 """A recording of the twin as a Rerun recording: the mechanism drawn at every step, its reaction
 forces as arrows, the time series, the events, and a blueprint that lays them out.
 
-    from mps_ros.replay import read_recording
-    from mps_ros.view import save_rrd
+    from mps_ros.recording.replay import read_recording
+    from mps_ros.view.offline import save_rrd
     save_rrd(read_recording("run.mcap"), "run.rrd")        # then: rerun --bind 127.0.0.1 run.rrd
 
-It reads recordings (:mod:`mps_ros.replay`), never the core's objects, and never imports rclpy.
+It reads recordings (:mod:`mps_ros.recording.replay`), never the core's objects, and never imports rclpy.
 
 **Timeline.** ``sim_time``: the simulated time of each published step (a duration, s).
 
@@ -17,14 +17,14 @@ It reads recordings (:mod:`mps_ros.replay`), never the core's objects, and never
   B–C green), ``slider`` (a block centred on C), ``joints`` (O, A, B, C as points), ``latch``
   (on the slider's side: green, "latch closed (locked)" while the structure is ``locked``; grey,
   "latch open (free)" or "latch open (held)" otherwise), ``reactions/<wrench>`` (an arrow for
-  each wrench of :data:`~mps_ros.topics.WRENCHES` that carries a force, at its joint, labelled
+  each wrench of :data:`~mps_ros.wire.topics.WRENCHES` that carries a force, at its joint, labelled
   with its magnitude, shown on hover; the guide's on the slider's face, the stop's on its
   ledge) and
   ``reactions/foundation`` (the resultant the frame receives, drawn at the bearing's base below
   O). Arrows share one scale a recording, in the view's title and in
   :attr:`Converted.arrow_scale_n_per_mm`. Positions: A = l1(cos φ, sin φ), C = (x_C, 0),
   B = C + l3(cos ψ, sin ψ), from the joint states and the scene's geometry (its metadata).
-* ``plots/<family>/<column>``: the columns of the recording (:mod:`mps_ros.replay`), one plot
+* ``plots/<family>/<column>``: the columns of the recording (:mod:`mps_ros.recording.replay`), one plot
   per family (:data:`FAMILIES`); values exactly as recorded, in SI units. ε1 = φ̈ is derived from
   ω1 (a recording has no accelerations). ``plots/crank_speed/events/<kind>``: markers on ω1 at
   each event.
@@ -53,9 +53,9 @@ import numpy as np
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS
 
-from .drawing import BEARING, COLORS, SLIDER, arrow_anchor
-from .replay import DERIVED, Replay, ReplayError, read_recording
-from .topics import FOUNDATION, WRENCHES
+from ..recording.replay import DERIVED, Replay, ReplayError, read_recording
+from ..wire.drawing import BEARING, COLORS, SLIDER, arrow_anchor
+from ..wire.topics import FOUNDATION, WRENCHES
 
 TIMELINE = "sim_time"
 APPLICATION_ID = "mps"
@@ -69,7 +69,7 @@ def _unit(col: str) -> str:
 
 
 #: plot families: (entity name, title, ((column, series name), ...)); the reaction columns come
-#: from the wrenches of mps_ros.topics (the joints' forces and moments, the motor's torque, the
+#: from the wrenches of mps_ros.wire.topics (the joints' forces and moments, the motor's torque, the
 #: foundation's resultant), so a name is never written twice
 FAMILIES: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
     ("crank_angle", "crank angle φ (rad)", (("phi", "φ (rad)"),)),
@@ -147,7 +147,8 @@ LEVELS = {
 }
 
 
-def _rr():
+def rerun_sdk():
+    """Import rerun-sdk, or say how to install it (:class:`ReplayError`)."""
     try:
         import rerun as rr
     except ModuleNotFoundError:
@@ -250,7 +251,7 @@ def convert(
     instead of taken from the data, ``statics`` only for the first stretch; ``draw_every``
     > 1 draws the mechanism and the force arrows at every such step only (and the stretch's
     last), the plots and events still at every step (a live view behind the run)."""
-    rr = _rr()
+    rr = rerun_sdk()
     import rerun.blueprint as rrb
 
     scene = scene if scene is not None else rep.scene
@@ -611,7 +612,7 @@ def blueprint(rrb, bounds, scale, rep: Replay):
 # -- files and the viewer ---------------------------------------------------------------------
 def save_rrd(rep: Replay, path, *, scene=None) -> Converted:
     """Convert and write ``path`` (.rrd) with its blueprint; returns the work done."""
-    rr = _rr()
+    rr = rerun_sdk()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rid = uuid.uuid5(uuid.NAMESPACE_URL, "mps-recording:" + (rep.digest or str(rep.path)))

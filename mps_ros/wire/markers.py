@@ -7,11 +7,11 @@ Everything is in the frame ``press`` (x up along the guide, y across, z out of t
 metres), stamped with the step's simulated time. Namespaces: ``frame``, ``links``, ``slider``,
 ``joints``, ``latch``, and ``reactions/<wrench> (1 m = N N)`` for the arrows (the scale in
 the name: a force F is an arrow F/N metres long). Points come from the joint states and the scene's
-geometry exactly as :func:`mps_ros.drawing.joint_points` says.
+geometry exactly as :func:`mps_ros.wire.drawing.joint_points` says.
 
 :class:`MarkerLayout` gives the message from the step's values (:meth:`MarkerLayout.message`) and
 the floats that change from one step to the next in the order the message takes them
-(:meth:`MarkerLayout.values`), so that a :class:`~mps_ros.cdr.Preset` keeps the encoded
+(:meth:`MarkerLayout.values`), so that a :class:`~mps_ros.wire.cdr.Preset` keeps the encoded
 message and packs only those.
 """
 

@@ -67,7 +67,7 @@ def view_help(path: Path) -> str:
     here = Path(sys.executable).with_name("rerun")
     rerun = str(here) if here.exists() else "pip install rerun-sdk && rerun"
     view = ""
-    if importlib.util.find_spec("mps_ros.view_cli") is not None:
+    if importlib.util.find_spec("mps_ros.commands.view") is not None:
         view = f"\n           or .venv/bin/mps view {p} (the press drawn, its loads as arrows)"
     return f"""How to view it:
   Foxglove (desktop or web app): Open local file... -> {p}
@@ -99,10 +99,10 @@ def _recording(args, scene) -> Path:
     write, or an existing file, is refused), or a new file of its own, created empty."""
     from mps_core.files.outputs import check_outputs
 
-    from .recording import new_recording
+    from ..recording.recorder import new_recording
 
     if args.out:
-        from .bag import is_bag
+        from ..recording.bag import is_bag
 
         out = Path(args.out)
         check_outputs({"--out": out}, inputs=[args.scene], folders={"--out"} if is_bag(out) else ())

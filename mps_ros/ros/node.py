@@ -2,8 +2,8 @@
 
     mps node [SCENE] [--ros-args -p NAME:=VALUE ... --params-file FILE.yaml]
 
-Topics, types, frames and signs: :mod:`mps_ros.topics` (and the README). The run itself (steps,
-pacing, commands, diagnostics) is :class:`mps_ros.twin.Runner`, the same one ``mps record``
+Topics, types, frames and signs: :mod:`mps_ros.wire.topics` (and the README). The run itself (steps,
+pacing, commands, diagnostics) is :class:`mps_ros.run.twin.Runner`, the same one ``mps record``
 uses; this module adds the ROS side: parameters, publishers, the ``~/mode`` subscription and the
 ``~/engage``, ``~/disengage``, ``~/stop``, ``~/start`` services (std_srvs/Trigger), the
 recorder, signals. ROS callbacks run in a background executor thread and only queue commands;
@@ -11,7 +11,7 @@ the run loop applies them at the next step boundary and answers on ``~/mode/stat
 the service caller).
 
 Parameters (read-only; ``--ros-args -p`` or a YAML file, see ``config/press_twin.yaml``): the
-table :data:`mps_ros.parameters.PARAMETERS` (docs/ros.md lists it; ``ros2 param describe``
+table :data:`mps_ros.ros.parameters.PARAMETERS` (docs/ros.md lists it; ``ros2 param describe``
 gives each one's description and range).
 """
 
@@ -21,49 +21,33 @@ import contextlib
 import os
 import signal
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from mps_core import MpsError
+from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
+
+from ..run.twin import Command, Gate, Inbox, Runner, Twin, shown, to_json
+from ..wire.diagnostics import hardware_id
+from ..wire.topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve
+from .environment import env_defaults
+from .parameters import ParameterError, declare, read
+
 DEFAULT_SCENE = "press-cycle"
-
-
-#: the Fast DDS writer timers (reliable protocol only; the QoS comes from the code)
-FASTDDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
-
-
-def env_defaults() -> None:
-    """Loopback-only discovery, a temporary log folder and :data:`FASTDDS_PROFILE`'s writer
-    timers unless the environment says otherwise (set before rclpy starts)."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("ROS_LOG_DIR", os.path.join(tempfile.gettempdir(), "mps-ros-log"))
-    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
-
-
-env_defaults()
-
-import rclpy  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks  # noqa: E402
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn  # noqa: E402
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
-from std_srvs.srv import Trigger  # noqa: E402
-from visualization_msgs.msg import MarkerArray  # noqa: E402
-
-from mps_core import MpsError  # noqa: E402
-from mps_core.scene.settings import COMMANDS as COMMAND_WORDS  # noqa: E402
-
-from .diagnostics import hardware_id  # noqa: E402
-from .parameters import ParameterError, declare, read  # noqa: E402
-from .topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve  # noqa: E402
-from .twin import Command, Gate, Inbox, Runner, Twin, shown, to_json  # noqa: E402
 
 MSG_CLASSES = {
     "rosgraph_msgs/msg/Clock": Clock,
@@ -82,7 +66,7 @@ except ImportError:
 
 
 class RosSink:
-    """A :class:`~mps_ros.twin.Runner` sink that publishes each message's CDR bytes on its
+    """A :class:`~mps_ros.run.twin.Runner` sink that publishes each message's CDR bytes on its
     topic: the very bytes the recorder writes. In realtime pacing the runner calls it from its
     releasing thread, at each step's deadline, beside the steps computed ahead."""
 
@@ -180,7 +164,7 @@ class RunConfig:
         )
 
     def splits(self, twin: Twin) -> bool:
-        """Whether ``twin`` steps in a process of its own (:mod:`mps_ros.stepping`): asked for
+        """Whether ``twin`` steps in a process of its own (:mod:`mps_ros.run.stepping`): asked for
         (``stepping_process``), in realtime pacing or where the twin can come back to a step."""
         p = self.p
         return p["stepping_process"] and (p["pacing"] == "realtime" or twin.rewindable)
@@ -220,7 +204,7 @@ class RunConfig:
     def stepping_process(self, twin: Twin, sink, log):
         """The stepping process that steps the scene of ``twin`` (not started), its releases
         published through ``sink``."""
-        from .releasing import SteppingProcess
+        from ..run.releasing import SteppingProcess
 
         p = self.p
         spec = {
@@ -333,7 +317,7 @@ class PressTwin(LifecycleNode):
         if twin is None:
             self.twin = self.config.twin()
         self.closed = False
-        #: the twin steps in a process of its own (:mod:`mps_ros.stepping`); this process
+        #: the twin steps in a process of its own (:mod:`mps_ros.run.stepping`); this process
         #: publishes what it releases and forwards the commands (as fast as possible, where
         #: the twin can come back to a step: a command's boundary is the last step released)
         self.split = self.config.splits(self.twin)
@@ -381,7 +365,10 @@ class PressTwin(LifecycleNode):
             time.sleep(0.01)
 
     def open_recording(self):
-        from .recording import BackgroundRecorder, RecordingSink, _run_metadata, new_recording
+        from ..recording.background import BackgroundRecorder
+        from ..recording.recorder import new_recording
+        from ..run.record import run_metadata
+        from ..run.sinks import RecordingSink
 
         path = self.p["recording"]
         self.recorder = self.recording_sink = None
@@ -393,7 +380,7 @@ class PressTwin(LifecycleNode):
             path, self._recording_reserved = next_recording(path), False
         else:
             path, self._recording_reserved = claim_recording(path)
-        meta = _run_metadata(
+        meta = run_metadata(
             self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"], self.p["publish_every"]
         )
         meta["node"] = self.get_fully_qualified_name()
@@ -475,7 +462,7 @@ class PressTwin(LifecycleNode):
         prio = _priority(self.p)
         if not prio:
             return
-        from .stepping import HOW_TO_ALLOW, ask_fifo
+        from ..run.stepping import HOW_TO_ALLOW, ask_fifo
 
         why = ask_fifo(prio)
         if why is not None:
@@ -695,8 +682,8 @@ def claim_recording(path) -> tuple[Path, bool]:
     from mps_core.files.outputs import OutputFileError
     from mps_core.files.outputs import check_outputs as check_paths
 
-    from .bag import is_bag
-    from .recording import reserve
+    from ..recording.bag import is_bag
+    from ..recording.recorder import reserve
 
     p = Path(path)
     if is_bag(p):  # a new directory
@@ -723,7 +710,7 @@ def claim_recording(path) -> tuple[Path, bool]:
 def next_recording(path) -> Path:
     """The recording of the run after a reset: beside ``path``, ``NAME-2.mcap``, ``-3``…
     (a bag: ``NAME-2``…), the first that is free, claimed at once."""
-    from .recording import reserve_free
+    from ..recording.recorder import reserve_free
 
     return reserve_free(Path(path), start=2)
 

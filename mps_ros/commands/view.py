@@ -1,6 +1,6 @@
 """``mps view RECORDING.mcap [--save FILE.rrd] [--no-spawn] [--scene SCENE]``: a recording in
-the Rerun viewer (:mod:`mps_ros.view`); ``mps view --live [--save FILE.rrd | --connect URL]``:
-the running node, followed (:mod:`mps_ros.live_view`).
+the Rerun viewer (:mod:`mps_ros.view.offline`); ``mps view --live [--save FILE.rrd | --connect URL]``:
+the running node, followed (:mod:`mps_ros.view.live`).
 
 Without ``--save`` the .rrd goes to a temporary folder and the viewer opens on it; with
 ``--no-spawn`` it is only written. A viewer started here listens on 127.0.0.1 only.
@@ -59,7 +59,10 @@ def run(args) -> int:
     if args.live:
         if args.recording:
             raise SystemExit("mps view: --live follows the running node: give no recording")
-        from .live_view import run_live
+        from ..ros.environment import env_defaults
+        from ..view.live import run_live
+
+        env_defaults()  # before rclpy starts: loopback-only discovery unless set
 
         # before anything starts: never over an existing file without --force, never into a
         # folder that is not there
@@ -85,7 +88,7 @@ def run(args) -> int:
         return 0
     if not args.recording:
         raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")
-    from .view import view
+    from ..view.offline import view
 
     check_outputs({"--save": args.save}, inputs=[args.recording], force=args.force)
 

@@ -1,5 +1,5 @@
 """CDR (XCDR1, little endian) encoders for the twin's per-step message types, from the message
-dicts :mod:`mps_ros.twin` builds.
+dicts :mod:`mps_ros.run.twin` builds.
 
 The node publishes these bytes (``Publisher.publish`` of a serialized message) and the recorder
 writes the same bytes into the MCAP file, so what goes on the wire and what is recorded are one
@@ -175,6 +175,6 @@ def generic_encoder(msgtype: str):
 
 
 def encoder(msgtype: str):
-    """A function message dict -> CDR bytes: :mod:`mps_ros.cdr`'s for the per-step types (the
+    """A function message dict -> CDR bytes: :mod:`mps_ros.wire.cdr`'s for the per-step types (the
     same bytes, faster), mcap-ros2-support's for the others."""
     return ENCODERS.get(msgtype) or generic_encoder(msgtype)

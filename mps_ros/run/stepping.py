@@ -1,11 +1,11 @@
 """The live node's stepping process: the twin stepped in an interpreter of its own.
 
-The node (:mod:`mps_ros.node`) does not step the twin itself. It starts
-``python -m mps_ros.stepping``, which builds the same :class:`~mps_ros.twin.Twin` and uses the
-same :class:`~mps_ros.twin.Runner`'s parts (the run's start and end messages, events,
+The node (:mod:`mps_ros.ros.node`) does not step the twin itself. It starts
+``python -m mps_ros.run.stepping``, which builds the same :class:`~mps_ros.run.twin.Twin` and uses the
+same :class:`~mps_ros.run.twin.Runner`'s parts (the run's start and end messages, events,
 diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
 keeps a checkpoint of every ``_Ahead.EVERY``-th step, and writes each step's messages, already
-encoded, down a pipe. The node's process (:mod:`mps_ros.releasing`) holds them and publishes
+encoded, down a pipe. The node's process (:mod:`mps_ros.run.releasing`) holds them and publishes
 each at its deadline, then hands it to the recorder: its interpreter is not shared with the
 stepping, so a step being computed (or a stepping thread that another process preempts while it
 holds its interpreter's lock) never holds a publication back, and a step's eleven publishes
@@ -13,13 +13,13 @@ never hold a step back.
 
 ::
 
-    ROS process (mps_ros.node)                     stepping process (python -m mps_ros.stepping)
+    ROS process (mps_ros.ros.node)                     stepping process (python -m mps_ros.run.stepping)
       executor thread: ~/mode, services: gate,  ── C ──▶  a command at its boundary, numbered
         boundary, refusals answered here
       main thread: holds the steps, publishes   ◀── M ──  each step computed ahead, encoded
         each at its deadline, then records it   ◀── A, L, P, E ── answers, log lines, the end
         │
-        ▼ recording process (python -m mps_ros.recording)
+        ▼ recording process (python -m mps_ros.recording.background)
 
 **Commands.** The wall clock is ``time.perf_counter`` (CLOCK_MONOTONIC), the same in both
 processes. A command that arrives at wall time w is taken in the ROS process at once: the gate
@@ -42,24 +42,24 @@ byte for byte, in the same order.
 
 **As fast as possible** (where the twin can come back to a step) the same two processes
 pipeline the run: the stepping process steps on while it is fewer than ``_Ahead.AHEAD`` steps
-past the last step the node has released (which the node tells it, frame ``K``); the node
+past the last step the node has released (which the node tells it, frame ``RELEASED``); the node
 releases each step as it comes. A command is applied at the boundary of the last step released
 when it came, the steps held beyond it dropped and computed again, as above: what subscribers
 saw before the command is what the run was.
 
-**Frames** (both pipes): one byte of kind, the payload's length (u32), the payload. To the
-stepping process: ``I`` its settings (JSON), ``G`` go (the priority to ask for, JSON), ``C`` a
-command (marshal: reply id or None, word, source, wall, boundary step, generation), ``N`` the
-commands refused here, of which as floods, and lost (marshal: three counts, for its
-/diagnostics), ``Z`` pause (the node deactivated: nothing is computed ahead, commands are still
-applied), ``O`` go on after a pause (marshal: its length in wall seconds, by which every
-deadline moves), ``T`` one step while paused (the node's ``~/step``), ``K`` as fast as
-possible, the last step released (marshal), ``S`` stop (the reason, UTF-8). From it: ``R``
-ready (JSON: or the error), ``P`` the priority it got (JSON), ``M`` a step or a command's
-answers (marshal: step, generation, deadline, whether it holds the step's
-state, the structure, why the machine would refuse each command word there
-(:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``A`` a command's
-answer for a service (marshal: id, JSON), ``L`` a log line (marshal: level, text), ``E`` the
+**Frames** (both pipes, :mod:`mps_ros.wire.pipe`): one byte of kind (:class:`Frame`), the
+payload's length (u32), the payload. To the stepping process: ``SETTINGS`` (JSON), ``GO`` (the
+priority to ask for, JSON), ``COMMAND`` (marshal: reply id or None, word, source, wall, boundary
+step, generation), ``REFUSED`` the commands refused here, of which as floods, and lost
+(marshal: three counts, for its /diagnostics), ``PAUSE`` (the node deactivated: nothing is
+computed ahead, commands are still applied), ``RESUME`` after a pause (marshal: its length in
+wall seconds, by which every deadline moves), ``STEP`` one step while paused (the node's
+``~/step``), ``RELEASED`` as fast as possible, the last step released (marshal), ``STOP`` (the
+reason, UTF-8). From it: ``READY`` (JSON: or the error), ``PRIORITY`` the priority it got
+(JSON), ``MESSAGES`` a step or a command's answers (marshal: step, generation, deadline, whether
+it holds the step's state, the structure, why the machine would refuse each command word there
+(:meth:`Twin.refusals`), its (key, CDR bytes, t_ns, received) messages), ``ANSWER`` a command's
+answer for a service (marshal: id, JSON), ``LOG`` a log line (marshal: level, text), ``END`` the
 run's end (JSON: statistics, stop reason, error).
 
 **Faults.** The stepping process asks the system for SIGTERM when the node's process dies
@@ -76,16 +76,13 @@ import marshal
 import math
 import os
 import signal
-import struct
 import sys
 import threading
 import time
 
-from .os_threads import widen_pipe
+from ..os_threads import widen_pipe
+from ..wire.pipe import HEAD, Frame, FrameReader, FrameWriter
 from .twin import Command, Runner, Twin, to_json
-
-_HEAD = struct.Struct("<cI")
-
 
 # -- frames -----------------------------------------------------------------------------------
 #: the wall seconds over which a realtime run's rate is judged first (the whole run if shorter)
@@ -97,65 +94,6 @@ RATE_SHORT = 0.9
 def achieved_rate(steps: int, wall: float) -> float:
     """Return the steps a wall second that ``steps`` made in ``wall`` seconds."""
     return steps / wall if wall > 0.0 else math.inf
-
-
-class FrameWriter:
-    """Frames to a file descriptor, one writer at a time (the threads of a process share it)."""
-
-    def __init__(self, fd: int):
-        self.fd = fd
-        self._lock = threading.Lock()
-        self.broken = False
-
-    def frame(self, kind: bytes, payload: bytes) -> bool:
-        return self.write(_HEAD.pack(kind, len(payload)) + payload)
-
-    def write(self, data: bytes) -> bool:
-        """Whole frames at once (False: the other side is gone)."""
-        with self._lock:
-            if self.broken:
-                return False
-            view = memoryview(data)
-            try:
-                while view:
-                    view = view[os.write(self.fd, view) :]
-            except OSError:  # the other side is gone
-                self.broken = True
-                return False
-        return True
-
-
-class FrameReader:
-    """Whole frames from a file descriptor: :meth:`read` blocks until at least one has come
-    (an empty list: the other side closed its end)."""
-
-    def __init__(self, fd: int):
-        self.fd = fd
-        self._buf = bytearray()
-
-    def read(self) -> list[tuple[bytes, bytes]]:
-        buf = self._buf
-        while True:
-            got = []
-            pos = 0
-            n_buf = len(buf)
-            while n_buf - pos >= 5:
-                kind, n = _HEAD.unpack_from(buf, pos)
-                if n_buf - pos - 5 < n:
-                    break
-                got.append((kind, bytes(buf[pos + 5 : pos + 5 + n])))
-                pos += 5 + n
-            if pos:
-                del buf[:pos]
-            if got:
-                return got
-            try:
-                chunk = os.read(self.fd, 1 << 20)
-            except InterruptedError:
-                continue
-            if not chunk:
-                return []
-            buf.extend(chunk)
 
 
 # -- real-time scheduling ---------------------------------------------------------------------
@@ -201,16 +139,16 @@ def fifo_for_the_others(priority: int) -> int:
 
 # -- the stepping process's side --------------------------------------------------------------
 class Hold:
-    """The node's pause, as the stepping process knows it: ``paused`` (frame ``Z``);
+    """The node's pause, as the stepping process knows it: ``paused`` (frame ``PAUSE``);
     ``shift``, the wall seconds the schedule has moved on by for the pauses so far (frame
     ``O``: each pause's length, added as it ends); ``steps``, one token a step asked for while
-    paused (frame ``T``, the node's ``~/step``)."""
+    paused (frame ``STEP``, the node's ``~/step``)."""
 
     def __init__(self):
         self.paused = False
         self.shift = 0.0
         self.steps: collections.deque = collections.deque()
-        #: as fast as possible: the last step the node has released (frame ``K``)
+        #: as fast as possible: the last step the node has released (frame ``RELEASED``)
         self.released = -1
 
 
@@ -222,7 +160,7 @@ class _Ahead:
     checkpoint at or before it and stepping again to it, or stepping on to it).
 
     ``afap`` (as fast as possible): no deadlines; the twin steps on while it is fewer than
-    :attr:`AHEAD` steps past the last step the node has released (frame ``K``), the steps
+    :attr:`AHEAD` steps past the last step the node has released (frame ``RELEASED``), the steps
     written :attr:`BATCH` at a time, the checkpoints kept as far back as the node may hold."""
 
     #: steps written at once at most; a step due within this (wall s) goes at once
@@ -268,7 +206,7 @@ class _Ahead:
 
     def flush(self) -> None:
         if self.pending:
-            data = b"".join(_HEAD.pack(b"M", len(p)) + p for p in self.pending)
+            data = b"".join(HEAD.pack(Frame.MESSAGES, len(p)) + p for p in self.pending)
             self.pending = []
             self.due = math.inf
             if not self.out.write(data):
@@ -451,7 +389,7 @@ class _Ahead:
 
     def _reply(self, cid: int):
         def reply(ack):
-            self.out.frame(b"A", marshal.dumps((cid, to_json(ack))))
+            self.out.frame(Frame.ANSWER, marshal.dumps((cid, to_json(ack))))
 
         return reply
 
@@ -487,23 +425,23 @@ class _FromTheNode:
 
     def take(self, kind: bytes, payload: bytes) -> None:
         hold, runner = self.hold, self.runner
-        if kind == b"C":
+        if kind == Frame.COMMAND:
             self.commands.append(marshal.loads(payload))
-        elif kind == b"S":
+        elif kind == Frame.STOP:
             self.stop(payload.decode())
             self.go.set()
-        elif kind == b"G":
+        elif kind == Frame.GO:
             self.asked.update(json.loads(payload))
             self.go.set()
-        elif kind == b"N":
+        elif kind == Frame.REFUSED:
             runner.commands.elsewhere = marshal.loads(payload)
-        elif kind == b"Z":
+        elif kind == Frame.PAUSE:
             hold.paused = True
-        elif kind == b"T":
+        elif kind == Frame.STEP:
             hold.steps.append(1)
-        elif kind == b"K":
+        elif kind == Frame.RELEASED:
             hold.released = marshal.loads(payload)
-        elif kind == b"O":
+        elif kind == Frame.RESUME:
             paused = marshal.loads(payload)
             hold.shift += paused
             runner.clocks.wall_start += paused
@@ -525,7 +463,7 @@ class _FromTheNode:
 
 
 def serve(fd_in: int = 0, fd_out: int = 1) -> int:
-    """The stepping process (``python -m mps_ros.stepping``): settings, ready, go, the run,
+    """The stepping process (``python -m mps_ros.run.stepping``): settings, ready, go, the run,
     its end; see the module's docstring."""
     parent = os.getppid()
     _set_parent_death_signal()
@@ -536,13 +474,13 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     widen_pipe(fd_out)
     reader = FrameReader(fd_in)
     frames = reader.read()
-    if not frames or frames[0][0] != b"I":
+    if not frames or frames[0][0] != Frame.SETTINGS:
         return 2
     spec = json.loads(frames[0][1])
     pending = frames[1:]
 
     def log(level: str, text: str) -> None:
-        out.frame(b"L", marshal.dumps((level, text)))
+        out.frame(Frame.LOG, marshal.dumps((level, text)))
 
     try:
         twin = Twin(spec["scene"], **spec["twin"])
@@ -550,7 +488,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         runner = Runner(twin, pacing=pacing, log=log, **spec["runner"])
         runner.prepare()
     except Exception as exc:
-        out.frame(b"R", json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
+        out.frame(Frame.READY, json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
         return 2
     node = _FromTheNode(runner, reader, pending)
 
@@ -561,7 +499,9 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
         signal.signal(s, on_signal)
     if os.getppid() != parent:  # the node died before the death signal was asked for
         node.stop("the node's process ended")
-    out.frame(b"R", json.dumps({"ready": True, "pid": os.getpid(), "rewindable": twin.rewindable}).encode())
+    out.frame(
+        Frame.READY, json.dumps({"ready": True, "pid": os.getpid(), "rewindable": twin.rewindable}).encode()
+    )
     threading.Thread(target=node.listen, name="mps-commands", daemon=True).start()
     node.go.wait()
     prio = int(node.asked.get("priority", 0))
@@ -572,8 +512,10 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     # a command waits this long at most for the stepping thread to let go of the interpreter
     # (Python's default: 5 ms, five steps)
     sys.setswitchinterval(2e-4)
-    out.frame(b"P", json.dumps({"priority": 0 if (why or not prio) else prio, "refused": why}).encode())
-    from .os_threads import name_thread
+    out.frame(
+        Frame.PRIORITY, json.dumps({"priority": 0 if (why or not prio) else prio, "refused": why}).encode()
+    )
+    from ..os_threads import name_thread
 
     name_thread("mps-step")
     error_kind = None
@@ -593,7 +535,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     stats = runner.stats()
     stats["structure"] = twin.sim.structure
     out.frame(
-        b"E",
+        Frame.END,
         json.dumps(
             {
                 "stats": stats,

@@ -1,7 +1,7 @@
 """Realtime pacing in one process (the node's ``stepping_process:=false``): a
-:class:`~mps_ros.twin.Runner`'s twin stepped ahead by its thread, each step released at its
+:class:`~mps_ros.run.twin.Runner`'s twin stepped ahead by its thread, each step released at its
 deadline by a thread of its own (:class:`PacedInProcess`). The node's default steps in a
-process of its own instead (:mod:`mps_ros.stepping`, :mod:`mps_ros.releasing`)."""
+process of its own instead (:mod:`mps_ros.run.stepping`, :mod:`mps_ros.run.releasing`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import time
 
 from mps_core.scene.settings import COMMANDS
 
-from .os_threads import name_thread, short_slice
+from ..os_threads import name_thread, short_slice
 
 
 class _Release:
@@ -30,7 +30,7 @@ class _Release:
 
 
 class PacedInProcess:
-    """A :class:`~mps_ros.twin.Runner`'s realtime run in its own process: the steps, their
+    """A :class:`~mps_ros.run.twin.Runner`'s realtime run in its own process: the steps, their
     releases and the commands at their boundaries (see :meth:`run`). ``runner``: the run's
     twin, sinks, inbox, settings and counters."""
 

@@ -23,8 +23,13 @@ ROS_MISSING = (
 
 
 def _ros_import(modname):
+    """Import the ROS module ``modname``, this process's ROS environment set first; None (and
+    what to install, said) where ROS is missing."""
     import importlib
 
+    from ..ros.environment import env_defaults
+
+    env_defaults()
     try:
         return importlib.import_module(modname)
     except ImportError as exc:
@@ -36,7 +41,7 @@ def _ros_import(modname):
 
 
 def _node(args) -> int:
-    mod = _ros_import("mps_ros.node")
+    mod = _ros_import("mps_ros.ros.node")
     if mod is None:
         return 2
     argv = ([args.scene] if args.scene else []) + (["--ros-args", *args.ros_args] if args.ros_args else [])
@@ -45,7 +50,7 @@ def _node(args) -> int:
 
 def _operator(args) -> int:
     """Check the schedule, then start the operator (rclpy); SIGINT and SIGTERM from here on
-    end it with one line (``mps_ros.operator``)."""
+    end it with one line (``mps_ros.ros.operator``)."""
     import signal
 
     if args.at:
@@ -65,7 +70,7 @@ def _operator(args) -> int:
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        mod = _ros_import("mps_ros.operator")
+        mod = _ros_import("mps_ros.ros.operator")
         if mod is None:
             return 2
         return mod.run_operator(args, schedule, stop)
@@ -81,7 +86,7 @@ def _demo(args) -> int:
 
 
 def _outputs(text):
-    from .topics import OUTPUTS
+    from ..wire.topics import OUTPUTS
 
     if text is None:
         return OUTPUTS
@@ -94,8 +99,8 @@ def _record(args) -> int:
 
     from mps_core.files.outputs import check_outputs
 
-    from .bag import is_bag
-    from .recording import record
+    from ..recording.bag import is_bag
+    from ..run.record import record
 
     bag = is_bag(args.out)
     check_outputs(
@@ -224,7 +229,7 @@ def _keep(target, out, replacing: bool):
 
 def _kept_line(kept, out, replacing: bool, cut_short: bool = False) -> str:
     """Say what a recording that did not finish its run keeps, and where."""
-    from .recording import intact
+    from ..recording.recover import intact
 
     try:
         got = intact(kept)
@@ -265,7 +270,7 @@ def _recover(args) -> int:
     from mps_core.files.inputs import MCAP_MAGIC, check_file
     from mps_core.files.outputs import check_outputs, written_whole
 
-    from .recording import recover
+    from ..recording.recover import recover
 
     if Path(args.input).is_dir():
         return _recover_bag(args)
@@ -309,7 +314,7 @@ def _recover_bag(args) -> int:
 
     from mps_core.files.outputs import check_outputs, partial_name
 
-    from .recording import recover_bag
+    from ..recording.recover import recover_bag
 
     src = Path(args.input)
     dst = Path(args.output) if args.output else src.with_name(src.name + "-recovered")

@@ -37,7 +37,7 @@ def _wrenches(outputs: tuple[str, ...], solve_reactions: bool) -> tuple:
 
 
 class StepMessages:
-    """The messages of a :class:`~mps_ros.twin.Twin`'s present step, in publishing order: as
+    """The messages of a :class:`~mps_ros.run.twin.Twin`'s present step, in publishing order: as
     dicts (:meth:`dicts`) or encoded (:meth:`payloads`). It holds the topics' layouts
     (``frames``: ``/tf``; ``markers``: ``~/markers``, every ``marker_every`` steps, at about
     ``markers_hz``; ``wrenches``), the kept buffers each step's values are packed into, and what
@@ -89,7 +89,7 @@ class StepMessages:
 
     def dicts(self, twin) -> list[tuple[str, dict]]:
         """``twin``'s present step as (topic key, message dict): see
-        :meth:`~mps_ros.twin.Twin.state_messages`."""
+        :meth:`~mps_ros.run.twin.Twin.state_messages`."""
         out: list[tuple[str, dict]] = []
         o = self.outputs
         sim = twin.sim
@@ -180,7 +180,7 @@ class StepMessages:
 
     def payloads(self, twin) -> list[tuple[str, bytes]]:
         """``twin``'s present step as (topic key, CDR bytes), the latched messages marked sent:
-        see :meth:`~mps_ros.twin.Twin.state_payloads`."""
+        see :meth:`~mps_ros.run.twin.Twin.state_payloads`."""
         if self._js is None:
             self._make_presets()
         o = self.outputs

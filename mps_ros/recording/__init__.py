@@ -1,0 +1,6 @@
+"""Recordings: MCAP files and rosbag2 bags written, recovered and read back, no rclpy.
+
+The byte writer (:mod:`.mcap_writer`), the recorder and its writing process
+(:mod:`.recorder`), bags and their ``metadata.yaml`` (:mod:`.bag`, :mod:`.bag_metadata`), and a
+recording read back as columns (:mod:`.replay`). Needs mcap, mcap-ros2-support and rosbags only.
+"""

@@ -1,0 +1,344 @@
+"""The recorder's writing process: a :class:`~.recorder.Recorder` in a process of its own,
+fed down a pipe (``python -m mps_ros.recording.background``), off the stepping loop's time."""
+
+from __future__ import annotations
+
+import marshal
+import struct
+import time
+from pathlib import Path
+
+from ..os_threads import widen_pipe
+from ..wire.pipe import HEAD, Frame, PolledFrameReader
+from .recorder import Recorder
+
+
+class BackgroundRecorder:
+    """A :class:`Recorder` that writes in a process of its own (the machine's second core),
+    off the stepping loop's time: the loop hands it each message's CDR bytes, which it sends
+    down a pipe in batches (every ``batch_period`` wall seconds, at :meth:`tick`); the other
+    process (``python -m mps_ros.recording.background``) writes them
+    (:class:`~mps_ros.recording.mcap_writer.McapWriter`) in the order they were given. Same
+    methods as :class:`Recorder`; ``messages`` and :meth:`counts` count what was handed over,
+    ``written`` what the other process wrote (after :meth:`finish`).
+
+    The writing process ignores SIGINT and SIGTERM (the stepping process stops on them and
+    calls :meth:`finish`); it finishes the file when told, or when the pipe closes because the
+    stepping process is gone, so a crashed run still leaves a complete file. Killed with its
+    process group (SIGKILL), it leaves a file that :func:`recover` completes.
+
+    The pipe's frames (:mod:`mps_ros.wire.pipe`): ``Frame.SETTINGS`` the recorder's settings as
+    JSON, ``CHANNEL`` a channel as JSON, ``BATCH`` a batch of messages, ``STEPS`` a batch of
+    steps, ``FLUSH`` flush, ``END`` finish; a batch is records of (channel u16, time ns i64,
+    length u32, CDR bytes); a batch of steps is the :mod:`marshal` dump (one interpreter
+    writes and reads it) of (the keys' channel ids where they grew, else None; the steps'
+    lists of (key, CDR bytes, t_ns, received)). The
+    writing process answers on its standard output, one JSON line each: ``{"ready": true}``
+    (or ``{"error": …}``) after the settings, ``{"done": N, "counts": {topic: n}}`` (or
+    ``{"error": …}``) at the end.
+    """
+
+    def __init__(
+        self,
+        path,
+        *,
+        batch_period: float = 0.02,
+        scene_name: str = "",
+        scene_text: str = "",
+        metadata: dict | None = None,
+        chunk_size: int = 512 * 1024,
+        flush_period: float = 1.0,
+        compression: str = "zstd",
+        max_bytes: int = 0,
+        max_s: float = 0.0,
+        file_name: str = "",
+    ):
+        import json
+        import subprocess
+        import sys
+
+        self.path = Path(path)
+        self.batch_period = float(batch_period)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "mps_ros.recording.background"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+        )
+        self._out = self._proc.stdin
+        widen_pipe(self._out.fileno())
+        settings = {
+            "path": str(path),
+            "scene_name": scene_name,
+            "scene_text": scene_text,
+            "metadata": {k: str(v) for k, v in (metadata or {}).items()},
+            "chunk_size": int(chunk_size),
+            "flush_period": float(flush_period),
+            "compression": compression,
+            "max_bytes": int(max_bytes),
+            "max_s": float(max_s),
+            "file_name": file_name,
+        }
+        self._frame(Frame.SETTINGS, json.dumps(settings).encode())
+        reply = self._reply()
+        if not reply.get("ready"):
+            self._proc.wait(10)
+            raise OSError(
+                f"recording {str(self.path)!r}: {reply.get('error', 'the recording process failed')}"
+            )
+        self._ids: dict[str, int] = {}
+        self._counts: list[int] = []
+        self._batch: list = []
+        self._steps: list = []  # write_steps(): the steps' message lists, as given
+        self._ids_of_keys: dict | None = None
+        self._ids_sent = 0
+        self._written_counts: dict | None = None
+        self._last = time.monotonic()
+        self.messages = 0
+        self.finished = False
+        self.written: int | None = None
+        #: what the writing process answered when it could not write (the disk full)
+        self.error: str | None = None
+
+    def _frame(self, kind: bytes, payload: bytes) -> None:
+        data = HEAD.pack(kind, len(payload)) + payload
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[self._out.write(view) :]
+        except (BrokenPipeError, ConnectionResetError):
+            self._check()  # its reason, where it gave one
+            raise
+
+    def _reply(self) -> dict:
+        import json
+
+        line = self._proc.stdout.readline()
+        if not line:
+            return {"error": "the recording process ended"}
+        return json.loads(line)
+
+    def channel(self, topic: str, msgtype: str, qos: str | None = None) -> int:
+        import json
+
+        cid = self._ids.get(topic)
+        if cid is None:
+            cid = self._ids[topic] = len(self._ids)
+            self._counts.append(0)
+            self._frame(Frame.CHANNEL, json.dumps([cid, topic, msgtype, qos]).encode())
+        return cid
+
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+        if self._steps:
+            self._send()  # what write_steps() was given goes first
+        cid = self._ids.get(topic)
+        if cid is None:
+            cid = self.channel(topic, msgtype, qos)
+        self._counts[cid] += 1
+        self.messages += 1
+        self._batch.append(_RECORD(cid, t_ns, len(data)))
+        self._batch.append(data)
+
+    def write_steps(self, msgs, ids: dict) -> None:
+        """Record a step's messages: ``(key, CDR bytes, t_ns, received)`` each, in order, with
+        ``ids`` the caller's map of keys to the channel ids :meth:`channel` gave. They are kept
+        as they are and go down the pipe marshalled with the others of the batch (the work per
+        message is then C code's), the map beside them where it grew."""
+        if self._batch:
+            self._send()  # what write() was given goes first
+        self._steps.append(msgs)
+        self._ids_of_keys = ids
+        self.messages += len(msgs)
+
+    def tick(self) -> None:
+        if (self._batch or self._steps) and time.monotonic() - self._last >= self.batch_period:
+            self._send()
+
+    def _check(self) -> None:
+        """An error the writing process has answered with already (OSError, once)."""
+        import select
+
+        if self.error is None and select.select([self._proc.stdout], [], [], 0)[0]:
+            reply = self._reply()
+            self.error = reply.get("error") or "the recording process ended"
+        if self.error is not None:
+            raise OSError(f"recording {str(self.path)!r}: {self.error}")
+
+    def _send(self) -> None:
+        self._check()
+        if self._steps:
+            ids = self._ids_of_keys
+            grew = ids is not None and len(ids) != self._ids_sent
+            self._ids_sent = len(ids) if ids is not None else 0
+            self._frame(Frame.STEPS, marshal.dumps((dict(ids) if grew else None, self._steps)))
+            self._steps = []
+        if self._batch:
+            self._frame(Frame.BATCH, b"".join(self._batch))
+            self._batch = []
+        self._last = time.monotonic()
+
+    def flush(self) -> None:
+        self._send()
+        self._frame(Frame.FLUSH, b"")
+
+    def counts(self) -> dict[str, int]:
+        """Messages by topic: those the writing process wrote, once :meth:`finish` has its
+        answer; before, those handed over by :meth:`write` (:meth:`write_steps` counts them
+        in :attr:`messages` only)."""
+        if self._written_counts is not None:
+            return dict(self._written_counts)
+        return {t: self._counts[c] for t, c in self._ids.items()}
+
+    def __enter__(self) -> BackgroundRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """``with BackgroundRecorder(path) as rec:``: the file finished however the block
+        ends."""
+        self.finish()
+
+    def finish(self, timeout: float = 60.0) -> None:
+        """Hand over what is left, have the file finished, wait for the writing process."""
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            if self.error is not None:
+                reply = {"error": self.error}
+                self._frame(Frame.END, b"")
+                self._out.close()
+            else:
+                if self._batch or self._steps:
+                    self._send()
+                self._frame(Frame.END, b"")
+                self._out.close()
+                reply = self._reply()
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            reply = {"error": self.error or "the recording process ended early"}
+        finally:
+            try:
+                self._proc.wait(timeout)
+            finally:
+                self._proc.stdout.close()
+        if "done" not in reply:
+            raise OSError(f"recording {str(self.path)!r}: {reply.get('error')}")
+        self.written = int(reply["done"])
+        self._written_counts = reply.get("counts")
+
+
+_RECORD = struct.Struct("<HqI").pack
+_RECORD_HEAD = struct.Struct("<HqI")
+
+
+def _write_from_pipe() -> int:
+    """The writing process of :class:`BackgroundRecorder` (``python -m mps_ros.recording.background``)."""
+    import json
+    import signal
+    import sys
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    frames = PolledFrameReader(sys.stdin.fileno())
+    out = sys.stdout
+
+    def answer(obj) -> None:
+        try:
+            out.write(json.dumps(obj) + "\n")
+            out.flush()
+        except (BrokenPipeError, OSError):
+            pass
+
+    rec = None
+    while rec is None:
+        for kind, payload in frames.read(None):
+            if kind != Frame.SETTINGS:
+                answer({"error": f"expected the settings first, got {kind!r}"})
+                return 2
+            settings = json.loads(payload)
+            try:
+                rec = Recorder(settings.pop("path"), **settings)
+            except OSError as exc:
+                answer({"error": exc.strerror or str(exc)})
+                return 2
+            except Exception as exc:
+                answer({"error": f"{type(exc).__name__}: {exc}"})
+                return 2
+        if frames.eof and rec is None:
+            return 2
+    answer({"ready": True})
+    error, done = None, False
+    try:
+        done = _write_frames(rec, frames)
+    except OSError as exc:  # the disk full, the file system gone read-only
+        error = f"{exc.strerror or exc}"
+    except Exception as exc:
+        error = f"{type(exc).__name__}: {exc}"
+    if error is None:
+        rec.finish()
+        answer({"done": rec.messages, "counts": rec.counts()})
+        return 0
+    # said at once (the other side polls for it), then the file ended as far as it can be (the
+    # chunks already written stay whole: mps recover copies them), then what still comes is
+    # read and dropped, so that the other side never waits on a full pipe
+    answer({"error": error, "written": rec.messages})
+    try:
+        rec.finish()
+    except Exception:
+        pass
+    while not done and not frames.eof:
+        done = any(kind == Frame.END for kind, _ in frames.read(None))
+    return 1
+
+
+def _write_frames(rec: Recorder, frames: PolledFrameReader) -> bool:
+    """Write what comes down the pipe until the finish frame (True) or the pipe's end
+    (False: the stepping process is gone; the file is finished all the same)."""
+    import json
+
+    channels: dict[int, tuple] = {}
+    by_key: dict = {}  # a step's keys -> channel ids (the "S" frames)
+    while True:
+        got = frames.read(rec.flush_period)
+        if not got:
+            rec.tick()
+            if frames.eof:  # the stepping process is gone: finish the file
+                return False
+            continue
+        for kind, payload in got:
+            if kind == Frame.BATCH:
+                write = rec.write
+                pos, end = 0, len(payload)
+                while pos < end:
+                    cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
+                    pos += 14
+                    topic, msgtype, qos = channels[cid]
+                    write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
+                    pos += n
+                rec.tick()
+            elif kind == Frame.STEPS:
+                ids, steps = marshal.loads(payload)
+                if ids is not None:
+                    by_key = ids
+                write = rec.write
+                for msgs in steps:
+                    for key, data, t_ns, _received in msgs:
+                        topic, msgtype, qos = channels[by_key[key]]
+                        write(topic, msgtype, data, t_ns, qos)
+                rec.tick()
+            elif kind == Frame.CHANNEL:
+                cid, topic, msgtype, qos = json.loads(payload)
+                channels[cid] = (topic, msgtype, qos)
+                rec.channel(topic, msgtype, qos)
+            elif kind == Frame.FLUSH:
+                rec.flush()
+            elif kind == Frame.END:
+                return True
+
+
+__all__ = ["BackgroundRecorder"]
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(_write_from_pipe())

@@ -1,0 +1,23 @@
+"""The ROS environment of a process, set once where the process starts (before rclpy starts):
+loopback-only discovery, a temporary log folder, Fast DDS with :data:`FASTDDS_PROFILE`'s writer
+timers, each unless the environment says otherwise. No rclpy here: importing it sets nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+#: the Fast DDS writer timers (reliable protocol only; the QoS comes from the code)
+FASTDDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
+
+
+def env_defaults() -> None:
+    """Set the ROS defaults that the environment leaves unset (call before rclpy starts)."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_LOG_DIR", os.path.join(tempfile.gettempdir(), "mps-ros-log"))
+    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", FASTDDS_PROFILE)
+
+
+__all__ = ["FASTDDS_PROFILE", "env_defaults"]
