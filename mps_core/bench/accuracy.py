@@ -48,6 +48,12 @@ PEERS = ("peer", "mujoco")
 #: MuJoCo's steps: 2.5 ms, then the 1.25 ms ladder halved down to about 10 µs
 MUJOCO_STEPS = (2.5e-3,) + DT_LADDER
 DELTAS_DEG = (1.0, 0.1, 0.01, 0.001)
+#: the twin's own operating point: an output every millisecond (a 1 kHz stream)
+OPERATING_EVERY = 1e-3
+#: the engine's settings tried there: exact derivatives, each solver's own step (the outputs
+#: between its steps from its interpolant)
+OPERATING_SOLVERS = ("linear-acceleration", "rk4", "rk6", "rk8")
+OPERATING_STEPS = (1e-3, 2e-3, 2.5e-3, 5e-3)
 LA_ITERATIONS = 3
 GRID = DT_LADDER[0]  # errors are sampled on the paper's 1.25 ms grid
 #: central differences stop adaptive solvers below this tolerance (their O(Δ²) error and
@@ -446,6 +452,83 @@ def side_by_side(case: Case, pairs, rows, rounds: int = 9, budget: float = 20.0,
     return out
 
 
+def operating_point(case: Case, ref: Reference, rounds: int = 9, budget: float = 20.0, candidates: int = 3):
+    """Time the twin's own operating point: an output every :data:`OPERATING_EVERY` s (a 1 kHz
+    stream), MuJoCo stepping at that step, beside the engine's cheapest settings whose every
+    output is at least as accurate (of :data:`OPERATING_SOLVERS` with exact derivatives, their
+    own step of :data:`OPERATING_STEPS`), the three cheapest by a first timing, all their runs
+    in turns as in :func:`side_by_side`. Returns None where no setting is as accurate, else a
+    dict: MuJoCo's max |φ − φ_ref| over the outputs and median CPU s, the chosen setting's
+    label, error and median CPU s, the median of the rounds' ratios mps / MuJoCo, their spread
+    and the rounds."""
+    from ..run.build import build
+    from .mujoco_peer import run_mujoco
+
+    every = OPERATING_EVERY
+    t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
+
+    def worst(t, phi) -> float:
+        t = np.asarray(t, float)
+        sel = t <= ref.horizon + 1e-12
+        return float(np.abs(np.asarray(phi)[sel] - ref.sample(t[sel])[0]).max())
+
+    mj_run = run_mujoco(case.scene, case.t_end, t_grid, every)
+    e_mj = worst(mj_run.t, mj_run.phi)
+    found = []
+    for solver in OPERATING_SOLVERS:
+        for step in OPERATING_STEPS:
+            scene = scene_for(case, Setting(solver, "autodiff"), every)
+            if step > every * (1 + 1e-9):
+                scene = scene.with_overrides(step=step)
+            sim = build(scene)
+            c0 = time.process_time()
+            try:
+                traj = sim.run(scene.t_end, scene.dt)
+            except Exception:  # a setting that fails there is no candidate
+                continue
+            cpu = time.process_time() - c0
+            err = worst(traj.t, traj.phi)
+            if err <= e_mj:
+                found.append((cpu, f"{solver}, exact, step {step * 1e3:g} ms", scene, err))
+    if not found:
+        return None
+    found = sorted(found, key=lambda f: f[0])[: max(1, candidates)]
+
+    def once(scene) -> float:
+        sim = build(scene)
+        c0 = time.process_time()
+        sim.run(scene.t_end, scene.dt)
+        return time.process_time() - c0
+
+    mj: list[float] = []
+    times: list[list[float]] = [[] for _ in found]
+    used = 0.0
+    for i in range(max(3, rounds)):
+        a = run_mujoco(case.scene, case.t_end, t_grid, every).cpu
+        mj.append(a)
+        used += a
+        for f, got in zip(found, times):
+            got.append(once(f[2]))
+            used += got[-1]
+        if i >= 2 and used >= budget:
+            break
+    ratios = [[b / a for a, b in zip(mj, got)] for got in times]
+    k = min(range(len(found)), key=lambda n: statistics.median(ratios[n]))
+    mid = statistics.median(ratios[k])
+    q = statistics.quantiles(ratios[k], n=4)
+    return {
+        "every_s": every,
+        "mujoco_err": e_mj,
+        "mujoco_cpu_s": statistics.median(mj),
+        "setting": found[k][1],
+        "err": found[k][3],
+        "cpu_s": statistics.median(times[k]),
+        "ratio": mid,
+        "spread": (q[2] - q[0]) / mid,
+        "rounds": len(ratios[k]),
+    }
+
+
 def describe(r) -> str:
     if r is None:
         return "-"
@@ -555,12 +638,14 @@ def study(case_names=None, families=FAMILIES, quick=False, repeats=3, budget=1.0
         if vs:
             log(f"  against MuJoCo: {len(vs)} points timed again, the two engines' runs in turns")
         side = side_by_side(case, vs, rows, rounds=max(3, repeats)) if vs else []
+        op = operating_point(case, ref, rounds=max(3, repeats)) if vs else None
         out[case.name] = {
             "rows": rows,
             "delta": delta,
             "reference": ref,
             "case": case,
             "versus": list(zip(vs, side)),
+            "operating_point": op,
         }
     return out
 
@@ -621,6 +706,15 @@ def report(results, out_dir: Path | None, plot: bool = True, log=print) -> None:
                 log(
                     f"   {p['max_err_phi']:>11.1e}  {mj:>22}  {b:<58}  {rt:>16}  {spread:>6}  {rounds:>6}"
                     f"  {al:>28}  {br:>19}"
+                )
+            op = res.get("operating_point")
+            if op is not None:
+                log(
+                    f"   the twin's operating point, an output every {op['every_s'] * 1e3:g} ms: MuJoCo "
+                    f"at that step {op['mujoco_cpu_s'] / t_end:.3g} ({op['mujoco_err']:.1e} rad at "
+                    f"worst over the outputs), the cheapest mps at least as accurate at every output "
+                    f"{op['setting']} {op['cpu_s'] / t_end:.3g} ({op['err']:.1e} rad): ratio "
+                    f"{op['ratio']:.2f}, spread {100 * op['spread']:.0f} %, {op['rounds']} rounds"
                 )
             closure = max(p.get("closure_m", 0.0) for (p, _, _), _side in vs)
             log(

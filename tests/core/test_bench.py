@@ -119,10 +119,15 @@ def test_mujoco_rows_converge_as_its_soft_constraint_says_and_are_compared(quick
     for (p, _best, _ratio), (best, mj, mine, ratio, spread, rounds) in quick_study["versus"]:
         assert best["max_err_phi"] <= p["max_err_phi"] and best["solver"] not in accuracy.PEERS
         assert rounds >= 3 and mj > 0 and mine > 0 and ratio > 0 and spread >= 0
+    # the twin's operating point: an output every 1 ms, the setting at least as accurate there
+    op = quick_study["operating_point"]
+    assert op["every_s"] == 1e-3 and op["err"] <= op["mujoco_err"] and op["rounds"] >= 3
+    assert op["cpu_s"] > 0 and op["mujoco_cpu_s"] > 0 and op["ratio"] > 0
     said = []
     accuracy.report({"paper": quick_study}, None, plot=False, log=said.append)
     table = "\n".join(said)
     assert "each pair timed in turns" in table and "spread" in table
+    assert "the twin's operating point, an output every 1 ms" in table and op["setting"] in table
 
 
 def test_mujoco_model_matches_the_scene():
