@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import math
+import os
 import signal
 import sys
 import time
@@ -377,6 +379,11 @@ def main(argv=None) -> int:
         print(f"mps: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file named on the command line (an output's folder)
+        if exc.errno == errno.EPIPE and exc.filename == "-":
+            # the reader of standard output stopped reading (``| head``): nothing to say, and
+            # nothing more to flush into the closed pipe at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"mps: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2

@@ -276,3 +276,20 @@ def test_mps_loads_writes_its_json_to_standard_output(capsys):
     out, err = capsys.readouterr()
     assert json.loads(out)["source"] == "sample_press-cycle.mcap"
     assert "wrote standard output" in err and "foundation" in err
+
+
+def test_a_reader_that_stops_reading_standard_output_ends_the_command_quietly(tmp_path):
+    """``mps run --csv - | head -1``: the table (about a megabyte, more than a pipe holds) goes
+    out until the reader closes its end; the command then ends with status 0 and no error."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mps_core.cli", "run", "press-cycle", "--t-end", "0.5", "--dt", "1e-4"]
+        + ["--csv", "-", "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=tmp_path,
+    )
+    first = proc.stdout.readline()
+    proc.stdout.close()  # the reader stops here
+    err = proc.stderr.read().decode()
+    assert proc.wait(120) == 0, err
+    assert first.startswith(b"t,phi,") and "error" not in err and "Traceback" not in err
