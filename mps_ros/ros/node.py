@@ -3,7 +3,7 @@
     mps node [SCENE] [--ros-args -p NAME:=VALUE ... --params-file FILE.yaml]
 
 Topics, types, frames and signs: :mod:`mps_ros.wire.topics` (and the README). The run itself (steps,
-pacing, commands, diagnostics) is :class:`mps_ros.run.twin.Runner`, the same one ``mps record``
+pacing, commands, diagnostics) is :class:`mps_ros.run.runner.Runner`, the same one ``mps record``
 uses; this module adds the ROS side: parameters, publishers, the ``~/mode`` subscription and the
 ``~/engage``, ``~/disengage``, ``~/stop``, ``~/start`` services (std_srvs/Trigger), the
 recorder, signals. ROS callbacks run in a background executor thread and only queue commands;
@@ -41,7 +41,9 @@ from visualization_msgs.msg import MarkerArray
 from mps_core import MpsError
 from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
 
-from ..run.twin import Command, Gate, Inbox, Runner, Twin, shown, to_json
+from ..run.commands import Command, Gate, Inbox, shown
+from ..run.runner import Runner
+from ..run.twin import Twin, to_json
 from ..wire.diagnostics import hardware_id
 from ..wire.topics import BY_KEY, LATCHED, MODE, NODE_NAME, TOPICS, offered_qos, resolve
 from .environment import env_defaults
@@ -66,7 +68,7 @@ except ImportError:
 
 
 class RosSink:
-    """A :class:`~mps_ros.run.twin.Runner` sink that publishes each message's CDR bytes on its
+    """A :class:`~mps_ros.run.runner.Runner` sink that publishes each message's CDR bytes on its
     topic: the very bytes the recorder writes. In realtime pacing the runner calls it from its
     releasing thread, at each step's deadline, beside the steps computed ahead."""
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 from mps_core.dynamics.engine import SCHEMES
 
-from ..run.twin import PACINGS, check_outputs
+from ..run.runner import PACINGS
+from ..run.twin import check_outputs
 from ..wire.topics import OUTPUTS
 
 

@@ -1,5 +1,5 @@
 """Realtime pacing in one process (the node's ``stepping_process:=false``): a
-:class:`~mps_ros.run.twin.Runner`'s twin stepped ahead by its thread, each step released at its
+:class:`~mps_ros.run.runner.Runner`'s twin stepped ahead by its thread, each step released at its
 deadline by a thread of its own (:class:`PacedInProcess`). The node's default steps in a
 process of its own instead (:mod:`mps_ros.run.stepping`, :mod:`mps_ros.run.releasing`)."""
 
@@ -30,7 +30,7 @@ class _Release:
 
 
 class PacedInProcess:
-    """A :class:`~mps_ros.run.twin.Runner`'s realtime run in its own process: the steps, their
+    """A :class:`~mps_ros.run.runner.Runner`'s realtime run in its own process: the steps, their
     releases and the commands at their boundaries (see :meth:`run`). ``runner``: the run's
     twin, sinks, inbox, settings and counters."""
 

@@ -45,7 +45,8 @@ def record(
     import signal
 
     from ..wire.topics import OUTPUTS
-    from .twin import Runner, Twin
+    from .runner import Runner
+    from .twin import Twin
 
     twin = Twin(scene, dt=dt, t_end=t_end, outputs=outputs or OUTPUTS, scene_commands=scene_commands)
     from mps_core.run.progress import Progress

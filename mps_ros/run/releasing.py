@@ -20,8 +20,10 @@ import time
 from ..os_threads import widen_pipe
 from ..wire.pipe import Frame, FrameReader, FrameWriter
 from ..wire.topics import BY_KEY
+from .commands import COMMAND_INDEX, Command, Gate, RefusalLog, shown
+from .metrics import Timings
 from .stepping import HOW_TO_ALLOW, ask_fifo, fifo_for_the_others
-from .twin import COMMAND_INDEX, Command, Gate, RefusalLog, Timings, shown, to_json, to_ns
+from .twin import to_json, to_ns
 
 
 class _Entry:
@@ -69,7 +71,7 @@ class Boundaries:
         self.run = run
         self.gate = gate
         #: a command takes effect at the first step boundary at least this long (wall s) after
-        #: it arrived (see :attr:`~mps_ros.run.twin.RealtimeSettings.command_delay`)
+        #: it arrived (see :attr:`~mps_ros.run.runner.RealtimeSettings.command_delay`)
         self.command_delay = float(run.spec["runner"].get("command_delay", 0.0))
         self.commands_refused = 0
         self._string = string
@@ -537,7 +539,7 @@ class Scheduling:
 
 class SteppingProcess:
     """The ROS process's side of a split run, with what the node needs of a
-    :class:`~mps_ros.run.twin.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
+    :class:`~mps_ros.run.runner.Runner` (``prepare``, ``run``, ``request_stop``, ``stats``,
     ``stop_reason``, ``error``, ``commands_lost``, ``inbox``, ``sinks``).
 
     It holds the steps the stepping process has computed ahead and releases each at its

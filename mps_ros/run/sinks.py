@@ -9,7 +9,7 @@ from ..wire.topics import BY_KEY, NODE_NAME, resolve
 
 
 class RecordingSink:
-    """A :class:`~mps_ros.run.twin.Runner` sink that records every message under its full topic
+    """A :class:`~mps_ros.run.runner.Runner` sink that records every message under its full topic
     name (``names``: key -> topic, e.g. from the node's publishers; default: the node's default
     names) with the QoS it was offered with (``qos``: key -> YAML)."""
 

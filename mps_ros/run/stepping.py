@@ -2,7 +2,7 @@
 
 The node (:mod:`mps_ros.ros.node`) does not step the twin itself. It starts
 ``python -m mps_ros.run.stepping``, which builds the same :class:`~mps_ros.run.twin.Twin` and uses the
-same :class:`~mps_ros.run.twin.Runner`'s parts (the run's start and end messages, events,
+same :class:`~mps_ros.run.runner.Runner`'s parts (the run's start and end messages, events,
 diagnostics, commands): it computes steps up to ``lead`` wall seconds ahead of their deadlines,
 keeps a checkpoint of every ``_Ahead.EVERY``-th step, and writes each step's messages, already
 encoded, down a pipe. The node's process (:mod:`mps_ros.run.releasing`) holds them and publishes
@@ -82,7 +82,13 @@ import time
 
 from ..os_threads import widen_pipe
 from ..wire.pipe import HEAD, Frame, FrameReader, FrameWriter
-from .twin import Command, Runner, Twin, to_json
+from .commands import Command
+
+# -- frames -----------------------------------------------------------------------------------
+from .runner import Runner
+
+# -- frames -----------------------------------------------------------------------------------
+from .twin import Twin, to_json
 
 # -- frames -----------------------------------------------------------------------------------
 #: the wall seconds over which a realtime run's rate is judged first (the whole run if shorter)

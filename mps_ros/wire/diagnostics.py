@@ -59,7 +59,7 @@ class Window:
 
 
 def pacing(name: str, hardware: str, stats: dict, misses: int, steps: int, realtime: bool) -> dict:
-    """The pacing status from the run's ``stats`` (:meth:`~mps_ros.run.twin.Runner.stats`), with
+    """The pacing status from the run's ``stats`` (:meth:`~mps_ros.run.runner.Runner.stats`), with
     ``misses`` deadlines missed in the window's ``steps``."""
     level = OK
     if realtime and misses:

@@ -13,8 +13,9 @@ yaml = pytest.importorskip("yaml")
 
 from mps_ros.recording.recorder import Recorder  # noqa: E402
 from mps_ros.recording.recover import read_metadata, recover  # noqa: E402
+from mps_ros.run.runner import Runner  # noqa: E402
 from mps_ros.run.sinks import RecordingSink  # noqa: E402
-from mps_ros.run.twin import Runner, Twin  # noqa: E402
+from mps_ros.run.twin import Twin  # noqa: E402
 from mps_ros.wire.topics import MSGTYPES, TYPE_HASHES  # noqa: E402
 
 

@@ -13,7 +13,9 @@ import time
 
 import pytest
 
-from mps_ros.run.twin import Command, Gate, Runner, Twin
+from mps_ros.run.commands import Command, Gate
+from mps_ros.run.runner import Runner
+from mps_ros.run.twin import Twin
 
 DT = 1e-3
 T_END = 0.2

@@ -26,9 +26,10 @@ from mps_core import __version__, build, load_scene
 from mps_core.cli import main as mps_main
 from mps_ros.recording.recorder import Recorder
 from mps_ros.recording.recover import read_metadata, recover
-from mps_ros.run import twin as twin_mod
+from mps_ros.run.commands import Gate
 from mps_ros.run.record import record
-from mps_ros.run.twin import Gate, Twin
+from mps_ros.run.runner import Runner
+from mps_ros.run.twin import Twin
 from mps_ros.wire.cdr import ENCODERS, generic_encoder
 from mps_ros.wire.topics import FOUNDATION, WRENCHES
 
@@ -215,7 +216,7 @@ def test_recover_a_file_cut_short(tmp_path):
     from mps_ros.run.sinks import RecordingSink
 
     with Recorder(full, scene_name="press-cycle", scene_text=twin.scene.text, chunk_size=16 * 1024) as rec:
-        twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
+        Runner(twin, sinks=[RecordingSink(rec)]).run()
     whole = read_all(full)
     data = full.read_bytes()
     # a complete file recovers to the same messages
@@ -573,7 +574,7 @@ def test_a_recorder_used_with_with_finishes_the_file_also_on_an_error(tmp_path, 
     make = BackgroundRecorder if background else Recorder
     with pytest.raises(RuntimeError, match="the caller's own"):
         with make(path, scene_name="press-cycle") as rec:
-            twin_mod.Runner(twin, sinks=[RecordingSink(rec)]).run()
+            Runner(twin, sinks=[RecordingSink(rec)]).run()
             raise RuntimeError("the caller's own error")
     back = read_all(path)  # finished: it reads back without recovery
     assert [t for t, _m, _raw in back["/clock"]][-1] == 50_000_000

@@ -20,8 +20,10 @@ pytest.importorskip("rosbags")
 from mps_core import build, load_scene
 from mps_core.dynamics.reactions import ReactionObserver
 from mps_ros.recording.background import BackgroundRecorder
+from mps_ros.run.metrics import Timings
+from mps_ros.run.runner import Runner
 from mps_ros.run.sinks import RecordingSink
-from mps_ros.run.twin import Runner, Timings, Twin
+from mps_ros.run.twin import Twin
 from mps_ros.wire.cdr import encoder
 from mps_ros.wire.topics import BY_KEY
 
@@ -138,7 +140,8 @@ def test_the_recording_process_finishes_the_file_when_the_stepper_dies(tmp_path)
         import os
         from mps_ros.recording.background import BackgroundRecorder
         from mps_ros.run.sinks import RecordingSink
-        from mps_ros.run.twin import Runner, Twin
+        from mps_ros.run.runner import Runner
+        from mps_ros.run.twin import Twin
         tw = Twin("press-cycle", dt=1e-3, t_end=0.1)
         rec = BackgroundRecorder({str(out)!r}, flush_period=0.05)
         Runner(tw, sinks=[RecordingSink(rec)]).run()
