@@ -360,7 +360,7 @@ def publish_floor(recording: str) -> int:
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from ..ros.node import MSG_CLASSES
+    from ..ros.endpoints import MSG_CLASSES
     from ..wire.topics import DEPTH, LATCHED, TOPICS, resolve
 
     steps: list[list] = []
@@ -728,7 +728,7 @@ def _subscribe_all(node, got: _Received, raw: bool) -> list[str]:
     ``got``; the topics of a type not importable here (the node records them only)."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from ..ros.node import MSG_CLASSES
+    from ..ros.endpoints import MSG_CLASSES
     from ..wire.topics import TOPICS, resolve
 
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)

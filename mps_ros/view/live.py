@@ -308,7 +308,7 @@ def _subscribe(node, inbox) -> list:
     with its inbox callback: [(subscription, callback)]."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from ..ros.node import MSG_CLASSES
+    from ..ros.endpoints import MSG_CLASSES
 
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
     latched = QoSProfile(

@@ -30,7 +30,7 @@ def test_type_hashes_are_rosbags_jazzy_ones():
 def test_type_hashes_are_what_rclpy_offers(ros):
     """Of the types importable here (tf2_msgs is not among the PyPI wheels: rosbags' hash
     alone vouches for it)."""
-    from mps_ros.ros.node import MSG_CLASSES
+    from mps_ros.ros.endpoints import MSG_CLASSES
 
     node = ros.create_node("type_hashes")
     importable = [m for m in MSGTYPES if m in MSG_CLASSES]

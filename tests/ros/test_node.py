@@ -251,7 +251,7 @@ def test_recording_read_back_by_rosbags(commanded):
     # /tf at every step and /tf_static once, recorded also where tf2_msgs is not importable
     # (then not published: tests/ros/test_recording.py checks their frames)
     assert len(rec["/tf"]) == len(rec["/joint_states"]) and len(rec["/tf_static"]) == 1
-    from mps_ros.ros.node import MSG_CLASSES
+    from mps_ros.ros.endpoints import MSG_CLASSES
 
     if "tf2_msgs/msg/TFMessage" not in MSG_CLASSES:
         assert (

@@ -125,7 +125,7 @@ class Listener:
         from std_msgs.msg import String
         from std_srvs.srv import Trigger
 
-        from mps_ros.ros.node import MSG_CLASSES
+        from mps_ros.ros.endpoints import MSG_CLASSES
 
         self.rclpy = rclpy
         self.node = Node(f"probe_{os.getpid()}_{int(time.monotonic() * 1e3) % 100000}")
