@@ -1,7 +1,7 @@
-"""``python -m mps_ros.bench``: the node's benchmarks (:func:`.suite.main`)."""
+"""``python -m mps_ros.bench``: the node's benchmarks (:func:`.cli.main`)."""
 
 import sys
 
-from .suite import main
+from .cli import main
 
 sys.exit(main())

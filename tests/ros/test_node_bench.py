@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from mps_ros.bench.suite import _lost_line, keep_logs, lost_by_topic, recorded_counts
+from mps_ros.bench.cli import _lost_line
+from mps_ros.bench.suite import keep_logs, lost_by_topic, recorded_counts
 
 SAMPLE = Path(__file__).resolve().parents[2] / "recordings" / "sample_press-cycle.mcap"
 

@@ -21,8 +21,8 @@ pytest.importorskip("rosbags")
 
 from twin_probe import Listener, NodeProcess, ns, wait_until
 
-from mps_ros.bench.suite import _children as _kids
-from mps_ros.bench.suite import _cmdline
+from mps_ros.bench.processes import _children as _kids
+from mps_ros.bench.processes import _cmdline
 from mps_ros.run.stepping import Hold, _Ahead
 from mps_ros.wire.pipe import FrameReader, FrameWriter
 
