@@ -29,7 +29,7 @@ test: lint
 	$(PYTEST)
 
 # the house's habits: lint and layout (ruff, its rules in pyproject.toml) and types (mypy on
-# mps_core); `ruff format .` lays a file out as the check wants it
+# mps_core and mps_ros); `ruff format .` lays a file out as the check wants it
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .

@@ -48,7 +48,7 @@ def writer_costs(rounds: int = 5, steps: int = 2000) -> dict:
     from ..wire.topics import OUTPUTS
 
     tw = Twin("press-cycle", dt=1e-3, t_end=steps * 1e-3, outputs=OUTPUTS)
-    msgs = []
+    msgs: list = []
     while not tw.done:
         tw.step()
         msgs.extend((key, data, tw.k * 1_000_000) for key, data in tw.state_payloads())

@@ -194,7 +194,8 @@ def recover_bag(src, dst, name: str | None = None) -> Recovered:
         )
     dst.mkdir(exist_ok=True)
     total = Recovered(complete=True)
-    spans, topics = [], {}
+    spans: list = []
+    topics: dict = {}
     for i, part in enumerate(parts):
         part_name = file_name(name or dst, i)
         rep = recover(part, dst / part_name, renamed=True)

@@ -112,6 +112,7 @@ def run_operator(args, schedule: list[tuple[float, str]], stop: dict) -> int:
 
     ``stop["signum"]`` is set by the caller's SIGINT and SIGTERM handlers (installed before
     rclpy was imported); the run ends at the next look."""
+    why: str | None  # why it ends
     if stop["signum"] is not None:  # before rclpy started: nothing to say to anyone
         why = f"stopped by {signal.Signals(stop['signum']).name} before it started"
         say(outcome(why, [], [w for _, w in schedule]))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from ..wire.topics import BY_KEY
 from .boundaries import HeldStep
 from .metrics import Timings
@@ -31,7 +33,7 @@ class Publication:
         self.k_released: int | None = None
         self.failure: str | None = None  # why the recording stopped, where it did
         self.next_status = 0.0  # the recording's next status (wall s)
-        self.diagnostics_encoder = None
+        self.diagnostics_encoder: Any = None  # set in prepare
         #: the statuses' name prefix (the node's) and hardware_id
         self.named = (spec["runner"].get("name", "press_twin"), spec.get("hardware_id", "mps"))
 

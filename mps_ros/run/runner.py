@@ -421,7 +421,8 @@ class Runner:
                     next_diag = now + self.period
                     self._diagnostics(t_ns)
                 if reply is not None:  # a step taken while paused: said
-                    reply, done = None, reply
+                    done: Callable = reply
+                    reply = None
                     done(twin.t)
         except Exception as exc:
             self._failed(exc)

@@ -122,7 +122,8 @@ class Preset:
             offsets.append(at)
         # one struct for the whole message: the probe's bytes between the fields as constants
         fields = sorted([(at, None) for at in stamps] + [(at, k) for k, at in enumerate(offsets)])
-        fmt, args, consts, pos = "<", [], {}, 0
+        consts: dict = {}
+        fmt, args, pos = "<", [], 0
         for at, k in fields:
             if at < pos:
                 raise ValueError("Preset: two fields overlap in the encoded message")
