@@ -31,6 +31,7 @@ only: the core depends on nothing heavier, and a record array reads into pandas 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import itertools
@@ -640,6 +641,7 @@ def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
             pool.submit(_work, [r.scene for r in runs], structure, batch): (batch, runs)
             for batch, runs in left
         }
+        broken = False
         try:
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -649,6 +651,7 @@ def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
                     take(pending.pop(fut)[1], fut.result())
                     breaks = 0
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
+                    broken = True
                     break
         except KeyboardInterrupt:
             for fut in [f for f in pending if not f.cancel()]:
@@ -656,6 +659,8 @@ def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
                     take(pending.pop(fut)[1], fut.result())
             raise
         finally:
+            if broken:
+                _end_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
         for fut in [f for f in pending if f.done() and f.exception() is None]:
             take(pending.pop(fut)[1], fut.result())  # ended as the pool broke
@@ -668,6 +673,17 @@ def _in_processes(todo: list, n: int, structure: str, take: Callable) -> None:
                     f"between ({sum(len(runs) for _, runs in left)} run(s) left; the rows "
                     "taken are kept)"
                 )
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill a broken pool's worker processes that are left.
+
+    A worker killed while it hands back a result can leave the result queue's lock held, and
+    the others then wait on that lock for ever; Python before 3.12 does not end them when the
+    pool breaks, and the pool's shutdown would wait for them. Their tasks go to a new pool."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(OSError, ValueError):
+            proc.kill()
 
 
 def _ignore_sigint() -> None:
