@@ -1,7 +1,7 @@
 """The load reports of a vectorised batch's runs, all at once: each run's figures as
 :func:`mps_core.analysis.loads.load_report` gives them (its steady cycle's period, and each
 quantity's mean, peak, RMS, dynamic RMS and harmonic amplitudes), to round-off, from the states
-a batch keeps (:class:`mps_core.run.batch_states.BatchStates`) rather than from each run's
+a batch keeps (:class:`mps_core.run.batch.states.BatchStates`) rather than from each run's
 trajectory.
 
 The method is the report's (:mod:`.loads`), on arrays of all runs:
@@ -67,8 +67,8 @@ class _Cycles:
 def batch_figures(states, mode: str | None = "locked", n: int = N_HARMONICS) -> list:
     """Each run's :class:`RunFigures` (or its :class:`~mps_core.analysis.loads.LoadReportError`)
     over its last full crank revolution, from a batch's ``states``
-    (:class:`~mps_core.run.batch_states.BatchStates`), in the batch's order. Raises
-    :class:`~mps_core.run.batch_record.ReactionsNotSolved` as the batch's reactions do, and
+    (:class:`~mps_core.run.batch.states.BatchStates`), in the batch's order. Raises
+    :class:`~mps_core.run.batch.record.ReactionsNotSolved` as the batch's reactions do, and
     ``ValueError`` where the batch is not one this computes (its structure not ``mode``, a
     crank frozen)."""
     if mode is not None and states.structure != mode:

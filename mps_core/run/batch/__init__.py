@@ -26,9 +26,9 @@ straight-line numpy code, A and h formed from them with each scene's masses. A s
 leaves the kernel's branch sends its group back to the one-by-one runs.
 
 The effects' parameters are arrays of one value a scene
-(:class:`~mps_core.run.batch_effects.EffectArrays`: their forces, power, potential energy and
+(:class:`~mps_core.run.batch.effects.EffectArrays`: their forces, power, potential energy and
 loads). What each step records goes into arrays allocated for the run
-(:class:`~mps_core.run.batch_record.BatchRecord`). With ``outputs.reactions`` (the scenes of a
+(:class:`~mps_core.run.batch.record.BatchRecord`). With ``outputs.reactions`` (the scenes of a
 group alike) the trajectories carry the joint reactions and the foundation load
 (:data:`mps_core.dynamics.reactions.REACTION_COLUMNS`), as a scalar run's: each recorded step
 keeps its state and its effects' loads (from that step's evaluation), and after the run the
@@ -38,7 +38,7 @@ the kernel does not hold (a singular position) sends the group back to the one-b
 
 :func:`run_states` steps a group the same way but keeps no trajectory: each step's state and
 the loads that a state changes, the reactions solved afterwards at the steps one asks for
-(:class:`~mps_core.run.batch_states.BatchStates`); a sweep's batches make their runs' load
+(:class:`~mps_core.run.batch.states.BatchStates`); a sweep's batches make their runs' load
 reports from them (:mod:`mps_core.analysis.batch_loads`).
 
 For sweeps larger than one machine, ``simulate_many(scenes, client=...)`` sends batches to a Dask
@@ -53,17 +53,17 @@ from typing import Any
 
 import numpy as np
 
-from ..caches import Memo
-from ..codegen.array_kernels import ArrayBranchChanged
-from ..derivatives.stencil import stencil
-from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
-from ..model.press import SEED_BODIES
-from ..scene import Scene, load_scene
-from ..solvers import SOLVERS
-from .batch_effects import EffectArrays
-from .batch_record import BatchRecord, ReactionsNotSolved
-from .batch_states import BatchStates
-from .trajectory import Trajectory
+from ...caches import Memo
+from ...codegen.array_kernels import ArrayBranchChanged
+from ...derivatives.stencil import stencil
+from ...model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
+from ...model.press import SEED_BODIES
+from ...scene import Scene, load_scene
+from ...solvers import SOLVERS
+from ..trajectory import Trajectory
+from .effects import EffectArrays
+from .record import BatchRecord, ReactionsNotSolved
+from .states import BatchStates
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
 VECTOR_SOLVERS = ("linear-acceleration", "rk4")
@@ -158,7 +158,7 @@ def run_batch(scenes) -> list:
 
 def run_states(scenes) -> BatchStates:
     """The states of scenes of one group stepped together, as :func:`run_batch` steps them,
-    kept for their load reports (:class:`~mps_core.run.batch_states.BatchStates`: each step's
+    kept for their load reports (:class:`~mps_core.run.batch.states.BatchStates`: each step's
     state and loads, the reactions solved at the steps asked for) rather than as
     trajectories; :class:`NotVectorisable` where they cannot share the pass."""
     return _Batch(list(scenes)).run_states()
@@ -193,7 +193,7 @@ def simulate_many(scenes, *, client=None, batch_size: int = 1000) -> BatchResult
 
 def _run_task(kind, scenes):
     """One task: (trajectories, vectorised flags)."""
-    from .build import simulate
+    from ..build import simulate
 
     if kind == "batch":
         try:
@@ -262,9 +262,9 @@ class _Batch:
     def _array_kernel(self, first: Scene):
         """The exact kernel of the scenes' chart view, on arrays (NotVectorisable where the
         chart has none)."""
-        from ..codegen.array_kernels import array_kernel
-        from ..codegen.exact_kernels import exact_kernel
-        from .build import build
+        from ...codegen.array_kernels import array_kernel
+        from ...codegen.exact_kernels import exact_kernel
+        from ..build import build
 
         engine = build(first).engine
         view, q, _ = first.initial_state(engine.mechanism)
@@ -449,7 +449,7 @@ class _Batch:
 
     def run_states(self) -> BatchStates:
         """The scenes' states and loads at every step, their reactions solved on the steps
-        one asks for (:class:`~mps_core.run.batch_states.BatchStates`), and no trajectory."""
+        one asks for (:class:`~mps_core.run.batch.states.BatchStates`), and no trajectory."""
         states = BatchStates(
             self.m,
             self._steps(),
@@ -466,7 +466,7 @@ class _Batch:
         return states
 
     def _loads_at(self, q: list, qd: list, scenes: np.ndarray) -> list:
-        """The effects' loads (:meth:`~mps_core.run.batch_effects.EffectArrays.loads`) at states
+        """The effects' loads (:meth:`~mps_core.run.batch.effects.EffectArrays.loads`) at states
         given as (scene, j) arrays of each coordinate, ``scenes`` (scene, 1) their scenes'
         indices: this batch's evaluation of those states, each entry a number or an array of
         that shape or (scene, 1)."""
@@ -600,8 +600,8 @@ def throughput(sizes=(1, 10, 100, 1000), steps: int = 200, scheme: str = "centra
     import time
     from dataclasses import replace
 
-    from ..model import BodyData
-    from .build import build
+    from ...model import BodyData
+    from ..build import build
 
     base = load_scene("working").with_overrides(t_end=steps * 1e-4, dt=1e-4)
     base = replace(base, solver=replace(base.solver, scheme=scheme))

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
+from ...model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
 
 
 class EffectArrays:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..names import COLUMNS
+from ...names import COLUMNS
 
 #: states a call of the reaction kernel on arrays takes: a batch's load reports ask for blocks
 #: of 16 runs of about 850 steps (working at 0.2 ms), one call each (in a temporary script,
@@ -25,7 +25,7 @@ class ReactionsNotSolved(Exception):
 class BatchRecord:
     """The columns of ``m`` scenes over ``steps`` steps (``steps + 1`` states) of the chart view
     ``view`` in ``structure``; ``c_row`` the row of C in the kinematics, ``effects`` the scenes'
-    :class:`~mps_core.run.batch_effects.EffectArrays`, ``reactions`` whether the states and
+    :class:`~mps_core.run.batch.effects.EffectArrays`, ``reactions`` whether the states and
     loads are kept for :meth:`reaction_columns`."""
 
     def __init__(
@@ -98,8 +98,8 @@ def solve_reactions(mech, view, q, mass, inertia, args: list, loads: list, fn=No
     (None: all). Raises
     :class:`ReactionsNotSolved` where the view has no such kernel, or a state's reactions are
     not unique or not finite."""
-    from ..codegen.array_kernels import ArrayBranchChanged
-    from ..dynamics.reactions import REACTION_COLUMNS, array_reactions
+    from ...codegen.array_kernels import ArrayBranchChanged
+    from ...dynamics.reactions import REACTION_COLUMNS, array_reactions
 
     if fn is None:
         fn = array_reactions(mech, view, q, columns)

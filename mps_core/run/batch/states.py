@@ -6,7 +6,7 @@ again from their states.
 
 A load report reads the reactions over one crank revolution near the run's end; solving them
 there only, and keeping no other column, is what makes a batch of a sweep cheaper than its
-trajectories (:class:`~mps_core.run.batch_record.BatchRecord`), with the same values at those
+trajectories (:class:`~mps_core.run.batch.record.BatchRecord`), with the same values at those
 steps: a step's reactions depend on that step's state and loads alone, and its loads on its
 state alone (the batch's evaluation, on the same values, gives them again). Keeping the loads
 of every step instead was most of what a batch wrote, and memory written the first time costs
@@ -19,14 +19,14 @@ import time
 
 import numpy as np
 
-from .batch_record import ReactionsNotSolved, solve_reactions
+from .record import ReactionsNotSolved, solve_reactions
 
 
 class BatchStates:
     """The states of ``m`` scenes over ``steps`` steps (``steps + 1`` states) of the chart view
     ``view`` (``n`` coordinates), in the ``structure``; ``loads_at(q, qd, scenes)`` the
     effects' loads at states given as (scene, j) arrays of each coordinate, ``scenes`` (g, 1)
-    their scenes' indices (:meth:`~mps_core.run.batch_effects.EffectArrays.loads`' entries,
+    their scenes' indices (:meth:`~mps_core.run.batch.effects.EffectArrays.loads`' entries,
     each a number, or of that shape or (g, 1)); ``mech`` the mechanism, ``q`` a state to build the
     reaction kernel at, ``mass`` and ``inertia`` each scene's (scene, body)."""
 
@@ -47,7 +47,7 @@ class BatchStates:
 
     def record(self, t, q, qd, qdd, A, kin, work) -> None:
         """The state at ``t`` of every scene (the arguments of
-        :meth:`~mps_core.run.batch_record.BatchRecord.record`; ``A``, ``kin`` and ``work``
+        :meth:`~mps_core.run.batch.record.BatchRecord.record`; ``A``, ``kin`` and ``work``
         unused)."""
         k = self.k
         self.t[k] = t
@@ -69,8 +69,8 @@ class BatchStates:
         ``scenes`` (their indices; None: every scene), each of that shape, with each scene's
         masses and inertias; ``columns``: those to solve (None: all of
         :data:`~mps_core.dynamics.reactions.REACTION_COLUMNS`). Raises
-        :class:`~mps_core.run.batch_record.ReactionsNotSolved` as
-        :meth:`~mps_core.run.batch_record.BatchRecord.reaction_columns` does."""
+        :class:`~mps_core.run.batch.record.ReactionsNotSolved` as
+        :meth:`~mps_core.run.batch.record.BatchRecord.reaction_columns` does."""
         c0 = time.process_time()
         steps = np.asarray(steps)
         if steps.size == 0:
@@ -81,7 +81,7 @@ class BatchStates:
         mech, q, mass, inertia = self._solver
         key = None if columns is None else frozenset(columns)
         if key not in self._kernels:  # built once: a batch's reports ask for many blocks
-            from ..dynamics.reactions import array_reactions
+            from ...dynamics.reactions import array_reactions
 
             self._kernels[key] = array_reactions(mech, self.view, q, key)
         try:
