@@ -166,7 +166,7 @@ def _run_checked(args, stdout) -> int:
 
     sim = build(scene)
     if args.reactions:
-        from .dynamics.reactions import ReactionObserver
+        from .dynamics.reaction_observer import ReactionObserver
 
         observer = ReactionObserver()
         sim.observers.append(observer)
@@ -299,7 +299,7 @@ def _write_outputs(args, traj, stdout, failure: str | None = None, quiet: bool =
     if args.csv:
         with written_whole(args.csv, stdout) as tmp:
             if args.reactions:
-                from .dynamics.reactions import write_csv
+                from .dynamics.reaction_csv import write_csv
 
                 write_csv(traj, tmp)
             else:

@@ -19,7 +19,8 @@ import json
 import sys
 from pathlib import Path
 
-from ..dynamics.reactions import ReactionObserver, read_csv
+from ..dynamics.reaction_csv import read_csv
+from ..dynamics.reaction_observer import ReactionObserver
 from ..plugins import reader
 from . import loads
 

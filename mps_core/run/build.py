@@ -16,7 +16,7 @@ def build(scene: Scene | str) -> Simulation:
     mech = scene.mechanism()
     observers = []
     if scene.reactions:
-        from ..dynamics.reactions import ReactionObserver
+        from ..dynamics.reaction_observer import ReactionObserver
 
         observers.append(ReactionObserver())
     return Simulation(

@@ -90,7 +90,7 @@ class Twin:
         if self.solve_reactions and not any(hasattr(o, "impact") for o in self.sim.observers):
             # impulses per joint at each plastic impact, logged as "impulse" events (only the
             # impact hook is used: the twin solves the per-step reactions itself)
-            from mps_core.dynamics.reactions import ReactionObserver
+            from mps_core.dynamics.reaction_observer import ReactionObserver
 
             self.sim.observers.append(ReactionObserver(defer_impacts=True))
         self.t0 = self.sim.t

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from mps_core import build, load_scene
-from mps_core.dynamics.reactions import ReactionObserver
+from mps_core.dynamics.reaction_observer import ReactionObserver
 
 DT = 1e-3
 

@@ -86,7 +86,7 @@ def test_check_outputs_ignores_absent_ones_and_preset_names(tmp_path):
 def test_a_run_that_fails_keeps_what_it_computed_marked_partial(tmp_path, capsys):
     import json
 
-    from mps_core.dynamics.reactions import read_csv
+    from mps_core.dynamics.reaction_csv import read_csv
 
     csv, ev = tmp_path / "p.csv", tmp_path / "p.jsonl"
     assert (

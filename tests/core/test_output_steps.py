@@ -63,7 +63,7 @@ def test_outputs_inside_steps_through_events_carry_their_steps_structure():
         scheme="autodiff", solver="rk4", dt=1e-3, step=2e-3, t_end=0.6
     )
     sim = build(scene)
-    from mps_core.dynamics.reactions import ReactionObserver
+    from mps_core.dynamics.reaction_observer import ReactionObserver
 
     sim.observers.append(ReactionObserver())
     traj = sim.run(0.6, 1e-3)

@@ -12,13 +12,8 @@ from reference import press_exact as pe
 from mps_core import build, load_scene
 from mps_core.cli import main
 from mps_core.dynamics.engine import PartialSystems
-from mps_core.dynamics.reactions import (
-    REACTION_COLUMNS,
-    ReactionObserver,
-    compute_reactions,
-    impulses,
-    plastic_impact,
-)
+from mps_core.dynamics.reaction_observer import ReactionObserver
+from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, impulses, plastic_impact
 from mps_core.model.effects import MOTOR_PRESETS, Gravity, Motor
 from mps_core.model.mechanism import ChartView
 from mps_core.model.press import PressMechanism

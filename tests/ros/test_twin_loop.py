@@ -18,7 +18,7 @@ pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 
 from mps_core import build, load_scene
-from mps_core.dynamics.reactions import ReactionObserver
+from mps_core.dynamics.reaction_observer import ReactionObserver
 from mps_ros.recording.background import BackgroundRecorder
 from mps_ros.run.metrics import Timings
 from mps_ros.run.runner import Runner
