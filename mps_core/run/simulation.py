@@ -362,8 +362,12 @@ class Simulation:
                 failures += 1
                 self.charts.leave_failing(exc, failures)
                 continue
+            left = self._after_step(t0, p_a)
+            if left is not None:  # its interpolant left the chart: the step is undone
+                failures += 1
+                self.charts.leave_failing(left, failures)
+                continue
             failures = 0
-            self._after_step(t0, p_a)
 
     def _at_boundary(self, t0: float, tol: float) -> bool:
         """A command or a timer due at t0 applied (or the command refused, logged): True."""
@@ -397,9 +401,12 @@ class Simulation:
             dt = self.stability.stable_step(dt, self.solver.current, self.config)
         return dt
 
-    def _after_step(self, t0: float, p_a: float) -> None:
+    def _after_step(self, t0: float, p_a: float) -> ChartDomainError | None:
         """A step taken from t0: cut at its first event (the event's action taken), or kept
-        whole with its work, its event values and the chart to look at."""
+        whole with its work, its event values and the chart to look at. Where the step's
+        interpolant leaves the chart between its ends (a long step over a chart's edge), the
+        step is undone (the solver back at t0) and the chart's error returned, for the step to
+        be taken again as one whose end left the chart."""
         spans = self._spans
         energy = self.energy
         if spans is not None:  # outputs inside the step: its interpolant
@@ -415,7 +422,13 @@ class Simulation:
                     energy.impact_loss,
                 ]
             )
-        hit, vals = self.events_now.locate()
+        try:
+            hit, vals = self.events_now.locate()
+        except ChartDomainError as exc:
+            if spans is not None:
+                spans.pop()
+            self._cut_at(t0)
+            return exc
         if hit is not None and hit[1].name == "change-point" and self.change_point != "keep-side":
             # the continuation chart is smooth through the change point: the step stands,
             # the passage is logged at its root
@@ -433,7 +446,7 @@ class Simulation:
                 # a new dict: a checkpoint may hold the one before
                 self._ev_prev = {**self._ev_prev, ev.name: after_value}
             self.observables.update_phys(self.solver.current)
-            return
+            return None
         # the step stands: its work (trapezoid on the power at its ends), the event values
         # and unwrap references at its end, and the chart's regularity there
         solver = self.solver
@@ -444,6 +457,7 @@ class Simulation:
         self._ev_prev = vals
         self.observables.update_phys(e)
         self._chart_due = True
+        return None
 
     def run(self, t_end: float, dt: float, progress=None) -> Trajectory:
         """Integrate to ``t_end`` and record every ``dt``. A fixed-step solver steps by

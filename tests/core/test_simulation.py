@@ -286,3 +286,18 @@ def test_a_chart_change_due_at_a_runs_end_waits_for_the_next_step():
     longer = build(scene.with_overrides(t_end=0.105)).run(0.105, 5e-3)
     assert longer.events[-1]["to"] == "psi-xc-" and longer.events[-1]["t"] == 0.1
     assert abs(longer.phi[-1] - sim.joint_state()[0]) < 1e-12
+
+
+def test_a_long_step_whose_interpolant_leaves_the_chart_is_a_clear_error():
+    """press-cycle at 50 ms steps: a step's interpolant crosses the (φ, ψ) chart's edge between
+    its ends (the event watch reads it there). The step is undone and taken in the other
+    charts; where every one fails, the run stops with an error that says when and where,
+    never the engine's internal chart signal."""
+    from mps_core import SimulationError, simulate
+    from mps_core.errors import ChartDomainError
+
+    with pytest.raises(SimulationError) as got:
+        simulate("press-cycle", dt=0.05)
+    assert not isinstance(got.value, ChartDomainError)
+    assert str(got.value).startswith("t = ") and "phi_deg=" in str(got.value)
+    assert got.value.partial is not None and len(got.value.partial) > 1
