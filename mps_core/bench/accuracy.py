@@ -429,27 +429,44 @@ def side_by_side(case: Case, pairs, rows, rounds: int = 9, budget: float = 20.0,
             continue
         every = max(p["dt"], GRID)
         t_grid = np.arange(int(round(case.t_end / every)) + 1) * every
-        mj: list[float] = []
-        times: list[list[float]] = [[] for _ in ok]
-        used = 0.0
-        for i in range(max(3, rounds)):
-            a = run_mujoco(case.scene, case.t_end, t_grid, p["dt"]).cpu
-            mj.append(a)
-            used += a
-            for r, got in zip(ok, times):
-                b, _traj, _n = run_setting(case, r["setting"], r["setting_dt"], repeats=1)
-                got.append(b)
-                used += b
-            if i >= 2 and used >= budget:
-                break
-        ratios = [[b / a for a, b in zip(mj, got)] for got in times]
-        k = min(range(len(ok)), key=lambda n: statistics.median(ratios[n]))
-        rs = ratios[k]
-        mid = statistics.median(rs)
-        q = statistics.quantiles(rs, n=4)
-        spread = (q[2] - q[0]) / mid
-        out.append((ok[k], statistics.median(mj), statistics.median(times[k]), mid, spread, len(rs)))
+        k, turns = in_turns(
+            lambda dt=p["dt"]: run_mujoco(case.scene, case.t_end, t_grid, dt).cpu,
+            [lambda r=r: run_setting(case, r["setting"], r["setting_dt"], repeats=1)[0] for r in ok],
+            rounds,
+            budget,
+        )
+        out.append((ok[k], *turns))
     return out
+
+
+def in_turns(peer, mine, rounds: int, budget: float):
+    """Time ``peer()`` and each of ``mine`` (callables returning CPU s) in turns, round after
+    round (at least three; fewer than ``rounds`` where they used ``budget`` CPU s); return
+    the index of the one whose rounds' ratios to the peer's have the smallest median, and
+    (the peer's median CPU s, that one's, that median ratio, the ratios' interquartile range
+    over it, the rounds)."""
+    peers: list[float] = []
+    times: list[list[float]] = [[] for _ in mine]
+    used = 0.0
+    for i in range(max(3, rounds)):
+        peers.append(peer())
+        used += peers[-1]
+        for once, got in zip(mine, times):
+            got.append(once())
+            used += got[-1]
+        if i >= 2 and used >= budget:
+            break
+    ratios = [[b / a for a, b in zip(peers, got)] for got in times]
+    k = min(range(len(mine)), key=lambda n: statistics.median(ratios[n]))
+    mid = statistics.median(ratios[k])
+    q = statistics.quantiles(ratios[k], n=4)
+    return k, (
+        statistics.median(peers),
+        statistics.median(times[k]),
+        mid,
+        (q[2] - q[0]) / mid,
+        len(ratios[k]),
+    )
 
 
 def operating_point(case: Case, ref: Reference, rounds: int = 9, budget: float = 20.0, candidates: int = 3):
@@ -500,32 +517,22 @@ def operating_point(case: Case, ref: Reference, rounds: int = 9, budget: float =
         sim.run(scene.t_end, scene.dt)
         return time.process_time() - c0
 
-    mj: list[float] = []
-    times: list[list[float]] = [[] for _ in found]
-    used = 0.0
-    for i in range(max(3, rounds)):
-        a = run_mujoco(case.scene, case.t_end, t_grid, every).cpu
-        mj.append(a)
-        used += a
-        for f, got in zip(found, times):
-            got.append(once(f[2]))
-            used += got[-1]
-        if i >= 2 and used >= budget:
-            break
-    ratios = [[b / a for a, b in zip(mj, got)] for got in times]
-    k = min(range(len(found)), key=lambda n: statistics.median(ratios[n]))
-    mid = statistics.median(ratios[k])
-    q = statistics.quantiles(ratios[k], n=4)
+    k, (mj_cpu, cpu, ratio, spread, n) = in_turns(
+        lambda: run_mujoco(case.scene, case.t_end, t_grid, every).cpu,
+        [lambda f=f: once(f[2]) for f in found],
+        rounds,
+        budget,
+    )
     return {
         "every_s": every,
         "mujoco_err": e_mj,
-        "mujoco_cpu_s": statistics.median(mj),
+        "mujoco_cpu_s": mj_cpu,
         "setting": found[k][1],
         "err": found[k][3],
-        "cpu_s": statistics.median(times[k]),
-        "ratio": mid,
-        "spread": (q[2] - q[0]) / mid,
-        "rounds": len(ratios[k]),
+        "cpu_s": cpu,
+        "ratio": ratio,
+        "spread": spread,
+        "rounds": n,
     }
 
 
