@@ -73,7 +73,12 @@ def coarse_step(traj: Trajectory, step: float) -> str | None:
     rocker's rate times the step above :data:`COARSE_TURN`), a sentence saying so with the
     largest step that keeps the turn a step within it; else None."""
     rates = [np.abs(traj.columns[c]) for c in ("phi_dot", "psi_dot") if c in traj.columns]
-    fast = max((float(np.nanmax(r)) for r in rates if len(r)), default=0.0)
+    return coarse_for_rate(max((float(np.nanmax(r)) for r in rates if len(r)), default=0.0), step)
+
+
+def coarse_for_rate(fast: float, step: float) -> str | None:
+    """Say where a fixed ``step`` (s) is coarse for a run whose fastest rate (crank or
+    rocker) was ``fast`` rad/s, as :func:`coarse_step` does; else None."""
     if not (fast > 0.0 and np.isfinite(fast)) or fast * step <= COARSE_TURN:
         return None
     largest = COARSE_TURN / fast

@@ -210,21 +210,17 @@ def _keep(target, out, replacing: bool):
     import os
     from pathlib import Path
 
+    from ..recording.recorder import reserve_free
+
     target = Path(target)
     if not target.exists():
         return None
     if not replacing:
         return target
-    first = out.with_name(f"{out.stem}-partial{out.suffix}")
-    for i in range(1, 1000):
-        kept = first if i == 1 else first.with_name(f"{first.stem}-{i}{first.suffix}")
-        try:
-            os.link(target, kept)  # never over a file that is there
-        except FileExistsError:
-            continue
-        os.unlink(target)
-        return kept
-    return target
+    # a name of its own, claimed empty first: the rename then replaces nothing of anyone's
+    kept = reserve_free(out.with_name(f"{out.stem}-partial{out.suffix}"))
+    os.replace(target, kept)
+    return kept
 
 
 def _kept_line(kept, out, replacing: bool, cut_short: bool = False) -> str:
@@ -250,16 +246,12 @@ def _kept_line(kept, out, replacing: bool, cut_short: bool = False) -> str:
 
 def _say_coarse(stats) -> None:
     """Warn (stderr) where the run's step was coarse for its fastest motion, as ``mps run``."""
-    import numpy as np
-
-    from mps_core.run.trajectory import Trajectory, coarse_step
+    from mps_core.run.trajectory import coarse_for_rate
     from mps_core.solvers import ADAPTIVE_SOLVERS
 
     if stats["solver"] in ADAPTIVE_SOLVERS:  # their steps follow their error estimates
         return
-    phi_dot, psi_dot = stats["fastest_rates"]
-    traj = Trajectory({"phi_dot": np.array([phi_dot]), "psi_dot": np.array([psi_dot])})
-    said = coarse_step(traj, stats["solver_step"])
+    said = coarse_for_rate(max(stats["fastest_rates"]), stats["solver_step"])
     if said:
         print(f"mps: warning: {said}", file=sys.stderr)
 
@@ -533,7 +525,9 @@ def _register_record(sub) -> None:
         help="no progress line while it runs (there is one on a terminal only)",
     )
     r.add_argument(
-        "--force", action="store_true", help="replace FILE.mcap where it exists (never the scene itself)"
+        "--force",
+        action="store_true",
+        help="replace FILE.mcap where it exists, once the new run has finished (never the scene itself)",
     )
     r.set_defaults(func=_record)
 
