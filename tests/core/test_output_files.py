@@ -4,12 +4,14 @@ unless --force, written whole (a temporary name renamed when complete)."""
 import json
 import os
 import pty
+import select
 import signal
 import socket
 import stat
 import subprocess
 import sys
 import threading
+import time
 from importlib import resources
 from pathlib import Path
 
@@ -240,8 +242,11 @@ def test_mps_run_interrupted_keeps_what_it_computed_and_says_so_in_one_line(tmp_
     os.close(slave)
     said = b""
     try:
+        end = time.monotonic() + 120
         while b"%" not in said:  # the progress line: the run is stepping
-            said += os.read(master, 4096)
+            assert time.monotonic() < end and proc.poll() is None, said
+            if select.select([master], [], [], 1.0)[0]:
+                said += os.read(master, 4096)
         proc.send_signal(sig)
         proc.wait(120)
         while True:
