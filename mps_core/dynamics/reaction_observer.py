@@ -123,6 +123,11 @@ class ReactionObserver:
         self.impacts[:] = impacts
         self._pending = list(pending)
 
+    @property
+    def pending(self) -> bool:
+        """Whether deferred impacts wait for :meth:`resolve`."""
+        return bool(self._pending)
+
     def resolve(self) -> None:
         """Fill in the impulses of the deferred impacts' events (in place)."""
         pending, self._pending = self._pending, []

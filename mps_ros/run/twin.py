@@ -74,8 +74,9 @@ class Twin:
         derivatives: str | None = None,
     ):
         from mps_core import build, load_scene
+        from mps_core.scene import Scene
 
-        if not hasattr(scene, "with_overrides"):
+        if not isinstance(scene, Scene):
             scene = load_scene(scene)
         # the scene's step unless told (a new t_end alone keeps the step, not the step count)
         scene = scene.with_overrides(dt=dt or scene.dt, t_end=t_end or None, scheme=derivatives or None)
@@ -87,12 +88,15 @@ class Twin:
         self.outputs = check_outputs(outputs)
         self.solve_reactions = "reactions" in self.outputs or "foundation" in self.outputs
         self.sim = build(scene)
-        if self.solve_reactions and not any(hasattr(o, "impact") for o in self.sim.observers):
+        from mps_core.dynamics.reaction_observer import ReactionObserver
+
+        #: the observers whose impacts' impulses are worked out after a step's state is out
+        self._impulses = [o for o in self.sim.observers if isinstance(o, ReactionObserver)]
+        if self.solve_reactions and not self._impulses:
             # impulses per joint at each plastic impact, logged as "impulse" events (only the
             # impact hook is used: the twin solves the per-step reactions itself)
-            from mps_core.dynamics.reaction_observer import ReactionObserver
-
-            self.sim.observers.append(ReactionObserver(defer_impacts=True))
+            self._impulses.append(ReactionObserver(defer_impacts=True))
+            self.sim.observers.append(self._impulses[-1])
         self.t0 = self.sim.t
         self.t_end = scene.t_end
         self.n = max(1, int(round((self.t_end - self.t0) / scene.dt)))
@@ -278,16 +282,14 @@ class Twin:
         events = self.sim.events
         if not events:
             return []
-        impacts = any(getattr(ob, "_pending", None) for ob in self.sim.observers)
+        impacts = any(ob.pending for ob in self._impulses)
         if hold and impacts and not self._holding:
             self._holding = True
             return []
         self._holding = False
-        for ob in self.sim.observers:
-            if hasattr(ob, "resolve"):
-                ob.resolve()  # a deferred impact's impulses
-            if hasattr(ob, "impacts"):
-                ob.impacts.clear()
+        for ob in self._impulses:
+            ob.resolve()  # a deferred impact's impulses
+            ob.impacts.clear()
         ev = list(events)
         del events[:]
         return ev
