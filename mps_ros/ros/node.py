@@ -65,9 +65,9 @@ class PressTwin(LifecycleNode):
         self._created = time.monotonic()
         self._recording_reserved = False
         declare(self, default_scene or DEFAULT_SCENE)
-        self.p = read(self)
+        self.settings = read(self)
         #: the run's settings from the parameters (every run of the node alike)
-        self.config = RunConfig(self.p, self.get_fully_qualified_name().lstrip("/"))
+        self.config = RunConfig(self.settings, self.get_fully_qualified_name().lstrip("/"))
         self.twin = self.runner = self.recorder = self.recording_sink = None
         #: the publishers, the command subscription and services (made at configure)
         self.endpoints: Endpoints | None = None
@@ -92,7 +92,7 @@ class PressTwin(LifecycleNode):
             self.configure()
         except (ParameterError, MpsError, OSError) as exc:
             self.configure_error = exc
-            if not self.p["autostart"]:  # autostart: the node's last line says it
+            if not self.settings.autostart:  # autostart: the node's last line says it
                 self.get_logger().error(f"configure failed: {exc}")
             self.ending.set()
             return TransitionCallbackReturn.FAILURE
@@ -136,7 +136,7 @@ class PressTwin(LifecycleNode):
         """The scene, the publishers, the command subscription and services, the run
         (:meth:`new_run`)."""
         self.twin = self.config.twin()
-        self.endpoints = Endpoints(self, self.twin.outputs, self.p["qos_depth"])
+        self.endpoints = Endpoints(self, self.twin.outputs, self.settings.qos_depth)
         self.inbox = Inbox()  # before the subscription that fills it
         self.endpoints.listen(self, self.commands)
         self.new_run(self.twin)
@@ -180,10 +180,10 @@ class PressTwin(LifecycleNode):
 
     # -- the run ----------------------------------------------------------------------------
     def _wait_for_peers(self, stop: threading.Event) -> None:
-        n_sub, n_cmd = self.p["wait_for_subscribers"], self.p["wait_for_commanders"]
+        n_sub, n_cmd = self.settings.wait_for_subscribers, self.settings.wait_for_commanders
         if not (n_sub or n_cmd):
             return
-        deadline = time.monotonic() + self.p["wait_timeout"]
+        deadline = time.monotonic() + self.settings.wait_timeout
         while not stop.is_set():
             subs = min(pub.get_subscription_count() for pub in self.endpoints.pubs.values())
             cmds = self.count_publishers(self.endpoints.names[MODE.key])
@@ -191,7 +191,7 @@ class PressTwin(LifecycleNode):
                 return
             if time.monotonic() > deadline:
                 self.get_logger().warning(
-                    f"starting without all peers after {self.p['wait_timeout']:g} s "
+                    f"starting without all peers after {self.settings.wait_timeout:g} s "
                     f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd})"
                 )
                 return
@@ -203,7 +203,7 @@ class PressTwin(LifecycleNode):
         from ..run.record import run_metadata
         from ..run.sinks import RecordingSink
 
-        path = self.p["recording"]
+        path = self.settings.recording
         self.recorder = self.recording_sink = None
         if path.lower() in ("", "none", "off", "false"):
             return None
@@ -213,9 +213,8 @@ class PressTwin(LifecycleNode):
             path, self._recording_reserved = next_recording(path), False
         else:
             path, self._recording_reserved = claim_recording(path)
-        meta = run_metadata(
-            self.twin, "mps node", self.p["pacing"], self.p["real_time_factor"], self.p["publish_every"]
-        )
+        st = self.settings
+        meta = run_metadata(self.twin, "mps node", st.pacing, st.real_time_factor, st.publish_every)
         meta["node"] = self.get_fully_qualified_name()
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
@@ -225,15 +224,15 @@ class PressTwin(LifecycleNode):
             scene_name=self.twin.scene.name,
             scene_text=self.twin.scene.text,
             metadata=meta,
-            flush_period=self.p["recording_flush_period"],
-            compression=self.p["recording_compression"],
-            max_bytes=int(self.p["recording_max_mb"] * 1e6),
-            max_s=self.p["recording_max_s"],
+            flush_period=self.settings.recording_flush_period,
+            compression=self.settings.recording_compression,
+            max_bytes=int(self.settings.recording_max_mb * 1e6),
+            max_s=self.settings.recording_max_s,
         )
         self.recording_sink = RecordingSink(
             self.recorder,
             names=dict(self.endpoints.names),
-            qos=offered_qos(self.p["qos_depth"]),
+            qos=offered_qos(self.settings.qos_depth),
             log=self._log,
         )
         self.runner.sinks.append(self.recording_sink)
@@ -244,10 +243,14 @@ class PressTwin(LifecycleNode):
         names, unpublished = self.endpoints.names, self.endpoints.unpublished
         self.get_logger().info(
             f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
-            f"{self.p['pacing']}"
-            + (f" x{self.p['real_time_factor']:g}" if self.p["pacing"] == "realtime" else "")
+            f"{self.settings.pacing}"
+            + (f" x{self.settings.real_time_factor:g}" if self.settings.pacing == "realtime" else "")
             + f", outputs {', '.join(tw.outputs)}"
-            + ("" if self.p["scene_commands"] else f", scene commands off (listening on {names[MODE.key]})")
+            + (
+                ""
+                if self.settings.scene_commands
+                else f", scene commands off (listening on {names[MODE.key]})"
+            )
         )
         if unpublished:
             types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in unpublished})
@@ -260,7 +263,7 @@ class PressTwin(LifecycleNode):
         self.runner.prepare()
         self._refuse_a_second_of_my_name(self._created + DISCOVERY_S, stop)
         self._wait_for_peers(stop)
-        stop.wait(self.p["start_delay"])
+        stop.wait(self.settings.start_delay)
         if stop.is_set():
             self.runner.request_stop("signal")
         if not self.split:
@@ -292,7 +295,7 @@ class PressTwin(LifecycleNode):
         (it sleeps between steps; the machine's real-time throttling still bounds it), so a
         step is not kept waiting by ordinary processes. Where the system does not allow it (no
         CAP_SYS_NICE, no such policy) the run goes on at normal priority, with a warning."""
-        prio = realtime_priority(self.p)
+        prio = realtime_priority(self.settings)
         if not prio:
             return
         from ..run.stepping import HOW_TO_ALLOW, ask_fifo
@@ -519,7 +522,7 @@ def _spin_in_background(node: PressTwin, executor: SingleThreadedExecutor) -> th
 def _start(node: PressTwin) -> None:
     """``autostart``: the node configured and activated at once; else it waits, unconfigured,
     for a lifecycle manager."""
-    if node.p["autostart"]:
+    if node.settings.autostart:
         node.trigger_configure()
         if node.configure_error is None:
             node.trigger_activate()

@@ -9,7 +9,7 @@ is expected (``-p t_end:=20``)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from mps_core.dynamics.engine import SCHEMES
 
@@ -61,7 +61,7 @@ class Parameter:
             "string_array": "a list of words such as [joint_states, clock]",
             "string": "a string",
         }[self.kind]
-        if self.lo is not None:
+        if self.lo is not None and self.hi is not None:
             what += f" from {_number(self.lo)} to {_number(self.hi)}"
         return what
 
@@ -282,15 +282,17 @@ def descriptor(p: Parameter, scene: str | None = None):
     d = ParameterDescriptor(name=p.name, type=kind, description=p.description, read_only=True)
     if p.choices:
         d.additional_constraints = "one of " + ", ".join(repr(c) for c in p.choices)
-    if p.lo is not None and p.kind == "double":
+    if p.lo is None or p.hi is None:
+        pass
+    elif p.kind == "double":
         d.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi), step=0.0)]
-    elif p.lo is not None and p.kind == "integer":
+    elif p.kind == "integer":
         d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=0)]
     default = scene if (p.name == "scene" and scene) else p.default
     return p.name, default, d
 
 
-def _number(x: float) -> str:
+def _number(x: object) -> str:
     return f"{x:g}".replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
 
 
@@ -318,6 +320,56 @@ def markdown_table() -> str:
     return "\n".join(rows) + "\n"
 
 
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's parameters as read and checked (:func:`read`), a field each, in the order of
+    :data:`PARAMETERS` (whose descriptions say what each one means)."""
+
+    scene: str
+    autostart: bool
+    pacing: str
+    real_time_factor: float
+    dt: float
+    t_end: float
+    derivatives: str
+    publish_every: int
+    outputs: tuple[str, ...]
+    recording: str
+    recording_max_mb: float
+    recording_max_s: float
+    recording_compression: str
+    recording_flush_period: float
+    scene_commands: bool
+    qos_depth: int
+    wait_for_subscribers: int
+    wait_for_commanders: int
+    wait_timeout: float
+    start_delay: float
+    command_burst: int
+    command_rate: float
+    diagnostics_period: float
+    realtime_priority: int
+    stepping_process: bool
+    markers_hz: float
+    markers_scale: float
+    lead: float
+    command_delay: float
+    release_slice: float
+    release_period: float
+
+    @classmethod
+    def defaults(cls, **given: object) -> NodeSettings:
+        """Return the settings of a node given nothing but ``given`` (checked as :func:`read`)."""
+        values = {p.name: p.default for p in PARAMETERS}
+        unknown = sorted(set(given) - set(values))
+        if unknown:
+            raise ParameterError(
+                f"unknown parameter {unknown[0]}: expected one of {', '.join(sorted(BY_NAME))}"
+            )
+        values.update(given)
+        return checked(values)
+
+
 # -- the node's parameters declared and read -----------------------------------------------
 def declare(node, scene: str) -> None:
     """Every parameter of :data:`~mps_ros.ros.parameters.PARAMETERS`, typed and read-only, its
@@ -334,10 +386,11 @@ def declare(node, scene: str) -> None:
         try:
             node.declare_parameter(*descriptor(p, scene))
         except (InvalidParameterTypeException, InvalidParameterValueException):
-            raise ParameterError(f"parameter {p.name}: {v.value!r}: expected {p.expected()}") from None
+            shown = p.default if v is None else v.value
+            raise ParameterError(f"parameter {p.name}: {shown!r}: expected {p.expected()}") from None
 
 
-def read(node) -> dict:
+def read(node) -> NodeSettings:
     """The parameters' values as the node was given them, checked (the choices, the outputs,
     the release slice): :class:`ParameterError` names the first that is wrong."""
     # a parameter given (-p, a parameters file for this node) that the node does not have:
@@ -351,24 +404,35 @@ def read(node) -> dict:
             f"{', '.join(unknown)}: expected one of "
             f"{', '.join(sorted(BY_NAME))}"
         )
-    out = {p.name: node.get_parameter(p.name).value for p in PARAMETERS}
+    return checked({p.name: node.get_parameter(p.name).value for p in PARAMETERS})
+
+
+def checked(values: dict[str, object]) -> NodeSettings:
+    """Return ``values`` (a value for every parameter) as :class:`NodeSettings`, each checked
+    beyond what rclpy enforces (the choices, the outputs, the release slice):
+    :class:`ParameterError` names the first that is wrong."""
     for p in PARAMETERS:
-        if p.choices and out[p.name] not in p.choices:
-            raise ParameterError(f"parameter {p.name}: {out[p.name]!r}, expected {p.expected()}")
+        v = values[p.name]
+        if p.kind == "double" and isinstance(v, int) and not isinstance(v, bool):
+            values[p.name] = v = float(v)
+        if p.choices and v not in p.choices:
+            raise ParameterError(f"parameter {p.name}: {v!r}, expected {p.expected()}")
     try:
-        out["outputs"] = check_outputs(out["outputs"])
-    except ValueError as exc:
+        outputs = check_outputs(values["outputs"])  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
         raise ParameterError(f"parameter outputs: {exc}") from None
-    out["recording"] = out["recording"].strip()
-    if 0.0 < out["release_slice"] < 1e-4:
+    settings = NodeSettings(**values)  # type: ignore[arg-type]
+    settings = replace(settings, outputs=outputs, recording=settings.recording.strip())
+    if 0.0 < settings.release_slice < 1e-4:
         raise ParameterError(
-            f"parameter release_slice: {out['release_slice']!r} must be 0 "
+            f"parameter release_slice: {settings.release_slice!r} must be 0 "
             "(the system's) or from 0.0001 to 0.1 s"
         )
-    return out
+    return settings
 
 
 __all__ = [
+    "NodeSettings",
     "Parameter",
     "ParameterError",
     "PARAMETERS",
@@ -376,5 +440,6 @@ __all__ = [
     "declare",
     "descriptor",
     "markdown_table",
+    "checked",
     "read",
 ]

@@ -12,7 +12,7 @@ pytest.importorskip("rclpy")
 
 from twin_probe import NodeProcess, ask, wait_until
 
-from mps_ros.ros.parameters import BY_NAME, PARAMETERS, markdown_table
+from mps_ros.ros.parameters import BY_NAME, PARAMETERS, NodeSettings, ParameterError, markdown_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -20,6 +20,32 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_the_docs_table_is_the_parameters_table():
     text = (ROOT / "docs" / "ros.md").read_text()
     assert markdown_table() in text, "docs/ros.md: paste mps_ros.ros.parameters.markdown_table()"
+
+
+def test_the_settings_record_has_a_field_of_its_type_for_each_parameter_in_order():
+    import dataclasses
+
+    fields = dataclasses.fields(NodeSettings)
+    assert [f.name for f in fields] == [p.name for p in PARAMETERS]
+    kinds = {"bool": "bool", "integer": "int", "double": "float", "string": "str"}
+    for f, p in zip(fields, PARAMETERS, strict=True):
+        want = "tuple[str, ...]" if p.kind == "string_array" else kinds[p.kind]
+        assert f.type == want, (p.name, f.type, want)
+
+
+def test_the_settings_record_is_checked_as_the_node_reads_it():
+    s = NodeSettings.defaults(t_end=20, outputs=["clock", " clock", "joint_states"], recording=" r.mcap ")
+    assert s.t_end == 20.0 and isinstance(s.t_end, float)
+    assert s.outputs == ("clock", "joint_states") and s.recording == "r.mcap"
+    for given, said in (
+        ({"pacing": "fast"}, "parameter pacing: 'fast', expected one of 'realtime', 'as_fast_as_possible'"),
+        ({"outputs": ["clocks"]}, "parameter outputs: unknown output 'clocks'"),
+        ({"release_slice": 1e-5}, "parameter release_slice: 1e-05 must be 0"),
+        ({"tend": 1.0}, "unknown parameter tend: expected one of "),
+    ):
+        with pytest.raises(ParameterError) as err:
+            NodeSettings.defaults(**given)
+        assert str(err.value).startswith(said), str(err.value)
 
 
 def test_the_package_yaml_sets_every_parameter_to_its_default_but_the_step():
