@@ -6,11 +6,12 @@ from __future__ import annotations
 import marshal
 import struct
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..os_threads import widen_pipe
 from ..wire.pipe import HEAD, Frame, PolledFrameReader
-from .recorder import Recorder
+from .recorder import Message, Recorder
 
 
 class BackgroundRecorder:
@@ -128,7 +129,7 @@ class BackgroundRecorder:
             self._frame(Frame.CHANNEL, json.dumps([cid, topic, msgtype, qos]).encode())
         return cid
 
-    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None) -> None:
         if self._steps:
             self._send()  # what write_steps() was given goes first
         cid = self._ids.get(topic)
@@ -139,7 +140,7 @@ class BackgroundRecorder:
         self._batch.append(_RECORD(cid, t_ns, len(data)))
         self._batch.append(data)
 
-    def write_steps(self, msgs, ids: dict) -> None:
+    def write_steps(self, msgs: Sequence[Message], ids: dict) -> None:
         """Record a step's messages: ``(key, CDR bytes, t_ns, received)`` each, in order, with
         ``ids`` the caller's map of keys to the channel ids :meth:`channel` gave. They are kept
         as they are and go down the pipe marshalled with the others of the batch (the work per
@@ -202,24 +203,30 @@ class BackgroundRecorder:
         if self.finished:
             return
         self.finished = True
+        reply: dict | None = None
         try:
-            if self.error is not None:
-                reply = {"error": self.error}
-                self._frame(Frame.END, b"")
-                self._out.close()
-            else:
-                if self._batch or self._steps:
-                    self._send()
-                self._frame(Frame.END, b"")
-                self._out.close()
-                reply = self._reply()
+            if self.error is None and (self._batch or self._steps):
+                self._send()
+            self._frame(Frame.END, b"")
         except (BrokenPipeError, ConnectionResetError, OSError):
-            reply = {"error": self.error or "the recording process ended early"}
+            pass  # the error it answered is in self.error; the pipe is closed below all the same
+        try:
+            # closed however the hand-over ended: the writing process reads to the pipe's end
+            self._out.close()
+        except OSError:
+            pass
+        try:
+            if self.error is None:
+                reply = self._reply()
+        except (OSError, ValueError):
+            pass
         finally:
             try:
                 self._proc.wait(timeout)
             finally:
                 self._proc.stdout.close()
+        if reply is None:
+            reply = {"error": self.error or "the recording process ended early"}
         if "done" not in reply:
             raise OSError(f"recording {str(self.path)!r}: {reply.get('error')}")
         self.written = int(reply["done"])

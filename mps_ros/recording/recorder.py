@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any, Protocol
 
 from ..wire.cdr import encoder, generic_encoder, msgdef
 from ..wire.topics import TYPE_HASHES, qos_yaml
@@ -128,6 +130,44 @@ def rosbag2_record(file_name: str, writer: McapWriter, channels: dict) -> dict[s
     return record(file_name, topics, start, end)
 
 
+#: a step's message as a run hands it over: (topic key, CDR bytes, simulated time ns, received:
+#: a command as it came in)
+Message = tuple[str, bytes, int, bool]
+
+
+class RecordingWriter(Protocol):
+    """What writes a recording: :class:`Recorder` in this process,
+    :class:`~mps_ros.recording.background.BackgroundRecorder` in a process of its own."""
+
+    path: Path
+    #: messages handed over so far
+    messages: int
+
+    def channel(self, topic: str, msgtype: str, qos: str | None = None) -> Any:
+        """Register a topic's channel; return its handle for :meth:`write_steps`."""
+        ...
+
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None) -> None:
+        """Record one message's CDR bytes at simulated time ``t_ns``."""
+        ...
+
+    def write_steps(self, msgs: Sequence[Message], ids: dict[str, Any]) -> None:
+        """Record a step's messages in order; ``ids`` maps each key to its channel's handle."""
+        ...
+
+    def tick(self) -> None:
+        """Do what is due at a step's end (a chunk closed, a batch sent, a bag's file split)."""
+        ...
+
+    def counts(self) -> dict[str, int]:
+        """Return the messages recorded so far by topic."""
+        ...
+
+    def finish(self) -> None:
+        """Complete the recording."""
+        ...
+
+
 class Recorder:
     """An MCAP recording being written. ``metadata``: extra key/values for the ``mps`` record;
     ``scene_text``: the scene's TOML (the ``scene`` record).
@@ -219,13 +259,24 @@ class Recorder:
             ch = self._channels[topic] = _Channel(self._register(topic, msgtype, qos), msgtype, qos)
         return ch
 
-    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None):
+    def write(self, topic: str, msgtype: str, data: bytes, t_ns: int, qos: str | None = None) -> None:
         """Record one message: its CDR bytes (see :func:`encoder`), at simulated time t_ns."""
         ch = self._channels.get(topic) or self.channel(topic, msgtype, qos)
         ch.count += 1
         self.messages += 1
         self._pending += 1
         self._w.add_message(ch.id, log_time=t_ns, data=data, publish_time=t_ns, sequence=ch.count)
+
+    def write_steps(self, msgs: Sequence[Message], ids: dict[str, Any]) -> None:
+        """Record a step's messages in order: ``(key, CDR bytes, t_ns, received)`` each, with
+        ``ids`` the caller's map of keys to the channels :meth:`channel` gave."""
+        add = self._w.add_message
+        for key, data, t_ns, _received in msgs:
+            ch = ids[key]
+            ch.count += 1
+            add(ch.id, log_time=t_ns, data=data, publish_time=t_ns, sequence=ch.count)
+        self.messages += len(msgs)
+        self._pending += len(msgs)
 
     def tick(self) -> None:
         """Close the chunk in progress if it is older than ``flush_period`` (wall time); in a
@@ -300,7 +351,9 @@ class Recorder:
 
 
 __all__ = [
+    "Message",
     "Recorder",
+    "RecordingWriter",
     "channel_metadata",
     "rosbag2_record",
     "msgdef",

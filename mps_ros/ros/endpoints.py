@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -22,6 +23,7 @@ from visualization_msgs.msg import MarkerArray
 from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
 
 from ..run.commands import Command, shown
+from ..run.sinks import Message, Sink
 from ..run.twin import to_json
 from ..wire.topics import LATCHED, MODE, TOPICS, resolve
 
@@ -41,7 +43,7 @@ except ImportError:
     pass
 
 
-class RosSink:
+class RosSink(Sink):
     """A :class:`~mps_ros.run.runner.Runner` sink that publishes each message's CDR bytes on its
     topic: the very bytes the recorder writes. In realtime pacing the runner calls it from its
     releasing thread, at each step's deadline, beside the steps computed ahead."""
@@ -65,15 +67,7 @@ class RosSink:
             )
         return f
 
-    def emit(self, key, data, t_ns):
-        p = self.pubs.get(key)
-        if p is not None:
-            try:
-                p.publish(data)
-            except Exception:  # a publisher destroyed at shutdown: nothing to send to
-                pass
-
-    def emit_all(self, msgs) -> int:
+    def emit_all(self, msgs: Sequence[Message]) -> int:
         """A released step's messages, ``(key, data, t_ns, received)`` each, in order (the
         commands as received are not published again); how many were to go out (a key
         with no publisher, recorded only, is not counted). Each goes straight to its
@@ -95,9 +89,6 @@ class RosSink:
             except Exception:  # a publisher destroyed at shutdown: nothing to send to
                 pass
         return n
-
-    def tick(self, deadline: float | None = None):
-        pass
 
 
 class Endpoints:

@@ -205,13 +205,13 @@ class RunCommands:
             self.answer(c, word, ok, reason, t, twin.sim.structure)
             # a command's event (and what it set off) goes out at once, before the next
             # command's answer
-            r._emit_events(twin.new_events(), t_ns)
+            r.emit_events(twin.new_events(), t_ns)
 
     def answer(self, c: Command, word: str, ok: bool, reason, t: float, structure: str) -> None:
         """A command as received, and its answer (``~/mode/status``, the log, its reply)."""
         r = self.runner
         t_ns = to_ns(t)
-        r._send("~/mode", r._encode("~/mode")({"data": word}), t_ns, received=True)
+        r.send("~/mode", r.encoder("~/mode")({"data": word}), t_ns, received=True)
         ack = {
             "t": t,
             "command": shown(word, 64),
@@ -226,7 +226,7 @@ class RunCommands:
         else:
             self.refused += 1
             self.refusals.refused(word, c.source, t, reason, c.wall)
-        r._emit("~/mode/status", {"data": to_json(ack)}, t_ns)
+        r.emit("~/mode/status", {"data": to_json(ack)}, t_ns)
         if c.reply is not None:
             try:
                 c.reply(ack)

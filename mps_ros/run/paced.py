@@ -13,6 +13,7 @@ import time
 from mps_core.scene.settings import COMMANDS
 
 from ..os_threads import name_thread, short_slice
+from .sinks import Fanout
 
 
 class _Release:
@@ -53,11 +54,10 @@ class PacedInProcess:
         self.refill = 0.2 * self.lead if ahead else 0.0
         #: the sinks each step goes to at its deadline (the ROS publishers), and after it
         #: (the recorder)
-        self.live = [s for s in runner.sinks if getattr(s, "live", False)]
-        self.later = [s for s in runner.sinks if not getattr(s, "live", False)]
+        self.live, self.later = runner.sinks.split()
         self._queue: collections.deque[_Release] = collections.deque()
         self._cond = threading.Condition()
-        self._released: _Release | None = None
+        self._released: _Release  # the last released (set at the start)
         self._flush = self._ahead_done = self._releasing = False
         self._released_steps: collections.deque[_Release] = collections.deque()
         # a release goes out this long after the deadline of the first step it sends
@@ -91,7 +91,7 @@ class PacedInProcess:
             self._start(releaser)
             self._step_ahead(next_diag)
         except Exception as exc:
-            r._failed(exc)
+            r.failed(exc)
             raise
         finally:
             self._end(releaser)
@@ -105,9 +105,8 @@ class PacedInProcess:
         r = self.runner
         twin = r.twin
         first = _Release(twin.k, twin.t_ns, 0.0, [], True, None, twin.sim.structure, twin.refusals())
-        r._staging = first.msgs
-        r._begin()
-        r._staging = None
+        with r.staged(first.msgs):
+            r.begin()
         r.clocks.wall_start = first.deadline = time.perf_counter() + (self.lead - self.step)
         if self.ahead:
             first.cp = twin.checkpoint()
@@ -122,7 +121,7 @@ class PacedInProcess:
         to the other sinks, the commands taken as they come, each step computed and queued
         once its deadline is within the lead (the commands' log lines said where it is full)."""
         r = self.runner
-        twin, clocks, inbox, stop, lines = r.twin, r.clocks, r.inbox, r._stop, r.commands.lines
+        twin, clocks, inbox, stop, lines = r.twin, r.clocks, r.inbox, r.stopping, r.commands.lines
         clock = time.perf_counter
         queue, cond, released, later = self._queue, self._cond, self._released_steps, self.later
         ahead, lead, guard, refill = self.ahead, self.lead, self.guard, self.refill
@@ -160,18 +159,17 @@ class PacedInProcess:
         diagnostics where due, its checkpoint); the next diagnostics' time."""
         r = self.runner
         twin, queue, cond = r.twin, self._queue, self._cond
-        k, msgs, c1 = r._timed_step(deadline, time.perf_counter)
+        k, msgs, c1 = r.timed_step(deadline, time.perf_counter)
         t_ns = twin.t_ns
         entry = _Release(k, t_ns, deadline, [], msgs is not None, None, twin.sim.structure, twin.refusals())
-        r._staging = entry.msgs
         if msgs is not None:
             entry.msgs.extend((key, data, t_ns, False) for key, data in msgs)
-        # no time ahead: an impact's impulses wait for the next step's spare time
-        r._emit_events(twin.new_events(hold=not ahead), t_ns)
-        if c1 >= next_diag:
-            next_diag = c1 + r.period
-            r._diagnostics(t_ns)
-        r._staging = None
+        with r.staged(entry.msgs):
+            # no time ahead: an impact's impulses wait for the next step's spare time
+            r.emit_events(twin.new_events(hold=not ahead), t_ns)
+            if c1 >= next_diag:
+                next_diag = c1 + r.period
+                r.publish_diagnostics(t_ns)
         if ahead:
             entry.cp = twin.checkpoint()
         with cond:
@@ -188,18 +186,17 @@ class PacedInProcess:
         once, where the run was stopped) and ends, the last released steps handed over, the
         log lines said, the run's end."""
         r, cond = self.runner, self._cond
-        r._staging = None
         with cond:
             self._ahead_done = True
-            self._flush = r._stop.is_set() or r.error is not None
+            self._flush = r.stopping.is_set() or r.error is not None
             cond.notify_all()
         if releaser.is_alive():
             releaser.join()
         self._hand_over(self._released_steps, self.later)
         r.commands.lines.end()
-        r._end()
+        r.end()
 
-    def _release_loop(self, live) -> None:
+    def _release_loop(self, live: Fanout) -> None:
         """The releasing thread: each queued step's messages to the live sinks once its
         deadline has passed: woken ``_release_delay`` after the first queued step's deadline,
         it sends that step and every one queued behind it whose deadline has passed by then
@@ -243,16 +240,8 @@ class PacedInProcess:
                 for _key, _data, _t, received in msgs:
                     if not received:
                         n += 1
-                for s in live:
-                    emit_all = getattr(s, "emit_all", None)
-                    if emit_all is not None:
-                        emit_all(msgs)
-                        continue
-                    for key, data, t_ns, received in msgs:
-                        if not received:
-                            s.emit(key, data, t_ns)
-                for s in live:
-                    s.tick(head.deadline)
+                live.emit_all(msgs)
+                live.tick(head.deadline)
             except Exception as exc:  # a sink that fails ends the run, never hangs it
                 if r.error is None:
                     r.error = f"{type(exc).__name__}: {exc}"
@@ -270,22 +259,12 @@ class PacedInProcess:
                 m.latencies.add(late if late > 0.0 else 0.0)
 
     @staticmethod
-    def _hand_over(released: collections.deque, sinks) -> None:
+    def _hand_over(released: collections.deque, sinks: Fanout) -> None:
         """Released steps to the sinks that are not live (the recorder), in order."""
         while released:
             entry = released.popleft()
-            for s in sinks:
-                emit_all = getattr(s, "emit_all", None)
-                if emit_all is not None:  # the whole step in one call
-                    emit_all(entry.msgs)
-                    continue
-                for key, data, t_ns, received in entry.msgs:
-                    if not received:
-                        s.emit(key, data, t_ns)
-                    elif hasattr(s, "received"):
-                        s.received(key, data, t_ns)
-            for s in sinks:
-                s.tick(entry.deadline)
+            sinks.emit_all(entry.msgs)
+            sinks.tick(entry.deadline)
 
     def _boundary(self, wall: float, ahead: bool) -> _Release:
         """The release a command that arrived at ``wall`` follows (call with the queue's
@@ -323,11 +302,8 @@ class PacedInProcess:
                             queue.pop()
             if refusal is not None:
                 entry = _Release(at.k, at.t_ns, at.deadline, [], False, at.cp, at.structure, at.refusals)
-                r._staging = entry.msgs
-                try:
+                with r.staged(entry.msgs):
                     commands.answer(c, word, False, refusal, twin.time_of(at.k), at.structure)
-                finally:
-                    r._staging = None
                 with cond:
                     # right after its boundary and the answers given there (or first, where
                     # that went out meanwhile)
@@ -341,11 +317,8 @@ class PacedInProcess:
                 r.measurements.steps_recomputed += last.k - at.k
                 twin.restore(at.cp)
             entry = _Release(twin.k, twin.t_ns, at.deadline, [], False, None)
-            r._staging = entry.msgs
-            try:
+            with r.staged(entry.msgs):
                 commands.take([c], gated=True)
-            finally:
-                r._staging = None
             entry.structure, entry.refusals = twin.sim.structure, twin.refusals()
             if ahead:
                 entry.cp = twin.checkpoint()

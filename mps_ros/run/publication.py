@@ -7,6 +7,7 @@ from typing import Any
 from ..wire.topics import BY_KEY
 from .boundaries import HeldStep
 from .metrics import Timings
+from .sinks import Fanout, Sink
 from .twin import to_ns
 
 
@@ -23,7 +24,10 @@ class Publication:
         self.spec = spec
         self.afap = bool(spec.get("afap"))
         self.sink = sink
-        self.sinks: list = []  # the others: the recorder
+        #: the others: the recorder; one that fails is dropped (:meth:`_sink_failed`)
+        self.sinks = Fanout(on_failure=self._sink_failed)
+        self._k_releasing = 0  # the step being released (said with a sink's failure)
+        self._said = False  # a sink's failure, first seen at the step being released
         self.log = log
         self.latencies = Timings()
         self.publish_times = Timings()
@@ -40,9 +44,7 @@ class Publication:
     def prepare(self) -> None:
         """The sinks' channels; the recording status's encoder."""
         keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.spec["twin"]["outputs"]]
-        for s in self.sinks:
-            if hasattr(s, "prepare"):
-                s.prepare(keys)
+        self.sinks.prepare(keys)
         if "diagnostics" in self.spec["twin"]["outputs"]:
             from ..wire.cdr import encoder
 
@@ -64,24 +66,26 @@ class Publication:
             if not self.afap:
                 late = p1 - head.deadline
                 self.latencies.add(late if late > 0.0 else 0.0)
-        said = False  # the recording's failure, first seen at this step
-        for s in self.sinks:
-            try:
-                s.emit_all(msgs)
-                s.tick(head.deadline)
-            except Exception as exc:  # a sink that fails: said once, dropped, step on
-                self.log("error", f"recording failed at step {head.k}: {type(exc).__name__}: {exc}")
-                self.sinks = [x for x in self.sinks if x is not s]
-                if self.failure is None:
-                    self.failure = f"{type(exc).__name__}: {exc}"
-                    said = True
-            else:
-                if self.failure is None and getattr(s, "failure", None):
-                    self.failure = s.failure
-                    said = True
+        self._k_releasing = head.k
+        self._said = False
+        self.sinks.emit_all(msgs)
+        self.sinks.tick(head.deadline)
+        said = self._said
+        if self.failure is None:
+            failure = next((s.failure for s in self.sinks if s.failure), None)
+            if failure:
+                self.failure = failure
+                said = True
         if said or p1 >= self.next_status:
             self.next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
             self.recording_status(msgs)
+
+    def _sink_failed(self, sink: Sink, exc: Exception) -> None:
+        """A sink that raised: said once, dropped (the run steps on without it)."""
+        self.log("error", f"recording failed at step {self._k_releasing}: {type(exc).__name__}: {exc}")
+        if self.failure is None:
+            self.failure = f"{type(exc).__name__}: {exc}"
+            self._said = True
 
     def stale(self, now: float, t: float | None) -> None:
         """Paused: the diagnostics say so (pacing STALE, the recording's status), once a
@@ -94,8 +98,7 @@ class Publication:
 
         name, hw = self.named
         self.statuses_out(
-            [diagnostics.paused(name, hw, t)]
-            + [s.status(name, hw) for s in self.sinks if hasattr(s, "status")],
+            [diagnostics.paused(name, hw, t)] + self.sinks.statuses(name, hw),
             to_ns(t),
         )
 
@@ -109,7 +112,7 @@ class Publication:
         from ..wire import diagnostics
 
         name, hw = self.named
-        statuses = [s.status(name, hw) for s in self.sinks if hasattr(s, "status")]
+        statuses = self.sinks.statuses(name, hw)
         if self.failure is not None and not any(x["level"] == diagnostics.ERROR for x in statuses):
             # the sink itself gave up (dropped): its failure said all the same
             statuses.append(diagnostics.recording(name, hw, "", 0, 0, self.failure))
@@ -124,6 +127,6 @@ class Publication:
         out = [("/diagnostics", self.diagnostics_encoder(array(t_ns, statuses)), t_ns, False)]
         self.messages += self.sink.emit_all(out)
         for s in self.sinks:
-            if getattr(s, "failure", None) is None:
+            if s.failure is None:
                 s.emit_all(out)
                 s.tick(None)

@@ -3,12 +3,13 @@ messages (:func:`record`)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..recording.background import BackgroundRecorder
 from ..recording.recorder import Recorder
 from ..wire.topics import DEPTH, offered_qos
-from .sinks import RecordingSink
+from .sinks import Message, RecordingSink, Sink
 
 
 def record(
@@ -108,18 +109,19 @@ def record(
         shown.done()
         try:
             rec.finish()
-        except OSError:
+        except OSError as exc:
             # the file could not be finished: what failed is said already (the recording's
-            # failure, or the run's error on its way out)
+            # failure, or the run's error on its way out), or it failed only now (the disk
+            # filled with the last messages handed over): the recording's failure at the end
             if not failed and sink.failure is None:
-                raise
+                sink.failure, sink.failed_at = str(exc), twin.t
         finally:
             for sig, h in old.items():
                 signal.signal(sig, h)
     return rec.path, outcome(stats), rec.counts()
 
 
-class _WatchSink:
+class _WatchSink(Sink):
     """A run's sink that shows how far the run has got and keeps its fastest crank and rocker
     rates (for the coarse-step warning), at each step's tick."""
 
@@ -128,10 +130,7 @@ class _WatchSink:
         #: the largest |phi_dot| and |psi_dot| so far (rad/s)
         self.fastest = [0.0, 0.0]
 
-    def emit(self, key, data, t_ns) -> None:
-        pass
-
-    def emit_all(self, msgs) -> None:
+    def emit_all(self, msgs: Sequence[Message]) -> None:
         pass
 
     def tick(self, deadline: float | None = None) -> None:

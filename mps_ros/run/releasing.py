@@ -12,14 +12,14 @@ import collections
 import json
 import marshal
 import math
-import threading
 import time
 
 from ..wire.pipe import Frame
-from .boundaries import Boundaries, HeldStep
+from .boundaries import Boundaries, HeldStep, HeldSteps, Schedule
 from .child import Scheduling, SteppingChild, exit_words
 from .commands import Command, Gate
 from .publication import Publication
+from .sinks import Fanout
 
 
 class ForwardingInbox:
@@ -81,21 +81,30 @@ class SteppingProcess:
         #: the steps released: published, recorded, measured
         self.publication = Publication(spec, sink, log)
         self.scheduling = Scheduling(priority, log)
-        self._lock = threading.Lock()  # the held steps, the generation, the replies
-        self._queue: collections.deque[HeldStep] = collections.deque()
-        self._released: HeldStep | None = None
+        #: the steps held for their deadlines (shared with the commands' boundaries)
+        self.held = HeldSteps()
+        #: the steps' times
+        self.schedule = Schedule.of(spec)
         self._stats: dict = {}
         self._prepared = False
-        self._ended = False
-        self._paused_at: float | None = None  # paused (the node inactive) since (wall s)
         self.paused_s = 0.0  # wall seconds paused so far
+        #: this process's CPU over the run (s), once it has ended
+        self.ros_cpu: float | None = None
         #: the replies of the steps asked for while paused (~/step), in order
         self._step_replies: collections.deque = collections.deque()
         #: the commands, each at its boundary
-        self.boundaries = Boundaries(self, gate, log)
+        self.boundaries = Boundaries(
+            self.held,
+            self.schedule,
+            gate,
+            log,
+            send_command=self._send_command,
+            counts_changed=self._tell_counts,
+            command_delay=float(spec["runner"].get("command_delay", 0.0)),
+        )
 
     @property
-    def sinks(self) -> list:
+    def sinks(self) -> Fanout:
         """The sinks after the publishers: the recorder (:attr:`Publication.sinks`)."""
         return self.publication.sinks
 
@@ -136,55 +145,58 @@ class SteppingProcess:
     def command(self, cmd: Command) -> None:
         self.boundaries.command(cmd)
 
-    def _time_of(self, k: int) -> float:
-        tw = self.spec.get("grid")
-        if tw is None:
-            return math.nan
-        t0, t_end, n = tw
-        return t_end if k == n else t0 + k * (t_end - t0) / n
+    def _started(self) -> SteppingChild:
+        """Return the stepping process (:meth:`prepare` has started it)."""
+        if self.child is None:
+            raise RuntimeError("the stepping process has not been started (prepare())")
+        return self.child
+
+    def _send_command(self, payload: bytes) -> None:
+        """A command on to the stepping process (:class:`Boundaries` chose its boundary)."""
+        self._started().out.frame(Frame.COMMAND, payload)
 
     def pause(self) -> str | None:
         """Hold the run (the node's lifecycle: deactivate): nothing more is released or
         computed ahead, simulated time holds at the last step released; commands are still
         taken (at the next boundary). None, or why not."""
-        with self._lock:
-            if self._ended:
+        with self.held.lock:
+            if self.held.ended:
                 return "the run has ended"
-            if self._paused_at is None:
-                self._paused_at = time.perf_counter()
-                self.child.out.frame(Frame.PAUSE, b"")
+            if self.held.paused_at is None:
+                self.held.paused_at = time.perf_counter()
+                self._started().out.frame(Frame.PAUSE, b"")
         return None
 
     def step_paused(self, reply) -> str | None:
         """One step while paused (the node's ``~/step``): the next step held is released, or
         the stepping process computes one; ``reply(t)`` once it is out. None, or why not."""
-        with self._lock:
-            if self._ended:
+        with self.held.lock:
+            if self.held.ended:
                 return "the run has ended"
-            if self._paused_at is None:
+            if self.held.paused_at is None:
                 return "the node is active: ~/step takes a step while it is deactivated"
             self._step_replies.append(reply)
-            if len(self._step_replies) > sum(1 for e in self._queue if e.state):
-                self.child.out.frame(Frame.STEP, b"")
+            if len(self._step_replies) > sum(1 for e in self.held.queue if e.state):
+                self._started().out.frame(Frame.STEP, b"")
         return None
 
     def resume(self) -> None:
         """Go on after :meth:`pause`: every deadline (held, and in the stepping process) moves
         on by the time since the pause (or since the deadline of the last step taken with
         ``~/step``, where that is later)."""
-        with self._lock:
-            if self._paused_at is None:
+        with self.held.lock:
+            if self.held.paused_at is None:
                 return
-            since = self._paused_at
-            if self._released is not None and self._released.deadline > since:
-                since = self._released.deadline
+            since = self.held.paused_at
+            if self.held.released is not None and self.held.released.deadline > since:
+                since = self.held.released.deadline
             d = time.perf_counter() - since
-            self._paused_at = None
+            self.held.paused_at = None
             self.paused_s += d
-            for e in self._queue:
+            for e in self.held.queue:
                 e.deadline += d
             self.boundaries.shift(d)
-            self.child.out.frame(Frame.RESUME, marshal.dumps(d))
+            self._started().out.frame(Frame.RESUME, marshal.dumps(d))
 
     def request_stop(self, reason: str) -> None:
         if self.stop_reason is None:
@@ -198,12 +210,13 @@ class SteppingProcess:
         death: :attr:`error` says so)."""
         self.prepare()
         self.scheduling.apply(0.0 if self.afap else self.spec["runner"].get("release_slice", 1e-4))
-        out, reader, pub = self.child.out, self.child.reader, self.publication
+        child = self._started()
+        out, reader, pub = child.out, child.reader, self.publication
         out.frame(Frame.GO, json.dumps({"priority": self.scheduling.priority}).encode())
         cpu0 = time.process_time()
         clock = time.perf_counter
         fd = reader.fd
-        queue, lock, boundaries = self._queue, self._lock, self.boundaries
+        queue, lock, boundaries = self.held.queue, self.held.lock, self.boundaries
         end = None
         eof = False
         told = -1  # as fast as possible: the last step released that the stepping process knows of
@@ -216,13 +229,13 @@ class SteppingProcess:
             # a run stopped early lets go of what it holds at once
             flush = end is not None and (end.get("stop_reason") or end.get("error"))
             self._release_due(now, flush, clock)
-            if self.afap and self._released is not None and self._released.k != told:
+            if self.afap and self.held.released is not None and self.held.released.k != told:
                 # the stepping process steps on up to _Ahead.AHEAD past it
-                told = self._released.k
+                told = self.held.released.k
                 out.frame(Frame.RELEASED, marshal.dumps(told))
-            if self._paused_at is not None and now >= pub.next_status:
-                released = self._released
-                pub.stale(now, None if released is None else self._time_of(released.k))
+            if self.held.paused_at is not None and now >= pub.next_status:
+                released = self.held.released
+                pub.stale(now, None if released is None else self.schedule.time_of(released.k))
             if (end is not None or eof) and not queue:
                 break
             if eof:
@@ -231,7 +244,7 @@ class SteppingProcess:
                     if wait > 0:
                         time.sleep(min(wait, 0.05))
                 continue
-            if self._paused_at is not None:
+            if self.held.paused_at is not None:
                 wait = 0.05  # paused: awake for the diagnostics' STALE
             else:
                 wait = (queue[0].deadline - clock()) if queue else 0.5
@@ -248,32 +261,31 @@ class SteppingProcess:
                     boundaries.take_waiting()
         boundaries.end()
         self.ros_cpu = time.process_time() - cpu0
-        for s in pub.sinks:
-            s.tick(None)
+        pub.sinks.tick(None)
         return self._finish(end)
 
     def _release_due(self, now: float, flush, clock) -> None:
         """Every held step whose deadline has passed by ``now`` (as fast as possible: every
         one held; paused: those asked for), released in order; ``flush``: all held."""
-        queue, lock, release = self._queue, self._lock, self.publication.release
+        queue, lock, release = self.held.queue, self.held.lock, self.publication.release
         while True:
             reply = None
             with lock:
                 if not queue:
                     break
                 if not flush:
-                    if self._paused_at is not None:  # paused: the steps asked for
+                    if self.held.paused_at is not None:  # paused: the steps asked for
                         if not self._step_replies:
                             break
                     elif not self.afap and queue[0].deadline > now:
                         break
-                head = self._released = queue.popleft()
-                if head.state and self._paused_at is not None and self._step_replies:
+                head = self.held.released = queue.popleft()
+                if head.state and self.held.paused_at is not None and self._step_replies:
                     reply = self._step_replies.popleft()
             release(head, clock)
             if reply is not None:
                 try:
-                    reply(self._time_of(head.k))
+                    reply(self.schedule.time_of(head.k))
                 except Exception:  # a reply must never take the run down
                     pass
 
@@ -284,7 +296,7 @@ class SteppingProcess:
         for kind, payload in got:
             if kind == Frame.MESSAGES:
                 entry = HeldStep(*marshal.loads(payload))
-                with self._lock:
+                with self.held.lock:
                     self.boundaries.arrived(entry)
             elif kind == Frame.ANSWER:
                 cid, ack = marshal.loads(payload)
@@ -295,12 +307,12 @@ class SteppingProcess:
                 self.scheduling.said(json.loads(payload))
             elif kind == Frame.END:
                 end = json.loads(payload)
-                with self._lock:
-                    self._ended = True
+                with self.held.lock:
+                    self.held.ended = True
         return end
 
     def _finish(self, end: dict | None) -> dict:
-        child = self.child
+        child = self._started()
         if end is None:  # the stepping process died
             child.wait(10)
             self.error = (
@@ -310,7 +322,7 @@ class SteppingProcess:
             self.error_kind = "died"
             self.stop_reason = "error"
             k = self.publication.k_released or 0
-            self._stats = {"steps": k, "t": self._time_of(k)}
+            self._stats = {"steps": k, "t": self.schedule.time_of(k)}
         else:
             child.proc.wait(30)
             self._stats = end["stats"]
@@ -331,7 +343,7 @@ class SteppingProcess:
         if pub.publish_times.n:
             s["publish_time_p50_ms"] = pub.publish_times.percentile(50) * 1e3
             s["publish_time_p99_ms"] = pub.publish_times.percentile(99) * 1e3
-        ros = getattr(self, "ros_cpu", None)
+        ros = self.ros_cpu
         step_cpu = s.get("cpu_time")
         if ros is not None and step_cpu is not None:
             s["stepping_process_cpu_per_step_us"] = step_cpu / steps * 1e6

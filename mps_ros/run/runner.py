@@ -28,7 +28,7 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from ..wire import diagnostics
@@ -36,6 +36,7 @@ from ..wire.diagnostics import hardware_id
 from ..wire.topics import BY_KEY
 from .commands import Gate, Inbox, RunCommands
 from .metrics import Measurements, RunClocks
+from .sinks import Fanout, Message, Sink
 from .twin import Twin, to_json
 
 PACINGS = ("realtime", "as_fast_as_possible")
@@ -92,13 +93,17 @@ class RealtimeSettings:
 
 
 class Runner:
-    """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and emits every
-    message to every sink: ``sink.emit(key, data, t_ns)`` with its CDR bytes (encoded once:
-    :meth:`Twin.state_payloads` for the step's messages, :func:`mps_ros.wire.cdr.encoder`
-    for the others) and its simulated time in ns; a recorder also gets the commands received,
-    ``sink.received(key, data, t_ns)``; ``sink.tick()`` once a step. A sink with
-    ``emit_all(msgs)`` gets each step's state in one call instead (``(key, data, t_ns,
-    received)`` each, in order; the sink leaves out what it does not take).
+    """Steps a :class:`Twin`, paces it, takes commands from an :class:`Inbox`, and hands every
+    message to every sink (:class:`~mps_ros.run.sinks.Sink`, through one
+    :class:`~mps_ros.run.sinks.Fanout`): its CDR bytes (encoded once:
+    :meth:`Twin.state_payloads` for the step's messages, :meth:`encoder` for the others) and its
+    simulated time in ns, a step's state in one ``emit_all`` call, the commands received
+    marked so; ``tick`` once a step.
+
+    The pacings drive a run through its public hooks: :meth:`begin`, :meth:`timed_step`,
+    :meth:`publish_step`, :meth:`emit_events`, :meth:`publish_diagnostics`,
+    :meth:`take_commands`, :meth:`failed`, :meth:`end`, with :meth:`staged` to fill a release
+    instead of handing it to the sinks, and :attr:`stopping`, set when the run is to stop.
 
     Its parts: ``realtime``, the settings of realtime pacing (:class:`RealtimeSettings`);
     ``commands``, the commands taken, answered and counted (:class:`RunCommands`);
@@ -111,7 +116,7 @@ class Runner:
         self,
         twin: Twin,
         *,
-        sinks=(),
+        sinks: Iterable[Sink] = (),
         pacing: str = "as_fast_as_possible",
         real_time_factor: float = 1.0,
         publish_every: int = 1,
@@ -143,7 +148,7 @@ class Runner:
             warm_up=float(warm_up),
             freeze_gc=bool(freeze_gc),
         )
-        self.sinks = list(sinks)
+        self.sinks = Fanout(sinks)
         self.inbox = inbox if inbox is not None else Inbox()
         self.log = log or (lambda level, text: None)
         self.name = name
@@ -152,7 +157,7 @@ class Runner:
         self.clocks = RunClocks()
         self.stop_reason: str | None = None
         self.error: str | None = None
-        self._stop = threading.Event()
+        self.stopping = threading.Event()
         self._paused = threading.Event()  # as fast as possible: held (pause())
         self._step_replies: collections.deque = collections.deque()  # step_paused()
         self._prepared = False
@@ -173,11 +178,12 @@ class Runner:
         """Ask the loop to end after the step in progress (from a signal handler or thread)."""
         if self.stop_reason is None:
             self.stop_reason = reason
-        self._stop.set()
+        self.stopping.set()
         self.inbox.wake()
 
     # -- emitting -------------------------------------------------------------------------
-    def _encode(self, key: str):
+    def encoder(self, key: str) -> Callable[[dict], bytes]:
+        """Return the CDR encoder of ``key``'s message type (made once)."""
         enc = self._encoders.get(key)
         if enc is None:
             from ..wire.cdr import encoder
@@ -185,62 +191,48 @@ class Runner:
             enc = self._encoders[key] = encoder(BY_KEY[key].msgtype)
         return enc
 
-    def _emit(self, key: str, msg: dict, t_ns: int) -> None:
-        self._send(key, self._encode(key)(msg), t_ns)
+    def emit(self, key: str, msg: dict, t_ns: int) -> None:
+        """Encode ``msg`` and hand it to every sink (:meth:`send`)."""
+        self.send(key, self.encoder(key)(msg), t_ns)
 
-    def _send(self, key: str, data: bytes, t_ns: int, received: bool = False) -> None:
-        """One message to every sink (``received``: a command as it came in, to the sinks
-        that keep those); while a step is being queued (realtime), to its release instead."""
+    def send(self, key: str, data: bytes, t_ns: int, received: bool = False) -> None:
+        """Hand one message to every sink (``received``: a command as it came in); while a
+        release is being filled (:meth:`staged`), to it instead."""
         if self._staging is not None:
             self._staging.append((key, data, t_ns, received))
             return
-        err = None
         if not received:
             self.measurements.messages += 1
-        for s in self.sinks:  # every sink gets it, though another one fails
-            try:
-                if not received:
-                    s.emit(key, data, t_ns)
-                elif hasattr(s, "received"):
-                    s.received(key, data, t_ns)
-            except Exception as exc:
-                err = err or exc
-        if err is not None:
-            raise err
+        self.sinks.emit_all([(key, data, t_ns, received)])
 
-    def _emit_events(self, events, t_ns):
+    def staged(self, msgs: list[Message]) -> _Staged:
+        """Return a context in which what the run emits goes into ``msgs`` (a paced run's
+        release being filled) instead of to the sinks."""
+        return _Staged(self, msgs)
+
+    def emit_events(self, events, t_ns):
         m = self.measurements
         if "events" not in self.twin.outputs:
             m.events += len(events)
             return
         for ev in events:
             m.events += 1
-            self._emit("~/events", {"data": to_json(ev)}, t_ns)
+            self.emit("~/events", {"data": to_json(ev)}, t_ns)
 
-    def _publish_step(self, payloads, t_ns):
-        """The step's state to every sink, handed over at once (``tick``); then its events,
+    def publish_step(self, payloads, t_ns):
+        """Hand the step's state to every sink at once (then ``tick``); then its events,
         whose impulses are worked out now, after the state is out."""
         if self._staging is not None:  # realtime: into the step's release
             self._staging.extend((key, data, t_ns, False) for key, data in payloads)
         else:
             self.measurements.messages += len(payloads)
-            msgs = None
-            for s in self.sinks:
-                emit_all = getattr(s, "emit_all", None)
-                if emit_all is not None:  # the step in one call
-                    if msgs is None:
-                        msgs = [(key, data, t_ns, False) for key, data in payloads]
-                    emit_all(msgs)
-                else:
-                    emit = s.emit
-                    for key, data in payloads:
-                        emit(key, data, t_ns)
-                s.tick(None)
+            self.sinks.emit_all([(key, data, t_ns, False) for key, data in payloads])
+            self.sinks.tick(None)
         events = self.twin.new_events()
         if events:
-            self._emit_events(events, t_ns)
+            self.emit_events(events, t_ns)
 
-    def _take_commands(self) -> None:
+    def take_commands(self) -> None:
         """The commands waiting in the inbox, each taken at the present step boundary
         (:meth:`RunCommands.take`)."""
         cmds = self.inbox.drain()
@@ -290,7 +282,7 @@ class Runner:
             out["latency_p99_ms"] = lat.percentile(99) * 1e3
         return out
 
-    def _diagnostics(self, t_ns: int) -> None:
+    def publish_diagnostics(self, t_ns: int) -> None:
         """/diagnostics (:mod:`mps_ros.wire.diagnostics`): pacing, commands, and the status of each
         sink that has one (the recording), about the window since the last."""
         if "diagnostics" not in self.twin.outputs:
@@ -311,8 +303,8 @@ class Runner:
                 self.name, hw, cmds.accepted, refused, floods, lost, new["floods"], new["lost"]
             ),
         ]
-        statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
-        self._emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
+        statuses += self.sinks.statuses(self.name, hw)
+        self.emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
 
     # -- the loop -------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -328,21 +320,19 @@ class Runner:
             self.twin.warm_up(rt.warm_up)
         keys = [t.key for t in BY_KEY.values() if not t.output or t.output in self.twin.outputs]
         for k in keys:
-            self._encode(k)
-        for s in self.sinks:
-            if hasattr(s, "prepare"):
-                s.prepare(keys)
+            self.encoder(k)
+        self.sinks.prepare(keys)
         if rt.freeze_gc and self.pacing == "realtime":
             import gc
 
             gc.collect()
             gc.freeze()
 
-    def _begin(self) -> None:
+    def begin(self) -> None:
         """The run's start event and the first state, then the commands already waiting."""
         twin = self.twin
         t_ns = twin.t_ns
-        self._emit_events(
+        self.emit_events(
             [
                 {
                     "t": twin.t,
@@ -355,15 +345,15 @@ class Runner:
             ],
             t_ns,
         )
-        self._publish_step(twin.state_payloads(), t_ns)
-        self._take_commands()
+        self.publish_step(twin.state_payloads(), t_ns)
+        self.take_commands()
 
-    def _failed(self, exc: Exception) -> None:
+    def failed(self, exc: Exception) -> None:
         self.error = f"{type(exc).__name__}: {exc}"
         self.stop_reason = "error"
         self.log("error", f"the run stopped at t = {self.twin.t:.6f} s: {self.error}")
 
-    def _end(self) -> None:
+    def end(self) -> None:
         """The run's last messages: commands still waiting refused, the last events, the
         diagnostics and the end event (never lost over a late error)."""
         twin = self.twin
@@ -378,9 +368,9 @@ class Runner:
             lambda: self.commands.refuse_pending(
                 "the run has ended" if reason == "end" else f"the run is stopping ({reason})"
             ),
-            lambda: self._emit_events(twin.new_events(), t_ns),
-            lambda: self._diagnostics(t_ns),
-            lambda: self._emit_events([end], t_ns),
+            lambda: self.emit_events(twin.new_events(), t_ns),
+            lambda: self.publish_diagnostics(t_ns),
+            lambda: self.emit_events([end], t_ns),
         ):
             try:
                 part()
@@ -399,36 +389,35 @@ class Runner:
         next_diag = self.clocks.wall_start + self.period
         publish_times = self.measurements.publish_times
         try:
-            self._begin()
+            self.begin()
             reply = None
-            while not twin.done and not self._stop.is_set():
+            while not twin.done and not self.stopping.is_set():
                 if self._paused.is_set():
                     reply = self._hold()
                     if reply is None:
                         continue
-                _k, msgs, p0 = self._timed_step(math.inf, clock)  # no deadline: no miss
+                _k, msgs, p0 = self.timed_step(math.inf, clock)  # no deadline: no miss
                 t_ns = twin.t_ns
                 if msgs is not None:
-                    self._publish_step(msgs, t_ns)
+                    self.publish_step(msgs, t_ns)
                 else:
-                    self._emit_events(twin.new_events(), t_ns)
+                    self.emit_events(twin.new_events(), t_ns)
                 publish_times.add(clock() - p0)
-                self._take_commands()
-                for s in self.sinks:
-                    s.tick(None)
+                self.take_commands()
+                self.sinks.tick(None)
                 now = clock()
                 if now >= next_diag:
                     next_diag = now + self.period
-                    self._diagnostics(t_ns)
+                    self.publish_diagnostics(t_ns)
                 if reply is not None:  # a step taken while paused: said
                     done: Callable = reply
                     reply = None
                     done(twin.t)
         except Exception as exc:
-            self._failed(exc)
+            self.failed(exc)
             raise
         finally:
-            self._end()
+            self.end()
         return self.stats()
 
     def pause(self) -> str | None:
@@ -459,21 +448,20 @@ class Runner:
         t_ns = self.twin.t_ns
         hw = hardware_id(self.twin.scene.name)
         next_diag = 0.0
-        while self._paused.is_set() and not self._stop.is_set():
-            self._take_commands()
+        while self._paused.is_set() and not self.stopping.is_set():
+            self.take_commands()
             if self._step_replies:
                 return self._step_replies.popleft()
             now = time.perf_counter()
             if now >= next_diag and "diagnostics" in self.twin.outputs:
                 next_diag = now + self.period
                 statuses = [diagnostics.paused(self.name, hw, self.twin.t)]
-                statuses += [x.status(self.name, hw) for x in self.sinks if hasattr(x, "status")]
-                self._emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
-                for s in self.sinks:
-                    s.tick(None)
+                statuses += self.sinks.statuses(self.name, hw)
+                self.emit("/diagnostics", diagnostics.array(t_ns, statuses), t_ns)
+                self.sinks.tick(None)
             self.inbox.wait(0.05)
 
-    def _timed_step(self, deadline: float, clock) -> tuple[int, list | None, float]:
+    def timed_step(self, deadline: float, clock) -> tuple[int, list | None, float]:
         """One step: the twin stepped and its messages made where due, the compute time kept
         and a deadline miss counted where it ended after ``deadline``; (k, the messages or
         None, the wall time it ended)."""
@@ -488,6 +476,22 @@ class Runner:
         if c1 > deadline:
             m.misses += 1
         return k, msgs, c1
+
+
+class _Staged:
+    """While entered, what a :class:`Runner` emits goes into a release's list."""
+
+    __slots__ = ("runner", "msgs")
+
+    def __init__(self, runner: Runner, msgs: list[Message]):
+        self.runner, self.msgs = runner, msgs
+
+    def __enter__(self) -> list[Message]:
+        self.runner._staging = self.msgs
+        return self.msgs
+
+    def __exit__(self, *exc) -> None:
+        self.runner._staging = None
 
 
 __all__ = ["Runner", "RealtimeSettings", "PACINGS"]

@@ -230,7 +230,7 @@ class _Ahead:
         refill = 0.2 * lead if ahead else 0.0
         self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.clocks.wall_start + runner.period
-        commands, stop, lines = self.commands, runner._stop, runner.commands.lines
+        commands, stop, lines = self.commands, runner.stopping, runner.commands.lines
         # the rate achieved is judged once a wall second has passed (or at the run's end, if
         # sooner), and any time the schedule falls this far behind (wall s): said once
         behind, self.warned = max(0.1, lead), afap
@@ -269,18 +269,17 @@ class _Ahead:
                         self.wake.wait(wait if wait < 0.05 else 0.05)
                         self.wake.clear()
                         continue
-                k, msgs, c1 = runner._timed_step(deadline, clock)
+                k, msgs, c1 = runner.timed_step(deadline, clock)
                 if (c1 >= judge or c1 > deadline + behind) and not (self.warned or self.hold.paused):
                     judge = math.inf
                     self._judge_rate(k, c1, late=c1 > deadline + behind)
                 t_ns = twin.t_ns
                 staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
-                runner._staging = staged
-                runner._emit_events(twin.new_events(hold=not ahead), t_ns)
-                if c1 >= next_diag:
-                    next_diag = c1 + runner.period
-                    runner._diagnostics(t_ns)
-                runner._staging = None
+                with runner.staged(staged):
+                    runner.emit_events(twin.new_events(hold=not ahead), t_ns)
+                    if c1 >= next_diag:
+                        next_diag = c1 + runner.period
+                        runner.publish_diagnostics(t_ns)
                 # a step's messages and its events' (none of them a command as received)
                 runner.measurements.messages += len(staged)
                 if ahead and k % self.EVERY == 0:
@@ -292,7 +291,7 @@ class _Ahead:
                 if one or len(self.pending) >= self.BATCH or self.due - clock() < self.NEAR:
                     self.flush()
         except Exception as exc:
-            runner._failed(exc)
+            runner.failed(exc)
             raise
         finally:
             self._end()
@@ -304,9 +303,8 @@ class _Ahead:
         runner.prepare()
         runner.clocks.start()
         staged: list = []
-        runner._staging = staged
-        runner._begin()
-        runner._staging = None
+        with runner.staged(staged):
+            runner.begin()
         self.wall_start = runner.clocks.wall_start = time.perf_counter() + lead
         self.k0 = twin.k
         if ahead:
@@ -318,7 +316,6 @@ class _Ahead:
         """The run's end, however it ends: what is pending written, the log lines said, the
         run's end event and its last state as the last entry."""
         runner, twin = self.runner, self.twin
-        runner._staging = None
         try:
             self.flush()
         except BrokenPipeError:
@@ -327,11 +324,8 @@ class _Ahead:
         if not (self.warned or self.hold.paused) and twin.k > self.k0:
             self._judge_rate(twin.k, time.perf_counter(), late=False)
         staged: list = []
-        runner._staging = staged
-        try:
-            runner._end()
-        finally:
-            runner._staging = None
+        with runner.staged(staged):
+            runner.end()
         runner.measurements.messages += sum(1 for m in staged if not m[3])
         self._entry(twin.k, self.deadline(twin.k), False, staged)
         try:
@@ -372,11 +366,8 @@ class _Ahead:
         self.gen = gen
         reply = None if cid is None else self._reply(cid)
         staged: list = []
-        runner._staging = staged
-        try:
+        with runner.staged(staged):
             runner.commands.take([Command(word, source, reply, wall)], gated=True)
-        finally:
-            runner._staging = None
         if ahead:
             self.cps[twin.k] = twin.checkpoint()
         self._entry(twin.k, self.deadline(twin.k), False, staged)
@@ -532,7 +523,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
 
         error_kind = "simulation" if isinstance(exc, MpsError) else "error"
         if runner.error is None:  # it failed before its loop (its start): said all the same
-            runner._failed(exc)
+            runner.failed(exc)
         if error_kind == "error":  # not the simulation's: where it came from
             import traceback
 

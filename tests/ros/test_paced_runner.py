@@ -15,6 +15,7 @@ import pytest
 
 from mps_ros.run.commands import Command, Gate
 from mps_ros.run.runner import Runner
+from mps_ros.run.sinks import Sink as RunSink
 from mps_ros.run.twin import Twin
 
 DT = 1e-3
@@ -22,7 +23,9 @@ T_END = 0.2
 RTF = 0.25  # 4 ms of wall time a step: room to be ahead on a slow machine too
 
 
-class Sink:
+class Sink(RunSink):
+    """A run's sink that keeps what it was handed, and the wall time of each state."""
+
     def __init__(self, live: bool, on_clock=None):
         self.live = live
         self.got: list = []  # (key, bytes, t_ns, received)
@@ -36,11 +39,12 @@ class Sink:
             if self.on_clock is not None:
                 self.on_clock(t_ns)
 
-    def received(self, key, data, t_ns):
-        self.got.append((key, data, t_ns, True))
-
-    def tick(self, deadline=None):
-        pass
+    def emit_all(self, msgs):
+        for key, data, t_ns, received in msgs:
+            if received:
+                self.got.append((key, data, t_ns, True))
+            else:
+                self.emit(key, data, t_ns)
 
 
 def _slice_here() -> float:
@@ -274,7 +278,7 @@ def test_a_live_sink_that_fails_ends_the_run_and_the_rest_is_still_handed_over()
     assert len(ends) == 1 and ends[0]["reason"] == "error"
 
 
-class _Publishers:
+class _Publishers(RunSink):
     """A split run's live side (the ROS publishers): what goes out, in order."""
 
     def __init__(self, on_clock):
@@ -296,7 +300,7 @@ class _Publishers:
         return n
 
 
-class _Recorder:
+class _Recorder(RunSink):
     """A split run's other sink: each released step's messages, as handed over."""
 
     def __init__(self):
@@ -304,9 +308,6 @@ class _Recorder:
 
     def emit_all(self, msgs):
         self.got.extend(tuple(m) for m in msgs)
-
-    def tick(self, deadline=None):
-        pass
 
 
 REFUSED = {
@@ -481,12 +482,12 @@ def test_the_pacing_status_warns_while_deadlines_are_missed_and_clears_after():
     tw = Twin("press-cycle", dt=DT, t_end=T_END)
     runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0)
     sent = []
-    runner._emit = lambda key, msg, t_ns: sent.append(msg)  # the message before encoding
+    runner.emit = lambda key, msg, t_ns: sent.append(msg)  # the message before encoding
     said = []
     for misses in (0, 3, 3, 5, 5, 11, 11):  # ten steps a report
         tw.k += 10
         runner.measurements.misses = misses
-        runner._diagnostics(0)
+        runner.publish_diagnostics(0)
         status = sent[-1]["status"][0]
         assert status["name"] == "press_twin: pacing"
         said.append(status["level"])
@@ -505,10 +506,10 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
     runner = Runner(tw, sinks=[Sink(True)], pacing="realtime", warm_up=0.0, gate=Gate(burst=2, rate=1e-9))
     sent = []
-    runner._emit = lambda key, msg, t_ns: sent.append(msg)
+    runner.emit = lambda key, msg, t_ns: sent.append(msg)
 
     def status():
-        runner._diagnostics(0)
+        runner.publish_diagnostics(0)
         st = next(x for x in sent[-1]["status"] if x["name"] == "press_twin: commands")
         return st["level"], {v["key"]: v["value"] for v in st["values"]}
 
@@ -523,7 +524,7 @@ def test_the_commands_status_warns_of_floods_and_losses_and_clears_after():
     )
     for w in ("engage", "disengage", "engage", "stop"):  # the last two: a flood
         runner.inbox.put(Command(w))
-    runner._take_commands()
+    runner.take_commands()
     level, v = status()
     assert level == 1 and v["commands_refused_as_floods"] == "2", v
     assert status()[0] == 0
@@ -600,9 +601,7 @@ def test_a_run_as_fast_as_possible_pauses_and_goes_on_the_same():
     sink = Sink(True)
     runner = Runner(plain_twin, sinks=[sink], pacing="as_fast_as_possible")
     # the same run never paused: the engage at step 30, from its first boundary after it
-    runner.sinks[0].on_clock = lambda t_ns: (
-        runner.inbox.put(Command("engage")) if t_ns == ack_step * 1_000_000 else None
-    )
+    sink.on_clock = lambda t_ns: runner.inbox.put(Command("engage")) if t_ns == ack_step * 1_000_000 else None
     runner.run()
     plain = [(k, d, t) for k, d, t, _r in sink.got if k in ("joint_states", "~/foundation")]
     assert paused == plain
@@ -616,11 +615,11 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
     were late), then OK again once the run has caught up."""
     from twin_probe import wait_until
 
-    class Stall:
-        live = False
+    class Stall(RunSink):
         stalled = False
 
-        def emit(self, key, data, t_ns):
+        def emit_all(self, msgs):
+            t_ns = msgs[0][2]
             if t_ns >= 100_000_000 and not self.stalled:
                 self.stalled = True
                 due = runner.clocks.wall_start + (t_ns * 1e-9 + 0.2) / runner.rtf
@@ -629,9 +628,6 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
                     30,
                     "the deadline 0.2 simulated s past the stalled step",
                 )
-
-        def tick(self, deadline=None):
-            pass
 
     tw = Twin("press-cycle", dt=DT, t_end=0.8, scene_commands=False)
     runner = Runner(
@@ -643,14 +639,14 @@ def test_an_overload_turns_the_pacing_status_warn_and_it_clears_after():
         warm_up=0.0,
     )
     levels = []
-    emit = runner._emit
+    emit = runner.emit
 
     def keep(key, msg, t_ns):
         if key == "/diagnostics":
             levels.append(next(s["level"] for s in msg["status"] if s["name"].endswith(": pacing")))
         emit(key, msg, t_ns)
 
-    runner._emit = keep
+    runner.emit = keep
     runner.run()
     assert runner.measurements.misses > 0
     last_trouble = max(i for i, lv in enumerate(levels) if lv != 0)
