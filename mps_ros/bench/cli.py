@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     os.environ.update(
         {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR", "RMW_IMPLEMENTATION")}
     )
-    res = {
+    res: dict[str, object] = {
         "machine": f"{os.cpu_count()} cores, load average "
         f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start"
     }
@@ -248,26 +248,34 @@ def _writer() -> int:
     return 0 if r["same_bytes"] else 1
 
 
-def _node_settings(a) -> tuple:
-    """The realtime and soak runs' settings from the command line, in :func:`realtime`'s order
-    after the steps, the environment and the folder."""
-    return (
-        a.deserialize,
-        a.outputs,
-        a.publish_every,
-        a.priority,
-        a.lead,
-        a.release_period,
-        a.derivatives,
-        a.release_slice,
-        a.neighbours,
-        a.in_process,
+def _node_settings(a) -> dict:
+    """The realtime and soak runs' settings from the command line, as :func:`realtime`'s
+    keywords."""
+    return dict(
+        deserialize=a.deserialize,
+        outputs=a.outputs,
+        publish_every=a.publish_every,
+        priority=a.priority,
+        lead=a.lead,
+        release_period=a.release_period,
+        derivatives=a.derivatives,
+        release_slice=a.release_slice,
+        n_neighbours=a.neighbours,
+        in_process=a.in_process,
     )
 
 
 def _realtime_run(a, env, tmp: Path) -> dict:
     """``realtime``: the run and its figures, printed."""
-    r = realtime(a.steps, env, tmp, *_node_settings(a), a.commands_every, a.command_delay, a.flood)
+    r = realtime(
+        a.steps,
+        env,
+        tmp,
+        **_node_settings(a),
+        commands_every=a.commands_every,
+        command_delay=a.command_delay,
+        flood=a.flood,
+    )
     if a.keep:
         keep_logs(tmp, a.keep, "realtime", r)
     _print_realtime(a, r)
@@ -389,7 +397,7 @@ def _table(a, env, tmp: Path) -> list:
 def _soak(a, env, tmp: Path) -> dict:
     """``soak``: the long realtime run."""
     steps = int(round(a.minutes * 60_000))
-    r = realtime(steps, env, tmp, *_node_settings(a))
+    r = realtime(steps, env, tmp, **_node_settings(a))
     if a.keep:
         keep_logs(tmp, a.keep, "soak", r)
     print(

@@ -130,8 +130,12 @@ class Usage:
         self.sub0 = _cpu_seconds(probe_pid)
         self.threads0 = _all_threads(self.mine)
         self.threads1, self.wall_t = dict(self.threads0), self.wall0  # the last reading of each thread
-        self.cpu1 = self.wall1 = self.kid1 = self.sub1 = None
-        self.rss0 = self.rss1 = None
+        self.cpu1: float | None = None
+        self.wall1: float | None = None
+        self.kid1: float | None = None
+        self.sub1: float | None = None
+        self.rss0: float | None = None
+        self.rss1: float | None = None
 
     def read(self, ended: bool) -> None:
         """A reading (``ended``: the run has ended, its threads' last readings kept); raises
@@ -150,12 +154,14 @@ class Usage:
     def figures(self, st: dict) -> None:
         """The shares of a core (the node's, its recording's, the subscriber's), the node's
         processes, its CPU a step and its memory at 5 s and at the end, into ``st``."""
-        wall0, wall1 = self.wall0, self.wall1
-        st["cpu_share"] = (self.cpu1 - self.cpu0) / (wall1 - wall0) if wall1 else float("nan")
-        st["recorder_cpu_share"] = (
-            (self.kid1 - self.kid0) / (wall1 - wall0) if wall1 and self.kids else float("nan")
-        )
-        st["subscriber_cpu_share"] = (self.sub1 - self.sub0) / (wall1 - wall0) if wall1 else float("nan")
+        wall0, wall1, nan = self.wall0, self.wall1, float("nan")
+        cpu1, kid1, sub1 = self.cpu1, self.kid1, self.sub1
+        read = wall1 is not None
+        span = (wall1 - wall0) if wall1 is not None else nan
+        st["cpu_share"] = (cpu1 - self.cpu0) / span if read and cpu1 is not None else nan
+        kids = read and kid1 is not None and self.kids
+        st["recorder_cpu_share"] = (kid1 - self.kid0) / span if kids and kid1 is not None else nan
+        st["subscriber_cpu_share"] = (sub1 - self.sub0) / span if read and sub1 is not None else nan
         st["node_processes"] = len(self.mine)
         st["cpu_per_step_us"] = st["cpu_share"] * 1e3  # at 1 kHz, realtime x1
         st["rss_start_mb"], st["rss_end_mb"] = self.rss0, self.rss1

@@ -37,6 +37,7 @@ import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -384,6 +385,8 @@ def _scan_all(parts: list[Path]):
             )
             into.times += ch.times
             into.datas += ch.datas
+    if first is None:
+        raise ReplayError("no MCAP file to read: expected a recording's file or a bag's")
     channels = {ch.id: ch for ch in joined.values()}
     return first[0], channels, first[1], complete, nmsg, digest.hexdigest()
 
@@ -495,9 +498,9 @@ def _joint_columns(rep: Replay, ch: _Channel) -> None:
             f"{rep.path}: {ch.topic} has no joint {', '.join(missing)} (expected "
             f"the joints {', '.join(JOINT_NAMES)})"
         )
-    for j, (pc, vc) in JOINT_COLUMNS.items():
-        cols[pc] = pos[j][order]
-        cols[vc] = vel[j][order]
+    for joint, (pc, vc) in JOINT_COLUMNS.items():
+        cols[pc] = pos[joint][order]
+        cols[vc] = vel[joint][order]
     t = cols["t"]
     for q in ("phi", "psi"):
         cols[q + "_ddot"] = np.gradient(cols[q + "_dot"], t, edge_order=2) if t.size > 2 else np.zeros_like(t)
@@ -600,7 +603,7 @@ def _events(rep: Replay, channels: dict) -> None:
 
             ts = get_typestore(Stores.ROS2_JAZZY)
             for t, d in zip(ch.times, ch.datas):
-                msg = ts.deserialize_cdr(d, "diagnostic_msgs/msg/DiagnosticArray")
+                msg: Any = ts.deserialize_cdr(d, "diagnostic_msgs/msg/DiagnosticArray")
                 for s in msg.status:
                     rep.diagnostics.append((t / 1e9, int(s.level), s.name, s.message))
         except Exception as exc:  # diagnostics are a nicety: never fail a replay on them

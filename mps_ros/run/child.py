@@ -27,9 +27,11 @@ class SteppingChild:
             stdout=subprocess.PIPE,
             bufsize=0,
         )
-        self.out = FrameWriter(self.proc.stdin.fileno())
-        widen_pipe(self.proc.stdin.fileno())
-        self.reader = FrameReader(self.proc.stdout.fileno())
+        stdin, stdout = self.proc.stdin, self.proc.stdout
+        assert stdin is not None and stdout is not None  # both are pipes
+        self.out = FrameWriter(stdin.fileno())
+        widen_pipe(stdin.fileno())
+        self.reader = FrameReader(stdout.fileno())
         self.out.frame(Frame.SETTINGS, json.dumps(spec).encode())
         self.pid: int | None = None
 
@@ -65,7 +67,8 @@ class SteppingChild:
     def close(self) -> None:
         for f in (self.proc.stdin, self.proc.stdout):
             try:
-                f.close()
+                if f is not None:
+                    f.close()
             except OSError:
                 pass
 

@@ -7,10 +7,17 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS
 
 from .topics import FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES
+
+if TYPE_CHECKING:
+    from .cdr import Preset
+    from .frames import TfLayout
+    from .markers import MarkerLayout
 
 _RX = {c: i for i, c in enumerate(REACTION_COLUMNS)}
 _CLOCK_HEAD = b"\x00\x01\x00\x00"  # CDR, little endian
@@ -60,7 +67,7 @@ class StepMessages:
         if not (markers_hz > 0 and math.isfinite(markers_hz)):
             raise ValueError(f"markers_hz {markers_hz!r}: expected a positive number")
         self.marker_every = max(1, int(round(1.0 / (markers_hz * dt))))
-        self.markers = None
+        self.markers: MarkerLayout | None = None
         if "markers" in outputs:
             from .markers import N_PER_M, MarkerLayout
 
@@ -68,22 +75,24 @@ class StepMessages:
                 scene, self.wrenches or (), N_PER_M if markers_scale is None else markers_scale
             )
         self._marker_presets: dict = {}
-        self.frames = None
+        self.frames: TfLayout | None = None
         if "tf" in outputs:
             from .frames import TfLayout
 
             self.frames = TfLayout.of_scene(scene)
-        self._tf = None  # /tf's kept buffer (payloads)
+        self._tf: Callable[..., bytes] | None = None  # /tf's kept buffer (payloads)
         self.structure_sent: str | None = None
         self.static_sent = False  # /tf_static has gone out
-        self._js = None  # the per-step messages' kept buffers (payloads)
+        self._js: Preset | None = None  # the per-step messages' kept buffers (payloads)
         self._wr: list = []
 
     def _frame_values(self, sim) -> list:
+        assert self.frames is not None  # called where /tf is published
         kin = sim.solver.current.kin
         return self.frames.at(kin.xy("A"), kin.xy("B"), kin.xy("C"))
 
     def _marker_values(self, sim, rx) -> list:
+        assert self.markers is not None  # called where the markers are published
         phi, _, psi, _, x_c, _ = sim.joint_state()
         return self.markers.values(phi, psi, x_c, rx)
 
@@ -138,7 +147,7 @@ class StepMessages:
             out.append(("~/markers", self.markers.message(st, self._marker_values(sim, rx), sim.structure)))
         return out
 
-    def _make_presets(self) -> None:
+    def _make_presets(self) -> Preset:
         from .cdr import Preset, joint_state, wrench_stamped
 
         effort = 4 if self.solve_reactions else 0
@@ -177,12 +186,12 @@ class StepMessages:
             )
             for w in self.wrenches
         ]
+        return self._js
 
     def payloads(self, twin) -> list[tuple[str, bytes]]:
         """``twin``'s present step as (topic key, CDR bytes), the latched messages marked sent:
         see :meth:`~mps_ros.run.twin.Twin.state_payloads`."""
-        if self._js is None:
-            self._make_presets()
+        js = self._js if self._js is not None else self._make_presets()
         o = self.outputs
         sim = twin.sim
         ns = int(round(sim.t * 1e9))
@@ -214,7 +223,7 @@ class StepMessages:
             vals = pos + vel
             if rx is not None:
                 vals += _effort(rx)
-            out.append(("joint_states", self._js.pack(sec, nsec, vals)))
+            out.append(("joint_states", js.pack(sec, nsec, vals)))
         for key, pack in self._wr:
             out.append((key, pack(sec, nsec, rx)))
         if "structure" in o:
