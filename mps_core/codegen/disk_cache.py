@@ -261,7 +261,7 @@ class KernelStore:
 
     def _files(self) -> list[tuple[float, int, Path]]:
         """List (mtime, size, path) of every file under the folder (every version's)."""
-        out = []
+        out: list[tuple[float, int, Path]] = []
         try:
             versions = list(os.scandir(self.folder))
         except OSError:

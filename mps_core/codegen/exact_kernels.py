@@ -264,7 +264,7 @@ def forward(w: Writer, n: int, tape, outputs, args, free, cls=None) -> tuple:
     # the position function's arguments as code, for a failed guard's call
     call = [qs[free[pos]] if pos in free else repr(a) for pos, a in enumerate(args)]
     # guards are written as soon as their operands exist
-    pending = {}
+    pending: dict[int, list[tuple]] = {}
     for g in tape.guards:
         a, op, b, outcome = g
         last = max([x for x in (a, b) if isinstance(x, int)], default=-1)

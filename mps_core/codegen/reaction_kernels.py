@@ -469,10 +469,10 @@ def _leftover(ops, motion, nb: int, n: int, scale: float) -> list:
     rhs = [None, None, None] + [ops.dot(Mrows[3 + i], b) for i in range(n)]
     diag = [Gm[i][i] for i in range(K)]
     for k in range(K):
-        p = Gm[k][k]
-        if not (isinstance(p, float) and isinstance(diag[k], float)):
-            ops.w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(diag[k])}: _fallback()")
-        elif not p > 1e-12 * diag[k]:
+        p, dk = Gm[k][k], diag[k]
+        if not (isinstance(p, float) and isinstance(dk, float)):
+            ops.w.lines.append(f"    if not {fw._s(p)} > 1e-12 * {fw._s(dk)}: _fallback()")
+        elif not p > 1e-12 * dk:
             raise ValueError("reaction kernel: a constant pivot below its guard")
         ip = fw.recip(p)
         for i in range(k + 1, K):
@@ -723,7 +723,8 @@ class LoadSums:
                     out = fn(t, xl, jl, wl, vl)
                 except (BranchChanged, ArithmeticError, ValueError):
                     continue
-                if k:
+                if k:  # a later branch held: it goes first next time
+                    assert made is not None  # k > 0: made has entries
                     made.insert(0, made.pop(k))
                 return out
             if made and len(made) < 6 and self._traces < 64:  # another branch of a law

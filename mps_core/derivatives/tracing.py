@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Callable
+from typing import Any
 
 #: the operations a tape holds: name -> (arity, evaluation on floats)
-OPS = {
+OPS: dict[str, tuple[int, Callable[..., Any]]] = {
     "add": (2, operator.add),
     "sub": (2, operator.sub),
     "mul": (2, operator.mul),
@@ -33,7 +35,7 @@ OPS = {
     "tanh": (1, math.tanh),
 }
 
-_COMPARE = {
+_COMPARE: dict[str, Callable[[Any, Any], bool]] = {
     "gt": operator.gt,
     "ge": operator.ge,
     "lt": operator.lt,
@@ -177,7 +179,7 @@ class Traced:
     def __abs__(self):
         raise TracingError("abs() of a traced number")
 
-    __hash__ = None
+    __hash__ = None  # type: ignore[assignment]  # a traced number is unhashable, like a list
 
 
 def _unary(name):
@@ -203,7 +205,7 @@ def trace_at(fn, args, free: dict) -> tuple[Tape, list]:
     Raises :class:`TracingError` where ``fn`` cannot be traced; errors ``fn`` itself raises at
     this point (a domain error) go to the caller."""
     tape = Tape()
-    call = []
+    call: list[Traced | float] = []
     for pos, a in enumerate(args):
         if pos in free:
             call.append(tape._push(("input", free[pos]), float(a)))
@@ -215,7 +217,7 @@ def trace_at(fn, args, free: dict) -> tuple[Tape, list]:
         if isinstance(exc, TracingError):
             raise
         raise TracingError(str(exc)) from None
-    outputs = []
+    outputs: list[int | float] = []
     for x in out:
         if isinstance(x, Traced):
             outputs.append(x.index)

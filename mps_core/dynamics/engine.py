@@ -53,6 +53,8 @@ round-off; tests compare them).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -68,6 +70,17 @@ from .exact import ExactScheme, other_that_holds
 from .forces import EffectForces
 from .kinematics import Evaluation, Kinematics, virtual_work
 from .maps import MechanismMaps
+
+
+class Accelerator(Protocol):
+    """``accel(t, q, q̇) -> q̈`` on lists of floats (:meth:`PartialSystems.accelerator`), with
+    ``direct()``: the fused function where it holds now, else None; ``count(k)``: count ``k``
+    calls of that function made without ``accel``."""
+
+    direct: Callable[[], Callable[..., Any] | None]
+    count: Callable[[int], None]
+
+    def __call__(self, t: float, ql: list, vl: list) -> list: ...
 
 
 class _Plan:
@@ -113,7 +126,7 @@ class _Plan:
         #: the kernels of the position function's other branches met (``exact`` is the
         #: last one that held); ``branch_tries``: how often a branch had none of its own (the
         #: jets answer there; a few times a view at most)
-        self.exact_others = []
+        self.exact_others: list[Callable[..., Any]] = []
         self.branch_tries = 0
         #: q̈ alone with the effects traced in (:mod:`mps_core.codegen.fused_kernels`), made for the
         #: effects' and controls' state ``fused_at`` (:attr:`version`); ``fused_others``:
@@ -122,13 +135,13 @@ class _Plan:
         self.fused = None
         self.fused_at = -1
         self.fused_tries = 0
-        self.fused_others = []
+        self.fused_others: list[Callable[..., Any]] = []
         #: central differences: the effects and the solve after the central kernel, traced
         #: (:func:`~mps_core.codegen.fused_kernels.central_tail`), kept as ``fused`` is
         self.tail = None
         self.tail_at = -1
         self.tail_tries = 0
-        self.tail_others = []
+        self.tail_others: list[Callable[..., Any]] = []
         if not central:  # exact derivatives: no stencil
             self.S = self.B = self.odT = self.K = self.inv2d = self.d = self.scale = None
             return
@@ -252,7 +265,7 @@ class PartialSystems:
             return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
         return out[3]
 
-    def accelerator(self, view: ChartView):
+    def accelerator(self, view: ChartView) -> Accelerator:
         """``accel(t, q, q̇)``: :meth:`accelerations` in ``view``, the fused function called
         without the lookups where it holds (a solver's stages)."""
         accelerations = PartialSystems.accelerations
@@ -297,8 +310,9 @@ class PartialSystems:
             counts["position_calls"] += k
             counts["position_points"] += k
 
-        accel.direct, accel.count = direct, count
-        return accel
+        out = cast(Accelerator, accel)
+        out.direct, out.count = direct, count
+        return out
 
     def evaluator(self, view: ChartView):
         """``fun(t, q, q̇) -> Evaluation``: :meth:`evaluate` in ``view``, the fused evaluation

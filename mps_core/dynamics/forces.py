@@ -11,6 +11,9 @@ any assignment to them (or a change of the list) moves.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Self
+
 from ..codegen.fused_kernels import fingerprint
 from ..model.effects.base import FastForce, Version, has_hook, watch_all
 from .kinematics import Kinematics, virtual_work
@@ -84,7 +87,7 @@ class _Effects(list):
         super().__delitem__(i)
         self._changed()
 
-    def __iadd__(self, effects):
+    def __iadd__(self, effects: Iterable) -> Self:  # type: ignore[misc]  # as list's own: += takes any iterable, + a list
         super().extend(effects)
         self._changed()
         return self
@@ -98,7 +101,7 @@ class EffectForces:
     any assignment to them, no other engine's)."""
 
     def __init__(self, mechanism, effects=()) -> None:
-        self._paths: tuple | None = None
+        self._paths: tuple[int, list] | None = None
         self.effects = _Effects(self, effects)
         for e in self.effects:
             e.bind(mechanism)
@@ -109,15 +112,16 @@ class EffectForces:
     def paths(self) -> list:
         """[(fast path or None, effect, conservative)] of the effects that apply forces, in
         order: how :meth:`generalized` calls each (the generated code calls them so)."""
-        if self._paths[0] != len(self.effects):
-            self._paths = self._make_paths()
-        return self._paths[1]
+        paths = self._paths
+        if paths is None or paths[0] != len(self.effects):
+            paths = self._paths = self._make_paths()
+        return paths[1]
 
     def generalized(self, t: float, kin: Kinematics) -> tuple[list, list]:
         """(Q, Q_nc): all the effects' generalized force and the non-conservative ones' share,
         n floats each."""
         paths = self._paths
-        if paths[0] != len(self.effects):
+        if paths is None or paths[0] != len(self.effects):
             paths = self._paths = self._make_paths()
         n = kin.n
         if n == 1:
@@ -158,7 +162,7 @@ class EffectForces:
             Q[i] += Qc[i]
         return Q, Qnc
 
-    def _make_paths(self) -> tuple:
+    def _make_paths(self) -> tuple[int, list]:
         """(number of effects, [(fast path or None, effect, conservative)]) without the effects
         that apply no force of their own (``applies_forces`` False: a rigid stop, the latch);
         :attr:`version` watches every effect (and moves: the list changed)."""

@@ -78,7 +78,7 @@ class ReactionObserver:
         closing: Iterable[str] = (),
         kind: str = "impulse",
         **extra,
-    ) -> Impulses:
+    ) -> Impulses | None:
         """Record a plastic impact's impulses at time t (call it where the impact is located).
         Deferred (``defer_impacts``): the event is logged now and completed by
         :meth:`resolve`; returns None."""

@@ -207,7 +207,7 @@ def body_motion(mechanism: Mechanism, view: ChartView, q, qd) -> BodyMotion:
     W = np.zeros((nb, n))
     theta2 = np.zeros(nb)
     for k, b in enumerate(mechanism.bodies):
-        if not b.rotates:
+        if b.toward is None:  # translates only
             continue
         o, t = names[b.origin], names[b.toward]
         r, rj = X[t] - X[o], J[t] - J[o]
@@ -259,14 +259,15 @@ class _System:
         self.drive = drive
         nrow = 3 * len(mechanism.bodies)
         E = np.zeros((nrow, len(cols)))
-        for c, (j, comp, _col) in enumerate(cols):
-            if j is None:  # the drive: its body receives +M, the frame −M
+        for c, (joint, comp, _col) in enumerate(cols):
+            if joint is None:  # the drive: its body receives +M, the frame −M
+                assert drive is not None  # (its column is there only with a drive)
                 E[self.body_row[drive] + 2, c] += 1.0
                 continue
-            for body, sign in ((j.receiver, 1.0), (j.giver, -1.0)):
+            for body, sign in ((joint.receiver, 1.0), (joint.giver, -1.0)):
                 if body == FRAME:
                     continue
-                self._add(E[:, c], body, comp, j.point, sign)
+                self._add(E[:, c], body, comp, joint.point, sign)
         self.E = E
         # whole-system balance (Σ force x, Σ force y, Σ moment about O) as rows on the residual
         C = np.zeros((3, nrow))

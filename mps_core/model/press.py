@@ -243,7 +243,7 @@ class PressMechanism(Mechanism):
         self.x_top = None if x_top is None else float(x_top)
         structures = {"free": Structure("free"), "locked": Structure("locked", {"psi": psi_lock})}
         if x_top is not None:
-            structures["held"] = Structure("held", {"x_C": self.x_top})
+            structures["held"] = Structure("held", {"x_C": float(x_top)})
         self.structures = structures
         self.charts = (
             tuple(self._phi_psi(s) for s in (1, -1))
@@ -459,7 +459,7 @@ class PressMechanism(Mechanism):
         elif structure == "held":
             if self.x_top is None:
                 raise SceneError("structure.initial", structure, "a top stop (x_top) for 'held'")
-            return self._held_initial(phi, phi_dot, psi)
+            return self._held_initial(phi, phi_dot, psi, self.x_top)
         else:
             raise SceneError("structure.initial", structure, "'free', 'locked' or 'held'")
         try:
@@ -480,8 +480,8 @@ class PressMechanism(Mechanism):
                 return view
         raise KeyError(f"no view of chart {chart.name} in structure {structure!r}")
 
-    def _held_initial(self, phi: float, phi_dot: float, psi_hint: float | None):
-        """Slider at x_top; ψ from the four-bar closure on the assembly nearest ``psi_hint``."""
+    def _held_initial(self, phi: float, phi_dot: float, psi_hint: float | None, x_top: float):
+        """Slider at ``x_top``; ψ from the four-bar closure on the assembly nearest ``psi_hint``."""
         best = None
         for view in self.views("held"):
             if view.coordinates[0].name != "phi":
@@ -507,7 +507,6 @@ class PressMechanism(Mechanism):
             raise SceneError(
                 "initial.phi_deg",
                 math.degrees(phi),
-                f"a crank angle where the four-bar assembles with the slider at "
-                f"x_top = {self.x_top * 1000:g} mm",
+                f"a crank angle where the four-bar assembles with the slider at x_top = {x_top * 1000:g} mm",
             )
         return best[1], np.array([phi], float), np.array([phi_dot], float)

@@ -492,8 +492,9 @@ class Simulation:
         except (MpsError, KeyboardInterrupt) as exc:
             # what was computed up to the failure or the interruption (Ctrl-C), for a caller
             # that writes it (marked partial): the rows recorded whole
+            # (an attribute added to whatever was raised, Ctrl-C's too: readers getattr it)
             try:
-                exc.partial = _whole_rows(rec.trajectory())
+                exc.partial = _whole_rows(rec.trajectory())  # type: ignore[union-attr]
             except Exception:
-                exc.partial = None
+                exc.partial = None  # type: ignore[union-attr]
             raise

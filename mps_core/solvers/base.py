@@ -172,7 +172,7 @@ class GeneratedStep(Solver):
     #: the generated step also gives its stages' derivatives (kept for the interpolant)
     returns_stages = False
     #: the dense output's class, made from the step's ends: (t0, t1, q0, q̇0, q̈0, q1, q̇1, q̈1)
-    interpolant = None
+    interpolant: type[CubicHermite] | None = None
 
     @staticmethod
     def step_source(n: int, direct: bool) -> str:

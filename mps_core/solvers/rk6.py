@@ -28,7 +28,7 @@ from .base import CubicHermite, GeneratedStep
 from .rk8 import imaginary_limit, tableau_step_source
 
 STAGES = 7
-_ROWS = (
+_ROWS: tuple[list[int | _F], ...] = (
     [],
     [_F(1, 3)],
     [0, _F(2, 3)],
@@ -37,7 +37,7 @@ _ROWS = (
     [0, _F(9, 8), _F(-3, 8), _F(-3, 4), _F(1, 2)],
     [_F(9, 44), _F(-9, 11), _F(63, 44), _F(18, 11), 0, _F(-16, 11)],
 )
-_WEIGHTS = (_F(11, 120), 0, _F(27, 40), _F(27, 40), _F(-4, 15), _F(-4, 15), _F(11, 120))
+_WEIGHTS: tuple[int | _F, ...] = (_F(11, 120), 0, _F(27, 40), _F(27, 40), _F(-4, 15), _F(-4, 15), _F(11, 120))
 
 #: the tableau as exact fractions: A (strictly lower), b, c = row sums of A
 A_EXACT = [[_F(x) for x in row] + [_F(0)] * (STAGES - len(row)) for row in _ROWS]
