@@ -23,6 +23,7 @@ import math
 import statistics
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -185,7 +186,7 @@ def errors(traj_t, phi, phi_dot, phi_ddot, ref: Reference, traj=None) -> dict:
 
 
 def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3, budget: float = 1.0) -> dict:
-    row = {
+    row: dict[str, Any] = {
         "case": case.name,
         "solver": s.family,
         "scheme": s.scheme_label,
@@ -229,9 +230,9 @@ def run_one(case: Case, s: Setting, dt: float, ref: Reference, repeats: int = 3,
         from .peers import run_peer
 
         t_grid = np.linspace(0.0, case.t_end, int(round(case.t_end / GRID)) + 1)
-        cpu, run, n = cpu_median(
-            lambda: run_peer(case.scene, case.t_end, t_grid, rtol=s.rtol), repeats, budget
-        )
+        rtol = s.rtol
+        assert rtol is not None  # (a peer's setting carries its tolerance)
+        cpu, run, n = cpu_median(lambda: run_peer(case.scene, case.t_end, t_grid, rtol=rtol), repeats, budget)
         row.update(
             steps="",
             evaluations=run.nfev,
@@ -342,6 +343,7 @@ def delta_study(
                 }
             )
             continue
+        assert ref is not None, "a run's errors need the reference"
         _cpu, traj, _n = run_setting(sub, Setting("rk4", "central", d), dt, repeats=1)
         sel = _on_grid(traj.t)
         err = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
@@ -356,14 +358,15 @@ def delta_study(
         )
     if not trajectory:
         return rows
+    assert ref is not None, "a run's errors need the reference"
     _cpu, traj, _n = run_setting(sub, Setting("rk4", "autodiff"), dt, repeats=1)
     sel = _on_grid(traj.t)
-    exact = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
+    exact_err = float(np.abs(np.asarray(traj.phi)[sel] - ref.sample(np.asarray(traj.t)[sel])[0]).max())
     rows.append(
         {
             "delta_deg": 0.0,
             "max_rel_err_qdd": 0.0,
-            "max_err_phi_rk4": exact,
+            "max_err_phi_rk4": exact_err,
             "rk4_dt": dt,
             "states": len(states),
         }
@@ -372,7 +375,11 @@ def delta_study(
 
 
 # -- picking a setting ----------------------------------------------------------------------
-def recommendations(rows, targets=tuple(10.0**-k for k in range(2, 11))):
+#: the accuracies :func:`recommendations` picks a setting for: max |φ − φ_ref| = 1e-2 … 1e-10 rad
+TARGETS = tuple(10.0**-e for e in range(2, 11))
+
+
+def recommendations(rows, targets=TARGETS):
     """For each target max |φ − φ_ref|: the cheapest measured setting that meets it (the
     engine's, and the peers' for comparison: scipy's, MuJoCo's): (target, engine, scipy peer,
     MuJoCo), None where none meets it."""
@@ -420,7 +427,7 @@ def side_by_side(case: Case, pairs, rows, rounds: int = 9, budget: float = 20.0,
     from .mujoco_peer import run_mujoco
 
     mine = [r for r in rows if r["solver"] not in PEERS and r.get("setting") is not None]
-    out = []
+    out: list[tuple | None] = []
     for p, _best, _ratio in pairs:
         ok = sorted((r for r in mine if r["max_err_phi"] <= p["max_err_phi"]), key=lambda r: r["cpu_s"])
         ok = ok[: max(1, candidates)]
@@ -559,7 +566,7 @@ def _fmt(v, kind="g"):
 
 
 def format_table(rows) -> str:
-    head = (
+    head: tuple[str, ...] = (
         "solver",
         "scheme",
         "dt/rtol",
@@ -573,7 +580,7 @@ def format_table(rows) -> str:
         "max|Δφ̇|",
         "max|Δφ̈|",
     )
-    lines = []
+    lines: list[tuple[str, ...]] = []
     for r in rows:
         step = _fmt(r["dt"], "g") if r["dt"] != "" else "rtol " + f"{r['rtol']:.0e}"
         lines.append(

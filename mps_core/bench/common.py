@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -191,7 +192,7 @@ def evaluations_along(scene: Scene, t_end: float):
         seen.append(e)
         return e
 
-    sim.engine.evaluate = spy
+    sim.engine.evaluate = spy  # type: ignore[method-assign]  # a spy on this engine alone
     sim.run(t_end, scene.dt)
     return sim, seen
 
@@ -272,7 +273,7 @@ class Reference:
     pointwise errors meaningless; errors are measured up to it."""
 
     label: str
-    sample: object  # t (array) -> (phi, phi_dot, phi_ddot)
+    sample: Callable[[np.ndarray], tuple]  # t (array) -> (phi, phi_dot, phi_ddot)
     events: list = field(default_factory=list)
     cpu: float = 0.0
     horizon: float = math.inf

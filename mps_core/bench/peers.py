@@ -60,7 +60,7 @@ class _Params:
 
 def _params(scene) -> _Params:
     mech = scene.mechanism()
-    g = (0.0, 0.0)
+    g: tuple[float, ...] = (0.0, 0.0)
     for e in scene.effects:
         if e.kind == "gravity":
             g = tuple(float(x) for x in e.params["g"])

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from typing import Any
 
 VARY = (
     "effects.blanking.thickness_mm=0.5:2.0",
@@ -38,7 +39,7 @@ def throughput(
     from ..run.build import simulate
 
     n = workers or os.cpu_count() or 1
-    kw = dict(samples=runs, seed=1, t_end=t_end, dt=dt)
+    kw: dict[str, Any] = dict(samples=runs, seed=1, t_end=t_end, dt=dt)
     c0 = time.process_time()
     planned = plan("press-cycle", VARY, **kw)
     plan_cpu = time.process_time() - c0
@@ -71,7 +72,7 @@ def throughput(
     timed("one worker (this process)", 1)
     if dask:
         try:
-            import dask
+            import dask as dask_
             from dask.distributed import Client, LocalCluster
         except ModuleNotFoundError:
             log("  Dask: not installed (the batch extra)")
@@ -79,7 +80,7 @@ def throughput(
             # the workers' statistical profiler off: sampling every thread's stack each 10 ms,
             # it costs a pure-Python run about 80 % more here (docs/loads.md)
             with (
-                dask.config.set({"distributed.worker.profile.enabled": False}),
+                dask_.config.set({"distributed.worker.profile.enabled": False}),
                 LocalCluster(
                     n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
                 ) as cluster,
@@ -142,7 +143,7 @@ def vectorised(
     rows = []
     for scheme in schemes:
         base = _working(scheme)
-        kw = dict(t_end=t_end, dt=dt)
+        kw: dict[str, Any] = dict(t_end=t_end, dt=dt)
         warm = ["bodies.slider.mass_kg=80:120:2"]
         sweep(base, warm, workers=1, **kw)  # the kernels of both paths built before any timing
         sweep(base, warm, workers=1, vectorise=False, **kw)
