@@ -30,6 +30,7 @@ from .plugins import COMMANDS, found, load
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .derivatives import SCHEMES
     from .solvers import SOLVERS
 
     p = argparse.ArgumentParser(prog="mps", description="Digital twin of a crank press.")
@@ -59,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--derivatives",
-        choices=("central", "autodiff"),
+        choices=SCHEMES,
         help="derivative scheme: the seed's central differences or exact jets",
     )
     r.add_argument(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..derivatives import SCHEMES
 from .accuracy import FAMILIES
 
 
@@ -96,7 +97,7 @@ def _register_batch(sub) -> None:
     b.add_argument("--steps", type=int, default=200, help="steps of each run (default 200)")
     b.add_argument(
         "--scheme",
-        choices=("central", "autodiff", "both"),
+        choices=(*SCHEMES, "both"),
         default="both",
         help="derivatives: central differences, exact, or both side by side (default both)",
     )
@@ -128,7 +129,7 @@ def _register_sweep(sub) -> None:
     )
     w.add_argument(
         "--scheme",
-        choices=("central", "autodiff", "both"),
+        choices=(*SCHEMES, "both"),
         default="both",
         help="with --vectorised: derivatives (default both)",
     )
@@ -171,7 +172,7 @@ def _batch(args) -> int:
     from ..run.batch import throughput
 
     sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
-    schemes = ("central", "autodiff") if args.scheme == "both" else (args.scheme,)
+    schemes = SCHEMES if args.scheme == "both" else (args.scheme,)
     print(
         "batch mode: working (locked), slider mass swept, linear acceleration, "
         "dt = 1e-4 s; CPU of the stepping (scenes built beforehand), mechanism-steps a second"
@@ -199,7 +200,7 @@ def _sweep(args) -> int:
             raise SystemExit(
                 f"mps bench sweep: --sizes {args.sizes!r}: expected integers >= 1, e.g. 10,100,1000"
             )
-        schemes = ("central", "autodiff") if args.scheme == "both" else (args.scheme,)
+        schemes = SCHEMES if args.scheme == "both" else (args.scheme,)
         t_end, dt = args.t_end or 0.35, args.dt or 2e-4
         print(
             f"vectorised sweep: working (locked), slider mass swept, linear acceleration, "

@@ -20,6 +20,8 @@ import os
 import time
 from typing import Any
 
+from ..derivatives import SCHEMES
+
 VARY = (
     "effects.blanking.thickness_mm=0.5:2.0",
     "effects.motor.crank_speed_rad_s=38:48",
@@ -121,7 +123,7 @@ def vectorised(
     sizes=(10, 100, 1000, 2000),
     t_end: float = 0.35,
     dt: float = 2e-4,
-    schemes=("central", "autodiff"),
+    schemes=SCHEMES,
     alone: int = 10,
     repeats: int = 2,
     workers: int | None = None,

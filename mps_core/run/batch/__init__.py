@@ -55,19 +55,21 @@ import numpy as np
 
 from ...caches import Memo
 from ...codegen.array_kernels import ArrayBranchChanged
+from ...derivatives import SCHEMES
 from ...derivatives.stencil import stencil
 from ...model.effects import Blanking, Gravity, Motor, RetentionSprings, SliderDamper
 from ...model.press import SEED_BODIES
 from ...scene import Scene, load_scene
-from ...solvers import SOLVERS
+from ...solvers import RK4, SOLVERS, LinearAcceleration
 from ..trajectory import Trajectory
 from .effects import EffectArrays
 from .record import BatchRecord, ReactionsNotSolved
 from .states import BatchStates
 
 VECTOR_EFFECTS = (Gravity, Motor, RetentionSprings, SliderDamper, Blanking)
-VECTOR_SOLVERS = ("linear-acceleration", "rk4")
-VECTOR_SCHEMES = ("central", "autodiff")
+VECTOR_SOLVERS = (LinearAcceleration.name, RK4.name)
+#: both derivative schemes
+VECTOR_SCHEMES = SCHEMES
 
 
 class NotVectorisable(Exception):
