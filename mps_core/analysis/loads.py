@@ -42,6 +42,8 @@ from ..errors import MpsError
 
 N_HARMONICS = 6
 TWO_PI = 2.0 * math.pi
+#: what the report gives of each quantity beside its harmonics, in the order of its columns
+FIGURES = ("mean", "peak", "rms", "rms_dynamic")
 
 
 class LoadReportError(MpsError, ValueError):
@@ -416,7 +418,7 @@ def write_csv(report: dict, path) -> Path:
     path = Path(path)
     n = len(report["quantities"][0]["harmonics"]) if report["quantities"] else 0
     head = (
-        ["quantity", "unit", "mean", "peak", "rms", "rms_dynamic"]
+        ["quantity", "unit", *FIGURES]
         + [f"A{k + 1}" for k in range(n)]
         + [f"phase{k + 1}_deg" for k in range(n)]
         + ["meaning"]
@@ -427,7 +429,7 @@ def write_csv(report: dict, path) -> Path:
         for q in report["quantities"]:
             w.writerow(
                 [q["name"], q["unit"]]
-                + [repr(q[k]) for k in ("mean", "peak", "rms", "rms_dynamic")]
+                + [repr(q[k]) for k in FIGURES]
                 + [repr(h["amplitude"]) for h in q["harmonics"]]
                 + ["" if h["phase_deg"] is None else repr(h["phase_deg"]) for h in q["harmonics"]]
                 + [q["meaning"]]

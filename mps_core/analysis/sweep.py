@@ -54,7 +54,7 @@ from ..version import __version__
 from . import loads
 
 #: what a row holds of each quantity of the load report, beside its harmonics' amplitudes
-FIGURES = ("mean", "peak", "rms", "rms_dynamic")
+FIGURES = loads.FIGURES
 #: the rows' file, one JSON object a line, appended as the runs end (the resumable record)
 RUNS_FILE = "runs.jsonl"
 

@@ -32,6 +32,7 @@ from .common import (
     COARSE_STEPS,
     DT_LADDER,
     HIGH_ORDER_STEPS,
+    PEERS,
     Case,
     Reference,
     Setting,
@@ -44,8 +45,6 @@ from .common import (
 )
 
 FAMILIES = ("linear-acceleration", "la-iterated", "rk4", "rk6", "rk8", "dop853", "radau", "peer", "mujoco")
-#: the peers: what a user would pick instead (not the engine's settings)
-PEERS = ("peer", "mujoco")
 #: MuJoCo's steps: 2.5 ms, then the 1.25 ms ladder halved down to about 10 µs
 MUJOCO_STEPS = (2.5e-3,) + DT_LADDER
 DELTAS_DEG = (1.0, 0.1, 0.01, 0.001)

@@ -40,6 +40,8 @@ COARSE_STEPS = (5e-3, 2.5e-3)
 #: 2e-4 rad on ``paper`` at its outputs): whole multiples of the 1.25 ms grid, so that every
 #: output of theirs is on it, and whole divisors of the built-in cases' end times
 HIGH_ORDER_STEPS = (12.5e-3, 10e-3, 6.25e-3)
+#: the peers: what a user would pick instead (not the engine's settings)
+PEERS = ("peer", "mujoco")
 
 CASE_NOTES = {
     "paper": "the seed's scene over 0.1 s (passes the (phi, psi) chart's branch point)",

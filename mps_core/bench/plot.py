@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .common import PEERS
+
 COLORS = {
     "linear-acceleration": "tab:blue",
     "la-iterated": "tab:cyan",
@@ -74,7 +76,7 @@ def plot_accuracy(name: str, res: dict, path: Path):
             STYLES.get(scheme, "-"),
             marker=MARKERS.get(scheme, "o"),
             color=COLORS.get(solver, "gray"),
-            lw=2.2 if solver in ("peer", "mujoco") else 1.2,
+            lw=2.2 if solver in PEERS else 1.2,
             ms=5,
             label=f"{solver}, {scheme}",
         )

@@ -71,6 +71,9 @@ class BodyData:
 
 
 #: The seed's bodies (contract §3): centres of mass of crank at A, rod at B, rocker and slider at C.
+#: the press's moving bodies, in the order of its bodies
+BODY_NAMES = ("crank", "rod", "rocker", "slider")
+
 SEED_BODIES = {
     "crank": BodyData(4.6, 0.034),
     "rod": BodyData(20.0, 0.036),
@@ -238,7 +241,7 @@ class PressMechanism(Mechanism):
         self.geometry = g
         data = dict(SEED_BODIES)
         data.update(bodies or {})
-        self.bodies = tuple(self._body(name, data[name]) for name in ("crank", "rod", "rocker", "slider"))
+        self.bodies = tuple(self._body(name, data[name]) for name in BODY_NAMES)
         self.psi_lock = float(psi_lock)
         self.x_top = None if x_top is None else float(x_top)
         structures = {"free": Structure("free"), "locked": Structure("locked", {"psi": psi_lock})}

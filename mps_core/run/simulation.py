@@ -66,7 +66,7 @@ from ..errors import ChartDomainError, MpsError, config_in_degrees
 from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
-from ..scene.settings import ChartPolicy, SolverSettings
+from ..scene.settings import CHANGE_POINTS, ChartPolicy, SolverSettings
 from ..solvers import ADAPTIVE_SOLVERS, make_solver
 from .charts import ChartChanger
 from .energy import EnergyAccount
@@ -85,8 +85,9 @@ _DEFAULT_SOLVER, _DEFAULT_CHARTS = SolverSettings(), ChartPolicy()
 def _check_settings(solver: SolverSettings, change_point: str) -> None:
     """The settings a simulation refuses: an unknown change-point rule, keep-side without
     central differences, a step that is not a positive time or given to an adaptive solver."""
-    if change_point not in ("continue", "keep-side"):
-        raise ValueError(f"change_point = {change_point!r}: expected 'continue' or 'keep-side'")
+    if change_point not in CHANGE_POINTS:
+        expected = " or ".join(repr(c) for c in CHANGE_POINTS)
+        raise ValueError(f"change_point = {change_point!r}: expected {expected}")
     if change_point == "keep-side" and solver.scheme != "central":
         # the run restarts exactly at the change point, where √h² has no derivative: jets
         # are undefined there, central stencils straddle it on the smooth chart

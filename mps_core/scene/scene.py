@@ -38,11 +38,12 @@ from ..model.effects import (
     SliderDamper,
     TopStop,
 )
-from ..model.press import SEED_BODIES, BodyData, PressGeometry, PressMechanism
+from ..model.effects.top_stop import HOLDING_MODELS
+from ..model.effects.top_stop import MODELS as TOP_STOP_MODELS
+from ..model.press import BODY_NAMES, SEED_BODIES, BodyData, PressGeometry, PressMechanism
 from ..solvers import ADAPTIVE_SOLVERS, SOLVERS
-from .settings import COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
+from .settings import CHANGE_POINTS, COMMANDS, SWITCH_POINTS, ChartPolicy, SolverSettings
 
-BODY_NAMES = ("crank", "rod", "rocker", "slider")
 #: the top-level tables of a scene file, in the order they are checked
 SECTIONS = (
     "scene",
@@ -436,7 +437,7 @@ def _springs(t, path):
 
 def _top_stop(t, path):
     model = t.get("model", "rigid")
-    _choice(f"{path}.model", model, ("rigid", "clamp", "elastic"))
+    _choice(f"{path}.model", model, TOP_STOP_MODELS)
     k = t.get("stiffness_n_m", None if model == "elastic" else 0.0)
     if model == "elastic":
         if k is None:
@@ -621,7 +622,7 @@ def _structure(data) -> tuple[str, float, str]:
     _choice("structure.initial", structure, STRUCTURES)
     psi_lock = math.radians(_num("structure.psi_lock_deg", stt.get("psi_lock_deg", 0.0)))
     change_point = stt.get("change_point", "continue")
-    _choice("structure.change_point", change_point, ("continue", "keep-side"))
+    _choice("structure.change_point", change_point, CHANGE_POINTS)
     stt.done()
     return structure, psi_lock, change_point
 
@@ -655,7 +656,7 @@ def _effects(raw_effects, x_top: float | None, structure: str, commands: tuple) 
             raise SceneError(
                 "mechanism.x_top_mm", None, f"the top stop's position (effects[{i}] {e.kind!r} needs it)"
             )
-    rigid_stop = any(e.kind == "top_stop" and e.params["model"] in ("rigid", "clamp") for e in effects)
+    rigid_stop = any(e.kind == "top_stop" and e.params["model"] in HOLDING_MODELS for e in effects)
     if structure == "held" and not rigid_stop:
         raise SceneError(
             "structure.initial", structure, "a rigid (or clamp) top_stop effect for the held structure"

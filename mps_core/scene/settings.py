@@ -71,3 +71,7 @@ class SolverSettings:
 
 #: the choices of :attr:`SolverSettings.switch_points`
 SWITCH_POINTS = ("auto", "locate", "step-over")
+
+#: the rules at the held four-bar's change point: "continue" (smooth, on the continuation
+#: chart) or "keep-side" (a plastic impact keeps the slider on its side)
+CHANGE_POINTS = ("continue", "keep-side")

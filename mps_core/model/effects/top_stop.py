@@ -16,6 +16,12 @@ from __future__ import annotations
 
 from .base import Effect, Loads, along_x, stiffness_x, stiffness_x_bound
 
+#: a top stop's models: rigid and clamp hold the slider (the structure ``held``), elastic
+#: pushes it back by a contact law
+MODELS = ("rigid", "clamp", "elastic")
+#: the models with no force law of their own, whose stop the held structure is
+HOLDING_MODELS = ("rigid", "clamp")
+
 
 class TopStop(Effect):
     kind = "top_stop"
@@ -38,7 +44,7 @@ class TopStop(Effect):
     @property
     def rigid(self) -> bool:
         """No force law: the structure ``held`` does the holding (rigid or clamp)."""
-        return self.model in ("rigid", "clamp")
+        return self.model in HOLDING_MODELS
 
     def loads(self, t, kin) -> Loads:
         if self.rigid:
