@@ -192,7 +192,7 @@ def test_overrides_are_validated():
 
 
 def test_a_table_read_before_gives_its_own_parse_again():
-    """The tables' parses are kept by their text (scene._TABLES): a scene built again from the
+    """The tables' parses are kept by their text (scene.tables._TABLES): a scene built again from the
     same tables equals the first; 1, 1.0 and true stay apart; a refused table is refused
     again; a scene's dicts are its own."""
     import tomllib
