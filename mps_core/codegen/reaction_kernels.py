@@ -12,7 +12,7 @@ with known zeros and constants folded away:
    :mod:`mps_core.codegen.exact_kernels`): the centres of mass, their analogs J_G and convective
    accelerations, the angular analogs ω* and θ̈ at q̈ = 0, the joints' points;
 2. ``b`` per body from ``m a_G``, ``J α`` and the known loads (summed per body by
-   :class:`LoadSums`);
+   :class:`~mps_core.codegen.load_sums.LoadSums`);
 3. the least squares' leftover in closed form. Reactions do no work on admissible motions, so
    the columns of ``E`` span exactly the vectors r with ``J_bᵀ r = 0`` when E has full column
    rank and as many columns as rows less the degrees of freedom (J_b: the bodies' exact analogs,
@@ -43,12 +43,11 @@ import re
 import numpy as np
 
 from ..caches import Memo
-from ..derivatives.tracing import BranchChanged, Tape, Traced
-from ..model.effects.base import Version, watch_all
+from ..derivatives.tracing import BranchChanged
 from ..model.mechanism import FRAME
 from .emitter import Writer, inline_once, kernel_key, live_lines, load
 from .exact_kernels import Forward, angular, forward, linear_parts, trace_view
-from .fused_kernels import emit_tape, fingerprint, input_slot
+from .load_sums import LoadSums
 
 
 class Fallback(ArithmeticError):
@@ -178,11 +177,11 @@ _ASSIGNED = re.compile(r"^    ([A-Za-z_][A-Za-z_0-9]*) = ")
 
 def with_loads(kernel, sums):
     """One function ``fn(t, q…, q̇…, q̈…, xl, jl, wl, vl)`` (a kernel from kinematics:
-    ``fn(t, q…, q̇…, q̈…, xl, jl, wl, cv, vl)``) that is the traced load sums
-    ``sums`` (:func:`traced_sums`) followed by the reaction kernel ``kernel`` on what they
-    return: the two generated bodies one after the other (the sums' locals renamed), so the
-    same operations on the same numbers, without the call, the list and its unpacking between
-    them. Made once per pair. It raises what either raises."""
+    ``fn(t, q…, q̇…, q̈…, xl, jl, wl, cv, vl)``) that is the traced load sums ``sums``
+    (:func:`~mps_core.codegen.load_sums.traced_sums`) followed by the reaction kernel ``kernel``
+    on what they return: the two generated bodies one after the other (the sums' locals
+    renamed), so the same operations on the same numbers, without the call, the list and its
+    unpacking between them. Made once per pair. It raises what either raises."""
     key = ("reactions with loads", kernel.serial, sums.serial)
     made = _WITH_LOADS.get(key)
     if made is not None:
@@ -637,200 +636,6 @@ def _from_kinematics(engine, view, tape, outputs, args, free, w):
         return out
 
     return _Folding(w, n), pos, grad, d2, omega, theta2, unpack
-
-
-class LoadSums:
-    """The known loads a reaction kernel takes, as floats: per body (in the mechanism's order)
-    the force (x, y) and the moment about O of every effect's forces and torques on it; then
-    the frame's own entries (force x, y, moment about O) and the motor's torque. The general
-    path's sums, taken with the step's kinematics (``kin``'s positions).
-
-    Made once per list of effects: effects that apply no force of their own (a rigid stop, the
-    latch) are left out, and the loads of effects whose loads do not depend on the state
-    (``constant_loads``, e.g. gravity) are read once."""
-
-    def __init__(self, effects, mechanism):
-        self.bodies = {b.name: k for k, b in enumerate(mechanism.bodies)}
-        self.nb = nb = len(self.bodies)
-        #: the state of the effects and their controls (moved by any assignment to them)
-        self.version = Version()
-        watch_all(effects, self.version)
-        self.effects = []
-        self.constant = []  # (point, body row, fx, fy) of constant forces
-        base = [0.0] * (3 * nb + 4)
-        for e in effects:
-            if not getattr(e, "applies_forces", True):
-                continue
-            if getattr(e, "constant_loads", False):
-                ld = e.loads(0.0, None)
-                for body, point, fx, fy in ld.forces:
-                    if not isinstance(point, str):
-                        raise ValueError(f"effect {e.name!r}: constant loads at named points only")
-                    self.constant.append((point, 3 * self.bodies[body], float(fx), float(fy)))
-                for body, mz in ld.torques:
-                    base[3 * self.bodies[body] + 2] += mz
-                if ld.frame:
-                    raise ValueError(f"effect {e.name!r}: constant loads on the frame")
-                continue
-            self.effects.append((e, e.kind == "motor"))
-        for _p, k, fx, fy in self.constant:
-            base[k] += fx
-            base[k + 1] += fy
-        self.base = base
-        self._names = None  # the kinematics' names the rows below are read from
-        self._rows = None
-        #: the sums as generated code per number of coordinates (:func:`traced_sums`):
-        #: [functions, most recent first], for the effects' state ``_traced_at``; kept per
-        #: state of their parameters and controls (a command, a change of structure, and back)
-        self._traced: dict = {}
-        self._traced_at = -1
-        self._by_state: dict = {}
-        self._traces = 0
-
-    def _refresh(self) -> None:
-        """The traced sums of the effects' present state (parameters and controls)."""
-        if self._traced_at != self.version[0]:
-            self._traced_at = self.version[0]
-            state = fingerprint([e for e, _motor in self.effects])
-            if state is None:
-                self._traced = {}
-            else:
-                if len(self._by_state) > 64:
-                    self._by_state.clear()
-                self._traced = self._by_state.setdefault(state, {})
-
-    def first(self, n: int):
-        """The traced sums for n coordinates that held last (``fn(t, xl, jl, wl, vl)``), or
-        None where there is none yet."""
-        self._refresh()
-        made = self._traced.get(n)
-        return made[0] if made else None
-
-    def __call__(self, t: float, kin) -> list:
-        """The sums at a state: by generated code where it holds (the same operations on the
-        same numbers of ``kin``), else :meth:`sums`."""
-        xl, jl, wl = kin._xl, kin._jl, kin._wl
-        if xl is not None and jl is not None and wl is not None:
-            self._refresh()
-            vl = kin._vl if kin._vl is not None else kin._v()
-            made = self._traced.get(kin.n)
-            if made is None and self._traces < 64:
-                self._traces += 1
-                fn = traced_sums(self, t, kin)
-                made = self._traced[kin.n] = [fn] if fn is not None else []
-            for k, fn in enumerate(made or ()):
-                try:
-                    out = fn(t, xl, jl, wl, vl)
-                except (BranchChanged, ArithmeticError, ValueError):
-                    continue
-                if k:  # a later branch held: it goes first next time
-                    assert made is not None  # k > 0: made has entries
-                    made.insert(0, made.pop(k))
-                return out
-            if made and len(made) < 6 and self._traces < 64:  # another branch of a law
-                self._traces += 1
-                fn = traced_sums(self, t, kin)
-                if fn is not None:
-                    made.insert(0, fn)
-        return self.sums(t, kin)
-
-    def sums(self, t: float, kin) -> list:
-        """The sums by the effects' ``loads``, one by one (the general path)."""
-        out = self.base[:]
-        names = kin.names
-        if self._rows is None or self._names is not names:
-            self._names = names
-            self._rows = [(2 * names[p], k, fx, fy) for p, k, fx, fy in self.constant]
-            self._o = 2 * names["O"] if "O" in names else None
-        xl = kin._xl if kin._xl is not None else kin._lists()[0]
-        r = self._o
-        ox, oy = (xl[r], xl[r + 1]) if r is not None else (0.0, 0.0)
-        for r, k, fx, fy in self._rows:
-            out[k + 2] += (xl[r] - ox) * fy - (xl[r + 1] - oy) * fx
-        fr = 3 * self.nb
-        bodies = self.bodies
-        for e, motor in self.effects:
-            ld = e.loads(t, kin)
-            # a force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)
-            for body, point, fx, fy in ld.forces:
-                k = 3 * bodies[body]
-                px, py = _arm(point, names, xl, ox, oy)
-                out[k] += fx
-                out[k + 1] += fy
-                out[k + 2] += px * fy - py * fx
-            for body, mz in ld.torques:
-                out[3 * bodies[body] + 2] += mz
-                if motor:
-                    out[fr + 3] += mz
-            for entry in ld.frame:
-                if len(entry) == 4:
-                    _, point, fx, fy = entry
-                    px, py = _arm(point, names, xl, ox, oy)
-                    out[fr] += fx
-                    out[fr + 1] += fy
-                    out[fr + 2] += px * fy - py * fx
-                else:
-                    out[fr + 2] += entry[1]
-        return out
-
-
-def traced_sums(sums: LoadSums, t: float, kin):
-    """``fn(t, xl, jl, wl, vl) -> list``: :meth:`LoadSums.sums` traced at (t, ``kin``) into
-    generated code reading the kinematics' lists by index, the effects' parameters and the
-    controls folded in, their comparisons guards (a failed one raises
-    :class:`~mps_core.derivatives.tracing.BranchChanged`); None where a law cannot be traced."""
-    tape = Tape()
-    slots: list[str] = []
-    slot = input_slot(tape, slots)
-    vl = kin._vl if kin._vl is not None else kin._v()
-    tl = {
-        name: [slot(f"{name}[{i}]", x) for i, x in enumerate(values)]
-        for name, values in (("xl", kin._xl), ("jl", kin._jl), ("wl", kin._wl), ("vl", vl))
-    }
-    tkin = type(kin)(
-        slot("t", t),
-        None,
-        None,
-        kin.names,
-        bodies=kin.bodies,
-        lists=(tl["xl"], tl["jl"], tl["wl"]),
-        v=tl["vl"],
-    )
-    try:
-        out = sums.sums(tkin.t, tkin)
-        values = [x.value if isinstance(x, Traced) else float(x) for x in out]
-        if not all(math.isfinite(v) for v in values):
-            return None
-    except Exception:
-        return None
-    nodes = tuple(x.index if isinstance(x, Traced) else float(x) for x in out)
-    key = ("load sums", tape.key(), tuple(slots), nodes)
-    return load(
-        key,
-        lambda: _sums_source(tape, slots, nodes),
-        "<load sums>",
-        None,
-        "",
-        {"tanh": math.tanh, "_Branch": BranchChanged},
-    )
-
-
-def _sums_source(tape, slots, nodes) -> str:
-    """Write the traced load sums' code (:func:`traced_sums`): the tape, and the sums (``nodes``:
-    their nodes or constants) returned."""
-    body: list = []
-    code = emit_tape(body, tape, slots)
-    items = [code(x) if isinstance(x, int) else repr(x) for x in nodes]
-    ret = f"    return [{', '.join(items)}]"
-    return "def kernel(t, xl, jl, wl, vl):\n" + "\n".join(inline_once(live_lines(body, ret) + [ret])) + "\n"
-
-
-def _arm(point, names, xl, ox, oy) -> tuple[float, float]:
-    """A point (a name or (x, y)) relative to O."""
-    if point.__class__ is str:
-        r = 2 * names[point]
-        return xl[r] - ox, xl[r + 1] - oy
-    return float(point[0]) - ox, float(point[1]) - oy
 
 
 __all__ = ["Fallback", "reaction_kernel", "LoadSums", "PIVOT_GUARD"]

@@ -130,11 +130,11 @@ class _Kernels:
         self.last: dict = {}
 
     def loads(self, effects):
-        """The :class:`~mps_core.codegen.reaction_kernels.LoadSums` of a list of effects (made
+        """The :class:`~mps_core.codegen.load_sums.LoadSums` of a list of effects (made
         again when another list, or a changed one, is given)."""
         cached = self._loads
         if cached is None or cached[0] is not effects or cached[1] != len(effects):
-            from ..codegen.reaction_kernels import LoadSums
+            from ..codegen.load_sums import LoadSums
 
             cached = self._loads = (effects, len(effects), LoadSums(effects, self.mechanism))
         return cached[2]
@@ -196,7 +196,7 @@ def array_reactions(mechanism: Mechanism, view: ChartView, q, columns=None):
     ``fn(q…, q̇…, q̈…, masses, loads) -> (values, residual)``, each an array a state (or a
     float the same for all), ``values`` in :data:`REACTION_COLUMNS` order, ``masses`` the
     bodies' masses then their inertias and ``loads`` as
-    :class:`~mps_core.codegen.reaction_kernels.LoadSums` gives them. A state where the kernel
+    :class:`~mps_core.codegen.load_sums.LoadSums` gives them. A state where the kernel
     does not hold (a pivot below its guard: a singular position) raises
     :class:`~mps_core.codegen.array_kernels.ArrayBranchChanged`. ``columns``: the
     :data:`REACTION_COLUMNS` the caller reads (None: all); the others' values are None, the

@@ -181,7 +181,7 @@ class EffectArrays:
 
     def loads(self, kin) -> list:
         """The effects' loads at the last evaluated state as the reaction kernel takes them
-        (:class:`~mps_core.codegen.reaction_kernels.LoadSums`): per body the force (x, y) and its
+        (:class:`~mps_core.codegen.load_sums.LoadSums`): per body the force (x, y) and its
         moment about O, then the frame's own (force x, y, moment about O) and the motor's
         torque; from that evaluation's kinematics ``kin`` and :attr:`at_C`."""
         nb = self.nb
