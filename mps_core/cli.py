@@ -31,7 +31,7 @@ from .plugins import COMMANDS, found, load
 
 def _parser() -> argparse.ArgumentParser:
     from .derivatives import SCHEMES
-    from .solvers import SOLVERS
+    from .solvers import ADAPTIVE_SOLVERS, SOLVERS
 
     p = argparse.ArgumentParser(prog="mps", description="Digital twin of a crank press.")
     p.add_argument("--version", action="version", version=f"mps {__version__}")
@@ -66,8 +66,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--iterations", type=int, metavar="K", help="corrections per step of the linear acceleration method"
     )
-    r.add_argument("--rtol", type=float, help="relative tolerance (dop853, radau)")
-    r.add_argument("--atol", type=float, help="absolute tolerance (dop853, radau)")
+    adaptive = ", ".join(ADAPTIVE_SOLVERS)
+    r.add_argument("--rtol", type=float, help=f"relative tolerance ({adaptive})")
+    r.add_argument("--atol", type=float, help=f"absolute tolerance ({adaptive})")
     r.add_argument(
         "--no-chart-switching",
         action="store_true",

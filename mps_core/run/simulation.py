@@ -67,7 +67,7 @@ from ..model.effects import Controls
 from ..model.effects.controls import ControlledEffect
 from ..model.mechanism import ChartView
 from ..scene.settings import CHANGE_POINTS, ChartPolicy, SolverSettings
-from ..solvers import ADAPTIVE_SOLVERS, make_solver
+from ..solvers import ADAPTIVE_SOLVERS, FIXED_STEP_SOLVERS, make_solver
 from .charts import ChartChanger
 from .energy import EnergyAccount
 from .events import EventLocator
@@ -100,8 +100,7 @@ def _check_settings(solver: SolverSettings, change_point: str) -> None:
         if solver.name in ADAPTIVE_SOLVERS:
             raise ValueError(
                 f"step = {solver.step!r}: the adaptive solver {solver.name} "
-                "chooses its own steps (a step is for linear-acceleration, "
-                "rk4, rk6, rk8)"
+                f"chooses its own steps (a step is for {', '.join(FIXED_STEP_SOLVERS)})"
             )
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from ..errors import SceneError
-from ..solvers import ADAPTIVE_SOLVERS
+from ..solvers import ADAPTIVE_SOLVERS, FIXED_STEP_SOLVERS
 
 
 def num(fieldname, v, expected="a number") -> float:
@@ -57,7 +57,7 @@ def check_step_solver(st) -> None:
             "solver.step_s",
             st.step,
             "no step for the adaptive solver " + st.name + " (it chooses its own): "
-            "a fixed-step solver (linear-acceleration, rk4, rk6, rk8)",
+            f"a fixed-step solver ({', '.join(FIXED_STEP_SOLVERS)})",
         )
 
 

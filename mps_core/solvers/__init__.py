@@ -21,6 +21,8 @@ SOLVERS: dict[str, type[Solver]] = {
 }
 #: the solvers with error control (the others take the steps they are given)
 ADAPTIVE_SOLVERS = tuple(name for name, cls in SOLVERS.items() if cls.adaptive)
+#: the fixed-step solvers (they take the steps they are given)
+FIXED_STEP_SOLVERS = tuple(name for name, cls in SOLVERS.items() if not cls.adaptive)
 #: the fixed-step solvers' stability limits as a share of the shortest period, and how an
 #: error message writes them
 FIXED_STEP_LIMITS = {
@@ -77,6 +79,7 @@ __all__ = [
     "Radau",
     "SOLVERS",
     "ADAPTIVE_SOLVERS",
+    "FIXED_STEP_SOLVERS",
     "FIXED_STEP_LIMITS",
     "make_solver",
 ]
