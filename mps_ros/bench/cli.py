@@ -35,6 +35,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from mps_core.derivatives import SCHEMES
+
 from ..commands.demo import ros_env
 from .costs import wakeup_costs, writer_costs
 from .probe import probe
@@ -176,7 +178,7 @@ def _node_arguments(p) -> None:
     )
     p.add_argument(
         "--derivatives",
-        choices=("central", "autodiff"),
+        choices=SCHEMES,
         default=None,
         help="the node's derivatives (default: the scene's)",
     )
