@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from mps_core.dynamics.engine import SCHEMES
+from mps_core.derivatives import SCHEMES
 
 from ..run.runner import PACINGS
 from ..run.twin import check_outputs
