@@ -1,0 +1,62 @@
+"""A tracker's tuning: the random walks of its unknown inputs, the model's error, the gates.
+
+Every number is a statement about the press, not a knob to make a test pass: the process
+force's random walk is strong where the punch can work (the slider in the lower part of its
+stroke, latch closed) and weak elsewhere; the load torque drifts slowly (friction, the motor off
+its catalogue); the model's own error is a white noise on the crank's acceleration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .measurements import MeasurementError
+
+__all__ = ["TrackSettings"]
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """The tuning of a :class:`~mps_core.track.tracker.Tracker` (SI units).
+
+    ``force_walk``: the process force's random-walk intensity (N/√s) inside the work window:
+    latch closed, the slider moving down below ``work_zone_top`` (m); outside it the force is
+    zero (a blanking punch pushes the slider up only while it cuts on the way down).
+    ``torque_walk``: the load torque's (N·m/√s). ``accel_noise``: white noise on each
+    coordinate's acceleration (per √s, in the chart's units divided by its scale).
+    ``gate``: the normalised innovation squared above which a measurement is rejected as an
+    outlier; ``max_jump``: an angle innovation (rad) beyond which the crank would have jumped
+    (physically impossible between two samples). ``timeout``: a gap between measurements
+    (s) reported as such. ``event_inflation``: the factor on the covariance of the rates at a
+    change of structure (an impact the model locates, whose time the estimate knows only
+    approximately).
+    """
+
+    force_walk: float = 8.0e5
+    work_zone_top: float = 0.004
+    torque_walk: float = 20.0
+    accel_noise: float = 10.0
+    gate: float = 25.0
+    max_jump: float = math.radians(10.0)
+    timeout: float = 0.05
+    event_inflation: float = 4.0
+    initial_force_sigma: float = 500.0
+    initial_torque_sigma: float = 5.0
+
+    def __post_init__(self) -> None:
+        for name in (
+            "force_walk",
+            "torque_walk",
+            "accel_noise",
+            "gate",
+            "max_jump",
+            "timeout",
+            "initial_force_sigma",
+            "initial_torque_sigma",
+        ):
+            v = getattr(self, name)
+            if not (isinstance(v, float | int) and v > 0.0 and math.isfinite(v)):
+                raise MeasurementError(f"track.{name}", v, "a positive number")
+        if not (self.event_inflation >= 1.0 and math.isfinite(self.event_inflation)):
+            raise MeasurementError("track.event_inflation", self.event_inflation, "a number >= 1")

@@ -1,0 +1,534 @@
+"""The tracker: an extended Kalman filter on the partial-system model of the press.
+
+**State.** The independent coordinates q and rates q̇ of the chart view the model is in now
+(n = 1 in ``held`` and ``locked``, 2 in ``free``), augmented with the unknown inputs
+(:mod:`mps_core.track.unknown_inputs`): the process force F_p on the slider and the load torque
+tau_b on the crank, both random walks, and the work W the punch has done in the stroke under way
+(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre). x = (q, q̇, F_p, tau_b, W),
+2n + 3 numbers.
+
+**Prediction.** The mean goes through the model's own run (:class:`~mps_core.run.simulation.
+Simulation` of the nominal scene, without its process load and its commands, with the unknown
+inputs as an effect), so that structures, impacts, chart changes and every event are located as
+the simulation locates them. The covariance goes through the step map's Jacobian
+Φ = exp(J·Δt) (to second order), J the continuous Jacobian at the step's start: ∂q̈/∂q and
+∂q̈/∂q̇ by central differences of the engine's generated q̈, ∂q̈/∂F_p = A⁻¹·∂x_C/∂q and
+∂q̈/∂tau_b = A⁻¹·∂φ/∂q exactly from the mass matrix and the analogs. Near the bottom dead centre
+∂x_C/∂q → 0: the crank says nothing of F_p there, and its variance grows as its random walk
+says (what the estimate must show). Where the run changes chart or structure within a step, the
+covariance is carried across through the physical coordinates (φ, ψ, x_C): P_new = T⁺·T_old·P·
+T_oldᵀ·T⁺ᵀ, the rates' part inflated at a change of structure (an impact located with the
+estimated state).
+
+**Update.** Each scalar measurement (:mod:`mps_core.track.measurements`) in turn, Joseph form.
+Rejected, counted by reason in :attr:`Tracker.rejected` and leaving the estimate as it was: a
+stamp already seen (``duplicate``), older than the last of its kind (``out-of-order``), older
+than the tracker's present time (``late``), not finite (``not-finite``), a crank angle that
+would have jumped by ``max_jump`` or more (``jump``), an innovation beyond the gate
+(``outlier``). A gap longer than ``timeout`` is counted (``gap``) and the measurement taken.
+
+**Loads.** The joint reactions and the foundation load at the estimated state and inputs
+(:func:`~mps_core.dynamics.reactions.compute_reactions`), their standard deviations from the
+reactions' Jacobian in the state (forward differences) and the state's covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions
+from ..errors import MpsError
+from ..run.simulation import Simulation
+from ..solvers import ADAPTIVE_SOLVERS
+from .measurements import Measurement, MeasurementError, ModeSignal
+from .settings import TrackSettings
+from .strokes import StrokeTable, stroke_index
+from .unknown_inputs import UnknownInputs
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+__all__ = ["LOAD_COLUMNS", "Estimate", "Tracker"]
+
+#: the reactions and foundation load a tracker estimates (the residual checks left out)
+LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
+#: the process loads a tracker's model leaves out (the unknown input stands for them)
+PROCESS_EFFECTS = ("blanking",)
+#: the reasons a measurement is rejected for
+REJECTIONS = ("duplicate", "out-of-order", "late", "not-finite", "jump", "outlier", "model")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The tracker's estimate at one time, physical quantities with their 1-σ (SI units)."""
+
+    t: float
+    structure: str
+    phi: float
+    phi_sigma: float
+    phi_dot: float
+    phi_dot_sigma: float
+    x_C: float
+    x_C_sigma: float
+    force: float
+    force_sigma: float
+    torque: float
+    torque_sigma: float
+    work: float
+    work_sigma: float
+
+
+class Tracker:
+    """Follow a press from its measurements on the partial-system model of a nominal scene.
+
+    ``scene``: the nominal press (its process load and commands are left out: the process
+    force is estimated, the commands come as mode signals). ``initial``: (view, q, q̇) to start
+    from (default the scene's initial state); ``sigma``: the initial 1-σ of (q, q̇) in the
+    chart's units.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        settings: TrackSettings | None = None,
+        *,
+        initial: tuple | None = None,
+        sigma: tuple[float, float] = (1e-3, 1.0),
+        t0: float = 0.0,
+        phi_tdc: float = 0.0,
+    ) -> None:
+        self.settings = settings or TrackSettings()
+        mech = scene.mechanism()
+        effects = [e for e in scene.build_effects(mech) if e.kind not in PROCESS_EFFECTS]
+        #: the unknown inputs' effect (its values follow the state)
+        self.inputs = UnknownInputs()
+        effects.append(self.inputs)
+        self.motor = next((e for e in effects if e.kind == "motor"), None)
+        solver = scene.solver
+        if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
+            solver = replace(solver, step=1e-3)  # a long gap in the measurements: 1 ms steps
+        #: the model's run, which the estimate's mean follows
+        self.sim = Simulation(
+            mech,
+            scene.structure,
+            effects,
+            initial or scene.initial_state(mech),
+            solver=solver,
+            charts=scene.charts,
+            t0=t0,
+            change_point=scene.change_point,
+        )
+        self.phi_tdc = float(phi_tdc)
+        s = self.settings
+        e = self.sim.solver.current
+        self.x = np.concatenate([e.q, e.qd, [0.0, 0.0, 0.0]])
+        scales = np.asarray(self.sim.view.scales, dtype=float)
+        self.P = np.diag(
+            np.concatenate(
+                [
+                    (sigma[0] * scales) ** 2,
+                    (sigma[1] * scales) ** 2,
+                    [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0],
+                ]
+            )
+        )
+        if not self._window_now():
+            self._hold_force()
+
+        #: measurements rejected, by reason; ``gap``: gaps longer than the timeout
+        self.rejected: Counter[str] = Counter()
+        self.accepted = 0
+        #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
+        self.innovations: list[tuple[float, str, float]] = []
+        self._last: dict[str, float] = {}
+        self._t_last = -math.inf
+        #: the per-stroke figures
+        self.strokes = StrokeTable()
+        self._stroke = self._stroke_now()
+        if self._stroke is not None:
+            self.strokes.begin(self._stroke, self.sim.t)
+
+    # -- the state ----------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        """Return the time of the estimate."""
+        return self.sim.t
+
+    @property
+    def n(self) -> int:
+        """Return the number of independent coordinates of the present chart view."""
+        return int(self.sim.view.n)
+
+    def _hold_force(self) -> None:
+        """Set the process force to zero with no variance (the punch works only when locked)."""
+        i = 2 * self.n
+        was = self.inputs.values[0]
+        self.x[i] = 0.0
+        self.P[i, :] = 0.0
+        self.P[:, i] = 0.0
+        self.inputs.set(0.0, self.x[i + 1])
+        if was != 0.0:  # the run's present evaluation holds the force it had: made again
+            e = self.sim.solver.current
+            self.sim.restart_at(e.q, e.qd)
+
+    def _in_window(self, x_C: float, v_C: float, structure: str) -> bool:
+        """Whether the punch can work at this state: latch closed, the slider moving down in the
+        lower part of its stroke (below ``work_zone_top``)."""
+        return structure == "locked" and x_C < self.settings.work_zone_top and v_C < 0.0
+
+    @property
+    def in_window(self) -> bool:
+        """Whether the estimate is in the work window (the process force a state there)."""
+        return self._window_now()
+
+    def _window_now(self) -> bool:
+        kin = self.sim.solver.current.kin
+        return self._in_window(float(kin.xy("C")[0]), float(kin.vxy("C")[0]), self.sim.structure)
+
+    def _stroke_now(self) -> int | None:
+        if self.sim.structure != "locked":
+            return None
+        return stroke_index(self.sim.joint_state()[0], self.phi_tdc)
+
+    def estimate(self) -> Estimate:
+        """Return the present estimate in physical quantities with their 1-σ."""
+        n = self.n
+        e = self.sim.solver.current
+        kin = e.kin
+        P = self.P
+        g_phi = np.asarray(kin.omega("crank"), dtype=float)
+        g_x = np.asarray(kin.jac("C")[0], dtype=float)
+        phi, phi_dot = self.sim.joint_state()[:2]
+        q, r = slice(0, n), slice(n, 2 * n)
+        i = 2 * n
+        return Estimate(
+            t=self.sim.t,
+            structure=self.sim.structure,
+            phi=phi,
+            phi_sigma=_sd(g_phi @ P[q, q] @ g_phi),
+            phi_dot=phi_dot,
+            phi_dot_sigma=_sd(g_phi @ P[r, r] @ g_phi),
+            x_C=float(kin.xy("C")[0]),
+            x_C_sigma=_sd(g_x @ P[q, q] @ g_x),
+            force=float(self.x[i]),
+            force_sigma=_sd(P[i, i]),
+            torque=float(self.x[i + 1]),
+            torque_sigma=_sd(P[i + 1, i + 1]),
+            work=float(self.x[i + 2]),
+            work_sigma=_sd(P[i + 2, i + 2]),
+        )
+
+    def physical_covariance(self) -> np.ndarray:
+        """Return the covariance of (φ, φ̇, F_p) at the present estimate."""
+        n = self.n
+        kin = self.sim.solver.current.kin
+        g = np.asarray(kin.omega("crank"), dtype=float)
+        T = np.zeros((3, 2 * n + 3))
+        T[0, :n] = g
+        T[1, n : 2 * n] = g
+        T[2, 2 * n] = 1.0
+        return T @ self.P @ T.T
+
+    # -- mode signals ---------------------------------------------------------------------
+    def mode(self, signal: ModeSignal) -> None:
+        """Apply a mode signal of the press's controller at its stamp (now, if it is past)."""
+        t = None if signal.t <= self.sim.t else signal.t
+        try:
+            self.sim.command(signal.command, t)
+        except MpsError:
+            self.rejected["mode"] += 1
+
+    # -- measurements ---------------------------------------------------------------------
+    def update(self, m: Measurement) -> bool:
+        """Take one measurement: predict to its stamp, correct; return whether it was taken."""
+        reason = self._screen(m)
+        if reason is not None:
+            self.rejected[reason] += 1
+            return False
+        if m.t - self._t_last > self.settings.timeout and self._t_last > -math.inf:
+            self.rejected["gap"] += 1
+        self._predict(m.t)
+        taken = self._correct(m)
+        self._last[m.kind] = m.t
+        if taken:
+            self._t_last = max(self._t_last, m.t)
+            self.accepted += 1
+        return taken
+
+    def _screen(self, m: Measurement) -> str | None:
+        """The reason to reject ``m`` before anything is computed, or None."""
+        if not (math.isfinite(m.t) and math.isfinite(m.value)):
+            return "not-finite"
+        last = self._last.get(m.kind)
+        if last is not None:
+            if m.t == last:
+                return "duplicate"
+            if m.t < last:
+                return "out-of-order"
+        if m.t < self.sim.t - 1e-12:
+            return "late"
+        if m.kind == "crank_angle":
+            # a crank that would have turned by max_jump more or less than its rate says: no
+            # press does that between two samples (screened before the estimate moves)
+            phi, phi_dot = self.sim.joint_state()[:2]
+            guess = phi + phi_dot * (m.t - self.sim.t)
+            y = m.value - guess
+            y -= 2.0 * math.pi * round(y / (2.0 * math.pi))
+            if abs(y) >= self.settings.max_jump:
+                return "jump"
+        return None
+
+    def _predict(self, t1: float) -> None:
+        sim = self.sim
+        t0 = sim.t
+        dt = t1 - t0
+        if dt <= 1e-12:
+            return
+        view0, structure0 = sim.view, sim.structure
+        e0 = sim.solver.current
+        n = view0.n
+        J, x_C0 = self._jacobian(view0, t0, e0.q, e0.qd)
+        Adt = J * dt
+        Phi = np.eye(2 * n + 3) + Adt + 0.5 * (Adt @ Adt)
+        P = Phi @ self.P @ Phi.T + self._process_noise(view0, structure0, x_C0, dt)
+        F, tau, W = self.x[2 * n : 2 * n + 3]
+        sim.advance_to(t1)
+        e1 = sim.solver.current
+        x_C1 = float(e1.kin.xy("C")[0])
+        W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
+        if sim.view is not view0:
+            P = self._carry(P, e0, e1, structure0 != sim.structure)
+        self.x = np.concatenate([e1.q, e1.qd, [F, tau, W]])
+        self.P = 0.5 * (P + P.T)
+        if not (self._in_window(x_C0, float(e0.kin.vxy("C")[0]), structure0) or self._window_now()):
+            self._hold_force()
+        self._follow_strokes()
+
+    def _jacobian(self, view: Any, t: float, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
+        """The continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at a state, and x_C there."""
+        n = view.n
+        m = 2 * n + 3
+        J = np.zeros((m, m))
+        J[:n, n : 2 * n] = np.eye(n)
+        engine = self.sim.engine
+        ql, vl = q.tolist(), qd.tolist()
+        scales = view.scales
+        for i in range(n):
+            h = 1e-6 * float(scales[i])
+            J[n : 2 * n, i] = self._difference(view, t, ql, vl, i, h, 0)
+            h = 1e-5 * (1.0 + abs(vl[i]))
+            J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, i, h, 1)
+        e = engine.evaluator(view)(t, q, qd)
+        jx = np.asarray(e.kin.jac("C")[0], dtype=float)
+        wc = np.asarray(e.kin.omega("crank"), dtype=float)
+        A = np.atleast_2d(e.A)
+        J[n : 2 * n, 2 * n] = np.linalg.solve(A, jx)
+        J[n : 2 * n, 2 * n + 1] = np.linalg.solve(A, wc)
+        F = float(self.x[2 * n])
+        J[2 * n + 2, n : 2 * n] = -F * jx
+        J[2 * n + 2, 2 * n] = -float(jx @ qd)
+        return J, float(e.kin.xy("C")[0])
+
+    def _difference(
+        self, view: Any, t: float, ql: list, vl: list, i: int, h: float, which: int
+    ) -> np.ndarray:
+        """∂q̈/∂q_i (which 0) or ∂q̈/∂q̇_i (which 1) by a central difference of step h."""
+        accel = self.sim.engine.accelerations
+        plus = [list(ql), list(vl)]
+        minus = [list(ql), list(vl)]
+        plus[which][i] += h
+        minus[which][i] -= h
+        try:
+            a = np.asarray(accel(view, t, plus[0], plus[1]), dtype=float)
+            b = np.asarray(accel(view, t, minus[0], minus[1]), dtype=float)
+        except (MpsError, ArithmeticError, ValueError):
+            return np.zeros(view.n)
+        return (a - b) / (2.0 * h)
+
+    def _process_noise(self, view: Any, structure: str, x_C: float, dt: float) -> np.ndarray:
+        """The discrete process noise over a step of dt from a state with slider at x_C."""
+        n = view.n
+        s = self.settings
+        Q = np.zeros((2 * n + 3, 2 * n + 3))
+        for i in range(n):
+            qa = (s.accel_noise * float(view.scales[i])) ** 2
+            Q[i, i] = qa * dt**3 / 3.0
+            Q[i, n + i] = Q[n + i, i] = qa * dt**2 / 2.0
+            Q[n + i, n + i] = qa * dt
+        if structure == "locked":
+            Q[2 * n, 2 * n] = s.force_walk**2 * dt
+        Q[2 * n + 1, 2 * n + 1] = s.torque_walk**2 * dt
+        return Q
+
+    def _carry(self, P: np.ndarray, e0: Any, e1: Any, impact: bool) -> np.ndarray:
+        """P from the chart view of e0 into that of e1, through (φ, ψ, x_C)."""
+        T0 = self._physical_map(e0)
+        T1 = self._physical_map(e1)
+        P1 = np.linalg.pinv(T1) @ (T0 @ P @ T0.T) @ np.linalg.pinv(T1).T
+        if impact:
+            n1 = e1.view.n
+            r = slice(n1, 2 * n1)
+            P1[r, r] *= self.settings.event_inflation
+        return P1
+
+    def _physical_map(self, e: Any) -> np.ndarray:
+        """The map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
+        n = e.view.n
+        kin = e.kin
+        scale = float(self.sim.mechanism.geometry.l1)
+        G = np.array(
+            [kin.omega("crank"), kin.omega("rocker"), [v / scale for v in kin.jac("C")[0]]],
+            dtype=float,
+        )
+        T = np.zeros((9, 2 * n + 3))
+        T[:3, :n] = G
+        T[3:6, n : 2 * n] = G
+        T[6:, 2 * n :] = np.eye(3)
+        return T
+
+    def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
+        """The predicted value of a measurement of ``kind`` and its row of H."""
+        n = self.n
+        kin = self.sim.solver.current.kin
+        H = np.zeros(2 * n + 3)
+        if kind == "crank_angle":
+            H[:n] = kin.omega("crank")
+            return self.sim.joint_state()[0], H
+        if kind == "slider_position":
+            H[:n] = kin.jac("C")[0]
+            return float(kin.xy("C")[0]), H
+        rate = float(kin.rate("crank"))
+        if kind == "crank_rate":
+            H[n : 2 * n] = kin.omega("crank")
+            return rate, H
+        motor = self.motor
+        if motor is None:
+            raise MeasurementError("kind", kind, "a scene with a motor for motor_torque measurements")
+        d = 1e-4 * (1.0 + abs(rate))
+        slope = (motor.torque(rate + d) - motor.torque(rate - d)) / (2.0 * d)
+        H[n : 2 * n] = slope * np.asarray(kin.omega("crank"), dtype=float)
+        return float(motor.torque(rate)), H
+
+    def _correct(self, m: Measurement) -> bool:
+        value, H = self._prediction(m.kind)
+        z = m.value
+        if m.kind == "crank_angle":
+            z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))  # the encoder's turns
+        y = z - value
+        PH = self.P @ H
+        S = float(H @ PH) + m.variance
+        nis = y * y / S
+        if nis > self.settings.gate:
+            self.rejected["outlier"] += 1
+            return False
+        K = PH / S
+        x = self.x + K * y
+        IKH = np.eye(len(x)) - np.outer(K, H)
+        P = IKH @ self.P @ IKH.T + m.variance * np.outer(K, K)
+        if not self._take(x):
+            self.rejected["model"] += 1
+            return False
+        self.P = 0.5 * (P + P.T)
+        self.innovations.append((m.t, m.kind, nis))
+        self._follow_strokes()
+        return True
+
+    def _take(self, x: np.ndarray) -> bool:
+        """Restart the model's run at state x; False (the run as it was) where x has no
+        configuration in the present chart."""
+        n = self.n
+        sim = self.sim
+        e = sim.solver.current
+        saved = list(self.inputs.values)
+        self.inputs.set(float(x[2 * n]), float(x[2 * n + 1]))
+        try:
+            sim.restart_at(x[:n], x[n : 2 * n])
+        except (MpsError, ArithmeticError, ValueError):
+            self.inputs.set(*saved)
+            sim.restart_at(e.q, e.qd)
+            return False
+        self.x = x
+        if not self._window_now():
+            self._hold_force()
+        return True
+
+    # -- strokes and loads ----------------------------------------------------------------
+    def _follow_strokes(self) -> None:
+        """Close the stroke under way at a top dead centre and start the next."""
+        k = self._stroke_now()
+        if k == self._stroke:
+            return
+        i = 2 * self.n + 2
+        if self._stroke is not None:
+            self.strokes.close(self.sim.t, float(self.x[i]), _sd(self.P[i, i]))
+        self.x[i] = 0.0
+        self.P[i, :] = 0.0
+        self.P[:, i] = 0.0
+        self._stroke = k
+        if k is not None:
+            self.strokes.begin(k, self.sim.t)
+
+    def observe_stroke(self, loads: dict[str, tuple[float, float]] | None = None) -> None:
+        """Give the stroke table the present estimate (and foundation load, if computed)."""
+        est = self.estimate()
+        found = sigma = None
+        if loads is not None:
+            found, sigma = foundation_magnitude(loads)
+        self.strokes.observe(est.t, est.force, est.force_sigma, found, math.nan if sigma is None else sigma)
+
+    def loads(self) -> dict[str, tuple[float, float]]:
+        """Return the joint reactions and the foundation load at the estimate: name → (value,
+        1-σ)."""
+        sim = self.sim
+        e = sim.solver.current
+        view, n = e.view, e.view.n
+        fun = sim.engine.evaluator(view)
+        base = self._reaction_values(e)
+        steps = np.concatenate(
+            [1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(e.qd)), [1.0, 1e-2]]
+        )
+        J = np.zeros((len(base), 2 * n + 2))
+        for j, h in enumerate(steps):
+            if j < 2 * n:
+                q, qd = e.q.copy(), e.qd.copy()
+                (q if j < n else qd)[j % n] += h
+                try:
+                    J[:, j] = (self._reaction_values(fun(e.t, q, qd)) - base) / h
+                except (MpsError, ArithmeticError, ValueError):
+                    continue
+            else:
+                k = j - 2 * n
+                saved = list(self.inputs.values)
+                self.inputs.values[k] += h
+                try:
+                    J[:, j] = (self._reaction_values(fun(e.t, e.q, e.qd)) - base) / h
+                finally:
+                    self.inputs.values[:] = saved
+        var = np.einsum("ij,jk,ik->i", J, self.P[: 2 * n + 2, : 2 * n + 2], J)
+        return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
+
+    def _reaction_values(self, e: Any) -> np.ndarray:
+        sim = self.sim
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+        return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+
+
+def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, float]:
+    """Return the foundation force's magnitude and its 1-σ (linearised, the two components'
+    covariance taken as diagonal)."""
+    fx, sx = loads["F_found_x"]
+    fy, sy = loads["F_found_y"]
+    f = math.hypot(fx, fy)
+    if f == 0.0:
+        return 0.0, math.hypot(sx, sy)
+    return f, math.hypot(fx * sx, fy * sy) / f
+
+
+def _sd(variance: float) -> float:
+    """The standard deviation of a variance that round-off may have made slightly negative."""
+    return math.sqrt(max(float(variance), 0.0))
