@@ -143,6 +143,8 @@ class Tracker:
         #: measurements rejected, by reason; ``gap``: gaps longer than the timeout
         self.rejected: Counter[str] = Counter()
         self.accepted = 0
+        #: the process force's variance before the last measurement taken
+        self.force_prior_variance = 0.0
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
         self.innovations: list[tuple[float, str, float]] = []
         self._last: dict[str, float] = {}
@@ -420,6 +422,9 @@ class Tracker:
         if m.kind == "crank_angle":
             z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))  # the encoder's turns
         y = z - value
+        i = 2 * self.n
+        #: the process force's variance before this measurement (what it learned: how much less after)
+        self.force_prior_variance = float(self.P[i, i])
         PH = self.P @ H
         S = float(H @ PH) + m.variance
         nis = y * y / S
