@@ -21,8 +21,10 @@ class TrackSettings:
     """The tuning of a :class:`~mps_core.track.tracker.Tracker` (SI units).
 
     ``force_walk``: the process force's random-walk intensity (N/√s) inside the work window:
-    latch closed, the slider moving down below ``work_zone_top`` (m); outside it the force is
-    zero (a blanking punch pushes the slider up only while it cuts on the way down).
+    latch closed, the slider moving down below ``work_zone_top`` (m; None: 2 mm above where
+    the nominal scene's punch touches its part, or 4 mm where it has no process load); outside
+    it the force is zero (a blanking punch pushes the slider up only while it cuts on the way
+    down).
     ``torque_walk``: the load torque's (N·m/√s). ``accel_noise``: white noise on each
     coordinate's acceleration (per √s, in the chart's units divided by its scale).
     ``gate``: the normalised innovation squared above which a measurement is rejected as an
@@ -30,17 +32,20 @@ class TrackSettings:
     (physically impossible between two samples). ``timeout``: a gap between measurements
     (s) reported as such. ``event_inflation``: the factor on the covariance of the rates at a
     change of structure (an impact the model locates, whose time the estimate knows only
-    approximately).
+    approximately). ``force_lag``: the process force of the last ``force_lag`` steps kept as
+    states (a fixed-lag smoother: the force over a step shows in the crank only at the next
+    samples, so the force ``force_lag`` steps back is known far better than the present one).
     """
 
     force_walk: float = 8.0e5
-    work_zone_top: float = 0.004
+    work_zone_top: float | None = None
     torque_walk: float = 20.0
-    accel_noise: float = 10.0
+    accel_noise: float = 2.0
     gate: float = 25.0
     max_jump: float = math.radians(10.0)
     timeout: float = 0.05
     event_inflation: float = 4.0
+    force_lag: int = 2
     initial_force_sigma: float = 500.0
     initial_torque_sigma: float = 5.0
 
@@ -58,5 +63,11 @@ class TrackSettings:
             v = getattr(self, name)
             if not (isinstance(v, float | int) and v > 0.0 and math.isfinite(v)):
                 raise MeasurementError(f"track.{name}", v, "a positive number")
+        if self.work_zone_top is not None and not (
+            isinstance(self.work_zone_top, float | int) and math.isfinite(self.work_zone_top)
+        ):
+            raise MeasurementError("track.work_zone_top", self.work_zone_top, "a slider position (m) or None")
+        if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):
+            raise MeasurementError("track.force_lag", self.force_lag, "an integer from 0 to 10 (steps)")
         if not (self.event_inflation >= 1.0 and math.isfinite(self.event_inflation)):
             raise MeasurementError("track.event_inflation", self.event_inflation, "a number >= 1")

@@ -81,6 +81,11 @@ class Estimate:
     torque_sigma: float
     work: float
     work_sigma: float
+    #: the process force ``force_lag`` steps back (the fixed-lag smoother's) and the middle
+    #: of the step it acted over (the present force where ``force_lag`` is 0)
+    force_smoothed: float
+    force_smoothed_sigma: float
+    t_force_smoothed: float
 
 
 class Tracker:
@@ -103,6 +108,8 @@ class Tracker:
         phi_tdc: float = 0.0,
     ) -> None:
         self.settings = settings or TrackSettings()
+        #: the top of the work window (m): the slider below it moving down, the punch may work
+        self.work_zone_top = work_zone_top(scene, self.settings)
         mech = scene.mechanism()
         effects = [e for e in scene.build_effects(mech) if e.kind not in PROCESS_EFFECTS]
         #: the unknown inputs' effect (its values follow the state)
@@ -126,7 +133,8 @@ class Tracker:
         self.phi_tdc = float(phi_tdc)
         s = self.settings
         e = self.sim.solver.current
-        self.x = np.concatenate([e.q, e.qd, [0.0, 0.0, 0.0]])
+        lag = s.force_lag
+        self.x = np.concatenate([e.q, e.qd, np.zeros(3 + lag)])
         scales = np.asarray(self.sim.view.scales, dtype=float)
         self.P = np.diag(
             np.concatenate(
@@ -134,6 +142,7 @@ class Tracker:
                     (sigma[0] * scales) ** 2,
                     (sigma[1] * scales) ** 2,
                     [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0],
+                    np.zeros(lag),
                 ]
             )
         )
@@ -149,6 +158,8 @@ class Tracker:
         self.innovations: list[tuple[float, str, float]] = []
         self._last: dict[str, float] = {}
         self._t_last = -math.inf
+        #: the start times of the last steps (the lagged forces' steps)
+        self._starts: list[float] = []
         #: the per-stroke figures
         self.strokes = StrokeTable()
         self._stroke = self._stroke_now()
@@ -181,7 +192,7 @@ class Tracker:
     def _in_window(self, x_C: float, v_C: float, structure: str) -> bool:
         """Whether the punch can work at this state: latch closed, the slider moving down in the
         lower part of its stroke (below ``work_zone_top``)."""
-        return structure == "locked" and x_C < self.settings.work_zone_top and v_C < 0.0
+        return structure == "locked" and x_C < self.work_zone_top and v_C < 0.0
 
     @property
     def in_window(self) -> bool:
@@ -208,6 +219,12 @@ class Tracker:
         phi, phi_dot = self.sim.joint_state()[:2]
         q, r = slice(0, n), slice(n, 2 * n)
         i = 2 * n
+        lag = self.settings.force_lag
+        j = len(self.x) - 1 if lag else i
+        ends = self._starts + [self.sim.t]  # the last steps' boundaries
+        t_smoothed = self.sim.t
+        if lag and len(ends) > lag:
+            t_smoothed = 0.5 * (ends[-lag - 1] + ends[-lag])
         return Estimate(
             t=self.sim.t,
             structure=self.sim.structure,
@@ -223,6 +240,9 @@ class Tracker:
             torque_sigma=_sd(P[i + 1, i + 1]),
             work=float(self.x[i + 2]),
             work_sigma=_sd(P[i + 2, i + 2]),
+            force_smoothed=float(self.x[j]),
+            force_smoothed_sigma=_sd(P[j, j]),
+            t_force_smoothed=t_smoothed,
         )
 
     def physical_covariance(self) -> np.ndarray:
@@ -230,7 +250,7 @@ class Tracker:
         n = self.n
         kin = self.sim.solver.current.kin
         g = np.asarray(kin.omega("crank"), dtype=float)
-        T = np.zeros((3, 2 * n + 3))
+        T = np.zeros((3, len(self.x)))
         T[0, :n] = g
         T[1, n : 2 * n] = g
         T[2, 2 * n] = 1.0
@@ -295,21 +315,36 @@ class Tracker:
         e0 = sim.solver.current
         n = view0.n
         J, x_C0 = self._jacobian(view0, t0, e0.q, e0.qd)
-        Adt = J * dt
-        Phi = np.eye(2 * n + 3) + Adt + 0.5 * (Adt @ Adt)
+        Phi = self._step_map(J * dt)
         P = Phi @ self.P @ Phi.T + self._process_noise(view0, structure0, x_C0, dt)
         F, tau, W = self.x[2 * n : 2 * n + 3]
+        self._starts = (self._starts + [t0])[-self.settings.force_lag - 1 :]
+        lagged: np.ndarray = np.concatenate([[F], self.x[2 * n + 3 : -1]])
+        if not self.settings.force_lag:
+            lagged = lagged[:0]
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
         if sim.view is not view0:
             P = self._carry(P, e0, e1, structure0 != sim.structure)
-        self.x = np.concatenate([e1.q, e1.qd, [F, tau, W]])
+        self.x = np.concatenate([e1.q, e1.qd, [F, tau, W], lagged])
         self.P = 0.5 * (P + P.T)
         if not (self._in_window(x_C0, float(e0.kin.vxy("C")[0]), structure0) or self._window_now()):
             self._hold_force()
         self._follow_strokes()
+
+    def _step_map(self, Adt: np.ndarray) -> np.ndarray:
+        """Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order, and
+        the lagged forces shifted (the first takes the force that acted over the step)."""
+        k = Adt.shape[0]
+        m = len(self.x)
+        Phi = np.zeros((m, m))
+        Phi[:k, :k] = np.eye(k) + Adt + 0.5 * (Adt @ Adt)
+        if m > k:
+            Phi[k, k - 3] = 1.0
+            Phi[k + 1 :, k : m - 1] = np.eye(m - k - 1)
+        return Phi
 
     def _jacobian(self, view: Any, t: float, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
         """The continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at a state, and x_C there."""
@@ -356,7 +391,7 @@ class Tracker:
         """The discrete process noise over a step of dt from a state with slider at x_C."""
         n = view.n
         s = self.settings
-        Q = np.zeros((2 * n + 3, 2 * n + 3))
+        Q = np.zeros((len(self.x), len(self.x)))
         for i in range(n):
             qa = (s.accel_noise * float(view.scales[i])) ** 2
             Q[i, i] = qa * dt**3 / 3.0
@@ -387,17 +422,18 @@ class Tracker:
             [kin.omega("crank"), kin.omega("rocker"), [v / scale for v in kin.jac("C")[0]]],
             dtype=float,
         )
-        T = np.zeros((9, 2 * n + 3))
+        rest = 3 + self.settings.force_lag  # the inputs, the work and the lagged forces
+        T = np.zeros((6 + rest, 2 * n + rest))
         T[:3, :n] = G
         T[3:6, n : 2 * n] = G
-        T[6:, 2 * n :] = np.eye(3)
+        T[6:, 2 * n :] = np.eye(rest)
         return T
 
     def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
         """The predicted value of a measurement of ``kind`` and its row of H."""
         n = self.n
         kin = self.sim.solver.current.kin
-        H = np.zeros(2 * n + 3)
+        H = np.zeros(len(self.x))
         if kind == "crank_angle":
             H[:n] = kin.omega("crank")
             return self.sim.joint_state()[0], H
@@ -484,7 +520,13 @@ class Tracker:
         found = sigma = None
         if loads is not None:
             found, sigma = foundation_magnitude(loads)
-        self.strokes.observe(est.t, est.force, est.force_sigma, found, math.nan if sigma is None else sigma)
+        self.strokes.observe(
+            est.t_force_smoothed,
+            est.force_smoothed,
+            est.force_smoothed_sigma,
+            found,
+            math.nan if sigma is None else sigma,
+        )
 
     def loads(self) -> dict[str, tuple[float, float]]:
         """Return the joint reactions and the foundation load at the estimate: name → (value,
@@ -521,6 +563,15 @@ class Tracker:
         sim = self.sim
         rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
         return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+
+
+def work_zone_top(scene: Scene, settings: TrackSettings) -> float:
+    """Return the top of the work window: the setting's, else 2 mm above where the nominal
+    scene's punch touches its part, else 4 mm (the lower third of the preset's stroke)."""
+    if settings.work_zone_top is not None:
+        return float(settings.work_zone_top)
+    contacts = [e.params["x_contact"] for e in scene.effects if e.kind in PROCESS_EFFECTS]
+    return max(contacts) + 0.002 if contacts else 0.004
 
 
 def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, float]:

@@ -30,7 +30,17 @@ from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
 if TYPE_CHECKING:
     from ..scene import Scene
 
-__all__ = ["FAULTS", "Fault", "Sensors", "TruthChanges", "TruthRun", "run_truth", "truth_scene"]
+__all__ = [
+    "FAULTS",
+    "PRESET_PART",
+    "Fault",
+    "Sensors",
+    "TruthChanges",
+    "TruthRun",
+    "run_truth",
+    "truth_scene",
+    "with_blanking",
+]
 
 #: the faults that can be injected
 FAULTS = ("double-blank", "broken-spring", "clutch-slip")
@@ -139,6 +149,25 @@ def truth_scene(nominal: Scene, changes: TruthChanges | None = None) -> Scene:
             )
         )
     return replace(nominal, name=nominal.name + "-truth", bodies=bodies, effects=tuple(effects))
+
+
+#: the part the presets blank (press-cycle's washer of 1 mm steel), as a scene file's table
+PRESET_PART = {
+    "perimeter_mm": 62.83,
+    "thickness_mm": 1.0,
+    "shear_strength_mpa": 320.0,
+    "contact_mm": -3.0,
+    "breakthrough": 0.5,
+}
+
+
+def with_blanking(scene: Scene, table: dict | None = None) -> Scene:
+    """Return ``scene`` blanking the part ``table`` describes (a scene file's blanking table;
+    default :data:`PRESET_PART`), in place of any it blanks."""
+    params = _blanking_params(PRESET_PART if table is None else table)
+    kept = tuple(e for e in scene.effects if e.kind != "blanking")
+    spec = replace(_spec_like(scene), kind="blanking", params=params)
+    return replace(scene, effects=kept + (spec,))
 
 
 def _spec_like(scene: Scene) -> Any:

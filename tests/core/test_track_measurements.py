@@ -10,14 +10,23 @@ import numpy as np
 import pytest
 
 from mps_core import load_scene
-from mps_core.track import Encoder, Fault, Measurement, MeasurementError, ModeSignal, Tracker
-from mps_core.track import TrackSettings, run_truth, truth_scene
-from mps_core.track.truth import Sensors
+from mps_core.track import (
+    Encoder,
+    Fault,
+    Measurement,
+    MeasurementError,
+    ModeSignal,
+    Tracker,
+    TrackSettings,
+    run_truth,
+    truth_scene,
+)
+from mps_core.track.truth import Sensors, with_blanking
 
 
 @pytest.fixture(scope="module")
 def stream():
-    nominal = load_scene("working").with_overrides(scheme="autodiff")
+    nominal = with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
     truth = run_truth(truth_scene(nominal), 0.12, seed=11)
     return nominal, truth.measurements
 
@@ -101,7 +110,7 @@ def test_the_encoder_quantises_to_its_counts():
 
 
 def test_a_double_blank_doubles_the_truth_force():
-    nominal = load_scene("working").with_overrides(scheme="autodiff")
+    nominal = with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
     truth = truth_scene(nominal)
     healthy = run_truth(truth, 0.25, seed=1)
     faulty = run_truth(truth, 0.25, seed=1, faults=(Fault(0.1, "double-blank"),))
