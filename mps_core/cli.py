@@ -122,6 +122,7 @@ PLUGINS = (
     "mps_core.analysis.loads_cli",
     "mps_core.analysis.sweep_cli",
     "mps_core.bench.cli",
+    "mps_core.track.cli",
 )
 
 

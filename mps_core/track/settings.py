@@ -13,7 +13,11 @@ from dataclasses import dataclass
 
 from .measurements import MeasurementError
 
-__all__ = ["TrackSettings"]
+__all__ = ["PREDICTIONS", "TrackSettings"]
+
+#: how the covariance is predicted: the step map's Jacobian (an extended Kalman filter) or
+#: sigma points through the model's run (unscented)
+PREDICTIONS = ("jacobian", "unscented")
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,7 @@ class TrackSettings:
     approximately). ``force_lag``: the process force of the last ``force_lag`` steps kept as
     states (a fixed-lag smoother: the force over a step shows in the crank only at the next
     samples, so the force ``force_lag`` steps back is known far better than the present one).
+    ``prediction``: one of :data:`PREDICTIONS` (docs/tracking.md: how they compare).
     """
 
     force_walk: float = 8.0e5
@@ -46,6 +51,7 @@ class TrackSettings:
     timeout: float = 0.05
     event_inflation: float = 4.0
     force_lag: int = 2
+    prediction: str = "jacobian"
     initial_force_sigma: float = 500.0
     initial_torque_sigma: float = 5.0
 
@@ -67,6 +73,8 @@ class TrackSettings:
             isinstance(self.work_zone_top, float | int) and math.isfinite(self.work_zone_top)
         ):
             raise MeasurementError("track.work_zone_top", self.work_zone_top, "a slider position (m) or None")
+        if self.prediction not in PREDICTIONS:
+            raise MeasurementError("track.prediction", self.prediction, "one of " + ", ".join(PREDICTIONS))
         if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):
             raise MeasurementError("track.force_lag", self.force_lag, "an integer from 0 to 10 (steps)")
         if not (self.event_inflation >= 1.0 and math.isfinite(self.event_inflation)):

@@ -49,6 +49,7 @@ from .measurements import Measurement, MeasurementError, ModeSignal
 from .settings import TrackSettings
 from .strokes import StrokeTable, stroke_index
 from .unknown_inputs import UnknownInputs
+from .unscented import unscented_step
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -152,6 +153,8 @@ class Tracker:
         #: measurements rejected, by reason; ``gap``: gaps longer than the timeout
         self.rejected: Counter[str] = Counter()
         self.accepted = 0
+        #: steps whose unscented prediction fell back on the Jacobian's (``prediction``)
+        self.fallbacks = 0
         #: the process force's variance before the last measurement taken
         self.force_prior_variance = 0.0
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
@@ -313,24 +316,37 @@ class Tracker:
             return
         view0, structure0 = sim.view, sim.structure
         e0 = sim.solver.current
+        if self.settings.prediction == "unscented":
+            moved = unscented_step(self, t1)
+            if moved is not None:
+                self.finish_step(t0, e0, structure0, *moved)
+                return
+            self.fallbacks += 1
         n = view0.n
         J, x_C0 = self._jacobian(view0, t0, e0.q, e0.qd)
         Phi = self._step_map(J * dt)
-        P = Phi @ self.P @ Phi.T + self._process_noise(view0, structure0, x_C0, dt)
+        P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
         F, tau, W = self.x[2 * n : 2 * n + 3]
-        self._starts = (self._starts + [t0])[-self.settings.force_lag - 1 :]
-        lagged: np.ndarray = np.concatenate([[F], self.x[2 * n + 3 : -1]])
-        if not self.settings.force_lag:
-            lagged = lagged[:0]
+        lagged = self.x[2 * n + 3 : 2 * n + 3 + self.settings.force_lag]
+        lagged = np.concatenate([[F], lagged])[: len(lagged)]
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
         if sim.view is not view0:
             P = self._carry(P, e0, e1, structure0 != sim.structure)
-        self.x = np.concatenate([e1.q, e1.qd, [F, tau, W], lagged])
+        self.finish_step(t0, e0, structure0, np.concatenate([e1.q, e1.qd, [F, tau, W], lagged]), P)
+
+    def finish_step(self, t0: float, e0: Any, structure0: str, x: np.ndarray, P: np.ndarray) -> None:
+        """Take (x, P) predicted over a step from t0 (where the run's evaluation was e0, in
+        structure0): the force held at zero outside the work window, the strokes followed."""
+        self._starts = (self._starts + [t0])[-self.settings.force_lag - 1 :]
+        self.x = x
         self.P = 0.5 * (P + P.T)
-        if not (self._in_window(x_C0, float(e0.kin.vxy("C")[0]), structure0) or self._window_now()):
+        kin0 = e0.kin
+        if not (
+            self._in_window(float(kin0.xy("C")[0]), float(kin0.vxy("C")[0]), structure0) or self._window_now()
+        ):
             self._hold_force()
         self._follow_strokes()
 
@@ -387,8 +403,8 @@ class Tracker:
             return np.zeros(view.n)
         return (a - b) / (2.0 * h)
 
-    def _process_noise(self, view: Any, structure: str, x_C: float, dt: float) -> np.ndarray:
-        """The discrete process noise over a step of dt from a state with slider at x_C."""
+    def process_noise(self, view: Any, structure: str, dt: float) -> np.ndarray:
+        """Return the discrete process noise over a step of dt in a chart view and structure."""
         n = view.n
         s = self.settings
         Q = np.zeros((len(self.x), len(self.x)))
