@@ -17,23 +17,36 @@ compares the two predictions.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
 from ..errors import MpsError
+from .settings import TrackSettings
+from .unknown_inputs import UnknownInputs
 
-if TYPE_CHECKING:
-    from .tracker import Tracker
+__all__ = ["Predicted", "unscented_step"]
 
-__all__ = ["unscented_step"]
+
+class Predicted(Protocol):
+    """What the unscented prediction reads of a tracker (the tracker is one)."""
+
+    sim: Any
+    x: np.ndarray
+    P: np.ndarray
+    settings: TrackSettings
+    inputs: UnknownInputs
+
+    def process_noise(self, view: Any, structure: str, dt: float) -> np.ndarray:
+        """Return the discrete process noise over a step of dt."""
+        ...
 
 
 class _Disagree(Exception):
     """The sigma points ended in different chart views or structures."""
 
 
-def unscented_step(tracker: Tracker, t1: float) -> tuple[np.ndarray, np.ndarray] | None:
+def unscented_step(tracker: Predicted, t1: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Return the predicted (x, P) at t1 by sigma points, the run left at the centre point's
     end; None (the run as it was) where the points do not agree on the view or one fails."""
     sim = tracker.sim
