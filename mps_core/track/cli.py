@@ -87,6 +87,7 @@ def register(subparsers: Any) -> None:
 
 
 def _nominal(spec: str) -> Any:
+    """Return the nominal scene of SPEC, blanking the presets' part where it blanks none."""
     from ..scene import load_scene
     from .truth import with_blanking
 
@@ -97,6 +98,7 @@ def _nominal(spec: str) -> Any:
 
 
 def _faults(specs: list[str]) -> tuple:
+    """Return the faults of ``--fault T:KIND`` options."""
     from .truth import FAULTS, Fault
 
     out = []
@@ -113,6 +115,7 @@ def _faults(specs: list[str]) -> tuple:
 
 
 def _emulate(args: argparse.Namespace) -> int:
+    """Run ``mps emulate``."""
     from ..files.outputs import check_outputs, written_whole
     from .measurement_csv import write_measurements
     from .truth import Sensors, run_truth, truth_scene
@@ -140,6 +143,7 @@ def _emulate(args: argparse.Namespace) -> int:
 
 
 def _track(args: argparse.Namespace) -> int:
+    """Run ``mps track``."""
     from ..files.outputs import check_outputs
 
     check_outputs(
@@ -166,7 +170,8 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> tuple[list[dict], np.ndarray]:
-    """Run the tracker over the measurements and modes; the estimates' rows and CPU times."""
+    """Run the tracker over the measurements and modes; return the estimates' rows and the
+    CPU time of each measurement."""
     rows: list[dict] = []
     cpu = []
     pending = sorted(modes, key=lambda s: s.t)
@@ -188,6 +193,7 @@ def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> t
 
 
 def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None:
+    """Write the estimates (``--out``) and the per-stroke table (``--strokes``)."""
     from ..files.outputs import written_whole
 
     if args.out:
@@ -205,6 +211,7 @@ def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None
 
 
 def _table(fh: TextIO, columns: list[str], rows: list[dict]) -> None:
+    """Write rows as CSV under a header of ``columns``."""
     w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
     w.writeheader()
     for r in rows:
@@ -212,6 +219,7 @@ def _table(fh: TextIO, columns: list[str], rows: list[dict]) -> None:
 
 
 def _summary(tracker: Tracker, cpu: np.ndarray) -> None:
+    """Print what was taken and rejected, the CPU a measurement and the per-stroke table."""
     rejected = ", ".join(f"{k} {v}" for k, v in sorted(tracker.rejected.items())) or "none"
     print(f"measurements: {tracker.accepted} taken; rejected or reported: {rejected}")
     if len(cpu):
@@ -232,6 +240,7 @@ def _summary(tracker: Tracker, cpu: np.ndarray) -> None:
 
 
 def _against_truth(args: argparse.Namespace, nominal: Any, tracker: Tracker) -> int:
+    """Emulate the truth, follow it, and print how the estimates compare with it."""
     from .evaluation import follow, nis_inside, truth_strokes
     from .truth import run_truth, truth_scene
 

@@ -84,6 +84,7 @@ def follow(tracker: Tracker, truth: TruthRun, *, loads: bool = True, cpu_clock: 
 
 
 def _compare(tracker: Tracker, truth: TruthRun, rx: dict | None, out: Followed) -> None:
+    """Add the present estimate's normalised error, coverage and foundation error to ``out``."""
     est = tracker.estimate()
     tv = truth.at(est.t)
     window = tracker.in_window

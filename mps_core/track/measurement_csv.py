@@ -80,7 +80,7 @@ def read_measurements(
 
 
 def _number(cell: str, field: str) -> float:
-    """A cell's number (nan and inf are numbers here: the tracker counts them as not finite)."""
+    """Return a cell's number (nan and inf are numbers here: the tracker counts them as not finite)."""
     try:
         v = float(cell)
     except ValueError:

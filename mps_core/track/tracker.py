@@ -119,7 +119,7 @@ class Tracker:
         self.motor = next((e for e in effects if e.kind == "motor"), None)
         solver = scene.solver
         if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
-            solver = replace(solver, step=1e-3)  # a long gap in the measurements: 1 ms steps
+            solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
         #: the model's run, which the estimate's mean follows
         self.sim = Simulation(
             mech,
@@ -193,20 +193,22 @@ class Tracker:
             self.sim.restart_at(e.q, e.qd)
 
     def _in_window(self, x_C: float, v_C: float, structure: str) -> bool:
-        """Whether the punch can work at this state: latch closed, the slider moving down in the
+        """Return whether the punch can work at this state: latch closed, the slider moving down in the
         lower part of its stroke (below ``work_zone_top``)."""
         return structure == "locked" and x_C < self.work_zone_top and v_C < 0.0
 
     @property
     def in_window(self) -> bool:
-        """Whether the estimate is in the work window (the process force a state there)."""
+        """Return whether the estimate is in the work window (the process force a state there)."""
         return self._window_now()
 
     def _window_now(self) -> bool:
+        """Return whether the run's present state is in the work window."""
         kin = self.sim.solver.current.kin
         return self._in_window(float(kin.xy("C")[0]), float(kin.vxy("C")[0]), self.sim.structure)
 
     def _stroke_now(self) -> int | None:
+        """Return the stroke the run is in (None outside the working structure)."""
         if self.sim.structure != "locked":
             return None
         return stroke_index(self.sim.joint_state()[0], self.phi_tdc)
@@ -286,7 +288,7 @@ class Tracker:
         return taken
 
     def _screen(self, m: Measurement) -> str | None:
-        """The reason to reject ``m`` before anything is computed, or None."""
+        """Return the reason to reject ``m`` before anything is computed, or None."""
         if not (math.isfinite(m.t) and math.isfinite(m.value)):
             return "not-finite"
         last = self._last.get(m.kind)
@@ -309,6 +311,7 @@ class Tracker:
         return None
 
     def _predict(self, t1: float) -> None:
+        """Predict the state and its covariance to ``t1``."""
         sim = self.sim
         t0 = sim.t
         dt = t1 - t0
@@ -323,7 +326,7 @@ class Tracker:
                 return
             self.fallbacks += 1
         n = view0.n
-        J, x_C0 = self._jacobian(view0, t0, e0.q, e0.qd)
+        J, x_C0 = self._jacobian(e0)
         Phi = self._step_map(J * dt)
         P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
         F, tau, W = self.x[2 * n : 2 * n + 3]
@@ -351,7 +354,7 @@ class Tracker:
         self._follow_strokes()
 
     def _step_map(self, Adt: np.ndarray) -> np.ndarray:
-        """Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order, and
+        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order, and
         the lagged forces shifted (the first takes the force that acted over the step)."""
         k = Adt.shape[0]
         m = len(self.x)
@@ -362,21 +365,20 @@ class Tracker:
             Phi[k + 1 :, k : m - 1] = np.eye(m - k - 1)
         return Phi
 
-    def _jacobian(self, view: Any, t: float, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, float]:
-        """The continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at a state, and x_C there."""
+    def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
+        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at the run's evaluation
+        ``e`` (its A and analogs exact; ∂q̈/∂q, ∂q̈/∂q̇ by forward differences from its q̈),
+        and x_C there."""
+        view, t = e.view, e.t
         n = view.n
         m = 2 * n + 3
         J = np.zeros((m, m))
         J[:n, n : 2 * n] = np.eye(n)
-        engine = self.sim.engine
-        ql, vl = q.tolist(), qd.tolist()
-        scales = view.scales
+        ql, vl = e.q.tolist(), e.qd.tolist()
+        base = np.asarray(e.qdd, dtype=float)
         for i in range(n):
-            h = 1e-6 * float(scales[i])
-            J[n : 2 * n, i] = self._difference(view, t, ql, vl, i, h, 0)
-            h = 1e-5 * (1.0 + abs(vl[i]))
-            J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, i, h, 1)
-        e = engine.evaluator(view)(t, q, qd)
+            J[n : 2 * n, i] = self._difference(view, t, ql, vl, base, i, 1e-6 * float(view.scales[i]), 0)
+            J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1)
         jx = np.asarray(e.kin.jac("C")[0], dtype=float)
         wc = np.asarray(e.kin.omega("crank"), dtype=float)
         A = np.atleast_2d(e.A)
@@ -384,24 +386,27 @@ class Tracker:
         J[n : 2 * n, 2 * n + 1] = np.linalg.solve(A, wc)
         F = float(self.x[2 * n])
         J[2 * n + 2, n : 2 * n] = -F * jx
-        J[2 * n + 2, 2 * n] = -float(jx @ qd)
+        J[2 * n + 2, 2 * n] = -float(jx @ e.qd)
         return J, float(e.kin.xy("C")[0])
 
     def _difference(
-        self, view: Any, t: float, ql: list, vl: list, i: int, h: float, which: int
+        self, view: Any, t: float, ql: list, vl: list, base: np.ndarray, i: int, h: float, which: int
     ) -> np.ndarray:
-        """∂q̈/∂q_i (which 0) or ∂q̈/∂q̇_i (which 1) by a central difference of step h."""
+        """Return ∂q̈/∂q_i (which 0) or ∂q̈/∂q̇_i (which 1) by a forward difference of step h
+        from q̈ = ``base`` (a backward one where the step forward leaves the chart)."""
         accel = self.sim.engine.accelerations
         plus = [list(ql), list(vl)]
-        minus = [list(ql), list(vl)]
         plus[which][i] += h
+        try:
+            return (np.asarray(accel(view, t, plus[0], plus[1]), dtype=float) - base) / h
+        except (MpsError, ArithmeticError, ValueError):
+            pass
+        minus = [list(ql), list(vl)]
         minus[which][i] -= h
         try:
-            a = np.asarray(accel(view, t, plus[0], plus[1]), dtype=float)
-            b = np.asarray(accel(view, t, minus[0], minus[1]), dtype=float)
+            return (base - np.asarray(accel(view, t, minus[0], minus[1]), dtype=float)) / h
         except (MpsError, ArithmeticError, ValueError):
             return np.zeros(view.n)
-        return (a - b) / (2.0 * h)
 
     def process_noise(self, view: Any, structure: str, dt: float) -> np.ndarray:
         """Return the discrete process noise over a step of dt in a chart view and structure."""
@@ -419,7 +424,7 @@ class Tracker:
         return Q
 
     def _carry(self, P: np.ndarray, e0: Any, e1: Any, impact: bool) -> np.ndarray:
-        """P from the chart view of e0 into that of e1, through (φ, ψ, x_C)."""
+        """Carry P from the chart view of e0 into that of e1, through (φ, ψ, x_C)."""
         T0 = self._physical_map(e0)
         T1 = self._physical_map(e1)
         P1 = np.linalg.pinv(T1) @ (T0 @ P @ T0.T) @ np.linalg.pinv(T1).T
@@ -430,7 +435,7 @@ class Tracker:
         return P1
 
     def _physical_map(self, e: Any) -> np.ndarray:
-        """The map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
+        """Return the map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
         n = e.view.n
         kin = e.kin
         scale = float(self.sim.mechanism.geometry.l1)
@@ -446,7 +451,7 @@ class Tracker:
         return T
 
     def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
-        """The predicted value of a measurement of ``kind`` and its row of H."""
+        """Return the predicted value of a measurement of ``kind`` and its row of H."""
         n = self.n
         kin = self.sim.solver.current.kin
         H = np.zeros(len(self.x))
@@ -469,6 +474,7 @@ class Tracker:
         return float(motor.torque(rate)), H
 
     def _correct(self, m: Measurement) -> bool:
+        """Correct the estimate with ``m`` (gated); return whether it was taken."""
         value, H = self._prediction(m.kind)
         z = m.value
         if m.kind == "crank_angle":
@@ -576,6 +582,7 @@ class Tracker:
         return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
 
     def _reaction_values(self, e: Any) -> np.ndarray:
+        """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e``."""
         sim = self.sim
         rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
         return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
@@ -602,5 +609,5 @@ def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, 
 
 
 def _sd(variance: float) -> float:
-    """The standard deviation of a variance that round-off may have made slightly negative."""
+    """Return the standard deviation of a variance that round-off may have made slightly negative."""
     return math.sqrt(max(float(variance), 0.0))

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..dynamics.reactions import compute_reactions
 from ..run.simulation import Simulation
+from ..scene.scene import EffectSpec
 from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
 
 if TYPE_CHECKING:
@@ -126,13 +127,12 @@ def truth_scene(nominal: Scene, changes: TruthChanges | None = None) -> Scene:
             p = blanking
         effects.append(replace(e, params=p))
     if "blanking" not in kinds:
-        effects.append(replace(_spec_like(nominal), kind="blanking", params=blanking))
+        effects.append(EffectSpec("blanking", blanking))
     if "joint_friction" not in kinds:
         effects.append(
-            replace(
-                _spec_like(nominal),
-                kind="joint_friction",
-                params={
+            EffectSpec(
+                "joint_friction",
+                {
                     "coulomb": c.joint_friction_nm * c.friction,
                     "viscous": 0.0,
                     "rate_smooth": 0.05,
@@ -142,10 +142,9 @@ def truth_scene(nominal: Scene, changes: TruthChanges | None = None) -> Scene:
         )
     if "guide_friction" not in kinds:
         effects.append(
-            replace(
-                _spec_like(nominal),
-                kind="guide_friction",
-                params={"coulomb": c.guide_friction_n * c.friction, "viscous": 0.0, "speed_smooth": 1e-3},
+            EffectSpec(
+                "guide_friction",
+                {"coulomb": c.guide_friction_n * c.friction, "viscous": 0.0, "speed_smooth": 1e-3},
             )
         )
     return replace(nominal, name=nominal.name + "-truth", bodies=bodies, effects=tuple(effects))
@@ -166,16 +165,12 @@ def with_blanking(scene: Scene, table: dict | None = None) -> Scene:
     default :data:`PRESET_PART`), in place of any it blanks."""
     params = _blanking_params(PRESET_PART if table is None else table)
     kept = tuple(e for e in scene.effects if e.kind != "blanking")
-    spec = replace(_spec_like(scene), kind="blanking", params=params)
+    spec = EffectSpec("blanking", params)
     return replace(scene, effects=kept + (spec,))
 
 
-def _spec_like(scene: Scene) -> Any:
-    return scene.effects[0]
-
-
 def _blanking_params(raw: dict) -> dict:
-    """The blanking effect's SI parameters from a scene file's table (checked as a scene's)."""
+    """Return the blanking effect's SI parameters from a scene file's table (checked as a scene's)."""
     from ..scene import scene_from_dict
 
     scene = scene_from_dict(
@@ -283,7 +278,7 @@ def run_truth(
 
 
 def _truth_row(sim: Simulation, blanking: list) -> tuple:
-    """(t, φ, φ̇, x_C, process force, foundation force x, y, locked) of the truth now."""
+    """Return (t, φ, φ̇, x_C, process force, foundation force x, y, locked) of the truth now."""
     e = sim.solver.current
     phi, phi_dot, _psi, _psi_dot, x_C, v_C = sim.joint_state()
     locked = sim.structure == "locked"
@@ -293,7 +288,7 @@ def _truth_row(sim: Simulation, blanking: list) -> tuple:
 
 
 def _read(sensors: Sensors, enc: Encoder, row: tuple, rng: np.random.Generator, sim: Simulation) -> list:
-    """The sensors' measurements at one sampling instant of the truth."""
+    """Return the sensors' measurements at one sampling instant of the truth."""
     t, phi, phi_dot, x_C = row[:4]
     noise = float(rng.normal(0.0, enc.noise_counts)) * enc.lsb
     out = [enc.measurement(t, enc.count(phi, noise))]
@@ -311,7 +306,7 @@ def _read(sensors: Sensors, enc: Encoder, row: tuple, rng: np.random.Generator, 
 
 
 def _fault_actions(effects: list, faults: tuple[Fault, ...]) -> list[tuple[float, Any]]:
-    """(time, action) pairs that change the truth's effects as the faults say."""
+    """Return the (time, action) pairs that change the truth's effects as the faults say."""
     out: list[tuple[float, Any]] = []
     for fault in faults:
         for e in effects:
@@ -327,9 +322,10 @@ def _fault_actions(effects: list, faults: tuple[Fault, ...]) -> list[tuple[float
 
 
 def _scaled(effect: Any, name: str, factor: float) -> Any:
-    """An action that multiplies an effect's parameter by ``factor`` (by assignment)."""
+    """Return an action that multiplies an effect's parameter by ``factor`` (by assignment)."""
 
     def action() -> None:
+        """Multiply the parameter."""
         setattr(effect, name, getattr(effect, name) * factor)
 
     return action

@@ -107,13 +107,3 @@ def test_the_encoder_quantises_to_its_counts():
     assert abs(enc.angle(c) - phi) <= 0.5 * enc.lsb
     assert enc.count(phi + 2 * math.pi) == c
     assert enc.variance == pytest.approx(enc.lsb**2 / 12)
-
-
-def test_a_double_blank_doubles_the_truth_force():
-    nominal = with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
-    truth = truth_scene(nominal)
-    healthy = run_truth(truth, 0.25, seed=1)
-    faulty = run_truth(truth, 0.25, seed=1, faults=(Fault(0.1, "double-blank"),))
-    first, second = healthy.t < 0.1, healthy.t >= 0.1
-    assert faulty.force[first].max() == pytest.approx(healthy.force[first].max())
-    assert faulty.force[second].max() > 1.8 * healthy.force[second].max()
