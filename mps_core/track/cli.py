@@ -79,7 +79,11 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument("--out", metavar="FILE", help="write the estimates to FILE")
     t.add_argument("--strokes", metavar="FILE", help="write the per-stroke table to FILE")
-    t.add_argument("--loads", action="store_true", help="the reactions and foundation load at every step")
+    t.add_argument(
+        "--loads",
+        action="store_true",
+        help="the reactions and foundation load at every step (the smoother's, two steps back, at t_loads)",
+    )
     t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
     t.add_argument("--force", action="store_true", help="replace output files that exist")
@@ -180,14 +184,16 @@ def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> t
             tracker.mode(pending.pop(0))
         c0 = time.process_time()
         taken = tracker.update(m)
-        rx = tracker.loads() if loads else None
-        tracker.observe_stroke(rx)
+        smoothed = tracker.smoothed_loads() if loads else None
+        tracker.observe_stroke(None if smoothed is None else smoothed[1])
         cpu.append(time.process_time() - c0)
         if taken:
             est = tracker.estimate()
             row = {c: getattr(est, c) for c in ESTIMATE_COLUMNS}
-            for name, (v, s) in (rx or {}).items():
-                row[name], row[name + "_sigma"] = v, s
+            if smoothed is not None:
+                row["t_loads"] = smoothed[0]
+                for name, (v, s) in smoothed[1].items():
+                    row[name], row[name + "_sigma"] = v, s
             rows.append(row)
     return rows, np.asarray(cpu)
 
@@ -199,7 +205,7 @@ def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None
     if args.out:
         columns = list(ESTIMATE_COLUMNS)
         if args.loads:
-            columns += [c + s for c in LOAD_COLUMNS for s in ("", "_sigma")]
+            columns += ["t_loads"] + [c + s for c in LOAD_COLUMNS for s in ("", "_sigma")]
         with written_whole(args.out) as tmp, tmp.open("w") as fh:
             _table(fh, columns, rows)
         print(f"wrote {len(rows)} estimates to {args.out}")
@@ -257,14 +263,18 @@ def _against_truth(args: argparse.Namespace, nominal: Any, tracker: Tracker) -> 
         )
     )
     true = truth_strokes(truth)
-    print("stroke  peak force err (%)  work err (%)  peak foundation err (%)   (complete strokes)")
+    print(
+        "stroke  peak force err (%)  (truth's peak step average, %)  work err (%)  "
+        "peak foundation err (%)   (complete strokes)"
+    )
     for s in tracker.strokes.strokes:
         t = true.get(s.index)
         if t is None or not t["complete"]:
             continue
         found = 100 * (s.peak_foundation / t["peak_foundation_N"] - 1) if args.loads else math.nan
+        resolvable = 100 * (t["peak_step_average_N"] / t["peak_force_N"] - 1)
         print(
-            f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.1f}  "
+            f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.1f}  {resolvable:+30.1f}  "
             f"{100 * (s.work / t['work_J'] - 1):+12.1f}  {found:+22.1f}"
         )
     if tracker.fallbacks:

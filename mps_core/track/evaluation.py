@@ -74,16 +74,16 @@ def follow(tracker: Tracker, truth: TruthRun, *, loads: bool = True, cpu_clock: 
             tracker.mode(modes.pop(0))
         c0 = clock()  # type: ignore[operator]
         taken = tracker.update(m)
-        rx = tracker.loads() if loads else None
-        tracker.observe_stroke(rx)
+        smoothed = tracker.smoothed_loads() if loads else None
+        tracker.observe_stroke(None if smoothed is None else smoothed[1])
         out.cpu.append(clock() - c0)  # type: ignore[operator]
         if not taken or m.kind != "crank_angle":
             continue
-        _compare(tracker, truth, rx, out)
+        _compare(tracker, truth, smoothed, out)
     return out
 
 
-def _compare(tracker: Tracker, truth: TruthRun, rx: dict | None, out: Followed) -> None:
+def _compare(tracker: Tracker, truth: TruthRun, smoothed: tuple[float, dict] | None, out: Followed) -> None:
     """Add the present estimate's normalised error, coverage and foundation error to ``out``."""
     est = tracker.estimate()
     tv = truth.at(est.t)
@@ -100,9 +100,11 @@ def _compare(tracker: Tracker, truth: TruthRun, rx: dict | None, out: Followed) 
     sd = np.sqrt(np.maximum(np.diag(C), 0.0))
     out.covered.extend(bool(abs(a) <= s) for a, s in zip(e, sd))
     out.t.append(est.t)
-    if rx is not None:
+    if smoothed is not None:
+        t_loads, rx = smoothed
         f_est, _ = foundation_magnitude(rx)
-        f_true = math.hypot(tv["foundation_x"], tv["foundation_y"])
+        at = truth.at(t_loads)
+        f_true = math.hypot(at["foundation_x"], at["foundation_y"])
         out.foundation_error.append(f_est - f_true)
         out.foundation_true.append(f_true)
 
@@ -115,10 +117,20 @@ def truth_strokes(truth: TruthRun, phi_tdc: float = 0.0) -> dict[int, dict[str, 
     dx = np.diff(truth.x_C)
     f_mid = 0.5 * (truth.force[1:] + truth.force[:-1])
     dw = -f_mid * dx
+    # the force averaged over each step between two encoder stamps (what a force constant over
+    # each step can show at best), by the trapezoid rule on the fine grid
+    stamps = np.array(sorted({m.t for m in truth.measurements if m.kind == "crank_angle"}))
+    impulse = np.concatenate([[0.0], np.cumsum(f_mid * np.diff(truth.t))])
+    at = np.interp(stamps, truth.t, impulse)
+    averages = np.diff(at) / np.diff(stamps)
+    middle = 0.5 * (stamps[1:] + stamps[:-1])
+    k_mid = np.array([stroke_index(p, phi_tdc) for p in np.interp(middle, truth.t, truth.phi)])
     for s in np.unique(k[truth.locked]):
         rows = (k == s) & truth.locked
         steps = rows[1:] & rows[:-1]
+        in_stroke = averages[k_mid == s]
         out[int(s)] = {
+            "peak_step_average_N": float(in_stroke.max()) if len(in_stroke) else math.nan,
             "peak_force_N": float(truth.force[rows].max()),
             "work_J": float(dw[steps].sum()),
             "peak_foundation_N": float(f_found[rows].max()),

@@ -45,6 +45,7 @@ from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions
 from ..errors import MpsError
 from ..run.simulation import Simulation
 from ..solvers import ADAPTIVE_SOLVERS
+from . import lags
 from .measurements import Measurement, MeasurementError, ModeSignal
 from .settings import TrackSettings
 from .strokes import StrokeTable, stroke_index
@@ -135,7 +136,7 @@ class Tracker:
         s = self.settings
         e = self.sim.solver.current
         lag = s.force_lag
-        self.x = np.concatenate([e.q, e.qd, np.zeros(3 + lag)])
+        self.x = np.concatenate([e.q, e.qd, np.zeros(3)])
         scales = np.asarray(self.sim.view.scales, dtype=float)
         self.P = np.diag(
             np.concatenate(
@@ -143,10 +144,10 @@ class Tracker:
                     (sigma[0] * scales) ** 2,
                     (sigma[1] * scales) ** 2,
                     [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0],
-                    np.zeros(lag),
                 ]
             )
         )
+        self.x, self.P = lags.restart(self.x, self.P, self.n, lag)
         if not self._window_now():
             self._hold_force()
 
@@ -225,7 +226,7 @@ class Tracker:
         q, r = slice(0, n), slice(n, 2 * n)
         i = 2 * n
         lag = self.settings.force_lag
-        j = len(self.x) - 1 if lag else i
+        j = lags.slot(n, lag).stop - 1 if lag else i
         ends = self._starts + [self.sim.t]  # the last steps' boundaries
         t_smoothed = self.sim.t
         if lag and len(ends) > lag:
@@ -330,15 +331,15 @@ class Tracker:
         Phi = self._step_map(J * dt)
         P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
         F, tau, W = self.x[2 * n : 2 * n + 3]
-        lagged = self.x[2 * n + 3 : 2 * n + 3 + self.settings.force_lag]
-        lagged = np.concatenate([[F], lagged])[: len(lagged)]
+        lagged = lags.shifted(self.x, n, self.settings.force_lag)
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
+        x = np.concatenate([e1.q, e1.qd, [F, tau, W], lagged])
         if sim.view is not view0:
-            P = self._carry(P, e0, e1, structure0 != sim.structure)
-        self.finish_step(t0, e0, structure0, np.concatenate([e1.q, e1.qd, [F, tau, W], lagged]), P)
+            x, P = self._carry(x, P, e0, e1, structure0 != sim.structure)
+        self.finish_step(t0, e0, structure0, x, P)
 
     def finish_step(self, t0: float, e0: Any, structure0: str, x: np.ndarray, P: np.ndarray) -> None:
         """Take (x, P) predicted over a step from t0 (where the run's evaluation was e0, in
@@ -354,15 +355,13 @@ class Tracker:
         self._follow_strokes()
 
     def _step_map(self, Adt: np.ndarray) -> np.ndarray:
-        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order, and
-        the lagged forces shifted (the first takes the force that acted over the step)."""
+        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order,
+        and the slots shifted (:mod:`~mps_core.track.lags`)."""
         k = Adt.shape[0]
         m = len(self.x)
         Phi = np.zeros((m, m))
         Phi[:k, :k] = np.eye(k) + Adt + 0.5 * (Adt @ Adt)
-        if m > k:
-            Phi[k, k - 3] = 1.0
-            Phi[k + 1 :, k : m - 1] = np.eye(m - k - 1)
+        lags.step_rows(Phi, (k - 3) // 2, self.settings.force_lag)
         return Phi
 
     def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
@@ -423,16 +422,21 @@ class Tracker:
         Q[2 * n + 1, 2 * n + 1] = s.torque_walk**2 * dt
         return Q
 
-    def _carry(self, P: np.ndarray, e0: Any, e1: Any, impact: bool) -> np.ndarray:
-        """Carry P from the chart view of e0 into that of e1, through (φ, ψ, x_C)."""
+    def _carry(
+        self, x: np.ndarray, P: np.ndarray, e0: Any, e1: Any, impact: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Carry (x, P) from the chart view of e0 into that of e1: P's core through (φ, ψ, x_C),
+        x's core from the run (it is there already); the slots start again."""
+        n0, n1 = e0.view.n, e1.view.n
+        k0, k1 = lags.core_size(n0), lags.core_size(n1)
         T0 = self._physical_map(e0)
-        T1 = self._physical_map(e1)
-        P1 = np.linalg.pinv(T1) @ (T0 @ P @ T0.T) @ np.linalg.pinv(T1).T
+        T1 = np.linalg.pinv(self._physical_map(e1))
+        P1 = T1 @ (T0 @ P[:k0, :k0] @ T0.T) @ T1.T
         if impact:
-            n1 = e1.view.n
             r = slice(n1, 2 * n1)
             P1[r, r] *= self.settings.event_inflation
-        return P1
+        self._starts = []
+        return lags.restart(x[:k1], P1, n1, self.settings.force_lag)
 
     def _physical_map(self, e: Any) -> np.ndarray:
         """Return the map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
@@ -443,11 +447,10 @@ class Tracker:
             [kin.omega("crank"), kin.omega("rocker"), [v / scale for v in kin.jac("C")[0]]],
             dtype=float,
         )
-        rest = 3 + self.settings.force_lag  # the inputs, the work and the lagged forces
-        T = np.zeros((6 + rest, 2 * n + rest))
+        T = np.zeros((9, 2 * n + 3))
         T[:3, :n] = G
         T[3:6, n : 2 * n] = G
-        T[6:, 2 * n :] = np.eye(rest)
+        T[6:, 2 * n :] = np.eye(3)
         return T
 
     def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
@@ -551,34 +554,61 @@ class Tracker:
         )
 
     def loads(self) -> dict[str, tuple[float, float]]:
-        """Return the joint reactions and the foundation load at the estimate: name → (value,
-        1-σ)."""
-        sim = self.sim
-        e = sim.solver.current
-        view, n = e.view, e.view.n
-        fun = sim.engine.evaluator(view)
-        base = self._reaction_values(e)
-        steps = np.concatenate(
-            [1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(e.qd)), [1.0, 1e-2]]
-        )
-        J = np.zeros((len(base), 2 * n + 2))
-        for j, h in enumerate(steps):
-            if j < 2 * n:
-                q, qd = e.q.copy(), e.qd.copy()
-                (q if j < n else qd)[j % n] += h
+        """Return the joint reactions and the foundation load at the present estimate: name →
+        (value, 1-σ)."""
+        n = self.n
+        i = 2 * n
+        e = self.sim.solver.current
+        where = list(range(2 * n)) + [i, i + 1]
+        return self._loads_at(e.t, e.q, e.qd, self.x[i], where)
+
+    def smoothed_loads(self) -> tuple[float, dict[str, tuple[float, float]]]:
+        """Return the time ``force_lag`` steps back and the joint reactions and the foundation
+        load there, from the fixed-lag smoother's state and force (the present ones where the
+        slots have not filled since the chart view last changed)."""
+        lag = self.settings.force_lag
+        if lag == 0 or len(self._starts) < lag:
+            return self.sim.t, self.loads()
+        n = self.n
+        sl = lags.slot(n, lag)
+        x = self.x[sl]
+        where = list(range(sl.start, sl.start + 2 * n)) + [sl.stop - 1, 2 * n + 1]
+        t = self._starts[-lag]
+        return t, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
+
+    def _loads_at(
+        self, t: float, q: np.ndarray, qd: np.ndarray, force: float, where: list[int]
+    ) -> dict[str, tuple[float, float]]:
+        """Return the loads at (t, q, q̇) with the process force ``force`` and the present load
+        torque, their 1-σ from the covariance of the state's components ``where`` (those of q,
+        q̇, the force, the torque)."""
+        view, n = self.sim.view, self.n
+        fun = self.sim.engine.evaluator(view)
+        q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
+        saved = list(self.inputs.values)
+        self.inputs.values[0] = float(force)
+        try:
+            base = self._reaction_values(fun(t, q, qd))
+            steps = np.concatenate(
+                [1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(qd)), [1.0, 1e-2]]
+            )
+            J = np.zeros((len(base), 2 * n + 2))
+            for j, h in enumerate(steps):
+                qj, qdj = q.copy(), qd.copy()
+                if j < 2 * n:
+                    (qj if j < n else qdj)[j % n] += h
+                else:
+                    self.inputs.values[j - 2 * n] += h
                 try:
-                    J[:, j] = (self._reaction_values(fun(e.t, q, qd)) - base) / h
+                    J[:, j] = (self._reaction_values(fun(t, qj, qdj)) - base) / h
                 except (MpsError, ArithmeticError, ValueError):
-                    continue
-            else:
-                k = j - 2 * n
-                saved = list(self.inputs.values)
-                self.inputs.values[k] += h
-                try:
-                    J[:, j] = (self._reaction_values(fun(e.t, e.q, e.qd)) - base) / h
-                finally:
-                    self.inputs.values[:] = saved
-        var = np.einsum("ij,jk,ik->i", J, self.P[: 2 * n + 2, : 2 * n + 2], J)
+                    pass
+                self.inputs.values[0] = float(force)
+                self.inputs.values[1] = saved[1]
+        finally:
+            self.inputs.values[:] = saved
+        C = self.P[np.ix_(where, where)]
+        var = np.einsum("ij,jk,ik->i", J, C, J)
         return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
 
     def _reaction_values(self, e: Any) -> np.ndarray:

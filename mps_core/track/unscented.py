@@ -22,6 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..errors import MpsError
+from . import lags
 from .settings import TrackSettings
 from .unknown_inputs import UnknownInputs
 
@@ -73,7 +74,7 @@ def unscented_step(tracker: Predicted, t1: float) -> tuple[np.ndarray, np.ndarra
             e1 = sim.solver.current
             F, tau, W = p[2 * n : 2 * n + 3]
             W = W - F * (float(e1.kin.xy("C")[0]) - x_C0)
-            lagged = np.concatenate([[F], p[2 * n + 3 : 2 * n + 3 + lag]])[:lag]
+            lagged = lags.shifted(p, n, lag)
             ends.append(np.concatenate([e1.q, e1.qd, [F, tau, W], lagged]))
     except (_Disagree, MpsError, ArithmeticError, ValueError):
         sim.restore(start)
