@@ -40,6 +40,8 @@ def shifted(x: np.ndarray, n: int, lag: int) -> np.ndarray:
 
 def step_rows(Phi: np.ndarray, n: int, lag: int) -> None:
     """Fill the slots' rows of a step's Φ (the core's rows filled already)."""
+    if lag == 0:
+        return
     k = core_size(n)
     w = 2 * n + 1
     for i in range(2 * n + 1):  # slot 1 takes the step's start: (q, q̇, F_p)

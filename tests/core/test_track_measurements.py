@@ -107,3 +107,19 @@ def test_the_encoder_quantises_to_its_counts():
     assert abs(enc.angle(c) - phi) <= 0.5 * enc.lsb
     assert enc.count(phi + 2 * math.pi) == c
     assert enc.variance == pytest.approx(enc.lsb**2 / 12)
+
+
+def test_without_the_smoother_the_present_force_is_the_stroke_peak(stream):
+    """force_lag = 0: no slots; the stroke table takes the present force (its 1-sigma the
+    random walk's step, tens of kN, where the smoother's is about 1.5 kN)."""
+    nominal, good = stream
+    plain = Tracker(nominal, TrackSettings(force_lag=0))
+    smoothed = Tracker(nominal)
+    for m in good:
+        for tracker in (plain, smoothed):
+            tracker.update(m)
+            tracker.observe_stroke()
+    assert len(plain.x) == 5 and len(smoothed.x) == 5 + 2 * 3
+    a, b = plain.strokes.current, smoothed.strokes.current  # the first stroke, its pulse past
+    assert a.peak_force > 20e3 and b.peak_force > 20e3
+    assert a.peak_force_sigma > 5.0 * b.peak_force_sigma
