@@ -4,15 +4,16 @@
 (n = 1 in ``held`` and ``locked``, 2 in ``free``), augmented with the unknown inputs
 (:mod:`mps_core.track.unknown_inputs`): the process force F_p on the slider and the load torque
 tau_b on the crank, both random walks, and the work W the punch has done in the stroke under way
-(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre). x = (q, q̇, F_p, tau_b, W),
-2n + 3 numbers.
+(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre): (q, q̇, F_p, tau_b, W), 2n + 3
+numbers, followed by the fixed-lag smoother's slots (:mod:`mps_core.track.lags`): the state and
+the force of each of the last ``force_lag`` steps.
 
 **Prediction.** The mean goes through the model's own run (:class:`~mps_core.run.simulation.
 Simulation` of the nominal scene, without its process load and its commands, with the unknown
 inputs as an effect), so that structures, impacts, chart changes and every event are located as
 the simulation locates them. The covariance goes through the step map's Jacobian
 Φ = exp(J·Δt) (to second order), J the continuous Jacobian at the step's start: ∂q̈/∂q and
-∂q̈/∂q̇ by central differences of the engine's generated q̈, ∂q̈/∂F_p = A⁻¹·∂x_C/∂q and
+∂q̈/∂q̇ by forward differences of the engine's q̈ from the run's own, ∂q̈/∂F_p = A⁻¹·∂x_C/∂q and
 ∂q̈/∂tau_b = A⁻¹·∂φ/∂q exactly from the mass matrix and the analogs. Near the bottom dead centre
 ∂x_C/∂q → 0: the crank says nothing of F_p there, and its variance grows as its random walk
 says (what the estimate must show). Where the run changes chart or structure within a step, the
@@ -21,11 +22,12 @@ T_oldᵀ·T⁺ᵀ, the rates' part inflated at a change of structure (an impact 
 estimated state).
 
 **Update.** Each scalar measurement (:mod:`mps_core.track.measurements`) in turn, Joseph form.
-Rejected, counted by reason in :attr:`Tracker.rejected` and leaving the estimate as it was: a
-stamp already seen (``duplicate``), older than the last of its kind (``out-of-order``), older
-than the tracker's present time (``late``), not finite (``not-finite``), a crank angle that
-would have jumped by ``max_jump`` or more (``jump``), an innovation beyond the gate
-(``outlier``). A gap longer than ``timeout`` is counted (``gap``) and the measurement taken.
+Rejected and counted by reason in :attr:`Tracker.rejected`, the estimate left exactly as it was:
+a stamp already seen (``duplicate``), older than the last of its kind (``out-of-order``), older
+than the tracker's present time (``late``), not finite (``not-finite``), a crank angle
+``max_jump`` or more from where its rate takes it (``jump``). An innovation beyond the gate
+(``outlier``) is rejected after the estimate is predicted to its stamp (it is not corrected).
+A gap longer than ``timeout`` is counted (``gap``) and the measurement taken.
 
 **Loads.** The joint reactions and the foundation load at the estimated state and inputs
 (:func:`~mps_core.dynamics.reactions.compute_reactions`), their standard deviations from the
@@ -182,7 +184,7 @@ class Tracker:
         return int(self.sim.view.n)
 
     def _hold_force(self) -> None:
-        """Set the process force to zero with no variance (the punch works only when locked)."""
+        """Set the process force to zero with no variance (outside the work window)."""
         i = 2 * self.n
         was = self.inputs.values[0]
         self.x[i] = 0.0
