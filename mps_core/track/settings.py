@@ -40,6 +40,9 @@ class TrackSettings:
     states (a fixed-lag smoother: the force over a step shows in the crank only at the next
     samples, so the force ``force_lag`` steps back is known far better than the present one).
     ``prediction``: one of :data:`PREDICTIONS` (docs/tracking.md: how they compare).
+    Without mode signals the structure follows a slider scale: engaged where the slider is
+    measured ``engage_drop`` (m) below its top stop while held there, disengaged where the
+    crank-slider misses the slider's position (an outlier) ``disengage_misses`` times running.
     """
 
     force_walk: float = 8.0e5
@@ -51,6 +54,8 @@ class TrackSettings:
     timeout: float = 0.05
     event_inflation: float = 4.0
     force_lag: int = 2
+    engage_drop: float = 5e-5
+    disengage_misses: int = 3
     prediction: str = "jacobian"
     initial_force_sigma: float = 500.0
     initial_torque_sigma: float = 5.0
@@ -73,6 +78,10 @@ class TrackSettings:
             isinstance(self.work_zone_top, float | int) and math.isfinite(self.work_zone_top)
         ):
             raise MeasurementError("track.work_zone_top", self.work_zone_top, "a slider position (m) or None")
+        if not (isinstance(self.engage_drop, float | int) and 0.0 < self.engage_drop < 0.01):
+            raise MeasurementError("track.engage_drop", self.engage_drop, "a distance in (0, 0.01) m")
+        if not (isinstance(self.disengage_misses, int) and self.disengage_misses >= 1):
+            raise MeasurementError("track.disengage_misses", self.disengage_misses, "an integer >= 1")
         if self.prediction not in PREDICTIONS:
             raise MeasurementError("track.prediction", self.prediction, "one of " + ", ".join(PREDICTIONS))
         if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):

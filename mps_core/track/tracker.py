@@ -160,6 +160,12 @@ class Tracker:
         self.fallbacks = 0
         #: the process force's variance before the last measurement taken
         self.force_prior_variance = 0.0
+        #: whether the press gives mode signals (else the structure follows the measurements)
+        self.signalled = False
+        #: the commands inferred from the measurements, by name
+        self.inferred: Counter[str] = Counter()
+        self._slider_misses = 0
+        self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
         self.innovations: list[tuple[float, str, float]] = []
         self._last: dict[str, float] = {}
@@ -267,11 +273,72 @@ class Tracker:
     # -- mode signals ---------------------------------------------------------------------
     def mode(self, signal: ModeSignal) -> None:
         """Apply a mode signal of the press's controller at its stamp (now, if it is past)."""
-        t = None if signal.t <= self.sim.t else signal.t
+        self.signalled = True
+        if signal.t > self.sim.t:
+            try:
+                self.sim.command(signal.command, signal.t)
+            except MpsError:
+                self.rejected["mode"] += 1
+            return
+        self._command_now(signal.command)
+
+    def _command_now(self, command: str) -> bool:
+        """Apply a command to the model now, the state carried into the chart view it leaves
+        the run in; return whether the model took it."""
+        sim = self.sim
+        e0, structure0, n0 = sim.solver.current, sim.structure, sim.view.n
         try:
-            self.sim.command(signal.command, t)
+            sim.command(command)
         except MpsError:
             self.rejected["mode"] += 1
+            return False
+        e1 = sim.solver.current
+        x = np.concatenate([e1.q, e1.qd, self.x[2 * n0 : 2 * n0 + 3]])
+        if sim.view is not e0.view:
+            self.x, self.P = self._carry(x, self.P, e0, e1, structure0 != sim.structure)
+        else:
+            self.x[: 2 * n0] = x[: 2 * n0]
+        if not self._window_now():
+            self._hold_force()
+        return True
+
+    def _infer_mode(self, m: Measurement, predicted: float, nis: float) -> None:
+        """Follow the structure from the slider's position where no mode signal comes: engaged
+        when the slider is measured ``engage_drop`` below its top stop while idle (and back on
+        its stop since the last disengage);
+        disengaged when the crank-slider's slider position is missed ``disengage_misses``
+        times running."""
+        sim = self.sim
+        top = sim.mechanism.x_top
+        s = self.settings
+        if sim.structure == "held":
+            self._returned = True  # the slider back on its stop since the last disengage
+        idle = sim.structure != "locked" and not sim.controls.engage_on and self._returned
+        if idle and top is not None and m.value < top - s.engage_drop:
+            if self._command_now("engage"):
+                self.inferred["engage"] += 1
+                self._widen(s.engage_drop)
+            return
+        if sim.structure != "locked":
+            return
+        self._slider_misses = self._slider_misses + 1 if nis > s.gate else 0
+        if self._slider_misses >= s.disengage_misses and self._command_now("disengage"):
+            self.inferred["disengage"] += 1
+            self._slider_misses = 0
+            self._returned = False
+            self._widen(abs(m.value - predicted))
+
+    def _widen(self, distance: float) -> None:
+        """Widen the covariance of (q, q̇) after a command applied late (found from the
+        measurements): the model is behind the press by what the slider moved meanwhile,
+        ``distance`` (m), within about a millisecond."""
+        n = self.n
+        scales = np.asarray(self.sim.view.scales, dtype=float)
+        lever = float(self.sim.mechanism.geometry.l1)
+        sigma = distance / lever * scales  # in each coordinate's units
+        idx = np.arange(n)
+        self.P[idx, idx] += sigma**2
+        self.P[n + idx, n + idx] += (sigma / 1e-3) ** 2
 
     # -- measurements ---------------------------------------------------------------------
     def update(self, m: Measurement) -> bool:
@@ -485,6 +552,12 @@ class Tracker:
         if m.kind == "crank_angle":
             z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))  # the encoder's turns
         y = z - value
+        if m.kind == "slider_position" and not self.signalled:
+            S0 = float(H @ self.P @ H) + m.variance
+            self._infer_mode(m, value, y * y / S0)
+            if self.sim.view.n != (len(H) - 3) // 2 or len(H) != len(self.x):
+                value, H = self._prediction(m.kind)  # the structure moved: predicted again
+                y = z - value
         i = 2 * self.n
         #: the process force's variance before this measurement (what it learned: how much less after)
         self.force_prior_variance = float(self.P[i, i])

@@ -128,3 +128,19 @@ def test_the_modes_are_followed_from_the_signals():
     assert f.nees_inside() >= 0.9
     est = tracker.estimate()
     assert abs(est.phi - truth.at(est.t)["phi"]) < 5 * est.phi_sigma
+
+
+def test_the_modes_are_followed_from_a_slider_scale_without_signals():
+    """press-cycle without its mode signals, with a slider scale: engaged where the slider
+    leaves its stop, the latch closing where the truth's does, disengaged where the slider
+    leaves the crank-slider's path."""
+    nominal = load_scene("press-cycle")
+    truth = run_truth(truth_scene(nominal), 0.47, sensors=Sensors(slider=True), seed=7)
+    truth.modes.clear()
+    tracker = Tracker(nominal)
+    f = follow(tracker, truth, loads=False)
+    assert tracker.inferred == {"engage": 1, "disengage": 1}
+    events = {e["kind"]: e["t"] for e in tracker.sim.events if e["kind"] in ("latch-closes", "latch-opens")}
+    assert abs(events["latch-closes"] - truth.t[np.argmax(truth.locked)]) < 1e-3
+    assert 0.4351 < events["latch-opens"] < 0.4351 + 0.015  # 3 slider samples missed, then
+    assert f.nees_inside() >= 0.9
