@@ -124,6 +124,7 @@ PLUGINS = (
     "mps_core.analysis.loads_cli",
     "mps_core.analysis.sweep_cli",
     "mps_core.bench.cli",
+    "mps_core.track.cli",
 )
 
 

@@ -301,6 +301,12 @@ class Simulation:
         q, qd = self.solver.dense_output()(t_e)
         self.solver = self._new_solver(t_e, np.array(q, float), np.array(qd, float))
 
+    def restart_at(self, q, qd) -> None:
+        """Take (q, q̇) in the present chart view as the state now and restart the solver there
+        (a state estimator's correction of the run it follows)."""
+        self._restart(self.view, self.solver.t, np.asarray(q, dtype=float), np.asarray(qd, dtype=float))
+        self.observables.update_phys(self.solver.current)
+
     # -- commands (the structure layer's) -------------------------------------------------
     def check_command(self, name) -> None:
         """Raise :class:`CommandRefused` if ``name`` makes no sense now."""

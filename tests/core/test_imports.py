@@ -124,6 +124,7 @@ LAYERS = (
     ("mps_core.codegen",),
     ("mps_core.dynamics",),
     ("mps_core.run",),
+    ("mps_core.track",),
     ("mps_core.analysis",),
     ("mps_core", "mps_core.cli", "mps_core.bench"),
 )

@@ -1,0 +1,34 @@
+"""The tracking twin: follow a press from its sensors on the partial-system model.
+
+A layer above the run (``run/``) and below the commands, with no ROS: :class:`Tracker` (an
+extended Kalman filter whose mean is the model's own run), the measurements it reads
+(:mod:`~mps_core.track.measurements`), its tuning (:class:`TrackSettings`), the per-stroke table
+(:mod:`~mps_core.track.strokes`), and a press to follow: a truth scene read by its sensors
+(:mod:`~mps_core.track.truth`). How the filter was chosen, and what it achieves: docs/tracking.md.
+"""
+
+from __future__ import annotations
+
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+from .settings import TrackSettings
+from .strokes import StrokeEstimate, StrokeTable
+from .tracker import Estimate, Tracker
+from .truth import Fault, Sensors, TruthChanges, TruthRun, run_truth, truth_scene
+
+__all__ = [
+    "Encoder",
+    "Estimate",
+    "Fault",
+    "Measurement",
+    "MeasurementError",
+    "ModeSignal",
+    "Sensors",
+    "StrokeEstimate",
+    "StrokeTable",
+    "TrackSettings",
+    "Tracker",
+    "TruthChanges",
+    "TruthRun",
+    "run_truth",
+    "truth_scene",
+]

@@ -1,0 +1,282 @@
+"""``mps emulate`` and ``mps track``: a press to follow, and the tracker over its measurements.
+
+    mps emulate SCENE --csv FILE [--t-end S] [--seed N] [--slider] [--motor-torque]
+                      [--fault T:KIND ...] [--truth FILE] [--force]
+    mps track SCENE (--csv FILE | --against-truth S) [--out FILE] [--strokes FILE] [--loads]
+                    [--prediction jacobian|unscented] [--seed N] [--force]
+
+``mps emulate`` runs SCENE's *truth* (:func:`~mps_core.track.truth.truth_scene`: masses, friction,
+part and motor off the nominal) and writes what the press's sensors read
+(:mod:`~mps_core.track.measurement_csv`): a 17-bit encoder at 1 kHz with jittered stamps,
+optionally the slider's scale and the motor's torque, the mode signals; ``--truth`` writes the
+truth's own record beside it. ``mps track`` follows SCENE (the nominal press) over such a file
+and writes the estimates (one row a measurement taken, each with its 1-σ) and the per-stroke
+table; ``--against-truth S`` emulates S seconds itself and prints how the estimates compare with
+the truth (the tables of docs/tracking.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from typing import Any, TextIO
+
+import numpy as np
+
+from .measurements import Encoder, MeasurementError
+from .settings import PREDICTIONS, TrackSettings
+from .tracker import LOAD_COLUMNS, Tracker
+
+__all__ = ["register"]
+
+#: the estimates' columns (besides the loads' value and 1-σ with --loads)
+ESTIMATE_COLUMNS = (
+    "t",
+    "structure",
+    "phi",
+    "phi_sigma",
+    "phi_dot",
+    "phi_dot_sigma",
+    "x_C",
+    "x_C_sigma",
+    "force",
+    "force_sigma",
+    "torque",
+    "torque_sigma",
+    "work",
+    "work_sigma",
+    "force_smoothed",
+    "force_smoothed_sigma",
+    "t_force_smoothed",
+)
+
+
+def register(subparsers: Any) -> None:
+    """Add ``emulate`` and ``track`` to the ``mps`` command line."""
+    e = subparsers.add_parser("emulate", help="what a press's sensors read: a truth scene run and sampled")
+    e.add_argument("scene", help="the nominal press: preset name or scene file (its truth is run)")
+    e.add_argument("--csv", metavar="FILE", required=True, help="write the measurements to FILE")
+    e.add_argument("--t-end", type=float, default=0.5, metavar="S", help="seconds to run (0.5)")
+    e.add_argument("--seed", type=int, default=0, help="the noise's and the jitter's seed")
+    e.add_argument("--slider", action="store_true", help="a linear scale on the slider too")
+    e.add_argument("--motor-torque", action="store_true", help="the motor's torque too")
+    e.add_argument(
+        "--fault", action="append", default=[], metavar="T:KIND", help="inject a fault at T s (repeatable)"
+    )
+    e.add_argument("--truth", metavar="FILE", help="write the truth's record to FILE")
+    e.add_argument("--force", action="store_true", help="replace output files that exist")
+    e.set_defaults(func=_emulate)
+
+    t = subparsers.add_parser("track", help="follow a press from its measurements (offline)")
+    t.add_argument("scene", help="the nominal press: preset name or scene file")
+    src = t.add_mutually_exclusive_group(required=True)
+    src.add_argument("--csv", metavar="FILE", help="the measurements (mps emulate --csv)")
+    src.add_argument(
+        "--against-truth", type=float, metavar="S", help="emulate S seconds and compare with the truth"
+    )
+    t.add_argument("--out", metavar="FILE", help="write the estimates to FILE")
+    t.add_argument("--strokes", metavar="FILE", help="write the per-stroke table to FILE")
+    t.add_argument(
+        "--loads",
+        action="store_true",
+        help="the reactions and foundation load at every step (the smoother's, two steps back, at t_loads)",
+    )
+    t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
+    t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
+    t.add_argument("--force", action="store_true", help="replace output files that exist")
+    t.set_defaults(func=_track)
+
+
+def _nominal(spec: str) -> Any:
+    """Return the nominal scene of SPEC, blanking the presets' part where it blanks none."""
+    from ..scene import load_scene
+    from .truth import with_blanking
+
+    scene = load_scene(spec)
+    if not any(e.kind == "blanking" for e in scene.effects):
+        scene = with_blanking(scene)  # the nominal part: where the punch works
+    return scene
+
+
+def _faults(specs: list[str]) -> tuple:
+    """Return the faults of ``--fault T:KIND`` options."""
+    from .truth import FAULTS, Fault
+
+    out = []
+    for s in specs:
+        when, _, kind = s.partition(":")
+        try:
+            t = float(when)
+        except ValueError:
+            raise MeasurementError(
+                "--fault", s, f"T:KIND, T in seconds, KIND one of {', '.join(FAULTS)}"
+            ) from None
+        out.append(Fault(t, kind))
+    return tuple(out)
+
+
+def _emulate(args: argparse.Namespace) -> int:
+    """Run ``mps emulate``."""
+    from ..files.outputs import check_outputs, written_whole
+    from .measurement_csv import write_measurements
+    from .truth import Sensors, run_truth, truth_scene
+
+    check_outputs({"--csv": args.csv, "--truth": args.truth}, inputs=[args.scene], force=args.force)
+    nominal = _nominal(args.scene)
+    sensors = Sensors(slider=args.slider, motor_torque=args.motor_torque)
+    run = run_truth(
+        truth_scene(nominal), args.t_end, sensors=sensors, faults=_faults(args.fault), seed=args.seed
+    )
+    with written_whole(args.csv) as tmp, tmp.open("w") as fh:
+        rows = write_measurements(fh, run.measurements, run.modes)
+    said = f"{len(run.measurements)} measurements, {len(run.modes)} mode signals"
+    print(f"wrote {rows} rows ({said}) to {args.csv}")
+    if args.truth:
+        with written_whole(args.truth) as tmp, tmp.open("w") as fh:
+            w = csv.writer(fh, lineterminator="\n")
+            w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
+            for row in zip(
+                run.t, run.phi, run.phi_dot, run.x_C, run.force, run.foundation_x, run.foundation_y
+            ):
+                w.writerow([repr(float(v)) for v in row] + [""])
+        print(f"wrote {len(run.t)} rows of the truth to {args.truth}")
+    return 0
+
+
+def _track(args: argparse.Namespace) -> int:
+    """Run ``mps track``."""
+    from ..files.outputs import check_outputs
+
+    check_outputs(
+        {"--out": args.out, "--strokes": args.strokes}, inputs=[args.scene, args.csv], force=args.force
+    )
+    nominal = _nominal(args.scene)
+    tracker = Tracker(nominal, TrackSettings(prediction=args.prediction))
+    if args.against_truth is not None:
+        return _against_truth(args, nominal, tracker)
+    from .measurement_csv import read_measurements
+
+    enc = Encoder()
+    variances = {
+        "crank_angle": enc.variance,
+        "slider_position": 2e-12,
+        "crank_rate": 1e-4,
+        "motor_torque": 1.0,
+    }
+    measurements, modes = read_measurements(args.csv, variances)
+    rows, cpu = _follow(tracker, measurements, modes, args.loads)
+    _write(args, tracker, rows)
+    _summary(tracker, cpu)
+    return 0
+
+
+def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> tuple[list[dict], np.ndarray]:
+    """Run the tracker over the measurements and modes; return the estimates' rows and the
+    CPU time of each measurement."""
+    rows: list[dict] = []
+    cpu = []
+    pending = sorted(modes, key=lambda s: s.t)
+    for m in measurements:
+        while pending and pending[0].t <= m.t:
+            tracker.mode(pending.pop(0))
+        c0 = time.process_time()
+        taken = tracker.update(m)
+        smoothed = tracker.smoothed_loads() if loads else None
+        tracker.observe_stroke(None if smoothed is None else smoothed[1])
+        cpu.append(time.process_time() - c0)
+        if taken:
+            est = tracker.estimate()
+            row = {c: getattr(est, c) for c in ESTIMATE_COLUMNS}
+            if smoothed is not None:
+                row["t_loads"] = smoothed[0]
+                for name, (v, s) in smoothed[1].items():
+                    row[name], row[name + "_sigma"] = v, s
+            rows.append(row)
+    return rows, np.asarray(cpu)
+
+
+def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None:
+    """Write the estimates (``--out``) and the per-stroke table (``--strokes``)."""
+    from ..files.outputs import written_whole
+
+    if args.out:
+        columns = list(ESTIMATE_COLUMNS)
+        if args.loads:
+            columns += ["t_loads"] + [c + s for c in LOAD_COLUMNS for s in ("", "_sigma")]
+        with written_whole(args.out) as tmp, tmp.open("w") as fh:
+            _table(fh, columns, rows)
+        print(f"wrote {len(rows)} estimates to {args.out}")
+    if args.strokes:
+        strokes = [s.row() for s in tracker.strokes.strokes]
+        with written_whole(args.strokes) as tmp, tmp.open("w") as fh:
+            _table(fh, list(strokes[0]) if strokes else ["stroke"], strokes)
+        print(f"wrote {len(strokes)} strokes to {args.strokes}")
+
+
+def _table(fh: TextIO, columns: list[str], rows: list[dict]) -> None:
+    """Write rows as CSV under a header of ``columns``."""
+    w = csv.DictWriter(fh, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: (repr(float(v)) if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def _summary(tracker: Tracker, cpu: np.ndarray) -> None:
+    """Print what was taken and rejected, the CPU a measurement and the per-stroke table."""
+    rejected = ", ".join(f"{k} {v}" for k, v in sorted(tracker.rejected.items())) or "none"
+    print(f"measurements: {tracker.accepted} taken; rejected or reported: {rejected}")
+    if len(cpu):
+        us = cpu * 1e6
+        print(
+            f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
+            f"max {us.max():.0f} us ({len(cpu)} measurements)"
+        )
+    print("stroke  peak force (kN)      work (J)         peak foundation (kN)")
+    for s in tracker.strokes.strokes:
+        found = "-"
+        if math.isfinite(s.peak_foundation):
+            found = f"{s.peak_foundation / 1e3:7.2f} ± {s.peak_foundation_sigma / 1e3:5.2f}"
+        print(
+            f"{s.index:6d}  {s.peak_force / 1e3:7.2f} ± {s.peak_force_sigma / 1e3:5.2f}   "
+            f"{s.work:6.2f} ± {s.work_sigma:5.2f}   {found}"
+        )
+
+
+def _against_truth(args: argparse.Namespace, nominal: Any, tracker: Tracker) -> int:
+    """Emulate the truth, follow it, and print how the estimates compare with it."""
+    from .evaluation import follow, nis_inside, truth_strokes
+    from .truth import run_truth, truth_scene
+
+    truth = run_truth(truth_scene(nominal), args.against_truth, seed=args.seed)
+    f = follow(tracker, truth, loads=args.loads)
+    _summary(tracker, np.asarray(f.cpu))
+    print(
+        f"consistency: NEES inside its 95 % bound {f.nees_inside():.3f}, NIS {nis_inside(tracker):.3f}; "
+        f"1-sigma covers the truth {f.coverage():.3f}"
+        + (
+            f"; foundation RMS error {100 * f.foundation_rms_fraction():.2f} % of its peak"
+            if args.loads
+            else ""
+        )
+    )
+    true = truth_strokes(truth)
+    print(
+        "stroke  peak force err (%)  (truth's peak step average, %)  work err (%)  "
+        "peak foundation err (%)   (complete strokes)"
+    )
+    for s in tracker.strokes.strokes:
+        t = true.get(s.index)
+        if t is None or not t["complete"]:
+            continue
+        found = 100 * (s.peak_foundation / t["peak_foundation_N"] - 1) if args.loads else math.nan
+        resolvable = 100 * (t["peak_step_average_N"] / t["peak_force_N"] - 1)
+        print(
+            f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.1f}  {resolvable:+30.1f}  "
+            f"{100 * (s.work / t['work_J'] - 1):+12.1f}  {found:+22.1f}"
+        )
+    if tracker.fallbacks:
+        print(f"unscented prediction: {tracker.fallbacks} steps by the Jacobian", file=sys.stderr)
+    return 0

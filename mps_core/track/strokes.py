@@ -1,0 +1,94 @@
+"""The per-stroke table: each working stroke's peak process force, its work and the peak load
+on the foundation, each with its standard deviation.
+
+A stroke runs from one top dead centre of the locked crank-slider to the next: stroke ``k`` is
+where ``floor((φ − φ_TDC)/2π) = k`` with the latch closed (φ_TDC = 0 for the press: the rocker
+locked at ψ = 0 puts O, A, B, C on the guide's axis there). The work is the filter's integrated
+state (the work the punch does on the part, −∫F_p·ẋ_C dt, whose variance the filter carries
+with its correlations), read at the stroke's end; the peaks are the largest estimates over the
+stroke, with the 1-σ of the estimate where the peak is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["StrokeEstimate", "StrokeTable", "stroke_index"]
+
+
+def stroke_index(phi: float, phi_tdc: float = 0.0) -> int:
+    """Return the index of the stroke the crank angle ``phi`` (rad, unwrapped) lies in."""
+    return math.floor((phi - phi_tdc) / (2.0 * math.pi))
+
+
+@dataclass
+class StrokeEstimate:
+    """One stroke's figures (SI units), each with its 1-σ."""
+
+    index: int
+    t_start: float
+    t_end: float = math.nan
+    peak_force: float = -math.inf
+    peak_force_sigma: float = math.nan
+    t_peak_force: float = math.nan
+    work: float = math.nan
+    work_sigma: float = math.nan
+    peak_foundation: float = -math.inf
+    peak_foundation_sigma: float = math.nan
+
+    def row(self) -> dict[str, float]:
+        """Return the stroke as a table's row (column name → value)."""
+        return {
+            "stroke": float(self.index),
+            "t_start": self.t_start,
+            "t_end": self.t_end,
+            "peak_force_N": self.peak_force,
+            "peak_force_sigma_N": self.peak_force_sigma,
+            "t_peak_force": self.t_peak_force,
+            "work_J": self.work,
+            "work_sigma_J": self.work_sigma,
+            "peak_foundation_N": self.peak_foundation,
+            "peak_foundation_sigma_N": self.peak_foundation_sigma,
+        }
+
+
+class StrokeTable:
+    """Collect the per-stroke figures from a tracker's estimates as they come."""
+
+    def __init__(self) -> None:
+        #: the finished strokes, in order
+        self.strokes: list[StrokeEstimate] = []
+        #: the stroke under way (None outside the working structure)
+        self.current: StrokeEstimate | None = None
+
+    def begin(self, index: int, t: float) -> None:
+        """Start stroke ``index`` at time ``t``."""
+        self.current = StrokeEstimate(index, t)
+
+    def observe(
+        self,
+        t: float,
+        force: float,
+        force_sigma: float,
+        foundation: float | None = None,
+        foundation_sigma: float = math.nan,
+    ) -> None:
+        """Take one estimate of the process force (and of the foundation load's magnitude)."""
+        s = self.current
+        if s is None:
+            return
+        if force > s.peak_force:
+            s.peak_force, s.peak_force_sigma, s.t_peak_force = force, force_sigma, t
+        if foundation is not None and foundation > s.peak_foundation:
+            s.peak_foundation, s.peak_foundation_sigma = foundation, foundation_sigma
+
+    def close(self, t: float, work: float, work_sigma: float) -> StrokeEstimate | None:
+        """End the stroke under way at ``t`` with its work; return it (None if none was)."""
+        s = self.current
+        self.current = None
+        if s is None:
+            return None
+        s.t_end, s.work, s.work_sigma = t, work, work_sigma
+        self.strokes.append(s)
+        return s

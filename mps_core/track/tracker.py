@@ -1,0 +1,718 @@
+"""The tracker: an extended Kalman filter on the partial-system model of the press.
+
+**State.** The independent coordinates q and rates q̇ of the chart view the model is in now
+(n = 1 in ``held`` and ``locked``, 2 in ``free``), augmented with the unknown inputs
+(:mod:`mps_core.track.unknown_inputs`): the process force F_p on the slider and the load torque
+tau_b on the crank, both random walks, and the work W the punch has done in the stroke under way
+(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre): (q, q̇, F_p, tau_b, W), 2n + 3
+numbers, followed by the fixed-lag smoother's slots (:mod:`mps_core.track.lags`): the state and
+the force of each of the last ``force_lag`` steps.
+
+**Prediction.** The mean goes through the model's own run (:class:`~mps_core.run.simulation.
+Simulation` of the nominal scene, without its process load and its commands, with the unknown
+inputs as an effect), so that structures, impacts, chart changes and every event are located as
+the simulation locates them. The covariance goes through the step map's Jacobian
+Φ = exp(J·Δt) (to second order), J the continuous Jacobian at the step's start: ∂q̈/∂q and
+∂q̈/∂q̇ by forward differences of the engine's q̈ from the run's own, ∂q̈/∂F_p = A⁻¹·∂x_C/∂q and
+∂q̈/∂tau_b = A⁻¹·∂φ/∂q exactly from the mass matrix and the analogs. Near the bottom dead centre
+∂x_C/∂q → 0: the crank says nothing of F_p there, and its variance grows as its random walk
+says (what the estimate must show). Where the run changes chart or structure within a step, the
+covariance is carried across through the physical coordinates (φ, ψ, x_C): P_new = T⁺·T_old·P·
+T_oldᵀ·T⁺ᵀ, the rates' part inflated at a change of structure (an impact located with the
+estimated state).
+
+**Update.** Each scalar measurement (:mod:`mps_core.track.measurements`) in turn, Joseph form.
+Rejected and counted by reason in :attr:`Tracker.rejected`, the estimate left exactly as it was:
+a stamp already seen (``duplicate``), older than the last of its kind (``out-of-order``), older
+than the tracker's present time (``late``), not finite (``not-finite``), a crank angle
+``max_jump`` or more from where its rate takes it (``jump``). An innovation beyond the gate
+(``outlier``) is rejected after the estimate is predicted to its stamp (it is not corrected).
+A gap longer than ``timeout`` is counted (``gap``) and the measurement taken.
+
+**Loads.** The joint reactions and the foundation load at the estimated state and inputs
+(:func:`~mps_core.dynamics.reactions.compute_reactions`), their standard deviations from the
+reactions' Jacobian in the state (forward differences) and the state's covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions
+from ..errors import MpsError
+from ..run.simulation import Simulation
+from ..solvers import ADAPTIVE_SOLVERS
+from . import lags
+from .measurements import Measurement, MeasurementError, ModeSignal
+from .settings import TrackSettings
+from .strokes import StrokeTable, stroke_index
+from .unknown_inputs import UnknownInputs
+from .unscented import unscented_step
+
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+__all__ = ["LOAD_COLUMNS", "Estimate", "Tracker"]
+
+#: the reactions and foundation load a tracker estimates (the residual checks left out)
+LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
+#: the process loads a tracker's model leaves out (the unknown input stands for them)
+PROCESS_EFFECTS = ("blanking",)
+#: the reasons a measurement is rejected for
+REJECTIONS = ("duplicate", "out-of-order", "late", "not-finite", "jump", "outlier", "model")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The tracker's estimate at one time, physical quantities with their 1-σ (SI units)."""
+
+    t: float
+    structure: str
+    phi: float
+    phi_sigma: float
+    phi_dot: float
+    phi_dot_sigma: float
+    x_C: float
+    x_C_sigma: float
+    force: float
+    force_sigma: float
+    torque: float
+    torque_sigma: float
+    work: float
+    work_sigma: float
+    #: the process force ``force_lag`` steps back (the fixed-lag smoother's) and the middle
+    #: of the step it acted over (the present force where ``force_lag`` is 0)
+    force_smoothed: float
+    force_smoothed_sigma: float
+    t_force_smoothed: float
+
+
+class Tracker:
+    """Follow a press from its measurements on the partial-system model of a nominal scene.
+
+    ``scene``: the nominal press (its process load and commands are left out: the process
+    force is estimated, the commands come as mode signals). ``initial``: (view, q, q̇) to start
+    from (default the scene's initial state); ``sigma``: the initial 1-σ of (q, q̇) in the
+    chart's units.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        settings: TrackSettings | None = None,
+        *,
+        initial: tuple | None = None,
+        sigma: tuple[float, float] = (1e-3, 1.0),
+        t0: float = 0.0,
+        phi_tdc: float = 0.0,
+    ) -> None:
+        self.settings = settings or TrackSettings()
+        #: the top of the work window (m): the slider below it moving down, the punch may work
+        self.work_zone_top = work_zone_top(scene, self.settings)
+        mech = scene.mechanism()
+        effects = [e for e in scene.build_effects(mech) if e.kind not in PROCESS_EFFECTS]
+        #: the unknown inputs' effect (its values follow the state)
+        self.inputs = UnknownInputs()
+        effects.append(self.inputs)
+        self.motor = next((e for e in effects if e.kind == "motor"), None)
+        solver = scene.solver
+        if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
+            solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
+        #: the model's run, which the estimate's mean follows
+        self.sim = Simulation(
+            mech,
+            scene.structure,
+            effects,
+            initial or scene.initial_state(mech),
+            solver=solver,
+            charts=scene.charts,
+            t0=t0,
+            change_point=scene.change_point,
+        )
+        self.phi_tdc = float(phi_tdc)
+        s = self.settings
+        e = self.sim.solver.current
+        lag = s.force_lag
+        self.x = np.concatenate([e.q, e.qd, np.zeros(3)])
+        scales = np.asarray(self.sim.view.scales, dtype=float)
+        self.P = np.diag(
+            np.concatenate(
+                [
+                    (sigma[0] * scales) ** 2,
+                    (sigma[1] * scales) ** 2,
+                    [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0],
+                ]
+            )
+        )
+        self.x, self.P = lags.restart(self.x, self.P, self.n, lag)
+        if not self._window_now():
+            self._hold_force()
+
+        #: measurements rejected, by reason; ``gap``: gaps longer than the timeout
+        self.rejected: Counter[str] = Counter()
+        self.accepted = 0
+        #: steps whose unscented prediction fell back on the Jacobian's (``prediction``)
+        self.fallbacks = 0
+        #: the process force's variance before the last measurement taken
+        self.force_prior_variance = 0.0
+        #: whether the press gives mode signals (else the structure follows the measurements)
+        self.signalled = False
+        #: the commands inferred from the measurements, by name
+        self.inferred: Counter[str] = Counter()
+        self._slider_misses = 0
+        self._returned = True
+        #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
+        self.innovations: list[tuple[float, str, float]] = []
+        self._last: dict[str, float] = {}
+        self._t_last = -math.inf
+        #: the start times of the last steps (the lagged forces' steps)
+        self._starts: list[float] = []
+        #: the per-stroke figures
+        self.strokes = StrokeTable()
+        self._stroke = self._stroke_now()
+        if self._stroke is not None:
+            self.strokes.begin(self._stroke, self.sim.t)
+
+    # -- the state ----------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        """Return the time of the estimate."""
+        return self.sim.t
+
+    @property
+    def n(self) -> int:
+        """Return the number of independent coordinates of the present chart view."""
+        return int(self.sim.view.n)
+
+    def _hold_force(self) -> None:
+        """Set the process force to zero with no variance (outside the work window)."""
+        i = 2 * self.n
+        was = self.inputs.values[0]
+        self.x[i] = 0.0
+        self.P[i, :] = 0.0
+        self.P[:, i] = 0.0
+        self.inputs.set(0.0, self.x[i + 1])
+        if was != 0.0:  # the run's present evaluation holds the force it had: made again
+            e = self.sim.solver.current
+            self.sim.restart_at(e.q, e.qd)
+
+    def _in_window(self, x_C: float, v_C: float, structure: str) -> bool:
+        """Return whether the punch can work at this state: latch closed, the slider moving down in the
+        lower part of its stroke (below ``work_zone_top``)."""
+        return structure == "locked" and x_C < self.work_zone_top and v_C < 0.0
+
+    @property
+    def in_window(self) -> bool:
+        """Return whether the estimate is in the work window (the process force a state there)."""
+        return self._window_now()
+
+    def _window_now(self) -> bool:
+        """Return whether the run's present state is in the work window."""
+        kin = self.sim.solver.current.kin
+        return self._in_window(float(kin.xy("C")[0]), float(kin.vxy("C")[0]), self.sim.structure)
+
+    def _stroke_now(self) -> int | None:
+        """Return the stroke the run is in (None outside the working structure)."""
+        if self.sim.structure != "locked":
+            return None
+        return stroke_index(self.sim.joint_state()[0], self.phi_tdc)
+
+    def estimate(self) -> Estimate:
+        """Return the present estimate in physical quantities with their 1-σ."""
+        n = self.n
+        e = self.sim.solver.current
+        kin = e.kin
+        P = self.P
+        g_phi = np.asarray(kin.omega("crank"), dtype=float)
+        g_x = np.asarray(kin.jac("C")[0], dtype=float)
+        phi, phi_dot = self.sim.joint_state()[:2]
+        q, r = slice(0, n), slice(n, 2 * n)
+        i = 2 * n
+        lag = self.settings.force_lag
+        j = lags.slot(n, lag).stop - 1 if lag else i
+        ends = self._starts + [self.sim.t]  # the last steps' boundaries
+        t_smoothed = self.sim.t
+        if lag and len(ends) > lag:
+            t_smoothed = 0.5 * (ends[-lag - 1] + ends[-lag])
+        return Estimate(
+            t=self.sim.t,
+            structure=self.sim.structure,
+            phi=phi,
+            phi_sigma=_sd(g_phi @ P[q, q] @ g_phi),
+            phi_dot=phi_dot,
+            phi_dot_sigma=_sd(g_phi @ P[r, r] @ g_phi),
+            x_C=float(kin.xy("C")[0]),
+            x_C_sigma=_sd(g_x @ P[q, q] @ g_x),
+            force=float(self.x[i]),
+            force_sigma=_sd(P[i, i]),
+            torque=float(self.x[i + 1]),
+            torque_sigma=_sd(P[i + 1, i + 1]),
+            work=float(self.x[i + 2]),
+            work_sigma=_sd(P[i + 2, i + 2]),
+            force_smoothed=float(self.x[j]),
+            force_smoothed_sigma=_sd(P[j, j]),
+            t_force_smoothed=t_smoothed,
+        )
+
+    def physical_covariance(self) -> np.ndarray:
+        """Return the covariance of (φ, φ̇, F_p) at the present estimate."""
+        n = self.n
+        kin = self.sim.solver.current.kin
+        g = np.asarray(kin.omega("crank"), dtype=float)
+        T = np.zeros((3, len(self.x)))
+        T[0, :n] = g
+        T[1, n : 2 * n] = g
+        T[2, 2 * n] = 1.0
+        return T @ self.P @ T.T
+
+    # -- mode signals ---------------------------------------------------------------------
+    def mode(self, signal: ModeSignal) -> None:
+        """Apply a mode signal of the press's controller at its stamp (now, if it is past)."""
+        self.signalled = True
+        if signal.t > self.sim.t:
+            try:
+                self.sim.command(signal.command, signal.t)
+            except MpsError:
+                self.rejected["mode"] += 1
+            return
+        self._command_now(signal.command)
+
+    def _command_now(self, command: str) -> bool:
+        """Apply a command to the model now, the state carried into the chart view it leaves
+        the run in; return whether the model took it."""
+        sim = self.sim
+        e0, structure0, n0 = sim.solver.current, sim.structure, sim.view.n
+        try:
+            sim.command(command)
+        except MpsError:
+            self.rejected["mode"] += 1
+            return False
+        e1 = sim.solver.current
+        x = np.concatenate([e1.q, e1.qd, self.x[2 * n0 : 2 * n0 + 3]])
+        if sim.view is not e0.view:
+            self.x, self.P = self._carry(x, self.P, e0, e1, structure0 != sim.structure)
+        else:
+            self.x[: 2 * n0] = x[: 2 * n0]
+        if not self._window_now():
+            self._hold_force()
+        return True
+
+    def _infer_mode(self, m: Measurement, predicted: float, nis: float) -> None:
+        """Follow the structure from the slider's position where no mode signal comes: engaged
+        when the slider is measured ``engage_drop`` below its top stop while idle (and back on
+        its stop since the last disengage);
+        disengaged when the crank-slider's slider position is missed ``disengage_misses``
+        times running."""
+        sim = self.sim
+        top = sim.mechanism.x_top
+        s = self.settings
+        if sim.structure == "held":
+            self._returned = True  # the slider back on its stop since the last disengage
+        idle = sim.structure != "locked" and not sim.controls.engage_on and self._returned
+        if idle and top is not None and m.value < top - s.engage_drop:
+            if self._command_now("engage"):
+                self.inferred["engage"] += 1
+                self._widen(s.engage_drop)
+            return
+        if sim.structure != "locked":
+            return
+        self._slider_misses = self._slider_misses + 1 if nis > s.gate else 0
+        if self._slider_misses >= s.disengage_misses and self._command_now("disengage"):
+            self.inferred["disengage"] += 1
+            self._slider_misses = 0
+            self._returned = False
+            self._widen(abs(m.value - predicted))
+
+    def _widen(self, distance: float) -> None:
+        """Widen the covariance of (q, q̇) after a command applied late (found from the
+        measurements): the model is behind the press by what the slider moved meanwhile,
+        ``distance`` (m), within about a millisecond."""
+        n = self.n
+        scales = np.asarray(self.sim.view.scales, dtype=float)
+        lever = float(self.sim.mechanism.geometry.l1)
+        sigma = distance / lever * scales  # in each coordinate's units
+        idx = np.arange(n)
+        self.P[idx, idx] += sigma**2
+        self.P[n + idx, n + idx] += (sigma / 1e-3) ** 2
+
+    # -- measurements ---------------------------------------------------------------------
+    def update(self, m: Measurement) -> bool:
+        """Take one measurement: predict to its stamp, correct; return whether it was taken."""
+        reason = self._screen(m)
+        if reason is not None:
+            self.rejected[reason] += 1
+            return False
+        if m.t - self._t_last > self.settings.timeout and self._t_last > -math.inf:
+            self.rejected["gap"] += 1
+        self._predict(m.t)
+        taken = self._correct(m)
+        self._last[m.kind] = m.t
+        if taken:
+            self._t_last = max(self._t_last, m.t)
+            self.accepted += 1
+        return taken
+
+    def _screen(self, m: Measurement) -> str | None:
+        """Return the reason to reject ``m`` before anything is computed, or None."""
+        if not (math.isfinite(m.t) and math.isfinite(m.value)):
+            return "not-finite"
+        last = self._last.get(m.kind)
+        if last is not None:
+            if m.t == last:
+                return "duplicate"
+            if m.t < last:
+                return "out-of-order"
+        if m.t < self.sim.t - 1e-12:
+            return "late"
+        if m.kind == "crank_angle":
+            # a crank that would have turned by max_jump more or less than its rate says: no
+            # press does that between two samples (screened before the estimate moves)
+            phi, phi_dot = self.sim.joint_state()[:2]
+            guess = phi + phi_dot * (m.t - self.sim.t)
+            y = m.value - guess
+            y -= 2.0 * math.pi * round(y / (2.0 * math.pi))
+            if abs(y) >= self.settings.max_jump:
+                return "jump"
+        return None
+
+    def _predict(self, t1: float) -> None:
+        """Predict the state and its covariance to ``t1``."""
+        sim = self.sim
+        t0 = sim.t
+        dt = t1 - t0
+        if dt <= 1e-12:
+            return
+        view0, structure0 = sim.view, sim.structure
+        e0 = sim.solver.current
+        if self.settings.prediction == "unscented":
+            moved = unscented_step(self, t1)
+            if moved is not None:
+                self.finish_step(t0, e0, structure0, *moved)
+                return
+            self.fallbacks += 1
+        n = view0.n
+        J, x_C0 = self._jacobian(e0)
+        Phi = self._step_map(J * dt)
+        P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
+        F, tau, W = self.x[2 * n : 2 * n + 3]
+        lagged = lags.shifted(self.x, n, self.settings.force_lag)
+        sim.advance_to(t1)
+        e1 = sim.solver.current
+        x_C1 = float(e1.kin.xy("C")[0])
+        W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
+        x = np.concatenate([e1.q, e1.qd, [F, tau, W], lagged])
+        if sim.view is not view0:
+            x, P = self._carry(x, P, e0, e1, structure0 != sim.structure)
+        self.finish_step(t0, e0, structure0, x, P)
+
+    def finish_step(self, t0: float, e0: Any, structure0: str, x: np.ndarray, P: np.ndarray) -> None:
+        """Take (x, P) predicted over a step from t0 (where the run's evaluation was e0, in
+        structure0): the force held at zero outside the work window, the strokes followed."""
+        self._starts = (self._starts + [t0])[-self.settings.force_lag - 1 :]
+        self.x = x
+        self.P = 0.5 * (P + P.T)
+        kin0 = e0.kin
+        if not (
+            self._in_window(float(kin0.xy("C")[0]), float(kin0.vxy("C")[0]), structure0) or self._window_now()
+        ):
+            self._hold_force()
+        self._follow_strokes()
+
+    def _step_map(self, Adt: np.ndarray) -> np.ndarray:
+        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order,
+        and the slots shifted (:mod:`~mps_core.track.lags`)."""
+        k = Adt.shape[0]
+        m = len(self.x)
+        Phi = np.zeros((m, m))
+        Phi[:k, :k] = np.eye(k) + Adt + 0.5 * (Adt @ Adt)
+        lags.step_rows(Phi, (k - 3) // 2, self.settings.force_lag)
+        return Phi
+
+    def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
+        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at the run's evaluation
+        ``e`` (its A and analogs exact; ∂q̈/∂q, ∂q̈/∂q̇ by forward differences from its q̈),
+        and x_C there."""
+        view, t = e.view, e.t
+        n = view.n
+        m = 2 * n + 3
+        J = np.zeros((m, m))
+        J[:n, n : 2 * n] = np.eye(n)
+        ql, vl = e.q.tolist(), e.qd.tolist()
+        base = np.asarray(e.qdd, dtype=float)
+        for i in range(n):
+            J[n : 2 * n, i] = self._difference(view, t, ql, vl, base, i, 1e-6 * float(view.scales[i]), 0)
+            J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1)
+        jx = np.asarray(e.kin.jac("C")[0], dtype=float)
+        wc = np.asarray(e.kin.omega("crank"), dtype=float)
+        A = np.atleast_2d(e.A)
+        J[n : 2 * n, 2 * n] = np.linalg.solve(A, jx)
+        J[n : 2 * n, 2 * n + 1] = np.linalg.solve(A, wc)
+        F = float(self.x[2 * n])
+        J[2 * n + 2, n : 2 * n] = -F * jx
+        J[2 * n + 2, 2 * n] = -float(jx @ e.qd)
+        return J, float(e.kin.xy("C")[0])
+
+    def _difference(
+        self, view: Any, t: float, ql: list, vl: list, base: np.ndarray, i: int, h: float, which: int
+    ) -> np.ndarray:
+        """Return ∂q̈/∂q_i (which 0) or ∂q̈/∂q̇_i (which 1) by a forward difference of step h
+        from q̈ = ``base`` (a backward one where the step forward leaves the chart)."""
+        accel = self.sim.engine.accelerations
+        plus = [list(ql), list(vl)]
+        plus[which][i] += h
+        try:
+            return (np.asarray(accel(view, t, plus[0], plus[1]), dtype=float) - base) / h
+        except (MpsError, ArithmeticError, ValueError):
+            pass
+        minus = [list(ql), list(vl)]
+        minus[which][i] -= h
+        try:
+            return (base - np.asarray(accel(view, t, minus[0], minus[1]), dtype=float)) / h
+        except (MpsError, ArithmeticError, ValueError):
+            return np.zeros(view.n)
+
+    def process_noise(self, view: Any, structure: str, dt: float) -> np.ndarray:
+        """Return the discrete process noise over a step of dt in a chart view and structure."""
+        n = view.n
+        s = self.settings
+        Q = np.zeros((len(self.x), len(self.x)))
+        for i in range(n):
+            qa = (s.accel_noise * float(view.scales[i])) ** 2
+            Q[i, i] = qa * dt**3 / 3.0
+            Q[i, n + i] = Q[n + i, i] = qa * dt**2 / 2.0
+            Q[n + i, n + i] = qa * dt
+        if structure == "locked":
+            Q[2 * n, 2 * n] = s.force_walk**2 * dt
+        Q[2 * n + 1, 2 * n + 1] = s.torque_walk**2 * dt
+        return Q
+
+    def _carry(
+        self, x: np.ndarray, P: np.ndarray, e0: Any, e1: Any, impact: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Carry (x, P) from the chart view of e0 into that of e1: P's core through (φ, ψ, x_C),
+        x's core from the run (it is there already); the slots start again."""
+        n0, n1 = e0.view.n, e1.view.n
+        k0, k1 = lags.core_size(n0), lags.core_size(n1)
+        T0 = self._physical_map(e0)
+        T1 = np.linalg.pinv(self._physical_map(e1))
+        P1 = T1 @ (T0 @ P[:k0, :k0] @ T0.T) @ T1.T
+        if impact:
+            r = slice(n1, 2 * n1)
+            P1[r, r] *= self.settings.event_inflation
+        self._starts = []
+        return lags.restart(x[:k1], P1, n1, self.settings.force_lag)
+
+    def _physical_map(self, e: Any) -> np.ndarray:
+        """Return the map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
+        n = e.view.n
+        kin = e.kin
+        scale = float(self.sim.mechanism.geometry.l1)
+        G = np.array(
+            [kin.omega("crank"), kin.omega("rocker"), [v / scale for v in kin.jac("C")[0]]],
+            dtype=float,
+        )
+        T = np.zeros((9, 2 * n + 3))
+        T[:3, :n] = G
+        T[3:6, n : 2 * n] = G
+        T[6:, 2 * n :] = np.eye(3)
+        return T
+
+    def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
+        """Return the predicted value of a measurement of ``kind`` and its row of H."""
+        n = self.n
+        kin = self.sim.solver.current.kin
+        H = np.zeros(len(self.x))
+        if kind == "crank_angle":
+            H[:n] = kin.omega("crank")
+            return self.sim.joint_state()[0], H
+        if kind == "slider_position":
+            H[:n] = kin.jac("C")[0]
+            return float(kin.xy("C")[0]), H
+        rate = float(kin.rate("crank"))
+        if kind == "crank_rate":
+            H[n : 2 * n] = kin.omega("crank")
+            return rate, H
+        motor = self.motor
+        if motor is None:
+            raise MeasurementError("kind", kind, "a scene with a motor for motor_torque measurements")
+        d = 1e-4 * (1.0 + abs(rate))
+        slope = (motor.torque(rate + d) - motor.torque(rate - d)) / (2.0 * d)
+        H[n : 2 * n] = slope * np.asarray(kin.omega("crank"), dtype=float)
+        return float(motor.torque(rate)), H
+
+    def _correct(self, m: Measurement) -> bool:
+        """Correct the estimate with ``m`` (gated); return whether it was taken."""
+        value, H = self._prediction(m.kind)
+        z = m.value
+        if m.kind == "crank_angle":
+            z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))  # the encoder's turns
+        y = z - value
+        if m.kind == "slider_position" and not self.signalled:
+            S0 = float(H @ self.P @ H) + m.variance
+            self._infer_mode(m, value, y * y / S0)
+            if self.sim.view.n != (len(H) - 3) // 2 or len(H) != len(self.x):
+                value, H = self._prediction(m.kind)  # the structure moved: predicted again
+                y = z - value
+        i = 2 * self.n
+        #: the process force's variance before this measurement (what it learned: how much less after)
+        self.force_prior_variance = float(self.P[i, i])
+        PH = self.P @ H
+        S = float(H @ PH) + m.variance
+        nis = y * y / S
+        if nis > self.settings.gate:
+            self.rejected["outlier"] += 1
+            return False
+        K = PH / S
+        x = self.x + K * y
+        IKH = np.eye(len(x)) - np.outer(K, H)
+        P = IKH @ self.P @ IKH.T + m.variance * np.outer(K, K)
+        if not self._take(x):
+            self.rejected["model"] += 1
+            return False
+        self.P = 0.5 * (P + P.T)
+        self.innovations.append((m.t, m.kind, nis))
+        self._follow_strokes()
+        return True
+
+    def _take(self, x: np.ndarray) -> bool:
+        """Restart the model's run at state x; False (the run as it was) where x has no
+        configuration in the present chart."""
+        n = self.n
+        sim = self.sim
+        e = sim.solver.current
+        saved = list(self.inputs.values)
+        self.inputs.set(float(x[2 * n]), float(x[2 * n + 1]))
+        try:
+            sim.restart_at(x[:n], x[n : 2 * n])
+        except (MpsError, ArithmeticError, ValueError):
+            self.inputs.set(*saved)
+            sim.restart_at(e.q, e.qd)
+            return False
+        self.x = x
+        if not self._window_now():
+            self._hold_force()
+        return True
+
+    # -- strokes and loads ----------------------------------------------------------------
+    def _follow_strokes(self) -> None:
+        """Close the stroke under way at a top dead centre and start the next."""
+        k = self._stroke_now()
+        if k == self._stroke:
+            return
+        i = 2 * self.n + 2
+        if self._stroke is not None:
+            self.strokes.close(self.sim.t, float(self.x[i]), _sd(self.P[i, i]))
+        self.x[i] = 0.0
+        self.P[i, :] = 0.0
+        self.P[:, i] = 0.0
+        self._stroke = k
+        if k is not None:
+            self.strokes.begin(k, self.sim.t)
+
+    def observe_stroke(self, loads: dict[str, tuple[float, float]] | None = None) -> None:
+        """Give the stroke table the present estimate (and foundation load, if computed)."""
+        est = self.estimate()
+        found = sigma = None
+        if loads is not None:
+            found, sigma = foundation_magnitude(loads)
+        self.strokes.observe(
+            est.t_force_smoothed,
+            est.force_smoothed,
+            est.force_smoothed_sigma,
+            found,
+            math.nan if sigma is None else sigma,
+        )
+
+    def loads(self) -> dict[str, tuple[float, float]]:
+        """Return the joint reactions and the foundation load at the present estimate: name →
+        (value, 1-σ)."""
+        n = self.n
+        i = 2 * n
+        e = self.sim.solver.current
+        where = list(range(2 * n)) + [i, i + 1]
+        return self._loads_at(e.t, e.q, e.qd, self.x[i], where)
+
+    def smoothed_loads(self) -> tuple[float, dict[str, tuple[float, float]]]:
+        """Return the time ``force_lag`` steps back and the joint reactions and the foundation
+        load there, from the fixed-lag smoother's state and force (the present ones where the
+        slots have not filled since the chart view last changed)."""
+        lag = self.settings.force_lag
+        if lag == 0 or len(self._starts) < lag:
+            return self.sim.t, self.loads()
+        n = self.n
+        sl = lags.slot(n, lag)
+        x = self.x[sl]
+        where = list(range(sl.start, sl.start + 2 * n)) + [sl.stop - 1, 2 * n + 1]
+        t = self._starts[-lag]
+        return t, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
+
+    def _loads_at(
+        self, t: float, q: np.ndarray, qd: np.ndarray, force: float, where: list[int]
+    ) -> dict[str, tuple[float, float]]:
+        """Return the loads at (t, q, q̇) with the process force ``force`` and the present load
+        torque, their 1-σ from the covariance of the state's components ``where`` (those of q,
+        q̇, the force, the torque)."""
+        view, n = self.sim.view, self.n
+        fun = self.sim.engine.evaluator(view)
+        q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
+        saved = list(self.inputs.values)
+        self.inputs.values[0] = float(force)
+        try:
+            base = self._reaction_values(fun(t, q, qd))
+            steps = np.concatenate(
+                [1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(qd)), [1.0, 1e-2]]
+            )
+            J = np.zeros((len(base), 2 * n + 2))
+            for j, h in enumerate(steps):
+                qj, qdj = q.copy(), qd.copy()
+                if j < 2 * n:
+                    (qj if j < n else qdj)[j % n] += h
+                else:
+                    self.inputs.values[j - 2 * n] += h
+                try:
+                    J[:, j] = (self._reaction_values(fun(t, qj, qdj)) - base) / h
+                except (MpsError, ArithmeticError, ValueError):
+                    pass
+                self.inputs.values[0] = float(force)
+                self.inputs.values[1] = saved[1]
+        finally:
+            self.inputs.values[:] = saved
+        C = self.P[np.ix_(where, where)]
+        var = np.einsum("ij,jk,ik->i", J, C, J)
+        return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
+
+    def _reaction_values(self, e: Any) -> np.ndarray:
+        """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e``."""
+        sim = self.sim
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+        return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+
+
+def work_zone_top(scene: Scene, settings: TrackSettings) -> float:
+    """Return the top of the work window: the setting's, else 2 mm above where the nominal
+    scene's punch touches its part, else 4 mm (the lower third of the preset's stroke)."""
+    if settings.work_zone_top is not None:
+        return float(settings.work_zone_top)
+    contacts = [e.params["x_contact"] for e in scene.effects if e.kind in PROCESS_EFFECTS]
+    return max(contacts) + 0.002 if contacts else 0.004
+
+
+def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, float]:
+    """Return the foundation force's magnitude and its 1-σ (linearised, the two components'
+    covariance taken as diagonal)."""
+    fx, sx = loads["F_found_x"]
+    fy, sy = loads["F_found_y"]
+    f = math.hypot(fx, fy)
+    if f == 0.0:
+        return 0.0, math.hypot(sx, sy)
+    return f, math.hypot(fx * sx, fy * sy) / f
+
+
+def _sd(variance: float) -> float:
+    """Return the standard deviation of a variance that round-off may have made slightly negative."""
+    return math.sqrt(max(float(variance), 0.0))
