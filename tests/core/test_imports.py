@@ -157,6 +157,8 @@ ROS_LAYERS = (
     ("mps_ros.os_threads",),
     ("mps_ros.wire",),
     ("mps_ros.recording",),
+    # the Foxglove endpoint: served by the recording process (no rclpy, no engine)
+    ("mps_ros.foxglove",),
     ("mps_ros.run",),
     ("mps_ros.ros",),
     ("mps_ros.view",),
