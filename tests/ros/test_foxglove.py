@@ -115,14 +115,17 @@ def decoded(msgtype: str, data: bytes):
 
 class RawClient(threading.Thread):
     """A client of our own over plain websockets: subscribes to every channel, reads
-    ``take`` messages, calls a service id that is not there (the server's answer kept),
-    then drops its connection without a word."""
+    ``take`` messages, calls a service id that is not there (the server's answer kept), then
+    pause, step, step, resume (their answers kept), then drops its connection without a
+    word."""
 
     def __init__(self, url: str, take: int):
         super().__init__(daemon=True)
         self.url, self.take = url, take
         self.got = 0
         self.answers: list[dict] = []
+        self.calls: list[tuple[str, bool, str]] = []
+        self.services: dict[str, int] = {}
         self.error: Exception | None = None
 
     def run(self):
@@ -134,26 +137,46 @@ class RawClient(threading.Thread):
         except Exception as exc:
             self.error = exc
 
+    def _next(self, ws):
+        """The next message: JSON ones kept where they answer or advertise, a data message
+        counted; a service's response returned."""
+        m = ws.recv(timeout=120)
+        if isinstance(m, str):
+            j = json.loads(m)
+            if j["op"] == "advertise":
+                subs = [{"id": c["id"], "channelId": c["id"]} for c in j["channels"]]
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            elif j["op"] == "advertiseServices":
+                self.services.update({sv["name"]: sv["id"] for sv in j["services"]})
+            elif j["op"] in ("status", "serviceCallFailure"):
+                self.answers.append(j)
+        elif m[0] == 1:
+            self.got += 1
+        elif m[0] == 3:  # a service call's response: std_srvs/srv/Trigger_Response in CDR
+            enc = struct.unpack_from("<I", m, 9)[0]
+            data = m[13 + enc :]
+            n = struct.unpack_from("<I", data, 8)[0]
+            return bool(data[4]), data[12 : 12 + n - 1].decode()
+        return None
+
+    def _call(self, ws, name: str, call_id: int) -> None:
+        ws.send(struct.pack("<BIII", 2, self.services[name], call_id, 3) + b"cdr" + b"\x00\x01\x00\x00")
+        for _ in range(100_000):
+            got = self._next(ws)
+            if got is not None:
+                self.calls.append((name, *got))
+                return
+
     def _talk(self, ws):
-        n = 0
         while self.got < self.take:
-            m = ws.recv(timeout=120)
-            if isinstance(m, str):
-                j = json.loads(m)
-                if j["op"] == "advertise":
-                    subs = [{"id": (n := n + 1), "channelId": c["id"]} for c in j["channels"]]
-                    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                elif j["op"] in ("status", "serviceCallFailure"):
-                    self.answers.append(j)
-            elif m[0] == 1:
-                self.got += 1
+            self._next(ws)
         ws.send(struct.pack("<BIII", 2, 99999, 1, 3) + b"cdr" + b"\x00\x01\x00\x00")
-        wait = 0
-        while not self.answers and wait < 2000:
-            m = ws.recv(timeout=120)
-            wait += 1
-            if isinstance(m, str) and json.loads(m)["op"] in ("status", "serviceCallFailure"):
-                self.answers.append(json.loads(m))
+        for _ in range(100_000):
+            if self.answers:
+                break
+            self._next(ws)
+        for i, word in enumerate(("pause", "step", "step", "resume")):
+            self._call(ws, f"/press_twin/{word}", 10 + i)
         ws.socket.close()  # dropped, no closing handshake
 
 
@@ -228,6 +251,12 @@ def test_a_foxglove_client_gets_what_the_node_records(js_client, tmp_path):
     # the run went on unharmed (the node ended 0, the Node.js client got every message)
     assert raw.error is None and raw.got >= 3000, raw.error
     assert raw.answers and "99999" in json.dumps(raw.answers), raw.answers
+    # the lifecycle's pause, two steps and resume from Foxglove: the run held, stepped, went on
+    # (its recording the one above: every message, as the Node.js client got them)
+    words = [(w.rsplit("/", 1)[1], ok) for w, ok, _ in raw.calls]
+    assert words == [("pause", True), ("step", True), ("step", True), ("resume", True)], raw.calls
+    t1, t2 = (float(m.split("t = ")[1].split(" s")[0]) for _, _, m in raw.calls[1:3])
+    assert t2 == pytest.approx(t1 + 1e-3), raw.calls
 
 
 def test_mps_serve_plays_every_message_of_the_sample(js_client, tmp_path):
