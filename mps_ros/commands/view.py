@@ -69,6 +69,16 @@ def run(args) -> int:
     from mps_core.files.outputs import check_outputs
     from mps_core.scene import load_scene
 
+    if args.web and not (0 <= args.web_port <= 65535):
+        import sys
+
+        port = args.web_port
+        print(
+            f"mps view: error: --web-port {port}: expected a port from 0 (a free one) to 65535",
+            file=sys.stderr,
+        )
+        return 2
+
     if args.live:
         if args.recording:
             raise SystemExit("mps view: --live follows the running node: give no recording")

@@ -32,28 +32,20 @@ pytest.importorskip("rclpy")
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
 
+from js_packages import JS, npm_ci
 from twin_probe import NodeProcess, mps_cmd, stop_group, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
-JS = ROOT / "tests" / "js"
 SAMPLE = ROOT / "recordings" / "sample_press-cycle.mcap"
 
 
 @pytest.fixture(scope="session")
 def js_client():
-    """The path of the Node.js client, its packages installed (``npm ci``), or a skip."""
-    node, npm = shutil.which("node"), shutil.which("npm")
-    if node is None or npm is None:
-        pytest.skip("node and npm are needed for the Foxglove protocol's own client (tests/js)")
-    lock = JS / "package-lock.json"
-    stamp = JS / "node_modules" / ".package-lock.json"
-    if not stamp.is_file() or stamp.stat().st_mtime < lock.stat().st_mtime:
-        p = subprocess.run(
-            [npm, "ci", "--no-audit", "--no-fund"], cwd=JS, capture_output=True, text=True, timeout=600
-        )
-        if p.returncode != 0:
-            pytest.skip(f"npm ci in tests/js failed (no registry?): {p.stderr.strip()[-400:]}")
-    return [node, str(JS / "foxglove_client.mjs")]
+    """The command of the Node.js client, its packages installed (``npm ci``), or a skip."""
+    why = npm_ci()
+    if why is not None:
+        pytest.skip(why)
+    return [shutil.which("node"), str(JS / "foxglove_client.mjs")]
 
 
 def free_port() -> int:
