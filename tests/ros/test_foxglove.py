@@ -317,3 +317,63 @@ def test_the_endpoint_refuses_a_port_in_use_and_no_recording(tmp_path):
         mps_cmd("serve", str(tmp_path / "no.mcap")), capture_output=True, text=True, timeout=120
     )
     assert p.returncode == 2 and "no such file" in p.stderr, p.stderr
+
+
+def test_mps_serve_seeks_where_a_client_asks(tmp_path):
+    """A client's seek (the protocol's playback control, as the Foxglove app sends it): played
+    at 0.01 of real time, then asked to play from 0.9 s at 1000 times: it gets the latched
+    topics' messages in force there, then every message of the file from 0.9 s on, in order."""
+    from websockets.sync.client import connect
+
+    port = free_port()
+    file = recorded(SAMPLE)
+    seek = 900_000_000
+    log = open(tmp_path / "serve.log", "wb")
+    serve = subprocess.Popen(
+        mps_cmd("serve", str(SAMPLE), "--port", str(port), "--rate", "0.01", "--wait-clients", "1"),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    got: list[tuple[str, int, bytes]] = []
+    try:
+        wait_until(
+            lambda: b"serving" in (tmp_path / "serve.log").read_bytes() or serve.poll() is not None,
+            120,
+            "mps serve",
+        )
+        with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+            topics: dict[int, str] = {}
+            asked = False
+            while not got or got[-1][:2] != (file[-1][0], file[-1][2]):  # until the file's last
+                m = ws.recv(timeout=120)
+                if isinstance(m, str):
+                    j = json.loads(m)
+                    if j["op"] == "advertise":
+                        topics.update({c["id"]: c["topic"] for c in j["channels"]})
+                        subs = [{"id": c["id"], "channelId": c["id"]} for c in j["channels"]]
+                        ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+                    continue
+                if m[0] != 1:
+                    continue
+                sub, t = struct.unpack_from("<IQ", m, 1)
+                got.append((topics[sub], t, m[13:]))
+                if not asked:  # playing (every channel subscribed): play from 0.9 s, 1000x
+                    asked = True
+                    req = b"seek-1"
+                    ws.send(struct.pack("<BBfBQI", 3, 0, 1000.0, 1, seek, len(req)) + req)
+        serve.send_signal(signal.SIGINT)
+        assert serve.wait(60) == 130
+    finally:
+        stop_group(serve)
+        log.close()
+    tail = [(tp, t, d) for tp, _, t, d in file if t >= seek]
+    assert got[-len(tail) :] == tail
+    before = got[: -len(tail)]
+    # what came before the seek was taken (early in the file, at 0.01 of real time), then the
+    # latched topics' messages in force at 0.9 s
+    latched = {
+        tp: (tp, t, d) for tp, _, t, d in file if t < seek and tp in ("/tf_static", "/press_twin/structure")
+    }
+    assert before[-2:] == sorted(latched.values(), key=lambda m: [x[0] for x in file].index(m[0]))
+    assert all(t < 100_000_000 for _, t, _ in before[:-2]), [t for _, t, _ in before[:-2]][-5:]
