@@ -380,7 +380,7 @@ def _foxglove_line(r: dict) -> str:
         return ""
     rate = f["received"] / f["span_s"] if f["span_s"] else float("nan")
     return (
-        f"  foxglove client received    {f['received']} of {r['messages']} messages "
+        f"  foxglove client received    {f['received']} of the {f['recorded']} messages recorded "
         f"({rate:.0f} a second over {f['span_s']:.2f} s), its CPU {f['cpu_s']:.2f} s\n"
     )
 

@@ -217,6 +217,7 @@ def _realtime(
         if fox is not None:
             fout, _ = fox.communicate(timeout=60)
             st["foxglove"] = json.loads(fout.strip().splitlines()[-1])
+            st["foxglove"]["recorded"] = sum(recorded_counts(tmp / "rt.mcap").values())
         usage.figures(st)
         _subscriber_figures(st, got, tmp / "rt.mcap")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps

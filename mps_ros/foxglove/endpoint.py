@@ -23,7 +23,10 @@ no second copy).
 
 from __future__ import annotations
 
+import logging
+import re
 import struct
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -52,8 +55,49 @@ TRIGGER = "std_srvs/srv/Trigger"
 TRIGGER_RESPONSE_DEFINITION = "bool success\nstring message\n"
 #: a topic offered so is latched (rosbag2's QoS YAML, as the recording's channels carry it)
 TRANSIENT_LOCAL = "durability: transient_local"
-#: messages kept for a client that reads slowly before its oldest are dropped (the SDK's default)
-BACKLOG = 1024
+#: messages queued for a client that reads slowly before its oldest are dropped: about 2.7 s of
+#: the node's at 1 kHz (the SDK's default, 1024, is 85 ms of them: a client on a busy machine
+#: lost messages with it)
+BACKLOG = 32768
+
+
+class _OncePerClient(logging.Filter):
+    """The SDK's log lines about one client, once: a client gone mid-stream makes it say
+    "Error sending message to client ADDR: ..." for every message it still had for it."""
+
+    _CLIENT = re.compile(r"\bclient (\S+:\d+)")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._seen: set[str] = set()
+        self.dropped = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        m = self._CLIENT.search(record.getMessage())
+        if m is None:
+            return True
+        key = m.group(1)  # the first line about a client says what became of it
+        if key in self._seen:
+            self.dropped += 1
+            return False
+        self._seen.add(key)
+        return True
+
+
+def sdk_logging() -> None:
+    """The SDK's log lines (warnings and errors) to standard error, one line each, prefixed
+    ``foxglove endpoint:``, those about a client once (:class:`_OncePerClient`). Once a
+    process, before its server starts."""
+    logger = logging.getLogger("foxglove")
+    if any(isinstance(f, _OncePerClient) for h in logger.handlers for f in h.filters):
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("foxglove endpoint: %(message)s"))
+    handler.addFilter(_OncePerClient())
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING)
+    logger.propagate = False
+    foxglove.set_log_level("WARNING")
 
 
 class EndpointError(OSError):
@@ -116,6 +160,7 @@ class Endpoint(ServerListener):
         backlog: int = BACKLOG,
         what: str = "foxglove_port",
     ) -> None:
+        sdk_logging()
         self._ctx = foxglove.Context()
         self._topics: list[_Topic] = []
         self._by_channel: dict[int, _Topic] = {}
@@ -287,4 +332,4 @@ class Endpoint(ServerListener):
         return Service(name, schema=schema, handler=handler)
 
 
-__all__ = ["Endpoint", "EndpointError", "TRIGGER", "parameter", "trigger_response"]
+__all__ = ["BACKLOG", "Endpoint", "EndpointError", "TRIGGER", "parameter", "sdk_logging", "trigger_response"]

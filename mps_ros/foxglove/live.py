@@ -25,7 +25,7 @@ import sys
 import threading
 
 from ..recording.background import TapError, serve_pipe
-from .endpoint import Endpoint, EndpointError
+from .endpoint import BACKLOG, Endpoint, EndpointError
 
 #: wall seconds a service call waits for the node's answer (a command's is its boundary's,
 #: ``command_delay`` after it arrives; a paused node's step a step's)
@@ -114,7 +114,7 @@ class LiveTap:
                 services=services,
                 parameters={f"{node}.{k}": v for k, v in settings.get("parameters", {}).items()},
                 on_ready=line.ready if line is not None else None,
-                backlog=int(settings.get("backlog", 1024)),
+                backlog=int(settings.get("backlog", BACKLOG)),
             )
         except EndpointError as exc:
             raise TapError(str(exc)) from None

@@ -85,6 +85,17 @@ function connect(label, topics, onMessage, onReady) {
 }
 
 let engageSent = false;
+let mainDone = false;
+let lateDone = false;
+
+function end() {
+  clearTimeout(timer);
+  setTimeout(() => {
+    mainClient.close();
+    finish(0);
+  }, 0);
+}
+
 let lateStarted = false;
 let services = new Map();
 let mainClient = null;
@@ -131,16 +142,17 @@ const main = connect(
         summary.late.messages.push({ topic: t2, t: Number(ts2), value: JSON.parse(JSON.stringify(v2, plain)) });
         if (new Set(summary.late.messages.map((m) => m.topic)).size >= opts.lateTopics.length) {
           late.client.close();
+          lateDone = true;
+          if (mainDone) end();
         }
       });
     }
     const ended = opts.endOnRunEnd && topic === "/press_twin/events" && String(value.data).includes('"run-end"');
     if (ended || (opts.expect !== undefined && summary.count >= opts.expect)) {
-      clearTimeout(timer);
-      setTimeout(() => {
-        main.client.close();
-        finish(0);
-      }, 0);
+      mainDone = true;
+      // the late client, where one was started, has its messages first (the endpoint stays
+      // up while a client is subscribed)
+      if (!lateStarted || lateDone) end();
     }
   },
   null,
