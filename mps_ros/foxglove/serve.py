@@ -158,7 +158,7 @@ class Player:
     def _messages(self, start: int) -> Iterator[tuple[_Channel, bytes, int]]:
         for i, f in enumerate(self.files):
             with open(f, "rb") as fh:
-                for _schema, ch, msg in make_reader(fh).iter_messages(start_time=start, log_time_order=True):
+                for _schema, ch, msg in make_reader(fh).iter_messages(starting_at=start, log_time_order=True):
                     c = self.channels.get((i, ch.id))
                     if c is not None:
                         yield c, msg.data, msg.log_time

@@ -383,3 +383,50 @@ def test_mps_serve_seeks_where_a_client_asks(tmp_path):
     }
     assert before[-2:] == sorted(latched.values(), key=lambda m: [x[0] for x in file].index(m[0]))
     assert all(t < 100_000_000 for _, t, _ in before[:-2]), [t for _, t, _ in before[:-2]][-5:]
+
+
+class _Collecting:
+    """An endpoint stand-in for :class:`~mps_ros.foxglove.serve.Player`: what it is given."""
+
+    def __init__(self):
+        self.topics: list[str] = []
+        self.got: list[tuple[str, int, bytes]] = []
+
+    def add_channel(self, topic, msgtype, qos=None, definition=None):
+        self.topics.append(topic)
+        return len(self.topics) - 1
+
+    def log(self, index, data, t_ns):
+        self.got.append((self.topics[index], t_ns, bytes(data)))
+
+    def broadcast_time(self, t_ns):
+        pass
+
+    def broadcast_playback_state(self, state):
+        pass
+
+
+def test_mps_serve_plays_a_bag_as_one_recording(tmp_path):
+    """A bag of several files (``mps record --max-s``): played through as one, every message of
+    its files in their order."""
+    from mps_ros.foxglove.serve import Player
+
+    bag = tmp_path / "run"
+    p = subprocess.run(
+        mps_cmd(
+            "record", "press-cycle", "--out", str(bag), "--dt", "0.001", "--t-end", "0.2", "--max-s", "0.08"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert p.returncode == 0, p.stderr
+    files = sorted(bag.glob("*.mcap"))
+    assert len(files) == 3, files
+    player = Player(bag, rate=1000.0)
+    ep = _Collecting()
+    player.attach(ep)
+    assert player.run() == player.count
+    want = [(topic, t, data) for f in files for topic, _, t, data in recorded(f)]
+    # each file in log-time order, the files one after the other
+    assert ep.got == want
