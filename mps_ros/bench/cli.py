@@ -223,6 +223,12 @@ def _beside_arguments(p) -> None:
         "(the scene's own commands off)",
     )
     p.add_argument(
+        "--foxglove",
+        choices=("client", "slow"),
+        help="realtime: the node's Foxglove endpoint on, with one client taking every channel (client), or "
+        "one that cannot keep up, a message a millisecond at most (slow)",
+    )
+    p.add_argument(
         "--events-executor",
         action="store_true",
         help="probe: spin rclpy's events executor (the realtime run's subscriber "
@@ -277,6 +283,7 @@ def _realtime_run(a, env, tmp: Path) -> dict:
         commands_every=a.commands_every,
         command_delay=a.command_delay,
         flood=a.flood,
+        foxglove=a.foxglove or "",
     )
     if a.keep:
         keep_logs(tmp, a.keep, "realtime", r)
@@ -327,6 +334,7 @@ def _print_realtime(a, r: dict) -> None:
             if a.commands_every or a.flood
             else ""
         )
+        + _foxglove_line(r)
         + f"  subscriber received         {r['subscriber_msgs_per_s']:.0f} messages/s "
         f"({r['subscriber_received']} of {r['messages']} published)\n"
         + _lost_line(r)
@@ -364,6 +372,18 @@ def _print_realtime(a, r: dict) -> None:
             for t in r["threads"]
         ).rstrip("\n"),
         flush=True,
+    )
+
+
+def _foxglove_line(r: dict) -> str:
+    """The Foxglove client's figures, where there was one."""
+    f = r.get("foxglove")
+    if not f:
+        return ""
+    rate = f["received"] / f["span_s"] if f["span_s"] else float("nan")
+    return (
+        f"  foxglove client received    {f['received']} of the {f['recorded']} messages recorded "
+        f"({rate:.0f} a second over {f['span_s']:.2f} s), its CPU {f['cpu_s']:.2f} s\n"
     )
 
 

@@ -76,6 +76,11 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
+def _recording(cmdline: str) -> bool:
+    """The recording process's command line (with the Foxglove endpoint: ``mps_ros.foxglove.live``)."""
+    return "mps_ros.recording.background" in cmdline or "mps_ros.foxglove.live" in cmdline
+
+
 def _node_processes(pid: int) -> tuple[list[int], list[int]]:
     """(the node's processes: itself and its stepping process, where it has one; its recording
     processes), from ``/proc``."""
@@ -84,8 +89,8 @@ def _node_processes(pid: int) -> tuple[list[int], list[int]]:
         line = _cmdline(kid)
         if "mps_ros.run.stepping" in line:
             node.append(kid)
-            rec += [k for k in _children(kid) if "mps_ros.recording.background" in _cmdline(k)]
-        elif "mps_ros.recording.background" in line:
+            rec += [k for k in _children(kid) if _recording(_cmdline(k))]
+        elif _recording(line):
             rec.append(kid)
     return node, rec
 

@@ -113,6 +113,7 @@ def realtime(
     commands_every: float | None = None,
     command_delay: float | None = None,
     flood: int = 0,
+    foxglove: str = "",
 ) -> dict:
     t_end = steps * 1e-3
     params = dict(
@@ -142,16 +143,41 @@ def realtime(
         params["release_slice"] = release_slice
     if derivatives is not None:
         params["derivatives"] = derivatives
+    if foxglove:  # the node's Foxglove endpoint, one client of it (``slow``: one that lags)
+        params.update(foxglove_port=_free_port(), wait_for_foxglove=1)
     busy = neighbours(n_neighbours)  # for the whole run, the plain loop's too
     try:
-        return _realtime(steps, env, tmp, deserialize, outputs, params, derivatives, commands_every, flood)
+        return _realtime(
+            steps, env, tmp, deserialize, outputs, params, derivatives, commands_every, flood, foxglove
+        )
     finally:
         for b in busy:
             stop_group(b)
 
 
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _foxglove_client(env, port: int, slow: bool, log_path: Path) -> subprocess.Popen:
+    """The benchmark's Foxglove client (:mod:`.foxglove_probe`), in a session of its own."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "mps_ros.bench.foxglove_probe", f"ws://127.0.0.1:{port}"]
+        + (["--slow"] if slow else []),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=open(log_path, "wb"),
+        text=True,
+        start_new_session=True,
+    )
+
+
 def _realtime(
-    steps, env, tmp, deserialize, outputs, params, derivatives, commands_every=None, flood=0
+    steps, env, tmp, deserialize, outputs, params, derivatives, commands_every=None, flood=0, foxglove=""
 ) -> dict:
     t_end = steps * 1e-3
     loop = loop_cost(steps, outputs, derivatives)  # the same steps as the run's
@@ -159,6 +185,13 @@ def _realtime(
         params["outputs"] = "[" + outputs + "]"
     node = _node(params, env, tmp / "rt.log")
     probe = _probe(env, tmp / "probe.log", deserialize, commands_every, flood)
+    fox = None
+    if foxglove:
+        log = tmp / "rt.log"
+        end = time.monotonic() + 120
+        while time.monotonic() < end and "foxglove endpoint" not in log.read_text() and node.poll() is None:
+            time.sleep(0.05)
+        fox = _foxglove_client(env, params["foxglove_port"], foxglove == "slow", tmp / "foxglove.log")
     try:
         log = tmp / "rt.log"
         end = time.monotonic() + 60
@@ -181,6 +214,10 @@ def _realtime(
         out, _ = probe.communicate(timeout=60)
         got = json.loads(out.strip().splitlines()[-1])
         st = _final_stats(log.read_text())
+        if fox is not None:
+            fout, _ = fox.communicate(timeout=60)
+            st["foxglove"] = json.loads(fout.strip().splitlines()[-1])
+            st["foxglove"]["recorded"] = sum(recorded_counts(tmp / "rt.mcap").values())
         usage.figures(st)
         _subscriber_figures(st, got, tmp / "rt.mcap")
         st["misses_per_1e4"] = st["misses"] * 1e4 / steps
@@ -189,6 +226,8 @@ def _realtime(
     finally:
         stop_group(node)
         stop_group(probe)
+        if fox is not None:
+            stop_group(fox)
     st["ros_floor_us"] = ros_floor(env, tmp, tmp / "rt.mcap", deserialize)
     return st
 

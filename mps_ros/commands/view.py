@@ -4,7 +4,9 @@ the running node, followed (:mod:`mps_ros.view.live`).
 
 Without ``--save`` the .rrd goes to a temporary folder and the viewer opens on it; with
 ``--no-spawn`` it is only written. A viewer started here listens on 127.0.0.1 only.
-``--scene`` gives the geometry for a recording that holds no scene metadata.
+``--scene`` gives the geometry for a recording that holds no scene metadata. ``--web`` serves
+Rerun's web viewer on 127.0.0.1 instead (:mod:`mps_ros.view.web`) and prints its address, for a
+machine without a display; it serves until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -49,12 +51,33 @@ def register(subparsers) -> None:
     p.add_argument(
         "--force", action="store_true", help="replace FILE.rrd where it exists (never the recording)"
     )
+    p.add_argument(
+        "--web",
+        action="store_true",
+        help="serve Rerun's web viewer on 127.0.0.1 and print its address (no display needed); until Ctrl-C",
+    )
+    p.add_argument(
+        "--web-port",
+        type=int,
+        default=9090,
+        help="--web: the web viewer's port (default 9090; 0: a free one)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from mps_core.files.outputs import check_outputs
     from mps_core.scene import load_scene
+
+    if args.web and not (0 <= args.web_port <= 65535):
+        import sys
+
+        port = args.web_port
+        print(
+            f"mps view: error: --web-port {port}: expected a port from 0 (a free one) to 65535",
+            file=sys.stderr,
+        )
+        return 2
 
     if args.live:
         if args.recording:
@@ -67,12 +90,15 @@ def run(args) -> int:
         # before anything starts: never over an existing file without --force, never into a
         # folder that is not there
         check_outputs({"--save": args.save}, force=args.force)
+        if args.web and (args.save or args.connect):
+            raise SystemExit("mps view: --web streams to the web viewer: give neither --save nor --connect")
+        web = _web(None, args.web_port) if args.web else None
 
         st = run_live(
             scene=load_scene(args.scene or "press-cycle"),
             node_name=args.node,
             save=args.save,
-            connect=args.connect,
+            connect=web.grpc if web is not None else args.connect,
             duration=args.duration,
             hz=args.hz,
         )
@@ -85,6 +111,8 @@ def run(args) -> int:
             f"{st['max_lag_s'] * 1e3:.1f} ms; a frame's work p50 "
             f"{st['frame_work_p50_s'] * 1e3:.2f} ms, max {st['frame_work_max_s'] * 1e3:.2f} ms"
         )
+        if web is not None:
+            _serve_until_interrupted(web)
         return 0
     if not args.recording:
         raise SystemExit("mps view: give a recording (RECORDING.mcap), or --live")
@@ -93,5 +121,39 @@ def run(args) -> int:
     check_outputs({"--save": args.save}, inputs=[args.recording], force=args.force)
 
     scene = load_scene(args.scene) if args.scene else None
-    view(args.recording, save=args.save, spawn=not args.no_spawn, scene=scene)
+    save = args.save
+    if args.web and save is None:  # the .rrd the web viewer serves, in a temporary folder
+        import tempfile
+        from pathlib import Path
+
+        save = Path(tempfile.mkdtemp(prefix="mps-view-")) / (Path(args.recording).stem + ".rrd")
+    saved, _ = view(args.recording, save=save, spawn=not (args.no_spawn or args.web), scene=scene)
+    if args.web:
+        _serve_until_interrupted(_web(saved, args.web_port))
     return 0
+
+
+def _web(rrd, port: int):
+    """Rerun's web viewer started on 127.0.0.1, its address said."""
+    from ..view.web import WebViewer
+
+    web = WebViewer(rrd, port)
+    print(f"web viewer: {web.url} (listening on 127.0.0.1 only; Ctrl-C to stop)", flush=True)
+    return web
+
+
+def _serve_until_interrupted(web) -> None:
+    """Serve until Ctrl-C or SIGTERM (the viewer then ended; the interruption goes on to mps's
+    own line)."""
+    import signal
+
+    from mps_core.errors import raise_interrupted
+
+    old = signal.signal(signal.SIGTERM, raise_interrupted)
+    try:
+        code = web.wait()
+    finally:
+        web.close()
+        signal.signal(signal.SIGTERM, old)
+    if code:
+        raise SystemExit(f"mps view: the web viewer ended with exit status {code}")

@@ -6,8 +6,9 @@ from __future__ import annotations
 import marshal
 import struct
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Protocol
 
 from ..os_threads import widen_pipe
 from ..wire.pipe import HEAD, Frame, PolledFrameReader
@@ -53,6 +54,9 @@ class BackgroundRecorder:
         max_bytes: int = 0,
         max_s: float = 0.0,
         file_name: str = "",
+        module: str = "mps_ros.recording.background",
+        tap: dict | None = None,
+        pass_fds: tuple[int, ...] = (),
     ):
         import json
         import subprocess
@@ -60,11 +64,15 @@ class BackgroundRecorder:
 
         self.path = Path(path)
         self.batch_period = float(batch_period)
+        # ``module``: the writing process's module, one that serves this one's pipe with a
+        # tap beside the file (:func:`serve_pipe`; ``tap``: its settings, ``pass_fds`` the
+        # descriptors it inherits)
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "mps_ros.recording.background"],
+            [sys.executable, "-m", module],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             bufsize=0,
+            pass_fds=pass_fds,
         )
         self._out = self._proc.stdin
         widen_pipe(self._out.fileno())
@@ -80,13 +88,19 @@ class BackgroundRecorder:
             "max_s": float(max_s),
             "file_name": file_name,
         }
+        if tap is not None:
+            settings["tap"] = tap
         self._frame(Frame.SETTINGS, json.dumps(settings).encode())
         reply = self._reply()
         if not reply.get("ready"):
             self._proc.wait(10)
+            if reply.get("tap_error"):  # the tap's own line (it names what it was given)
+                raise OSError(reply["tap_error"])
             raise OSError(
                 f"recording {str(self.path)!r}: {reply.get('error', 'the recording process failed')}"
             )
+        #: what the tap said when it started (e.g. where it serves)
+        self.tap_info: dict = reply.get("tap", {})
         self._ids: dict[str, int] = {}
         self._counts: list[int] = []
         self._batch: list = []
@@ -237,8 +251,30 @@ _RECORD = struct.Struct("<HqI").pack
 _RECORD_HEAD = struct.Struct("<HqI")
 
 
+class Tap(Protocol):
+    """What the writing process hands every channel and message to besides the file (the
+    Foxglove endpoint): the same channels and CDR bytes, in the same order."""
+
+    def channel(self, cid: int, topic: str, msgtype: str, qos: str | None) -> None: ...
+    def message(self, cid: int, data: bytes, t_ns: int) -> None: ...
+    def tick(self) -> None: ...
+    def info(self) -> dict: ...
+    def close(self) -> None: ...
+
+
+class TapError(Exception):
+    """A tap that could not start: its message is the line said (it names what it was given)."""
+
+
 def _write_from_pipe() -> int:
     """The writing process of :class:`BackgroundRecorder` (``python -m mps_ros.recording.background``)."""
+    return serve_pipe(None)
+
+
+def serve_pipe(make_tap: Callable[[dict], Tap] | None) -> int:
+    """Serve :class:`BackgroundRecorder`'s pipe on standard input: write the file, and hand
+    every channel and message to the tap that ``make_tap`` makes of the settings' ``tap``
+    (where both are there; :class:`TapError` where it cannot start)."""
     import json
     import signal
     import sys
@@ -256,12 +292,20 @@ def _write_from_pipe() -> int:
             pass
 
     rec = None
+    tap: Tap | None = None
     while rec is None:
         for kind, payload in frames.read(None):
             if kind != Frame.SETTINGS:
                 answer({"error": f"expected the settings first, got {kind!r}"})
                 return 2
             settings = json.loads(payload)
+            tap_settings = settings.pop("tap", None)
+            if make_tap is not None and tap_settings is not None:
+                try:
+                    tap = make_tap(tap_settings)
+                except TapError as exc:
+                    answer({"tap_error": str(exc)})
+                    return 2
             try:
                 rec = Recorder(settings.pop("path"), **settings)
             except OSError as exc:
@@ -272,10 +316,10 @@ def _write_from_pipe() -> int:
                 return 2
         if frames.eof and rec is None:
             return 2
-    answer({"ready": True})
+    answer({"ready": True, "tap": tap.info() if tap is not None else {}})
     error, done = None, False
     try:
-        done = _write_frames(rec, frames)
+        done = _write_frames(rec, frames, tap)
     except OSError as exc:  # the disk full, the file system gone read-only
         error = f"{exc.strerror or exc}"
     except Exception as exc:
@@ -283,6 +327,8 @@ def _write_from_pipe() -> int:
     if error is None:
         rec.finish()
         answer({"done": rec.messages, "counts": rec.counts()})
+        if tap is not None:
+            tap.close()
         return 0
     # said at once (the other side polls for it), then the file ended as far as it can be (the
     # chunks already written stay whole: mps recover copies them), then what still comes is
@@ -292,18 +338,22 @@ def _write_from_pipe() -> int:
         rec.finish()
     except Exception:
         pass
+    if tap is not None:
+        tap.close()
     while not done and not frames.eof:
         done = any(kind == Frame.END for kind, _ in frames.read(None))
     return 1
 
 
-def _write_frames(rec: Recorder, frames: PolledFrameReader) -> bool:
+def _write_frames(rec: Recorder, frames: PolledFrameReader, tap: Tap | None = None) -> bool:
     """Write what comes down the pipe until the finish frame (True) or the pipe's end
-    (False: the stepping process is gone; the file is finished all the same)."""
+    (False: the stepping process is gone; the file is finished all the same); each channel
+    and message to ``tap`` too."""
     import json
 
     channels: dict[int, tuple] = {}
     by_key: dict = {}  # a step's keys -> channel ids (the "S" frames)
+    tap_message = tap.message if tap is not None else None
     while True:
         got = frames.read(rec.flush_period)
         if not got:
@@ -319,7 +369,10 @@ def _write_frames(rec: Recorder, frames: PolledFrameReader) -> bool:
                     cid, t_ns, n = _RECORD_HEAD.unpack_from(payload, pos)
                     pos += 14
                     topic, msgtype, qos = channels[cid]
-                    write(topic, msgtype, payload[pos : pos + n], t_ns, qos)
+                    data = payload[pos : pos + n]
+                    write(topic, msgtype, data, t_ns, qos)
+                    if tap_message is not None:
+                        tap_message(cid, data, t_ns)
                     pos += n
                 rec.tick()
             elif kind == Frame.STEPS:
@@ -327,22 +380,34 @@ def _write_frames(rec: Recorder, frames: PolledFrameReader) -> bool:
                 if ids is not None:
                     by_key = ids
                 write = rec.write
-                for msgs in steps:
-                    for key, data, t_ns, _received in msgs:
-                        topic, msgtype, qos = channels[by_key[key]]
-                        write(topic, msgtype, data, t_ns, qos)
+                if tap_message is None:
+                    for msgs in steps:
+                        for key, data, t_ns, _received in msgs:
+                            topic, msgtype, qos = channels[by_key[key]]
+                            write(topic, msgtype, data, t_ns, qos)
+                else:
+                    for msgs in steps:
+                        for key, data, t_ns, _received in msgs:
+                            cid = by_key[key]
+                            topic, msgtype, qos = channels[cid]
+                            write(topic, msgtype, data, t_ns, qos)
+                            tap_message(cid, data, t_ns)
                 rec.tick()
             elif kind == Frame.CHANNEL:
                 cid, topic, msgtype, qos = json.loads(payload)
                 channels[cid] = (topic, msgtype, qos)
                 rec.channel(topic, msgtype, qos)
+                if tap is not None:
+                    tap.channel(cid, topic, msgtype, qos)
             elif kind == Frame.FLUSH:
                 rec.flush()
             elif kind == Frame.END:
                 return True
+        if tap is not None:
+            tap.tick()
 
 
-__all__ = ["BackgroundRecorder"]
+__all__ = ["BackgroundRecorder", "Tap", "TapError", "serve_pipe"]
 
 
 if __name__ == "__main__":

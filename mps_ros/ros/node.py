@@ -23,6 +23,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -36,6 +37,7 @@ from ..wire.topics import BY_KEY, MODE, NODE_NAME, offered_qos
 from .config import RunConfig, realtime_priority
 from .endpoints import Commands, Endpoints
 from .environment import env_defaults
+from .foxglove_link import FoxgloveLink, endpoint_settings
 from .parameters import ParameterError, declare, read
 from .recording_files import claim_recording, discard_recording, next_recording
 
@@ -83,6 +85,8 @@ class PressTwin(LifecycleNode):
         self.ending = threading.Event()
         self.inactive = False  # deactivated (paused)
         self.runs = 0  # runs begun (a reset begins another)
+        #: the Foxglove endpoint's commands (``foxglove_port``), for the run's recording process
+        self.foxglove: FoxgloveLink | None = None
 
     # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -181,18 +185,21 @@ class PressTwin(LifecycleNode):
     # -- the run ----------------------------------------------------------------------------
     def _wait_for_peers(self, stop: threading.Event) -> None:
         n_sub, n_cmd = self.settings.wait_for_subscribers, self.settings.wait_for_commanders
-        if not (n_sub or n_cmd):
+        n_fox = self.settings.wait_for_foxglove if self.foxglove is not None else 0
+        if not (n_sub or n_cmd or n_fox):
             return
         deadline = time.monotonic() + self.settings.wait_timeout
         while not stop.is_set():
             subs = min(pub.get_subscription_count() for pub in self.endpoints.pubs.values())
             cmds = self.count_publishers(self.endpoints.names[MODE.key])
-            if subs >= n_sub and cmds >= n_cmd:
+            fox = self.foxglove.ready if self.foxglove is not None else 0
+            if subs >= n_sub and cmds >= n_cmd and fox >= n_fox:
                 return
             if time.monotonic() > deadline:
                 self.get_logger().warning(
                     f"starting without all peers after {self.settings.wait_timeout:g} s "
-                    f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd})"
+                    f"(subscribers {subs}/{n_sub}, commanders {cmds}/{n_cmd}"
+                    + (f", foxglove clients {fox}/{n_fox})" if n_fox else ")")
                 )
                 return
             time.sleep(0.01)
@@ -206,6 +213,11 @@ class PressTwin(LifecycleNode):
         path = self.settings.recording
         self.recorder = self.recording_sink = None
         if path.lower() in ("", "none", "off", "false"):
+            if self.settings.foxglove_port:
+                raise ParameterError(
+                    f"parameter foxglove_port: {self.settings.foxglove_port}: the endpoint is served by "
+                    f"the recording process: expected a recording (recording {path!r} is none)"
+                )
             return None
         if path == "auto":
             path = new_recording(self.twin.scene.name)
@@ -219,16 +231,38 @@ class PressTwin(LifecycleNode):
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
         meta["fastdds_profiles_file"] = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
-        self.recorder = BackgroundRecorder(
-            path,
-            scene_name=self.twin.scene.name,
-            scene_text=self.twin.scene.text,
-            metadata=meta,
-            flush_period=self.settings.recording_flush_period,
-            compression=self.settings.recording_compression,
-            max_bytes=int(self.settings.recording_max_mb * 1e6),
-            max_s=self.settings.recording_max_s,
-        )
+        link = FoxgloveLink(self) if self.settings.foxglove_port else None
+        self.foxglove = link
+        try:
+            self.recorder = BackgroundRecorder(
+                path,
+                scene_name=self.twin.scene.name,
+                scene_text=self.twin.scene.text,
+                metadata=meta,
+                flush_period=self.settings.recording_flush_period,
+                compression=self.settings.recording_compression,
+                max_bytes=int(self.settings.recording_max_mb * 1e6),
+                max_s=self.settings.recording_max_s,
+                # the Foxglove endpoint: served by the recording process (mps_ros.foxglove.live)
+                **(
+                    dict(
+                        module="mps_ros.foxglove.live",
+                        tap=endpoint_settings(self, link.child_fd),
+                        pass_fds=(link.child_fd,),
+                    )
+                    if link is not None
+                    else {}
+                ),
+            )
+        except OSError:
+            if link is not None:  # the endpoint could not start: no run, no recording left
+                link.close()
+                self.foxglove = None
+                discard_recording(Path(path), self._recording_reserved and self.settings.recording != "auto")
+            raise
+        if link is not None:
+            link.start()
+            self.get_logger().info(f"foxglove endpoint: {self.recorder.tap_info.get('url')}")
         self.recording_sink = RecordingSink(
             self.recorder,
             names=dict(self.endpoints.names),

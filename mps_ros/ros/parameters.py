@@ -175,6 +175,13 @@ PARAMETERS: tuple[Parameter, ...] = (
         hi=10_000,
     ),
     P("wait_for_commanders", 0, "... and `~/mode` this many publishers ...", lo=0, hi=10_000),
+    P(
+        "wait_for_foxglove",
+        0,
+        "... and the Foxglove endpoint this many clients subscribed to every channel ...",
+        lo=0,
+        hi=10_000,
+    ),
     P("wait_timeout", 10.0, "... or after this many seconds", lo=0.0, hi=86400.0),
     P(
         "start_delay",
@@ -261,6 +268,21 @@ PARAMETERS: tuple[Parameter, ...] = (
         lo=0.0,
         hi=0.1,
     ),
+    P(
+        "foxglove_port",
+        0,
+        "serve a Foxglove WebSocket endpoint on this port (0: none): every topic as published and "
+        "recorded, the mode commands and the lifecycle's pause, resume and step as services, the "
+        "parameters; served by the recording process (see Foxglove, live), so it needs a recording",
+        lo=0,
+        hi=65535,
+    ),
+    P(
+        "foxglove_address",
+        "127.0.0.1",
+        "the address the Foxglove endpoint listens on: this machine only by default; another "
+        "(`0.0.0.0`: every interface) only when given",
+    ),
 )
 del P
 
@@ -343,6 +365,7 @@ class NodeSettings:
     qos_depth: int
     wait_for_subscribers: int
     wait_for_commanders: int
+    wait_for_foxglove: int
     wait_timeout: float
     start_delay: float
     command_burst: int
@@ -356,6 +379,8 @@ class NodeSettings:
     command_delay: float
     release_slice: float
     release_period: float
+    foxglove_port: int
+    foxglove_address: str
 
     @classmethod
     def defaults(cls, **given: object) -> NodeSettings:

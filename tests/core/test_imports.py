@@ -158,6 +158,8 @@ ROS_LAYERS = (
     ("mps_ros.os_threads",),
     ("mps_ros.wire",),
     ("mps_ros.recording",),
+    # the Foxglove endpoint: served by the recording process (no rclpy, no engine)
+    ("mps_ros.foxglove",),
     ("mps_ros.run",),
     ("mps_ros.ros",),
     ("mps_ros.view",),
@@ -236,14 +238,21 @@ def test_every_layer_is_a_package_of_the_tree():
 
 
 def test_the_recording_process_does_without_the_engine():
-    """The recording process (``python -m mps_ros.recording.background``) writes files: importing it, and
-    ``mps_core`` itself, loads neither the engine nor scipy (a second's start here)."""
+    """The recording process (``python -m mps_ros.recording.background``, or with the Foxglove
+    endpoint ``python -m mps_ros.foxglove.live``) writes files: importing it, and ``mps_core``
+    itself, loads neither the engine nor scipy (a second's start here), nor rclpy."""
+    import importlib.util
     import subprocess
     import sys
 
-    code = (
-        "import sys, mps_core, mps_ros.recording.background; "
-        "print(sorted(m for m in ('scipy', 'mps_core.run.simulation', 'mps_core.scene') if m in sys.modules))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
-    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+    for module in ("mps_ros.recording.background", "mps_ros.foxglove.live"):
+        if module.startswith("mps_ros.foxglove") and importlib.util.find_spec("foxglove") is None:
+            continue  # foxglove-sdk comes with the ros extra
+        code = (
+            f"import sys, mps_core, {module}; print(sorted(m for m in ('scipy', "
+            "'mps_core.run.simulation', 'mps_core.scene', 'rclpy') if m in sys.modules))"
+        )
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+        )
+        assert out.stdout.strip() == "[]", (module, out.stdout + out.stderr)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import yaml
 
+from mps_core.scene.settings import COMMANDS
+from mps_ros.ros.foxglove_link import LIFECYCLE_WORDS
 from mps_ros.run.twin import Twin
 from mps_ros.wire.frames import BASE_FRAME, FIXED, MOVING
 from mps_ros.wire.topics import BY_KEY, FOUNDATION, FRAME_ID, WRENCHES, resolve
@@ -59,6 +61,7 @@ def test_the_foxglove_layout_names_the_nodes_topics_fields_and_frames():
     msgs = {resolve(k): m for k, m in tw.state_messages()}
     msgs["/press_twin/events"] = {"data": ""}
     paths = []
+    services = []
     for pid, cfg in panels.items():
         kind = pid.split("!")[0]
         if kind == "3D":
@@ -71,6 +74,11 @@ def test_the_foxglove_layout_names_the_nodes_topics_fields_and_frames():
             assert cfg["topicPath"] in TOPICS
         elif kind == "DiagnosticSummary":
             assert TOPICS[cfg["topicToRender"]] == "diagnostic_msgs/msg/DiagnosticArray"
+        elif kind == "CallService":  # a button a service of the node's Foxglove endpoint
+            services.append(cfg["serviceName"])
+            assert cfg["requestPayload"] == "{}", pid  # std_srvs/srv/Trigger: an empty request
+    # every service the endpoint offers has its button (mps_ros.ros.foxglove_link)
+    assert sorted(services) == sorted(f"/press_twin/{w}" for w in (*COMMANDS, *LIFECYCLE_WORDS))
     assert paths
     for p in paths:
         topic, field = p.split(".", 1)
