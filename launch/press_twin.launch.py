@@ -1,6 +1,7 @@
-"""ros2 launch mps_ros press_twin.launch.py [scene:=press-cycle] [params_file:=...]
+"""Launch the node press_twin with the package's parameters.
 
-Starts the node press_twin (``mps node``) with the package's parameters YAML. Discovery stays on
+``ros2 launch mps_ros press_twin.launch.py [scene:=press-cycle] [params_file:=...]`` starts the
+node press_twin (``mps node``) with the package's parameters YAML. Discovery stays on
 this machine unless the environment says otherwise (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST is
 set for the node when the variable is unset).
 """
