@@ -155,8 +155,9 @@ def _record(args) -> int:
             print(f"mps record: interrupted (SIGINT); {_kept_line(kept, out, replacing)}", file=sys.stderr)
             return 130
         print(f"mps: error: {exc}; {_kept_line(kept, out, replacing)}", file=sys.stderr)
-        if getattr(exc, "record_stats", None):
-            _say_coarse(exc.record_stats)
+        said = getattr(exc, "record_stats", None)  # what the run did up to its error (record())
+        if said:
+            _say_coarse(said)
         return 2
     reason = stats["stop_reason"]
     if stats["recording_failure"] is not None:

@@ -74,7 +74,9 @@ class BackgroundRecorder:
             bufsize=0,
             pass_fds=pass_fds,
         )
-        self._out = self._proc.stdin
+        stdin, stdout = self._proc.stdin, self._proc.stdout
+        assert stdin is not None and stdout is not None  # both are pipes
+        self._out, self._in = stdin, stdout
         widen_pipe(self._out.fileno())
         settings = {
             "path": str(path),
@@ -128,7 +130,7 @@ class BackgroundRecorder:
     def _reply(self) -> dict:
         import json
 
-        line = self._proc.stdout.readline()
+        line = self._in.readline()
         if not line:
             return {"error": "the recording process ended"}
         return json.loads(line)
@@ -173,7 +175,7 @@ class BackgroundRecorder:
         """An error the writing process has answered with already (OSError, once)."""
         import select
 
-        if self.error is None and select.select([self._proc.stdout], [], [], 0)[0]:
+        if self.error is None and select.select([self._in], [], [], 0)[0]:
             reply = self._reply()
             self.error = reply.get("error") or "the recording process ended"
         if self.error is not None:
@@ -185,7 +187,9 @@ class BackgroundRecorder:
             ids = self._ids_of_keys
             grew = ids is not None and len(ids) != self._ids_sent
             self._ids_sent = len(ids) if ids is not None else 0
-            self._frame(Frame.STEPS, marshal.dumps((dict(ids) if grew else None, self._steps)))
+            self._frame(
+                Frame.STEPS, marshal.dumps((dict(ids) if grew and ids is not None else None, self._steps))
+            )
             self._steps = []
         if self._batch:
             self._frame(Frame.BATCH, b"".join(self._batch))
@@ -238,7 +242,7 @@ class BackgroundRecorder:
             try:
                 self._proc.wait(timeout)
             finally:
-                self._proc.stdout.close()
+                self._in.close()
         if reply is None:
             reply = {"error": self.error or "the recording process ended early"}
         if "done" not in reply:

@@ -81,10 +81,10 @@ class _Inbox:
         self.node = node_name
         self.topics = {resolve(k, node_name): BY_KEY[k].msgtype for k in KEYS}
         self.msgs: dict[str, list] = {t: [] for t in self.topics}
-        self.last_ns = None  # the newest simulated time seen
+        self.last_ns: int | None = None  # the newest simulated time seen
         self.newest: dict[str, int] = {}  # by stamped topic, its newest stamp
         self.ended = False
-        self.end_ns = None  # the run-end event's simulated time
+        self.end_ns: int | None = None  # the run-end event's simulated time
         self.last_arrival = time.monotonic()
 
     def callback(self, topic: str):
@@ -381,6 +381,8 @@ def _warm_up(rr, scene, node_name, scale, extent) -> None:
         tw.step()
     rec = rr.RecordingStream("mps-warm-up")  # no sink: kept in memory, dropped
     rep = replay_of_messages("warm-up", msgs, node_name)
+    if rep is None:  # no joint states among the outputs: nothing drawn to warm up
+        return
     for statics in (True, False):
         convert(rep, scene=scene, recording=rec, arrow_scale=scale, extent=extent, statics=statics)
 

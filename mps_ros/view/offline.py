@@ -48,6 +48,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -62,6 +63,13 @@ APPLICATION_ID = "mps"
 RERUN_VERSION = "0.41.0"
 
 _MOTOR = next(w for w in WRENCHES if w.name == "motor")
+
+
+def _named(column: str | None) -> str:
+    """Return a wrench's column that the plots name (every one they name exists)."""
+    if column is None:
+        raise ValueError("a plot names a wrench's column that it does not have")
+    return column
 
 
 def _unit(col: str) -> str:
@@ -80,7 +88,7 @@ FAMILIES: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
     (
         "motor",
         f"motor torque on the crank {_MOTOR.torque} (N·m)",
-        ((_MOTOR.torque, f"{_MOTOR.torque} (N·m)"),),
+        ((_named(_MOTOR.torque), f"{_MOTOR.torque} (N·m)"),),
     ),
     (
         "joint_forces",
@@ -91,7 +99,7 @@ FAMILIES: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
         "joint_moments",
         "joint moments (N·m)",
         tuple(
-            (w.torque, f"{w.torque} ({_unit(w.torque)})")
+            (_named(w.torque), f"{w.torque} ({_unit(_named(w.torque))})")
             for w in WRENCHES
             if w.torque is not None and w is not _MOTOR
         ),
@@ -100,14 +108,14 @@ FAMILIES: tuple[tuple[str, str, tuple[tuple[str, str], ...]], ...] = (
         "foundation_force",
         "foundation force (N)",
         (
-            (FOUNDATION.force[0], f"{FOUNDATION.force[0]} (N, along the guide, up)"),
-            (FOUNDATION.force[1], f"{FOUNDATION.force[1]} (N, across)"),
+            (_named(FOUNDATION.force[0]), f"{FOUNDATION.force[0]} (N, along the guide, up)"),
+            (_named(FOUNDATION.force[1]), f"{FOUNDATION.force[1]} (N, across)"),
         ),
     ),
     (
         "foundation_moment",
         "foundation moment about O (N·m)",
-        ((FOUNDATION.torque, f"{FOUNDATION.torque} (N·m)"),),
+        ((_named(FOUNDATION.torque), f"{FOUNDATION.torque} (N·m)"),),
     ),
 )
 
@@ -272,7 +280,8 @@ def convert(
 
     pts = positions(cols, g.l1, g.l3)
     view = {k: to_view(v) for k, v in pts.items()}
-    drawn, dcols, dt_, dpts, dview = rep, cols, t, pts, view
+    drawn: Any = rep
+    dcols, dt_, dpts, dview = cols, t, pts, view
     if draw_every > 1 and n > 2:
         idx = np.unique(np.r_[np.arange(0, n, int(draw_every)), n - 1])
         dcols = {
@@ -546,10 +555,10 @@ def _events(rr, log, rep: Replay, t) -> None:
     # markers on ω1
     w = np.asarray(rep.columns["phi_dot"], float)
     for fam, (kinds, marker, color) in MARKERS.items():
-        te = np.array(
+        times = np.array(
             [float(ev["t"]) for ev in rep.events if ev.get("kind") in kinds and _finite(ev.get("t"))]
         )
-        if te.size == 0:
+        if times.size == 0:
             continue
         path = f"plots/crank_speed/events/{fam}"
         log.static(
@@ -558,7 +567,7 @@ def _events(rr, log, rep: Replay, t) -> None:
                 names=f"{fam} events", markers=[marker], colors=[color], marker_sizes=[6.0]
             ),
         )
-        log.columns(path, te, rr.Scalars.columns(scalars=np.interp(te, t, w)))
+        log.columns(path, times, rr.Scalars.columns(scalars=np.interp(times, t, w)))
     # state lanes: the structure, the latch
     st = np.asarray(rep.columns.get("structure", np.full(t.size, "")), dtype=str)
     ch = _changes(st)
