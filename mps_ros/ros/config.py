@@ -3,6 +3,8 @@ the runner or the stepping process, the real-time priority asked for."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, TypeAlias
+
 from mps_core import MpsError
 
 from ..run.commands import Gate, Inbox
@@ -10,6 +12,12 @@ from ..run.runner import Runner
 from ..run.twin import Twin
 from ..wire.diagnostics import hardware_id
 from .parameters import NodeSettings, ParameterError
+
+if TYPE_CHECKING:
+    from ..run.releasing import SteppingProcess
+
+#: a node's run: stepped in this process, or in a stepping process of its own
+NodeRun: TypeAlias = "Runner | SteppingProcess"
 
 
 class RunConfig:
@@ -80,7 +88,7 @@ class RunConfig:
             **self.pacing(),
         )
 
-    def stepping_process(self, twin: Twin, sink, log):
+    def stepping_process(self, twin: Twin, sink, log) -> SteppingProcess:
         """The stepping process that steps the scene of ``twin`` (not started), its releases
         published through ``sink``."""
         from ..run.releasing import SteppingProcess

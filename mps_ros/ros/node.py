@@ -31,10 +31,13 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from mps_core import MpsError
 
+from ..recording.background import BackgroundRecorder
 from ..run.commands import Inbox
+from ..run.releasing import ForwardingInbox
+from ..run.sinks import RecordingSink
 from ..run.twin import Twin
 from ..wire.topics import BY_KEY, MODE, NODE_NAME, offered_qos
-from .config import RunConfig, realtime_priority
+from .config import NodeRun, RunConfig, realtime_priority
 from .endpoints import Commands, Endpoints
 from .environment import env_defaults
 from .foxglove_link import FoxgloveLink, endpoint_settings
@@ -70,7 +73,11 @@ class PressTwin(LifecycleNode):
         self.settings = read(self)
         #: the run's settings from the parameters (every run of the node alike)
         self.config = RunConfig(self.settings, self.get_fully_qualified_name().lstrip("/"))
-        self.twin = self.runner = self.recorder = self.recording_sink = None
+        self.twin: Twin | None = None
+        #: the run: stepped in this process, or in a stepping process (made at configure)
+        self.runner: NodeRun | None = None
+        self.recorder: BackgroundRecorder | None = None
+        self.recording_sink: RecordingSink | None = None
         #: the publishers, the command subscription and services (made at configure)
         self.endpoints: Endpoints | None = None
         #: the commands from outside (the callbacks of the subscription and services)
@@ -87,6 +94,24 @@ class PressTwin(LifecycleNode):
         self.runs = 0  # runs begun (a reset begins another)
         #: the Foxglove endpoint's commands (``foxglove_port``), for the run's recording process
         self.foxglove: FoxgloveLink | None = None
+
+    def _run(self) -> NodeRun:
+        """Return the run (RuntimeError before configure has made it)."""
+        if self.runner is None:
+            raise RuntimeError("the node has no run yet: configure it first")
+        return self.runner
+
+    def _twin(self) -> Twin:
+        """Return the twin (RuntimeError before configure has made it)."""
+        if self.twin is None:
+            raise RuntimeError("the node has no twin yet: configure it first")
+        return self.twin
+
+    def _endpoints(self) -> Endpoints:
+        """Return the publishers and services (RuntimeError before configure has made them)."""
+        if self.endpoints is None:
+            raise RuntimeError("the node has no publishers yet: configure it first")
+        return self.endpoints
 
     # -- the lifecycle (its transitions' callbacks: the executor's thread, or autostart's) --
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -107,12 +132,12 @@ class PressTwin(LifecycleNode):
         if not self.activated.is_set():
             self.activated.set()
         else:
-            self.runner.resume()
+            self._run().resume()
             self.get_logger().info("activated: the run goes on")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
-        why = self.runner.pause() if self.activated.is_set() else None
+        why = self._run().pause() if self.activated.is_set() else None
         if why is not None:
             self.get_logger().error(f"cannot pause: {why}")
             return TransitionCallbackReturn.FAILURE
@@ -139,11 +164,11 @@ class PressTwin(LifecycleNode):
     def configure(self) -> None:
         """The scene, the publishers, the command subscription and services, the run
         (:meth:`new_run`)."""
-        self.twin = self.config.twin()
-        self.endpoints = Endpoints(self, self.twin.outputs, self.settings.qos_depth)
-        self.inbox = Inbox()  # before the subscription that fills it
+        twin = self.twin = self.config.twin()
+        self.endpoints = Endpoints(self, twin.outputs, self.settings.qos_depth)
+        self.inbox: Inbox | ForwardingInbox = Inbox()  # before the subscription that fills it
         self.endpoints.listen(self, self.commands)
-        self.new_run(self.twin)
+        self.new_run(twin)
 
     def new_run(self, twin: Twin | None = None) -> None:
         """A run of the scene from its start: the twin (``twin``, or a new one), the runner (or
@@ -151,25 +176,28 @@ class PressTwin(LifecycleNode):
         reset, a new file beside the last: :func:`next_recording`). Paused from its start
         where the node is inactive."""
         self.runs += 1
-        if twin is None:
-            self.twin = self.config.twin()
+        twin = self.twin = self.config.twin() if twin is None else twin
         self.closed = False
         #: the twin steps in a process of its own (:mod:`mps_ros.run.stepping`); this process
         #: publishes what it releases and forwards the commands (as fast as possible, where
         #: the twin can come back to a step: a command's boundary is the last step released)
-        self.split = self.config.splits(self.twin)
+        self.split = self.config.splits(twin)
+        runner: NodeRun
         if self.split:
-            self.runner = self.config.stepping_process(self.twin, self.endpoints.sink, self._log)
-            self.inbox = self.runner.inbox
+            stepping = self.config.stepping_process(twin, self._endpoints().sink, self._log)
+            self.inbox = stepping.inbox
+            runner = stepping
         else:
-            self.runner = self.config.runner(self.twin, self.endpoints.sink, self.inbox, self._log)
+            assert isinstance(self.inbox, Inbox)  # the node's own, until a split run's
+            runner = self.config.runner(twin, self._endpoints().sink, self.inbox, self._log)
+        self.runner = runner
         rec = self.open_recording()
         if rec is not None:
             self.get_logger().info(f"recording to {rec.path}")
         # the kernels built (and the stepping process started) before the run may start
-        self.runner.prepare()
+        runner.prepare()
         if self.inactive:
-            self.runner.pause()
+            runner.pause()
 
     # -- the runner's log (any of its threads) ------------------------------------------------
     def _log(self, level: str, text: str):
@@ -190,8 +218,9 @@ class PressTwin(LifecycleNode):
             return
         deadline = time.monotonic() + self.settings.wait_timeout
         while not stop.is_set():
-            subs = min(pub.get_subscription_count() for pub in self.endpoints.pubs.values())
-            cmds = self.count_publishers(self.endpoints.names[MODE.key])
+            endpoints = self._endpoints()
+            subs = min(pub.get_subscription_count() for pub in endpoints.pubs.values())
+            cmds = self.count_publishers(endpoints.names[MODE.key])
             fox = self.foxglove.ready if self.foxglove is not None else 0
             if subs >= n_sub and cmds >= n_cmd and fox >= n_fox:
                 return
@@ -204,7 +233,7 @@ class PressTwin(LifecycleNode):
                 return
             time.sleep(0.01)
 
-    def open_recording(self):
+    def open_recording(self) -> BackgroundRecorder | None:
         from ..recording.background import BackgroundRecorder
         from ..recording.recorder import new_recording
         from ..run.record import run_metadata
@@ -219,14 +248,16 @@ class PressTwin(LifecycleNode):
                     f"the recording process: expected a recording (recording {path!r} is none)"
                 )
             return None
+        twin = self._twin()
+        target: Path
         if path == "auto":
-            path = new_recording(self.twin.scene.name)
+            target = new_recording(twin.scene.name)
         elif self.runs > 1:  # after a reset: a new file (or bag) beside the first
-            path, self._recording_reserved = next_recording(path), False
+            target, self._recording_reserved = next_recording(path), False
         else:
-            path, self._recording_reserved = claim_recording(path)
+            target, self._recording_reserved = claim_recording(path)
         st = self.settings
-        meta = run_metadata(self.twin, "mps node", st.pacing, st.real_time_factor, st.publish_every)
+        meta = run_metadata(twin, "mps node", st.pacing, st.real_time_factor, st.publish_every)
         meta["node"] = self.get_fully_qualified_name()
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
@@ -234,47 +265,42 @@ class PressTwin(LifecycleNode):
         link = FoxgloveLink(self) if self.settings.foxglove_port else None
         self.foxglove = link
         try:
-            self.recorder = BackgroundRecorder(
-                path,
-                scene_name=self.twin.scene.name,
-                scene_text=self.twin.scene.text,
+            recorder = self.recorder = BackgroundRecorder(
+                target,
+                scene_name=twin.scene.name,
+                scene_text=twin.scene.text,
                 metadata=meta,
                 flush_period=self.settings.recording_flush_period,
                 compression=self.settings.recording_compression,
                 max_bytes=int(self.settings.recording_max_mb * 1e6),
                 max_s=self.settings.recording_max_s,
                 # the Foxglove endpoint: served by the recording process (mps_ros.foxglove.live)
-                **(
-                    dict(
-                        module="mps_ros.foxglove.live",
-                        tap=endpoint_settings(self, link.child_fd),
-                        pass_fds=(link.child_fd,),
-                    )
-                    if link is not None
-                    else {}
-                ),
+                module="mps_ros.foxglove.live" if link is not None else "mps_ros.recording.background",
+                tap=endpoint_settings(self, link.child_fd) if link is not None else None,
+                pass_fds=(link.child_fd,) if link is not None else (),
             )
         except OSError:
             if link is not None:  # the endpoint could not start: no run, no recording left
                 link.close()
                 self.foxglove = None
-                discard_recording(Path(path), self._recording_reserved and self.settings.recording != "auto")
+                discard_recording(target, self._recording_reserved and self.settings.recording != "auto")
             raise
         if link is not None:
             link.start()
-            self.get_logger().info(f"foxglove endpoint: {self.recorder.tap_info.get('url')}")
+            self.get_logger().info(f"foxglove endpoint: {recorder.tap_info.get('url')}")
         self.recording_sink = RecordingSink(
-            self.recorder,
-            names=dict(self.endpoints.names),
+            recorder,
+            names=dict(self._endpoints().names),
             qos=offered_qos(self.settings.qos_depth),
             log=self._log,
         )
-        self.runner.sinks.append(self.recording_sink)
-        return self.recorder
+        self._run().sinks.append(self.recording_sink)
+        return recorder
 
     def run(self, stop: threading.Event) -> dict:
-        tw = self.twin
-        names, unpublished = self.endpoints.names, self.endpoints.unpublished
+        """Run to the end or a stop (the run's statistics), once the peers it waits for came."""
+        tw, runner, endpoints = self._twin(), self._run(), self._endpoints()
+        names, unpublished = endpoints.names, endpoints.unpublished
         self.get_logger().info(
             f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
             f"{self.settings.pacing}"
@@ -294,16 +320,16 @@ class PressTwin(LifecycleNode):
                 "has it)"
             )
         # the kernels built and the channels registered while the peers are awaited
-        self.runner.prepare()
+        runner.prepare()
         self._refuse_a_second_of_my_name(self._created + DISCOVERY_S, stop)
         self._wait_for_peers(stop)
         stop.wait(self.settings.start_delay)
         if stop.is_set():
-            self.runner.request_stop("signal")
+            runner.request_stop("signal")
         if not self.split:
             self._set_priority()
         self.get_logger().info("stepping starts")
-        return self.runner.run()
+        return runner.run()
 
     def _refuse_a_second_of_my_name(self, until: float, stop: threading.Event) -> None:
         """:class:`NameTaken` where another node of this node's name and namespace runs in
@@ -370,7 +396,7 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
         taken = exc
     except MpsError as exc:
         node.get_logger().error(f"the simulation stopped: {exc}")
-        stats = node.runner.stats()
+        stats = node._run().stats()
         code = 2
     except OSError as exc:  # the stepping process could not start its run
         if not node.split:
@@ -384,9 +410,9 @@ def _one_run(node: PressTwin, stop: threading.Event) -> tuple[int, bool]:
             discard_recording(node.recorder.path, node._recording_reserved)
         print(f"press_twin: error: {taken}", file=sys.stderr, flush=True)
         return 2, False
-    node.endpoints.drain()
+    node._endpoints().drain()
     _say_run_end(node, stats)
-    if node.recorder is not None:
+    if node.recorder is not None and node.recording_sink is not None:
         failure = node.recording_sink.failure or recording_error
         if failure is None:
             node.get_logger().info(
@@ -411,10 +437,11 @@ def _status(node: PressTwin) -> int:
     """The exit status of a run that ended without an exception: 2 where its simulation failed
     in the stepping process (which said why: its log line), 1 where the stepping process failed
     otherwise, else 0."""
-    if node.split and node.runner.error_kind == "simulation":
+    runner = node._run()
+    if node.split and runner.error_kind == "simulation":
         return 2
-    if node.split and node.runner.error:
-        node.get_logger().error(f"the run failed: {node.runner.error}")
+    if node.split and runner.error:
+        node.get_logger().error(f"the run failed: {runner.error}")
         return 1
     return 0
 
@@ -431,16 +458,16 @@ def _closed(node: PressTwin) -> str | None:
         except OSError as exc:
             recording_error = str(exc)
     if node.split:
-        node.runner.close()
+        node._run().close()
     return recording_error
 
 
 def _say_run_end(node: PressTwin, stats: dict) -> None:
     """The run's last line: how it ended and its statistics (``mps bench`` reads it)."""
-    why = node.runner.stop_reason or "end"
+    why = node._run().stop_reason or "end"
     node.get_logger().info(
         f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
-        f"{stats.get('t', node.twin.t):.6g} s after {stats['steps']} steps: real-time factor "
+        f"{stats.get('t', node._twin().t):.6g} s after {stats['steps']} steps: real-time factor "
         f"{stats['real_time_factor']:.3g}, step p50 {stats['step_time_p50_ms']:.3g} ms, "
         f"p99 {stats['step_time_p99_ms']:.3g} ms, publish p50 "
         f"{stats['publish_time_p50_ms']:.3g} ms, p99 {stats['publish_time_p99_ms']:.3g} ms, "
@@ -570,7 +597,7 @@ def _start(node: PressTwin) -> None:
 def _never_ran(node: PressTwin) -> int:
     """A node that ended before its run started (never activated): what was begun is undone
     (the stepping process ended, the recording discarded); its exit status."""
-    if node.split:
+    if node.split and node.runner is not None:
         node.runner.close()
     if node.recorder is not None:
         with contextlib.suppress(OSError):

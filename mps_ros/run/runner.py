@@ -157,6 +157,8 @@ class Runner:
         self.clocks = RunClocks()
         self.stop_reason: str | None = None
         self.error: str | None = None
+        #: what kind of error ended the run, where the run says (a stepping process's); None
+        self.error_kind: str | None = None
         self.stopping = threading.Event()
         self._paused = threading.Event()  # as fast as possible: held (pause())
         self._step_replies: collections.deque = collections.deque()  # step_paused()
@@ -173,6 +175,9 @@ class Runner:
     @commands_lost.setter
     def commands_lost(self, n: int) -> None:
         self.commands.lost = n
+
+    def close(self) -> None:
+        """End what the run started beside it: nothing (it steps in this process's threads)."""
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to end after the step in progress (from a signal handler or thread)."""
