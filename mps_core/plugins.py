@@ -2,8 +2,10 @@
 
 A distribution names them in its ``[project.entry-points]``: group ``mps.commands`` (a
 ``register(subparsers)`` each, whose parser sets ``func``), group ``mps.recordings`` (a reader
-of a recording format into columns, by the format's name: ``mcap``). ``mps_core`` names none of
-them itself.
+of a recording format into columns, by the format's name: ``mcap``), group ``mps.track_writers``
+(a writer of a tracked run's record, :class:`~mps_core.track.recording.TrackRecording`, into a
+recording of that format: ``write(path, recording)``, returning the messages written, by the
+format's name). ``mps_core`` names none of them itself.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from typing import Any
 COMMANDS = "mps.commands"
 #: the group of the recording readers: name (the format) -> ``load_columns(path)``
 RECORDINGS = "mps.recordings"
+#: the group of the tracked runs' recording writers: name (the format) -> ``write(path, recording)``
+TRACK_WRITERS = "mps.track_writers"
 
 
 def found(group: str) -> list[EntryPoint]:
@@ -40,6 +44,14 @@ def load(ep: EntryPoint) -> Callable[..., Any] | None:
 def reader(fmt: str) -> EntryPoint | None:
     """Return the entry point that reads recordings of format ``fmt``, or None."""
     for ep in found(RECORDINGS):
+        if ep.name == fmt:
+            return ep
+    return None
+
+
+def track_writer(fmt: str) -> EntryPoint | None:
+    """Return the entry point that writes tracked runs as recordings of format ``fmt``, or None."""
+    for ep in found(TRACK_WRITERS):
         if ep.name == fmt:
             return ep
     return None

@@ -2,16 +2,19 @@
 
     mps emulate SCENE --csv FILE [--t-end S] [--seed N] [--slider] [--motor-torque]
                       [--fault T:KIND ...] [--truth FILE] [--force]
-    mps track SCENE (--csv FILE | --against-truth S) [--out FILE] [--strokes FILE] [--loads]
-                    [--prediction jacobian|unscented] [--seed N] [--force]
+    mps track SCENE (--csv FILE | --against-truth S) [--out FILE.csv] [--out FILE.mcap]
+                    [--strokes FILE] [--loads] [--prediction jacobian|unscented] [--seed N] [--force]
 
 ``mps emulate`` runs SCENE's *truth* (:func:`~mps_core.track.truth.truth_scene`: masses, friction,
 part and motor off the nominal) and writes what the press's sensors read
 (:mod:`~mps_core.track.measurement_csv`): a 17-bit encoder at 1 kHz with jittered stamps,
 optionally the slider's scale and the motor's torque, the mode signals; ``--truth`` writes the
 truth's own record beside it. ``mps track`` follows SCENE (the nominal press) over such a file
-and writes the estimates (one row a measurement taken, each with its 1-σ) and the per-stroke
-table; ``--against-truth S`` emulates S seconds itself and prints how the estimates compare with
+and writes the estimates (one row a measurement taken, each with its 1-σ, and the ``tracking``
+status then: :mod:`~mps_core.track.diagnostics`), the per-stroke table, and with ``--out
+FILE.mcap`` a recording of the measured and estimated topics (:mod:`~mps_core.track.recording`,
+written by the package registered for it); it prints each change of the tracking status.
+``--against-truth S`` emulates S seconds itself and prints how the estimates compare with
 the truth (the tables of docs/tracking.md).
 """
 
@@ -26,7 +29,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from .diagnostics import TrackingMonitor
 from .measurements import Encoder, MeasurementError
+from .recording import TrackRecording
 from .settings import PREDICTIONS, TrackSettings
 from .tracker import LOAD_COLUMNS, Tracker
 
@@ -77,7 +82,14 @@ def register(subparsers: Any) -> None:
     src.add_argument(
         "--against-truth", type=float, metavar="S", help="emulate S seconds and compare with the truth"
     )
-    t.add_argument("--out", metavar="FILE", help="write the estimates to FILE")
+    t.add_argument(
+        "--out",
+        metavar="FILE",
+        action="append",
+        default=[],
+        help="FILE.csv: write the estimates; FILE.mcap: write a recording of the measured and estimated "
+        "topics, as the node records its own (with the loads); once each",
+    )
     t.add_argument("--strokes", metavar="FILE", help="write the per-stroke table to FILE")
     t.add_argument(
         "--loads",
@@ -150,8 +162,11 @@ def _track(args: argparse.Namespace) -> int:
     """Run ``mps track``."""
     from ..files.outputs import check_outputs
 
+    args.out, args.recording = _outs(args.out)
     check_outputs(
-        {"--out": args.out, "--strokes": args.strokes}, inputs=[args.scene, args.csv], force=args.force
+        {"--out": args.out, "--out (recording)": args.recording, "--strokes": args.strokes},
+        inputs=[args.scene, args.csv],
+        force=args.force,
     )
     nominal = _nominal(args.scene)
     tracker = Tracker(nominal, TrackSettings(prediction=args.prediction))
@@ -167,15 +182,50 @@ def _track(args: argparse.Namespace) -> int:
         "motor_torque": 1.0,
     }
     measurements, modes = read_measurements(args.csv, variances)
-    rows, cpu = _follow(tracker, measurements, modes, args.loads)
+    args.loads = args.loads or args.recording is not None
+    monitor = TrackingMonitor()
+    recording = None
+    if args.recording is not None:
+        recording = TrackRecording(nominal, measurements=measurements, modes=modes)
+        recording.metadata = {
+            "source": "mps track",
+            "measurements": str(args.csv),
+            "prediction": args.prediction,
+        }
+    rows, cpu = _follow(tracker, measurements, modes, args.loads, monitor, recording)
     _write(args, tracker, rows)
-    _summary(tracker, cpu)
+    if recording is not None:
+        from .recording import write_recording
+
+        recording.events = list(tracker.sim.events)
+        recording.statuses = list(monitor.events)
+        recording.strokes = list(tracker.strokes.strokes)
+        n = write_recording(args.recording, recording)
+        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.recording}")
+    _summary(tracker, cpu, monitor)
     return 0
 
 
-def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> tuple[list[dict], np.ndarray]:
-    """Run the tracker over the measurements and modes; return the estimates' rows and the
-    CPU time of each measurement."""
+def _outs(outs: list[str]) -> tuple[str | None, str | None]:
+    """Return the estimates' CSV and the recording among the ``--out`` files (None where not asked)."""
+    csv_out = [o for o in outs if not o.lower().endswith(".mcap")]
+    mcap_out = [o for o in outs if o.lower().endswith(".mcap")]
+    for kind, given in (("FILE.csv (the estimates)", csv_out), ("FILE.mcap (a recording)", mcap_out)):
+        if len(given) > 1:
+            raise MeasurementError("--out", ", ".join(given), f"at most one {kind}")
+    return (csv_out[0] if csv_out else None), (mcap_out[0] if mcap_out else None)
+
+
+def _follow(
+    tracker: Tracker,
+    measurements: list,
+    modes: list,
+    loads: bool,
+    monitor: TrackingMonitor,
+    recording: TrackRecording | None = None,
+) -> tuple[list[dict], np.ndarray]:
+    """Run the tracker over the measurements and modes, watched by ``monitor`` (and gathered
+    into ``recording``); return the estimates' rows and the CPU time of each measurement."""
     rows: list[dict] = []
     cpu = []
     pending = sorted(modes, key=lambda s: s.t)
@@ -186,15 +236,21 @@ def _follow(tracker: Tracker, measurements: list, modes: list, loads: bool) -> t
         taken = tracker.update(m)
         smoothed = tracker.smoothed_loads() if loads else None
         tracker.observe_stroke(None if smoothed is None else smoothed[1])
+        status = monitor.observe(tracker, m)
         cpu.append(time.process_time() - c0)
+        if recording is not None and smoothed is not None:
+            recording.add_loads(*smoothed)
         if taken:
             est = tracker.estimate()
-            row = {c: getattr(est, c) for c in ESTIMATE_COLUMNS}
+            row: dict[str, Any] = {c: getattr(est, c) for c in ESTIMATE_COLUMNS}
+            row["tracking"] = status.level
             if smoothed is not None:
                 row["t_loads"] = smoothed[0]
                 for name, (v, s) in smoothed[1].items():
                     row[name], row[name + "_sigma"] = v, s
             rows.append(row)
+            if recording is not None:
+                recording.add(tracker, {k: v for k, v in row.items() if isinstance(v, float)}, status)
     return rows, np.asarray(cpu)
 
 
@@ -203,7 +259,7 @@ def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None
     from ..files.outputs import written_whole
 
     if args.out:
-        columns = list(ESTIMATE_COLUMNS)
+        columns = [*ESTIMATE_COLUMNS, "tracking"]
         if args.loads:
             columns += ["t_loads"] + [c + s for c in LOAD_COLUMNS for s in ("", "_sigma")]
         with written_whole(args.out) as tmp, tmp.open("w") as fh:
@@ -224,8 +280,9 @@ def _table(fh: TextIO, columns: list[str], rows: list[dict]) -> None:
         w.writerow({k: (repr(float(v)) if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def _summary(tracker: Tracker, cpu: np.ndarray) -> None:
-    """Print what was taken and rejected, the CPU a measurement and the per-stroke table."""
+def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None = None) -> None:
+    """Print what was taken and rejected, the CPU a measurement, the tracking status's changes
+    and the per-stroke table."""
     rejected = ", ".join(f"{k} {v}" for k, v in sorted(tracker.rejected.items())) or "none"
     print(f"measurements: {tracker.accepted} taken; rejected or reported: {rejected}")
     if len(cpu):
@@ -234,6 +291,12 @@ def _summary(tracker: Tracker, cpu: np.ndarray) -> None:
             f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
             f"max {us.max():.0f} us ({len(cpu)} measurements)"
         )
+    if monitor is not None:
+        changes = [s for s in monitor.events if s.level != "OK"]
+        if not changes:
+            print(f"tracking OK throughout ({monitor.status.message})")
+        for change in monitor.events[1:] if changes else ():
+            print(f"t = {change.t:.4f} s: {change.line()}")
     print("stroke  peak force (kN)      work (J)         peak foundation (kN)")
     for s in tracker.strokes.strokes:
         found = "-"

@@ -104,7 +104,7 @@ def test_the_commands_of_mps_ros_are_entry_points():
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     modules = _modules()
-    for group in ("mps.commands", "mps.recordings"):
+    for group in ("mps.commands", "mps.recordings", "mps.track_writers"):
         for name, target in project["entry-points"][group].items():
             module, _, attr = target.partition(":")
             assert module in modules, (group, name, target)

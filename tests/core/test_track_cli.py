@@ -23,9 +23,11 @@ def test_emulate_then_track(tmp_path, capsys):
     assert main(args) == 0
     said = capsys.readouterr().out
     assert "159 taken; rejected or reported: none" in said
+    assert "tracking OK throughout (mean NIS" in said
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 159 and float(rows[-1]["t"]) == pytest.approx(measurements[-1].t)
     assert {"force", "force_sigma", "F_found_x", "F_found_x_sigma"} <= set(rows[0])
+    assert {r["tracking"] for r in rows} == {"OK"}
     table = list(csv.DictReader(strokes.open()))
     assert [r["stroke"] for r in table] == ["0.0"]
     assert 20e3 < float(table[0]["peak_force_N"]) < 40e3  # the truth's part: 28.3 kN

@@ -1,0 +1,221 @@
+"""A tracked run as a recording: ``mps track --out FILE.mcap`` (the entry point ``mcap`` of the
+group ``mps.track_writers``, which :mod:`mps_core.track.recording` calls).
+
+The file is the twin's recording (:mod:`mps_ros.recording.recorder`: the same writer, profile,
+schemas, channels and metadata records), the messages those the node publishes, estimated:
+``/clock``, ``/tf_static`` and ``/tf``, ``/joint_states`` (the efforts from the estimated
+reactions), each reaction's and the foundation's WrenchStamped, ``~/structure`` (latched: at
+its changes), ``~/events`` (the model's events, JSON), ``/diagnostics`` (the ``tracking`` status
+at each of its changes and every second); and beside them (:mod:`mps_ros.wire.track_topics`) the
+measurements on ``/press/joint_states`` and ``/press/mode`` at their stamps, the 1-σ of each
+estimated topic on ``TOPIC/sigma``, the process force and the load torque, the strokes. No
+``~/markers``: the view draws the press from the joint states.
+
+**Time.** A step is an estimate (a measurement taken), at the measurement's stamp (the press's
+clock, ns from t = 0). Its reactions are the fixed-lag smoother's for that time, which it gives
+``force_lag`` measurements later; the steps the smoother gave no loads for (the last
+``force_lag``, and one where the chart restarted its lags) are left out of the estimated topics, so
+that every step read back has its joint states and its reactions together.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..wire import diagnostics
+from ..wire.cdr import encoder
+from ..wire.frames import TfLayout
+from ..wire.topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES, offered_qos, qos_yaml, resolve
+from ..wire.track_topics import (
+    LOAD_TORQUE,
+    MEASURED_JOINTS,
+    MEASURED_MODE,
+    PROCESS_FORCE,
+    STROKES,
+    TRACKING_STATUS,
+    sigma,
+)
+from .recorder import Recorder
+
+if TYPE_CHECKING:
+    from mps_core.track.recording import TrackRecording
+
+__all__ = ["write"]
+
+#: the diagnostics' levels by the tracking status's
+LEVEL = {"OK": diagnostics.OK, "WARN": diagnostics.WARN, "ERROR": diagnostics.ERROR}
+#: the diagnostics period (s of the press's clock)
+PERIOD = 1.0
+_WRENCH = "geometry_msgs/msg/WrenchStamped"
+_JOINTS = "sensor_msgs/msg/JointState"
+_STRING = "std_msgs/msg/String"
+NAN = math.nan
+
+
+def _ns(t: float) -> int:
+    """Return a time (s) in ns."""
+    return int(round(t * 1e9))
+
+
+def _stamp(t: float) -> dict[str, int]:
+    """Return builtin_interfaces/Time of a time (s)."""
+    ns = _ns(t)
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+def _wrench(t: float, frame_id: str, fx: float, fy: float, mz: float) -> dict[str, Any]:
+    """Return a WrenchStamped message dict."""
+    return {
+        "header": {"stamp": _stamp(t), "frame_id": frame_id},
+        "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
+    }
+
+
+def _json(obj: Any) -> str:
+    """Return an event as compact JSON (numbers as numbers, anything else as text)."""
+
+    def plain(v: Any) -> Any:
+        if hasattr(v, "tolist"):
+            return v.tolist()
+        if isinstance(v, set | tuple):
+            return list(v)
+        return str(v)
+
+    return json.dumps(obj, default=plain, separators=(",", ":"))
+
+
+class _Messages:
+    """The recording's messages gathered by time, then written in time order."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[int, int, str, str, bytes]] = []
+
+    def add(self, key: str, msgtype: str, msg: dict[str, Any], t: float) -> None:
+        """Add one message (topic key, type, message dict) at time ``t`` (s)."""
+        self.items.append((_ns(t), len(self.items), key, msgtype, encoder(msgtype)(msg)))
+
+
+def write(path: Path, rec: TrackRecording) -> int:
+    """Write the tracked run ``rec`` to the MCAP file ``path`` (written whole: under a
+    temporary name beside it, renamed once finished); return the messages written."""
+    msgs = _Messages()
+    _estimated(msgs, rec)
+    _measured(msgs, rec)
+    msgs.items.sort(key=lambda m: (m[0], m[1]))
+    qos = offered_qos()
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    meta = dict(rec.metadata)
+    meta["time"] = "the press's clock: the measurements' stamps, ns from t = 0"
+    try:
+        with Recorder(
+            tmp, scene_name=rec.scene.name, scene_text=rec.scene.text, metadata=meta, file_name=path.name
+        ) as recorder:
+            for t_ns, _order, key, msgtype, data in msgs.items:
+                recorder.write(resolve(key), msgtype, data, t_ns, qos.get(key) or qos_yaml())
+            written = recorder.messages
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return written
+
+
+def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
+    """Add the estimated topics: each step with its loads, the events, statuses and strokes."""
+    tf = TfLayout.of_scene(rec.scene)
+    structure = None
+    next_diagnostics = -math.inf
+    first = True
+    for step in rec.steps:
+        loads = rec.loads.get(step.t)
+        if loads is None:
+            continue
+        t, e = step.t, step.estimate
+        msgs.add("/clock", "rosgraph_msgs/msg/Clock", {"clock": _stamp(t)}, t)
+        if first:
+            msgs.add("/tf_static", "tf2_msgs/msg/TFMessage", tf.static_message(_stamp(t)), t)
+            first = False
+        phi, _rod, psi, x_c = step.positions
+        msgs.add("/tf", "tf2_msgs/msg/TFMessage", tf.message(_stamp(t), tf.values(phi, psi, x_c)), t)
+        value = {c: v for c, (v, _s) in loads.items()}
+        sd = {c: s for c, (_v, s) in loads.items()}
+        effort = [value["M_motor"], NAN, value["M_latch"], value["F_stop"]]
+        msgs.add("joint_states", _JOINTS, _joints(t, step.positions, step.velocities, effort), t)
+        pos_sd = (e["phi_sigma"], NAN, NAN, e["x_C_sigma"])
+        vel_sd = (e["phi_dot_sigma"], NAN, NAN, NAN)
+        msgs.add(sigma("joint_states"), _JOINTS, _joints(t, pos_sd, vel_sd, []), t)
+        for w in (*WRENCHES, FOUNDATION):
+            for key, of in ((w.key, value), (sigma(w.key), sd)):
+                fx, fy = (0.0 if c is None else float(of[c]) for c in w.force)
+                mz = 0.0 if w.torque is None else float(of[w.torque])
+                msgs.add(key, _WRENCH, _wrench(t, w.frame_id, fx, fy, mz), t)
+        if step.structure != structure:
+            structure = step.structure
+            msgs.add("~/structure", _STRING, {"data": structure}, t)
+        t_f = e["t_force_smoothed"]
+        msgs.add(PROCESS_FORCE.key, _WRENCH, _wrench(t_f, "press_C", e["force_smoothed"], 0.0, 0.0), t)
+        msgs.add(
+            sigma(PROCESS_FORCE.key), _WRENCH, _wrench(t_f, "press_C", e["force_smoothed_sigma"], 0.0, 0.0), t
+        )
+        msgs.add(LOAD_TORQUE.key, _WRENCH, _wrench(t, FRAME_ID, 0.0, 0.0, e["torque"]), t)
+        msgs.add(sigma(LOAD_TORQUE.key), _WRENCH, _wrench(t, FRAME_ID, 0.0, 0.0, e["torque_sigma"]), t)
+        if t >= next_diagnostics:
+            _status(msgs, rec, step.status, t)
+            next_diagnostics = t + PERIOD
+    for change in rec.statuses:
+        _status(msgs, rec, change, change.t)
+    for ev in rec.events:
+        msgs.add("~/events", _STRING, {"data": _json(ev)}, float(ev.get("t", 0.0)))
+    for s in rec.strokes:
+        if math.isfinite(s.t_end):
+            msgs.add(STROKES.key, _STRING, {"data": _json(s.row())}, s.t_end)
+
+
+def _joints(t: float, positions: Any, velocities: Any, effort: Any) -> dict[str, Any]:
+    """Return a JointState of the twin's joints."""
+    return {
+        "header": {"stamp": _stamp(t), "frame_id": FRAME_ID},
+        "name": list(JOINT_NAMES),
+        "position": [float(v) for v in positions],
+        "velocity": [float(v) for v in velocities],
+        "effort": [float(v) for v in effort],
+    }
+
+
+def _status(msgs: _Messages, rec: TrackRecording, status: Any, t: float) -> None:
+    """Add the tracking status on /diagnostics at ``t``."""
+    st = diagnostics.status(
+        LEVEL[status.level],
+        TRACKING_STATUS,
+        status.line(),
+        diagnostics.hardware_id(rec.scene.name),
+        {"level": status.level, "since_s": float(status.since)},
+    )
+    msgs.add("/diagnostics", BY_KEY["/diagnostics"].msgtype, diagnostics.array(_ns(t), [st]), t)
+
+
+def _measured(msgs: _Messages, rec: TrackRecording) -> None:
+    """Add the measurements, one JointState a stamp, and the mode signals."""
+    by_stamp: dict[float, dict[str, float]] = {}
+    for m in rec.measurements:
+        by_stamp.setdefault(m.t, {})[m.kind] = m.value
+    for t, got in sorted(by_stamp.items()):
+        names = ["crank"] + (["slider"] if "slider_position" in got else [])
+        pos = [got.get("crank_angle", NAN)] + ([got["slider_position"]] if len(names) > 1 else [])
+        vel = [got["crank_rate"]] + [NAN] * (len(names) - 1) if "crank_rate" in got else []
+        eff = [got["motor_torque"]] + [NAN] * (len(names) - 1) if "motor_torque" in got else []
+        msg = {
+            "header": {"stamp": _stamp(t), "frame_id": FRAME_ID},
+            "name": names,
+            "position": pos,
+            "velocity": vel,
+            "effort": eff,
+        }
+        msgs.add(MEASURED_JOINTS.key, MEASURED_JOINTS.msgtype, msg, t)
+    for s in rec.modes:
+        msgs.add(MEASURED_MODE.key, MEASURED_MODE.msgtype, {"data": s.command}, s.t)

@@ -1,0 +1,138 @@
+"""``mps track --out FILE.mcap``: the tracked run as a recording, read back by rosbags (an
+independent reader), by ``mps loads`` and by ``mps view``, its values those of the estimates
+file; the measurements on their own topics; the 1-σ beside each estimated wrench."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from mps_core.cli import main
+from mps_core.track.measurement_csv import read_measurements
+
+FOUNDATION_COLUMNS = ("F_found_x", "F_found_y", "M_found_O")
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """press-cycle's truth emulated for 0.33 s (idle, engage, the latch closing, two cuts: a
+    whole revolution for the load report), then tracked into an estimates file and a recording."""
+    d = tmp_path_factory.mktemp("track")
+    m, est, rec = d / "m.csv", d / "est.csv", d / "run.mcap"
+    assert main(["emulate", "press-cycle", "--t-end", "0.33", "--csv", str(m)]) == 0
+    args = ["track", "press-cycle", "--csv", str(m), "--out", str(est), "--out", str(rec), "--loads"]
+    assert main(args) == 0
+    rows = list(csv.DictReader(est.open()))
+    return d, m, rows, rec
+
+
+def _ns(t: str | float) -> int:
+    return int(round(float(t) * 1e9))
+
+
+def _messages(path: Path) -> dict[str, list]:
+    """Every message by topic: (log time ns, type, message), with rosbags."""
+    from rosbags.highlevel import AnyReader
+
+    out: dict[str, list] = {}
+    with AnyReader([path]) as reader:
+        for conn, t_ns, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t_ns, conn.msgtype, reader.deserialize(raw, conn.msgtype)))
+    return out
+
+
+def test_rosbags_reads_the_estimates_of_the_csv(tracked):
+    _d, _m, rows, rec = tracked
+    msgs = _messages(rec)
+    by_t = {_ns(r["t"]): r for r in rows}
+    loads = {_ns(r["t_loads"]): r for r in rows}  # a later estimate of a time replaces an earlier
+    joints = msgs["/joint_states"]
+    # every estimate the smoother gave loads for is a step: all but a few (the last two, and
+    # one at each restart of the lags: engage, latch)
+    assert len(rows) - 8 <= len(joints) < len(rows)
+    assert len(joints) == len([t for t in by_t if t in loads])
+    for t_ns, msgtype, js in joints:
+        assert msgtype == "sensor_msgs/msg/JointState"
+        r = by_t[t_ns]
+        assert list(js.name) == ["crank", "rod", "rocker", "slider"]
+        assert js.position[0] == float(r["phi"]) and js.velocity[0] == float(r["phi_dot"])
+        assert js.position[3] == float(r["x_C"])
+        assert js.effort[0] == float(loads[t_ns]["M_motor"])
+    found = {t: msg for t, _ty, msg in msgs["/press_twin/foundation"]}
+    found_sd = {t: msg for t, _ty, msg in msgs["/press_twin/foundation/sigma"]}
+    assert set(found) == set(found_sd) == {t for t, _ty, _m in joints}
+    for t_ns, w in found.items():
+        r = loads[t_ns]
+        assert (w.wrench.force.x, w.wrench.force.y, w.wrench.torque.z) == tuple(
+            float(r[c]) for c in FOUNDATION_COLUMNS
+        )
+        sd = found_sd[t_ns].wrench
+        assert (sd.force.x, sd.force.y, sd.torque.z) == tuple(
+            float(r[c + "_sigma"]) for c in FOUNDATION_COLUMNS
+        )
+        assert w.header.stamp.sec * 10**9 + w.header.stamp.nanosec == t_ns
+    types = {topic: ms[0][1] for topic, ms in msgs.items()}
+    for topic in ("/press_twin/reactions/A", "/press_twin/reactions/A/sigma", "/press_twin/process_force"):
+        assert types[topic] == "geometry_msgs/msg/WrenchStamped"
+    assert types["/clock"] == "rosgraph_msgs/msg/Clock"
+    assert types["/diagnostics"] == "diagnostic_msgs/msg/DiagnosticArray"
+    statuses = [s for _t, _ty, a in msgs["/diagnostics"] for s in a.status]
+    assert {s.name for s in statuses} == {"press_twin: tracking"}
+    assert {s.level for s in statuses} == {0}  # a healthy run: OK
+    assert [m.data for _t, _ty, m in msgs["/press_twin/structure"]] == ["held", "free", "locked"]
+    kinds = [json.loads(m.data)["kind"] for _t, _ty, m in msgs["/press_twin/events"]]
+    assert "latch-closes" in kinds
+
+
+def test_the_measurements_are_on_their_own_topics(tracked):
+    _d, m, _rows, rec = tracked
+    msgs = _messages(rec)
+    measured, modes = read_measurements(m, {"crank_angle": 1e-10})
+    got = msgs["/press/joint_states"]
+    assert [t for t, _ty, _m in got] == [_ns(x.t) for x in measured]
+    assert all(list(js.name) == ["crank"] for _t, _ty, js in got)
+    assert [js.position[0] for _t, _ty, js in got] == [x.value for x in measured]
+    assert [(t, msg.data) for t, _ty, msg in msgs["/press/mode"]] == [(_ns(s.t), s.command) for s in modes]
+    assert [s.command for s in modes] == ["engage", "disengage"]  # the scene's signals, all written
+
+
+def test_mps_loads_and_mps_view_read_it_as_the_twins(tracked, capsys):
+    from mps_ros.recording.replay import load_columns
+
+    d, _m, rows, rec = tracked
+    columns, events, _name = load_columns(rec)  # what `mps loads FILE.mcap` reads
+    loads = {_ns(r["t_loads"]): r for r in rows}
+    by_t = {_ns(r["t"]): r for r in rows}
+    for i, t in enumerate(columns["t"]):
+        t_ns = _ns(t)
+        assert columns["phi"][i] == float(by_t[t_ns]["phi"])
+        assert columns["F_found_x"][i] == float(loads[t_ns]["F_found_x"])
+        assert columns["F_A_y"][i] == float(loads[t_ns]["F_A_y"])
+    assert not any(math.isnan(v) for v in columns["F_found_x"])
+    assert {e["kind"] for e in events} >= {"command", "latch-closes"}
+    capsys.readouterr()
+    assert main(["loads", str(rec), "--json", str(d / "loads.json")]) == 0
+    report = json.loads((d / "loads.json").read_text())
+    cycle = report["cycle"]
+    peak = next(q["peak"] for q in report["quantities"] if q["name"] == "F_found_x")
+    inside = [
+        abs(float(r["F_found_x"]))
+        for r in loads.values()
+        if cycle["t0_s"] <= float(r["t_loads"]) <= cycle["t1_s"]
+    ]
+    assert peak == pytest.approx(max(inside), rel=0.02)  # the report's spline through the steps
+    assert main(["view", str(rec), "--save", str(d / "run.rrd"), "--no-spawn"]) == 0
+    assert (d / "run.rrd").stat().st_size > 0
+
+
+def test_bad_outputs_are_named(tracked, capsys):
+    d, m, _rows, _rec = tracked
+    argv = ["track", "press-cycle", "--csv", str(m), "--out", str(d / "a.mcap"), "--out", str(d / "b.mcap")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--out = " in err and "a.mcap" in err and "expected at most one FILE.mcap (a recording)" in err
+    assert not (d / "a.mcap").exists()
