@@ -86,8 +86,10 @@ class DiagnosticSettings:
 
 @dataclass(frozen=True)
 class Status:
-    """The tracking status at time ``t``: its level (:data:`LEVELS`), what it says, and since
-    when (s) it has said it."""
+    """The tracking status at time ``t``.
+
+    Its level (:data:`LEVELS`), what it says, and since when (s) it has said it.
+    """
 
     t: float
     level: str
@@ -148,7 +150,7 @@ class TrackingMonitor:
 
     # -- the tests --------------------------------------------------------------------------
     def _innovations(self, tracker: Tracker, t: float) -> None:
-        """The windowed NIS test (WARN above its upper bound)."""
+        """Run the windowed NIS test (WARN above its upper bound)."""
         new = tracker.innovations[self._seen :]
         self._seen = len(tracker.innovations)
         w = self.settings.window
@@ -165,8 +167,10 @@ class TrackingMonitor:
             self._set(f, "OK", said, t)
 
     def _track(self, tracker: Tracker, t: float) -> None:
-        """The lost-track test: measurements running rejected as the model's misses (a lost
-        track found again once ``recover_after`` measurements running are taken)."""
+        """Run the lost-track test: measurements running rejected as the model's misses.
+
+        A lost track is found again once ``recover_after`` measurements running are taken.
+        """
         s = self.settings
         rejected = sum(tracker.rejected[r] for r in LOST_REASONS)
         if rejected > self._rejected:
@@ -194,7 +198,7 @@ class TrackingMonitor:
     def _torque(
         self, tracker: Tracker, structure: str, phi: float, torque: float, sd: float, t: float
     ) -> None:
-        """The load torque against its own estimate a revolution back at the same crank angle."""
+        """Compare the load torque with its own estimate a revolution back at the same crank angle."""
         s = self.settings
         f = self._findings["torque"]
         if structure != self._structure:  # another structure: the reference starts again
@@ -228,7 +232,7 @@ class TrackingMonitor:
         self._set(f, "OK", "", t)
 
     def _work(self, tracker: Tracker, work: float, sd: float, t: float) -> None:
-        """The stroke's work so far against the last healthy stroke's."""
+        """Compare the stroke's work so far with the last healthy stroke's."""
         s = self.settings
         f = self._findings["work"]
         strokes = tracker.strokes.strokes
@@ -255,9 +259,11 @@ class TrackingMonitor:
 
     @staticmethod
     def _whole(stroke: StrokeEstimate, tracker: Tracker) -> bool:
-        """Return whether a closed stroke can be the reference: a whole revolution (not cut by a
-        change of structure) in which a part was blanked (its work three of its 1-sigma off
-        zero)."""
+        """Return whether a closed stroke can be the reference for the work.
+
+        A whole revolution (not cut by a change of structure) in which a part was blanked (its
+        work three of its 1-sigma off zero).
+        """
         rate = abs(tracker.estimate().phi_dot)
         turn = 2.0 * math.pi / rate if rate > 0.0 else math.inf
         return (

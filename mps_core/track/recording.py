@@ -1,5 +1,6 @@
-"""What a recording of a tracked run holds, gathered as the tracker goes, and handed to the
-package that writes recordings.
+"""What a recording of a tracked run holds, gathered as the tracker goes.
+
+It is handed to the package that writes recordings.
 
 ``mps track --out FILE.mcap`` writes the measured and the estimated topics as the twin's node
 records its own. The core knows no recording format: it gathers a :class:`TrackRecording` (the
@@ -31,9 +32,12 @@ __all__ = ["TrackRecording", "TrackStep", "joint_values", "write_recording"]
 
 @dataclass(frozen=True)
 class TrackStep:
-    """One estimate (a measurement taken): its time, structure, the joints' positions and
-    rates (crank, rod, rocker, slider: as the twin's joint states), the estimate's figures by
-    the estimates file's column names, and the tracking status then."""
+    """One estimate (a measurement taken).
+
+    Its time, structure, the joints' positions and rates (crank, rod, rocker, slider: as the
+    twin's joint states), the estimate's figures by the estimates file's column names, and the
+    tracking status then.
+    """
 
     t: float
     structure: str
@@ -75,8 +79,11 @@ class TrackRecording:
 def joint_values(
     tracker: Tracker,
 ) -> tuple[tuple[float, float, float, float], tuple[float, float, float, float]]:
-    """Return the joints' positions and rates at the tracker's estimate: the crank's angle, the
-    rod's angle from x (A to B), the rocker's angle, the slider's position; their rates."""
+    """Return the joints' positions and rates at the tracker's estimate.
+
+    The crank's angle, the rod's angle from x (A to B), the rocker's angle, the slider's
+    position; their rates.
+    """
     sim = tracker.sim
     phi, phi_dot, psi, psi_dot, x, x_dot = (float(v) for v in sim.joint_state())
     kin = sim.solver.current.kin
@@ -91,8 +98,10 @@ class RecordingWriterMissing(MpsError, ValueError):
 
 
 def write_recording(path: str | Path, recording: TrackRecording, fmt: str = "mcap") -> int:
-    """Write ``recording`` to ``path`` with the writer registered for ``fmt``; return the
-    messages written."""
+    """Write ``recording`` to ``path`` with the writer registered for ``fmt``.
+
+    Return the messages written.
+    """
     ep = track_writer(fmt)
     write = None
     if ep is not None:

@@ -1,5 +1,7 @@
-"""A tracked run as a recording: ``mps track --out FILE.mcap`` (the entry point ``mcap`` of the
-group ``mps.track_writers``, which :mod:`mps_core.track.recording` calls).
+"""A tracked run as a recording: ``mps track --out FILE.mcap``.
+
+The entry point ``mcap`` of the group ``mps.track_writers``, which
+:mod:`mps_core.track.recording` calls.
 
 The file is the twin's recording (:mod:`mps_ros.recording.recorder`: the same writer, profile,
 schemas, channels and metadata records), the messages those the node publishes, estimated:
@@ -100,8 +102,10 @@ class _Messages:
 
 
 def write(path: Path, rec: TrackRecording) -> int:
-    """Write the tracked run ``rec`` to the MCAP file ``path`` (written whole: under a
-    temporary name beside it, renamed once finished); return the messages written."""
+    """Write the tracked run ``rec`` to the MCAP file ``path``; return the messages written.
+
+    The file is written whole: under a temporary name beside it, renamed once finished.
+    """
     msgs = _Messages()
     _estimated(msgs, rec)
     _measured(msgs, rec)
