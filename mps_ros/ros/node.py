@@ -143,6 +143,10 @@ class PressTwin(LifecycleNode):
         self.endpoints = Endpoints(self, self.twin.outputs, self.settings.qos_depth)
         self.inbox = Inbox()  # before the subscription that fills it
         self.endpoints.listen(self, self.commands)
+        if self.settings.track:  # following a press: its topics beside the simulator's
+            from .tracking_source import add_endpoints
+
+            add_endpoints(self)
         self.new_run(self.twin)
 
     def new_run(self, twin: Twin | None = None) -> None:
@@ -157,8 +161,12 @@ class PressTwin(LifecycleNode):
         #: the twin steps in a process of its own (:mod:`mps_ros.run.stepping`); this process
         #: publishes what it releases and forwards the commands (as fast as possible, where
         #: the twin can come back to a step: a command's boundary is the last step released)
-        self.split = self.config.splits(self.twin)
-        if self.split:
+        self.split = self.config.splits(self.twin) and not self.settings.track
+        if self.settings.track:  # following a press: its measurements pace the run
+            from .tracking_source import tracking_run
+
+            self.runner = tracking_run(self)
+        elif self.split:
             self.runner = self.config.stepping_process(self.twin, self.endpoints.sink, self._log)
             self.inbox = self.runner.inbox
         else:
@@ -437,6 +445,9 @@ def _closed(node: PressTwin) -> str | None:
 
 def _say_run_end(node: PressTwin, stats: dict) -> None:
     """The run's last line: how it ended and its statistics (``mps bench`` reads it)."""
+    if node.settings.track:  # following a press: its own figures
+        node.get_logger().info(node.runner.summary())
+        return
     why = node.runner.stop_reason or "end"
     node.get_logger().info(
         f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
