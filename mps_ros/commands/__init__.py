@@ -3,4 +3,4 @@
 
 # the package's public modules; importing the package imports none of them (no rclpy, no engine
 # before a module asks for it): ``from mps_ros.commands import *`` imports them all
-__all__ = ["cli", "demo", "view"]
+__all__ = ["cli", "demo", "emulator", "view"]

@@ -55,6 +55,9 @@ __all__ = ["TrackingRun", "nominal_scene"]
 
 #: the reasons this run rejects an input for, besides the tracker's (``Tracker.rejected``)
 INPUT_REJECTIONS = ("malformed", "timeout")
+#: an estimate handed out later than this after its measurement arrived (s) is late: the node
+#: does not keep up (issue 46's target: published within 1 ms)
+LATE = 1e-3
 
 
 def nominal_scene(scene: Scene) -> Scene:
@@ -134,7 +137,9 @@ class TrackingRun:
     ``sigma_every``: the loads' 1-σ (``KEY/sigma``) computed and published every this many
     estimates (they cost 2n + 2 more reaction solves each: a stated decimation where the
     machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
-    timeout. ``log(level, text)``: where rejections and timeouts are said.
+    timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
+    is counted late and reported (WARN: the node does not keep up). ``log(level, text)``: where
+    rejections and timeouts are said.
     """
 
     def __init__(
@@ -149,6 +154,7 @@ class TrackingRun:
         slider_variance: float = 1e-12 + 1e-12 / 12.0,
         sigma_every: int = 1,
         timeout: float = 0.05,
+        late_after: float = LATE,
         diagnostics_period: float = 1.0,
         markers_hz: float = 30.0,
         markers_scale: float | None = None,
@@ -167,6 +173,7 @@ class TrackingRun:
         self.slider_variance = float(slider_variance)
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
+        self.late_after = float(late_after)
         self.period = float(diagnostics_period)
         self.log = log or (lambda level, text: None)
         solve = "reactions" in self.outputs or "foundation" in self.outputs
@@ -183,6 +190,8 @@ class TrackingRun:
         self.cpu: list[float] = []
         #: wall seconds from a measurement's arrival to its estimate handed to every sink
         self.delay: list[float] = []
+        #: estimates handed out more than :data:`LATE` after their measurement arrived
+        self.late = 0
         self.stop_reason: str | None = None
         self.commands_lost = 0
         self.inbox = None
@@ -286,7 +295,10 @@ class TrackingRun:
                 return False
             self._publish()
             self.cpu.append(time.thread_time() - cpu0)
-            self.delay.append(time.monotonic() - arrival)
+            delay = time.monotonic() - arrival
+            self.delay.append(delay)
+            if delay > self.late_after:
+                self.late += 1
             return True
 
     def mode(self, command: str, raw: bytes, arrival: float) -> None:
@@ -392,6 +404,7 @@ class TrackingRun:
             "delay_p50_ms": _percentile(delay, 50),
             "delay_p99_ms": _percentile(delay, 99),
             "sigma_every": self.sigma_every,
+            "late": self.late,
         }
         out.update({f"rejected_{k.replace('-', '_')}": v for k, v in sorted(self.rejected().items())})
         return out
@@ -405,7 +418,8 @@ class TrackingRun:
             f"tracking run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = {s['t']:.6g} s: "
             f"{s['received']} measurements received, {s['estimates']} estimates published, rejected: {rej}; "
             f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms; publish delay "
-            f"p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms; loads' 1-sigma every "
+            f"p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms, {s['late']} estimates over "
+            f"{self.late_after * 1e3:g} ms; loads' 1-sigma every "
             f"{self.sigma_every} estimate(s)"
         )
 
@@ -417,16 +431,29 @@ class TrackingRun:
         rej = self.rejected()
         gaps = rej.pop("gap", 0)
         total = sum(rej.values())
-        new = self._window.since(rejected=total, estimates=self.estimates)
+        new = self._window.since(rejected=total, estimates=self.estimates, late=self.late)
         level = diagnostics.OK
         msg = f"{self.estimates} estimates from {self.received} measurements, {total} rejected"
+        if new["late"]:
+            level = diagnostics.WARN
+            msg = (
+                f"cannot keep up: {new['late']} of {new['estimates']} estimates out more than "
+                f"{self.late_after * 1e3:g} ms after their measurement since the last report "
+                f"(track_sigma_every {self.sigma_every}: raise it to compute the loads' 1-sigma less often); "
+                + msg
+            )
         if new["rejected"]:
             level = diagnostics.WARN
             msg = f"{new['rejected']} rejected since the last report; " + msg
         if self._silent:
             level = diagnostics.WARN
             msg = f"no measurement for over {self.timeout:g} s; " + msg
-        values: dict[str, Any] = {"estimates": self.estimates, "received": self.received, "gaps": gaps}
+        values: dict[str, Any] = {
+            "estimates": self.estimates,
+            "received": self.received,
+            "gaps": gaps,
+            "late estimates": self.late,
+        }
         values.update({f"rejected {k}": v for k, v in sorted(rej.items())})
         s = self.stats()
         for k in ("cpu_p50_ms", "cpu_p99_ms", "delay_p50_ms", "delay_p99_ms"):

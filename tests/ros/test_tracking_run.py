@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 
@@ -30,6 +31,7 @@ def truth():
 
 
 def _run(logs=None, **kw):
+    kw.setdefault("late_after", math.inf)  # the levels asserted are the inputs', whatever the machine's load
     sink = ListSink()
     run = TrackingRun(
         load_scene("working"),
@@ -126,6 +128,16 @@ def test_a_silent_source_is_counted_and_reported_once_a_silence(truth):
     m = truth.measurements[1]
     run.measurement(m.t, m.value, None, b"", 101.0)
     assert run.status()["level"] == diagnostics.OK
+
+
+def test_estimates_out_late_are_counted_and_reported(truth):
+    run, _ = _run(late_after=1e-3)
+    m = truth.measurements[0]
+    run.measurement(m.t, m.value, None, b"", time.monotonic() - 0.01)  # it came 10 ms ago
+    assert run.late == 1
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "cannot keep up: 1 of 1 estimates" in st["message"]
+    assert "1 estimates over 1 ms" in run.summary()
 
 
 def test_a_bad_setting_names_its_field():
