@@ -102,9 +102,8 @@ def publish(
     published is lost to a follower that is not there yet); 1 where they did not come.
     """
     node = rclpy.create_node("press_emulator")
-    qos = QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=1000,
+    qos = QoSProfile(  # every reading delivered to a follower that keeps all (the node's source)
+        history=HistoryPolicy.KEEP_ALL,
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.VOLATILE,
     )

@@ -331,9 +331,10 @@ PARAMETERS: tuple[Parameter, ...] = (
     ),
     P(
         "track_sigma_every",
-        1,
+        10,
         "following a press: the wrenches' 1-σ (`…/sigma`) computed and published every this many estimates "
-        "(each costs 2n + 2 more reaction solves: a stated decimation where the machine cannot keep up)",
+        "(each costs 2n + 2 more reaction solves: at every one the node cannot keep 1 kHz on two "
+        "shared cores, see Following a press)",
         lo=1,
         hi=1e6,
     ),

@@ -103,9 +103,10 @@ class TrackingSource:
     def subscribe(self) -> None:
         """Subscribe to the measurements (and the mode signals), their bytes as received."""
         st = self.node.settings
+        # every measurement kept until taken (keep all, reliable): one dropped by a full
+        # history would be a gap the tracker must bridge
         qos = QoSProfile(
-            history=HistoryPolicy.KEEP_LAST,
-            depth=st.qos_depth,
+            history=HistoryPolicy.KEEP_ALL,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )

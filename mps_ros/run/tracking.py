@@ -188,8 +188,13 @@ class TrackingRun:
         self.estimates = 0  # estimates published (one a measurement message taken)
         #: CPU (s, this thread's) from a measurement's arrival to its estimate handed out
         self.cpu: list[float] = []
-        #: wall seconds from a measurement's arrival to its estimate handed to every sink
+        #: wall seconds from a measurement's callback to its estimate handed to every sink
         self.delay: list[float] = []
+        #: wall seconds each estimate went out behind the press: after its measurement's
+        #: arrival, taken as its stamp plus the least (arrival - stamp) seen (the measurements
+        #: that waited least), so a queue of measurements waiting to be taken counts
+        self.lag: list[float] = []
+        self._offset = math.inf
         #: estimates handed out more than :data:`LATE` after their measurement arrived
         self.late = 0
         self.stop_reason: str | None = None
@@ -270,6 +275,8 @@ class TrackingRun:
             self.received += 1
             self._last_arrival = arrival
             self._silent = False
+            if math.isfinite(t):
+                self._offset = min(self._offset, arrival - t)
             t_ns = _ns(t) if math.isfinite(t) else 0
             self.sinks.emit_all([(MEASURED.key, raw, t_ns, True)])
             if angle is None:
@@ -295,9 +302,11 @@ class TrackingRun:
                 return False
             self._publish()
             self.cpu.append(time.thread_time() - cpu0)
-            delay = time.monotonic() - arrival
-            self.delay.append(delay)
-            if delay > self.late_after:
+            done = time.monotonic()
+            self.delay.append(done - arrival)
+            lag = done - (t + self._offset)
+            self.lag.append(lag)
+            if lag > self.late_after:
                 self.late += 1
             return True
 
@@ -394,6 +403,7 @@ class TrackingRun:
         """Return the run's figures: inputs, estimates, rejections, CPU and delay a measurement (ms)."""
         cpu = [c * 1e3 for c in self.cpu]
         delay = [d * 1e3 for d in self.delay]
+        lag = [d * 1e3 for d in self.lag]
         out: dict[str, Any] = {
             "t": self.tracker.t,
             "received": self.received,
@@ -403,6 +413,9 @@ class TrackingRun:
             "cpu_p99_ms": _percentile(cpu, 99),
             "delay_p50_ms": _percentile(delay, 50),
             "delay_p99_ms": _percentile(delay, 99),
+            "behind_p50_ms": _percentile(lag, 50),
+            "behind_p99_ms": _percentile(lag, 99),
+            "behind_max_ms": max(lag, default=math.nan),
             "sigma_every": self.sigma_every,
             "late": self.late,
         }
@@ -417,8 +430,10 @@ class TrackingRun:
         return (
             f"tracking run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = {s['t']:.6g} s: "
             f"{s['received']} measurements received, {s['estimates']} estimates published, rejected: {rej}; "
-            f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms; publish delay "
-            f"p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms, {s['late']} estimates over "
+            f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms; from callback to "
+            f"published p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms; behind the press p50 "
+            f"{s['behind_p50_ms']:.3g} ms, p99 {s['behind_p99_ms']:.3g} ms, max {s['behind_max_ms']:.3g} ms, "
+            f"{s['late']} estimates over "
             f"{self.late_after * 1e3:g} ms; loads' 1-sigma every "
             f"{self.sigma_every} estimate(s)"
         )
@@ -438,7 +453,7 @@ class TrackingRun:
             level = diagnostics.WARN
             msg = (
                 f"cannot keep up: {new['late']} of {new['estimates']} estimates out more than "
-                f"{self.late_after * 1e3:g} ms after their measurement since the last report "
+                f"{self.late_after * 1e3:g} ms after their measurement arrived since the last report "
                 f"(track_sigma_every {self.sigma_every}: raise it to compute the loads' 1-sigma less often); "
                 + msg
             )
@@ -456,7 +471,14 @@ class TrackingRun:
         }
         values.update({f"rejected {k}": v for k, v in sorted(rej.items())})
         s = self.stats()
-        for k in ("cpu_p50_ms", "cpu_p99_ms", "delay_p50_ms", "delay_p99_ms"):
+        for k in (
+            "cpu_p50_ms",
+            "cpu_p99_ms",
+            "delay_p50_ms",
+            "delay_p99_ms",
+            "behind_p50_ms",
+            "behind_p99_ms",
+        ):
             values[k] = s[k]
         return diagnostics.status(level, f"{self.name}: tracking input", msg, self.hardware, values)
 

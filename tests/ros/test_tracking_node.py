@@ -171,5 +171,7 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
             assert name not in got and not listener.get(name)
             continue
         assert got.get(name, []) == listener.get(name), name
-    for key in ("~/foundation/sigma", "~/process_force", "~/process_force/sigma"):
+    for key in ("~/process_force", "~/process_force/sigma", "~/process_force/smoothed"):
         assert len(got[resolve(key)]) == sent - 1, key
+    # the loads' 1-sigma every track_sigma_every (10) estimates, from the first
+    assert len(got[resolve("~/foundation/sigma")]) == len(range(0, sent - 1, 10))
