@@ -78,6 +78,7 @@ def tracking_run(node: Any) -> TrackingRun:
         diagnostics_period=st.diagnostics_period,
         markers_hz=st.markers_hz,
         markers_scale=st.markers_scale,
+        clock=time.time,  # the middleware's timestamps are on the system clock
         log=node._log,
     )
     source = TrackingSource(node, run)
@@ -121,9 +122,9 @@ class TrackingSource:
             "info", f"tracking {self.subs[0].topic_name}" + (f" and {st.track_mode}" if st.track_mode else "")
         )
 
-    def on_measurement(self, data: bytes) -> None:
+    def on_measurement(self, data: bytes, info: dict) -> None:
         """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""
-        arrival = time.monotonic()
+        arrival, sent = _times(info)
         msg = deserialize_message(data, JointState)
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         names = list(msg.name)
@@ -135,10 +136,23 @@ class TrackingSource:
             angle = float(pos[0])
         if "slider" in names and names.index("slider") < len(pos):
             slider = float(pos[names.index("slider")])
-        self.run.measurement(t, angle, slider, bytes(data), arrival)
+        self.run.measurement(t, angle, slider, bytes(data), arrival, sent)
 
-    def on_mode(self, data: bytes) -> None:
+    def on_mode(self, data: bytes, info: dict) -> None:
         """Take one mode signal's bytes."""
-        arrival = time.monotonic()
+        _arrival, sent = _times(info)
         msg = deserialize_message(data, String)
-        self.run.mode(msg.data, bytes(data), arrival)
+        self.run.mode(msg.data, bytes(data), sent)
+
+
+def _times(info: dict) -> tuple[float, float]:
+    """Return when a message arrived here and when its publisher sent it (s, the system clock).
+
+    The middleware's timestamps (DDS reception and source), so a message that waited in the
+    executor's queue counts that wait; the system clock's now where the middleware gives none.
+    """
+    now = time.time()
+    received = info.get("received_timestamp") or 0
+    source = info.get("source_timestamp") or 0
+    arrival = received * 1e-9 if received else now
+    return arrival, (source * 1e-9 if source else arrival)

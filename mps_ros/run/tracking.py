@@ -138,8 +138,9 @@ class TrackingRun:
     estimates (they cost 2n + 2 more reaction solves each: a stated decimation where the
     machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
     timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
-    is counted late and reported (WARN: the node does not keep up). ``log(level, text)``: where
-    rejections and timeouts are said.
+    is counted late and reported (WARN: the node does not keep up). ``clock``: the wall clock
+    the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
+    and timeouts are said.
     """
 
     def __init__(
@@ -155,6 +156,7 @@ class TrackingRun:
         sigma_every: int = 1,
         timeout: float = 0.05,
         late_after: float = LATE,
+        clock: Callable[[], float] = time.monotonic,
         diagnostics_period: float = 1.0,
         markers_hz: float = 30.0,
         markers_scale: float | None = None,
@@ -174,6 +176,7 @@ class TrackingRun:
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
+        self.clock = clock
         self.period = float(diagnostics_period)
         self.log = log or (lambda level, text: None)
         solve = "reactions" in self.outputs or "foundation" in self.outputs
@@ -188,13 +191,13 @@ class TrackingRun:
         self.estimates = 0  # estimates published (one a measurement message taken)
         #: CPU (s, this thread's) from a measurement's arrival to its estimate handed out
         self.cpu: list[float] = []
-        #: wall seconds from a measurement's callback to its estimate handed to every sink
+        #: wall seconds from a measurement's arrival to its estimate handed to every sink
         self.delay: list[float] = []
-        #: wall seconds each estimate went out behind the press: after its measurement's
-        #: arrival, taken as its stamp plus the least (arrival - stamp) seen (the measurements
-        #: that waited least), so a queue of measurements waiting to be taken counts
-        self.lag: list[float] = []
+        #: the press's clock on the wall clock: the least (sent - stamp) of the measurements
         self._offset = math.inf
+        #: the process's CPU time (s) at the first measurement and after the last estimate:
+        #: what following costs the whole process (executor, publishers, recording) a measurement
+        self._process_cpu: list[float] = []
         #: estimates handed out more than :data:`LATE` after their measurement arrived
         self.late = 0
         self.stop_reason: str | None = None
@@ -237,7 +240,7 @@ class TrackingRun:
             self.on_start()
         next_diag = time.monotonic() + self.period
         while not self._stop.wait(min(self.timeout / 2.0, self.period)):
-            now = time.monotonic()
+            now = self.clock()
             self.watch(now)
             if now >= next_diag:
                 next_diag = now + self.period
@@ -261,22 +264,30 @@ class TrackingRun:
 
     # -- the inputs ----------------------------------------------------------------------
     def measurement(
-        self, t: float, angle: float | None, slider: float | None, raw: bytes, arrival: float
+        self,
+        t: float,
+        angle: float | None,
+        slider: float | None,
+        raw: bytes,
+        arrival: float,
+        sent: float | None = None,
     ) -> bool:
         """Take one measurement message: record it, update the tracker at stamp ``t``, publish the estimate.
 
         ``angle``: the crank angle (rad; None: the message has none, rejected as
         ``malformed``), ``slider``: the slider's position (m) or None; ``raw``: the message's
-        bytes as received; ``arrival``: ``time.monotonic()`` when it came. Return whether an
-        estimate went out.
+        bytes as received; ``arrival``: when it came (``clock``), ``sent``: when its publisher
+        sent it (``clock``; None: ``arrival``). Return whether an estimate went out.
         """
         cpu0 = time.thread_time()
+        if not self._process_cpu:
+            self._process_cpu = [time.process_time(), time.process_time()]
         with self._lock:
             self.received += 1
-            self._last_arrival = arrival
+            self._last_arrival = self.clock()  # taken now: a silence is the source's, not a queue's
             self._silent = False
             if math.isfinite(t):
-                self._offset = min(self._offset, arrival - t)
+                self._offset = min(self._offset, (arrival if sent is None else sent) - t)
             t_ns = _ns(t) if math.isfinite(t) else 0
             self.sinks.emit_all([(MEASURED.key, raw, t_ns, True)])
             if angle is None:
@@ -302,25 +313,35 @@ class TrackingRun:
                 return False
             self._publish()
             self.cpu.append(time.thread_time() - cpu0)
-            done = time.monotonic()
-            self.delay.append(done - arrival)
-            lag = done - (t + self._offset)
-            self.lag.append(lag)
-            if lag > self.late_after:
+            delay = self.clock() - arrival
+            self.delay.append(delay)
+            if delay > self.late_after:
                 self.late += 1
+            self._process_cpu[1] = time.process_time()
             return True
 
-    def mode(self, command: str, raw: bytes, arrival: float) -> None:
-        """Take one mode signal (``engage``, ``disengage``): record it, apply it at the estimate's time."""
+    def mode(self, command: str, raw: bytes, sent: float) -> None:
+        """Take one mode signal (``engage``, ``disengage``): record it, apply it at its time.
+
+        A String has no stamp, and the executor takes it in no set order with the measurements:
+        its time is when it was sent (``clock``) on the press's clock (less the least
+        sent-stamp offset of the measurements so far), or the estimate's time before any
+        measurement. Where the estimate is past it, it applies at once.
+        """
         with self._lock:
-            self.sinks.emit_all([(MEASURED_MODE.key, raw, _ns(self.tracker.t), True)])
+            t = sent - self._offset if math.isfinite(self._offset) else self.tracker.t
+            self.sinks.emit_all([(MEASURED_MODE.key, raw, _ns(max(t, 0.0)), True)])
             try:
-                signal = ModeSignal(self.tracker.t, command.strip())
+                signal = ModeSignal(t, command.strip())
             except MeasurementError as exc:
                 self._reject("malformed", self.tracker.t, str(exc))
                 return
             self.tracker.mode(signal)
-            self.log("info", f"tracking: mode signal {signal.command} at t = {signal.t:.6f} s")
+            self.log(
+                "info",
+                f"tracking: mode signal {signal.command} at t = {signal.t:.6f} s (the estimate at "
+                f"t = {self.tracker.t:.6f} s)",
+            )
 
     def _reject(self, reason: str, t: float, why: str) -> None:
         """Count and say an input this run rejects itself."""
@@ -403,7 +424,6 @@ class TrackingRun:
         """Return the run's figures: inputs, estimates, rejections, CPU and delay a measurement (ms)."""
         cpu = [c * 1e3 for c in self.cpu]
         delay = [d * 1e3 for d in self.delay]
-        lag = [d * 1e3 for d in self.lag]
         out: dict[str, Any] = {
             "t": self.tracker.t,
             "received": self.received,
@@ -413,9 +433,12 @@ class TrackingRun:
             "cpu_p99_ms": _percentile(cpu, 99),
             "delay_p50_ms": _percentile(delay, 50),
             "delay_p99_ms": _percentile(delay, 99),
-            "behind_p50_ms": _percentile(lag, 50),
-            "behind_p99_ms": _percentile(lag, 99),
-            "behind_max_ms": max(lag, default=math.nan),
+            "delay_max_ms": max(delay, default=math.nan),
+            "process_cpu_ms": (
+                (self._process_cpu[1] - self._process_cpu[0]) * 1e3 / max(self.received - 1, 1)
+                if self._process_cpu
+                else math.nan
+            ),
             "sigma_every": self.sigma_every,
             "late": self.late,
         }
@@ -430,10 +453,10 @@ class TrackingRun:
         return (
             f"tracking run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = {s['t']:.6g} s: "
             f"{s['received']} measurements received, {s['estimates']} estimates published, rejected: {rej}; "
-            f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms; from callback to "
-            f"published p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms; behind the press p50 "
-            f"{s['behind_p50_ms']:.3g} ms, p99 {s['behind_p99_ms']:.3g} ms, max {s['behind_max_ms']:.3g} ms, "
-            f"{s['late']} estimates over "
+            f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms (the process's "
+            f"{s['process_cpu_ms']:.3g} ms); published after "
+            f"its arrival p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms, max "
+            f"{s['delay_max_ms']:.3g} ms, {s['late']} estimates over "
             f"{self.late_after * 1e3:g} ms; loads' 1-sigma every "
             f"{self.sigma_every} estimate(s)"
         )
@@ -476,8 +499,7 @@ class TrackingRun:
             "cpu_p99_ms",
             "delay_p50_ms",
             "delay_p99_ms",
-            "behind_p50_ms",
-            "behind_p99_ms",
+            "delay_max_ms",
         ):
             values[k] = s[k]
         return diagnostics.status(level, f"{self.name}: tracking input", msg, self.hardware, values)
