@@ -330,6 +330,15 @@ PARAMETERS: tuple[Parameter, ...] = (
         hi=180.0,
     ),
     P(
+        "track_max_behind",
+        0.25,
+        "following a press: a measurement taken this many seconds after it arrived updates the "
+        "estimate, which is not published (counted, said, WARN in /diagnostics: the node catches "
+        "up with its press); 0: every estimate published however late",
+        lo=0.0,
+        hi=3600.0,
+    ),
+    P(
         "track_sigma_every",
         10,
         "following a press: the wrenches' 1-σ (`…/sigma`) computed and published every this many estimates "
@@ -442,6 +451,7 @@ class NodeSettings:
     track_encoder_noise: float
     track_timeout: float
     track_max_jump: float
+    track_max_behind: float
     track_sigma_every: int
 
     @classmethod

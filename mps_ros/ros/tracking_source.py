@@ -74,6 +74,7 @@ def tracking_run(node: Any) -> TrackingRun:
         settings=settings,
         encoder=Encoder(bits=st.track_encoder_bits, noise_counts=st.track_encoder_noise),
         sigma_every=st.track_sigma_every,
+        max_behind=st.track_max_behind,
         timeout=st.track_timeout,
         diagnostics_period=st.diagnostics_period,
         markers_hz=st.markers_hz,

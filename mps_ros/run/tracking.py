@@ -138,7 +138,10 @@ class TrackingRun:
     estimates (they cost 2n + 2 more reaction solves each: a stated decimation where the
     machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
     timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
-    is counted late and reported (WARN: the node does not keep up). ``clock``: the wall clock
+    is counted late and reported (WARN: the node does not keep up). ``max_behind``: a
+    measurement taken this many seconds (> 0) after its arrival updates the tracker but its
+    estimate is not published (counted, said, WARN: the node catches up with its press; 0:
+    every estimate published however late). ``clock``: the wall clock
     the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
     and timeouts are said.
     """
@@ -156,6 +159,7 @@ class TrackingRun:
         sigma_every: int = 1,
         timeout: float = 0.05,
         late_after: float = LATE,
+        max_behind: float = 0.0,
         clock: Callable[[], float] = time.monotonic,
         diagnostics_period: float = 1.0,
         markers_hz: float = 30.0,
@@ -176,6 +180,7 @@ class TrackingRun:
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
+        self.max_behind = float(max_behind)
         self.clock = clock
         self.period = float(diagnostics_period)
         self.log = log or (lambda level, text: None)
@@ -200,6 +205,8 @@ class TrackingRun:
         self._process_cpu: list[float] = []
         #: estimates handed out more than :data:`LATE` after their measurement arrived
         self.late = 0
+        #: measurements taken but their estimate not published: more than ``max_behind`` late
+        self.skipped = 0
         self.stop_reason: str | None = None
         self.commands_lost = 0
         self.inbox = None
@@ -277,7 +284,7 @@ class TrackingRun:
         ``angle``: the crank angle (rad; None: the message has none, rejected as
         ``malformed``), ``slider``: the slider's position (m) or None; ``raw``: the message's
         bytes as received; ``arrival``: when it came (``clock``), ``sent``: when its publisher
-        sent it (``clock``; None: ``arrival``). Return whether an estimate went out.
+        sent it (``clock``; None: ``arrival``). Return whether the tracker took it.
         """
         cpu0 = time.thread_time()
         if not self._process_cpu:
@@ -311,6 +318,17 @@ class TrackingRun:
                 self._say("gap", t, ms[0])
             if not taken:
                 return False
+            if 0.0 < self.max_behind < self.clock() - arrival:  # catching up: taken, not published
+                self._publish(full=False)
+                self.skipped += 1
+                if self.skipped == 1 or self.skipped % 1000 == 0:
+                    self.log(
+                        "warn",
+                        f"tracking: behind the press by over {self.max_behind:g} s: the estimate at "
+                        f"t = {t:.6f} s taken, not published ({self.skipped} so far)",
+                    )
+                self._process_cpu[1] = time.process_time()
+                return True
             self._publish()
             self.cpu.append(time.thread_time() - cpu0)
             delay = self.clock() - arrival
@@ -367,10 +385,20 @@ class TrackingRun:
             )
 
     # -- the estimate out ----------------------------------------------------------------
-    def _publish(self) -> None:
-        """Hand the present estimate's messages to every sink, then the events the model located."""
+    def _publish(self, full: bool = True) -> None:
+        """Hand the estimate's messages to every sink, then the model's events (only those: not ``full``)."""
         tr = self.tracker
         step = self.step
+        if not full:
+            events = tr.sim.events
+            if events:
+                if "events" in self.outputs:
+                    t_ns = _ns(tr.t)
+                    self.sinks.emit_all(
+                        [("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events]
+                    )
+                del events[:]
+            return
         step.compute_reactions()
         t_ns = _ns(tr.t)
         msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step)]
@@ -441,6 +469,7 @@ class TrackingRun:
             ),
             "sigma_every": self.sigma_every,
             "late": self.late,
+            "skipped": self.skipped,
         }
         out.update({f"rejected_{k.replace('-', '_')}": v for k, v in sorted(self.rejected().items())})
         return out
@@ -457,7 +486,8 @@ class TrackingRun:
             f"{s['process_cpu_ms']:.3g} ms); published after "
             f"its arrival p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms, max "
             f"{s['delay_max_ms']:.3g} ms, {s['late']} estimates over "
-            f"{self.late_after * 1e3:g} ms; loads' 1-sigma every "
+            f"{self.late_after * 1e3:g} ms, {s['skipped']} taken but not published (over "
+            f"{self.max_behind:g} s behind); loads' 1-sigma every "
             f"{self.sigma_every} estimate(s)"
         )
 
@@ -469,9 +499,17 @@ class TrackingRun:
         rej = self.rejected()
         gaps = rej.pop("gap", 0)
         total = sum(rej.values())
-        new = self._window.since(rejected=total, estimates=self.estimates, late=self.late)
+        new = self._window.since(
+            rejected=total, estimates=self.estimates, late=self.late, skipped=self.skipped
+        )
         level = diagnostics.OK
         msg = f"{self.estimates} estimates from {self.received} measurements, {total} rejected"
+        if new["skipped"]:
+            level = diagnostics.WARN
+            msg = (
+                f"behind the press: {new['skipped']} estimates not published since the last report "
+                f"(taken over {self.max_behind:g} s after their measurement arrived); " + msg
+            )
         if new["late"]:
             level = diagnostics.WARN
             msg = (
@@ -491,6 +529,7 @@ class TrackingRun:
             "received": self.received,
             "gaps": gaps,
             "late estimates": self.late,
+            "estimates not published": self.skipped,
         }
         values.update({f"rejected {k}": v for k, v in sorted(rej.items())})
         s = self.stats()

@@ -142,6 +142,23 @@ def test_estimates_out_late_are_counted_and_reported(truth):
     assert "1 estimates over 1 ms" in run.summary()
 
 
+def test_a_run_behind_its_press_takes_each_measurement_and_publishes_none_too_late(truth):
+    logs: list = []
+    run, sink = _run(logs, max_behind=0.005)
+    clean, _ = _run()
+    ms = truth.measurements[:20]
+    for i, m in enumerate(ms):
+        late = 0.01 if 5 <= i < 15 else 0.0  # ten measurements taken 10 ms after they came
+        assert run.measurement(m.t, m.value, None, b"", time.monotonic() - late)
+        clean.measurement(m.t, m.value, None, b"", time.monotonic())
+    assert run.skipped == 10 and run.estimates == 10
+    assert [k for k, *_ in sink.msgs].count("joint_states") == 10
+    assert run.tracker.estimate() == clean.tracker.estimate()  # every one taken
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "behind the press: 10 estimates not published" in st["message"]
+    assert any("taken, not published" in text for _, text in logs)
+
+
 def test_a_bad_setting_names_its_field():
     with pytest.raises(ValueError, match="track_sigma_every = 0: expected an integer >= 1"):
         _run(sigma_every=0)
