@@ -58,6 +58,8 @@ INPUT_REJECTIONS = ("malformed", "timeout")
 #: an estimate handed out later than this after its measurement arrived (s) is late: the node
 #: does not keep up (issue 46's target: published within 1 ms)
 LATE = 1e-3
+#: a node behind its press by more than ``max_behind`` publishes again once it is within this (s)
+CAUGHT_UP = 0.01
 
 
 def nominal_scene(scene: Scene) -> Scene:
@@ -140,8 +142,9 @@ class TrackingRun:
     timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
     is counted late and reported (WARN: the node does not keep up). ``max_behind``: a
     measurement taken this many seconds (> 0) after its arrival updates the tracker but its
-    estimate is not published (counted, said, WARN: the node catches up with its press; 0:
-    every estimate published however late). ``clock``: the wall clock
+    estimate is not published, nor those after it until one is taken within
+    :data:`CAUGHT_UP` of its arrival (counted, said, WARN: the node catches up with its press;
+    0: every estimate published however late). ``clock``: the wall clock
     the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
     and timeouts are said.
     """
@@ -207,6 +210,7 @@ class TrackingRun:
         self.late = 0
         #: measurements taken but their estimate not published: more than ``max_behind`` late
         self.skipped = 0
+        self._catching_up = False
         self.stop_reason: str | None = None
         self.commands_lost = 0
         self.inbox = None
@@ -318,7 +322,12 @@ class TrackingRun:
                 self._say("gap", t, ms[0])
             if not taken:
                 return False
-            if 0.0 < self.max_behind < self.clock() - arrival:  # catching up: taken, not published
+            behind = self.clock() - arrival
+            if 0.0 < self.max_behind < behind:
+                self._catching_up = True
+            elif behind <= min(self.max_behind, CAUGHT_UP):
+                self._catching_up = False
+            if self._catching_up:  # taken, not published, until the node is within CAUGHT_UP again
                 self._publish(full=False)
                 self.skipped += 1
                 if self.skipped == 1 or self.skipped % 1000 == 0:

@@ -144,19 +144,23 @@ def test_estimates_out_late_are_counted_and_reported(truth):
 
 def test_a_run_behind_its_press_takes_each_measurement_and_publishes_none_too_late(truth):
     logs: list = []
-    run, sink = _run(logs, max_behind=0.005)
+    now = [50.0]  # the wall clock, as the test sets it
+    run, sink = _run(logs, max_behind=0.25, clock=lambda: now[0])
     clean, _ = _run()
-    ms = truth.measurements[:20]
-    for i, m in enumerate(ms):
-        late = 0.01 if 5 <= i < 15 else 0.0  # ten measurements taken 10 ms after they came
-        assert run.measurement(m.t, m.value, None, b"", time.monotonic() - late)
-        clean.measurement(m.t, m.value, None, b"", time.monotonic())
-    assert run.skipped == 10 and run.estimates == 10
-    assert [k for k, *_ in sink.msgs].count("joint_states") == 10
+    for i, m in enumerate(truth.measurements[:30]):
+        # measurements 5 to 9 taken 0.3 s after they came, then ever less late: the run
+        # publishes again once it takes one within 10 ms (CAUGHT_UP) of its arrival
+        late = {5: 0.3, 6: 0.3, 7: 0.2, 8: 0.05, 9: 0.02, 10: 0.005}.get(i, 0.0)
+        now[0] += 0.001
+        assert run.measurement(m.t, m.value, None, b"", now[0] - late)
+        clean.measurement(m.t, m.value, None, b"", now[0])
+    assert run.skipped == 5 and run.estimates == 25
+    assert [k for k, *_ in sink.msgs].count("joint_states") == 25
     assert run.tracker.estimate() == clean.tracker.estimate()  # every one taken
     st = run.status()
-    assert st["level"] == diagnostics.WARN and "behind the press: 10 estimates not published" in st["message"]
+    assert st["level"] == diagnostics.WARN and "behind the press: 5 estimates not published" in st["message"]
     assert any("taken, not published" in text for _, text in logs)
+    assert "5 taken but not published (over 0.25 s behind)" in run.summary()
 
 
 def test_a_bad_setting_names_its_field():
