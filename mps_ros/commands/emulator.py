@@ -70,6 +70,27 @@ def _timed(specs: list[str], option: str, kinds: tuple[str, ...]) -> list[tuple[
     return out
 
 
+def _ros_emulator() -> Any:
+    """Return the ROS emulator's module, this process's ROS environment set first.
+
+    None (and what to install, said) where ROS is missing.
+    """
+    import importlib
+
+    from ..ros.environment import env_defaults
+    from .cli import ROS_MISSING
+
+    env_defaults()
+    try:
+        return importlib.import_module("mps_ros.ros.emulator")
+    except ImportError as exc:
+        if "rclpy" in str(exc) or "_msgs" in str(exc):
+            print(ROS_MISSING, file=sys.stderr)
+            print(f"    ({exc})", file=sys.stderr)
+            return None
+        raise
+
+
 def _emulator(args: argparse.Namespace) -> int:
     """Check the arguments, run the truth, publish its sensors' readings."""
     from mps_core import MpsError, load_scene
@@ -77,7 +98,6 @@ def _emulator(args: argparse.Namespace) -> int:
     from mps_core.track.truth import FAULTS
 
     from ..run.tracking import nominal_scene
-    from .cli import _ros_import
 
     def say(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
@@ -93,7 +113,7 @@ def _emulator(args: argparse.Namespace) -> int:
     except (ValueError, MpsError) as exc:
         say(f"mps emulator: error: {exc}")
         return 2
-    mod = _ros_import("mps_ros.ros.emulator")
+    mod = _ros_emulator()
     if mod is None:
         return 2
     import rclpy

@@ -52,9 +52,21 @@ def add_endpoints(node: Any) -> None:
         )
         ep.pubs[t.key] = pub
         ep.names[t.key] = pub.topic_name
-    ep.names[MEASURED.key] = node.resolve_topic_name(st.track)
+    ep.names[MEASURED.key] = _topic(node, "track", st.track)
     if st.track_mode:
-        ep.names[MEASURED_MODE.key] = node.resolve_topic_name(st.track_mode)
+        ep.names[MEASURED_MODE.key] = _topic(node, "track_mode", st.track_mode)
+
+
+def _topic(node: Any, parameter: str, name: str) -> str:
+    """Return the full name of the topic a parameter names (:class:`ParameterError` where it is none)."""
+    from .parameters import ParameterError
+
+    try:
+        return str(node.resolve_topic_name(name))
+    except Exception as exc:  # rclpy's InvalidTopicNameException and its kin
+        raise ParameterError(
+            f"parameter {parameter}: {name!r}: expected a ROS topic name such as /press/joint_states ({exc})"
+        ) from None
 
 
 def tracking_run(node: Any) -> TrackingRun:
