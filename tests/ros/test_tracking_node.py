@@ -18,8 +18,8 @@ from mps_ros.wire.tracking_topics import MEASURED, TRACKING_TOPICS
 pytestmark = pytest.mark.slow
 
 OUTPUTS = ["joint_states", "foundation", "clock", "structure", "events", "diagnostics"]
-T_END = 0.4  # the press's seconds: about 400 measurements at 1 kHz
-GLITCH_T = 0.2  # the crank read 20 degrees off at the first measurement after it
+T_END = 0.25  # the press's seconds: about 250 measurements at 1 kHz (a short load on the machine)
+GLITCH_T = 0.12  # the crank read 20 degrees off at the first measurement after it
 
 
 def _stamp_ns(data: bytes) -> int:
@@ -126,7 +126,7 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
             assert emu.wait(timeout=240) == 0, (tmp_path / "emulator.log").read_text()
             said = (tmp_path / "emulator.log").read_text()
             sent = int(said.split("published ")[1].split(" measurements")[0])
-            assert sent >= 390, said
+            assert sent >= 240, said
             # every measurement but the glitch gives one estimate, all received here
             js = resolve("joint_states")
             wait_until(
@@ -149,7 +149,7 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
         listener.close()
     assert "rejected: jump 1" in log, log
     assert f"{sent} measurements received, {sent - 1} estimates published" in log, log
-    assert "tracking: measurement at t = 0.2" in log and "jump (1 so far)" in log, log
+    assert f"tracking: measurement at t = {GLITCH_T}" in log and "jump (1 so far)" in log, log
     got = _recorded(rec)
     measured = got["/press/joint_states"]
     assert len(measured) == sent
