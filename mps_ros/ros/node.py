@@ -166,6 +166,7 @@ class PressTwin(LifecycleNode):
             from .tracking_source import tracking_run
 
             self.runner = tracking_run(self)
+            self.inbox = self.runner.inbox  # its commands refused, answered
         elif self.split:
             self.runner = self.config.stepping_process(self.twin, self.endpoints.sink, self._log)
             self.inbox = self.runner.inbox

@@ -48,6 +48,7 @@ from ..wire.tracking_topics import (
     PROCESS_FRAME,
     sigma_key,
 )
+from .commands import Inbox, shown
 from .sinks import Fanout, Message
 from .twin import to_json
 
@@ -213,7 +214,8 @@ class TrackingRun:
         self._catching_up = False
         self.stop_reason: str | None = None
         self.commands_lost = 0
-        self.inbox = None
+        #: the node's mode commands (``~/mode``, ``~/engage``...): refused, answered
+        self.inbox = Inbox()
         #: called as :meth:`run` starts (the node's source subscribes then)
         self.on_start: Callable[[], None] | None = None
         self._stop = threading.Event()
@@ -233,6 +235,7 @@ class TrackingRun:
         if self.stop_reason is None:
             self.stop_reason = reason
         self._stop.set()
+        self.inbox.wake()
 
     def resume(self) -> None:
         """Do nothing: a tracking run is never paused."""
@@ -250,7 +253,11 @@ class TrackingRun:
         if self.on_start is not None:
             self.on_start()
         next_diag = time.monotonic() + self.period
-        while not self._stop.wait(min(self.timeout / 2.0, self.period)):
+        while not self._stop.is_set():
+            self.inbox.wait(min(self.timeout / 2.0, self.period))
+            self.answer_commands()
+            if self._stop.is_set():
+                break
             now = self.clock()
             self.watch(now)
             if now >= next_diag:
@@ -272,6 +279,28 @@ class TrackingRun:
             f"tracking: no measurement for {now - last:.3g} s (timeout {self.timeout:g} s); "
             f"the estimate holds at t = {self.tracker.t:.6f} s",
         )
+
+    def answer_commands(self) -> None:
+        """Refuse the node's mode commands, each answered on ``~/mode/status`` (and to its caller).
+
+        The press's mode comes from its controller (``track_mode``), not from the node's
+        commands.
+        """
+        for cmd in self.inbox.drain():
+            with self._lock:
+                ack = {
+                    "t": self.tracker.t,
+                    "command": shown(cmd.word, 64),
+                    "accepted": False,
+                    "reason": "the node follows a press (track): its mode comes from the press (track_mode)",
+                    "source": cmd.source,
+                    "structure": self.tracker.sim.structure,
+                }
+                t_ns = _ns(self.tracker.t)
+                self.sinks.emit_all([("~/mode/status", string({"data": to_json(ack)}), t_ns, False)])
+            self.log("warn", f"refused command {ack['command']!r}: {ack['reason']}")
+            if cmd.reply is not None:
+                cmd.reply(ack)
 
     # -- the inputs ----------------------------------------------------------------------
     def measurement(

@@ -140,6 +140,14 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
                 return None
 
             wait_until(reported, 60.0, "the jump reported in /diagnostics", 0.05)
+            # a mode command to the node: refused (the press gives its mode), answered
+            from std_msgs.msg import String
+
+            status = resolve("~/mode/status")
+            mode = listener.node.create_publisher(String, resolve("~/mode"), 10)
+            wait_until(lambda: mode.get_subscription_count() > 0, 60.0, "the node's ~/mode", 0.05)
+            mode.publish(String(data="engage"))
+            wait_until(lambda: listener.get(status), 60.0, "the command's answer", 0.05)
             node.signal(signal.SIGINT)
             assert node.wait(60) == 0, node.log()
             log = node.log()
@@ -168,10 +176,9 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
             n = len(listener.get(name))
             assert got[name][:n] == listener.get(name) and n >= 1
             continue
-        if t.key == "~/mode/status":
-            assert name not in got and not listener.get(name)
-            continue
         assert got.get(name, []) == listener.get(name), name
+    ack = listener.get(resolve("~/mode/status"))[0]
+    assert b'"accepted":false' in ack and b"the node follows a press" in ack
     for key in ("~/process_force", "~/process_force/sigma", "~/process_force/smoothed"):
         assert len(got[resolve(key)]) == sent - 1, key
     # the loads' 1-sigma every track_sigma_every (10) estimates, from the first

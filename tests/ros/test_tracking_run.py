@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 
@@ -161,6 +162,22 @@ def test_a_run_behind_its_press_takes_each_measurement_and_publishes_none_too_la
     assert st["level"] == diagnostics.WARN and "behind the press: 5 estimates not published" in st["message"]
     assert any("taken, not published" in text for _, text in logs)
     assert "5 taken but not published (over 0.25 s behind)" in run.summary()
+
+
+def test_the_node_s_mode_commands_are_refused_and_answered():
+    from mps_ros.run.commands import Command
+
+    logs: list = []
+    run, sink = _run(logs)
+    answers: list = []
+    run.inbox.put(Command("engage", "service", answers.append))
+    run.inbox.put(Command("disengage", "topic"))
+    run.answer_commands()
+    assert [a["command"] for a in answers] == ["engage"] and not answers[0]["accepted"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in sink.msgs if k == "~/mode/status"]
+    assert [(a["command"], a["accepted"]) for a in acks] == [("engage", False), ("disengage", False)]
+    assert "its mode comes from the press (track_mode)" in acks[1]["reason"]
+    assert sum("refused command" in text for _, text in logs) == 2
 
 
 def test_a_bad_setting_names_its_field():
