@@ -284,17 +284,24 @@ class PressTwin(LifecycleNode):
     def run(self, stop: threading.Event) -> dict:
         tw = self.twin
         names, unpublished = self.endpoints.names, self.endpoints.unpublished
-        self.get_logger().info(
-            f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
-            f"{self.settings.pacing}"
-            + (f" x{self.settings.real_time_factor:g}" if self.settings.pacing == "realtime" else "")
-            + f", outputs {', '.join(tw.outputs)}"
-            + (
-                ""
-                if self.settings.scene_commands
-                else f", scene commands off (listening on {names[MODE.key]})"
+        if self.settings.track:  # following a press: no steps of its own
+            self.get_logger().info(
+                f"scene {tw.scene.name}: following the press on {self.settings.track}"
+                + (f" and {self.settings.track_mode}" if self.settings.track_mode else "")
+                + f", outputs {', '.join(tw.outputs)}"
             )
-        )
+        else:
+            self.get_logger().info(
+                f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
+                f"{self.settings.pacing}"
+                + (f" x{self.settings.real_time_factor:g}" if self.settings.pacing == "realtime" else "")
+                + f", outputs {', '.join(tw.outputs)}"
+                + (
+                    ""
+                    if self.settings.scene_commands
+                    else f", scene commands off (listening on {names[MODE.key]})"
+                )
+            )
         if unpublished:
             types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in unpublished})
             self.get_logger().warning(
