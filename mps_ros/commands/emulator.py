@@ -2,7 +2,7 @@
 
     mps emulator SCENE [--t-end S] [--seed N] [--slider] [--fault T:KIND ...] [--glitch T:KIND ...]
                        [--topic /press/joint_states] [--mode-topic /press/mode]
-                       [--subscribers N] [--wait S]
+                       [--real-time-factor F] [--subscribers N] [--wait S]
 
 The node that follows it: ``mps node SCENE --ros-args -p track:=/press/joint_states -p
 track_mode:=/press/mode`` (docs/ros.md, Following a press). Everything given is checked before
@@ -47,6 +47,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--mode-topic", default="/press/mode", help="the mode signals' topic (std_msgs/String); '' none"
+    )
+    p.add_argument(
+        "--real-time-factor",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="the press's seconds a wall second (1: as fast as the press; the stamps are the press's)",
     )
     p.add_argument("--subscribers", type=int, default=1, metavar="N", help="start once N follow (1)")
     p.add_argument("--wait", type=float, default=60.0, metavar="S", help="... waiting at most S seconds (60)")
@@ -105,6 +112,10 @@ def _emulator(args: argparse.Namespace) -> int:
     try:
         if not (args.t_end > 0.0):
             raise ValueError(f"--t-end = {args.t_end!r}: expected a positive number of seconds")
+        if not (0.001 <= args.real_time_factor <= 1000.0):
+            raise ValueError(
+                f"--real-time-factor = {args.real_time_factor!r}: expected a number from 0.001 to 1000"
+            )
         if args.subscribers < 0:
             raise ValueError(f"--subscribers = {args.subscribers!r}: expected an integer >= 0")
         faults = tuple(Fault(t, k) for t, k in _timed(args.fault, "--fault", tuple(FAULTS)))
@@ -133,6 +144,7 @@ def _emulator(args: argparse.Namespace) -> int:
             mode_topic=args.mode_topic,
             subscribers=args.subscribers,
             wait=args.wait,
+            real_time_factor=args.real_time_factor,
             log=say,
         )
     except KeyboardInterrupt:

@@ -94,12 +94,14 @@ def publish(
     mode_topic: str,
     subscribers: int,
     wait: float,
+    real_time_factor: float = 1.0,
     log: Callable[[str], None],
 ) -> int:
     """Publish ``stream`` and ``modes`` at their stamps on the wall clock; return the exit status.
 
     Waits up to ``wait`` seconds for ``subscribers`` subscribers on ``topic`` (1: nothing
     published is lost to a follower that is not there yet); 1 where they did not come.
+    ``real_time_factor``: the press's seconds a wall second (the stamps are the press's).
     """
     node = rclpy.create_node("press_emulator")
     qos = QoSProfile(  # every reading delivered to a follower that keeps all (the node's source)
@@ -125,7 +127,7 @@ def publish(
         start = time.monotonic()
         prev: Samples | None = None
         for s in stream:
-            due = start + s.t
+            due = start + s.t / real_time_factor
             now = time.monotonic()
             if due > now:
                 time.sleep(due - now)
