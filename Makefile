@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 
-.PHONY: run test test-fast lint venv clean
+.PHONY: run demo-track test test-fast lint venv clean
 
 venv: $(STAMP)
 
@@ -20,6 +20,15 @@ $(STAMP): pyproject.toml
 
 run: $(STAMP)
 	$(VENV)/bin/mps demo press-cycle
+
+# the node following an emulated press (docs/ros.md, Following a press): 2 s of press-cycle's
+# truth, recorded under recordings/; the node stopped 2 s after the emulator has finished (time
+# to take the measurements still queued)
+demo-track: $(STAMP)
+	$(VENV)/bin/mps node press-cycle --ros-args -p track:=/press/joint_states \
+		-p track_mode:=/press/mode & node=$$!; \
+	$(VENV)/bin/mps emulator press-cycle --t-end 2.0 --slider --glitch 1.0:jump; status=$$?; \
+	sleep 2; kill -INT $$node; wait $$node; exit $$status
 
 # two pytest workers (pytest-xdist), a test file to each at a time: the ROS tests mostly wait on
 # their nodes, so two at once halve the suite's time on two cores

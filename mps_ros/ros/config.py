@@ -15,9 +15,11 @@ from .parameters import NodeSettings, ParameterError
 
 if TYPE_CHECKING:
     from ..run.releasing import SteppingProcess
+    from ..run.tracking import TrackingRun
 
-#: a node's run: stepped in this process, or in a stepping process of its own
-NodeRun: TypeAlias = "Runner | SteppingProcess"
+#: a node's run: stepped in this process, or in a stepping process of its own, or following a
+#: press from its measurements
+NodeRun: TypeAlias = "Runner | SteppingProcess | TrackingRun"
 
 
 class RunConfig:

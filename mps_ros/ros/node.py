@@ -168,6 +168,10 @@ class PressTwin(LifecycleNode):
         self.endpoints = Endpoints(self, twin.outputs, self.settings.qos_depth)
         self.inbox: Inbox | ForwardingInbox = Inbox()  # before the subscription that fills it
         self.endpoints.listen(self, self.commands)
+        if self.settings.track:  # following a press: its topics beside the simulator's
+            from .tracking_source import add_endpoints
+
+            add_endpoints(self)
         self.new_run(twin)
 
     def new_run(self, twin: Twin | None = None) -> None:
@@ -181,9 +185,15 @@ class PressTwin(LifecycleNode):
         #: the twin steps in a process of its own (:mod:`mps_ros.run.stepping`); this process
         #: publishes what it releases and forwards the commands (as fast as possible, where
         #: the twin can come back to a step: a command's boundary is the last step released)
-        self.split = self.config.splits(twin)
+        self.split = self.config.splits(twin) and not self.settings.track
         runner: NodeRun
-        if self.split:
+        if self.settings.track:  # following a press: its measurements pace the run
+            from .tracking_source import tracking_run
+
+            tracking = tracking_run(self)
+            self.inbox = tracking.inbox  # its commands refused, answered
+            runner = tracking
+        elif self.split:
             stepping = self.config.stepping_process(twin, self._endpoints().sink, self._log)
             self.inbox = stepping.inbox
             runner = stepping
@@ -301,17 +311,24 @@ class PressTwin(LifecycleNode):
         """Run to the end or a stop (the run's statistics), once the peers it waits for came."""
         tw, runner, endpoints = self._twin(), self._run(), self._endpoints()
         names, unpublished = endpoints.names, endpoints.unpublished
-        self.get_logger().info(
-            f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
-            f"{self.settings.pacing}"
-            + (f" x{self.settings.real_time_factor:g}" if self.settings.pacing == "realtime" else "")
-            + f", outputs {', '.join(tw.outputs)}"
-            + (
-                ""
-                if self.settings.scene_commands
-                else f", scene commands off (listening on {names[MODE.key]})"
+        if self.settings.track:  # following a press: no steps of its own
+            self.get_logger().info(
+                f"scene {tw.scene.name}: following the press on {self.settings.track}"
+                + (f" and {self.settings.track_mode}" if self.settings.track_mode else "")
+                + f", outputs {', '.join(tw.outputs)}"
             )
-        )
+        else:
+            self.get_logger().info(
+                f"scene {tw.scene.name}: {tw.n} steps of {tw.dt:.6g} s to t = {tw.t_end:g} s, "
+                f"{self.settings.pacing}"
+                + (f" x{self.settings.real_time_factor:g}" if self.settings.pacing == "realtime" else "")
+                + f", outputs {', '.join(tw.outputs)}"
+                + (
+                    ""
+                    if self.settings.scene_commands
+                    else f", scene commands off (listening on {names[MODE.key]})"
+                )
+            )
         if unpublished:
             types = sorted({BY_KEY[k].msgtype.split("/")[0] for k in unpublished})
             self.get_logger().warning(
@@ -464,7 +481,13 @@ def _closed(node: PressTwin) -> str | None:
 
 def _say_run_end(node: PressTwin, stats: dict) -> None:
     """The run's last line: how it ended and its statistics (``mps bench`` reads it)."""
-    why = node._run().stop_reason or "end"
+    from ..run.tracking import TrackingRun
+
+    runner = node._run()
+    if isinstance(runner, TrackingRun):  # following a press: its own figures
+        node.get_logger().info(runner.summary())
+        return
+    why = runner.stop_reason or "end"
     node.get_logger().info(
         f"run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = "
         f"{stats.get('t', node._twin().t):.6g} s after {stats['steps']} steps: real-time factor "

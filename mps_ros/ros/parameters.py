@@ -283,6 +283,70 @@ PARAMETERS: tuple[Parameter, ...] = (
         "the address the Foxglove endpoint listens on: this machine only by default; another "
         "(`0.0.0.0`: every interface) only when given",
     ),
+    P(
+        "track",
+        "",
+        "follow a press: the `sensor_msgs/JointState` topic of its crank encoder (joint `crank`, rad, "
+        "stamped with the measurement's time; optionally joint `slider`, m), e.g. `/press/joint_states`; "
+        "each measurement updates the tracker at its stamp and the estimate is published as the "
+        "simulator's steps are, with the 1-σ of each wrench (`…/sigma`) and the process force; the run "
+        "goes on until the node is stopped. Empty: simulate (see Following a press)",
+    ),
+    P(
+        "track_mode",
+        "",
+        "following a press: the `std_msgs/String` topic of its mode signals (`engage`, "
+        "`disengage`); empty: none",
+    ),
+    P(
+        "track_encoder_bits",
+        17,
+        "following a press: the crank encoder's bits a turn (the angle's variance LSB²/12 + noise)",
+        lo=8,
+        hi=32,
+    ),
+    P(
+        "track_encoder_noise",
+        0.3,
+        "following a press: the crank encoder's electrical noise (counts, 1-σ)",
+        lo=0.0,
+        hi=1e3,
+    ),
+    P(
+        "track_timeout",
+        0.05,
+        "following a press: a measurement later than this many seconds after the one before "
+        "(its stamp: counted as "
+        "`gap`; wall time: as `timeout`, WARN in /diagnostics while it lasts)",
+        lo=1e-3,
+        hi=3600.0,
+    ),
+    P(
+        "track_max_jump",
+        10.0,
+        "following a press: a crank angle this many degrees or more from where its rate takes it "
+        "is rejected (`jump`)",
+        lo=0.1,
+        hi=180.0,
+    ),
+    P(
+        "track_max_behind",
+        0.25,
+        "following a press: a measurement taken this many seconds after it arrived updates the "
+        "estimate, which is not published (counted, said, WARN in /diagnostics: the node catches "
+        "up with its press); 0: every estimate published however late",
+        lo=0.0,
+        hi=3600.0,
+    ),
+    P(
+        "track_sigma_every",
+        10,
+        "following a press: the wrenches' 1-σ (`…/sigma`) computed and published every this many estimates "
+        "(each costs 2n + 2 more reaction solves: at every one the node cannot keep 1 kHz on two "
+        "shared cores, see Following a press)",
+        lo=1,
+        hi=1e6,
+    ),
 )
 del P
 
@@ -381,6 +445,14 @@ class NodeSettings:
     release_period: float
     foxglove_port: int
     foxglove_address: str
+    track: str
+    track_mode: str
+    track_encoder_bits: int
+    track_encoder_noise: float
+    track_timeout: float
+    track_max_jump: float
+    track_max_behind: float
+    track_sigma_every: int
 
     @classmethod
     def defaults(cls, **given: object) -> NodeSettings:

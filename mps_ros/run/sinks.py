@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Protocol
 
 from ..recording.recorder import Message, RecordingWriter
-from ..wire.topics import BY_KEY, NODE_NAME, resolve
+from ..wire.topics import NODE_NAME, resolve
+from ..wire.tracking_topics import msgtype
 
 __all__ = ["Fanout", "Message", "RecordingSink", "Sink"]
 
@@ -172,7 +173,7 @@ class RecordingSink(Sink):
     def prepare(self, keys) -> None:
         """Register the channels of ``keys`` now (schemas and channels head the file)."""
         for key in keys:
-            self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
+            self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
 
     def emit_all(self, msgs: Sequence[Message]) -> None:
         """Record a step's messages, ``(key, data, t_ns, received)`` each, in order: the
@@ -186,7 +187,7 @@ class RecordingSink(Sink):
         try:
             for key, _data, _t, _r in msgs:
                 if key not in ids:  # a key met for the first time: its channel first
-                    ids[key] = self.rec.channel(self._topic(key), BY_KEY[key].msgtype, self.qos.get(key))
+                    ids[key] = self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
             self.rec.write_steps(msgs, ids)
         except OSError as exc:
             self._failed(exc)

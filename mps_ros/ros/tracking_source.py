@@ -1,0 +1,171 @@
+"""Subscribe a node to a press's measurements (parameter ``track``) and hand each to its tracking run.
+
+The source is a ``sensor_msgs/JointState`` topic, as ros2_control's joint_state_broadcaster
+publishes a real press's encoders: the crank angle in radians (the joint named ``crank``, or the
+only position of a one-joint message), optionally the slider's position (joint ``slider``, m),
+stamped with the measurement's time. ``track_mode`` names an ``std_msgs/String`` topic of mode
+signals (``engage``, ``disengage``). Each message is taken as it comes
+(:meth:`~mps_ros.run.tracking.TrackingRun.measurement`) in the executor's thread, its bytes
+recorded as received; the subscriptions are made when the run starts (after the node has
+waited for its peers), so a press's emulator that waits for its subscriber starts with it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from mps_core.track import Encoder, TrackSettings
+
+from ..run.tracking import TrackingRun
+from ..wire.tracking_topics import MEASURED, MEASURED_MODE, TRACKING_TOPICS
+from .endpoints import MSG_CLASSES
+
+__all__ = ["TrackingSource", "add_endpoints", "tracking_run"]
+
+
+def add_endpoints(node: Any) -> None:
+    """Add the tracking topics' publishers to the node's endpoints, the inputs' names for the recording."""
+    ep = node.endpoints
+    st = node.settings
+    qos = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=st.qos_depth,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+    outputs = set(st.outputs)
+    for t in TRACKING_TOPICS:
+        if t.output and t.output not in outputs:
+            continue
+        pub = node.create_publisher(
+            MSG_CLASSES[t.msgtype],
+            t.key,
+            qos,
+            event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+        )
+        ep.pubs[t.key] = pub
+        ep.names[t.key] = pub.topic_name
+    ep.names[MEASURED.key] = _topic(node, "track", st.track)
+    if st.track_mode:
+        ep.names[MEASURED_MODE.key] = _topic(node, "track_mode", st.track_mode)
+
+
+def _topic(node: Any, parameter: str, name: str) -> str:
+    """Return the full name of the topic a parameter names (:class:`ParameterError` where it is none)."""
+    from .parameters import ParameterError
+
+    try:
+        return str(node.resolve_topic_name(name))
+    except Exception as exc:  # rclpy's InvalidTopicNameException and its kin
+        raise ParameterError(
+            f"parameter {parameter}: {name!r}: expected a ROS topic name such as /press/joint_states ({exc})"
+        ) from None
+
+
+def tracking_run(node: Any) -> TrackingRun:
+    """Return the node's tracking run, publishing through its endpoints' sink, its source attached.
+
+    The run follows the twin's scene; its source subscribes as the run starts.
+    """
+    from ..run.sinks import Fanout
+
+    st = node.settings
+    settings = TrackSettings(max_jump=_radians(st.track_max_jump), timeout=st.track_timeout)
+    run = TrackingRun(
+        node.twin.scene,
+        Fanout([node.endpoints.sink]),
+        name=node.get_fully_qualified_name().lstrip("/"),
+        outputs=st.outputs,
+        settings=settings,
+        encoder=Encoder(bits=st.track_encoder_bits, noise_counts=st.track_encoder_noise),
+        sigma_every=st.track_sigma_every,
+        max_behind=st.track_max_behind,
+        timeout=st.track_timeout,
+        diagnostics_period=st.diagnostics_period,
+        markers_hz=st.markers_hz,
+        markers_scale=st.markers_scale,
+        clock=time.time,  # the middleware's timestamps are on the system clock
+        log=node._log,
+    )
+    source = TrackingSource(node, run)
+    run.on_start = source.subscribe
+    return run
+
+
+def _radians(degrees: float) -> float:
+    """Return ``degrees`` in radians."""
+    import math
+
+    return math.radians(degrees)
+
+
+class TrackingSource:
+    """The subscriptions to a press's measurements and mode signals, each message handed to ``run``."""
+
+    def __init__(self, node: Any, run: TrackingRun) -> None:
+        self.node = node
+        self.run = run
+        self.subs: list = []
+
+    def subscribe(self) -> None:
+        """Subscribe to the measurements (and the mode signals), their bytes as received."""
+        st = self.node.settings
+        # every measurement kept until taken (keep all, reliable): one dropped by a full
+        # history would be a gap the tracker must bridge
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_ALL,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+        self.subs.append(
+            self.node.create_subscription(JointState, st.track, self.on_measurement, qos, raw=True)
+        )
+        if st.track_mode:
+            self.subs.append(
+                self.node.create_subscription(String, st.track_mode, self.on_mode, qos, raw=True)
+            )
+        self.node._log(
+            "info", f"tracking {self.subs[0].topic_name}" + (f" and {st.track_mode}" if st.track_mode else "")
+        )
+
+    def on_measurement(self, data: bytes, info: dict) -> None:
+        """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""
+        arrival, sent = _times(info)
+        msg = deserialize_message(data, JointState)
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        names = list(msg.name)
+        pos = list(msg.position)
+        angle = slider = None
+        if "crank" in names and names.index("crank") < len(pos):
+            angle = float(pos[names.index("crank")])
+        elif len(pos) == 1 and not names:
+            angle = float(pos[0])
+        if "slider" in names and names.index("slider") < len(pos):
+            slider = float(pos[names.index("slider")])
+        self.run.measurement(t, angle, slider, bytes(data), arrival, sent)
+
+    def on_mode(self, data: bytes, info: dict) -> None:
+        """Take one mode signal's bytes."""
+        _arrival, sent = _times(info)
+        msg = deserialize_message(data, String)
+        self.run.mode(msg.data, bytes(data), sent)
+
+
+def _times(info: dict) -> tuple[float, float]:
+    """Return when a message arrived here and when its publisher sent it (s, the system clock).
+
+    The middleware's timestamps (DDS reception and source), so a message that waited in the
+    executor's queue counts that wait; the system clock's now where the middleware gives none.
+    """
+    now = time.time()
+    received = info.get("received_timestamp") or 0
+    source = info.get("source_timestamp") or 0
+    arrival = received * 1e-9 if received else now
+    return arrival, (source * 1e-9 if source else arrival)

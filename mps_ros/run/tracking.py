@@ -1,0 +1,615 @@
+"""Follow a press from its measurements: each taken by the tracker, the estimate's messages out.
+
+:class:`TrackingRun` is the no-ROS half of a node that follows a press (parameter ``track``): a
+measurement comes in (its stamp, the crank angle in radians, optionally the slider's position,
+and its bytes as received), is recorded as received, updates :class:`~mps_core.track.Tracker` at
+its stamp, and the estimate goes out as the simulator's step goes out
+(:class:`~mps_ros.wire.step_messages.StepMessages`: ``/clock``, ``/tf``, joint states, reactions,
+foundation, structure, markers), plus the 1-σ of each wrench and the process force
+(:mod:`mps_ros.wire.tracking_topics`), and the events the model located. Every message goes
+through one :class:`~mps_ros.run.sinks.Fanout`: the ROS publishers and the recording get the same
+bytes.
+
+A measurement the tracker rejects (a stamp already seen, out of order, late, a crank jump,
+an outlier...) is counted by its reason, said in the log (the first of each reason, then every
+hundredth) and reported in ``/diagnostics`` (status ``NAME: tracking input``), as
+robot_localization does; a source silent for longer than ``timeout`` wall seconds is counted
+(``timeout``) and reported (WARN while it lasts). The node's runner is replaced by this: it
+has the runner's few methods the node calls (:meth:`prepare`, :meth:`run`,
+:meth:`request_stop`, :meth:`pause`...).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
+from mps_core.scene import Scene
+from mps_core.track import Encoder, Measurement, MeasurementError, ModeSignal, Tracker, TrackSettings
+from mps_core.track.tracker import LOAD_COLUMNS
+
+from ..wire import diagnostics
+from ..wire.cdr import string, wrench_stamped
+from ..wire.diagnostics import hardware_id
+from ..wire.step_messages import StepMessages
+from ..wire.topics import OUTPUTS
+from ..wire.tracking_topics import (
+    MEASURED,
+    MEASURED_MODE,
+    PROCESS_FORCE,
+    PROCESS_FORCE_SMOOTHED,
+    PROCESS_FRAME,
+    sigma_key,
+)
+from .commands import Inbox, shown
+from .sinks import Fanout, Message
+from .twin import to_json
+
+__all__ = ["TrackingRun", "nominal_scene"]
+
+#: the reasons this run rejects an input for, besides the tracker's (``Tracker.rejected``)
+INPUT_REJECTIONS = ("malformed", "timeout")
+#: an estimate handed out later than this after its measurement arrived (s) is late: the node
+#: does not keep up (issue 46's target: published within 1 ms)
+LATE = 1e-3
+#: a node behind its press by more than ``max_behind`` publishes again once it is within this (s)
+CAUGHT_UP = 0.01
+
+
+def nominal_scene(scene: Scene) -> Scene:
+    """Return the nominal press a tracker follows: ``scene``, blanking the presets' part if it blanks none."""
+    from mps_core.track.truth import with_blanking
+
+    if any(e.kind == "blanking" for e in scene.effects):
+        return scene
+    return with_blanking(scene)
+
+
+def _ns(t: float) -> int:
+    """Return a time (s) in whole nanoseconds."""
+    return int(round(t * 1e9))
+
+
+def _stamp(t_ns: int) -> dict:
+    """Return builtin_interfaces/Time of ``t_ns``."""
+    return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
+
+
+def _percentile(xs: Sequence[float], q: float) -> float:
+    """Return the ``q``-th percentile of ``xs`` (NaN where empty)."""
+    return float(np.percentile(xs, q)) if len(xs) else math.nan
+
+
+class _Estimated:
+    """The tracker's present estimate, as :class:`StepMessages` reads a twin's step."""
+
+    def __init__(self, tracker: Tracker, solve_reactions: bool) -> None:
+        self.tracker = tracker
+        self.solve_reactions = solve_reactions
+        self.k = 0
+        self.rx: list | None = None
+
+    @property
+    def sim(self) -> Any:
+        """Return the tracker's run (its present state is the estimate's mean)."""
+        return self.tracker.sim
+
+    def reaction_list(self) -> list | None:
+        """Return the reactions at the estimate, in REACTION_COLUMNS order (None unless asked for)."""
+        return self.rx
+
+    def compute_reactions(self) -> None:
+        """Solve the reactions at the estimate (the estimated process force and load torque acting)."""
+        if not self.solve_reactions:
+            self.rx = None
+            return
+        sim = self.tracker.sim
+        e = sim.solver.current
+        fast = reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), e.qdd.tolist(), e.kin
+        )
+        if fast is not None:
+            self.rx = list(fast[0])
+            return
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+        self.rx = [float(rx.values[c]) for c in REACTION_COLUMNS]
+
+    def joint_values(self) -> tuple[list, list]:
+        """Return the positions and velocities of the joints (crank, rod, rocker, slider)."""
+        sim = self.tracker.sim
+        phi, phi_dot, psi, psi_dot, x, x_dot = sim.joint_state()
+        kin = sim.solver.current.kin
+        xa, ya = kin.xy("A")
+        xb, yb = kin.xy("B")
+        return ([phi, math.atan2(yb - ya, xb - xa), psi, x], [phi_dot, kin.rate("rod"), psi_dot, x_dot])
+
+
+class TrackingRun:
+    """Follow a press: measurements in (:meth:`measurement`, :meth:`mode`), the estimate's messages out.
+
+    ``scene``: the nominal press (:func:`nominal_scene` is applied). ``outputs``: what of
+    :data:`~mps_ros.wire.topics.OUTPUTS` goes out at each measurement taken. ``encoder``: the
+    crank encoder (its variance is the angle's); ``slider_variance``: the slider scale's (m²).
+    ``sigma_every``: the loads' 1-σ (``KEY/sigma``) computed and published every this many
+    estimates (they cost 2n + 2 more reaction solves each: a stated decimation where the
+    machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
+    timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
+    is counted late and reported (WARN: the node does not keep up). ``max_behind``: a
+    measurement taken this many seconds (> 0) after its arrival updates the tracker but its
+    estimate is not published, nor those after it until one is taken within
+    :data:`CAUGHT_UP` of its arrival (counted, said, WARN: the node catches up with its press;
+    0: every estimate published however late). ``clock``: the wall clock
+    the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
+    and timeouts are said.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        sinks: Fanout,
+        *,
+        name: str = "press_twin",
+        outputs: Sequence[str] = OUTPUTS,
+        settings: TrackSettings | None = None,
+        encoder: Encoder | None = None,
+        slider_variance: float = 1e-12 + 1e-12 / 12.0,
+        sigma_every: int = 1,
+        timeout: float = 0.05,
+        late_after: float = LATE,
+        max_behind: float = 0.0,
+        clock: Callable[[], float] = time.monotonic,
+        diagnostics_period: float = 1.0,
+        markers_hz: float = 30.0,
+        markers_scale: float | None = None,
+        log: Callable[[str, str], None] | None = None,
+    ) -> None:
+        if not (isinstance(sigma_every, int) and sigma_every >= 1):
+            raise MeasurementError("track_sigma_every", sigma_every, "an integer >= 1")
+        if not (timeout > 0.0 and math.isfinite(timeout)):
+            raise MeasurementError("track_timeout", timeout, "a positive number of seconds")
+        self.scene = nominal_scene(scene)
+        self.sinks = sinks
+        self.name = name
+        self.outputs = tuple(outputs)
+        self.tracker = Tracker(self.scene, settings)
+        self.encoder = encoder or Encoder()
+        self.slider_variance = float(slider_variance)
+        self.sigma_every = sigma_every
+        self.timeout = float(timeout)
+        self.late_after = float(late_after)
+        self.max_behind = float(max_behind)
+        self.clock = clock
+        self.period = float(diagnostics_period)
+        self.log = log or (lambda level, text: None)
+        solve = "reactions" in self.outputs or "foundation" in self.outputs
+        self.step = _Estimated(self.tracker, solve)
+        self.messages = StepMessages(
+            self.scene, self.outputs, solve, 1e-3, markers_hz=markers_hz, markers_scale=markers_scale
+        )
+        self.hardware = hardware_id(self.scene.name)
+        #: inputs this run rejected itself (malformed, timeout), beside the tracker's
+        self.input_rejected: Counter[str] = Counter()
+        self.received = 0  # measurements received (messages)
+        self.estimates = 0  # estimates published (one a measurement message taken)
+        #: CPU (s, this thread's) from a measurement's arrival to its estimate handed out
+        self.cpu: list[float] = []
+        #: wall seconds from a measurement's arrival to its estimate handed to every sink
+        self.delay: list[float] = []
+        #: the press's clock on the wall clock: the least (sent - stamp) of the measurements
+        self._offset = math.inf
+        #: the process's CPU time (s) at the first measurement and after the last estimate:
+        #: what following costs the whole process (executor, publishers, recording) a measurement
+        self._process_cpu: list[float] = []
+        #: estimates handed out more than :data:`LATE` after their measurement arrived
+        self.late = 0
+        #: measurements taken but their estimate not published: more than ``max_behind`` late
+        self.skipped = 0
+        self._catching_up = False
+        self.stop_reason: str | None = None
+        #: why the run failed and of what kind (a node's run says; this one ends without)
+        self.error: str | None = None
+        self.error_kind: str | None = None
+        self.commands_lost = 0
+        #: the node's mode commands (``~/mode``, ``~/engage``...): refused, answered
+        self.inbox = Inbox()
+        #: called as :meth:`run` starts (the node's source subscribes then)
+        self.on_start: Callable[[], None] | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._last_arrival: float | None = None
+        self._silent = False
+        self._window = diagnostics.Window()
+        self._said: Counter[str] = Counter()
+
+    # -- the node's runner, as far as the node calls it ------------------------------------
+    def prepare(self) -> None:
+        """Make the sinks ready for the topics of the estimates and the inputs."""
+        self.sinks.prepare([])
+
+    def close(self) -> None:
+        """End what the run started beside it: nothing (it runs in the node's threads)."""
+
+    def request_stop(self, reason: str) -> None:
+        """End :meth:`run` (``reason``: why, said at the run's end)."""
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        self._stop.set()
+        self.inbox.wake()
+
+    def resume(self) -> None:
+        """Do nothing: a tracking run is never paused."""
+
+    def pause(self) -> str:
+        """Refuse: a run that follows a press goes at the press's pace."""
+        return "a node following a press (track) cannot pause: the press does not"
+
+    def step_paused(self, reply: Callable[[float], None]) -> str:
+        """Refuse: there is no step to take without a measurement."""
+        return "a node following a press (track) steps at its measurements"
+
+    def run(self) -> dict:
+        """Watch the source until stopped: a silence over the timeout said, ``/diagnostics`` once a period."""
+        if self.on_start is not None:
+            self.on_start()
+        next_diag = time.monotonic() + self.period
+        while not self._stop.is_set():
+            self.inbox.wait(min(self.timeout / 2.0, self.period))
+            self.answer_commands()
+            if self._stop.is_set():
+                break
+            now = self.clock()
+            self.watch(now)
+            if now >= next_diag:
+                next_diag = now + self.period
+                self.publish_diagnostics()
+        self.publish_diagnostics()
+        return self.stats()
+
+    def watch(self, now: float) -> None:
+        """Count and say a silence of the source longer than the timeout (once a silence)."""
+        with self._lock:
+            last = self._last_arrival
+            if last is None or self._silent or now - last <= self.timeout:
+                return
+            self._silent = True
+            self.input_rejected["timeout"] += 1
+        self.log(
+            "warn",
+            f"tracking: no measurement for {now - last:.3g} s (timeout {self.timeout:g} s); "
+            f"the estimate holds at t = {self.tracker.t:.6f} s",
+        )
+
+    def answer_commands(self) -> None:
+        """Refuse the node's mode commands, each answered on ``~/mode/status`` (and to its caller).
+
+        The press's mode comes from its controller (``track_mode``), not from the node's
+        commands.
+        """
+        for cmd in self.inbox.drain():
+            with self._lock:
+                ack = {
+                    "t": self.tracker.t,
+                    "command": shown(cmd.word, 64),
+                    "accepted": False,
+                    "reason": "the node follows a press (track): its mode comes from the press (track_mode)",
+                    "source": cmd.source,
+                    "structure": self.tracker.sim.structure,
+                }
+                t_ns = _ns(self.tracker.t)
+                self.sinks.emit_all([("~/mode/status", string({"data": to_json(ack)}), t_ns, False)])
+            self.log("warn", f"refused command {ack['command']!r}: {ack['reason']}")
+            if cmd.reply is not None:
+                cmd.reply(ack)
+
+    # -- the inputs ----------------------------------------------------------------------
+    def measurement(
+        self,
+        t: float,
+        angle: float | None,
+        slider: float | None,
+        raw: bytes,
+        arrival: float,
+        sent: float | None = None,
+    ) -> bool:
+        """Take one measurement message: record it, update the tracker at stamp ``t``, publish the estimate.
+
+        ``angle``: the crank angle (rad; None: the message has none, rejected as
+        ``malformed``), ``slider``: the slider's position (m) or None; ``raw``: the message's
+        bytes as received; ``arrival``: when it came (``clock``), ``sent``: when its publisher
+        sent it (``clock``; None: ``arrival``). Return whether the tracker took it.
+        """
+        cpu0 = time.thread_time()
+        if not self._process_cpu:
+            self._process_cpu = [time.process_time(), time.process_time()]
+        with self._lock:
+            self.received += 1
+            self._last_arrival = self.clock()  # taken now: a silence is the source's, not a queue's
+            self._silent = False
+            if math.isfinite(t):
+                self._offset = min(self._offset, (arrival if sent is None else sent) - t)
+            t_ns = _ns(t) if math.isfinite(t) else 0
+            self.sinks.emit_all([(MEASURED.key, raw, t_ns, True)])
+            if angle is None:
+                self._reject("malformed", t, "no crank angle (a joint named crank, or a single position)")
+                return False
+            ms = [Measurement(t, "crank_angle", float(angle), self.encoder.variance)]
+            if slider is not None:
+                ms.append(Measurement(t, "slider_position", float(slider), self.slider_variance))
+            tr = self.tracker
+            taken = False
+            for m in ms:
+                before = Counter(tr.rejected)
+                if tr.update(m):
+                    taken = True
+                    continue
+                new = tr.rejected - before
+                for reason in new:
+                    self._say(reason, t, m)
+            gap = tr.rejected["gap"] - self._said["gap"]
+            if gap > 0:
+                self._say("gap", t, ms[0])
+            if not taken:
+                return False
+            behind = self.clock() - arrival
+            if 0.0 < self.max_behind < behind:
+                self._catching_up = True
+            elif behind <= min(self.max_behind, CAUGHT_UP):
+                self._catching_up = False
+            if self._catching_up:  # taken, not published, until the node is within CAUGHT_UP again
+                self._publish(full=False)
+                self.skipped += 1
+                if self.skipped == 1 or self.skipped % 1000 == 0:
+                    self.log(
+                        "warn",
+                        f"tracking: behind the press by over {self.max_behind:g} s: the estimate at "
+                        f"t = {t:.6f} s taken, not published ({self.skipped} so far)",
+                    )
+                self._process_cpu[1] = time.process_time()
+                return True
+            self._publish()
+            self.cpu.append(time.thread_time() - cpu0)
+            delay = self.clock() - arrival
+            self.delay.append(delay)
+            if delay > self.late_after:
+                self.late += 1
+            self._process_cpu[1] = time.process_time()
+            return True
+
+    def mode(self, command: str, raw: bytes, sent: float) -> None:
+        """Take one mode signal (``engage``, ``disengage``): record it, apply it at its time.
+
+        A String has no stamp, and the executor takes it in no set order with the measurements:
+        its time is when it was sent (``clock``) on the press's clock (less the least
+        sent-stamp offset of the measurements so far), or the estimate's time before any
+        measurement. Where the estimate is past it, it applies at once.
+        """
+        with self._lock:
+            t = sent - self._offset if math.isfinite(self._offset) else self.tracker.t
+            self.sinks.emit_all([(MEASURED_MODE.key, raw, _ns(max(t, 0.0)), True)])
+            try:
+                signal = ModeSignal(t, command.strip())
+            except MeasurementError as exc:
+                self._reject("malformed", self.tracker.t, str(exc))
+                return
+            self.tracker.mode(signal)
+            self.log(
+                "info",
+                f"tracking: mode signal {signal.command} at t = {signal.t:.6f} s (the estimate at "
+                f"t = {self.tracker.t:.6f} s)",
+            )
+
+    def _reject(self, reason: str, t: float, why: str) -> None:
+        """Count and say an input this run rejects itself."""
+        self.input_rejected[reason] += 1
+        n = self.input_rejected[reason]
+        if n == 1 or n % 100 == 0:
+            self.log("warn", f"tracking: measurement at t = {t:.6f} s rejected ({reason}, {n} so far): {why}")
+
+    def _say(self, reason: str, t: float, m: Measurement) -> None:
+        """Say a rejection of the tracker's (the first of its reason, then every hundredth)."""
+        n = self.tracker.rejected[reason]
+        self._said[reason] = n
+        if n == 1 or n % 100 == 0:
+            what = (
+                f"a gap over {self.tracker.settings.timeout:g} s before it (taken)"
+                if reason == "gap"
+                else f"{m.kind} {m.value:.6g} rejected"
+            )
+            self.log(
+                "warn",
+                f"tracking: measurement at t = {t:.6f} s: {reason} ({n} so far): {what}; "
+                f"the estimate is at t = {self.tracker.t:.6f} s",
+            )
+
+    # -- the estimate out ----------------------------------------------------------------
+    def _publish(self, full: bool = True) -> None:
+        """Hand the estimate's messages to every sink, then the model's events (only those: not ``full``)."""
+        tr = self.tracker
+        step = self.step
+        if not full:
+            events = tr.sim.events
+            if events:
+                if "events" in self.outputs:
+                    t_ns = _ns(tr.t)
+                    self.sinks.emit_all(
+                        [("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events]
+                    )
+                del events[:]
+            return
+        step.compute_reactions()
+        t_ns = _ns(tr.t)
+        msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step)]
+        est = tr.estimate()
+        st = _stamp(t_ns)
+        msgs.append((PROCESS_FORCE.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
+        msgs.append(
+            (sigma_key(PROCESS_FORCE.key), _wrench(st, PROCESS_FRAME, est.force_sigma, 0.0, 0.0), t_ns, False)
+        )
+        st_s = _stamp(_ns(est.t_force_smoothed))
+        msgs.append(
+            (
+                PROCESS_FORCE_SMOOTHED.key,
+                _wrench(st_s, PROCESS_FRAME, est.force_smoothed, 0.0, 0.0),
+                t_ns,
+                False,
+            )
+        )
+        msgs.append(
+            (
+                sigma_key(PROCESS_FORCE_SMOOTHED.key),
+                _wrench(st_s, PROCESS_FRAME, est.force_smoothed_sigma, 0.0, 0.0),
+                t_ns,
+                False,
+            )
+        )
+        if self.messages.wrenches and self.estimates % self.sigma_every == 0:
+            loads = tr.loads()
+            for w in self.messages.wrenches:
+                fx, fy = (0.0 if c is None else _sigma(loads, c) for c in w.force)
+                mz = 0.0 if w.torque is None else _sigma(loads, w.torque)
+                msgs.append((sigma_key(w.key), _wrench(st, w.frame_id, fx, fy, mz), t_ns, False))
+        events = tr.sim.events
+        if events:
+            if "events" in self.outputs:
+                msgs.extend(("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events)
+            del events[:]
+        self.sinks.emit_all(msgs)
+        self.sinks.tick(None)
+        self.estimates += 1
+        step.k += 1
+
+    # -- what it says ----------------------------------------------------------------------
+    def rejected(self) -> dict[str, int]:
+        """Return every rejection so far by reason: the tracker's and this run's own."""
+        out = dict(self.tracker.rejected)
+        out.update(self.input_rejected)
+        return out
+
+    def stats(self) -> dict:
+        """Return the run's figures: inputs, estimates, rejections, CPU and delay a measurement (ms)."""
+        cpu = [c * 1e3 for c in self.cpu]
+        delay = [d * 1e3 for d in self.delay]
+        out: dict[str, Any] = {
+            "t": self.tracker.t,
+            "received": self.received,
+            "estimates": self.estimates,
+            "rejected": sum(self.rejected().values()) - self.tracker.rejected["gap"],
+            "cpu_p50_ms": _percentile(cpu, 50),
+            "cpu_p99_ms": _percentile(cpu, 99),
+            "delay_p50_ms": _percentile(delay, 50),
+            "delay_p99_ms": _percentile(delay, 99),
+            "delay_max_ms": max(delay, default=math.nan),
+            "process_cpu_ms": (
+                (self._process_cpu[1] - self._process_cpu[0]) * 1e3 / max(self.received - 1, 1)
+                if self._process_cpu
+                else math.nan
+            ),
+            "sigma_every": self.sigma_every,
+            "late": self.late,
+            "skipped": self.skipped,
+        }
+        out.update({f"rejected_{k.replace('-', '_')}": v for k, v in sorted(self.rejected().items())})
+        return out
+
+    def summary(self) -> str:
+        """Return the run's last line: how it ended, its inputs, its rejections, its CPU and delay."""
+        s = self.stats()
+        why = self.stop_reason or "end"
+        rej = ", ".join(f"{k} {v}" for k, v in sorted(self.rejected().items())) or "none"
+        return (
+            f"tracking run {'ended' if why == 'end' else 'stopped (' + why + ')'} at t = {s['t']:.6g} s: "
+            f"{s['received']} measurements received, {s['estimates']} estimates published, rejected: {rej}; "
+            f"CPU a measurement p50 {s['cpu_p50_ms']:.3g} ms, p99 {s['cpu_p99_ms']:.3g} ms (the process's "
+            f"{s['process_cpu_ms']:.3g} ms); published after "
+            f"its arrival p50 {s['delay_p50_ms']:.3g} ms, p99 {s['delay_p99_ms']:.3g} ms, max "
+            f"{s['delay_max_ms']:.3g} ms, {s['late']} estimates over "
+            f"{self.late_after * 1e3:g} ms, {s['skipped']} taken but not published (over "
+            f"{self.max_behind:g} s behind); loads' 1-sigma every "
+            f"{self.sigma_every} estimate(s)"
+        )
+
+    def status(self) -> dict:
+        """Return the ``NAME: tracking input`` status.
+
+        WARN where inputs were rejected since the last status, or the source is silent.
+        """
+        rej = self.rejected()
+        gaps = rej.pop("gap", 0)
+        total = sum(rej.values())
+        new = self._window.since(
+            rejected=total, estimates=self.estimates, late=self.late, skipped=self.skipped
+        )
+        level = diagnostics.OK
+        msg = f"{self.estimates} estimates from {self.received} measurements, {total} rejected"
+        if new["skipped"]:
+            level = diagnostics.WARN
+            msg = (
+                f"behind the press: {new['skipped']} estimates not published since the last report "
+                f"(taken over {self.max_behind:g} s after their measurement arrived); " + msg
+            )
+        if new["late"]:
+            level = diagnostics.WARN
+            msg = (
+                f"cannot keep up: {new['late']} of {new['estimates']} estimates out more than "
+                f"{self.late_after * 1e3:g} ms after their measurement arrived since the last report "
+                f"(track_sigma_every {self.sigma_every}: raise it to compute the loads' 1-sigma less often); "
+                + msg
+            )
+        if new["rejected"]:
+            level = diagnostics.WARN
+            msg = f"{new['rejected']} rejected since the last report; " + msg
+        if self._silent:
+            level = diagnostics.WARN
+            msg = f"no measurement for over {self.timeout:g} s; " + msg
+        values: dict[str, Any] = {
+            "estimates": self.estimates,
+            "received": self.received,
+            "gaps": gaps,
+            "late estimates": self.late,
+            "estimates not published": self.skipped,
+        }
+        values.update({f"rejected {k}": v for k, v in sorted(rej.items())})
+        s = self.stats()
+        for k in (
+            "cpu_p50_ms",
+            "cpu_p99_ms",
+            "delay_p50_ms",
+            "delay_p99_ms",
+            "delay_max_ms",
+        ):
+            values[k] = s[k]
+        return diagnostics.status(level, f"{self.name}: tracking input", msg, self.hardware, values)
+
+    def publish_diagnostics(self) -> None:
+        """Hand ``/diagnostics`` (the tracking input's status and the sinks') to every sink."""
+        if "diagnostics" not in self.outputs:
+            return
+        from ..wire.cdr import encoder
+
+        with self._lock:
+            t_ns = _ns(self.tracker.t)
+            statuses = [self.status(), *self.sinks.statuses(self.name, self.hardware)]
+            data = encoder("diagnostic_msgs/msg/DiagnosticArray")(diagnostics.array(t_ns, statuses))
+            self.sinks.emit_all([("/diagnostics", data, t_ns, False)])
+
+
+def _wrench(st: dict, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
+    """Return a WrenchStamped's bytes: force (fx, fy, 0), torque (0, 0, mz)."""
+    return wrench_stamped(
+        {
+            "header": {"stamp": st, "frame_id": frame_id},
+            "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
+        }
+    )
+
+
+def _sigma(loads: dict[str, tuple[float, float]], column: str) -> float:
+    """Return a load's 1-σ (0 for a column the tracker does not estimate)."""
+    return float(loads[column][1]) if column in LOAD_COLUMNS else 0.0

@@ -1,0 +1,185 @@
+"""The tracking run without ROS: measurements in, the estimate out, bad inputs counted and reported."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import pytest
+
+from mps_core import load_scene
+from mps_core.track import run_truth, truth_scene
+from mps_ros.run.sinks import Fanout, Sink
+from mps_ros.run.tracking import TrackingRun, nominal_scene
+from mps_ros.wire import diagnostics
+
+
+class ListSink(Sink):
+    """Keep every message handed to it."""
+
+    def __init__(self) -> None:
+        self.msgs: list = []
+
+    def emit_all(self, msgs):
+        """Keep ``msgs``."""
+        self.msgs.extend(msgs)
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return run_truth(truth_scene(nominal_scene(load_scene("working"))), 0.06, seed=1)
+
+
+def _run(logs=None, **kw):
+    kw.setdefault("late_after", math.inf)  # the levels asserted are the inputs', whatever the machine's load
+    sink = ListSink()
+    run = TrackingRun(
+        load_scene("working"),
+        Fanout([sink]),
+        log=(lambda level, text: logs.append((level, text))) if logs is not None else None,
+        **kw,
+    )
+    return run, sink
+
+
+def test_each_measurement_gives_one_estimate_with_its_sigmas_and_process_force(truth):
+    run, sink = _run()
+    for i, m in enumerate(truth.measurements):
+        assert run.measurement(m.t, m.value, None, b"m%d" % i, float(i))
+    n = len(truth.measurements)
+    assert run.estimates == n and run.received == n
+    keys = [k for k, *_ in sink.msgs]
+    for key in ("joint_states", "/clock", "~/foundation", "~/foundation/sigma", "~/reactions/A/sigma"):
+        assert keys.count(key) == n, key
+    for key in ("~/process_force/now", "~/process_force/now/sigma", "~/process_force/sigma"):
+        assert keys.count(key) == n, key
+    # the measurements recorded as received (not published again), each before its estimate
+    received = [(k, d, t) for k, d, t, r in sink.msgs if r]
+    assert [d for _, d, _ in received] == [b"m%d" % i for i in range(n)]
+    assert [t for *_, t in received] == [int(round(m.t * 1e9)) for m in truth.measurements]
+    # each estimate stamped with its measurement's stamp
+    clocks = [t for k, _, t, _ in sink.msgs if k == "/clock"]
+    assert clocks == [int(round(m.t * 1e9)) for m in truth.measurements]
+    s = run.stats()
+    assert s["rejected"] == 0 and math.isfinite(s["cpu_p99_ms"])
+
+
+def test_the_sigmas_decimated_as_stated(truth):
+    run, sink = _run(sigma_every=4)
+    for m in truth.measurements[:20]:
+        run.measurement(m.t, m.value, None, b"", 0.0)
+    keys = [k for k, *_ in sink.msgs]
+    assert keys.count("~/foundation/sigma") == 5 and keys.count("~/foundation") == 20
+    assert "every 4 estimate(s)" in run.summary()
+
+
+def test_bad_measurements_counted_reported_and_the_estimate_unharmed(truth):
+    ms = truth.measurements
+    logs: list = []
+    run, _ = _run(logs)
+    clean, _ = _run()
+    for m in ms[:30]:
+        run.measurement(m.t, m.value, None, b"", 0.0)
+        clean.measurement(m.t, m.value, None, b"", 0.0)
+    assert run.status()["level"] == diagnostics.OK
+    last = ms[29]
+    bad = [
+        (ms[30].t, ms[30].value + math.radians(10.0), "jump"),  # a crank 10 degrees off
+        (last.t, last.value, "duplicate"),
+        (ms[28].t, ms[28].value, "out-of-order"),
+        (ms[30].t, None, "malformed"),
+        (math.nan, ms[30].value, "not-finite"),
+    ]
+    for t, value, _ in bad:
+        assert not run.measurement(t, value, None, b"", 0.0)
+    got = run.rejected()
+    for *_, reason in bad:
+        assert got[reason] == 1, (reason, got)
+    assert run.estimates == 30
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "5 rejected" in st["message"]
+    values = {v["key"]: v["value"] for v in st["values"]}
+    assert values["rejected jump"] == "1" and values["rejected malformed"] == "1"
+    said = " ".join(text for level, text in logs if level == "warn")
+    for *_, reason in bad:
+        assert reason in said, reason
+    # the estimate is the clean run's, bit for bit, and goes on as it
+    assert run.tracker.estimate() == clean.tracker.estimate()
+    for m in ms[30:40]:
+        assert run.measurement(m.t, m.value, None, b"", 0.0)
+        clean.measurement(m.t, m.value, None, b"", 0.0)
+    assert run.tracker.estimate() == clean.tracker.estimate()
+    assert run.status()["level"] == diagnostics.OK  # nothing rejected since the last status
+
+
+def test_a_silent_source_is_counted_and_reported_once_a_silence(truth):
+    logs: list = []
+    now = [100.0]  # the wall clock, as the test sets it
+    run, _ = _run(logs, timeout=0.05, clock=lambda: now[0])
+    m = truth.measurements[0]
+    run.measurement(m.t, m.value, None, b"", 100.0)
+    run.watch(100.04)
+    assert run.rejected().get("timeout", 0) == 0
+    run.watch(100.06)
+    run.watch(100.5)
+    assert run.rejected()["timeout"] == 1
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "no measurement for over 0.05 s" in st["message"]
+    assert any("no measurement for" in text for _, text in logs)
+    m = truth.measurements[1]
+    now[0] = 101.0
+    run.measurement(m.t, m.value, None, b"", 101.0)
+    assert run.status()["level"] == diagnostics.OK
+
+
+def test_estimates_out_late_are_counted_and_reported(truth):
+    run, _ = _run(late_after=1e-3)
+    m = truth.measurements[0]
+    run.measurement(m.t, m.value, None, b"", time.monotonic() - 0.01)  # it came 10 ms ago
+    assert run.late == 1
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "cannot keep up: 1 of 1 estimates" in st["message"]
+    assert "1 estimates over 1 ms" in run.summary()
+
+
+def test_a_run_behind_its_press_takes_each_measurement_and_publishes_none_too_late(truth):
+    logs: list = []
+    now = [50.0]  # the wall clock, as the test sets it
+    run, sink = _run(logs, max_behind=0.25, clock=lambda: now[0])
+    clean, _ = _run()
+    for i, m in enumerate(truth.measurements[:30]):
+        # measurements 5 to 9 taken 0.3 s after they came, then ever less late: the run
+        # publishes again once it takes one within 10 ms (CAUGHT_UP) of its arrival
+        late = {5: 0.3, 6: 0.3, 7: 0.2, 8: 0.05, 9: 0.02, 10: 0.005}.get(i, 0.0)
+        now[0] += 0.001
+        assert run.measurement(m.t, m.value, None, b"", now[0] - late)
+        clean.measurement(m.t, m.value, None, b"", now[0])
+    assert run.skipped == 5 and run.estimates == 25
+    assert [k for k, *_ in sink.msgs].count("joint_states") == 25
+    assert run.tracker.estimate() == clean.tracker.estimate()  # every one taken
+    st = run.status()
+    assert st["level"] == diagnostics.WARN and "behind the press: 5 estimates not published" in st["message"]
+    assert any("taken, not published" in text for _, text in logs)
+    assert "5 taken but not published (over 0.25 s behind)" in run.summary()
+
+
+def test_the_node_s_mode_commands_are_refused_and_answered():
+    from mps_ros.run.commands import Command
+
+    logs: list = []
+    run, sink = _run(logs)
+    answers: list = []
+    run.inbox.put(Command("engage", "service", answers.append))
+    run.inbox.put(Command("disengage", "topic"))
+    run.answer_commands()
+    assert [a["command"] for a in answers] == ["engage"] and not answers[0]["accepted"]
+    acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in sink.msgs if k == "~/mode/status"]
+    assert [(a["command"], a["accepted"]) for a in acks] == [("engage", False), ("disengage", False)]
+    assert "its mode comes from the press (track_mode)" in acks[1]["reason"]
+    assert sum("refused command" in text for _, text in logs) == 2
+
+
+def test_a_bad_setting_names_its_field():
+    with pytest.raises(ValueError, match="track_sigma_every = 0: expected an integer >= 1"):
+        _run(sigma_every=0)
