@@ -115,19 +115,9 @@ def _nominal(spec: str) -> Any:
 
 def _faults(specs: list[str]) -> tuple:
     """Return the faults of ``--fault T:KIND`` options."""
-    from .truth import FAULTS, Fault
+    from .truth import FAULTS, Fault, timed_kinds
 
-    out = []
-    for s in specs:
-        when, _, kind = s.partition(":")
-        try:
-            t = float(when)
-        except ValueError:
-            raise MeasurementError(
-                "--fault", s, f"T:KIND, T in seconds, KIND one of {', '.join(FAULTS)}"
-            ) from None
-        out.append(Fault(t, kind))
-    return tuple(out)
+    return tuple(Fault(t, kind) for t, kind in timed_kinds(specs, "--fault", FAULTS))
 
 
 def _emulate(args: argparse.Namespace) -> int:

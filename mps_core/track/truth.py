@@ -47,6 +47,25 @@ __all__ = [
 FAULTS = ("double-blank", "broken-spring", "clutch-slip")
 
 
+def timed_kinds(specs: list[str], option: str, kinds: tuple[str, ...]) -> list[tuple[float, str]]:
+    """Return the (T, KIND) of command-line values ``T:KIND``, each checked.
+
+    ``option`` names the option in the error (:class:`MeasurementError`); ``kinds`` are the
+    KINDs it takes; T is in seconds, >= 0.
+    """
+    out = []
+    for s in specs:
+        when, _, kind = s.partition(":")
+        try:
+            t = float(when)
+        except ValueError:
+            t = math.nan
+        if not (t >= 0.0 and kind in kinds):
+            raise MeasurementError(option, s, f"T:KIND, T in seconds >= 0, KIND one of {', '.join(kinds)}")
+        out.append((t, kind))
+    return out
+
+
 @dataclass(frozen=True)
 class TruthChanges:
     """How the truth differs from the nominal scene (factors on the nominal's values)."""

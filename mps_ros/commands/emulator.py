@@ -60,23 +60,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_emulator)
 
 
-def _timed(specs: list[str], option: str, kinds: tuple[str, ...]) -> list[tuple[float, str]]:
-    """Return the (T, KIND) of ``--option T:KIND`` values, each checked."""
-    out = []
-    for s in specs:
-        when, _, kind = s.partition(":")
-        try:
-            t = float(when)
-        except ValueError:
-            t = -1.0
-        if not (t >= 0.0 and kind in kinds):
-            raise ValueError(
-                f"{option} = {s!r}: expected T:KIND, T in seconds >= 0, KIND one of {', '.join(kinds)}"
-            )
-        out.append((t, kind))
-    return out
-
-
 def _ros_emulator() -> Any:
     """Return the ROS emulator's module, this process's ROS environment set first.
 
@@ -102,7 +85,7 @@ def _emulator(args: argparse.Namespace) -> int:
     """Check the arguments, run the truth, publish its sensors' readings."""
     from mps_core import MpsError, load_scene
     from mps_core.track import Fault, Sensors, run_truth, truth_scene
-    from mps_core.track.truth import FAULTS
+    from mps_core.track.truth import FAULTS, timed_kinds
 
     from ..run.tracking import nominal_scene
 
@@ -118,8 +101,8 @@ def _emulator(args: argparse.Namespace) -> int:
             )
         if args.subscribers < 0:
             raise ValueError(f"--subscribers = {args.subscribers!r}: expected an integer >= 0")
-        faults = tuple(Fault(t, k) for t, k in _timed(args.fault, "--fault", tuple(FAULTS)))
-        glitch_specs = _timed(args.glitch, "--glitch", ("jump", "duplicate", "out-of-order"))
+        faults = tuple(Fault(t, k) for t, k in timed_kinds(args.fault, "--fault", FAULTS))
+        glitch_specs = timed_kinds(args.glitch, "--glitch", ("jump", "duplicate", "out-of-order"))
         nominal = nominal_scene(load_scene(args.scene))
     except (ValueError, MpsError) as exc:
         say(f"mps emulator: error: {exc}")

@@ -52,3 +52,17 @@ def test_the_changes_are_what_they_say():
     assert motor["efficiency"] == pytest.approx(1.03)
     part = next(e.params for e in truth.effects if e.kind == "blanking")
     assert part["peak_force"] == pytest.approx(62.83 * 1.5 * 300.0)
+
+
+def test_timed_kinds_reads_t_kind_values_and_names_a_bad_one():
+    from mps_core.track.measurements import MeasurementError
+    from mps_core.track.truth import FAULTS, timed_kinds
+
+    assert timed_kinds(["0.25:clutch-slip", "1:double-blank"], "--fault", FAULTS) == [
+        (0.25, "clutch-slip"),
+        (1.0, "double-blank"),
+    ]
+    for bad in ("x:clutch-slip", "-1:clutch-slip", "0.5:nope", "0.5"):
+        with pytest.raises(MeasurementError) as err:
+            timed_kinds([bad], "--fault", FAULTS)
+        assert str(err.value).startswith(f"--fault = {bad!r}: expected T:KIND")
