@@ -62,25 +62,36 @@ def check_served(m: re.Match) -> None:
         assert b"Rerun" in page.read()
 
 
-def test_a_recording_on_the_web_viewer(tmp_path):
-    log_path = tmp_path / "web.log"
+def _web_view(log_path: Path, *args: str) -> tuple[subprocess.Popen, re.Match]:
+    """Start ``mps view ARGS --web`` (its own process group, its output in ``log_path``) and
+    return it with the match of the address it printed, once its viewer serves on loopback."""
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            mps_cmd("view", str(SAMPLE), "--web", "--web-port", "0"),
+            mps_cmd("view", *args, "--web", "--web-port", "0"),
             stdout=log,
             stderr=subprocess.STDOUT,
             start_new_session=True,
         )
-        try:
-            m = started(proc, log_path, "the web viewer's address")
-            assert isinstance(m, re.Match), log_path.read_text()
-            check_served(m)
-            web = int(m.group(2))
-            shot = browser_sees_the_press(m.group(1), tmp_path)
-            proc.send_signal(signal.SIGINT)
-            assert proc.wait(60) == 130
-        finally:
-            stop_group(proc)
+    try:
+        m = started(proc, log_path, "the web viewer's address")
+        assert isinstance(m, re.Match), log_path.read_text()
+        check_served(m)
+    except BaseException:
+        stop_group(proc)
+        raise
+    return proc, m
+
+
+def test_a_recording_on_the_web_viewer(tmp_path):
+    log_path = tmp_path / "web.log"
+    proc, m = _web_view(log_path, str(SAMPLE))
+    try:
+        web = int(m.group(2))
+        shot = browser_sees_the_press(m.group(1), tmp_path)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 130
+    finally:
+        stop_group(proc)
     text = log_path.read_text()
     assert "mps view: interrupted (SIGINT)" in text and "Traceback" not in text, text
     # the viewer's process group ended with it
@@ -91,37 +102,28 @@ def test_a_recording_on_the_web_viewer(tmp_path):
 
 def test_the_live_view_on_the_web_viewer(tmp_path):
     log_path = tmp_path / "live.log"
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen(
-            mps_cmd("view", "--live", "--web", "--web-port", "0", "--duration", "120"),
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
+    proc, m = _web_view(log_path, "--live", "--duration", "120")
+    try:
+        wait_until(lambda: b"following" in log_path.read_bytes(), 120, "the live view following")
+        params = dict(
+            pacing="realtime",
+            dt=1e-3,
+            t_end=0.3,
+            recording="none",
+            outputs="[joint_states,reactions,foundation,structure,events,diagnostics]",
+            wait_for_subscribers=1,
+            wait_timeout=60.0,
+            start_delay=0.5,
         )
-        try:
-            m = started(proc, log_path, "the web viewer's address")
-            assert isinstance(m, re.Match), log_path.read_text()
-            check_served(m)
-            wait_until(lambda: b"following" in log_path.read_bytes(), 120, "the live view following")
-            params = dict(
-                pacing="realtime",
-                dt=1e-3,
-                t_end=0.3,
-                recording="none",
-                outputs="[joint_states,reactions,foundation,structure,events,diagnostics]",
-                wait_for_subscribers=1,
-                wait_timeout=60.0,
-                start_delay=0.5,
-            )
-            with NodeProcess(tmp_path, params) as node:
-                assert node.wait(120) == 0, node.log()
-            wait_until(lambda: b"live view:" in log_path.read_bytes(), 120, "the live view's end line")
-            # the web viewer stays after the run, until Ctrl-C
-            check_served(m)
-            proc.send_signal(signal.SIGINT)
-            assert proc.wait(60) == 130
-        finally:
-            stop_group(proc)
+        with NodeProcess(tmp_path, params) as node:
+            assert node.wait(120) == 0, node.log()
+        wait_until(lambda: b"live view:" in log_path.read_bytes(), 120, "the live view's end line")
+        # the web viewer stays after the run, until Ctrl-C
+        check_served(m)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 130
+    finally:
+        stop_group(proc)
     text = log_path.read_text()
     steps = int(re.search(r"live view: \d+ frames, (\d+) steps logged", text).group(1))
     assert steps > 0.8 * 300, text
