@@ -24,7 +24,7 @@ from std_msgs.msg import String
 from mps_core.track import Encoder, TrackSettings
 
 from ..run.tracking import TrackingRun
-from ..wire.tracking_topics import MEASURED, MEASURED_MODE, TRACKING_TOPICS
+from ..wire.track_topics import RECEIVED_JOINTS, RECEIVED_MODE, TRACKING_TOPICS
 from .endpoints import MSG_CLASSES
 
 __all__ = ["TrackingSource", "add_endpoints", "tracking_run"]
@@ -52,9 +52,9 @@ def add_endpoints(node: Any) -> None:
         )
         ep.pubs[t.key] = pub
         ep.names[t.key] = pub.topic_name
-    ep.names[MEASURED.key] = _topic(node, "track", st.track)
+    ep.names[RECEIVED_JOINTS.key] = _topic(node, "track", st.track)
     if st.track_mode:
-        ep.names[MEASURED_MODE.key] = _topic(node, "track_mode", st.track_mode)
+        ep.names[RECEIVED_MODE.key] = _topic(node, "track_mode", st.track_mode)
 
 
 def _topic(node: Any, parameter: str, name: str) -> str:

@@ -10,7 +10,7 @@ from typing import Protocol
 
 from ..recording.recorder import Message, RecordingWriter
 from ..wire.topics import NODE_NAME, resolve
-from ..wire.tracking_topics import msgtype
+from ..wire.track_topics import msgtype
 
 __all__ = ["Fanout", "Message", "RecordingSink", "Sink"]
 

@@ -6,7 +6,7 @@ and its bytes as received), is recorded as received, updates :class:`~mps_core.t
 its stamp, and the estimate goes out as the simulator's step goes out
 (:class:`~mps_ros.wire.step_messages.StepMessages`: ``/clock``, ``/tf``, joint states, reactions,
 foundation, structure, markers), plus the 1-σ of each wrench and the process force
-(:mod:`mps_ros.wire.tracking_topics`), and the events the model located. Every message goes
+(:mod:`mps_ros.wire.track_topics`), and the events the model located. Every message goes
 through one :class:`~mps_ros.run.sinks.Fanout`: the ROS publishers and the recording get the same
 bytes.
 
@@ -40,13 +40,13 @@ from ..wire.cdr import string, wrench_stamped
 from ..wire.diagnostics import hardware_id
 from ..wire.step_messages import StepMessages
 from ..wire.topics import OUTPUTS
-from ..wire.tracking_topics import (
-    MEASURED,
-    MEASURED_MODE,
+from ..wire.track_topics import (
     PROCESS_FORCE,
-    PROCESS_FORCE_SMOOTHED,
+    PROCESS_FORCE_NOW,
     PROCESS_FRAME,
-    sigma_key,
+    RECEIVED_JOINTS,
+    RECEIVED_MODE,
+    sigma,
 )
 from .commands import Inbox, shown
 from .sinks import Fanout, Message
@@ -335,7 +335,7 @@ class TrackingRun:
             if math.isfinite(t):
                 self._offset = min(self._offset, (arrival if sent is None else sent) - t)
             t_ns = _ns(t) if math.isfinite(t) else 0
-            self.sinks.emit_all([(MEASURED.key, raw, t_ns, True)])
+            self.sinks.emit_all([(RECEIVED_JOINTS.key, raw, t_ns, True)])
             if angle is None:
                 self._reject("malformed", t, "no crank angle (a joint named crank, or a single position)")
                 return False
@@ -392,7 +392,7 @@ class TrackingRun:
         """
         with self._lock:
             t = sent - self._offset if math.isfinite(self._offset) else self.tracker.t
-            self.sinks.emit_all([(MEASURED_MODE.key, raw, _ns(max(t, 0.0)), True)])
+            self.sinks.emit_all([(RECEIVED_MODE.key, raw, _ns(max(t, 0.0)), True)])
             try:
                 signal = ModeSignal(t, command.strip())
             except MeasurementError as exc:
@@ -448,14 +448,14 @@ class TrackingRun:
         msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step)]
         est = tr.estimate()
         st = _stamp(t_ns)
-        msgs.append((PROCESS_FORCE.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
+        msgs.append((PROCESS_FORCE_NOW.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
         msgs.append(
-            (sigma_key(PROCESS_FORCE.key), _wrench(st, PROCESS_FRAME, est.force_sigma, 0.0, 0.0), t_ns, False)
+            (sigma(PROCESS_FORCE_NOW.key), _wrench(st, PROCESS_FRAME, est.force_sigma, 0.0, 0.0), t_ns, False)
         )
         st_s = _stamp(_ns(est.t_force_smoothed))
         msgs.append(
             (
-                PROCESS_FORCE_SMOOTHED.key,
+                PROCESS_FORCE.key,
                 _wrench(st_s, PROCESS_FRAME, est.force_smoothed, 0.0, 0.0),
                 t_ns,
                 False,
@@ -463,7 +463,7 @@ class TrackingRun:
         )
         msgs.append(
             (
-                sigma_key(PROCESS_FORCE_SMOOTHED.key),
+                sigma(PROCESS_FORCE.key),
                 _wrench(st_s, PROCESS_FRAME, est.force_smoothed_sigma, 0.0, 0.0),
                 t_ns,
                 False,
@@ -474,7 +474,7 @@ class TrackingRun:
             for w in self.messages.wrenches:
                 fx, fy = (0.0 if c is None else _sigma(loads, c) for c in w.force)
                 mz = 0.0 if w.torque is None else _sigma(loads, w.torque)
-                msgs.append((sigma_key(w.key), _wrench(st, w.frame_id, fx, fy, mz), t_ns, False))
+                msgs.append((sigma(w.key), _wrench(st, w.frame_id, fx, fy, mz), t_ns, False))
         events = tr.sim.events
         if events:
             if "events" in self.outputs:

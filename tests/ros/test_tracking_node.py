@@ -13,7 +13,7 @@ import pytest
 from twin_probe import NodeProcess, mps_cmd, stop_group, wait_until
 
 from mps_ros.wire.topics import TOPICS, resolve
-from mps_ros.wire.tracking_topics import MEASURED, TRACKING_TOPICS
+from mps_ros.wire.track_topics import RECEIVED_JOINTS, TRACKING_TOPICS
 
 pytestmark = pytest.mark.slow
 
@@ -89,7 +89,7 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
     published = [
         t
         for t in (*TOPICS, *TRACKING_TOPICS)
-        if (not t.output or t.output in OUTPUTS) and t.msgtype in MSG_CLASSES and t.key != MEASURED.key
+        if (not t.output or t.output in OUTPUTS) and t.msgtype in MSG_CLASSES and t.key != RECEIVED_JOINTS.key
     ]
     names = {resolve(t.key): MSG_CLASSES[t.msgtype] for t in published}
     listener = RawListener(ros, names)
