@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions
+from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from ..errors import MpsError
 from ..run.simulation import Simulation
 from ..solvers import ADAPTIVE_SOLVERS
@@ -61,6 +61,8 @@ __all__ = ["LOAD_COLUMNS", "Estimate", "Tracker"]
 
 #: the reactions and foundation load a tracker estimates (the residual checks left out)
 LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
+#: where each of LOAD_COLUMNS is in REACTION_COLUMNS
+_LOAD_INDEX = tuple(list(REACTION_COLUMNS).index(c) for c in LOAD_COLUMNS)
 #: the process loads a tracker's model leaves out (the unknown input stands for them)
 PROCESS_EFFECTS = ("blanking",)
 #: the reasons a measurement is rejected for
@@ -635,7 +637,8 @@ class Tracker:
         i = 2 * n
         e = self.sim.solver.current
         where = list(range(2 * n)) + [i, i + 1]
-        return self._loads_at(e.t, e.q, e.qd, self.x[i], where)
+        present = e if self.inputs.values[0] == float(self.x[i]) else None
+        return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present)
 
     def smoothed_loads(self) -> tuple[float, dict[str, tuple[float, float]]]:
         """Return the time ``force_lag`` steps back and the joint reactions and the foundation
@@ -652,44 +655,71 @@ class Tracker:
         return t, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
 
     def _loads_at(
-        self, t: float, q: np.ndarray, qd: np.ndarray, force: float, where: list[int]
+        self,
+        t: float,
+        q: np.ndarray,
+        qd: np.ndarray,
+        force: float,
+        where: list[int],
+        present: Any = None,
     ) -> dict[str, tuple[float, float]]:
         """Return the loads at (t, q, q̇) with the process force ``force`` and the present load
         torque, their 1-σ from the covariance of the state's components ``where`` (those of q,
-        q̇, the force, the torque)."""
+        q̇, the force, the torque).
+
+        ``present``: the run's evaluation at exactly that state and force, where the caller has
+        it (evaluated again otherwise). The loads' sensitivities to q and q̇ are forward
+        differences; to the force and the torque they are exact: the loads are affine in both
+        (q̈ moves by A⁻¹·∂x_C/∂q and A⁻¹·∂φ/∂q per unit, the kinematics stay).
+        """
         view, n = self.sim.view, self.n
         fun = self.sim.engine.evaluator(view)
         q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
         saved = list(self.inputs.values)
         self.inputs.values[0] = float(force)
         try:
-            base = self._reaction_values(fun(t, q, qd))
-            steps = np.concatenate(
-                [1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(qd)), [1.0, 1e-2]]
-            )
+            e0 = present if present is not None else fun(t, q, qd)
+            base = self._reaction_values(e0)
             J = np.zeros((len(base), 2 * n + 2))
-            for j, h in enumerate(steps):
+            steps = np.concatenate([1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(qd))])
+            for j, h in enumerate(steps.tolist()):
                 qj, qdj = q.copy(), qd.copy()
-                if j < 2 * n:
-                    (qj if j < n else qdj)[j % n] += h
-                else:
-                    self.inputs.values[j - 2 * n] += h
+                (qj if j < n else qdj)[j % n] += h
                 try:
                     J[:, j] = (self._reaction_values(fun(t, qj, qdj)) - base) / h
                 except (MpsError, ArithmeticError, ValueError):
                     pass
-                self.inputs.values[0] = float(force)
-                self.inputs.values[1] = saved[1]
+            kin = e0.kin
+            G = np.column_stack(
+                [np.asarray(kin.jac("C")[0], dtype=float), np.asarray(kin.omega("crank"), dtype=float)]
+            )
+            dqdd = np.linalg.solve(np.atleast_2d(e0.A), G)  # q̈ per unit force, per unit torque
+            qdd0 = np.asarray(e0.qdd, dtype=float)
+            for k in range(2):
+                self.inputs.values[k] += 1.0
+                try:
+                    J[:, 2 * n + k] = self._reaction_values(e0, qdd0 + dqdd[:, k]) - base
+                except (MpsError, ArithmeticError, ValueError):
+                    pass
+                self.inputs.values[k] -= 1.0
         finally:
             self.inputs.values[:] = saved
         C = self.P[np.ix_(where, where)]
         var = np.einsum("ij,jk,ik->i", J, C, J)
         return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
 
-    def _reaction_values(self, e: Any) -> np.ndarray:
-        """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e``."""
+    def _reaction_values(self, e: Any, qdd: np.ndarray | None = None) -> np.ndarray:
+        """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e`` (at
+        accelerations ``qdd`` instead of its own, where given)."""
         sim = self.sim
-        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin)
+        a = e.qdd if qdd is None else qdd
+        fast = reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), list(a), e.kin
+        )
+        if fast is not None:
+            values = fast[0]
+            return np.array([values[k] for k in _LOAD_INDEX], dtype=float)
+        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, a, kin=e.kin)
         return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
 
 
