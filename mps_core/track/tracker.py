@@ -450,10 +450,7 @@ class Tracker:
             J[n : 2 * n, i] = self._difference(view, t, ql, vl, base, i, 1e-6 * float(view.scales[i]), 0)
             J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1)
         jx = np.asarray(e.kin.jac("C")[0], dtype=float)
-        wc = np.asarray(e.kin.omega("crank"), dtype=float)
-        A = np.atleast_2d(e.A)
-        J[n : 2 * n, 2 * n] = np.linalg.solve(A, jx)
-        J[n : 2 * n, 2 * n + 1] = np.linalg.solve(A, wc)
+        J[n : 2 * n, 2 * n : 2 * n + 2] = _per_unit_input(e)
         F = float(self.x[2 * n])
         J[2 * n + 2, n : 2 * n] = -F * jx
         J[2 * n + 2, 2 * n] = -float(jx @ e.qd)
@@ -689,11 +686,7 @@ class Tracker:
                     J[:, j] = (self._reaction_values(fun(t, qj, qdj)) - base) / h
                 except (MpsError, ArithmeticError, ValueError):
                     pass
-            kin = e0.kin
-            G = np.column_stack(
-                [np.asarray(kin.jac("C")[0], dtype=float), np.asarray(kin.omega("crank"), dtype=float)]
-            )
-            dqdd = np.linalg.solve(np.atleast_2d(e0.A), G)  # q̈ per unit force, per unit torque
+            dqdd = _per_unit_input(e0)
             qdd0 = np.asarray(e0.qdd, dtype=float)
             for k in range(2):
                 self.inputs.values[k] += 1.0
@@ -721,6 +714,19 @@ class Tracker:
             return np.array([values[k] for k in _LOAD_INDEX], dtype=float)
         rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, a, kin=e.kin)
         return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+
+
+def _per_unit_input(e: Any) -> np.ndarray:
+    """Return the columns of q̈ per unit process force and per unit load torque at evaluation ``e``.
+
+    A⁻¹·∂x_C/∂q and A⁻¹·∂φ/∂q: one solve for both (a division in a one-coordinate chart).
+    """
+    kin = e.kin
+    G = np.array([kin.jac("C")[0], kin.omega("crank")], dtype=float).T
+    A = np.atleast_2d(e.A)
+    if A.shape == (1, 1):
+        return G / float(A[0, 0])
+    return np.linalg.solve(A, G)
 
 
 def work_zone_top(scene: Scene, settings: TrackSettings) -> float:
