@@ -4,18 +4,21 @@ The source is a ``sensor_msgs/JointState`` topic, as ros2_control's joint_state_
 publishes a real press's encoders: the crank angle in radians (the joint named ``crank``, or the
 only position of a one-joint message), optionally the slider's position (joint ``slider``, m),
 stamped with the measurement's time. ``track_mode`` names an ``std_msgs/String`` topic of mode
-signals (``engage``, ``disengage``). Each message is taken as it comes
-(:meth:`~mps_ros.run.tracking.TrackingRun.measurement`) in the executor's thread, its bytes
-recorded as received; the subscriptions are made when the run starts (after the node has
-waited for its peers), so a press's emulator that waits for its subscriber starts with it.
+signals (``engage``, ``disengage``). Each measurement is taken as it comes
+(:meth:`~mps_ros.run.tracking.TrackingRun.measurement`) by a thread of its own (a mode signal by
+the executor), its bytes recorded as received; the subscriptions are made when the run starts
+(after the node has waited for its peers), so a press's emulator that waits for its subscriber starts with it.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
@@ -106,13 +109,39 @@ def _radians(degrees: float) -> float:
     return math.radians(degrees)
 
 
+class _TakenApart(CallbackGroup):
+    """A callback group the executor never runs: its subscription is taken by a thread of its own."""
+
+    def can_execute(self, entity: Any) -> bool:
+        """Return False: the executor leaves the entity alone (not even in its wait set)."""
+        return False
+
+    def beginning_execution(self, entity: Any) -> bool:
+        """Return False: never run by the executor."""
+        return False
+
+    def ending_execution(self, entity: Any) -> None:
+        """Do nothing."""
+
+
 class TrackingSource:
-    """The subscriptions to a press's measurements and mode signals, each message handed to ``run``."""
+    """The subscriptions to a press's measurements and mode signals, each message handed to ``run``.
+
+    The measurements are taken by a thread of their own, on a wait set that holds their
+    subscription alone, every message waiting taken at each wake: the executor's round (a
+    wait set of all the node's entities built again for each message: its services, its
+    parameters', its lifecycle's) would cost more than the estimate at 1 kHz. The mode
+    signals, a few a stroke, go through the executor.
+    """
+
+    #: the longest wait on the measurements before the thread looks whether the run stops (s)
+    POLL = 0.05
 
     def __init__(self, node: Any, run: TrackingRun) -> None:
         self.node = node
         self.run = run
         self.subs: list = []
+        self._reader: threading.Thread | None = None
 
     def subscribe(self) -> None:
         """Subscribe to the measurements (and the mode signals), their bytes as received."""
@@ -124,16 +153,45 @@ class TrackingSource:
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.VOLATILE,
         )
-        self.subs.append(
-            self.node.create_subscription(JointState, st.track, self.on_measurement, qos, raw=True)
+        measurements = self.node.create_subscription(
+            JointState, st.track, self.on_measurement, qos, raw=True, callback_group=_TakenApart()
         )
+        self.subs.append(measurements)
         if st.track_mode:
             self.subs.append(
                 self.node.create_subscription(String, st.track_mode, self.on_mode, qos, raw=True)
             )
+        self._reader = threading.Thread(
+            target=self._take_measurements, args=(measurements,), name="track-input", daemon=True
+        )
+        self._reader.start()
+        self.run.on_end = self.stop
         self.node._log(
             "info", f"tracking {self.subs[0].topic_name}" + (f" and {st.track_mode}" if st.track_mode else "")
         )
+
+    def stop(self) -> None:
+        """Stop taking measurements (the thread ends within :attr:`POLL`)."""
+        if self._reader is not None:
+            self._reader.join()
+            self._reader = None
+
+    def _take_measurements(self, sub: Any) -> None:
+        """Wait for measurements and take each as it comes, until the run stops."""
+        context = self.node.context
+        wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, context.handle)
+        timeout = int(self.POLL * 1e9)
+        stopping = self.run.stopping
+        while not stopping.is_set() and context.ok():
+            with sub.handle:
+                wait_set.clear_entities()
+                wait_set.add_subscription(sub.handle)
+                wait_set.wait(timeout)
+                while not stopping.is_set():
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    self.on_measurement(*taken)
 
     def on_measurement(self, data: bytes, info: dict) -> None:
         """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""

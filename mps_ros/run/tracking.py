@@ -219,9 +219,12 @@ class TrackingRun:
         self.commands_lost = 0
         #: the node's mode commands (``~/mode``, ``~/engage``...): refused, answered
         self.inbox = Inbox()
-        #: called as :meth:`run` starts (the node's source subscribes then)
+        #: called as :meth:`run` starts (the node's source subscribes then) and as it ends
+        #: (the source stops taking measurements then)
         self.on_start: Callable[[], None] | None = None
-        self._stop = threading.Event()
+        self.on_end: Callable[[], None] | None = None
+        #: set when the run is asked to stop
+        self.stopping = threading.Event()
         self._lock = threading.Lock()
         self._last_arrival: float | None = None
         self._silent = False
@@ -240,7 +243,7 @@ class TrackingRun:
         """End :meth:`run` (``reason``: why, said at the run's end)."""
         if self.stop_reason is None:
             self.stop_reason = reason
-        self._stop.set()
+        self.stopping.set()
         self.inbox.wake()
 
     def resume(self) -> None:
@@ -259,16 +262,18 @@ class TrackingRun:
         if self.on_start is not None:
             self.on_start()
         next_diag = time.monotonic() + self.period
-        while not self._stop.is_set():
+        while not self.stopping.is_set():
             self.inbox.wait(min(self.timeout / 2.0, self.period))
             self.answer_commands()
-            if self._stop.is_set():
+            if self.stopping.is_set():
                 break
             now = self.clock()
             self.watch(now)
             if now >= next_diag:
                 next_diag = now + self.period
                 self.publish_diagnostics()
+        if self.on_end is not None:
+            self.on_end()
         self.publish_diagnostics()
         return self.stats()
 
