@@ -125,7 +125,8 @@ class Tracker:
         solver = scene.solver
         if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
             solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
-        #: the model's run, which the estimate's mean follows
+        #: the model's run, which the estimate's mean follows (on the tracker's own clock: the
+        #: press's less :attr:`origin`)
         self.sim = Simulation(
             mech,
             scene.structure,
@@ -136,6 +137,14 @@ class Tracker:
             t0=t0,
             change_point=scene.change_point,
         )
+        #: the press's time at the model run's time 0 (s): the first measurement's stamp less
+        #: ``t0`` where that stamp is over the ``timeout`` past ``t0`` (a press's stamps on
+        #: the system's clock, 1.8e9 s: the run keeps its times small, its steps exact)
+        self.origin = 0.0
+        #: whether a measurement has come (before it the origin may move to its stamp)
+        self.started = False
+        #: mode signals come before the first measurement (applied as it comes)
+        self._early: list[ModeSignal] = []
         self.phi_tdc = float(phi_tdc)
         s = self.settings
         e = self.sim.solver.current
@@ -166,6 +175,9 @@ class Tracker:
         self.signalled = False
         #: the commands inferred from the measurements, by name
         self.inferred: Counter[str] = Counter()
+        #: the times the crank was acquired again, off the model by more than the gate
+        #: allows (the first measurement, or the first after a gap)
+        self.acquired = 0
         self._slider_misses = 0
         self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
@@ -183,8 +195,15 @@ class Tracker:
     # -- the state ----------------------------------------------------------------------
     @property
     def t(self) -> float:
-        """Return the time of the estimate."""
-        return self.sim.t
+        """Return the time of the estimate (on the press's clock)."""
+        return self.sim.t + self.origin
+
+    def take_events(self) -> list[dict]:
+        """Return the events the model located since the last call, on the press's clock."""
+        events = self.sim.events
+        out = [dict(ev, t=ev["t"] + self.origin) if self.origin and "t" in ev else ev for ev in events]
+        del events[:]
+        return out
 
     @property
     def n(self) -> int:
@@ -241,8 +260,9 @@ class Tracker:
         t_smoothed = self.sim.t
         if lag and len(ends) > lag:
             t_smoothed = 0.5 * (ends[-lag - 1] + ends[-lag])
+        t_smoothed += self.origin
         return Estimate(
-            t=self.sim.t,
+            t=self.t,
             structure=self.sim.structure,
             phi=phi,
             phi_sigma=_sd(g_phi @ P[q, q] @ g_phi),
@@ -274,8 +294,14 @@ class Tracker:
 
     # -- mode signals ---------------------------------------------------------------------
     def mode(self, signal: ModeSignal) -> None:
-        """Apply a mode signal of the press's controller at its stamp (now, if it is past)."""
+        """Apply a mode signal of the press's controller at its stamp (now, if it is past;
+        held until the first measurement where none has come)."""
         self.signalled = True
+        if not self.started:
+            self._early.append(signal)
+            return
+        if self.origin:
+            signal = ModeSignal(signal.t - self.origin, signal.command)
         if signal.t > self.sim.t:
             try:
                 self.sim.command(signal.command, signal.t)
@@ -334,24 +360,58 @@ class Tracker:
         """Widen the covariance of (q, q̇) after a command applied late (found from the
         measurements): the model is behind the press by what the slider moved meanwhile,
         ``distance`` (m), within about a millisecond."""
+        self._widen_crank(distance / float(self.sim.mechanism.geometry.l1), 1e-3)
+
+    def _widen_crank(self, angle: float, within: float) -> None:
+        """Widen the covariance of (q, q̇) by a crank ``angle`` (rad) the model may be off by,
+        come about within ``within`` seconds (the rates' by angle / within; none where inf)."""
         n = self.n
         scales = np.asarray(self.sim.view.scales, dtype=float)
-        lever = float(self.sim.mechanism.geometry.l1)
-        sigma = distance / lever * scales  # in each coordinate's units
+        sigma = angle * scales  # in each coordinate's units
         idx = np.arange(n)
         self.P[idx, idx] += sigma**2
-        self.P[n + idx, n + idx] += (sigma / 1e-3) ** 2
+        self.P[n + idx, n + idx] += (sigma / within) ** 2
+
+    def _acquire(self, m: Measurement) -> None:
+        """Acquire the crank again at the first angle measured (or the first after a gap):
+        where the model's run, come to its stamp, is off the measurement by more than its
+        covariance allows (beyond the gate), widen the covariance of (q, q̇) by the angle it is
+        off by (the rates' by that angle over the gap), so the measurement is taken and the
+        next ones set the rate (counted, ``acquired``)."""
+        value, H = self._prediction(m.kind)
+        y = m.value - value
+        y -= 2.0 * math.pi * round(y / (2.0 * math.pi))  # the encoder's turns
+        S = float(H @ self.P @ H) + m.variance
+        if y * y / S <= self.settings.gate:
+            return
+        self.acquired += 1
+        self._widen_crank(abs(y), max(m.t - self._t_last, self.settings.timeout))
 
     # -- measurements ---------------------------------------------------------------------
     def update(self, m: Measurement) -> bool:
-        """Take one measurement: predict to its stamp, correct; return whether it was taken."""
-        reason = self._screen(m)
+        """Take one measurement: predict to its stamp, correct; return whether it was taken.
+
+        The first measurement (or the first after a gap: none taken for over the ``timeout``,
+        missing or rejected) is not screened for a jump: the estimate is not recent enough to
+        say what the crank could have turned to. The model runs to its stamp, and where it
+        is then further from the measured crank angle than its covariance allows, the crank
+        is acquired again (:meth:`_acquire`): a gap, or a start beside a press already
+        running, never loses the track for good.
+        """
+        if math.isfinite(m.t):
+            self.start(m.t)
+        if self.origin:
+            m = replace(m, t=m.t - self.origin)
+        gap = m.t - self._t_last > self.settings.timeout
+        reason = self._screen(m, recent=not gap)
         if reason is not None:
             self.rejected[reason] += 1
             return False
-        if m.t - self._t_last > self.settings.timeout and self._t_last > -math.inf:
+        if gap and self._t_last > -math.inf:
             self.rejected["gap"] += 1
         self._predict(m.t)
+        if gap and m.kind == "crank_angle":
+            self._acquire(m)
         taken = self._correct(m)
         self._last[m.kind] = m.t
         if taken:
@@ -359,8 +419,25 @@ class Tracker:
             self.accepted += 1
         return taken
 
-    def _screen(self, m: Measurement) -> str | None:
-        """Return the reason to reject ``m`` before anything is computed, or None."""
+    def start(self, t: float) -> None:
+        """Start the model's run at the first measurement's stamp ``t`` where it is later than
+        the run's start by over the ``timeout`` (:attr:`origin`: a press's stamps on its own
+        clock, not seconds since the tracker was made), then apply the mode signals that came
+        before it; nothing once a measurement has come."""
+        if self.started:
+            return
+        self.started = True
+        if t - self.sim.t > self.settings.timeout:
+            self.origin = t - self.sim.t
+            if self._stroke is not None:
+                self.strokes.begin(self._stroke, self.t)
+        for signal in self._early:
+            self.mode(signal)
+        self._early.clear()
+
+    def _screen(self, m: Measurement, recent: bool = True) -> str | None:
+        """Return the reason to reject ``m`` before anything is computed, or None (``recent``:
+        whether the estimate is recent enough to screen a crank angle for a jump)."""
         if not (math.isfinite(m.t) and math.isfinite(m.value)):
             return "not-finite"
         last = self._last.get(m.kind)
@@ -371,7 +448,7 @@ class Tracker:
                 return "out-of-order"
         if m.t < self.sim.t - 1e-12:
             return "late"
-        if m.kind == "crank_angle":
+        if m.kind == "crank_angle" and recent:
             # a crank that would have turned by max_jump more or less than its rate says: no
             # press does that between two samples (screened before the estimate moves)
             phi, phi_dot = self.sim.joint_state()[:2]
@@ -574,7 +651,7 @@ class Tracker:
             self.rejected["model"] += 1
             return False
         self.P = 0.5 * (P + P.T)
-        self.innovations.append((m.t, m.kind, nis))
+        self.innovations.append((m.t + self.origin, m.kind, nis))
         self._follow_strokes()
         return True
 
@@ -605,13 +682,13 @@ class Tracker:
             return
         i = 2 * self.n + 2
         if self._stroke is not None:
-            self.strokes.close(self.sim.t, float(self.x[i]), _sd(self.P[i, i]))
+            self.strokes.close(self.t, float(self.x[i]), _sd(self.P[i, i]))
         self.x[i] = 0.0
         self.P[i, :] = 0.0
         self.P[:, i] = 0.0
         self._stroke = k
         if k is not None:
-            self.strokes.begin(k, self.sim.t)
+            self.strokes.begin(k, self.t)
 
     def observe_stroke(self, loads: dict[str, tuple[float, float]] | None = None) -> None:
         """Give the stroke table the present estimate (and foundation load, if computed)."""
@@ -643,13 +720,13 @@ class Tracker:
         slots have not filled since the chart view last changed)."""
         lag = self.settings.force_lag
         if lag == 0 or len(self._starts) < lag:
-            return self.sim.t, self.loads()
+            return self.t, self.loads()
         n = self.n
         sl = lags.slot(n, lag)
         x = self.x[sl]
         where = list(range(sl.start, sl.start + 2 * n)) + [sl.stop - 1, 2 * n + 1]
         t = self._starts[-lag]
-        return t, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
+        return t + self.origin, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
 
     def _loads_at(
         self,

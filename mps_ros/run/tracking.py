@@ -439,18 +439,16 @@ class TrackingRun:
         tr = self.tracker
         step = self.step
         if not full:
-            events = tr.sim.events
-            if events:
-                if "events" in self.outputs:
-                    t_ns = _ns(tr.t)
-                    self.sinks.emit_all(
-                        [("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events]
-                    )
-                del events[:]
+            events = tr.take_events()
+            if events and "events" in self.outputs:
+                t_ns = _ns(tr.t)
+                self.sinks.emit_all(
+                    [("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events]
+                )
             return
         step.compute_reactions()
         t_ns = _ns(tr.t)
-        msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step)]
+        msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step, tr.t)]
         est = tr.estimate()
         st = _stamp(t_ns)
         msgs.append((PROCESS_FORCE_NOW.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
@@ -480,11 +478,9 @@ class TrackingRun:
                 fx, fy = (0.0 if c is None else _sigma(loads, c) for c in w.force)
                 mz = 0.0 if w.torque is None else _sigma(loads, w.torque)
                 msgs.append((sigma(w.key), _wrench(st, w.frame_id, fx, fy, mz), t_ns, False))
-        events = tr.sim.events
-        if events:
-            if "events" in self.outputs:
-                msgs.extend(("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events)
-            del events[:]
+        events = tr.take_events()
+        if events and "events" in self.outputs:
+            msgs.extend(("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events)
         self.sinks.emit_all(msgs)
         self.sinks.tick(None)
         self.estimates += 1

@@ -188,13 +188,14 @@ class StepMessages:
         ]
         return self._js
 
-    def payloads(self, twin) -> list[tuple[str, bytes]]:
+    def payloads(self, twin, t: float | None = None) -> list[tuple[str, bytes]]:
         """``twin``'s present step as (topic key, CDR bytes), the latched messages marked sent:
-        see :meth:`~mps_ros.run.twin.Twin.state_payloads`."""
+        see :meth:`~mps_ros.run.twin.Twin.state_payloads`; stamped ``t`` (s) where given, else
+        with its run's time."""
         js = self._js if self._js is not None else self._make_presets()
         o = self.outputs
         sim = twin.sim
-        ns = int(round(sim.t * 1e9))
+        ns = int(round((sim.t if t is None else t) * 1e9))
         sec, nsec = ns // 1_000_000_000, ns % 1_000_000_000
         out = []
         if "clock" in o:

@@ -123,3 +123,62 @@ def test_without_the_smoother_the_present_force_is_the_stroke_peak(stream):
     a, b = plain.strokes.current, smoothed.strokes.current  # the first stroke, its pulse past
     assert a.peak_force > 20e3 and b.peak_force > 20e3
     assert a.peak_force_sigma > 5.0 * b.peak_force_sigma
+
+
+@pytest.fixture(scope="module")
+def longer():
+    nominal = with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
+    truth = run_truth(truth_scene(nominal), 0.45, seed=5)
+    return nominal, truth
+
+
+@pytest.mark.parametrize("gap", [0.08, 0.2])
+def test_a_long_gap_never_loses_the_track(longer, gap):
+    """None taken for over the timeout: the next measurement is not screened for a jump (the
+    estimate is too old to say), the model runs to it, and the crank is acquired again where
+    the model is off; within the timeout after that every measurement is taken (before, every
+    measurement after a gap of 50 ms or more could be rejected as a jump, for good)."""
+    nominal, truth = longer
+    start = 0.12
+    kept = [m for m in truth.measurements if not (start <= m.t < start + gap)]
+    tracker = _final(nominal, kept)
+    resumed = start + gap + tracker.settings.timeout + 5e-3
+    after = [m for m in kept if m.t > resumed]
+    assert tracker.rejected["gap"] >= 1
+    assert tracker.accepted >= len([m for m in kept if m.t < start]) + len(after)
+    est = tracker.estimate()
+    err = (est.phi - truth.at(est.t)["phi"] + math.pi) % (2 * math.pi) - math.pi
+    assert abs(err) < 5 * est.phi_sigma + 3 * Encoder().lsb
+
+
+def test_stamps_on_the_system_clock_give_the_same_estimate(longer):
+    """A press's stamps on the system's clock (1.8e9 s): the model's run keeps its own small
+    times (the origin at the first stamp), so the estimate is the one of stamps from 0,
+    on the press's clock; a mode signal before the first measurement waits for it."""
+    nominal, truth = longer
+    ms = truth.measurements[:150]
+    off = 1_795_900_000.0
+    plain = _final(nominal, ms)
+    wall = Tracker(nominal)
+    wall.mode(ModeSignal(0.0, "engage"))  # held: the press's clock is not known yet
+    for m in ms:
+        wall.update(Measurement(m.t + off, m.kind, m.value, m.variance))
+    assert wall.origin == pytest.approx(off + ms[0].t, abs=1e-6)
+    assert wall.accepted == plain.accepted == len(ms)
+    a, b = plain.estimate(), wall.estimate()
+    assert b.t == pytest.approx(a.t + off, abs=1e-6)
+    assert abs(b.phi - a.phi) < 3 * a.phi_sigma
+    assert abs(b.phi_dot - a.phi_dot) < 3 * a.phi_dot_sigma
+    assert all(t > off for t, _kind, _nis in wall.innovations)
+
+
+def test_a_tracker_started_beside_a_running_press_acquires_it(longer):
+    """The nominal start is not where the press is: the first measurement acquires the crank."""
+    nominal, truth = longer
+    ms = [m for m in truth.measurements if m.t > 0.2]
+    tracker = _final(nominal, ms)
+    assert tracker.acquired >= 1
+    assert tracker.accepted >= len(ms) - 60  # at most the timeout's worth before it holds
+    est = tracker.estimate()
+    err = (est.phi - truth.at(est.t)["phi"] + math.pi) % (2 * math.pi) - math.pi
+    assert abs(err) < 5 * est.phi_sigma + 3 * Encoder().lsb
