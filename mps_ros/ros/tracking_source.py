@@ -2,8 +2,9 @@
 
 The source is a ``sensor_msgs/JointState`` topic, as ros2_control's joint_state_broadcaster
 publishes a real press's encoders: the crank angle in radians (the joint named ``crank``, or the
-only position of a one-joint message), optionally the slider's position (joint ``slider``, m),
-stamped with the measurement's time. ``track_mode`` names an ``std_msgs/String`` topic of mode
+only position of a message naming no joint), optionally the slider's position (joint ``slider``,
+m), stamped with the measurement's time; read by :mod:`mps_ros.wire.measured`, as ``mps track
+--recording`` reads a recording of it. ``track_mode`` names an ``std_msgs/String`` topic of mode
 signals (``engage``, ``disengage``). Each measurement is taken as it comes
 (:meth:`~mps_ros.run.tracking.TrackingRun.measurement`) by a thread of its own (a mode signal by
 the executor), its bytes recorded as received; the subscriptions are made when the run starts
