@@ -5,7 +5,9 @@ A distribution names them in its ``[project.entry-points]``: group ``mps.command
 of a recording format into columns, by the format's name: ``mcap``), group ``mps.track_writers``
 (a writer of a tracked run's record, :class:`~mps_core.track.recording.TrackRecording`, into a
 recording of that format: ``write(path, recording)``, returning the messages written, by the
-format's name). ``mps_core`` names none of them itself.
+format's name), group ``mps.track_readers`` (a reader of a press's measurements and mode signals
+out of a recording of that format, for ``mps track``: ``read(path, topics, variances)``,
+:mod:`mps_core.track.recording_input`). ``mps_core`` names none of them itself.
 """
 
 from __future__ import annotations
@@ -20,6 +22,9 @@ COMMANDS = "mps.commands"
 RECORDINGS = "mps.recordings"
 #: the group of the tracked runs' recording writers: name (the format) -> ``write(path, recording)``
 TRACK_WRITERS = "mps.track_writers"
+#: the group of the readers of a press's measurements out of a recording: name (the format) ->
+#: ``read(path, topics, variances)``
+TRACK_READERS = "mps.track_readers"
 
 
 def found(group: str) -> list[EntryPoint]:
@@ -52,6 +57,14 @@ def reader(fmt: str) -> EntryPoint | None:
 def track_writer(fmt: str) -> EntryPoint | None:
     """Return the entry point that writes tracked runs as recordings of format ``fmt``, or None."""
     for ep in found(TRACK_WRITERS):
+        if ep.name == fmt:
+            return ep
+    return None
+
+
+def track_reader(fmt: str) -> EntryPoint | None:
+    """Return the entry point that reads a press's inputs out of recordings of format ``fmt``, or None."""
+    for ep in found(TRACK_READERS):
         if ep.name == fmt:
             return ep
     return None

@@ -2,18 +2,21 @@
 
     mps emulate SCENE --csv FILE [--t-end S] [--seed N] [--slider] [--motor-torque]
                       [--fault T:KIND ...] [--truth FILE] [--force]
-    mps track SCENE (--csv FILE | --against-truth S) [--out FILE.csv] [--out FILE.mcap]
+    mps track SCENE (--csv FILE | --recording FILE.mcap|BAG | --against-truth S)
+                    [--joints-topic TOPIC] [--mode-topic TOPIC] [--out FILE.csv] [--out FILE.mcap]
                     [--strokes FILE] [--loads] [--prediction jacobian|unscented] [--seed N] [--force]
 
 ``mps emulate`` runs SCENE's *truth* (:func:`~mps_core.track.truth.truth_scene`: masses, friction,
 part and motor off the nominal) and writes what the press's sensors read
 (:mod:`~mps_core.track.measurement_csv`): a 17-bit encoder at 1 kHz with jittered stamps,
 optionally the slider's scale and the motor's torque, the mode signals; ``--truth`` writes the
-truth's own record beside it. ``mps track`` follows SCENE (the nominal press) over such a file
-and writes the estimates (one row a measurement taken, each with its 1-σ, and the ``tracking``
-status then: :mod:`~mps_core.track.diagnostics`), the per-stroke table, and with ``--out
-FILE.mcap`` a recording of the measured and estimated topics (:mod:`~mps_core.track.recording`,
-written by the package registered for it); it prints each change of the tracking status.
+truth's own record beside it. ``mps track`` follows SCENE (the nominal press) over such a file,
+or over a recording of the press's topics (:mod:`~mps_core.track.recording_input`: a node's that
+followed a press, read in its order), and writes the estimates (one row a measurement taken,
+each with its 1-σ, and the ``tracking`` status then: :mod:`~mps_core.track.diagnostics`), the
+per-stroke table, and with ``--out FILE.mcap`` a recording of the measured and estimated topics
+(:mod:`~mps_core.track.recording`, written by the package registered for it); it prints each
+change of the tracking status.
 ``--against-truth S`` emulates S seconds itself and prints how the estimates compare with
 the truth (the tables of docs/tracking.md).
 """
@@ -25,13 +28,15 @@ import csv
 import math
 import sys
 import time
+from collections.abc import Iterable
 from typing import Any, TextIO
 
 import numpy as np
 
 from .diagnostics import TrackingMonitor
-from .measurements import Encoder, MeasurementError
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
 from .recording import TrackRecording
+from .recording_input import JOINTS_TOPIC, MODE_TOPIC, Input, in_time_order, split_inputs
 from .settings import PREDICTIONS, TrackSettings
 from .tracker import LOAD_COLUMNS, Tracker
 
@@ -80,6 +85,12 @@ def register(subparsers: Any) -> None:
     src = t.add_mutually_exclusive_group(required=True)
     src.add_argument("--csv", metavar="FILE", help="the measurements (mps emulate --csv)")
     src.add_argument(
+        "--recording",
+        metavar="FILE.mcap|BAG",
+        help="the measurements and mode signals of a recording (an MCAP file or a bag directory: "
+        "a node's that followed a press), taken in its order",
+    )
+    src.add_argument(
         "--against-truth", type=float, metavar="S", help="emulate S seconds and compare with the truth"
     )
     t.add_argument(
@@ -89,6 +100,19 @@ def register(subparsers: Any) -> None:
         default=[],
         help="FILE.csv: write the estimates; FILE.mcap: write a recording of the measured and estimated "
         "topics, as the node records its own (with the loads); once each",
+    )
+    t.add_argument(
+        "--joints-topic",
+        metavar="TOPIC",
+        default=JOINTS_TOPIC,
+        help=f"--recording: the measurements' sensor_msgs/msg/JointState topic (joint crank, rad; "
+        f"optionally slider, m; at the header's stamp) ({JOINTS_TOPIC})",
+    )
+    t.add_argument(
+        "--mode-topic",
+        metavar="TOPIC",
+        help=f"--recording: the mode signals' std_msgs/msg/String topic, at their log time "
+        f"({MODE_TOPIC} where recorded; '' for none)",
     )
     t.add_argument("--strokes", metavar="FILE", help="write the per-stroke table to FILE")
     t.add_argument(
@@ -152,37 +176,28 @@ def _track(args: argparse.Namespace) -> int:
     """Run ``mps track``."""
     from ..files.outputs import check_outputs
 
-    args.out, args.recording = _outs(args.out)
+    args.out, args.out_recording = _outs(args.out)
     check_outputs(
-        {"--out": args.out, "--out (recording)": args.recording, "--strokes": args.strokes},
-        inputs=[args.scene, args.csv],
+        {"--out": args.out, "--out (recording)": args.out_recording, "--strokes": args.strokes},
+        inputs=[args.scene, args.csv, args.recording],
         force=args.force,
     )
     nominal = _nominal(args.scene)
     tracker = Tracker(nominal, TrackSettings(prediction=args.prediction))
     if args.against_truth is not None:
         return _against_truth(args, nominal, tracker)
-    from .measurement_csv import read_measurements
-
-    enc = Encoder()
-    variances = {
-        "crank_angle": enc.variance,
-        "slider_position": 2e-12,
-        "crank_rate": 1e-4,
-        "motor_torque": 1.0,
-    }
-    measurements, modes = read_measurements(args.csv, variances)
-    args.loads = args.loads or args.recording is not None
+    inputs, measurements, modes = _inputs(args)
+    args.loads = args.loads or args.out_recording is not None
     monitor = TrackingMonitor()
     recording = None
-    if args.recording is not None:
+    if args.out_recording is not None:
         recording = TrackRecording(nominal, measurements=measurements, modes=modes)
         recording.metadata = {
             "source": "mps track",
-            "measurements": str(args.csv),
+            "measurements": str(args.csv or args.recording),
             "prediction": args.prediction,
         }
-    rows, cpu = _follow(tracker, measurements, modes, args.loads, monitor, recording)
+    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording)
     _write(args, tracker, rows)
     if recording is not None:
         from .recording import write_recording
@@ -190,8 +205,8 @@ def _track(args: argparse.Namespace) -> int:
         recording.events = list(tracker.sim.events)
         recording.statuses = list(monitor.events)
         recording.strokes = list(tracker.strokes.strokes)
-        n = write_recording(args.recording, recording)
-        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.recording}")
+        n = write_recording(args.out_recording, recording)
+        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.out_recording}")
     _summary(tracker, cpu, monitor)
     return 0
 
@@ -206,22 +221,52 @@ def _outs(outs: list[str]) -> tuple[str | None, str | None]:
     return (csv_out[0] if csv_out else None), (mcap_out[0] if mcap_out else None)
 
 
+def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], list[ModeSignal]]:
+    """Return the tracker's inputs in the order it takes them, and the measurements and mode
+    signals among them, of ``--csv`` or ``--recording``."""
+    if args.recording is not None:
+        from .recording_input import RecordedTopics, read_recording_inputs, recording_variances
+
+        mode = MODE_TOPIC if args.mode_topic is None else (args.mode_topic or None)
+        topics = RecordedTopics(args.joints_topic, mode, mode_required=args.mode_topic is not None)
+        inputs = read_recording_inputs(args.recording, recording_variances(), topics)
+        return (inputs, *split_inputs(inputs))
+    if args.joints_topic != JOINTS_TOPIC or args.mode_topic is not None:
+        given = "--joints-topic" if args.joints_topic != JOINTS_TOPIC else "--mode-topic"
+        raise MeasurementError(
+            given,
+            args.joints_topic if given == "--joints-topic" else args.mode_topic,
+            "--recording FILE with it (a CSV names no topics)",
+        )
+    from .measurement_csv import read_measurements
+
+    enc = Encoder()
+    variances = {
+        "crank_angle": enc.variance,
+        "slider_position": 2e-12,
+        "crank_rate": 1e-4,
+        "motor_torque": 1.0,
+    }
+    measurements, modes = read_measurements(args.csv, variances)
+    return in_time_order(measurements, modes), measurements, modes
+
+
 def _follow(
     tracker: Tracker,
-    measurements: list,
-    modes: list,
+    inputs: Iterable[Input],
     loads: bool,
     monitor: TrackingMonitor,
     recording: TrackRecording | None = None,
 ) -> tuple[list[dict], np.ndarray]:
-    """Run the tracker over the measurements and modes, watched by ``monitor`` (and gathered
-    into ``recording``); return the estimates' rows and the CPU time of each measurement."""
+    """Run the tracker over the measurements and mode signals in their order, watched by
+    ``monitor`` (and gathered into ``recording``); return the estimates' rows and the CPU time
+    of each measurement."""
     rows: list[dict] = []
     cpu = []
-    pending = sorted(modes, key=lambda s: s.t)
-    for m in measurements:
-        while pending and pending[0].t <= m.t:
-            tracker.mode(pending.pop(0))
+    for m in inputs:
+        if isinstance(m, ModeSignal):
+            tracker.mode(m)
+            continue
         c0 = time.process_time()
         taken = tracker.update(m)
         smoothed = tracker.smoothed_loads() if loads else None

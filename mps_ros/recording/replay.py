@@ -35,6 +35,7 @@ import io
 import json
 import math
 import struct
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -253,6 +254,25 @@ def _string(data: bytes) -> str:
     return _Cdr(data).string()
 
 
+def string_data(data: bytes) -> str:
+    """Return a CDR ``std_msgs/String``'s text."""
+    return _string(data)
+
+
+def joint_state_positions(data: bytes) -> tuple[int, int, list[str], list[float]]:
+    """Return a CDR ``sensor_msgs/JointState``'s stamp (sec, nanosec), joint names and positions.
+
+    A message cut short or not plain CDR raises ValueError (or struct.error).
+    """
+    c = _Cdr(data)
+    sec, nanosec = c.i32(), c.u32()
+    c.string()  # the frame id
+    names = [c.string() for _ in range(c.u32())]
+    n = c.u32()
+    off = c.doubles(n)
+    return sec, nanosec, names, list(struct.unpack_from(f"{c.e}{n}d", data, off))
+
+
 # -- reading the file -------------------------------------------------------------------------
 @dataclass
 class _Channel:
@@ -262,6 +282,10 @@ class _Channel:
     encoding: str
     times: list = field(default_factory=list)
     datas: list = field(default_factory=list)
+    #: each kept message's place among all the file's (a bag's files' in order) messages
+    seqs: list = field(default_factory=list)
+    #: the messages of the channel, kept or not
+    count: int = 0
 
 
 def _head(path: Path) -> bytes:
@@ -269,8 +293,9 @@ def _head(path: Path) -> bytes:
         return fh.read(16)
 
 
-def _scan(path: Path, data: bytes):
-    """(metadata, channels by id, schemas by id, library, complete) of an MCAP file's bytes."""
+def _scan(path: Path, data: bytes, keep: Collection[str] | None = None):
+    """(metadata, channels by id, schemas by id, library, complete, messages) of an MCAP file's
+    bytes; ``keep``: the topics whose messages are kept (None: all), the others counted."""
     from mcap.exceptions import McapError
     from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
@@ -288,8 +313,11 @@ def _scan(path: Path, data: bytes):
             if isinstance(r, Message):
                 ch = channels.get(r.channel_id)
                 if ch is not None:
-                    ch.times.append(r.log_time)
-                    ch.datas.append(r.data)
+                    ch.count += 1
+                    if keep is None or ch.topic in keep:
+                        ch.times.append(r.log_time)
+                        ch.datas.append(r.data)
+                        ch.seqs.append(messages)
                 messages += 1
             elif isinstance(r, Channel):
                 if r.id not in channels:
@@ -358,7 +386,7 @@ def _parts(path: Path) -> list[Path]:
     return parts
 
 
-def _scan_all(parts: list[Path]):
+def _scan_all(parts: list[Path], keep: Collection[str] | None = None):
     """:func:`_scan` of each file, in order, their channels joined by topic and type (a
     bag's files number them each their own way): (metadata of the first, channels,
     library of the first, whether every file is complete, messages, sha256 of all)."""
@@ -376,7 +404,7 @@ def _scan_all(parts: list[Path]):
             )
         data = part.read_bytes()
         digest.update(data)
-        meta, channels, _schemas, library, done, n = _scan(part, data)
+        meta, channels, _schemas, library, done, n = _scan(part, data, keep)
         first = first or (meta, library)
         complete, nmsg = complete and done, nmsg + n
         for ch in channels.values():
@@ -385,10 +413,54 @@ def _scan_all(parts: list[Path]):
             )
             into.times += ch.times
             into.datas += ch.datas
+            into.seqs += [nmsg - n + k for k in ch.seqs]
+            into.count += ch.count
     if first is None:
         raise ReplayError("no MCAP file to read: expected a recording's file or a bag's")
     channels = {ch.id: ch for ch in joined.values()}
     return first[0], channels, first[1], complete, nmsg, digest.hexdigest()
+
+
+@dataclass
+class TopicMessages:
+    """Some topics' messages of a recording, in the file's order (a bag's files in turn).
+
+    ``channels``: every channel of the file as (topic, type, encoding, messages);
+    ``messages``: (topic, type, log time in ns, CDR bytes) of the topics asked for."""
+
+    path: Path
+    channels: list[tuple[str, str, str, int]]
+    messages: list[tuple[str, str, int, bytes]]
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_topics(path, topics: Collection[str]) -> TopicMessages:
+    """Read the messages of ``topics`` of an MCAP file or a bag directory, in the file's order.
+
+    The other topics' messages are counted, not kept. Bad files raise :class:`ReplayError` as
+    :func:`read_recording` does (not MCAP, cut short, an empty bag).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ReplayError(f"{path}: no such file or directory")
+    if importlib.util.find_spec("mcap") is None:
+        raise ReplayError(
+            "reading a recording needs the mcap package, which is not installed: pip install -e '.[view]'"
+        )
+    _meta, channels, _library, complete, _n, _digest = _scan_all(_parts(path), keep=set(topics))
+    out = TopicMessages(path, [(c.topic, c.schema, c.encoding, c.count) for c in channels.values()], [])
+    if not complete:
+        out.warnings.append(
+            "the file has no footer (its summary is missing or cut short); every message was read"
+        )
+    kept = [
+        (seq, ch.topic, ch.schema, t, d)
+        for ch in channels.values()
+        for seq, t, d in zip(ch.seqs, ch.times, ch.datas)
+    ]
+    kept.sort(key=lambda m: m[0])
+    out.messages = [(topic, schema, t, d) for _seq, topic, schema, t, d in kept]
+    return out
 
 
 def read_recording(path, *, check_version: bool = True) -> Replay:
@@ -631,7 +703,11 @@ def load_columns(path) -> tuple[dict, list, str]:
 __all__ = [
     "Replay",
     "ReplayError",
+    "TopicMessages",
+    "joint_state_positions",
     "read_recording",
+    "read_topics",
+    "string_data",
     "load_columns",
     "DERIVED",
     "JOINT_COLUMNS",

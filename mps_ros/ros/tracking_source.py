@@ -2,8 +2,9 @@
 
 The source is a ``sensor_msgs/JointState`` topic, as ros2_control's joint_state_broadcaster
 publishes a real press's encoders: the crank angle in radians (the joint named ``crank``, or the
-only position of a one-joint message), optionally the slider's position (joint ``slider``, m),
-stamped with the measurement's time. ``track_mode`` names an ``std_msgs/String`` topic of mode
+only position of a message naming no joint), optionally the slider's position (joint ``slider``,
+m), stamped with the measurement's time; read by :mod:`mps_ros.wire.measured`, as ``mps track
+--recording`` reads a recording of it. ``track_mode`` names an ``std_msgs/String`` topic of mode
 signals (``engage``, ``disengage``). Each measurement is taken as it comes
 (:meth:`~mps_ros.run.tracking.TrackingRun.measurement`) by a thread of its own (a mode signal by
 the executor), its bytes recorded as received; the subscriptions are made when the run starts
@@ -27,6 +28,7 @@ from std_msgs.msg import String
 from mps_core.track import Encoder, TrackSettings
 
 from ..run.tracking import TrackingRun
+from ..wire.measured import crank_and_slider, stamp_seconds
 from ..wire.track_topics import RECEIVED_JOINTS, RECEIVED_MODE, TRACKING_TOPICS
 from .endpoints import MSG_CLASSES
 
@@ -197,16 +199,8 @@ class TrackingSource:
         """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""
         arrival, sent = _times(info)
         msg = deserialize_message(data, JointState)
-        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        names = list(msg.name)
-        pos = list(msg.position)
-        angle = slider = None
-        if "crank" in names and names.index("crank") < len(pos):
-            angle = float(pos[names.index("crank")])
-        elif len(pos) == 1 and not names:
-            angle = float(pos[0])
-        if "slider" in names and names.index("slider") < len(pos):
-            slider = float(pos[names.index("slider")])
+        t = stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        angle, slider = crank_and_slider(list(msg.name), list(msg.position))
         self.run.measurement(t, angle, slider, bytes(data), arrival, sent)
 
     def on_mode(self, data: bytes, info: dict) -> None:

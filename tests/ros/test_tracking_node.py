@@ -1,4 +1,5 @@
-"""The node following the emulator, end to end: every estimate published and recorded, a bad one counted."""
+"""The node following the emulator, end to end: every estimate published and recorded, a bad one
+counted; mps track over its recording gives the same estimates."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from track_estimates import differences, node_estimates, tracked
 from twin_probe import NodeProcess, mps_cmd, stop_group, wait_until
 
 from mps_ros.wire.topics import TOPICS, resolve
@@ -187,3 +189,8 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
         assert len(got[resolve(key)]) == sent - 1, key
     # the loads' 1-sigma every track_sigma_every (10) estimates, from the first
     assert len(got[resolve("~/foundation/sigma")]) == len(range(0, sent - 1, 10))
+    # mps track over the node's recording gives the node's live estimates, bit for bit
+    node_est = node_estimates(rec)
+    assert len(node_est) == sent - 1
+    offline = tracked("working", rec, tmp_path / "tracked.csv")
+    assert all(offline[t] == est for t, est in node_est.items()), differences(node_est, offline)

@@ -1,0 +1,148 @@
+"""A press's measurements and mode signals read out of a recording, for ``mps track``.
+
+    mps track SCENE --recording FILE.mcap|BAG [--joints-topic TOPIC] [--mode-topic TOPIC]
+
+The press's sensors as the node following a press takes them (``-p track:=TOPIC``): a
+``sensor_msgs/JointState`` topic (:data:`JOINTS_TOPIC` unless named), the crank angle the
+position of the joint ``crank`` (or the only position of a message that names no joint), the
+slider's the joint ``slider``'s, at the header's stamp; the mode signals (``engage``,
+``disengage``) on a ``std_msgs/String`` topic (:data:`MODE_TOPIC` where recorded, unless named),
+each at its log time. They are taken in the recording's order, as the node took them live: a
+mode signal between the measurements it came between. A node's recording (it records what it
+received under the topics it subscribed to) tracked again gives the node's estimates
+(``tests/ros/test_track_recording_input.py``). The variances are the node's defaults
+(:func:`recording_variances`). A measurement the tracker rejects (a jump, a duplicate, out of
+order, not finite) is handed to it as recorded: it rejects and counts it, as the node did.
+
+The core knows no recording format: the reader registered under the format's name in the
+entry-point group :data:`~mps_core.plugins.TRACK_READERS` reads it (``mcap`` for an ``.mcap``
+file, ``bag`` for a bag directory), as :mod:`~mps_core.track.recording` hands a tracked run
+to a writer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import MpsError
+from ..plugins import TRACK_READERS, track_reader
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+
+__all__ = [
+    "JOINTS_TOPIC",
+    "MODE_TOPIC",
+    "SLIDER_VARIANCE",
+    "RecordedTopics",
+    "RecordingReaderMissing",
+    "in_time_order",
+    "read_recording_inputs",
+    "recording_format",
+    "recording_variances",
+    "split_inputs",
+]
+
+#: the measurements' topic unless named: what the emulator publishes and the node follows
+JOINTS_TOPIC = "/press/joint_states"
+#: the mode signals' topic unless named (read where the recording has it)
+MODE_TOPIC = "/press/mode"
+#: a slider scale's variance (m²) unless told: 1 µm of noise and 1 µm resolution, the
+#: emulated press's scale (:class:`~mps_core.track.truth.Sensors`) and the node's default
+SLIDER_VARIANCE = 1e-12 + 1e-12 / 12.0
+
+#: one input of the tracker: a measurement or a mode signal
+Input = Measurement | ModeSignal
+
+
+@dataclass(frozen=True)
+class RecordedTopics:
+    """The topics a press's inputs are read from.
+
+    ``joints``: the measurements (``sensor_msgs/msg/JointState``); ``mode``: the mode signals
+    (``std_msgs/msg/String``; None: none); ``mode_required``: a ``mode`` topic the recording
+    lacks is an error (it was named), else there are no mode signals.
+    """
+
+    joints: str = JOINTS_TOPIC
+    mode: str | None = MODE_TOPIC
+    mode_required: bool = False
+
+
+class RecordingReaderMissing(MpsError, ValueError):
+    """No installed package reads a press's measurements out of recordings of the format given."""
+
+
+def recording_variances(encoder: Encoder | None = None) -> dict[str, float]:
+    """Return the variances of a recording's measurements by kind, as the node takes them.
+
+    The encoder's (17 bits, 0.3 counts of noise unless given) and :data:`SLIDER_VARIANCE`.
+    """
+    return {"crank_angle": (encoder or Encoder()).variance, "slider_position": SLIDER_VARIANCE}
+
+
+def recording_format(path: str | Path) -> str:
+    """Return the format of a recording by its path: ``bag`` (a directory) or ``mcap`` (``.mcap``)."""
+    p = Path(path)
+    if p.is_dir():
+        return "bag"
+    if p.suffix.lower() == ".mcap":
+        return "mcap"
+    if not p.exists():
+        raise MeasurementError("--recording", str(path), "an .mcap file or a bag directory that exists")
+    raise MeasurementError("--recording", str(path), "an .mcap file or a bag directory")
+
+
+def read_recording_inputs(
+    path: str | Path, variances: dict[str, float], topics: RecordedTopics | None = None
+) -> list[Input]:
+    """Return the measurements and mode signals of a recording, in its order.
+
+    Read by the reader registered for its format (:func:`recording_format`); ``variances``:
+    kind → variance of its measurements (:func:`recording_variances`).
+    """
+    fmt = recording_format(path)
+    ep = track_reader(fmt)
+    read = None
+    if ep is not None:
+        try:
+            read = ep.load()
+        except ModuleNotFoundError as exc:
+            raise RecordingReaderMissing(
+                f"--recording {str(path)!r}: reading a {fmt} recording needs the package {exc.name!r}, "
+                "which is not installed: install the ros extra (pip install -e '.[ros]')"
+            ) from None
+    if read is None:
+        raise RecordingReaderMissing(
+            f"--recording {str(path)!r}: no installed package reads {fmt} recordings (entry-point group "
+            f"{TRACK_READERS!r}): install the ros extra (pip install -e '.[ros]'), or give the "
+            "measurements as CSV (--csv FILE)"
+        )
+    return list(read(Path(path), topics or RecordedTopics(), variances))
+
+
+def in_time_order(measurements: Sequence[Measurement], modes: Iterable[ModeSignal]) -> list[Input]:
+    """Return measurements and mode signals as one sequence, as a measurements file is taken.
+
+    Each mode signal before the first measurement at or after its stamp; those after the last
+    measurement left out (the tracker has no estimate after it).
+    """
+    out: list[Input] = []
+    pending = sorted(modes, key=lambda s: s.t)
+    for m in measurements:
+        while pending and pending[0].t <= m.t:
+            out.append(pending.pop(0))
+        out.append(m)
+    return out
+
+
+def split_inputs(inputs: Iterable[Input]) -> tuple[list[Measurement], list[ModeSignal]]:
+    """Return the measurements and the mode signals of ``inputs``, each in its order."""
+    measurements: list[Measurement] = []
+    modes: list[ModeSignal] = []
+    for x in inputs:
+        if isinstance(x, ModeSignal):
+            modes.append(x)
+        else:
+            measurements.append(x)
+    return measurements, modes

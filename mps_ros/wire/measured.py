@@ -1,0 +1,51 @@
+"""A press's measurement message read as a tracker takes it: one reading, for the node and ``mps track``.
+
+A press's encoders come as a ``sensor_msgs/JointState`` (ros2_control's joint_state_broadcaster):
+the crank angle in radians is the position of the joint named :data:`CRANK`, or the only
+position of a message that names no joint; the slider's position (m) is the joint
+:data:`SLIDER`'s, where it has one. The measurement's time is the header's stamp, in seconds as
+``sec + nanosec·10⁻⁹``, and a time a recording keeps in nanoseconds (a mode signal's log time)
+is read the same way (:func:`ns_seconds`). The node following a press
+(:mod:`mps_ros.ros.tracking_source`, the message from rclpy) and ``mps track`` over a recording
+(:mod:`mps_ros.recording.track_input`, the message from its CDR bytes) both read it here, so the
+tracker gets the same numbers from either.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+__all__ = ["CRANK", "SLIDER", "crank_and_slider", "ns_seconds", "stamp_seconds"]
+
+#: the joint whose position is the crank angle (rad)
+CRANK = "crank"
+#: the joint whose position is the slider's (m, along the guide, up)
+SLIDER = "slider"
+
+
+def stamp_seconds(sec: int, nanosec: int) -> float:
+    """Return a ``builtin_interfaces/Time`` in seconds, as the tracker takes a measurement's stamp."""
+    return sec + nanosec * 1e-9
+
+
+def ns_seconds(t_ns: int) -> float:
+    """Return a time in nanoseconds in seconds, read as a stamp of the same time (:func:`stamp_seconds`)."""
+    sec, nanosec = divmod(int(t_ns), 1_000_000_000)
+    return stamp_seconds(sec, nanosec)
+
+
+def crank_and_slider(names: Sequence[str], positions: Sequence[float]) -> tuple[float | None, float | None]:
+    """Return the crank angle and the slider's position of a JointState's names and positions.
+
+    None for one the message does not carry: the crank is the joint :data:`CRANK`'s position, or
+    the only position of a message without names; the slider the joint :data:`SLIDER`'s.
+    """
+    names = list(names)
+    angle = slider = None
+    if CRANK in names and names.index(CRANK) < len(positions):
+        angle = float(positions[names.index(CRANK)])
+    elif len(positions) == 1 and not names:
+        angle = float(positions[0])
+    if SLIDER in names and names.index(SLIDER) < len(positions):
+        slider = float(positions[names.index(SLIDER)])
+    return angle, slider
