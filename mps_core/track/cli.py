@@ -202,7 +202,7 @@ def _track(args: argparse.Namespace) -> int:
     if recording is not None:
         from .recording import write_recording
 
-        recording.events = list(tracker.sim.events)
+        recording.events = tracker.take_events()
         recording.statuses = list(monitor.events)
         recording.strokes = list(tracker.strokes.strokes)
         n = write_recording(args.out_recording, recording)

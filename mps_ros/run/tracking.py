@@ -38,6 +38,7 @@ from mps_core.track.tracker import LOAD_COLUMNS
 from ..wire import diagnostics
 from ..wire.cdr import string, wrench_stamped
 from ..wire.diagnostics import hardware_id
+from ..wire.measured import ns_seconds
 from ..wire.step_messages import StepMessages
 from ..wire.topics import OUTPUTS
 from ..wire.track_topics import (
@@ -393,11 +394,15 @@ class TrackingRun:
         A String has no stamp, and the executor takes it in no set order with the measurements:
         its time is when it was sent (``clock``) on the press's clock (less the least
         sent-stamp offset of the measurements so far), or the estimate's time before any
-        measurement. Where the estimate is past it, it applies at once.
+        measurement. Where the estimate is past it, it applies at once. It applies at the time
+        it is recorded at, to the nanosecond: tracked again from the recording
+        (``mps track --recording``), it gives the same estimates.
         """
         with self._lock:
             t = sent - self._offset if math.isfinite(self._offset) else self.tracker.t
-            self.sinks.emit_all([(RECEIVED_MODE.key, raw, _ns(max(t, 0.0)), True)])
+            t_ns = _ns(max(t, 0.0))
+            t = ns_seconds(t_ns)
+            self.sinks.emit_all([(RECEIVED_MODE.key, raw, t_ns, True)])
             try:
                 signal = ModeSignal(t, command.strip())
             except MeasurementError as exc:

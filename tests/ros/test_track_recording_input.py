@@ -140,28 +140,11 @@ def followed_on_the_wall_clock(tmp_path_factory):
     return node_estimates(mcap), mcap
 
 
-def test_a_mode_signal_sent_on_the_wall_clock_gives_the_node_s_estimates_nearly(
-    followed_on_the_wall_clock, tmp_path, capsys
-):
-    # the node applies a mode signal at its send time less the press's clock offset and records
-    # it to the nanosecond: offline it applies up to half a nanosecond off (see the next test);
-    # the bounds are a thousandth of an encoder count and of a newton
-    node, mcap = followed_on_the_wall_clock
-    worst = differences(node, tracked(SCENE, mcap, tmp_path / "est.csv"))
-    capsys.readouterr()
-    assert worst["phi"] < 5e-8 and worst["force"] < 1e-3, worst
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="the node applies a mode signal at its send time less the press's clock offset, "
-    "unrounded, but records it at that time to the nanosecond (mps_ros/run/tracking.py, "
-    "TrackingRun.mode): offline it applies at the recorded time, and the estimates after it "
-    "differ in their last bits; the node should apply it at the time it records",
-)
 def test_a_mode_signal_sent_on_the_wall_clock_gives_the_node_s_estimates_bit_for_bit(
     followed_on_the_wall_clock, tmp_path, capsys
 ):
+    """The node applies a mode signal at the time it records it at, to the nanosecond: offline
+    it applies at the same time, and every estimate after it is the same."""
     node, mcap = followed_on_the_wall_clock
     offline = tracked(SCENE, mcap, tmp_path / "est.csv")
     capsys.readouterr()
