@@ -34,9 +34,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from .diagnostics import TrackingMonitor
-from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+from .measurements import Measurement, MeasurementError, ModeSignal
 from .recording import TrackRecording
-from .recording_input import JOINTS_TOPIC, MODE_TOPIC, Input, in_time_order, split_inputs
+from .recording_input import JOINTS_TOPIC, MODE_TOPIC, Input, in_time_order, recording_variances, split_inputs
 from .settings import PREDICTIONS, TrackSettings
 from .tracker import LOAD_COLUMNS, Tracker
 
@@ -225,7 +225,7 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
     """Return the tracker's inputs in the order it takes them, and the measurements and mode
     signals among them, of ``--csv`` or ``--recording``."""
     if args.recording is not None:
-        from .recording_input import RecordedTopics, read_recording_inputs, recording_variances
+        from .recording_input import RecordedTopics, read_recording_inputs
 
         mode = MODE_TOPIC if args.mode_topic is None else (args.mode_topic or None)
         topics = RecordedTopics(args.joints_topic, mode, mode_required=args.mode_topic is not None)
@@ -240,13 +240,8 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
         )
     from .measurement_csv import read_measurements
 
-    enc = Encoder()
-    variances = {
-        "crank_angle": enc.variance,
-        "slider_position": 2e-12,
-        "crank_rate": 1e-4,
-        "motor_torque": 1.0,
-    }
+    # the crank's and the slider's as the node takes them (one press, one set of sensors)
+    variances = {**recording_variances(), "crank_rate": 1e-4, "motor_torque": 1.0}
     measurements, modes = read_measurements(args.csv, variances)
     return in_time_order(measurements, modes), measurements, modes
 
