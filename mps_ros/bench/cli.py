@@ -11,6 +11,7 @@
 2. **as fast as possible**: the same scene and step, no subscriber, recording on and off: the
    largest real-time factor; and ``mps record`` (no ROS at all) for comparison.
 
+``track``: the node following a press (:mod:`.track`, ``python -m mps_ros.bench track --help``).
 ``soak``: the realtime run for ``--minutes`` (memory, drift, messages lost); ``table``: the node
 as fast as possible by outputs; ``wakeup``: the CPU one wake-up from a 1 ms timed wait costs a
 thread on this machine (no ROS); ``writer``: the recording's MCAP writer against the ``mcap``
@@ -53,7 +54,12 @@ def _lost_line(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    a = _parser().parse_args(argv)
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] == ["track"]:  # the node following a press: options of its own
+        from .track import main as track_main
+
+        return track_main(args[1:])
+    a = _parser().parse_args(args)
     if a.what == "soak" and not a.minutes * 60.0 >= 10.0:
         print(
             f"python -m mps_ros.bench soak: --minutes {a.minutes:g}: expected at least 10 s "
