@@ -690,9 +690,12 @@ class Tracker:
         if k is not None:
             self.strokes.begin(k, self.t)
 
-    def observe_stroke(self, loads: dict[str, tuple[float, float]] | None = None) -> None:
-        """Give the stroke table the present estimate (and foundation load, if computed)."""
-        est = self.estimate()
+    def observe_stroke(
+        self, loads: dict[str, tuple[float, float]] | None = None, estimate: Estimate | None = None
+    ) -> None:
+        """Give the stroke table the present estimate (``estimate``, where the caller has it) and
+        the foundation load, if computed."""
+        est = estimate or self.estimate()
         found = sigma = None
         if loads is not None:
             found, sigma = foundation_magnitude(loads)

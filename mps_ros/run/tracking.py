@@ -47,6 +47,7 @@ from ..wire.track_topics import (
     PROCESS_FRAME,
     RECEIVED_JOINTS,
     RECEIVED_MODE,
+    STROKES,
     sigma,
 )
 from .commands import Inbox, shown
@@ -212,6 +213,8 @@ class TrackingRun:
         self.late = 0
         #: measurements taken but their estimate not published: more than ``max_behind`` late
         self.skipped = 0
+        #: strokes finished and published on ``~/strokes``
+        self.strokes = 0
         self._catching_up = False
         self.stop_reason: str | None = None
         #: why the run failed and of what kind (a node's run says; this one ends without)
@@ -443,17 +446,20 @@ class TrackingRun:
         """Hand the estimate's messages to every sink, then the model's events (only those: not ``full``)."""
         tr = self.tracker
         step = self.step
+        msgs: list[Message]
         if not full:
+            tr.observe_stroke()
             events = tr.take_events()
+            msgs = self._strokes()
             if events and "events" in self.outputs:
                 t_ns = _ns(tr.t)
-                self.sinks.emit_all(
-                    [("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events]
-                )
+                msgs.extend(("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events)
+            if msgs:
+                self.sinks.emit_all(msgs)
             return
         step.compute_reactions()
         t_ns = _ns(tr.t)
-        msgs: list[Message] = [(k, d, t_ns, False) for k, d in self.messages.payloads(step, tr.t)]
+        msgs = [(k, d, t_ns, False) for k, d in self.messages.payloads(step, tr.t)]
         est = tr.estimate()
         st = _stamp(t_ns)
         msgs.append((PROCESS_FORCE_NOW.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
@@ -477,12 +483,16 @@ class TrackingRun:
                 False,
             )
         )
+        loads = None
         if self.messages.wrenches and self.estimates % self.sigma_every == 0:
             loads = tr.loads()
             for w in self.messages.wrenches:
                 fx, fy = (0.0 if c is None else _sigma(loads, c) for c in w.force)
                 mz = 0.0 if w.torque is None else _sigma(loads, w.torque)
                 msgs.append((sigma(w.key), _wrench(st, w.frame_id, fx, fy, mz), t_ns, False))
+        # the foundation's peak a stroke from loads computed at every estimate only
+        tr.observe_stroke(loads if self.sigma_every == 1 else None, est)
+        msgs.extend(self._strokes())
         events = tr.take_events()
         if events and "events" in self.outputs:
             msgs.extend(("~/events", string({"data": to_json(ev)}), t_ns, False) for ev in events)
@@ -490,6 +500,20 @@ class TrackingRun:
         self.sinks.tick(None)
         self.estimates += 1
         step.k += 1
+
+    def _strokes(self) -> list[Message]:
+        """Return the strokes finished since the last call as ``~/strokes`` messages.
+
+        A JSON object each, stamped with the stroke's end; taken off the tracker's table (a
+        long run keeps none).
+        """
+        done = self.tracker.strokes.strokes
+        msgs: list[Message] = [
+            (STROKES.key, string({"data": to_json(s.row())}), _ns(s.t_end), False) for s in done
+        ]
+        self.strokes += len(done)
+        del done[:]
+        return msgs
 
     # -- what it says ----------------------------------------------------------------------
     def rejected(self) -> dict[str, int]:

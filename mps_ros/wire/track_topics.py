@@ -111,6 +111,7 @@ TRACKING_TOPICS: tuple[Topic, ...] = (
     Topic(sigma(PROCESS_FORCE_NOW.key), WRENCH, "", "1-σ of the process force now"),
     PROCESS_FORCE,
     Topic(sigma(PROCESS_FORCE.key), WRENCH, "", "1-σ of the smoothed process force"),
+    STROKES,
 )
 
 TRACKING_BY_KEY = {t.key: t for t in (*TRACKING_TOPICS, RECEIVED_JOINTS, RECEIVED_MODE)}

@@ -183,3 +183,35 @@ def test_the_node_s_mode_commands_are_refused_and_answered():
 def test_a_bad_setting_names_its_field():
     with pytest.raises(ValueError, match="track_sigma_every = 0: expected an integer >= 1"):
         _run(sigma_every=0)
+
+
+@pytest.mark.parametrize("sigma_every", [1, 10])
+def test_each_stroke_finished_is_published_once_with_its_figures(sigma_every):
+    """``~/strokes``: one JSON object a stroke at its end, the tracker's own stroke table's
+    figures; the foundation's peak where the loads are computed at every estimate only; the
+    run keeps no stroke once published."""
+    from mps_core.track import Tracker
+
+    truth = run_truth(truth_scene(nominal_scene(load_scene("working"))), 0.35, seed=4)
+    run, sink = _run(sigma_every=sigma_every)
+    offline = Tracker(nominal_scene(load_scene("working")))
+    for m in truth.measurements:
+        run.measurement(m.t, m.value, None, b"", 0.0)
+        offline.update(m)
+        offline.observe_stroke()
+    strokes = [(json.loads(string_of(d)), t) for k, d, t, _ in sink.msgs if k == "~/strokes"]
+    expected = offline.strokes.strokes
+    assert len(expected) >= 2 and len(strokes) == len(expected) == run.strokes
+    assert not run.tracker.strokes.strokes
+    for (row, t_ns), s in zip(strokes, expected, strict=True):
+        assert t_ns == int(round(s.t_end * 1e9))
+        for key in ("stroke", "t_end", "peak_force_N", "peak_force_sigma_N", "work_J", "work_sigma_J"):
+            assert row[key] == s.row()[key], key
+        assert math.isfinite(row["peak_foundation_N"]) == (sigma_every == 1)
+
+
+def string_of(data: bytes) -> str:
+    """Return a CDR std_msgs/String's text."""
+    from mps_ros.recording.replay import string_data
+
+    return string_data(data)
