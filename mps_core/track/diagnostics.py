@@ -235,13 +235,14 @@ class TrackingMonitor:
         """Compare the stroke's work so far with the last healthy stroke's."""
         s = self.settings
         f = self._findings["work"]
-        strokes = tracker.strokes.strokes
-        for done in strokes[self._strokes :]:  # strokes closed since: a healthy one is the reference
+        table = tracker.strokes
+        new = table.closed - self._strokes  # strokes closed since: a healthy one is the reference
+        for done in table.strokes[len(table.strokes) - new :] if new else ():
             if not self._stroke_flagged and self._whole(done, tracker):
                 self._work_ref, self._work_ref_sigma = done.work, done.work_sigma
                 self._set(f, "OK", "", t)
             self._stroke_flagged = False
-        self._strokes = len(strokes)
+        self._strokes = table.closed
         ref, current = self._work_ref, tracker.strokes.current
         if ref is None or current is None:
             return

@@ -61,6 +61,8 @@ class StrokeTable:
         self.strokes: list[StrokeEstimate] = []
         #: the stroke under way (None outside the working structure)
         self.current: StrokeEstimate | None = None
+        #: strokes finished since the start (those taken off :attr:`strokes` too)
+        self.closed = 0
 
     def begin(self, index: int, t: float) -> None:
         """Start stroke ``index`` at time ``t``."""
@@ -91,4 +93,5 @@ class StrokeTable:
             return None
         s.t_end, s.work, s.work_sigma = t, work, work_sigma
         self.strokes.append(s)
+        self.closed += 1
         return s

@@ -48,8 +48,6 @@ if TYPE_CHECKING:
 
 __all__ = ["write"]
 
-#: the diagnostics' levels by the tracking status's
-LEVEL = {"OK": diagnostics.OK, "WARN": diagnostics.WARN, "ERROR": diagnostics.ERROR}
 #: the diagnostics period (s of the press's clock)
 PERIOD = 1.0
 _WRENCH = "geometry_msgs/msg/WrenchStamped"
@@ -193,13 +191,7 @@ def _joints(t: float, positions: Any, velocities: Any, effort: Any) -> dict[str,
 
 def _status(msgs: _Messages, rec: TrackRecording, status: Any, t: float) -> None:
     """Add the tracking status on /diagnostics at ``t``."""
-    st = diagnostics.status(
-        LEVEL[status.level],
-        TRACKING_STATUS,
-        status.line(),
-        diagnostics.hardware_id(rec.scene.name),
-        {"level": status.level, "since_s": float(status.since)},
-    )
+    st = diagnostics.tracking(status, TRACKING_STATUS, diagnostics.hardware_id(rec.scene.name))
     msgs.add("/diagnostics", BY_KEY["/diagnostics"].msgtype, diagnostics.array(_ns(t), [st]), t)
 
 

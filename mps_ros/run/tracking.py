@@ -33,6 +33,7 @@ import numpy as np
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.scene import Scene
 from mps_core.track import Encoder, Measurement, MeasurementError, ModeSignal, Tracker, TrackSettings
+from mps_core.track.diagnostics import TrackingMonitor
 from mps_core.track.tracker import LOAD_COLUMNS
 
 from ..wire import diagnostics
@@ -181,6 +182,8 @@ class TrackingRun:
         self.name = name
         self.outputs = tuple(outputs)
         self.tracker = Tracker(self.scene, settings)
+        #: whether the press still moves as the model says (the ``NAME: tracking`` status)
+        self.monitor = TrackingMonitor()
         self.encoder = encoder or Encoder()
         self.slider_variance = float(slider_variance)
         self.sigma_every = sigma_every
@@ -364,6 +367,7 @@ class TrackingRun:
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])
+            self._watch_machine(ms[0])
             if not taken:
                 return False
             behind = self.clock() - arrival
@@ -390,6 +394,13 @@ class TrackingRun:
                 self.late += 1
             self._process_cpu[1] = time.process_time()
             return True
+
+    def _watch_machine(self, m: Measurement) -> None:
+        """Give the tracking status the tracker after ``m``; say each change of its level."""
+        before = self.monitor.status.level
+        status = self.monitor.observe(self.tracker, m)
+        if status.level != before:
+            self.log({"OK": "info", "WARN": "warn"}.get(status.level, "error"), status.line())
 
     def mode(self, command: str, raw: bytes, sent: float) -> None:
         """Take one mode signal (``engage``, ``disengage``): record it, apply it at its time.
@@ -617,6 +628,13 @@ class TrackingRun:
             values[k] = s[k]
         return diagnostics.status(level, f"{self.name}: tracking input", msg, self.hardware, values)
 
+    def statuses(self) -> list[dict]:
+        """Return the run's own statuses: its inputs' and the machine's (``NAME: tracking``)."""
+        return [
+            self.status(),
+            diagnostics.tracking(self.monitor.status, f"{self.name}: tracking", self.hardware),
+        ]
+
     def publish_diagnostics(self) -> None:
         """Hand ``/diagnostics`` (the tracking input's status and the sinks') to every sink."""
         if "diagnostics" not in self.outputs:
@@ -625,7 +643,7 @@ class TrackingRun:
 
         with self._lock:
             t_ns = _ns(self.tracker.t)
-            statuses = [self.status(), *self.sinks.statuses(self.name, self.hardware)]
+            statuses = [*self.statuses(), *self.sinks.statuses(self.name, self.hardware)]
             data = encoder("diagnostic_msgs/msg/DiagnosticArray")(diagnostics.array(t_ns, statuses))
             self.sinks.emit_all([("/diagnostics", data, t_ns, False)])
 

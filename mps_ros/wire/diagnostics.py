@@ -15,6 +15,8 @@ key/values.
 
 from __future__ import annotations
 
+from typing import Any
+
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
 
@@ -35,6 +37,13 @@ def status(level: int, name: str, message: str, hardware: str, values: dict) -> 
         "hardware_id": hardware,
         "values": [{"key": k, "value": _value(v)} for k, v in values.items()],
     }
+
+
+def tracking(tracked: Any, name: str, hardware: str) -> dict:
+    """Return the ``NAME: tracking`` status of a tracker's ``tracked`` one (OK, WARN, ERROR; since when)."""
+    level = {"OK": OK, "WARN": WARN, "ERROR": ERROR}[tracked.level]
+    values = {"level": tracked.level, "since_s": float(tracked.since)}
+    return status(level, name, tracked.line(), hardware, values)
 
 
 def array(t_ns: int, statuses: list) -> dict:

@@ -215,3 +215,33 @@ def string_of(data: bytes) -> str:
     from mps_ros.recording.replay import string_data
 
     return string_data(data)
+
+
+def test_the_machine_is_watched_live_and_a_double_blank_reported():
+    """The tracking status of mps track on the node: OK while the press moves as the model
+    says; a double blank reported as ERROR within a revolution, said in the log and on
+    /diagnostics (the strokes taken off the table as they are published do not blind it)."""
+    from mps_core.track import Fault
+
+    t_fault, revolution = 0.2, 2.0 * math.pi / 43.5
+    truth = run_truth(
+        truth_scene(nominal_scene(load_scene("working"))),
+        0.45,
+        seed=0,
+        faults=(Fault(t_fault, "double-blank"),),
+    )
+    logs: list = []
+    run, _sink = _run(logs)
+    levels = []
+    for m in truth.measurements:
+        run.measurement(m.t, m.value, None, b"", 0.0)
+        levels.append((m.t, run.monitor.status.level))
+    assert all(level == "OK" for t, level in levels if t < t_fault)
+    first = next(t for t, level in levels if level == "ERROR")
+    assert t_fault < first <= t_fault + revolution
+    said = [text for level, text in logs if level == "error"]
+    assert said and "process force beyond the part's" in said[0]
+    names = {st["name"]: st for st in run.statuses()}
+    st = names["press_twin: tracking"]
+    assert st["level"] == diagnostics.ERROR and "double blank" in st["message"]
+    assert names["press_twin: tracking input"]["level"] == diagnostics.OK
