@@ -342,8 +342,8 @@ PARAMETERS: tuple[Parameter, ...] = (
         "track_sigma_every",
         10,
         "following a press: the wrenches' 1-σ (`…/sigma`) computed and published every this many estimates "
-        "(each costs 2n + 2 more reaction solves: at every one the node cannot keep 1 kHz on two "
-        "shared cores, see Following a press)",
+        "(each costs 2n more evaluations and 2n + 3 reaction solves: at every one the node keeps "
+        "1 kHz on two cores only where little else runs, see Following a press)",
         lo=1,
         hi=1e6,
     ),

@@ -141,7 +141,7 @@ class TrackingRun:
     :data:`~mps_ros.wire.topics.OUTPUTS` goes out at each measurement taken. ``encoder``: the
     crank encoder (its variance is the angle's); ``slider_variance``: the slider scale's (m²).
     ``sigma_every``: the loads' 1-σ (``KEY/sigma``) computed and published every this many
-    estimates (they cost 2n + 2 more reaction solves each: a stated decimation where the
+    estimates (they cost 2n more evaluations and 2n + 3 reaction solves each: a stated decimation where the
     machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
     timeout. ``late_after``: an estimate out later than this (s) after its measurement arrived
     is counted late and reported (WARN: the node does not keep up). ``max_behind``: a
