@@ -187,16 +187,21 @@ class TrackingSource:
         wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, context.handle)
         timeout = int(self.POLL * 1e9)
         stopping = self.run.stopping
-        while not stopping.is_set() and context.ok():
-            with sub.handle:
-                wait_set.clear_entities()
-                wait_set.add_subscription(sub.handle)
-                wait_set.wait(timeout)
-                while not stopping.is_set():
-                    taken = sub.handle.take_message(sub.msg_type, True)
-                    if taken is None:
-                        break
-                    self.on_measurement(*taken)
+        try:
+            while not stopping.is_set() and context.ok():
+                with sub.handle:
+                    wait_set.clear_entities()
+                    wait_set.add_subscription(sub.handle)
+                    wait_set.wait(timeout)
+                    while not stopping.is_set():
+                        taken = sub.handle.take_message(sub.msg_type, True)
+                        if taken is None:
+                            break
+                        self.on_measurement(*taken)
+        except Exception as exc:  # the middleware gone under it (a shutdown), or a bug: said, the run ended
+            if not stopping.is_set() and context.ok():
+                self.node._log("error", f"tracking: the measurements can no longer be taken: {exc!r}")
+                self.run.request_stop("the measurements' thread failed")
 
     def on_measurement(self, data: bytes, info: dict) -> None:
         """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""
