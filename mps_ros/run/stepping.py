@@ -291,11 +291,13 @@ class _Ahead:
                     self._judge_rate(k, c1, late=c1 > deadline + behind)
                 t_ns = twin.t_ns
                 staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
-                with runner.staged(staged):
-                    runner.emit_events(twin.new_events(hold=not ahead), t_ns)
-                    if c1 >= next_diag:
-                        next_diag = c1 + runner.period
-                        runner.publish_diagnostics(t_ns)
+                events = twin.new_events(hold=not ahead)
+                if events or c1 >= next_diag:  # most steps have neither: no staging for them
+                    with runner.staged(staged):
+                        runner.emit_events(events, t_ns)
+                        if c1 >= next_diag:
+                            next_diag = c1 + runner.period
+                            runner.publish_diagnostics(t_ns)
                 # a step's messages and its events' (none of them a command as received)
                 runner.measurements.messages += len(staged)
                 if ahead and k % self.EVERY == 0:
