@@ -177,9 +177,10 @@ class _Ahead:
     #: between two is reached from the one before it by stepping again (a checkpoint costs
     #: about a sixth of a step; a command comes back up to this less one steps further)
     EVERY = 8
-    #: a full lead is let down to at most this share of it before it is refilled (a burst of
-    #: the rest), and never below the command delay and :attr:`MARGIN` (a command's boundary
-    #: step then is banked already), nor below :attr:`FLOOR` of it
+    #: the steps banked are let down to this share of the lead before it is refilled (a burst
+    #: of the rest), or to the command delay and :attr:`MARGIN` where that is more (a
+    #: command's boundary step is then banked already), but to :attr:`FLOOR` of it at most (a
+    #: burst of a fifth of the lead at least)
     LOW, FLOOR, MARGIN = 0.5, 0.8, 0.01
 
     def __init__(
