@@ -136,7 +136,7 @@ class _WatchSink(Sink):
     def tick(self, deadline: float | None = None) -> None:
         twin = self.twin
         self.progress(twin.t)
-        _phi, phi_dot, _psi, psi_dot, _x, _x_dot = twin.sim.joint_state()
+        phi_dot, psi_dot = twin.crank_rocker_rates()  # the step's /joint_states read them already
         fastest = self.fastest
         if abs(phi_dot) > fastest[0]:
             fastest[0] = abs(phi_dot)

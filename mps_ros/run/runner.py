@@ -409,7 +409,8 @@ class Runner:
                     self.emit_events(twin.new_events(), t_ns)
                 publish_times.add(clock() - p0)
                 self.take_commands()
-                self.sinks.tick(None)
+                if msgs is None:  # once a step: publish_step() has ticked where it published
+                    self.sinks.tick(None)
                 now = clock()
                 if now >= next_diag:
                     next_diag = now + self.period

@@ -177,6 +177,11 @@ class _Ahead:
     #: between two is reached from the one before it by stepping again (a checkpoint costs
     #: about a sixth of a step; a command comes back up to this less one steps further)
     EVERY = 8
+    #: the steps banked are let down to this share of the lead before it is refilled (a burst
+    #: of the rest), or to the command delay and :attr:`MARGIN` where that is more (a
+    #: command's boundary step is then banked already), but to :attr:`FLOOR` of it at most (a
+    #: burst of a fifth of the lead at least)
+    LOW, FLOOR, MARGIN = 0.5, 0.8, 0.01
 
     def __init__(
         self,
@@ -195,6 +200,18 @@ class _Ahead:
         self.cps: dict[int, tuple] = {}
         self.pending: list[bytes] = []
         self.due = math.inf  # the earliest deadline among the pending steps
+
+    @classmethod
+    def refill(cls, lead: float, command_delay: float) -> float:
+        """Return the wall seconds of steps computed in one burst, the lead full before it.
+
+        The loop sleeps until the steps banked come down to the low mark (:attr:`LOW` of the
+        lead, or the command delay and a margin; at most :attr:`FLOOR` of it), then refills
+        the lead. Each wake-up costs the steps that follow it far more than a step in a burst (caches
+        and the processor cold after a sleep: the first step about five times a step), so
+        the bursts are as long as the steps a command needs banked allow."""
+        low = min(cls.FLOOR * lead, max(cls.LOW * lead, command_delay + cls.MARGIN))
+        return lead - low
 
     def deadline(self, k: int) -> float:
         if self.afap:
@@ -227,7 +244,7 @@ class _Ahead:
         # checkpoints kept, by step
         keep = (self.AHEAD + self.BATCH + 100) if afap else int(math.ceil(2.0 * lead / step)) + 100
         keep += self.EVERY
-        refill = 0.2 * lead if ahead else 0.0
+        refill = self.refill(lead, runner.realtime.command_delay) if ahead else 0.0
         self._begin(ahead, 0.0 if afap else lead - step)
         next_diag = runner.clocks.wall_start + runner.period
         commands, stop, lines = self.commands, runner.stopping, runner.commands.lines
@@ -275,11 +292,13 @@ class _Ahead:
                     self._judge_rate(k, c1, late=c1 > deadline + behind)
                 t_ns = twin.t_ns
                 staged = [] if msgs is None else [(key, data, t_ns, False) for key, data in msgs]
-                with runner.staged(staged):
-                    runner.emit_events(twin.new_events(hold=not ahead), t_ns)
-                    if c1 >= next_diag:
-                        next_diag = c1 + runner.period
-                        runner.publish_diagnostics(t_ns)
+                events = twin.new_events(hold=not ahead)
+                if events or c1 >= next_diag:  # most steps have neither: no staging for them
+                    with runner.staged(staged):
+                        runner.emit_events(events, t_ns)
+                        if c1 >= next_diag:
+                            next_diag = c1 + runner.period
+                            runner.publish_diagnostics(t_ns)
                 # a step's messages and its events' (none of them a command as received)
                 runner.measurements.messages += len(staged)
                 if ahead and k % self.EVERY == 0:

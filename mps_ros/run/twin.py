@@ -108,6 +108,8 @@ class Twin:
         )
         self._holding = False  # new_events() holds this step's events
         self._refusals: dict[tuple, tuple] = {}  # refusals(), by what they depend on
+        #: the evaluation joint_values() last read, with its crank and rocker rates
+        self._rates_of: tuple | None = None
 
     def warm_up(self, seconds: float = 1.0, tries: int = 10, trial: float = 0.06) -> None:
         """Do once, before a paced run's clock starts, what its first steps would otherwise do
@@ -250,10 +252,24 @@ class Twin:
         """Positions and velocities of :data:`~mps_ros.wire.topics.JOINT_NAMES`."""
         sim = self.sim
         phi, phi_dot, psi, psi_dot, x, x_dot = sim.joint_state()
-        kin = sim.solver.current.kin
+        e = sim.solver.current
+        self._rates_of = (e, phi_dot, psi_dot)
+        kin = e.kin
         xa, ya = kin.xy("A")
         xb, yb = kin.xy("B")
         return ([phi, math.atan2(yb - ya, xb - xa), psi, x], [phi_dot, kin.rate("rod"), psi_dot, x_dot])
+
+    def crank_rocker_rates(self) -> tuple[float, float]:
+        """Return (φ̇, ψ̇) of the present state.
+
+        Those :meth:`joint_values` read, where it has read this state (a step's
+        ``/joint_states``), else the simulation's own (:meth:`Simulation.joint_state`)."""
+        e = self.sim.solver.current
+        got = self._rates_of
+        if got is not None and got[0] is e:
+            return got[1], got[2]
+        _phi, phi_dot, _psi, psi_dot, _x, _x_dot = self.sim.joint_state()
+        return phi_dot, psi_dot
 
     def state_messages(self) -> list[tuple[str, dict]]:
         """The messages of the present step as dicts (topic key, message), in publishing order:

@@ -237,6 +237,62 @@ def test_commands_already_waiting_are_applied_at_the_start():
     assert [(a["command"], a["t"], a["accepted"]) for a in acks] == [("engage", 0.0, True)]
 
 
+def test_the_stepping_loop_writes_the_run_in_one_process_byte_for_byte_in_bursts():
+    """The stepping process's loop (:class:`~mps_ros.run.stepping._Ahead`, here in this
+    process, its frames down a real pipe and read back): the steps' messages, in order, are
+    those of the same run stepped in one process as fast as possible, byte for byte (the
+    diagnostics and the run's start and end aside); their deadlines keep the schedule; and it
+    sleeps between bursts of steps, not before each one."""
+    import collections
+    import marshal
+    import os
+
+    from mps_ros.run.stepping import Hold, _Ahead
+    from mps_ros.wire.pipe import Frame, FrameReader, FrameWriter
+
+    tw = Twin("press-cycle", dt=DT, t_end=T_END)
+    runner = Runner(tw, pacing="realtime", real_time_factor=RTF, lead=0.05, command_delay=0.0, warm_up=0.0)
+    runner.prepare()
+    r, w = os.pipe()
+    frames: list = []
+
+    def read():
+        reader = FrameReader(r)
+        while got := reader.read():
+            frames.extend(got)
+
+    reading = threading.Thread(target=read)
+    reading.start()
+
+    class Wake(threading.Event):
+        naps = 0
+
+        def wait(self, timeout=None):
+            Wake.naps += 1
+            return super().wait(timeout)
+
+    loop = _Ahead(runner, FrameWriter(w), collections.deque(), Wake(), Hold())
+    try:
+        loop.run()
+    finally:
+        os.close(w)
+        reading.join(30)
+        os.close(r)
+    entries = [marshal.loads(p) for kind, p in frames if kind == Frame.MESSAGES]
+    stepped = Sink(True)
+    for _k, _gen, _deadline, _state, _structure, _refusals, msgs in entries:
+        stepped.emit_all(msgs)
+    same = Sink(True)
+    Runner(Twin("press-cycle", dt=DT, t_end=T_END), sinks=[same], warm_up=0.0).run()
+    assert _comparable(stepped) == _comparable(same)
+    ks = [e[0] for e in entries if e[3]]
+    assert ks == list(range(round(T_END / DT) + 1))
+    deadlines = [e[2] for e in entries]
+    assert deadlines == sorted(deadlines)
+    # bursts: a refill is half the lead here (no command delay), some 12 steps at 4 ms a step
+    assert 0 < Wake.naps <= len(ks) / 5, Wake.naps
+
+
 def test_publishing_every_nth_step_releases_those_and_every_event():
     tw = Twin("press-cycle", dt=DT, t_end=0.1)
     live = Sink(True)
