@@ -33,6 +33,7 @@ The status is the worst of the tests; its line is the earliest failing test's at
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -42,7 +43,7 @@ from .measurements import Measurement, MeasurementError
 from .strokes import StrokeEstimate
 
 if TYPE_CHECKING:
-    from .tracker import Tracker
+    from .tracker import Estimate, Tracker
 
 __all__ = ["LEVELS", "DiagnosticSettings", "Status", "TrackingMonitor"]
 
@@ -118,7 +119,7 @@ class TrackingMonitor:
         s = self.settings
         #: the upper bound of the window's mean NIS (a χ²(window)/window quantile)
         self.nis_bound = float(chi2.ppf(0.5 + 0.5 * s.confidence, s.window)) / s.window
-        self._nis: list[float] = []
+        self._nis: deque[float] = deque(maxlen=s.window)
         self._seen = 0
         self._rejected = 0
         self._running = 0
@@ -138,12 +139,15 @@ class TrackingMonitor:
         #: every change of the status, in order
         self.events: list[Status] = []
 
-    def observe(self, tracker: Tracker, m: Measurement) -> Status:
-        """Take the tracker's state after it was given ``m``; return the status."""
+    def observe(self, tracker: Tracker, m: Measurement, estimate: Estimate | None = None) -> Status:
+        """Take the tracker's state after it was given ``m``; return the status.
+
+        ``estimate``: the tracker's present estimate, where the caller has it.
+        """
         t = m.t
         self._innovations(tracker, t)
         self._track(tracker, t)
-        est = tracker.estimate()
+        est = estimate or tracker.estimate()
         self._torque(tracker, est.structure, est.phi, est.torque, est.torque_sigma, t)
         self._work(tracker, est.work, est.work_sigma, t)
         return self._combine(t)
@@ -154,7 +158,7 @@ class TrackingMonitor:
         new = tracker.innovations[self._seen :]
         self._seen = len(tracker.innovations)
         w = self.settings.window
-        self._nis = (self._nis + [v for _t, _k, v in new])[-w:]
+        self._nis.extend(v for _t, _k, v in new)
         f = self._findings["innovations"]
         if len(self._nis) < w:
             self._set(f, "OK", f"filling the window: {len(self._nis)} of {w} innovations", t)

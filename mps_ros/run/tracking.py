@@ -32,7 +32,15 @@ import numpy as np
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.scene import Scene
-from mps_core.track import Encoder, Measurement, MeasurementError, ModeSignal, Tracker, TrackSettings
+from mps_core.track import (
+    Encoder,
+    Estimate,
+    Measurement,
+    MeasurementError,
+    ModeSignal,
+    Tracker,
+    TrackSettings,
+)
 from mps_core.track.diagnostics import TrackingMonitor
 from mps_core.track.tracker import LOAD_COLUMNS
 
@@ -367,7 +375,8 @@ class TrackingRun:
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])
-            self._watch_machine(ms[0])
+            est = tr.estimate()  # one for the status, the stroke table and the messages
+            self._watch_machine(ms[0], est)
             if not taken:
                 return False
             behind = self.clock() - arrival
@@ -376,7 +385,7 @@ class TrackingRun:
             elif behind <= min(self.max_behind, CAUGHT_UP):
                 self._catching_up = False
             if self._catching_up:  # taken, not published, until the node is within CAUGHT_UP again
-                self._publish(full=False)
+                self._publish(est, full=False)
                 self.skipped += 1
                 if self.skipped == 1 or self.skipped % 1000 == 0:
                     self.log(
@@ -386,7 +395,7 @@ class TrackingRun:
                     )
                 self._process_cpu[1] = time.process_time()
                 return True
-            self._publish()
+            self._publish(est)
             self.cpu.append(time.thread_time() - cpu0)
             delay = self.clock() - arrival
             self.delay.append(delay)
@@ -395,10 +404,10 @@ class TrackingRun:
             self._process_cpu[1] = time.process_time()
             return True
 
-    def _watch_machine(self, m: Measurement) -> None:
-        """Give the tracking status the tracker after ``m``; say each change of its level."""
+    def _watch_machine(self, m: Measurement, est: Estimate) -> None:
+        """Give the tracking status the tracker after ``m`` (estimate ``est``); say each new level."""
         before = self.monitor.status.level
-        status = self.monitor.observe(self.tracker, m)
+        status = self.monitor.observe(self.tracker, m, est)
         if status.level != before:
             self.log({"OK": "info", "WARN": "warn"}.get(status.level, "error"), status.line())
 
@@ -453,13 +462,13 @@ class TrackingRun:
             )
 
     # -- the estimate out ----------------------------------------------------------------
-    def _publish(self, full: bool = True) -> None:
-        """Hand the estimate's messages to every sink, then the model's events (only those: not ``full``)."""
+    def _publish(self, est: Estimate, full: bool = True) -> None:
+        """Hand the messages of estimate ``est`` to every sink, then the events (only those: not ``full``)."""
         tr = self.tracker
         step = self.step
         msgs: list[Message]
         if not full:
-            tr.observe_stroke()
+            tr.observe_stroke(None, est)
             events = tr.take_events()
             msgs = self._strokes()
             if events and "events" in self.outputs:
@@ -471,7 +480,6 @@ class TrackingRun:
         step.compute_reactions()
         t_ns = _ns(tr.t)
         msgs = [(k, d, t_ns, False) for k, d in self.messages.payloads(step, tr.t)]
-        est = tr.estimate()
         st = _stamp(t_ns)
         msgs.append((PROCESS_FORCE_NOW.key, _wrench(st, PROCESS_FRAME, est.force, 0.0, 0.0), t_ns, False))
         msgs.append(
