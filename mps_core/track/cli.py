@@ -265,13 +265,13 @@ def _follow(
         c0 = time.process_time()
         taken = tracker.update(m)
         smoothed = tracker.smoothed_loads() if loads else None
-        tracker.observe_stroke(None if smoothed is None else smoothed[1])
-        status = monitor.observe(tracker, m)
+        est = tracker.estimate()  # one for the stroke table, the status and the row
+        tracker.observe_stroke(None if smoothed is None else smoothed[1], est)
+        status = monitor.observe(tracker, m, est)
         cpu.append(time.process_time() - c0)
         if recording is not None and smoothed is not None:
             recording.add_loads(*smoothed)
         if taken:
-            est = tracker.estimate()
             row: dict[str, Any] = {c: getattr(est, c) for c in ESTIMATE_COLUMNS}
             row["tracking"] = status.level
             if smoothed is not None:
