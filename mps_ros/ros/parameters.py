@@ -315,9 +315,9 @@ PARAMETERS: tuple[Parameter, ...] = (
     P(
         "track_timeout",
         0.05,
-        "following a press: a measurement later than this many seconds after the one before "
-        "(its stamp: counted as "
-        "`gap`; wall time: as `timeout`, WARN in /diagnostics while it lasts)",
+        "following a press: a measurement later than this many seconds after the last one taken "
+        "(its stamp: counted as `gap`, not screened for a jump, the crank acquired again where the "
+        "model drifted off it; wall time: as `timeout`, WARN in /diagnostics while it lasts)",
         lo=1e-3,
         hi=3600.0,
     ),
