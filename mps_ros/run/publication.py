@@ -68,7 +68,11 @@ class Publication:
                 self.latencies.add(late if late > 0.0 else 0.0)
         self._k_releasing = head.k
         self._said = False
-        self.sinks.emit_all(msgs)
+        encoded = head.encoded
+        if encoded is None:
+            self.sinks.emit_all(msgs)
+        else:  # the recorder takes the step as the stepping process encoded it
+            self.sinks.emit_encoded(msgs, encoded)
         self.sinks.tick(head.deadline)
         said = self._said
         if self.failure is None:

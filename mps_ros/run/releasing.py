@@ -296,6 +296,7 @@ class SteppingProcess:
         for kind, payload in got:
             if kind == Frame.MESSAGES:
                 entry = HeldStep(*marshal.loads(payload))
+                entry.encoded = payload  # to the recorder as it came
                 with self.held.lock:
                     self.boundaries.arrived(entry)
             elif kind == Frame.ANSWER:
