@@ -33,8 +33,9 @@ class BackgroundRecorder:
     JSON, ``CHANNEL`` a channel as JSON, ``BATCH`` a batch of messages, ``STEPS`` a batch of
     steps, ``FLUSH`` flush, ``END`` finish; a batch is records of (channel u16, time ns i64,
     length u32, CDR bytes); a batch of steps is the :mod:`marshal` dump (one interpreter
-    writes and reads it) of (the keys' channel ids where they grew, else None; the steps'
-    lists of (key, CDR bytes, t_ns, received)). The
+    writes and reads it) of (the keys' channel ids where they grew, else None; the steps, each
+    a list of (key, CDR bytes, t_ns, received) or the bytes of a marshalled tuple whose last
+    item is that list: :meth:`write_encoded`). The
     writing process answers on its standard output, one JSON line each: ``{"ready": true}``
     (or ``{"error": …}``) after the settings, ``{"done": N, "counts": {topic: n}}`` (or
     ``{"error": …}``) at the end.
@@ -166,6 +167,18 @@ class BackgroundRecorder:
         self._steps.append(msgs)
         self._ids_of_keys = ids
         self.messages += len(msgs)
+
+    def write_encoded(self, encoded: bytes, n: int, ids: dict) -> None:
+        """Record a step of ``n`` messages handed over as the stepping process encoded it:
+        ``encoded`` the :mod:`marshal` dump of a tuple whose last item is the step's messages
+        (a frame ``MESSAGES``'s payload, :mod:`mps_ros.run.stepping`); ``ids`` as in
+        :meth:`write_steps`. The bytes go down the pipe with the batch as they are; the
+        writing process takes the messages out of them."""
+        if self._batch:
+            self._send()  # what write() was given goes first
+        self._steps.append(encoded)
+        self._ids_of_keys = ids
+        self.messages += n
 
     def tick(self) -> None:
         if (self._batch or self._steps) and time.monotonic() - self._last >= self.batch_period:
@@ -384,13 +397,18 @@ def _write_frames(rec: Recorder, frames: PolledFrameReader, tap: Tap | None = No
                 if ids is not None:
                     by_key = ids
                 write = rec.write
+                loads = marshal.loads
                 if tap_message is None:
                     for msgs in steps:
+                        if msgs.__class__ is bytes:  # as the stepping process encoded it
+                            msgs = loads(msgs)[-1]
                         for key, data, t_ns, _received in msgs:
                             topic, msgtype, qos = channels[by_key[key]]
                             write(topic, msgtype, data, t_ns, qos)
                 else:
                     for msgs in steps:
+                        if msgs.__class__ is bytes:
+                            msgs = loads(msgs)[-1]
                         for key, data, t_ns, _received in msgs:
                             cid = by_key[key]
                             topic, msgtype, qos = channels[cid]

@@ -17,13 +17,16 @@ from .twin import to_json, to_ns
 
 class HeldStep:
     """A step (or a command's answers) from the stepping process, waiting for its deadline;
-    ``structure`` and ``refusals`` (:meth:`Twin.refusals`): the twin's after it."""
+    ``structure`` and ``refusals`` (:meth:`Twin.refusals`): the twin's after it; ``encoded``:
+    the frame it came in (its marshal, ``msgs`` the last item), handed to the recorder as it
+    is; None for one made here."""
 
-    __slots__ = ("k", "gen", "deadline", "state", "structure", "refusals", "msgs")
+    __slots__ = ("k", "gen", "deadline", "state", "structure", "refusals", "msgs", "encoded")
 
-    def __init__(self, k, gen, deadline, state, structure, refusals, msgs):
+    def __init__(self, k, gen, deadline, state, structure, refusals, msgs, encoded=None):
         self.k, self.gen, self.deadline = k, gen, deadline
         self.state, self.structure, self.refusals, self.msgs = state, structure, refusals, msgs
+        self.encoded = encoded
 
 
 class HeldSteps:

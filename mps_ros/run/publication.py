@@ -68,14 +68,19 @@ class Publication:
                 self.latencies.add(late if late > 0.0 else 0.0)
         self._k_releasing = head.k
         self._said = False
-        self.sinks.emit_all(msgs)
+        encoded = head.encoded
+        if encoded is None:
+            self.sinks.emit_all(msgs)
+        else:  # the recorder takes the step as the stepping process encoded it
+            self.sinks.emit_encoded(msgs, encoded)
         self.sinks.tick(head.deadline)
         said = self._said
         if self.failure is None:
-            failure = next((s.failure for s in self.sinks if s.failure), None)
-            if failure:
-                self.failure = failure
-                said = True
+            for s in self.sinks.sinks:  # a plain loop: no generator made each step
+                if s.failure:
+                    self.failure = s.failure
+                    said = True
+                    break
         if said or p1 >= self.next_status:
             self.next_status = p1 + float(self.spec["runner"].get("diagnostics_period", 1.0))
             self.recording_status(msgs)

@@ -293,12 +293,18 @@ class SteppingProcess:
         """The frames the stepping process sent: steps held (of the present generation),
         answers given, log lines said, its priority; the run's end (returned, where it came)."""
         end = None
+        loads, messages = marshal.loads, Frame.MESSAGES
+        entries: list[HeldStep] = []  # the steps read in a row, held at once
         for kind, payload in got:
-            if kind == Frame.MESSAGES:
-                entry = HeldStep(*marshal.loads(payload))
-                with self.held.lock:
-                    self.boundaries.arrived(entry)
-            elif kind == Frame.ANSWER:
+            if kind == messages:
+                entry = HeldStep(*loads(payload))
+                entry.encoded = payload  # to the recorder as it came
+                entries.append(entry)
+                continue
+            if entries:  # held before what came after them
+                self._hold(entries)
+                entries = []
+            if kind == Frame.ANSWER:
                 cid, ack = marshal.loads(payload)
                 self.boundaries.answer(cid, json.loads(ack))
             elif kind == Frame.LOG:
@@ -309,7 +315,19 @@ class SteppingProcess:
                 end = json.loads(payload)
                 with self.held.lock:
                     self.held.ended = True
+        if entries:
+            self._hold(entries)
         return end
+
+    def _hold(self, entries: list[HeldStep]) -> None:
+        """Hold the steps that came in a row from the stepping process, in order.
+
+        Each is held or dropped as :meth:`Boundaries.arrived` says (an earlier generation's
+        past its boundary), the lock taken once for them all."""
+        arrived = self.boundaries.arrived
+        with self.held.lock:
+            for entry in entries:
+                arrived(entry)
 
     def _finish(self, end: dict | None) -> dict:
         child = self._started()

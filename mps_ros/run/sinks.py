@@ -37,6 +37,12 @@ class Sink(Protocol):
         """Take messages in order; return how many went out where that is counted."""
         ...
 
+    def emit_encoded(self, msgs: Sequence[Message], encoded: bytes) -> None:
+        """Take a step's messages as :meth:`emit_all` does, with ``encoded``: the stepping
+        process's marshal of the step (:class:`~mps_ros.run.boundaries.HeldStep`'s fields,
+        ``msgs`` the last), for a sink that hands them to another process as they are."""
+        self.emit_all(msgs)
+
     def tick(self, deadline: float | None = None) -> None:
         """Do what is due at a step's end (``deadline``: the step's, paced; else None)."""
         return None
@@ -102,6 +108,33 @@ class Fanout:
         if err is not None:
             raise err
 
+    def emit_encoded(self, msgs: Sequence[Message], encoded: bytes) -> None:
+        """Hand a step's ``msgs`` to every sink, with ``encoded`` (:meth:`Sink.emit_encoded`;
+        a sink without that method is handed ``msgs`` alone)."""
+        if self.on_failure is not None:
+            for s in list(self.sinks):
+                try:
+                    emit = getattr(s, "emit_encoded", None)
+                    if emit is None:
+                        s.emit_all(msgs)
+                    else:
+                        emit(msgs, encoded)
+                except Exception as exc:  # dropped and said; the others go on
+                    self._failed(s, exc)
+            return
+        err = None
+        for s in self.sinks:  # every sink gets them, though another one fails
+            try:
+                emit = getattr(s, "emit_encoded", None)
+                if emit is None:
+                    s.emit_all(msgs)
+                else:
+                    emit(msgs, encoded)
+            except Exception as exc:
+                err = err or exc
+        if err is not None:
+            raise err
+
     def tick(self, deadline: float | None = None) -> None:
         """Tell every sink that a step has ended."""
         if self.on_failure is not None:
@@ -138,6 +171,8 @@ class RecordingSink(Sink):
         log: Callable[[str, str], None] | None = None,
     ):
         self.rec = recorder
+        #: the recorder's hand-over of a step as the stepping process encoded it, where it has one
+        self._write_encoded = getattr(recorder, "write_encoded", None)
         self.names = names or {}
         self.qos = qos or {}
         self.node = node
@@ -189,6 +224,26 @@ class RecordingSink(Sink):
                 if key not in ids:  # a key met for the first time: its channel first
                     ids[key] = self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
             self.rec.write_steps(msgs, ids)
+        except OSError as exc:
+            self._failed(exc)
+
+    def emit_encoded(self, msgs: Sequence[Message], encoded: bytes) -> None:
+        """Record a step's messages as :meth:`emit_all` does; a recorder in a process of its
+        own (:meth:`~mps_ros.recording.background.BackgroundRecorder.write_encoded`) is handed
+        ``encoded``, the stepping process's marshal of the step, instead of the messages: they
+        go on as they came, not marshalled again."""
+        write = self._write_encoded
+        if write is None or self.failure is not None:
+            self.emit_all(msgs)
+            return
+        if msgs:
+            self._t_ns = msgs[0][2]
+        ids = self._ids
+        try:
+            for key, _data, _t, _r in msgs:
+                if key not in ids:  # a key met for the first time: its channel first
+                    ids[key] = self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
+            write(encoded, len(msgs), ids)
         except OSError as exc:
             self._failed(exc)
 

@@ -459,15 +459,20 @@ def test_a_command_the_machine_refuses_is_answered_at_its_boundary_and_redoes_no
     assert _comparable(done) == _afap_with(schedule, fresh=split)
 
 
-def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step_released():
+def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step_released(tmp_path):
     """As fast as possible in a stepping process of its own (the node's way where the twin can
     come back to a step): the steps go out as they come; a command is applied at the boundary
     of the last step released when it came, its answer right after that step's messages (the
     steps computed beyond it are computed again, or, where the machine refuses it there, stand);
     the run is bit for bit the one given each command at that boundary in one process, and the
-    recorder gets what was published, in the same order."""
+    recorder gets what was published, in the same order; the recording process too, handed
+    the steps as the stepping process encoded them and the answers made here as lists."""
+    from mcap.reader import make_reader
+
+    from mps_ros.recording.background import BackgroundRecorder
     from mps_ros.run.releasing import SteppingProcess
-    from mps_ros.wire.topics import OUTPUTS
+    from mps_ros.run.sinks import RecordingSink
+    from mps_ros.wire.topics import OUTPUTS, resolve
 
     plan = {40: "engage", 41: "engage", 150: "disengage"}  # at the step whose /clock went out
     tw = Twin("press-cycle", dt=DT, t_end=T_END, scene_commands=False)
@@ -490,12 +495,21 @@ def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step
     }
     runner = SteppingProcess(spec, live, lambda *a: None, Gate(), 0)
     runner.sinks.append(rec)
+    bg = BackgroundRecorder(tmp_path / "split.mcap")
+    runner.sinks.append(RecordingSink(bg))
     try:
         st = runner.run()
     finally:
         runner.close()
+        bg.finish()
     assert runner.error is None and st["steps"] == tw.n
     assert st["real_time_factor"] > 0 and "latency_p50_ms" not in st
+    with open(tmp_path / "split.mcap", "rb") as f:
+        recorded = [
+            (ch.topic, bytes(m.data), m.log_time)
+            for _, ch, m in make_reader(f).iter_messages(log_time_order=False)
+        ]
+    assert recorded == [(resolve(k), d, t) for k, d, t, _ in rec.got]
     assert [k for k, _ in sent] == sorted(plan)
     acks = [json.loads(d[8:].rstrip(b"\0").decode()) for k, d, *_ in rec.got if k == "~/mode/status"]
     # each at the step whose /clock it came on: the last step released then
