@@ -92,44 +92,25 @@ class Fanout:
 
     def emit_all(self, msgs: Sequence[Message]) -> None:
         """Hand ``msgs`` to every sink."""
-        if self.on_failure is not None:
-            for s in list(self.sinks):
-                try:
-                    s.emit_all(msgs)
-                except Exception as exc:  # dropped and said; the others go on
-                    self._failed(s, exc)
-            return
-        err = None
-        for s in self.sinks:  # every sink gets them, though another one fails
-            try:
-                s.emit_all(msgs)
-            except Exception as exc:
-                err = err or exc
-        if err is not None:
-            raise err
+        self._each(lambda s: s.emit_all(msgs))
 
     def emit_encoded(self, msgs: Sequence[Message], encoded: bytes) -> None:
-        """Hand a step's ``msgs`` to every sink, with ``encoded`` (:meth:`Sink.emit_encoded`;
-        a sink without that method is handed ``msgs`` alone)."""
+        """Hand a step's ``msgs`` to every sink, with ``encoded`` (:meth:`Sink.emit_encoded`)."""
+        self._each(lambda s: s.emit_encoded(msgs, encoded))
+
+    def _each(self, call: Callable[[Sink], object]) -> None:
+        """Call ``call`` on every sink, the fan-out's policy for a sink that raises."""
         if self.on_failure is not None:
             for s in list(self.sinks):
                 try:
-                    emit = getattr(s, "emit_encoded", None)
-                    if emit is None:
-                        s.emit_all(msgs)
-                    else:
-                        emit(msgs, encoded)
+                    call(s)
                 except Exception as exc:  # dropped and said; the others go on
                     self._failed(s, exc)
             return
         err = None
         for s in self.sinks:  # every sink gets them, though another one fails
             try:
-                emit = getattr(s, "emit_encoded", None)
-                if emit is None:
-                    s.emit_all(msgs)
-                else:
-                    emit(msgs, encoded)
+                call(s)
             except Exception as exc:
                 err = err or exc
         if err is not None:
