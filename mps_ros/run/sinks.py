@@ -197,16 +197,7 @@ class RecordingSink(Sink):
         if self.failure is not None:
             self.dropped += len(msgs)
             return
-        if msgs:
-            self._t_ns = msgs[0][2]
-        ids = self._ids
-        try:
-            for key, _data, _t, _r in msgs:
-                if key not in ids:  # a key met for the first time: its channel first
-                    ids[key] = self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
-            self.rec.write_steps(msgs, ids)
-        except OSError as exc:
-            self._failed(exc)
+        self._record(msgs, lambda ids: self.rec.write_steps(msgs, ids))
 
     def emit_encoded(self, msgs: Sequence[Message], encoded: bytes) -> None:
         """Record a step's messages as :meth:`emit_all` does; a recorder in a process of its
@@ -217,6 +208,10 @@ class RecordingSink(Sink):
         if write is None or self.failure is not None:
             self.emit_all(msgs)
             return
+        self._record(msgs, lambda ids: write(encoded, len(msgs), ids))
+
+    def _record(self, msgs: Sequence[Message], write: Callable[[dict], None]) -> None:
+        """Register the channels of keys met for the first time, then ``write(ids)`` the step."""
         if msgs:
             self._t_ns = msgs[0][2]
         ids = self._ids
@@ -224,7 +219,7 @@ class RecordingSink(Sink):
             for key, _data, _t, _r in msgs:
                 if key not in ids:  # a key met for the first time: its channel first
                     ids[key] = self.rec.channel(self._topic(key), msgtype(key), self.qos.get(key))
-            write(encoded, len(msgs), ids)
+            write(ids)
         except OSError as exc:
             self._failed(exc)
 
