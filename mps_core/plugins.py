@@ -54,17 +54,27 @@ def reader(fmt: str) -> EntryPoint | None:
     return None
 
 
-def track_writer(fmt: str) -> EntryPoint | None:
-    """Return the entry point that writes tracked runs as recordings of format ``fmt``, or None."""
-    for ep in found(TRACK_WRITERS):
-        if ep.name == fmt:
-            return ep
-    return None
+def track_plugin(
+    group: str, fmt: str, field: str, doing: str, error: type[Exception], otherwise: str
+) -> Callable[..., Any]:
+    """Return the loaded entry point ``fmt`` of ``group`` (:data:`TRACK_WRITERS`, :data:`TRACK_READERS`).
 
-
-def track_reader(fmt: str) -> EntryPoint | None:
-    """Return the entry point that reads a press's inputs out of recordings of format ``fmt``, or None."""
-    for ep in found(TRACK_READERS):
-        if ep.name == fmt:
-            return ep
-    return None
+    Where there is none, or its package is missing, raise ``error``: ``field`` (the option and
+    the path) names what asked, ``doing`` what the plugin does (``writes``, ``reads``),
+    ``otherwise`` what the user can do instead.
+    """
+    ep = next((e for e in found(group) if e.name == fmt), None)
+    install = "install the ros extra (pip install -e '.[ros]')"
+    if ep is not None:
+        try:
+            return ep.load()
+        except ModuleNotFoundError as exc:
+            gerund = doing[:-1] + "ing"
+            raise error(
+                f"{field}: {gerund} a {fmt} recording needs the package {exc.name!r}, which is not "
+                f"installed: {install}"
+            ) from None
+    raise error(
+        f"{field}: no installed package {doing} {fmt} recordings (entry-point group {group!r}): "
+        f"{install}, or {otherwise}"
+    )

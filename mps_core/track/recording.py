@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import MpsError
-from ..plugins import TRACK_WRITERS, track_writer
+from ..plugins import TRACK_WRITERS, track_plugin
 from .diagnostics import Status
 from .measurements import Measurement, ModeSignal
 from .strokes import StrokeEstimate
@@ -102,20 +102,12 @@ def write_recording(path: str | Path, recording: TrackRecording, fmt: str = "mca
 
     Return the messages written.
     """
-    ep = track_writer(fmt)
-    write = None
-    if ep is not None:
-        try:
-            write = ep.load()
-        except ModuleNotFoundError as exc:
-            raise RecordingWriterMissing(
-                f"--out {str(path)!r}: writing a {fmt} recording needs the package {exc.name!r}, which is "
-                "not installed: install the ros extra (pip install -e '.[ros]')"
-            ) from None
-    if write is None:
-        raise RecordingWriterMissing(
-            f"--out {str(path)!r}: no installed package writes {fmt} recordings (entry-point group "
-            f"{TRACK_WRITERS!r}): install the ros extra (pip install -e '.[ros]'), or write the "
-            "estimates as CSV (--out FILE.csv)"
-        )
+    write = track_plugin(
+        TRACK_WRITERS,
+        fmt,
+        f"--out {str(path)!r}",
+        "writes",
+        RecordingWriterMissing,
+        "write the estimates as CSV (--out FILE.csv)",
+    )
     return int(write(Path(path), recording))

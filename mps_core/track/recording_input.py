@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import MpsError
-from ..plugins import TRACK_READERS, track_reader
+from ..plugins import TRACK_READERS, track_plugin
 from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
 
 __all__ = [
@@ -102,22 +102,14 @@ def read_recording_inputs(
     kind → variance of its measurements (:func:`recording_variances`).
     """
     fmt = recording_format(path)
-    ep = track_reader(fmt)
-    read = None
-    if ep is not None:
-        try:
-            read = ep.load()
-        except ModuleNotFoundError as exc:
-            raise RecordingReaderMissing(
-                f"--recording {str(path)!r}: reading a {fmt} recording needs the package {exc.name!r}, "
-                "which is not installed: install the ros extra (pip install -e '.[ros]')"
-            ) from None
-    if read is None:
-        raise RecordingReaderMissing(
-            f"--recording {str(path)!r}: no installed package reads {fmt} recordings (entry-point group "
-            f"{TRACK_READERS!r}): install the ros extra (pip install -e '.[ros]'), or give the "
-            "measurements as CSV (--csv FILE)"
-        )
+    read = track_plugin(
+        TRACK_READERS,
+        fmt,
+        f"--recording {str(path)!r}",
+        "reads",
+        RecordingReaderMissing,
+        "give the measurements as CSV (--csv FILE)",
+    )
     return list(read(Path(path), topics or RecordedTopics(), variances))
 
 
