@@ -216,23 +216,36 @@ class GeneratedStep(Solver):
 
 
 class CubicHermite:
-    """q by the cubic Hermite polynomial of (q, q̇) at both ends, q̇ by that of (q̇, q̈)."""
+    """q by the cubic Hermite polynomial of (q, q̇) at both ends, q̇ by that of (q̇, q̈).
+
+    Evaluated on floats (a few coordinates: numpy's per-call cost would be most of it), the
+    same operations in the same order as on arrays; the ends are made lists on the first call
+    (most steps are never asked)."""
 
     def __init__(self, t0, t1, q0, qd0, qdd0, q1, qd1, qdd1):
         self.t0, self.h = t0, t1 - t0
         self.data = (q0, qd0, qdd0, q1, qd1, qdd1)
+        self._lists: tuple | None = None
+
+    def _ends(self) -> tuple:
+        """The ends' (q, q̇, q̈) as lists of floats, made once."""
+        ends = self._lists
+        if ends is None:
+            ends = self._lists = tuple(np.asarray(x, dtype=float).tolist() for x in self.data)
+        return ends
 
     def __call__(self, t):
-        q0, qd0, qdd0, q1, qd1, qdd1 = self.data
+        q0, qd0, qdd0, q1, qd1, qdd1 = self._ends()
         h = self.h
         s = (t - self.t0) / h
         h00 = (1 + 2 * s) * (1 - s) ** 2
         h10 = s * (1 - s) ** 2
         h01 = s * s * (3 - 2 * s)
         h11 = s * s * (s - 1)
-        q = h00 * q0 + h10 * h * qd0 + h01 * q1 + h11 * h * qd1
-        qd = h00 * qd0 + h10 * h * qdd0 + h01 * qd1 + h11 * h * qdd1
-        return q, qd
+        b, d = h10 * h, h11 * h
+        q = [h00 * x0 + b * v0 + h01 * x1 + d * v1 for x0, v0, x1, v1 in zip(q0, qd0, q1, qd1)]
+        qd = [h00 * v0 + b * a0 + h01 * v1 + d * a1 for v0, a0, v1, a1 in zip(qd0, qdd0, qd1, qdd1)]
+        return np.array(q), np.array(qd)
 
 
 #: what a fused function raises or gives where it does not hold (a generated step then asks

@@ -56,7 +56,7 @@ class QuinticHermite(CubicHermite):
     derivative (the same data as :class:`~mps_core.solvers.base.CubicHermite`)."""
 
     def __call__(self, t):
-        q0, qd0, qdd0, q1, qd1, qdd1 = self.data
+        q0, qd0, qdd0, q1, qd1, qdd1 = self._ends()
         h = self.h
         s = (t - self.t0) / h
         s2 = s * s
@@ -75,9 +75,16 @@ class QuinticHermite(CubicHermite):
         d4 = -12.0 * s2 + 28.0 * s3 - 15.0 * s2 * s2
         d5 = 1.5 * s2 - 4.0 * s3 + 2.5 * s2 * s2
         hh = h * h
-        q = h0 * q0 + h1 * h * qd0 + h2 * hh * qdd0 + h3 * q1 + h4 * h * qd1 + h5 * hh * qdd1
-        qd = (d0 * q0 + d3 * q1) / h + d1 * qd0 + d4 * qd1 + h * (d2 * qdd0 + d5 * qdd1)
-        return q, qd
+        c1, c2, c4, c5 = h1 * h, h2 * hh, h4 * h, h5 * hh
+        q = [
+            h0 * x0 + c1 * v0 + c2 * a0 + h3 * x1 + c4 * v1 + c5 * a1
+            for x0, v0, a0, x1, v1, a1 in zip(q0, qd0, qdd0, q1, qd1, qdd1)
+        ]
+        qd = [
+            (d0 * x0 + d3 * x1) / h + d1 * v0 + d4 * v1 + h * (d2 * a0 + d5 * a1)
+            for x0, v0, a0, x1, v1, a1 in zip(q0, qd0, qdd0, q1, qd1, qdd1)
+        ]
+        return np.array(q), np.array(qd)
 
 
 class RK6(GeneratedStep):
