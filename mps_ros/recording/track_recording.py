@@ -22,7 +22,6 @@ that every step read back has its joint states and its reactions together.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -31,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 from ..wire import diagnostics
 from ..wire.cdr import encoder
 from ..wire.frames import TfLayout
+from ..wire.json_text import to_json
 from ..wire.topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES, offered_qos, qos_yaml, resolve
 from ..wire.track_topics import (
     LOAD_TORQUE,
@@ -73,19 +73,6 @@ def _wrench(t: float, frame_id: str, fx: float, fy: float, mz: float) -> dict[st
         "header": {"stamp": _stamp(t), "frame_id": frame_id},
         "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
     }
-
-
-def _json(obj: Any) -> str:
-    """Return an event as compact JSON (numbers as numbers, anything else as text)."""
-
-    def plain(v: Any) -> Any:
-        if hasattr(v, "tolist"):
-            return v.tolist()
-        if isinstance(v, set | tuple):
-            return list(v)
-        return str(v)
-
-    return json.dumps(obj, default=plain, separators=(",", ":"))
 
 
 class _Messages:
@@ -172,10 +159,10 @@ def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
     for change in rec.statuses:
         _status(msgs, rec, change, change.t)
     for ev in rec.events:
-        msgs.add("~/events", _STRING, {"data": _json(ev)}, float(ev.get("t", 0.0)))
+        msgs.add("~/events", _STRING, {"data": to_json(ev)}, float(ev.get("t", 0.0)))
     for s in rec.strokes:
         if math.isfinite(s.t_end):
-            msgs.add(STROKES.key, _STRING, {"data": _json(s.row())}, s.t_end)
+            msgs.add(STROKES.key, _STRING, {"data": to_json(s.row())}, s.t_end)
 
 
 def _joints(t: float, positions: Any, velocities: Any, effort: Any) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
 
 from ..run.commands import Command, shown
 from ..run.sinks import Message, Sink
-from ..run.twin import to_json
+from ..wire.json_text import to_json
 from ..wire.topics import LATCHED, MODE, TOPICS, resolve
 
 MSG_CLASSES = {

@@ -23,7 +23,7 @@ from typing import Any
 from mps_core.scene.settings import COMMANDS as COMMAND_WORDS
 
 from ..run.commands import Command
-from ..run.twin import to_json
+from ..wire.json_text import to_json
 
 #: the endpoint's services besides the mode commands: the lifecycle's pause, resume and step
 LIFECYCLE_WORDS = ("pause", "resume", "step")

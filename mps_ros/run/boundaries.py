@@ -11,8 +11,9 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ..wire.json_text import to_json
 from .commands import COMMAND_INDEX, Command, Gate, RefusalLog, shown
-from .twin import to_json, to_ns
+from .twin import to_ns
 
 
 class HeldStep:

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 from mps_core.scene.settings import COMMANDS
 
-from .twin import to_json, to_ns
+from ..wire.json_text import to_json
+from .twin import to_ns
 
 EXPECTED = "expected one of " + ", ".join(COMMANDS)
 #: a word's place in :data:`COMMANDS` (and in :meth:`Twin.refusals`)

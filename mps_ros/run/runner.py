@@ -33,11 +33,12 @@ from dataclasses import dataclass
 
 from ..wire import diagnostics
 from ..wire.diagnostics import hardware_id
+from ..wire.json_text import to_json
 from ..wire.topics import BY_KEY
 from .commands import Gate, Inbox, RunCommands
 from .metrics import Measurements, RunClocks
 from .sinks import Fanout, Message, Sink
-from .twin import Twin, to_json
+from .twin import Twin
 
 PACINGS = ("realtime", "as_fast_as_possible")
 

@@ -81,14 +81,15 @@ import threading
 import time
 
 from ..os_threads import widen_pipe
+
+# -- frames -----------------------------------------------------------------------------------
+from ..wire.json_text import to_json
 from ..wire.pipe import HEAD, Frame, FrameReader, FrameWriter
 from .commands import Command
 
 # -- frames -----------------------------------------------------------------------------------
 from .runner import Runner
-
-# -- frames -----------------------------------------------------------------------------------
-from .twin import Twin, to_json
+from .twin import Twin
 
 # -- frames -----------------------------------------------------------------------------------
 #: the wall seconds over which a realtime run's rate is judged first (the whole run if shorter)

@@ -47,6 +47,7 @@ from mps_core.track.tracker import LOAD_COLUMNS
 from ..wire import diagnostics
 from ..wire.cdr import string, wrench_stamped
 from ..wire.diagnostics import hardware_id
+from ..wire.json_text import to_json
 from ..wire.measured import ns_seconds
 from ..wire.step_messages import StepMessages
 from ..wire.topics import OUTPUTS
@@ -61,7 +62,6 @@ from ..wire.track_topics import (
 )
 from .commands import Inbox, shown
 from .sinks import Fanout, Message
-from .twin import to_json
 
 __all__ = ["TrackingRun", "nominal_scene"]
 

@@ -5,12 +5,9 @@ ROS. The :class:`~mps_ros.run.runner.Runner` paces it and hands its messages to 
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable
 from dataclasses import replace
-
-import numpy as np
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.scene.settings import COMMANDS
@@ -21,20 +18,6 @@ from ..wire.topics import OUTPUTS
 
 def to_ns(t: float) -> int:
     return int(round(t * 1e9))
-
-
-def _jsonable(v):
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, (set, tuple)):
-        return list(v)
-    return str(v)
-
-
-def to_json(obj) -> str:
-    return json.dumps(obj, default=_jsonable, separators=(",", ":"))
 
 
 def check_outputs(outputs: Iterable[str]) -> tuple[str, ...]:
@@ -328,4 +311,4 @@ class Twin:
         }
 
 
-__all__ = ["Twin", "to_ns", "to_json", "check_outputs"]
+__all__ = ["Twin", "to_ns", "check_outputs"]
