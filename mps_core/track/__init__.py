@@ -12,7 +12,7 @@ it achieves: docs/tracking.md.
 from __future__ import annotations
 
 from .diagnostics import DiagnosticSettings, Status, TrackingMonitor
-from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal, TorqueSensor
 from .settings import TrackSettings
 from .strokes import StrokeEstimate, StrokeTable
 from .tracker import Estimate, Tracker
@@ -30,6 +30,7 @@ __all__ = [
     "Status",
     "StrokeEstimate",
     "StrokeTable",
+    "TorqueSensor",
     "TrackSettings",
     "Tracker",
     "TrackingMonitor",

@@ -34,7 +34,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from .diagnostics import TrackingMonitor
-from .measurements import Measurement, MeasurementError, ModeSignal
+from .measurements import Measurement, MeasurementError, ModeSignal, TorqueSensor
 from .recording import TrackRecording
 from .recording_input import JOINTS_TOPIC, MODE_TOPIC, Input, in_time_order, recording_variances, split_inputs
 from .settings import PREDICTIONS, TrackSettings
@@ -122,6 +122,11 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
+    t.add_argument(
+        "--motor-torque",
+        action="store_true",
+        help="--against-truth: the emulated press measures its motor's torque too (as mps emulate does)",
+    )
     t.add_argument("--force", action="store_true", help="replace output files that exist")
     t.set_defaults(func=_track)
 
@@ -241,7 +246,7 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
     from .measurement_csv import read_measurements
 
     # the crank's and the slider's as the node takes them (one press, one set of sensors)
-    variances = {**recording_variances(), "crank_rate": 1e-4, "motor_torque": 1.0}
+    variances = {**recording_variances(), "crank_rate": 1e-4, "motor_torque": TorqueSensor().variance}
     measurements, modes = read_measurements(args.csv, variances)
     return in_time_order(measurements, modes), measurements, modes
 
@@ -321,6 +326,12 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
             f"max {us.max():.0f} us ({len(cpu)} measurements)"
         )
+    if tracker.motor_measured:
+        est = tracker.estimate()
+        print(
+            f"the motor's torque: {100 * est.motor_scale:+.2f} ± {100 * est.motor_scale_sigma:.2f} % "
+            "off its catalogue's characteristic"
+        )
     if monitor is not None:
         changes = [s for s in monitor.events if s.level != "OK"]
         if not changes:
@@ -341,9 +352,10 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
 def _against_truth(args: argparse.Namespace, nominal: Any, tracker: Tracker) -> int:
     """Emulate the truth, follow it, and print how the estimates compare with it."""
     from .evaluation import follow, nis_inside, truth_strokes
-    from .truth import run_truth, truth_scene
+    from .truth import Sensors, run_truth, truth_scene
 
-    truth = run_truth(truth_scene(nominal), args.against_truth, seed=args.seed)
+    sensors = Sensors(motor_torque=args.motor_torque)
+    truth = run_truth(truth_scene(nominal), args.against_truth, sensors=sensors, seed=args.seed)
     f = follow(tracker, truth, loads=args.loads)
     _summary(tracker, np.asarray(f.cpu))
     print(

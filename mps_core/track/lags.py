@@ -3,7 +3,7 @@
 A force acting over one step shows in the crank angle only at the next samples, so the force of
 a step some samples back, and the state the step started from, are known far better than the
 present ones (a fixed-lag smoother by state augmentation). The state
-``x = (q, q̇, F_p, tau_b, W, slot 1, …, slot L)`` holds, in slot j, the coordinates and rates at
+``x = (q, q̇, F_p, tau_b, W, s_m, slot 1, …, slot L)`` holds, in slot j, the coordinates and rates at
 the start of the step j steps back and the process force over that step: ``(q, q̇, F_p)``, 2n + 1
 numbers in the present chart view. At each step slot 1 takes the step's start and force and the
 others move one slot back. Where the chart view changes (n or the coordinates change) the slots
@@ -18,8 +18,8 @@ __all__ = ["core_size", "restart", "shifted", "slot", "step_rows"]
 
 
 def core_size(n: int) -> int:
-    """Return the size of the state before its slots: (q, q̇, F_p, tau_b, W)."""
-    return 2 * n + 3
+    """Return the size of the state before its slots: (q, q̇, F_p, tau_b, W, s_m)."""
+    return 2 * n + 4
 
 
 def slot(n: int, j: int) -> slice:

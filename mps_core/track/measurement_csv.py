@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TextIO
 
@@ -48,9 +48,12 @@ def write_measurements(
 
 
 def read_measurements(
-    path: str | Path, variances: dict[str, float]
+    path: str | Path, variances: dict[str, float | Callable[[float], float]]
 ) -> tuple[list[Measurement], list[ModeSignal]]:
-    """Read a measurements CSV; ``variances``: kind → variance of its measurements."""
+    """Read a measurements CSV.
+
+    ``variances``: kind → the variance of its measurements, a number or a function of the
+    reading (a sensor whose noise is a share of what it reads)."""
     by_column = {v: k for k, v in COLUMNS.items() if k not in ("t", "mode")}
     out: list[Measurement] = []
     modes: list[ModeSignal] = []
@@ -70,7 +73,10 @@ def read_measurements(
                 cell = (row.get(column) or "").strip()
                 if cell:
                     value = _number(cell, f"{path}:{line}: {column}")
-                    out.append(Measurement(t, kind, value, variances[kind]))
+                    variance = variances[kind]
+                    if callable(variance):
+                        variance = variance(value)
+                    out.append(Measurement(t, kind, value, variance))
             mode = (row.get("mode") or "").strip()
             if mode:
                 if mode not in MODE_COMMANDS:

@@ -26,6 +26,7 @@ __all__ = [
     "Measurement",
     "MeasurementError",
     "ModeSignal",
+    "TorqueSensor",
 ]
 
 #: the measured quantities by name, with their units
@@ -121,3 +122,20 @@ class Encoder:
     def measurement(self, t: float, count: int | float) -> Measurement:
         """Return the crank-angle measurement of a count at stamp ``t``."""
         return Measurement(float(t), "crank_angle", self.angle(count), self.variance)
+
+
+@dataclass(frozen=True)
+class TorqueSensor:
+    """The motor's torque as a drive reports it (from the motor's current through its torque
+    constant): a noise of ``relative`` of the reading's magnitude, of 1 N·m's where the reading
+    is smaller (a current sensor's accuracy is a share of what it reads)."""
+
+    relative: float = 0.02
+
+    def sigma(self, torque: float) -> float:
+        """Return the 1-σ (N·m) of a reading of ``torque`` (N·m)."""
+        return self.relative * max(abs(torque), 1.0)
+
+    def variance(self, torque: float) -> float:
+        """Return the variance (N·m²) of a reading of ``torque`` (N·m)."""
+        return self.sigma(torque) ** 2

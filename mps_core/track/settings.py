@@ -40,6 +40,10 @@ class TrackSettings:
     states (a fixed-lag smoother: the force over a step shows in the crank only at the next
     samples, so the force ``force_lag`` steps back is known far better than the present one).
     ``prediction``: one of :data:`PREDICTIONS` (docs/tracking.md: how they compare).
+    ``motor_scale_sigma``: the 1-σ of how far the motor's torque may be off its catalogue's
+    characteristic, as a share of it (0.05: 5 %), taken where the motor's torque is first
+    measured; ``motor_scale_walk``: how fast that share may drift (per √s; the motor warming,
+    its supply).
     Without mode signals the structure follows a slider scale: engaged where the slider is
     measured ``engage_drop`` (m) below its top stop while held there, disengaged where the
     crank-slider misses the slider's position (an outlier) ``disengage_misses`` times running.
@@ -59,6 +63,8 @@ class TrackSettings:
     prediction: str = "jacobian"
     initial_force_sigma: float = 500.0
     initial_torque_sigma: float = 5.0
+    motor_scale_sigma: float = 0.05
+    motor_scale_walk: float = 0.001
 
     def __post_init__(self) -> None:
         for name in (
@@ -70,6 +76,8 @@ class TrackSettings:
             "timeout",
             "initial_force_sigma",
             "initial_torque_sigma",
+            "motor_scale_sigma",
+            "motor_scale_walk",
         ):
             v = getattr(self, name)
             if not (isinstance(v, float | int) and v > 0.0 and math.isfinite(v)):

@@ -4,9 +4,13 @@
 (n = 1 in ``held`` and ``locked``, 2 in ``free``), augmented with the unknown inputs
 (:mod:`mps_core.track.unknown_inputs`): the process force F_p on the slider and the load torque
 tau_b on the crank, both random walks, and the work W the punch has done in the stroke under way
-(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre): (q, q̇, F_p, tau_b, W), 2n + 3
-numbers, followed by the fixed-lag smoother's slots (:mod:`mps_core.track.lags`): the state and
-the force of each of the last ``force_lag`` steps.
+(an integrator, dW/dt = −F_p·ẋ_C, reset at each top dead centre), and how far the motor's
+torque is off its catalogue's characteristic as a share of it, s_m (a random walk, where the
+motor's torque is measured: a motor torque measurement is (1 + s_m) times the catalogue's torque
+at the crank's rate; no variance until the first such measurement comes, so that a tracker
+without one is the filter it was; the drive's torque in the model stays the catalogue's, its
+difference in tau_b): (q, q̇, F_p, tau_b, W, s_m), 2n + 4 numbers, followed by the fixed-lag smoother's slots
+(:mod:`mps_core.track.lags`): the state and the force of each of the last ``force_lag`` steps.
 
 **Prediction.** The mean goes through the model's own run (:class:`~mps_core.run.simulation.
 Simulation` of the nominal scene, without its process load and its commands, with the unknown
@@ -92,6 +96,10 @@ class Estimate:
     force_smoothed: float
     force_smoothed_sigma: float
     t_force_smoothed: float
+    #: how far the motor's torque is off its catalogue, a share of it (0 with no variance until
+    #: the motor's torque is measured)
+    motor_scale: float = 0.0
+    motor_scale_sigma: float = 0.0
 
 
 class Tracker:
@@ -149,14 +157,14 @@ class Tracker:
         s = self.settings
         e = self.sim.solver.current
         lag = s.force_lag
-        self.x = np.concatenate([e.q, e.qd, np.zeros(3)])
+        self.x = np.concatenate([e.q, e.qd, np.zeros(4)])
         scales = np.asarray(self.sim.view.scales, dtype=float)
         self.P = np.diag(
             np.concatenate(
                 [
                     (sigma[0] * scales) ** 2,
                     (sigma[1] * scales) ** 2,
-                    [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0],
+                    [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0, 0.0],
                 ]
             )
         )
@@ -173,6 +181,9 @@ class Tracker:
         self.force_prior_variance = 0.0
         #: whether the press gives mode signals (else the structure follows the measurements)
         self.signalled = False
+        #: whether the motor's torque has been measured (its share off the catalogue, s_m, a
+        #: state since)
+        self.motor_measured = False
         #: the commands inferred from the measurements, by name
         self.inferred: Counter[str] = Counter()
         #: the times the crank was acquired again, off the model by more than the gate
@@ -279,6 +290,8 @@ class Tracker:
             force_smoothed=float(self.x[j]),
             force_smoothed_sigma=_sd(P[j, j]),
             t_force_smoothed=t_smoothed,
+            motor_scale=float(self.x[i + 3]),
+            motor_scale_sigma=_sd(P[i + 3, i + 3]),
         )
 
     def physical_covariance(self) -> np.ndarray:
@@ -321,7 +334,7 @@ class Tracker:
             self.rejected["mode"] += 1
             return False
         e1 = sim.solver.current
-        x = np.concatenate([e1.q, e1.qd, self.x[2 * n0 : 2 * n0 + 3]])
+        x = np.concatenate([e1.q, e1.qd, self.x[2 * n0 : lags.core_size(n0)]])
         if sim.view is not e0.view:
             self.x, self.P = self._carry(x, self.P, e0, e1, structure0 != sim.structure)
         else:
@@ -476,15 +489,15 @@ class Tracker:
             self.fallbacks += 1
         n = view0.n
         J, x_C0 = self._jacobian(e0)
-        Phi = self._step_map(J * dt)
+        Phi = self._step_map(J * dt, n)
         P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
-        F, tau, W = self.x[2 * n : 2 * n + 3]
+        F, tau, W, b = self.x[2 * n : 2 * n + 4]
         lagged = lags.shifted(self.x, n, self.settings.force_lag)
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
-        x = np.concatenate([e1.q, e1.qd, [F, tau, W], lagged])
+        x = np.concatenate([e1.q, e1.qd, [F, tau, W, b], lagged])
         if sim.view is not view0:
             x, P = self._carry(x, P, e0, e1, structure0 != sim.structure)
         self.finish_step(t0, e0, structure0, x, P)
@@ -502,23 +515,24 @@ class Tracker:
             self._hold_force()
         self._follow_strokes()
 
-    def _step_map(self, Adt: np.ndarray) -> np.ndarray:
-        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W): exp to second order,
-        and the slots shifted (:mod:`~mps_core.track.lags`)."""
+    def _step_map(self, Adt: np.ndarray, n: int) -> np.ndarray:
+        """Return Φ of the whole state from J·Δt of (q, q̇, F_p, tau_b, W, s_m) in a chart view
+        of n coordinates: exp to second order, and the slots shifted
+        (:mod:`~mps_core.track.lags`)."""
         k = Adt.shape[0]
         m = len(self.x)
         Phi = np.zeros((m, m))
         Phi[:k, :k] = np.eye(k) + Adt + 0.5 * (Adt @ Adt)
-        lags.step_rows(Phi, (k - 3) // 2, self.settings.force_lag)
+        lags.step_rows(Phi, n, self.settings.force_lag)
         return Phi
 
     def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
-        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ) at the run's evaluation
+        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ, ḃ_m) at the run's evaluation
         ``e`` (its A and analogs exact; ∂q̈/∂q, ∂q̈/∂q̇ by forward differences from its q̈),
         and x_C there."""
         view, t = e.view, e.t
         n = view.n
-        m = 2 * n + 3
+        m = lags.core_size(n)
         J = np.zeros((m, m))
         J[:n, n : 2 * n] = np.eye(n)
         ql, vl = e.q.tolist(), e.qd.tolist()
@@ -565,6 +579,8 @@ class Tracker:
         if structure == "locked":
             Q[2 * n, 2 * n] = s.force_walk**2 * dt
         Q[2 * n + 1, 2 * n + 1] = s.torque_walk**2 * dt
+        if self.motor_measured:
+            Q[2 * n + 3, 2 * n + 3] = s.motor_scale_walk**2 * dt
         return Q
 
     def _carry(
@@ -584,7 +600,8 @@ class Tracker:
         return lags.restart(x[:k1], P1, n1, self.settings.force_lag)
 
     def _physical_map(self, e: Any) -> np.ndarray:
-        """Return the map from a chart view's (q, q̇, F, τ, W) to (φ, ψ, x_C/l1, rates, F, τ, W)."""
+        """Return the map from a chart view's (q, q̇, F, τ, W, s_m) to (φ, ψ, x_C/l1, rates, F, τ,
+        W, s_m)."""
         n = e.view.n
         kin = e.kin
         scale = float(self.sim.mechanism.geometry.l1)
@@ -592,10 +609,10 @@ class Tracker:
             [kin.omega("crank"), kin.omega("rocker"), [v / scale for v in kin.jac("C")[0]]],
             dtype=float,
         )
-        T = np.zeros((9, 2 * n + 3))
+        T = np.zeros((10, lags.core_size(n)))
         T[:3, :n] = G
         T[3:6, n : 2 * n] = G
-        T[6:, 2 * n :] = np.eye(3)
+        T[6:, 2 * n :] = np.eye(4)
         return T
 
     def _prediction(self, kind: str) -> tuple[float, np.ndarray]:
@@ -618,11 +635,16 @@ class Tracker:
             raise MeasurementError("kind", kind, "a scene with a motor for motor_torque measurements")
         d = 1e-4 * (1.0 + abs(rate))
         slope = (motor.torque(rate + d) - motor.torque(rate - d)) / (2.0 * d)
-        H[n : 2 * n] = slope * np.asarray(kin.omega("crank"), dtype=float)
-        return float(motor.torque(rate)), H
+        scale = 1.0 + float(self.x[2 * n + 3])  # the motor off its catalogue
+        catalogue = float(motor.torque(rate))
+        H[n : 2 * n] = scale * slope * np.asarray(kin.omega("crank"), dtype=float)
+        H[2 * n + 3] = catalogue
+        return scale * catalogue, H
 
     def _correct(self, m: Measurement) -> bool:
         """Correct the estimate with ``m`` (gated); return whether it was taken."""
+        if m.kind == "motor_torque" and not self.motor_measured:
+            self._measure_motor()
         value, H = self._prediction(m.kind)
         z = m.value
         if m.kind == "crank_angle":
@@ -654,6 +676,14 @@ class Tracker:
         self.innovations.append((m.t + self.origin, m.kind, nis))
         self._follow_strokes()
         return True
+
+    def _measure_motor(self) -> None:
+        """Make the motor's share off its catalogue, s_m, a state from now on, the motor's torque
+        measured for the first time (the prior of ``motor_scale_sigma``; none before: no
+        variance moved there)."""
+        self.motor_measured = True
+        b = 2 * self.n + 3
+        self.P[b, b] = self.settings.motor_scale_sigma**2
 
     def _take(self, x: np.ndarray) -> bool:
         """Restart the model's run at state x; False (the run as it was) where x has no

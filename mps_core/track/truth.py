@@ -26,7 +26,7 @@ import numpy as np
 from ..dynamics.reactions import compute_reactions
 from ..run.simulation import Simulation
 from ..scene.scene import EffectSpec
-from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal, TorqueSensor
 
 if TYPE_CHECKING:
     from ..scene import Scene
@@ -108,7 +108,7 @@ class Fault:
 class Sensors:
     """The press's sensors: the crank encoder at ``rate`` Hz with sampling jitter of up to
     ``jitter`` s either side; optional slider scale (resolution and noise, m) and motor torque
-    (relative noise)."""
+    (:class:`~mps_core.track.measurements.TorqueSensor`)."""
 
     encoder: Encoder = field(default_factory=Encoder)
     rate: float = 1000.0
@@ -117,7 +117,7 @@ class Sensors:
     slider_resolution: float = 1e-6
     slider_noise: float = 1e-6
     motor_torque: bool = False
-    motor_torque_noise: float = 0.02
+    torque_sensor: TorqueSensor = field(default_factory=TorqueSensor)
 
     def __post_init__(self) -> None:
         if not (self.rate > 0.0 and math.isfinite(self.rate)):
@@ -319,7 +319,7 @@ def _read(sensors: Sensors, enc: Encoder, row: tuple, rng: np.random.Generator, 
         motor = next((e for e in sim.effects if e.kind == "motor"), None)
         if motor is not None:
             m = motor.torque(phi_dot)
-            sd = sensors.motor_torque_noise * max(abs(m), 1.0)
+            sd = sensors.torque_sensor.sigma(m)
             out.append(Measurement(t, "motor_torque", m + float(rng.normal(0.0, sd)), sd**2))
     return out
 

@@ -15,7 +15,7 @@ from mps_core import load_scene
 from mps_core.track import Fault, Measurement, MeasurementError, Tracker, run_truth, truth_scene
 from mps_core.track.diagnostics import DiagnosticSettings, TrackingMonitor
 from mps_core.track.strokes import StrokeTable
-from mps_core.track.truth import with_blanking
+from mps_core.track.truth import Sensors, TruthChanges, with_blanking
 
 #: one crank revolution at the presets' rated crank speed (43.5 rad/s), s
 REVOLUTION = 2.0 * math.pi / 43.5
@@ -25,10 +25,10 @@ def _working():
     return with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
 
 
-def _watched(nominal, t_end, faults=(), seed=0):
+def _watched(nominal, t_end, faults=(), seed=0, sensors=None, tracker=None):
     """Follow the truth of ``nominal`` with faults; return the monitor's status changes."""
-    truth = run_truth(truth_scene(nominal), t_end, seed=seed, faults=tuple(faults))
-    tracker, monitor = Tracker(nominal), TrackingMonitor()
+    truth = run_truth(truth_scene(nominal), t_end, seed=seed, faults=tuple(faults), sensors=sensors)
+    tracker, monitor = tracker or Tracker(nominal), TrackingMonitor()
     modes = sorted(truth.modes, key=lambda s: s.t)
     for m in truth.measurements:
         while modes and modes[0].t <= m.t:
@@ -49,6 +49,25 @@ def test_a_healthy_run_is_ok_throughout():
     """Four strokes of the working press, another part than the model's: no WARN, no ERROR."""
     events = _watched(_working(), 0.6, seed=0)
     assert [e.level for e in events] == ["OK"]
+
+
+def test_a_healthy_run_with_the_motors_torque_is_ok_and_finds_the_motor_off_its_catalogue():
+    """The motor's torque measured too (2 % of its reading): the motor 3 % under its catalogue
+    is a share the tracker estimates (a state from the first torque measured), no WARN for
+    it; without the torque measured that state never moves."""
+    nominal = _working()
+    tracker = Tracker(nominal)
+    events = _watched(nominal, 0.45, seed=2, sensors=Sensors(motor_torque=True), tracker=tracker)
+    assert [e.level for e in events] == ["OK"]
+    assert tracker.motor_measured
+    est = tracker.estimate()
+    truth = TruthChanges().motor_torque - 1.0  # -0.03
+    assert abs(est.motor_scale - truth) <= 4.0 * est.motor_scale_sigma  # measured: -2.99 ± 0.12 %
+    assert 0.0 < est.motor_scale_sigma < 0.005
+    plain = Tracker(nominal)
+    _watched(nominal, 0.1, seed=2, tracker=plain)
+    assert not plain.motor_measured
+    assert (plain.estimate().motor_scale, plain.estimate().motor_scale_sigma) == (0.0, 0.0)
 
 
 def test_a_healthy_press_cycle_is_ok_throughout():

@@ -119,7 +119,7 @@ def test_without_the_smoother_the_present_force_is_the_stroke_peak(stream):
         for tracker in (plain, smoothed):
             tracker.update(m)
             tracker.observe_stroke()
-    assert len(plain.x) == 5 and len(smoothed.x) == 5 + 2 * 3
+    assert len(plain.x) == 6 and len(smoothed.x) == 6 + 2 * 3  # (q, q̇, F_p, tau_b, W, s_m), slots
     a, b = plain.strokes.current, smoothed.strokes.current  # the first stroke, its pulse past
     assert a.peak_force > 20e3 and b.peak_force > 20e3
     assert a.peak_force_sigma > 5.0 * b.peak_force_sigma
