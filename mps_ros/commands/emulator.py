@@ -1,6 +1,7 @@
 """``mps emulator``: a press to follow on ROS, its sensors' readings published from a truth scene.
 
-    mps emulator SCENE [--t-end S] [--seed N] [--slider] [--fault T:KIND ...] [--glitch T:KIND ...]
+    mps emulator SCENE [--t-end S] [--seed N] [--slider] [--motor-torque] [--fault T:KIND ...]
+                       [--glitch T:KIND ...]
                        [--topic /press/joint_states] [--mode-topic /press/mode]
                        [--real-time-factor F] [--subscribers N] [--wait S]
 
@@ -28,6 +29,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("--t-end", type=float, default=1.0, metavar="S", help="seconds of the press (1.0)")
     p.add_argument("--seed", type=int, default=0, help="the noise's and the jitter's seed")
     p.add_argument("--slider", action="store_true", help="a linear scale on the slider too (joint slider)")
+    p.add_argument(
+        "--motor-torque",
+        action="store_true",
+        help="the motor's torque on the crank too (the crank's effort, N*m; 2 %% of its reading)",
+    )
     p.add_argument(
         "--fault",
         action="append",
@@ -113,7 +119,11 @@ def _emulator(args: argparse.Namespace) -> int:
     import rclpy
 
     truth = run_truth(
-        truth_scene(nominal), args.t_end, sensors=Sensors(slider=args.slider), faults=faults, seed=args.seed
+        truth_scene(nominal),
+        args.t_end,
+        sensors=Sensors(slider=args.slider, motor_torque=args.motor_torque),
+        faults=faults,
+        seed=args.seed,
     )
     stream = mod.samples(truth.measurements)
     say(f"emulator: the truth of {nominal.name} run to {args.t_end:g} s: {len(stream)} samples")

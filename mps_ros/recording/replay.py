@@ -259,8 +259,9 @@ def string_data(data: bytes) -> str:
     return _string(data)
 
 
-def joint_state_positions(data: bytes) -> tuple[int, int, list[str], list[float]]:
-    """Return a CDR ``sensor_msgs/JointState``'s stamp (sec, nanosec), joint names and positions.
+def joint_state_readings(data: bytes) -> tuple[int, int, list[str], list[float], list[float]]:
+    """Return a CDR ``sensor_msgs/JointState``'s stamp (sec, nanosec), joint names, positions
+    and efforts (the velocities skipped).
 
     A message cut short or not plain CDR raises ValueError (or struct.error).
     """
@@ -270,7 +271,11 @@ def joint_state_positions(data: bytes) -> tuple[int, int, list[str], list[float]
     names = [c.string() for _ in range(c.u32())]
     n = c.u32()
     off = c.doubles(n)
-    return sec, nanosec, names, list(struct.unpack_from(f"{c.e}{n}d", data, off))
+    positions = list(struct.unpack_from(f"{c.e}{n}d", data, off))
+    c.doubles(c.u32())  # the velocities
+    m = c.u32()
+    off = c.doubles(m)
+    return sec, nanosec, names, positions, list(struct.unpack_from(f"{c.e}{m}d", data, off))
 
 
 # -- reading the file -------------------------------------------------------------------------
@@ -704,7 +709,7 @@ __all__ = [
     "Replay",
     "ReplayError",
     "TopicMessages",
-    "joint_state_positions",
+    "joint_state_readings",
     "read_recording",
     "read_topics",
     "string_data",

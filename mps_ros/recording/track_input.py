@@ -18,11 +18,11 @@ import struct
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from mps_core.track.measurements import MODE_COMMANDS, Measurement, MeasurementError, ModeSignal
+from mps_core.track.measurements import MODE_COMMANDS, Measurement, MeasurementError, ModeSignal, TorqueSensor
 
-from ..wire.measured import CRANK, crank_and_slider, ns_seconds, stamp_seconds
+from ..wire.measured import CRANK, crank_and_slider, crank_torque, ns_seconds, stamp_seconds
 from .mcap_writer import ENCODING_CDR
-from .replay import TopicMessages, joint_state_positions, read_topics, string_data
+from .replay import TopicMessages, joint_state_readings, read_topics, string_data
 
 if TYPE_CHECKING:
     from mps_core.track.recording_input import Input, RecordedTopics
@@ -81,10 +81,10 @@ def _check_topics(got: TopicMessages, wanted: list[tuple[str, str, str, bool]]) 
 def _measurements(
     path: Path, topic: str, k: int, t_ns: int, data: bytes, variances: dict[str, float]
 ) -> list[Measurement]:
-    """Return the crank angle (and the slider's position) of the ``k``-th JointState message."""
+    """Return the crank angle (the slider's position, the motor's torque) of the ``k``-th JointState."""
     where = f"{path}: {topic}: message {k} (log time {t_ns} ns)"
     try:
-        sec, nanosec, names, positions = joint_state_positions(data)
+        sec, nanosec, names, positions, efforts = joint_state_readings(data)
     except (ValueError, struct.error) as exc:
         raise MeasurementError(
             f"{where}: the message", f"{len(data)} bytes", f"a CDR {JOINT_STATE} ({exc})"
@@ -100,6 +100,9 @@ def _measurements(
     out = [Measurement(t, "crank_angle", angle, variances["crank_angle"])]
     if slider is not None:
         out.append(Measurement(t, "slider_position", slider, variances["slider_position"]))
+    torque = crank_torque(names, efforts)
+    if torque is not None:
+        out.append(Measurement(t, "motor_torque", torque, TorqueSensor().variance(torque)))
     return out
 
 

@@ -5,9 +5,10 @@ The ROS node ``press_emulator`` (``mps emulator SCENE``): the truth of SCENE
 first (:func:`mps_core.track.run_truth`, faults injected at their times), then its sensors'
 readings are published as a real press's would be: the crank encoder (17 bits, 1 kHz, stamp
 jitter) as ``sensor_msgs/JointState`` (joint ``crank``, the count's centre in radians; with the
-slider scale, joint ``slider`` in m), stamped with the measurement's time, each at that time
-after the start on the wall clock; the controller's mode signals (``engage``, ``disengage``) as
-``std_msgs/String`` before the first measurement at or after their time. Glitches can be put
+slider scale, joint ``slider`` in m; with the motor's torque, the crank's effort in N·m), stamped
+with the measurement's time, each at that time after the start on the wall clock; the
+controller's mode signals (``engage``, ``disengage``) as ``std_msgs/String`` before the first
+measurement at or after their time. Glitches can be put
 into the stream (``jump``: the crank read 20° off; ``duplicate``: a message sent twice;
 ``out-of-order``: a message stamped before the one sent before it) to see a follower reject
 them. It starts once its measurements' topic has as many subscribers as asked.
@@ -47,11 +48,15 @@ class Glitch:
 
 @dataclass(frozen=True)
 class Samples:
-    """One sampling instant: its stamp (s), the crank angle (rad), the slider's position (m) or None."""
+    """One sampling instant: stamp (s), crank angle (rad), slider position (m), motor torque (N·m).
+
+    The slider's and the torque are None where not measured.
+    """
 
     t: float
     angle: float
     slider: float | None
+    torque: float | None = None
 
 
 def samples(measurements: list[Measurement]) -> list[Samples]:
@@ -63,7 +68,7 @@ def samples(measurements: list[Measurement]) -> list[Samples]:
     for t in sorted(by_t):
         v = by_t[t]
         if "crank_angle" in v:
-            out.append(Samples(t, v["crank_angle"], v.get("slider_position")))
+            out.append(Samples(t, v["crank_angle"], v.get("slider_position"), v.get("motor_torque")))
     return out
 
 
@@ -82,6 +87,8 @@ def _joint_state(s: Samples, t: float | None = None, angle: float | None = None)
     msg.position = [float(s.angle if angle is None else angle)] + (
         [float(s.slider)] if s.slider is not None else []
     )
+    if s.torque is not None:  # the crank's; none for the slider
+        msg.effort = [float(s.torque)] + ([math.nan] if s.slider is not None else [])
     return msg
 
 

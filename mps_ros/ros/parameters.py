@@ -313,6 +313,14 @@ PARAMETERS: tuple[Parameter, ...] = (
         hi=1e3,
     ),
     P(
+        "track_torque_noise",
+        0.02,
+        "following a press: the motor torque's noise as a share of its reading (1-σ; of 1 N·m's "
+        "below 1 N·m), where the crank's effort carries it",
+        lo=1e-6,
+        hi=1.0,
+    ),
+    P(
         "track_timeout",
         0.05,
         "following a press: a measurement later than this many seconds after the last one taken "
@@ -449,6 +457,7 @@ class NodeSettings:
     track_mode: str
     track_encoder_bits: int
     track_encoder_noise: float
+    track_torque_noise: float
     track_timeout: float
     track_max_jump: float
     track_max_behind: float

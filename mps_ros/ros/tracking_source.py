@@ -27,11 +27,11 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from mps_core.track import Encoder, TrackSettings
+from mps_core.track import Encoder, TorqueSensor, TrackSettings
 
-from ..recording.replay import joint_state_positions
+from ..recording.replay import joint_state_readings
 from ..run.tracking import TrackingRun
-from ..wire.measured import crank_and_slider, stamp_seconds
+from ..wire.measured import crank_and_slider, crank_torque, stamp_seconds
 from ..wire.track_topics import RECEIVED_JOINTS, RECEIVED_MODE, TRACKING_TOPICS
 from .endpoints import MSG_CLASSES
 
@@ -93,6 +93,7 @@ def tracking_run(node: Any) -> TrackingRun:
         outputs=st.outputs,
         settings=settings,
         encoder=Encoder(bits=st.track_encoder_bits, noise_counts=st.track_encoder_noise),
+        torque_sensor=TorqueSensor(relative=st.track_torque_noise),
         sigma_every=st.track_sigma_every,
         max_behind=st.track_max_behind,
         timeout=st.track_timeout,
@@ -204,16 +205,17 @@ class TrackingSource:
                 self.run.request_stop("the measurements' thread failed")
 
     def on_measurement(self, data: bytes, info: dict) -> None:
-        """Take one JointState's bytes: its stamp, the crank angle and the slider's position."""
+        """Take one JointState's bytes: stamp, crank angle, slider position, motor torque."""
         arrival, sent = _times(info)
         raw = bytes(data)
         try:  # read as mps track --recording reads it (4 µs, rclpy's deserialisation 16)
-            sec, nanosec, names, positions = joint_state_positions(raw)
+            sec, nanosec, names, positions, efforts = joint_state_readings(raw)
         except (ValueError, struct.error):
             self.run.measurement(math.nan, None, None, raw, arrival, sent)  # counted as malformed
             return
         angle, slider = crank_and_slider(names, positions)
-        self.run.measurement(stamp_seconds(sec, nanosec), angle, slider, raw, arrival, sent)
+        torque = crank_torque(names, efforts)
+        self.run.measurement(stamp_seconds(sec, nanosec), angle, slider, raw, arrival, sent, torque)
 
     def on_mode(self, data: bytes, info: dict) -> None:
         """Take one mode signal's bytes."""

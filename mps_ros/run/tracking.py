@@ -38,6 +38,7 @@ from mps_core.track import (
     Measurement,
     MeasurementError,
     ModeSignal,
+    TorqueSensor,
     Tracker,
     TrackSettings,
 )
@@ -147,7 +148,8 @@ class TrackingRun:
 
     ``scene``: the nominal press (:func:`nominal_scene` is applied). ``outputs``: what of
     :data:`~mps_ros.wire.topics.OUTPUTS` goes out at each measurement taken. ``encoder``: the
-    crank encoder (its variance is the angle's); ``slider_variance``: the slider scale's (m²).
+    crank encoder (its variance is the angle's); ``slider_variance``: the slider scale's (m²);
+    ``torque_sensor``: the motor torque's (where the measurements carry it).
     ``sigma_every``: the loads' 1-σ (``KEY/sigma``) computed and published every this many
     estimates (they cost 2n more evaluations and 2n + 3 reaction solves each: a stated decimation where the
     machine cannot keep up). ``timeout``: wall seconds without a measurement reported as a
@@ -171,6 +173,7 @@ class TrackingRun:
         settings: TrackSettings | None = None,
         encoder: Encoder | None = None,
         slider_variance: float = 1e-12 + 1e-12 / 12.0,
+        torque_sensor: TorqueSensor | None = None,
         sigma_every: int = 1,
         timeout: float = 0.05,
         late_after: float = LATE,
@@ -194,6 +197,7 @@ class TrackingRun:
         self.monitor = TrackingMonitor()
         self.encoder = encoder or Encoder()
         self.slider_variance = float(slider_variance)
+        self.torque_sensor = torque_sensor or TorqueSensor()
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -337,13 +341,15 @@ class TrackingRun:
         raw: bytes,
         arrival: float,
         sent: float | None = None,
+        torque: float | None = None,
     ) -> bool:
         """Take one measurement message: record it, update the tracker at stamp ``t``, publish the estimate.
 
         ``angle``: the crank angle (rad; None: the message has none, rejected as
         ``malformed``), ``slider``: the slider's position (m) or None; ``raw``: the message's
         bytes as received; ``arrival``: when it came (``clock``), ``sent``: when its publisher
-        sent it (``clock``; None: ``arrival``). Return whether the tracker took it.
+        sent it (``clock``; None: ``arrival``); ``torque``: the motor's torque on the crank (N·m)
+        or None. Return whether the tracker took it.
         """
         cpu0 = time.thread_time()
         if not self._process_cpu:
@@ -362,6 +368,8 @@ class TrackingRun:
             ms = [Measurement(t, "crank_angle", float(angle), self.encoder.variance)]
             if slider is not None:
                 ms.append(Measurement(t, "slider_position", float(slider), self.slider_variance))
+            if torque is not None:
+                ms.append(Measurement(t, "motor_torque", float(torque), self.torque_sensor.variance(torque)))
             tr = self.tracker
             taken = False
             for m in ms:

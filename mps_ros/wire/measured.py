@@ -3,9 +3,10 @@
 A press's encoders come as a ``sensor_msgs/JointState`` (ros2_control's joint_state_broadcaster):
 the crank angle in radians is the position of the joint named :data:`CRANK`, or the only
 position of a message that names no joint; the slider's position (m) is the joint
-:data:`SLIDER`'s, where it has one. The measurement's time is the header's stamp, in seconds as
-``sec + nanosec·10⁻⁹``, and a time a recording keeps in nanoseconds (a mode signal's log time)
-is read the same way (:func:`ns_seconds`). The node following a press
+:data:`SLIDER`'s, where it has one; the motor's torque on the crank (N·m, from its current) is
+the crank's effort, where the message has one (a NaN effort: none). The measurement's time is
+the header's stamp, in seconds as ``sec + nanosec·10⁻⁹``, and a time a recording keeps in
+nanoseconds (a mode signal's log time) is read the same way (:func:`ns_seconds`). The node following a press
 (:mod:`mps_ros.ros.tracking_source`, the message from rclpy) and ``mps track`` over a recording
 (:mod:`mps_ros.recording.track_input`, the message from its CDR bytes) both read it here, so the
 tracker gets the same numbers from either.
@@ -13,9 +14,10 @@ tracker gets the same numbers from either.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
-__all__ = ["CRANK", "SLIDER", "crank_and_slider", "ns_seconds", "stamp_seconds"]
+__all__ = ["CRANK", "SLIDER", "crank_and_slider", "crank_torque", "ns_seconds", "stamp_seconds"]
 
 #: the joint whose position is the crank angle (rad)
 CRANK = "crank"
@@ -49,3 +51,18 @@ def crank_and_slider(names: Sequence[str], positions: Sequence[float]) -> tuple[
     if SLIDER in names and names.index(SLIDER) < len(positions):
         slider = float(positions[names.index(SLIDER)])
     return angle, slider
+
+
+def crank_torque(names: Sequence[str], efforts: Sequence[float]) -> float | None:
+    """Return the motor's torque on the crank of a JointState's names and efforts.
+
+    The joint :data:`CRANK`'s effort, or the only effort of a message without names; None where
+    it carries none (or NaN: a message with efforts for some joints only).
+    """
+    names = list(names)
+    torque = None
+    if CRANK in names and names.index(CRANK) < len(efforts):
+        torque = float(efforts[names.index(CRANK)])
+    elif len(efforts) == 1 and not names:
+        torque = float(efforts[0])
+    return None if torque is None or math.isnan(torque) else torque

@@ -38,32 +38,36 @@ def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
-def _joints(t: float, angle: float, slider: float | None) -> bytes:
-    """Return a press's JointState bytes, as the emulator publishes them."""
+def _joints(t: float, angle: float, slider: float | None, torque: float | None = None) -> bytes:
+    """Return a press's JointState bytes, as the emulator publishes them (the motor's torque the
+    crank's effort, where measured)."""
     ns = _ns(t)
+    effort = [] if torque is None else [torque] + ([math.nan] if slider is not None else [])
     return joint_state(
         {
             "header": {"stamp": {"sec": ns // 10**9, "nanosec": ns % 10**9}, "frame_id": "press"},
             "name": ["crank"] + (["slider"] if slider is not None else []),
             "position": [angle] + ([slider] if slider is not None else []),
             "velocity": [],
-            "effort": [],
+            "effort": effort,
         }
     )
 
 
-def follow(tmp: Path, clock_ns: int = 0) -> tuple[TrackingRun, list[Path]]:
+def follow(tmp: Path, clock_ns: int = 0, torque: bool = False) -> tuple[TrackingRun, list[Path]]:
     """Follow the emulated press with the node's source and run; record it as a file and a bag.
 
     Each message goes to the node ``clock_ns`` after its stamp on the middleware's clock (its
     source timestamp); a mode signal before the first measurement at or after its time, as
-    the emulator sends them. Return the run and the recordings.
+    the emulator sends them; ``torque``: the motor's torque measured too. Return the run and
+    the recordings.
     """
     from mps_ros.ros.emulator import samples
     from mps_ros.ros.tracking_source import TrackingSource
 
     nominal = nominal_scene(load_scene(SCENE))
-    truth = run_truth(truth_scene(nominal), T_END, sensors=Sensors(slider=True), seed=0)
+    sensors = Sensors(slider=True, motor_torque=torque)
+    truth = run_truth(truth_scene(nominal), T_END, sensors=sensors, seed=0)
     paths = [tmp / "node.mcap", tmp / "node-bag"]
     recorders = [Recorder(p, scene_name=nominal.name, scene_text=nominal.text) for p in paths]
     names = {RECEIVED_JOINTS.key: "/press/joint_states", RECEIVED_MODE.key: "/press/mode"}
@@ -79,9 +83,9 @@ def follow(tmp: Path, clock_ns: int = 0) -> tuple[TrackingRun, list[Path]]:
             source.on_mode(string({"data": m.command}), {"source_timestamp": clock_ns + _ns(m.t) + 12_345})
         glitch = GLITCHES.get(i)
         angle = s.angle + math.radians(20.0) if glitch == "jump" else s.angle
-        source.on_measurement(_joints(s.t, angle, s.slider), info)
+        source.on_measurement(_joints(s.t, angle, s.slider, s.torque), info)
         if glitch == "duplicate":
-            source.on_measurement(_joints(s.t, angle, s.slider), info)
+            source.on_measurement(_joints(s.t, angle, s.slider, s.torque), info)
         if glitch == "out-of-order" and prev is not None:
             source.on_measurement(_joints(0.5 * (prev.t + s.t), prev.angle, prev.slider), info)
         prev = s
@@ -122,6 +126,18 @@ def test_without_its_mode_signals_the_engage_is_found_later(followed, tmp_path, 
     capsys.readouterr()
     # the signal at 8 ms; without it, from the slider scale (docs/tracking.md: a few ms later)
     assert 0.008 < engaged["signalled"] < 0.0095 < engaged["inferred"]
+
+
+def test_the_motor_s_torque_is_taken_live_and_offline_alike(tmp_path, capsys):
+    """The crank's effort, the motor's torque: the node takes it as a third measurement, and
+    ``mps track`` over the node's recording gives its live estimates bit for bit."""
+    run, (mcap, _bag) = follow(tmp_path / "torque", torque=True)
+    assert run.tracker.motor_measured
+    node = node_estimates(mcap)
+    offline = tracked(SCENE, mcap, tmp_path / "est.csv")
+    said = capsys.readouterr().out
+    assert "595 taken" in said and "the motor's torque: " in said, said
+    assert all(offline[t] == est for t, est in node.items())
 
 
 def test_the_slider_s_variance_is_the_node_s():
