@@ -246,8 +246,15 @@ def test_a_foxglove_client_gets_what_the_node_records(js_client, tmp_path):
     # the run went on unharmed (the node ended 0, the Node.js client got every message)
     assert raw.error is None and raw.got >= 3000, raw.error
     assert raw.answers and "99999" in json.dumps(raw.answers), raw.answers
-    # its dropping out: one line of the node's log at most (the SDK's, once for that client)
-    said = [line for line in node.log().splitlines() if raw.address in line]
+    # its dropping out: one line of the node's log at most (the SDK's, once for that client);
+    # a subscription sent back within the instant a channel is advertised may meet the SDK
+    # before it knows the channel ("attempted to subscribe to unknown channel", about one run
+    # in four here: the SDK's race, not the drop), a line of its own
+    said = [
+        line
+        for line in node.log().splitlines()
+        if raw.address in line and "attempted to subscribe to unknown channel" not in line
+    ]
     assert len(said) <= 1, said
     # the lifecycle's pause, two steps and resume from Foxglove: the run held, stepped, went on
     # (its recording the one above: every message, as the Node.js client got them)
