@@ -231,3 +231,22 @@ def test_a_bad_mode_signal_and_a_bad_path_are_named(tmp_path, capsys):
     assert f"--recording = '{csv_file}': expected an .mcap file or a bag directory" in capsys.readouterr().err
     assert main(["track", SCENE, "--csv", str(csv_file), "--joints-topic", "/x"]) == 2
     assert "--joints-topic = '/x': expected --recording FILE with it" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("slider", [None, 0.0123])
+def test_the_emulator_s_joint_state_carries_the_torque_as_the_node_reads_it(slider):
+    """The emulator's message (rclpy's, serialized as the middleware sends it) read by the node's
+    reader: the crank's effort is the motor's torque, the slider's NaN effort none of it."""
+    from rclpy.serialization import serialize_message
+
+    from mps_ros.recording.replay import joint_state_readings
+    from mps_ros.ros.emulator import Samples, _joint_state
+    from mps_ros.wire.measured import crank_and_slider, crank_torque
+
+    raw = serialize_message(_joint_state(Samples(0.25, 1.5, slider, 31.25)))
+    sec, nanosec, names, positions, efforts = joint_state_readings(raw)
+    assert (sec, nanosec) == (0, 250_000_000)
+    assert crank_and_slider(names, positions) == (1.5, slider)
+    assert crank_torque(names, efforts) == 31.25
+    plain = serialize_message(_joint_state(Samples(0.25, 1.5, slider)))
+    assert crank_torque(*joint_state_readings(plain)[2::2]) is None
