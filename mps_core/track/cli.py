@@ -28,7 +28,7 @@ import csv
 import math
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any, TextIO
 
 import numpy as np
@@ -245,8 +245,12 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
         )
     from .measurement_csv import read_measurements
 
-    # the crank's and the slider's as the node takes them (one press, one set of sensors)
-    variances = {**recording_variances(), "crank_rate": 1e-4, "motor_torque": TorqueSensor().variance}
+    # the crank's, the slider's and the torque's as the node takes them (one press, one set of sensors)
+    variances: dict[str, float | Callable[[float], float]] = {
+        **recording_variances(),
+        "crank_rate": 1e-4,
+        "motor_torque": TorqueSensor().variance,
+    }
     measurements, modes = read_measurements(args.csv, variances)
     return in_time_order(measurements, modes), measurements, modes
 
