@@ -132,14 +132,11 @@ def register(subparsers: Any) -> None:
 
 
 def _nominal(spec: str) -> Any:
-    """Return the nominal scene of SPEC, blanking the presets' part where it blanks none."""
+    """Return the nominal scene of SPEC (:func:`~mps_core.track.truth.nominal_scene`)."""
     from ..scene import load_scene
-    from .truth import with_blanking
+    from .truth import nominal_scene
 
-    scene = load_scene(spec)
-    if not any(e.kind == "blanking" for e in scene.effects):
-        scene = with_blanking(scene)  # the nominal part: where the punch works
-    return scene
+    return nominal_scene(load_scene(spec))
 
 
 def _faults(specs: list[str]) -> tuple:

@@ -38,6 +38,7 @@ __all__ = [
     "Sensors",
     "TruthChanges",
     "TruthRun",
+    "nominal_scene",
     "run_truth",
     "truth_scene",
     "with_blanking",
@@ -186,6 +187,14 @@ def with_blanking(scene: Scene, table: dict | None = None) -> Scene:
     kept = tuple(e for e in scene.effects if e.kind != "blanking")
     spec = EffectSpec("blanking", params)
     return replace(scene, effects=kept + (spec,))
+
+
+def nominal_scene(scene: Scene) -> Scene:
+    """Return the nominal press a tracker follows: ``scene``, blanking the presets' part where
+    it blanks none (where the punch works: the tracker's work window)."""
+    if any(e.kind == "blanking" for e in scene.effects):
+        return scene
+    return with_blanking(scene)
 
 
 def _blanking_params(raw: dict) -> dict:

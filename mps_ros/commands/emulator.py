@@ -91,9 +91,7 @@ def _emulator(args: argparse.Namespace) -> int:
     """Check the arguments, run the truth, publish its sensors' readings."""
     from mps_core import MpsError, load_scene
     from mps_core.track import Fault, Sensors, run_truth, truth_scene
-    from mps_core.track.truth import FAULTS, timed_kinds
-
-    from ..run.tracking import nominal_scene
+    from mps_core.track.truth import FAULTS, nominal_scene, timed_kinds
 
     def say(text: str) -> None:
         print(text, file=sys.stderr, flush=True)

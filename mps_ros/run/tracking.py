@@ -44,6 +44,7 @@ from mps_core.track import (
 )
 from mps_core.track.diagnostics import TrackingMonitor
 from mps_core.track.tracker import LOAD_COLUMNS
+from mps_core.track.truth import nominal_scene
 
 from ..wire import diagnostics
 from ..wire.cdr import string, wrench_stamped
@@ -64,7 +65,7 @@ from ..wire.track_topics import (
 from .commands import Inbox, shown
 from .sinks import Fanout, Message
 
-__all__ = ["TrackingRun", "nominal_scene"]
+__all__ = ["TrackingRun"]
 
 #: the reasons this run rejects an input for, besides the tracker's (``Tracker.rejected``)
 INPUT_REJECTIONS = ("malformed", "timeout")
@@ -73,15 +74,6 @@ INPUT_REJECTIONS = ("malformed", "timeout")
 LATE = 1e-3
 #: a node behind its press by more than ``max_behind`` publishes again once it is within this (s)
 CAUGHT_UP = 0.01
-
-
-def nominal_scene(scene: Scene) -> Scene:
-    """Return the nominal press a tracker follows: ``scene``, blanking the presets' part if it blanks none."""
-    from mps_core.track.truth import with_blanking
-
-    if any(e.kind == "blanking" for e in scene.effects):
-        return scene
-    return with_blanking(scene)
 
 
 def _ns(t: float) -> int:

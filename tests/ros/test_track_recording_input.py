@@ -23,9 +23,10 @@ from mps_core import load_scene
 from mps_core.cli import main
 from mps_core.track import Sensors, run_truth, truth_scene
 from mps_core.track.recording_input import SLIDER_VARIANCE
+from mps_core.track.truth import nominal_scene
 from mps_ros.recording.recorder import Recorder
 from mps_ros.run.sinks import Fanout, RecordingSink
-from mps_ros.run.tracking import TrackingRun, nominal_scene
+from mps_ros.run.tracking import TrackingRun
 from mps_ros.wire.cdr import joint_state, string
 from mps_ros.wire.track_topics import RECEIVED_JOINTS, RECEIVED_MODE
 

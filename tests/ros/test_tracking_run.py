@@ -9,8 +9,9 @@ import pytest
 
 from mps_core import load_scene
 from mps_core.track import run_truth, truth_scene
+from mps_core.track.truth import nominal_scene
 from mps_ros.run.sinks import Fanout, Sink
-from mps_ros.run.tracking import TrackingRun, nominal_scene
+from mps_ros.run.tracking import TrackingRun
 from mps_ros.wire import diagnostics
 
 
