@@ -16,7 +16,10 @@ one function ``kernel(t, q…, q̇…) -> [q̈…]``:
 * the solve, and a finiteness check.
 
 Only the effects the scene names are in the code, and only the branches of their laws taken
-at the traced point. Where a guard fails the function raises
+at the traced point. A ``live`` effect's values (an estimator's unknown inputs, changed in place
+at every measurement) are not folded in: the code reads them from the effect's list at each
+call (``_live0[k]``…, bound in the function's namespace), so such a function is its engine's
+alone (the effects' fingerprint is None). Where a guard fails the function raises
 :class:`~mps_core.derivatives.tracing.BranchChanged` (a guard of the kinematics) or
 :class:`ForceLawBranch` (one of a force law); where the result is not finite it returns None:
 the caller evaluates by the general path, which gives the answer or the error there.
@@ -107,8 +110,10 @@ def _state_of(obj) -> dict:
 def fingerprint(effects):
     """Everything a trace of ``effects`` can fold in: each effect's class and attributes and
     the controls it reads, as a number (the same for equal effects, never given to others);
-    None where an attribute is something else (a mutable object: the code is not shared
-    between engines then)."""
+    None where an attribute is something else (a mutable object), or an effect is ``live``
+    (its code reads that engine's values): the code is not shared between engines then."""
+    if any(getattr(e, "live", False) for e in effects):
+        return None
     try:
         out = []
         for e in effects:
@@ -214,14 +219,15 @@ def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, 
     twl = [slot(c, v) for c, v in zip(wl, wv)]
     tA = [slot(c, v) for c, v in zip(A, Av)]
     th = [slot(c, v) for c, v in zip(h, hv)]
-    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work)
+    lives: dict[str, list] = {}
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work, slot, lives)
     if traced is None:
         return None
     Q, Qnc, qdd = traced
     outputs = [_node(x) for x in qdd]
     forces = [_node(x) for x in Q + Qnc]
     key = ("fused", exact.key, tape.key(), tuple(slots), tuple(outputs), tuple(forces))
-    extra = {"tanh": math.tanh, "_Branch": ForceLawBranch}
+    extra = {"tanh": math.tanh, "_Branch": ForceLawBranch, **lives}
     accel = load(
         key,
         lambda: _source(n, lines, tape, slots, outputs),
@@ -246,17 +252,25 @@ def _node(x):
     return x.index if isinstance(x, Traced) else float(x)
 
 
-def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work):
+def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work, slot, lives):
     """(Q, Q_nc, q̈) traced: the engine's ``_forces`` and ``solve_given_h`` on kinematics made
     of traced numbers (t, q̇, the lists of positions, analogs and angular analogs; A and h),
     the same operations in the same order; None where a law cannot be traced or q̈ is not
-    finite at the traced point."""
+    finite at the traced point. A ``live`` effect's values are inputs read as ``_live{j}[k]``
+    (``slot(code, value)`` makes them), its list put in ``lives`` under ``_live{j}`` for the
+    function's namespace."""
     kin = kinematics(tt, None, None, engine.tables.names, bodies=engine.tables.body_index, lists=lists, v=tv)
     try:
         Q = [0.0] * n
         Qc = [0.0] * n
         for fast, e, conservative in engine.effect_paths():
-            Qe = fast(tt, kin) if fast is not None else virtual_work(e.loads(tt, kin), kin)
+            if getattr(e, "live", False):
+                name = f"_live{len(lives)}"
+                lives[name] = e.values
+                values = [slot(f"{name}[{k}]", v) for k, v in enumerate(e.values)]
+                Qe = virtual_work(e.live_loads(tt, kin, values), kin)
+            else:
+                Qe = fast(tt, kin) if fast is not None else virtual_work(e.loads(tt, kin), kin)
             if Qe is not None:
                 acc = Qc if conservative else Q
                 for i in range(n):
@@ -315,7 +329,8 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
     twl = [slot(f"wl[{i}]", x) for i, x in enumerate(wv)]
     tA = [slot("A", Av)] if n == 1 else [slot(f"A[{i}]", x) for i, x in enumerate(Av)]
     th = [slot(f"h[{i}]", x) for i, x in enumerate(hv)]
-    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work)
+    lives: dict[str, list] = {}
+    traced = _trace_forces(engine, n, tt, tv, (txl, tjl, twl), tA, th, kinematics, virtual_work, slot, lives)
     if traced is None:
         return None
     Q, Qnc, qdd = traced
@@ -327,7 +342,7 @@ def central_tail(engine, view, t: float, vl: list, parts, kinematics, virtual_wo
         f"<effects and solve {view.name}>",
         None,
         view.name,
-        {"tanh": math.tanh, "_Branch": ForceLawBranch},
+        {"tanh": math.tanh, "_Branch": ForceLawBranch, **lives},
     )
 
 

@@ -9,8 +9,10 @@ Two loads no sensor of a press measures, each a state of the estimator (a random
 
 Their generalized force is Q = F_p·∂x_C/∂q + tau_b·∂φ/∂q (virtual work, contract §4). The values
 change at every measurement, so they are read from a list changed in place (no assignment: the
-engine's generated code would be made again at each) and the law converts a state value to float,
-which keeps the effect on the engine's general path (never traced in with stale values).
+engine's generated code would be made again at each): a ``live`` effect, which the fused
+evaluation reads at each call (:func:`~mps_core.codegen.fused_kernels.fused_kernel`). Any other
+tracer meets a float of the state in :meth:`UnknownInputs.loads` and keeps the general path
+(never traced in with stale values).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ class UnknownInputs(Effect):
     """Apply the estimated process force on the slider and load torque on the crank."""
 
     kind = "unknown_inputs"
+    live = True
 
     def __init__(self, name: str | None = None) -> None:
         super().__init__(name)
@@ -41,8 +44,12 @@ class UnknownInputs(Effect):
     def loads(self, t: float, kin: Any) -> Loads:
         """Return the force on the slider at C and the torque on the crank, with their
         reactions on the frame."""
-        float(kin.xy("C")[0])  # a float of the state: keeps the law off the traced path
-        f, m = self.values
+        float(kin.xy("C")[0])  # a float of the state: keeps the law off a tracer's constants
+        return self.live_loads(t, kin, self.values)
+
+    def live_loads(self, t: float, kin: Any, values: Any) -> Loads:
+        """Return :meth:`loads` at ``values`` (the process force, the load torque)."""
+        f, m = values
         return Loads(
             forces=[("slider", "C", f, 0.0)],
             torques=[("crank", m)],

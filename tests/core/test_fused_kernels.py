@@ -264,3 +264,30 @@ def test_central_tails_give_the_effects_one_by_one_and_the_solve(name):
     sim.run(min(scene.t_end, 0.6), 1e-3)
     assert calls[0] > 100
     assert by_tail[0] > 0.8 * calls[0], (by_tail[0], calls[0])
+
+
+def test_a_live_effects_values_are_read_at_each_call_and_never_shared():
+    """An estimator's unknown inputs (``live``: changed in place at every measurement) are
+    inputs of the fused function read at each call: the same function gives the general path's
+    q̈ at every value, and two engines' values never mix."""
+    from mps_core.track import Tracker
+    from mps_core.track.truth import nominal_scene
+
+    scene = nominal_scene(load_scene("working").with_overrides(scheme="autodiff"))
+    a, b = Tracker(scene), Tracker(scene)
+    eng, view = a.sim.engine, a.sim.view
+    q, v = a.sim.solver.q.tolist(), a.sim.solver.qd.tolist()
+    before = eng.accelerations(view, 0.0, q, v)
+    plan = eng._plans[view]
+    fused, version = plan.fused, eng.version[0]
+    assert fused is not None and "_live0[0]" in fused.source and "_live0[1]" in fused.source
+    a.inputs.set(2.0e4, -3.0)
+    after = eng.accelerations(view, 0.0, q, v)
+    assert plan.fused is fused and eng.version[0] == version  # no code made again
+    assert after != before
+    _check_whole_evaluation(eng, view, plan, 0.0, q, v)  # the general path's numbers
+    b.inputs.set(-5.0e3, 7.0)
+    other = b.sim.engine.accelerations(b.sim.view, 0.0, q, v)
+    assert b.sim.engine._plans[b.sim.view].fused is not fused
+    assert other not in (before, after)
+    assert eng.accelerations(view, 0.0, q, v) == after  # b's values are b's alone

@@ -101,6 +101,11 @@ class Effect(Watched):
     #: True for an effect whose loads do not depend on the state, time or controls (gravity):
     #: a caller may read them once, ``loads(0.0, None)``
     constant_loads: bool = False
+    #: True for an effect whose values change between evaluations, in place, without an
+    #: assignment (an estimator's unknown inputs): it has ``values`` (a list of floats) and
+    #: ``live_loads(t, kin, values)``, its loads at those values. Generated code reads the
+    #: list at each call (never folds it in), and is not shared with another engine's
+    live: bool = False
 
     def __init__(self, name: str | None = None):
         self.name = name or self.kind
