@@ -75,7 +75,7 @@ def plain_loop(scene: str, sigma_every: int, measurements: int = 2000, seed: int
     """
     from mps_core import load_scene
     from mps_core.track import run_truth, truth_scene
-    from mps_core.track.truth import with_blanking
+    from mps_core.track.truth import nominal_scene
 
     from ..run.sinks import Fanout, Sink
     from ..run.tracking import TrackingRun
@@ -86,9 +86,7 @@ def plain_loop(scene: str, sigma_every: int, measurements: int = 2000, seed: int
         def emit_all(self, msgs) -> None:
             pass
 
-    nominal = load_scene(scene)
-    if not any(e.kind == "blanking" for e in nominal.effects):
-        nominal = with_blanking(nominal)
+    nominal = nominal_scene(load_scene(scene))
     truth = run_truth(truth_scene(nominal), measurements * 1e-3, seed=seed)
     run = TrackingRun(nominal, Fanout([Dropped()]), sigma_every=sigma_every)
     crank = [m for m in truth.measurements if m.kind == "crank_angle"]
