@@ -9,8 +9,9 @@ torque is off its catalogue's characteristic as a share of it, s_m (a random wal
 motor's torque is measured: a motor torque measurement is (1 + s_m) times the catalogue's torque
 at the crank's rate; no variance until the first such measurement comes, so that a tracker
 without one is the filter it was; the drive's torque in the model stays the catalogue's, its
-difference in tau_b): (q, q̇, F_p, tau_b, W, s_m), 2n + 4 numbers, followed by the fixed-lag smoother's slots
-(:mod:`mps_core.track.lags`): the state and the force of each of the last ``force_lag`` steps.
+difference in tau_b): (q, q̇, F_p, tau_b, W, s_m), 2n + 4 numbers, followed by the fixed-lag
+smoother's slots (:mod:`mps_core.track.lags`): the state and the force of each of the last
+``force_lag`` steps.
 
 **Prediction.** The mean goes through the model's own run (:class:`~mps_core.run.simulation.
 Simulation` of the nominal scene, without its process load and its commands, with the unknown
@@ -491,13 +492,13 @@ class Tracker:
         J, x_C0 = self._jacobian(e0)
         Phi = self._step_map(J * dt, n)
         P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
-        F, tau, W, b = self.x[2 * n : 2 * n + 4]
+        F, tau, W, s_m = self.x[2 * n : 2 * n + 4]
         lagged = lags.shifted(self.x, n, self.settings.force_lag)
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
-        x = np.concatenate([e1.q, e1.qd, [F, tau, W, b], lagged])
+        x = np.concatenate([e1.q, e1.qd, [F, tau, W, s_m], lagged])
         if sim.view is not view0:
             x, P = self._carry(x, P, e0, e1, structure0 != sim.structure)
         self.finish_step(t0, e0, structure0, x, P)
@@ -527,7 +528,7 @@ class Tracker:
         return Phi
 
     def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
-        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ, ḃ_m) at the run's evaluation
+        """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ, ṡ_m) at the run's evaluation
         ``e`` (its A and analogs exact; ∂q̈/∂q, ∂q̈/∂q̇ by forward differences from its q̈),
         and x_C there."""
         view, t = e.view, e.t
@@ -682,8 +683,8 @@ class Tracker:
         measured for the first time (the prior of ``motor_scale_sigma``; none before: no
         variance moved there)."""
         self.motor_measured = True
-        b = 2 * self.n + 3
-        self.P[b, b] = self.settings.motor_scale_sigma**2
+        k = 2 * self.n + 3
+        self.P[k, k] = self.settings.motor_scale_sigma**2
 
     def _take(self, x: np.ndarray) -> bool:
         """Restart the model's run at state x; False (the run as it was) where x has no

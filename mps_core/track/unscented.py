@@ -72,10 +72,10 @@ def unscented_step(tracker: Predicted, t1: float) -> tuple[np.ndarray, np.ndarra
             if sim.view is not view0 or sim.structure != structure0:
                 raise _Disagree
             e1 = sim.solver.current
-            F, tau, W, b = p[2 * n : 2 * n + 4]
+            F, tau, W, s_m = p[2 * n : 2 * n + 4]
             W = W - F * (float(e1.kin.xy("C")[0]) - x_C0)
             lagged = lags.shifted(p, n, lag)
-            ends.append(np.concatenate([e1.q, e1.qd, [F, tau, W, b], lagged]))
+            ends.append(np.concatenate([e1.q, e1.qd, [F, tau, W, s_m], lagged]))
     except (_Disagree, MpsError, ArithmeticError, ValueError):
         sim.restore(start)
         tracker.inputs.set(*inputs)
