@@ -681,7 +681,12 @@ class Tracker:
     def _measure_motor(self) -> None:
         """Make the motor's share off its catalogue, s_m, a state from now on, the motor's torque
         measured for the first time (the prior of ``motor_scale_sigma``; none before: no
-        variance moved there)."""
+        variance moved there). A scene without a motor: the measurement is refused, the state
+        left as it was."""
+        if self.motor is None:
+            raise MeasurementError(
+                "kind", "motor_torque", "a scene with a motor for motor_torque measurements"
+            )
         self.motor_measured = True
         k = 2 * self.n + 3
         self.P[k, k] = self.settings.motor_scale_sigma**2

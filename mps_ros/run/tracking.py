@@ -190,6 +190,7 @@ class TrackingRun:
         self.encoder = encoder or Encoder()
         self.slider_variance = float(slider_variance)
         self.torque_sensor = torque_sensor or TorqueSensor()
+        self._torque_said = False
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -360,8 +361,15 @@ class TrackingRun:
             ms = [Measurement(t, "crank_angle", float(angle), self.encoder.variance)]
             if slider is not None:
                 ms.append(Measurement(t, "slider_position", float(slider), self.slider_variance))
-            if torque is not None:
+            if torque is not None and self.tracker.motor is not None:
                 ms.append(Measurement(t, "motor_torque", float(torque), self.torque_sensor.variance(torque)))
+            elif torque is not None and not self._torque_said:
+                self._torque_said = True  # once: the press sends it with every measurement
+                self.log(
+                    "warn",
+                    "tracking: the press's measurements carry the motor's torque (the crank's "
+                    "effort) and the scene has no motor: the torque is not taken",
+                )
             tr = self.tracker
             taken = False
             for m in ms:

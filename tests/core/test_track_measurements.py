@@ -182,3 +182,16 @@ def test_a_tracker_started_beside_a_running_press_acquires_it(longer):
     est = tracker.estimate()
     err = (est.phi - truth.at(est.t)["phi"] + math.pi) % (2 * math.pi) - math.pi
     assert abs(err) < 5 * est.phi_sigma + 3 * Encoder().lsb
+
+
+def test_a_motor_torque_for_a_scene_without_a_motor_is_named_and_changes_nothing(stream):
+    from dataclasses import replace
+
+    nominal, good = stream
+    motorless = replace(nominal, effects=tuple(e for e in nominal.effects if e.kind != "motor"))
+    tracker = Tracker(motorless)
+    tracker.update(good[0])
+    with pytest.raises(MeasurementError, match="a scene with a motor for motor_torque measurements"):
+        tracker.update(Measurement(good[1].t, "motor_torque", 30.0, 1.0))
+    s_m = 2 * tracker.n + 3  # the motor's share: never a state here
+    assert not tracker.motor_measured and tracker.P[s_m, s_m] == 0.0 and not tracker.P[s_m].any()

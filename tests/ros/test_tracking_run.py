@@ -65,6 +65,30 @@ def test_each_measurement_gives_one_estimate_with_its_sigmas_and_process_force(t
     assert s["rejected"] == 0 and math.isfinite(s["cpu_p99_ms"])
 
 
+def test_the_motor_s_torque_without_a_motor_in_the_scene_is_said_once_and_left(truth):
+    """A press that sends its motor's torque, a scene without a motor: said once, the torque
+    left out, the run as it is without it (the model without its motor follows the truth
+    badly: what matters is that it goes on)."""
+    from dataclasses import replace
+
+    scene = load_scene("working")
+    motorless = replace(scene, effects=tuple(e for e in scene.effects if e.kind != "motor"))
+    runs, logs = [], []
+    for torque in (30.0, None):
+        run = TrackingRun(
+            motorless, Fanout([ListSink()]), late_after=math.inf, log=lambda lv, tx: logs.append(tx)
+        )
+        taken = [
+            run.measurement(m.t, m.value, None, b"", float(i), torque=torque)
+            for i, m in enumerate(truth.measurements)
+        ]
+        runs.append((taken, run.estimates, run.rejected(), run.tracker.estimate()))
+        assert not run.tracker.motor_measured
+    assert runs[0] == runs[1]
+    said = [tx for tx in logs if "motor's torque" in tx]
+    assert len(said) == 1 and "no motor" in said[0], logs
+
+
 def test_the_sigmas_decimated_as_stated(truth):
     run, sink = _run(sigma_every=4)
     for m in truth.measurements[:20]:
