@@ -108,8 +108,9 @@ class LoadSums:
                     made.insert(0, fn)
         return self.sums(t, kin)
 
-    def sums(self, t: float, kin) -> list:
-        """The sums by the effects' ``loads``, one by one (the general path)."""
+    def sums(self, t: float, kin, live: dict | None = None) -> list:
+        """The sums by the effects' ``loads``, one by one (the general path); ``live``: a
+        ``live`` effect's values to take its loads at (by the effect), where given (a trace's)."""
         out = self.base[:]
         names = kin.names
         if self._rows is None or self._names is not names:
@@ -124,7 +125,7 @@ class LoadSums:
         fr = 3 * self.nb
         bodies = self.bodies
         for e, motor in self.effects:
-            ld = e.loads(t, kin)
+            ld = e.live_loads(t, kin, live[e]) if live is not None and e in live else e.loads(t, kin)
             # a force at a point (a name or (x, y)) into slots k (x), k + 1 (y), k + 2 (M_O)
             for body, point, fx, fy in ld.forces:
                 k = 3 * bodies[body]
@@ -152,7 +153,9 @@ def traced_sums(sums: LoadSums, t: float, kin):
     """``fn(t, xl, jl, wl, vl) -> list``: :meth:`LoadSums.sums` traced at (t, ``kin``) into
     generated code reading the kinematics' lists by index, the effects' parameters and the
     controls folded in, their comparisons guards (a failed one raises
-    :class:`~mps_core.derivatives.tracing.BranchChanged`); None where a law cannot be traced."""
+    :class:`~mps_core.derivatives.tracing.BranchChanged`); None where a law cannot be traced.
+    A ``live`` effect's values are read at each call from its list (``_live{j}[k]``), as the
+    fused functions read them (:mod:`.fused_kernels`)."""
     tape = Tape()
     slots: list[str] = []
     slot = input_slot(tape, slots)
@@ -170,8 +173,15 @@ def traced_sums(sums: LoadSums, t: float, kin):
         lists=(tl["xl"], tl["jl"], tl["wl"]),
         v=tl["vl"],
     )
+    lives: dict[str, list] = {}
+    live: dict = {}
+    for e, _motor in sums.effects:
+        if getattr(e, "live", False):
+            name = f"_live{len(lives)}"
+            lives[name] = e.values
+            live[e] = [slot(f"{name}[{k}]", v) for k, v in enumerate(e.values)]
     try:
-        out = sums.sums(tkin.t, tkin)
+        out = sums.sums(tkin.t, tkin, live)
         values = [x.value if isinstance(x, Traced) else float(x) for x in out]
         if not all(math.isfinite(v) for v in values):
             return None
@@ -185,7 +195,7 @@ def traced_sums(sums: LoadSums, t: float, kin):
         "<load sums>",
         None,
         "",
-        {"tanh": math.tanh, "_Branch": BranchChanged},
+        {"tanh": math.tanh, "_Branch": BranchChanged, **lives},
     )
 
 

@@ -181,9 +181,12 @@ def with_loads(kernel, sums):
     (:func:`~mps_core.codegen.load_sums.traced_sums`) followed by the reaction kernel ``kernel``
     on what they return: the two generated bodies one after the other (the sums' locals
     renamed), so the same operations on the same numbers, without the call, the list and its
-    unpacking between them. Made once per pair. It raises what either raises."""
+    unpacking between them. Made once per pair. It raises what either raises. Sums that read a
+    ``live`` effect's values (``_live{j}``, bound in their namespace) give a function that reads
+    the same lists, made for them alone (never kept for another pair of the same code)."""
+    lives = {k: v for k, v in sums.__globals__.items() if k.startswith("_live")}
     key = ("reactions with loads", kernel.serial, sums.serial)
-    made = _WITH_LOADS.get(key)
+    made = None if lives else _WITH_LOADS.get(key)
     if made is not None:
         return made
     made = load(
@@ -192,9 +195,9 @@ def with_loads(kernel, sums):
         f"<reaction kernel with loads {kernel.chart}>",
         kernel.flat,
         kernel.chart,
-        {"_fallback": _fallback, "tanh": math.tanh, "_Branch": BranchChanged},
+        {"_fallback": _fallback, "tanh": math.tanh, "_Branch": BranchChanged, **lives},
     )
-    return _WITH_LOADS.keep(key, made)
+    return made if lives else _WITH_LOADS.keep(key, made)
 
 
 def _with_loads_source(kernel_source: str, sums_source: str) -> str:

@@ -291,3 +291,13 @@ def test_a_live_effects_values_are_read_at_each_call_and_never_shared():
     assert b.sim.engine._plans[b.sim.view].fused is not fused
     assert other not in (before, after)
     assert eng.accelerations(view, 0.0, q, v) == after  # b's values are b's alone
+    # the reactions' known loads read them too: the general sums at each value, bit for bit
+    from mps_core.dynamics.reactions import kernels_of
+
+    sums = kernels_of(a.sim.mechanism).loads(eng.effects)
+    fun = eng.evaluator(view)
+    for force in (1.0e4, -2.0e4):
+        a.inputs.set(force, 1.5)
+        e = fun(0.0, np.array(q), np.array(v))
+        assert sums(0.0, e.kin) == sums.sums(0.0, e.kin)
+    assert any("_live0[0]" in fn.source for fns in sums._traced.values() for fn in fns)
