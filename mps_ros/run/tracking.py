@@ -47,7 +47,7 @@ from mps_core.track.tracker import LOAD_COLUMNS
 from mps_core.track.truth import nominal_scene
 
 from ..wire import diagnostics
-from ..wire.cdr import string, wrench_stamped
+from ..wire.cdr import Preset, string, wrench_stamped
 from ..wire.diagnostics import hardware_id
 from ..wire.json_text import to_json
 from ..wire.measured import ns_seconds
@@ -665,13 +665,28 @@ class TrackingRun:
 
 
 def _wrench(st: dict, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
-    """Return a WrenchStamped's bytes: force (fx, fy, 0), torque (0, 0, mz)."""
-    return wrench_stamped(
-        {
-            "header": {"stamp": st, "frame_id": frame_id},
-            "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
-        }
-    )
+    """Return a WrenchStamped's bytes: force (fx, fy, 0), torque (0, 0, mz).
+
+    Its layout is kept per frame (:class:`~mps_ros.wire.cdr.Preset`: the encoder's bytes exactly).
+    """
+    pack = _WRENCHES.get(frame_id)
+    if pack is None:
+
+        def make(stamp: dict, f: list) -> dict:
+            return {
+                "header": {"stamp": stamp, "frame_id": frame_id},
+                "wrench": {
+                    "force": {"x": f[0], "y": f[1], "z": 0.0},
+                    "torque": {"x": 0.0, "y": 0.0, "z": f[2]},
+                },
+            }
+
+        pack = _WRENCHES[frame_id] = Preset(wrench_stamped, make, 3).pack
+    return pack(st["sec"], st["nanosec"], (fx, fy, mz))
+
+
+#: the WrenchStamped layouts by frame (:func:`_wrench`)
+_WRENCHES: dict[str, Any] = {}
 
 
 def _sigma(loads: dict[str, tuple[float, float]], column: str) -> float:
