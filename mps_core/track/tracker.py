@@ -62,16 +62,26 @@ from .unscented import unscented_step
 if TYPE_CHECKING:
     from ..scene import Scene
 
-__all__ = ["LOAD_COLUMNS", "Estimate", "Tracker"]
+__all__ = ["LOAD_COLUMNS", "Estimate", "LoadEstimates", "Tracker"]
 
 #: the reactions and foundation load a tracker estimates (the residual checks left out)
 LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
 #: where each of LOAD_COLUMNS is in REACTION_COLUMNS
 _LOAD_INDEX = tuple(list(REACTION_COLUMNS).index(c) for c in LOAD_COLUMNS)
+#: the foundation force's components among LOAD_COLUMNS
+_FOUND_X, _FOUND_Y = LOAD_COLUMNS.index("F_found_x"), LOAD_COLUMNS.index("F_found_y")
 #: the process loads a tracker's model leaves out (the unknown input stands for them)
 PROCESS_EFFECTS = ("blanking",)
 #: the reasons a measurement is rejected for
 REJECTIONS = ("duplicate", "out-of-order", "late", "not-finite", "jump", "outlier", "model")
+
+
+class LoadEstimates(dict):
+    """The loads at an estimate: name → (value, 1-σ), in :data:`LOAD_COLUMNS`' order, and the
+    covariance of the foundation force's two components (N², ``foundation_xy_covariance``:
+    the same linearisation as their 1-σ), which the magnitude's 1-σ needs."""
+
+    foundation_xy_covariance: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -815,7 +825,9 @@ class Tracker:
             self.inputs.values[:] = saved
         C = self.P[np.ix_(where, where)]
         var = np.einsum("ij,jk,ik->i", J, C, J)
-        return {c: (float(v), _sd(s)) for c, v, s in zip(LOAD_COLUMNS, base, var)}
+        out = LoadEstimates((c, (float(v), _sd(s))) for c, v, s in zip(LOAD_COLUMNS, base, var))
+        out.foundation_xy_covariance = float(J[_FOUND_X] @ C @ J[_FOUND_Y])
+        return out
 
     def _reaction_values(self, e: Any, qdd: np.ndarray | None = None) -> np.ndarray:
         """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e`` (at
@@ -855,14 +867,17 @@ def work_zone_top(scene: Scene, settings: TrackSettings) -> float:
 
 
 def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, float]:
-    """Return the foundation force's magnitude and its 1-σ (linearised, the two components'
-    covariance taken as diagonal)."""
+    """Return the foundation force's magnitude and its 1-σ, linearised: with g = F/|F|,
+    σ² = gᵀ·C·g, C the two components' covariance (their 1-σ and, where ``loads`` is a
+    :class:`LoadEstimates`, their covariance; none where it is a plain mapping)."""
     fx, sx = loads["F_found_x"]
     fy, sy = loads["F_found_y"]
+    cxy = float(getattr(loads, "foundation_xy_covariance", 0.0))
     f = math.hypot(fx, fy)
     if f == 0.0:
         return 0.0, math.hypot(sx, sy)
-    return f, math.hypot(fx * sx, fy * sy) / f
+    var = (fx * fx * sx * sx + fy * fy * sy * sy + 2.0 * fx * fy * cxy) / (f * f)
+    return f, _sd(var)
 
 
 def _sd(variance: float) -> float:
