@@ -25,6 +25,10 @@ and since when). Four tests, each on what the tracker already computes:
   against the last healthy stroke's: ERROR where it exceeds ``work_factor`` times that by three
   of its 1-σ (a double blank, a harder or thicker part). The first stroke has no reference:
   it is not tested.
+- **the part** (``WARN``): a whole revolution closed whose work is under the last healthy
+  stroke's divided by ``work_factor`` by three of its 1-σ: no part blanked (a part missing from
+  the die, a much thinner one). A process event, not a departure of the machine: WARN, until a
+  stroke blanks again.
 
 The status is the worst of the tests; its line is the earliest failing test's at that level.
 :attr:`TrackingMonitor.events` keeps each change of the status.
@@ -125,7 +129,7 @@ class TrackingMonitor:
         self._running = 0
         self._accepted = 0
         self._taken = 0
-        self._findings = {name: _Finding() for name in ("innovations", "track", "torque", "work")}
+        self._findings = {name: _Finding() for name in ("innovations", "track", "torque", "work", "part")}
         # the load torque a revolution back: bin -> (revolution, torque, variance)
         self._torque_ref: dict[int, tuple[int, float, float]] = {}
         self._torque_over = 0
@@ -242,6 +246,7 @@ class TrackingMonitor:
         table = tracker.strokes
         new = table.closed - self._strokes  # strokes closed since: a healthy one is the reference
         for done in table.strokes[len(table.strokes) - new :] if new else ():
+            self._part(tracker, done, t)
             if not self._stroke_flagged and self._whole(done, tracker):
                 self._work_ref, self._work_ref_sigma = done.work, done.work_sigma
                 self._set(f, "OK", "", t)
@@ -262,20 +267,40 @@ class TrackingMonitor:
                 t,
             )
 
+    def _part(self, tracker: Tracker, done: StrokeEstimate, t: float) -> None:
+        """Judge a closed stroke's part: WARN where a whole revolution blanked none."""
+        ref = self._work_ref
+        f = self._findings["part"]
+        if ref is None or not self._revolution(done, tracker):
+            return
+        k = self.settings.work_factor
+        if done.work + 3.0 * math.hypot(done.work_sigma, self._work_ref_sigma / k) < ref / k:
+            self._set(
+                f,
+                "WARN",
+                f"no part blanked in stroke {done.index}: {done.work:.1f} +- {done.work_sigma:.1f} J, the "
+                f"last healthy stroke {ref:.1f} J (less than 1/{k:g} of it: a part missing from the die, "
+                "a much thinner one)",
+                t,
+            )
+        else:
+            self._set(f, "OK", "", t)
+
     @staticmethod
-    def _whole(stroke: StrokeEstimate, tracker: Tracker) -> bool:
+    def _revolution(stroke: StrokeEstimate, tracker: Tracker) -> bool:
+        """Return whether a closed stroke is a whole revolution (not cut by a change of structure)."""
+        rate = abs(tracker.estimate().phi_dot)
+        turn = 2.0 * math.pi / rate if rate > 0.0 else math.inf
+        return math.isfinite(stroke.work) and stroke.t_end - stroke.t_start >= 0.8 * turn
+
+    @classmethod
+    def _whole(cls, stroke: StrokeEstimate, tracker: Tracker) -> bool:
         """Return whether a closed stroke can be the reference for the work.
 
         A whole revolution (not cut by a change of structure) in which a part was blanked (its
         work three of its 1-sigma off zero).
         """
-        rate = abs(tracker.estimate().phi_dot)
-        turn = 2.0 * math.pi / rate if rate > 0.0 else math.inf
-        return (
-            math.isfinite(stroke.work)
-            and stroke.t_end - stroke.t_start >= 0.8 * turn
-            and stroke.work > 3.0 * stroke.work_sigma
-        )
+        return cls._revolution(stroke, tracker) and stroke.work > 3.0 * stroke.work_sigma
 
     # -- the status -----------------------------------------------------------------------
     @staticmethod

@@ -12,7 +12,8 @@ motor's torque (from its current). The scene's commands are the mode signals.
 Faults (:class:`Fault`) are injected at given times: ``double-blank`` (two parts in the die: the
 blanking force doubled), ``broken-spring`` (the retention springs gone), ``clutch-slip`` (the
 drive's torque halved for ``duration`` seconds: a slipping coupling or belt between motor and
-crank; the press has no clutch of its own).
+crank; the press has no clutch of its own), ``missed-part`` (no part in the die from ``t`` until
+the punch has gone through where the part would be: the next cut blanks nothing).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ __all__ = [
 ]
 
 #: the faults that can be injected
-FAULTS = ("double-blank", "broken-spring", "clutch-slip")
+FAULTS = ("double-blank", "broken-spring", "clutch-slip", "missed-part")
 
 
 def timed_kinds(specs: list[str], option: str, kinds: tuple[str, ...]) -> list[tuple[float, str]]:
@@ -92,17 +93,19 @@ class TruthChanges:
 
 @dataclass(frozen=True)
 class Fault:
-    """A fault injected at time ``t`` (s): one of :data:`FAULTS`; ``duration`` for a slip."""
+    """A fault injected at time ``t`` (s): one of :data:`FAULTS`; ``duration`` (s) for a slip."""
 
     t: float
     kind: str
-    duration: float = 0.05
+    duration: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in FAULTS:
             raise MeasurementError("fault.kind", self.kind, "one of " + ", ".join(FAULTS))
         if not (math.isfinite(self.t) and self.t >= 0.0):
             raise MeasurementError("fault.t", self.t, "a time >= 0 (s)")
+        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0.0):
+            raise MeasurementError("fault.duration", self.duration, "a positive time (s) or None (0.05 s)")
 
 
 @dataclass(frozen=True)
@@ -273,6 +276,9 @@ def run_truth(
     times = np.union1d(fine, samples)
     is_sample = np.isin(times, samples)
     pending = sorted(_fault_actions(effects, faults), key=lambda a: a[0])
+    # a missed part: the part back once the punch has come down through where it would be
+    # ([put it back, the slider position past the part, whether the slider was above it since])
+    through: list[list] = []
     rows: list[tuple] = [_truth_row(sim, blanking)]
     out: list[Measurement] = []
     enc = sensors.encoder
@@ -281,8 +287,16 @@ def run_truth(
             t_fault, action = pending.pop(0)
             if t_fault > sim.t:
                 sim.advance_to(t_fault)
-            action()
+            after = action()
+            if after is not None:
+                through.append([*after, False])
         sim.advance_to(t)
+        if through:
+            x_C, missing = sim.joint_state()[4], through[0]
+            if x_C >= missing[1]:
+                missing[2] = True
+            elif missing[2]:
+                through.pop(0)[0]()
         row = _truth_row(sim, blanking)
         rows.append(row)
         if sampled:
@@ -345,8 +359,27 @@ def _fault_actions(effects: list, faults: tuple[Fault, ...]) -> list[tuple[float
                 out.append((fault.t, _scaled(e, "f0", 0.0)))
             elif fault.kind == "clutch-slip" and e.kind == "motor":
                 out.append((fault.t, _scaled(e, "efficiency", 0.5)))
-                out.append((fault.t + fault.duration, _scaled(e, "efficiency", 2.0)))
+                out.append((fault.t + (fault.duration or 0.05), _scaled(e, "efficiency", 2.0)))
+            elif fault.kind == "missed-part" and e.kind == "blanking":
+                out.append((fault.t, _missing(e)))
     return out
+
+
+def _missing(blanking: Any) -> Any:
+    """Return an action that takes the part out of the die: its force zero (by assignment), and
+    what puts it back, with the slider position below which the punch has gone through it."""
+
+    def action() -> tuple[Any, float]:
+        """Take the part out; return (put it back, the slider position past the part)."""
+        force = blanking.f
+        blanking.f = 0.0
+
+        def back() -> None:
+            blanking.f = force
+
+        return back, blanking.x_contact - blanking.pb
+
+    return action
 
 
 def _scaled(effect: Any, name: str, factor: float) -> Any:

@@ -99,6 +99,18 @@ def test_a_broken_spring_is_reported_within_a_revolution():
     assert "track lost" in error.message and "broken spring" in error.message
 
 
+def test_a_missed_part_warns_at_its_stroke_s_end_and_clears_at_the_next_part():
+    """No part in the die for one cut: a WARN naming the stroke when it closes (within a
+    revolution), OK again once a stroke blanks; nothing else said."""
+    t_fault = 0.3
+    events = _watched(_working(), 0.6, [Fault(t_fault, "missed-part")])
+    assert [e.level for e in events] == ["OK", "WARN", "OK"], [e.line() for e in events]
+    warn = events[1]
+    assert t_fault < warn.since <= t_fault + REVOLUTION  # measured: 0.113 s after
+    assert "no part blanked in stroke" in warn.message and "part missing" in warn.message
+    assert events[2].since > warn.since
+
+
 class _StandIn:
     """A tracker's face as the monitor reads it: innovations, rejections, estimate, strokes."""
 
