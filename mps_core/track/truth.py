@@ -93,19 +93,17 @@ class TruthChanges:
 
 @dataclass(frozen=True)
 class Fault:
-    """A fault injected at time ``t`` (s): one of :data:`FAULTS`; ``duration`` (s) for a slip."""
+    """A fault injected at time ``t`` (s): one of :data:`FAULTS`; ``duration`` for a slip."""
 
     t: float
     kind: str
-    duration: float | None = None
+    duration: float = 0.05
 
     def __post_init__(self) -> None:
         if self.kind not in FAULTS:
             raise MeasurementError("fault.kind", self.kind, "one of " + ", ".join(FAULTS))
         if not (math.isfinite(self.t) and self.t >= 0.0):
             raise MeasurementError("fault.t", self.t, "a time >= 0 (s)")
-        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0.0):
-            raise MeasurementError("fault.duration", self.duration, "a positive time (s) or None (0.05 s)")
 
 
 @dataclass(frozen=True)
@@ -359,7 +357,7 @@ def _fault_actions(effects: list, faults: tuple[Fault, ...]) -> list[tuple[float
                 out.append((fault.t, _scaled(e, "f0", 0.0)))
             elif fault.kind == "clutch-slip" and e.kind == "motor":
                 out.append((fault.t, _scaled(e, "efficiency", 0.5)))
-                out.append((fault.t + (fault.duration or 0.05), _scaled(e, "efficiency", 2.0)))
+                out.append((fault.t + fault.duration, _scaled(e, "efficiency", 2.0)))
             elif fault.kind == "missed-part" and e.kind == "blanking":
                 out.append((fault.t, _missing(e)))
     return out
