@@ -680,10 +680,9 @@ class Tracker:
         x = self.x + K * y
         IKH = np.eye(len(x)) - np.outer(K, H)
         P = IKH @ self.P @ IKH.T + m.variance * np.outer(K, K)
-        if not self._take(x):
+        if not self._take(x, P):
             self.rejected["model"] += 1
             return False
-        self.P = 0.5 * (P + P.T)
         self.innovations.append((m.t + self.origin, m.kind, nis))
         self._follow_strokes()
         return True
@@ -701,12 +700,14 @@ class Tracker:
         k = 2 * self.n + 3
         self.P[k, k] = self.settings.motor_scale_sigma**2
 
-    def _take(self, x: np.ndarray) -> bool:
-        """Restart the model's run at state x; False (the run as it was) where x has no
-        configuration in the present chart."""
+    def _take(self, x: np.ndarray, P: np.ndarray) -> bool:
+        """Restart the model's run at state x (covariance P); False (the run and the estimate as
+        they were) where x has no configuration in the present chart. Where the corrected
+        state changes the structure (the top stop lets go of a slider it would now pull), the
+        state is carried into the chart view the run is in then, as at any change of structure."""
         n = self.n
         sim = self.sim
-        e = sim.solver.current
+        e, structure0 = sim.solver.current, sim.structure
         saved = list(self.inputs.values)
         self.inputs.set(float(x[2 * n]), float(x[2 * n + 1]))
         try:
@@ -715,9 +716,17 @@ class Tracker:
             self.inputs.set(*saved)
             sim.restart_at(e.q, e.qd)
             return False
+        carried = sim.view is not e.view
+        if carried:
+            e1 = sim.solver.current
+            core = np.concatenate([e1.q, e1.qd, x[2 * n : lags.core_size(n)]])
+            x, P = self._carry(core, P, e, e1, structure0 != sim.structure)
+            self.P = 0.5 * (P + P.T)
         self.x = x
         if not self._window_now():
             self._hold_force()
+        if not carried:
+            self.P = 0.5 * (P + P.T)  # (after the hold, which zeroed the force's variance before it)
         return True
 
     # -- strokes and loads ----------------------------------------------------------------

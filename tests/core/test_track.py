@@ -180,3 +180,28 @@ def test_the_modes_are_followed_from_a_slider_scale_without_signals():
     assert abs(events["latch-closes"] - truth.t[np.argmax(truth.locked)]) < 1e-3
     assert 0.4351 < events["latch-opens"] < 0.4351 + 0.015  # 3 slider samples missed, then
     assert f.nees_inside() >= 0.9
+
+
+def test_a_correction_that_lets_the_stop_go_carries_the_state_into_the_free_structure():
+    """press-cycle after its disengage, with a slider scale (seed 3): a correction moves the
+    slider where the held top stop would pull it, the stop lets go as the run restarts there,
+    and the estimate is carried into the free structure's two coordinates (before, it kept the
+    held structure's one and the estimate failed on it)."""
+    from mps_core.track import lags
+    from mps_core.track.truth import nominal_scene
+
+    nominal = nominal_scene(load_scene("press-cycle"))
+    truth = run_truth(truth_scene(nominal), 0.62, sensors=Sensors(slider=True), seed=3)
+    tracker = Tracker(nominal)
+    modes = sorted(truth.modes, key=lambda s: s.t)
+    structures = set()
+    for m in truth.measurements:
+        while modes and modes[0].t <= m.t:
+            tracker.mode(modes.pop(0))
+        tracker.update(m)
+        n = tracker.n
+        assert len(tracker.x) == lags.core_size(n) + tracker.settings.force_lag * (2 * n + 1), m
+        assert tracker.P.shape == (len(tracker.x), len(tracker.x))
+        tracker.estimate()
+        structures.add(tracker.sim.structure)
+    assert {"held", "free"} <= structures and tracker.sim.structure == "free"
