@@ -30,7 +30,10 @@ class TrackSettings:
     it the force is zero (a blanking punch pushes the slider up only while it cuts on the way
     down).
     ``torque_walk``: the load torque's (N·m/√s). ``accel_noise``: white noise on each
-    coordinate's acceleration (per √s, in the chart's units divided by its scale).
+    coordinate's acceleration (per √s, in the chart's units divided by its scale), with the
+    latch closed; ``accel_noise_unlocked`` the same where it is open (``held``, ``free``): there
+    the slider and the rocker move apart from the crank, and what the model misses on their
+    side (the guide's friction, the joints') is no unknown input's to take up.
     ``gate``: the normalised innovation squared above which a measurement is rejected as an
     outlier; ``max_jump``: an angle innovation (rad) beyond which the crank would have jumped
     (physically impossible between two samples). ``timeout``: a gap between measurements
@@ -53,6 +56,7 @@ class TrackSettings:
     work_zone_top: float | None = None
     torque_walk: float = 20.0
     accel_noise: float = 2.0
+    accel_noise_unlocked: float = 4.0
     gate: float = 25.0
     max_jump: float = math.radians(10.0)
     timeout: float = 0.05
@@ -71,6 +75,7 @@ class TrackSettings:
             "force_walk",
             "torque_walk",
             "accel_noise",
+            "accel_noise_unlocked",
             "gate",
             "max_jump",
             "timeout",

@@ -582,8 +582,9 @@ class Tracker:
         n = view.n
         s = self.settings
         Q = np.zeros((len(self.x), len(self.x)))
+        noise = s.accel_noise if structure == "locked" else s.accel_noise_unlocked
         for i in range(n):
-            qa = (s.accel_noise * float(view.scales[i])) ** 2
+            qa = (noise * float(view.scales[i])) ** 2
             Q[i, i] = qa * dt**3 / 3.0
             Q[i, n + i] = Q[n + i, i] = qa * dt**2 / 2.0
             Q[n + i, n + i] = qa * dt

@@ -76,6 +76,14 @@ def test_a_healthy_press_cycle_is_ok_throughout():
     assert [e.level for e in events] == ["OK"]
 
 
+def test_a_healthy_press_cycle_through_its_disengage_and_idle_is_ok_throughout():
+    """press-cycle with a slider scale through its disengage (0.4351 s) and the idle four-bar's
+    free swings: the slider's side moves apart from the crank there, its model noise is the
+    unlocked one, and no innovation test fires (with the locked one's it WARNs here)."""
+    events = _watched(load_scene("press-cycle"), 0.9, seed=0, sensors=Sensors(slider=True))
+    assert [e.level for e in events] == ["OK"], [e.line() for e in events]
+
+
 def test_a_double_blank_is_reported_within_a_revolution():
     """Injected just after a cut (the worst case: the next cut is most of a revolution on)."""
     t_fault = 0.2
