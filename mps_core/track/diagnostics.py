@@ -2,7 +2,7 @@
 
 A :class:`TrackingMonitor` watches a :class:`~mps_core.track.tracker.Tracker` measurement by
 measurement and gives one :class:`Status` (``OK``, ``WARN`` or ``ERROR``, one line saying what
-and since when). Four tests, each on what the tracker already computes:
+and since when). Five tests, each on what the tracker already computes:
 
 - **the innovations** (``WARN``): the mean normalised innovation squared (NIS) of the last
   ``window`` measurements taken, a χ² variable of ``window`` degrees of freedom divided by
