@@ -439,12 +439,9 @@ class TopicMessages:
     warnings: list[str] = field(default_factory=list)
 
 
-def read_topics(path, topics: Collection[str]) -> TopicMessages:
-    """Read the messages of ``topics`` of an MCAP file or a bag directory, in the file's order.
-
-    The other topics' messages are counted, not kept. Bad files raise :class:`ReplayError` as
-    :func:`read_recording` does (not MCAP, cut short, an empty bag).
-    """
+def _readable(path) -> Path:
+    """Return ``path`` as a Path, or raise :class:`ReplayError` where it is not there or the
+    mcap package is missing (what reading any recording needs first)."""
     path = Path(path)
     if not path.exists():
         raise ReplayError(f"{path}: no such file or directory")
@@ -452,6 +449,16 @@ def read_topics(path, topics: Collection[str]) -> TopicMessages:
         raise ReplayError(
             "reading a recording needs the mcap package, which is not installed: pip install -e '.[view]'"
         )
+    return path
+
+
+def read_topics(path, topics: Collection[str]) -> TopicMessages:
+    """Read the messages of ``topics`` of an MCAP file or a bag directory, in the file's order.
+
+    The other topics' messages are counted, not kept. Bad files raise :class:`ReplayError` as
+    :func:`read_recording` does (not MCAP, cut short, an empty bag).
+    """
+    path = _readable(path)
     _meta, channels, _library, complete, _n, _digest = _scan_all(_parts(path), keep=set(topics))
     out = TopicMessages(path, [(c.topic, c.schema, c.encoding, c.count) for c in channels.values()], [])
     if not complete:
@@ -471,13 +478,7 @@ def read_topics(path, topics: Collection[str]) -> TopicMessages:
 def read_recording(path, *, check_version: bool = True) -> Replay:
     """Read a recording of the twin (see the module's doc): an MCAP file, or a bag directory
     (:mod:`mps_ros.recording.bag`) whose files are read in order as one."""
-    path = Path(path)
-    if not path.exists():
-        raise ReplayError(f"{path}: no such file")
-    if importlib.util.find_spec("mcap") is None:
-        raise ReplayError(
-            "reading a recording needs the mcap package, which is not installed: pip install -e '.[view]'"
-        )
+    path = _readable(path)
     meta, channels, library, complete, nmsg, digest = _scan_all(_parts(path))
     rep = Replay(path=path, columns={}, metadata=meta, digest=digest)
     rep.topics = {ch.topic: len(ch.times) for ch in channels.values()}
