@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 from mps_core.track.measurements import MODE_COMMANDS, Measurement, MeasurementError, ModeSignal, TorqueSensor
 
-from ..wire.measured import CRANK, crank_and_slider, crank_torque, ns_seconds, stamp_seconds
+from ..wire.measured import CRANK, crank_and_slider, crank_torque, measurements, ns_seconds, stamp_seconds
 from .mcap_writer import ENCODING_CDR
 from .replay import TopicMessages, joint_state_readings, read_topics, string_data
 
@@ -96,14 +96,15 @@ def _measurements(
             (names, positions),
             f"a crank angle: the position of a joint named {CRANK!r}, or a single position without names",
         )
-    t = stamp_seconds(sec, nanosec)
-    out = [Measurement(t, "crank_angle", angle, variances["crank_angle"])]
-    if slider is not None:
-        out.append(Measurement(t, "slider_position", slider, variances["slider_position"]))
-    torque = crank_torque(names, efforts)
-    if torque is not None:
-        out.append(Measurement(t, "motor_torque", torque, TorqueSensor().variance(torque)))
-    return out
+    return measurements(
+        stamp_seconds(sec, nanosec),
+        angle,
+        slider,
+        crank_torque(names, efforts),
+        variances["crank_angle"],
+        variances["slider_position"],
+        TorqueSensor(),
+    )
 
 
 def _mode(path: Path, topic: str, t_ns: int, data: bytes) -> ModeSignal:

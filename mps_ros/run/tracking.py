@@ -50,7 +50,7 @@ from ..wire import diagnostics
 from ..wire.cdr import Preset, string, wrench_stamped
 from ..wire.diagnostics import hardware_id
 from ..wire.json_text import to_json
-from ..wire.measured import ns_seconds
+from ..wire.measured import measurements, ns_seconds
 from ..wire.step_messages import StepMessages
 from ..wire.topics import OUTPUTS
 from ..wire.track_topics import (
@@ -358,18 +358,18 @@ class TrackingRun:
             if angle is None:
                 self._reject("malformed", t, "no crank angle (a joint named crank, or a single position)")
                 return False
-            ms = [Measurement(t, "crank_angle", float(angle), self.encoder.variance)]
-            if slider is not None:
-                ms.append(Measurement(t, "slider_position", float(slider), self.slider_variance))
-            if torque is not None and self.tracker.motor is not None:
-                ms.append(Measurement(t, "motor_torque", float(torque), self.torque_sensor.variance(torque)))
-            elif torque is not None and not self._torque_said:
-                self._torque_said = True  # once: the press sends it with every measurement
-                self.log(
-                    "warn",
-                    "tracking: the press's measurements carry the motor's torque (the crank's "
-                    "effort) and the scene has no motor: the torque is not taken",
-                )
+            if torque is not None and self.tracker.motor is None:
+                torque = None  # left out, said once: the press sends it with every measurement
+                if not self._torque_said:
+                    self._torque_said = True
+                    self.log(
+                        "warn",
+                        "tracking: the press's measurements carry the motor's torque (the crank's "
+                        "effort) and the scene has no motor: the torque is not taken",
+                    )
+            ms = measurements(
+                t, angle, slider, torque, self.encoder.variance, self.slider_variance, self.torque_sensor
+            )
             tr = self.tracker
             taken = False
             for m in ms:

@@ -17,7 +17,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-__all__ = ["CRANK", "SLIDER", "crank_and_slider", "crank_torque", "ns_seconds", "stamp_seconds"]
+from mps_core.track.measurements import Measurement, TorqueSensor
+
+__all__ = [
+    "CRANK",
+    "SLIDER",
+    "crank_and_slider",
+    "crank_torque",
+    "measurements",
+    "ns_seconds",
+    "stamp_seconds",
+]
 
 #: the joint whose position is the crank angle (rad)
 CRANK = "crank"
@@ -66,3 +76,25 @@ def crank_torque(names: Sequence[str], efforts: Sequence[float]) -> float | None
     elif len(efforts) == 1 and not names:
         torque = float(efforts[0])
     return None if torque is None or math.isnan(torque) else torque
+
+
+def measurements(
+    t: float,
+    angle: float,
+    slider: float | None,
+    torque: float | None,
+    angle_variance: float,
+    slider_variance: float,
+    torque_sensor: TorqueSensor,
+) -> list[Measurement]:
+    """Return one message's readings at stamp ``t`` as the tracker takes them, in its order.
+
+    The crank angle, then the slider's position and the motor's torque where the message has
+    them, each with its variance (the torque's from ``torque_sensor``).
+    """
+    out = [Measurement(t, "crank_angle", float(angle), angle_variance)]
+    if slider is not None:
+        out.append(Measurement(t, "slider_position", float(slider), slider_variance))
+    if torque is not None:
+        out.append(Measurement(t, "motor_torque", float(torque), torque_sensor.variance(torque)))
+    return out
