@@ -402,9 +402,7 @@ class Tracker:
         covariance allows (beyond the gate), widen the covariance of (q, q̇) by the angle it is
         off by (the rates' by that angle over the gap), so the measurement is taken and the
         next ones set the rate (counted, ``acquired``)."""
-        value, H = self._prediction(m.kind)
-        y = m.value - value
-        y -= 2.0 * math.pi * round(y / (2.0 * math.pi))  # the encoder's turns
+        _value, H, y = self._innovation(m)
         S = float(H @ self.P @ H) + m.variance
         if y * y / S <= self.settings.gate:
             return
@@ -653,21 +651,25 @@ class Tracker:
         H[2 * n + 3] = catalogue
         return scale * catalogue, H
 
+    def _innovation(self, m: Measurement) -> tuple[float, np.ndarray, float]:
+        """Return the predicted value of ``m``, its row of H and the innovation (a crank angle
+        brought to the prediction's turn: the encoder counts within a turn)."""
+        value, H = self._prediction(m.kind)
+        z = m.value
+        if m.kind == "crank_angle":
+            z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))
+        return value, H, z - value
+
     def _correct(self, m: Measurement) -> bool:
         """Correct the estimate with ``m`` (gated); return whether it was taken."""
         if m.kind == "motor_torque" and not self.motor_measured:
             self._measure_motor()
-        value, H = self._prediction(m.kind)
-        z = m.value
-        if m.kind == "crank_angle":
-            z += 2.0 * math.pi * round((value - z) / (2.0 * math.pi))  # the encoder's turns
-        y = z - value
+        value, H, y = self._innovation(m)
         if m.kind == "slider_position" and not self.signalled:
             S0 = float(H @ self.P @ H) + m.variance
             self._infer_mode(m, value, y * y / S0)
             if self.sim.view.n != (len(H) - 3) // 2 or len(H) != len(self.x):
-                value, H = self._prediction(m.kind)  # the structure moved: predicted again
-                y = z - value
+                value, H, y = self._innovation(m)  # the structure moved: predicted again
         i = 2 * self.n
         #: the process force's variance before this measurement (what it learned: how much less after)
         self.force_prior_variance = float(self.P[i, i])
