@@ -76,6 +76,13 @@ def register(subparsers: Any) -> None:
     e.add_argument(
         "--fault", action="append", default=[], metavar="T:KIND", help="inject a fault at T s (repeatable)"
     )
+    e.add_argument(
+        "--signals-late",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="stamp the mode signals S seconds after their commands took effect (a controller's latency)",
+    )
     e.add_argument("--truth", metavar="FILE", help="write the truth's record to FILE")
     e.add_argument("--force", action="store_true", help="replace output files that exist")
     e.set_defaults(func=_emulate)
@@ -121,6 +128,14 @@ def register(subparsers: Any) -> None:
         help="the reactions and foundation load at every step (the smoother's, two steps back, at t_loads)",
     )
     t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
+    t.add_argument(
+        "--signal-latency",
+        type=float,
+        default=0.01,
+        metavar="S",
+        help="how late a mode signal may come after its command took effect (s): its command is searched "
+        "for over that window (0: applied at its stamp)",
+    )
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
     t.add_argument(
         "--motor-torque",
@@ -153,23 +168,25 @@ def _emulate(args: argparse.Namespace) -> int:
     from .truth import Sensors, run_truth, truth_scene
 
     check_outputs({"--csv": args.csv, "--truth": args.truth}, inputs=[args.scene], force=args.force)
+    if not (math.isfinite(args.signals_late) and 0.0 <= args.signals_late <= 1.0):
+        raise MeasurementError("--signals-late", args.signals_late, "a time in [0, 1] s")
     nominal = _nominal(args.scene)
     sensors = Sensors(slider=args.slider, motor_torque=args.motor_torque)
     run = run_truth(
         truth_scene(nominal), args.t_end, sensors=sensors, faults=_faults(args.fault), seed=args.seed
     )
+    modes = [ModeSignal(m.t + args.signals_late, m.command) for m in run.modes]
     with written_whole(args.csv) as tmp, tmp.open("w") as fh:
-        rows = write_measurements(fh, run.measurements, run.modes)
+        rows = write_measurements(fh, run.measurements, modes)
     said = f"{len(run.measurements)} measurements, {len(run.modes)} mode signals"
     print(f"wrote {rows} rows ({said}) to {args.csv}")
     if args.truth:
         with written_whole(args.truth) as tmp, tmp.open("w") as fh:
             w = csv.writer(fh, lineterminator="\n")
             w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
-            for row in zip(
-                run.t, run.phi, run.phi_dot, run.x_C, run.force, run.foundation_x, run.foundation_y
-            ):
-                w.writerow([repr(float(v)) for v in row] + [""])
+            columns = (run.t, run.phi, run.phi_dot, run.x_C, run.force, run.foundation_x, run.foundation_y)
+            for *row, locked in zip(*columns, run.locked):
+                w.writerow([repr(float(v)) for v in row] + [str(int(locked))])
         print(f"wrote {len(run.t)} rows of the truth to {args.truth}")
     return 0
 
@@ -185,10 +202,10 @@ def _track(args: argparse.Namespace) -> int:
         force=args.force,
     )
     nominal = _nominal(args.scene)
-    tracker = Tracker(nominal, TrackSettings(prediction=args.prediction))
     if args.against_truth is not None:
-        return _against_truth(args, nominal, tracker)
+        return _against_truth(args, nominal)
     inputs, measurements, modes = _inputs(args)
+    tracker = Tracker(nominal, _settings(args, bool(modes)))
     args.loads = args.loads or args.out_recording is not None
     monitor = TrackingMonitor()
     recording = None
@@ -327,6 +344,15 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
             f"max {us.max():.0f} us ({len(cpu)} measurements)"
         )
+    timing = tracker.timing
+    if timing is not None and timing.shifts:
+        said = ", ".join(f"{1e3 * d:.2f}" for d in timing.shifts[:8]) + (
+            " ..." if len(timing.shifts) > 8 else ""
+        )
+        print(
+            f"mode signals: {len(timing.shifts)}, their commands found (ms before their stamps) {said} "
+            f"({timing.tried} hypotheses tried)"
+        )
     if tracker.motor_measured:
         est = tracker.estimate()
         print(
@@ -350,13 +376,21 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         )
 
 
-def _against_truth(args: argparse.Namespace, nominal: Any, tracker: Tracker) -> int:
+def _settings(args: argparse.Namespace, signals: bool) -> TrackSettings:
+    """Return the tracker's settings of ``mps track``'s arguments (``signals``: whether mode signals come)."""
+    if not (math.isfinite(args.signal_latency) and 0.0 <= args.signal_latency <= 0.1):
+        raise MeasurementError("--signal-latency", args.signal_latency, "a time in [0, 0.1] s")
+    return TrackSettings(prediction=args.prediction, signal_latency=args.signal_latency if signals else 0.0)
+
+
+def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
     """Emulate the truth, follow it, and print how the estimates compare with it."""
     from .evaluation import follow, nis_inside, truth_strokes
     from .truth import Sensors, run_truth, truth_scene
 
     sensors = Sensors(motor_torque=args.motor_torque)
     truth = run_truth(truth_scene(nominal), args.against_truth, sensors=sensors, seed=args.seed)
+    tracker = Tracker(nominal, _settings(args, bool(truth.modes)))
     f = follow(tracker, truth, loads=args.loads)
     _summary(tracker, np.asarray(f.cpu))
     print(

@@ -159,6 +159,11 @@ class TrackingMonitor:
     # -- the tests --------------------------------------------------------------------------
     def _innovations(self, tracker: Tracker, t: float) -> None:
         """Run the windowed NIS test (WARN above its upper bound)."""
+        replaced = tracker.take_replaced()
+        if replaced is not None and replaced < self._seen:  # a late signal's: taken again
+            for _ in range(min(self._seen - replaced, len(self._nis))):
+                self._nis.pop()
+            self._seen = replaced
         new = tracker.innovations[self._seen :]
         self._seen = len(tracker.innovations)
         w = self.settings.window

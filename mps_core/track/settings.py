@@ -47,6 +47,9 @@ class TrackSettings:
     characteristic, as a share of it (0.05: 5 %), taken where the motor's torque is first
     measured; ``motor_scale_walk``: how fast that share may drift (per √s; the motor warming,
     its supply).
+    ``signal_latency``: how late a mode signal may come after its command took effect (s; 0:
+    on time, applied at its stamp): the command is searched for over that window before its
+    stamp (:mod:`~mps_core.track.signal_timing`).
     Without mode signals the structure follows a slider scale: engaged where the slider is
     measured ``engage_drop`` (m) below its top stop while held there, disengaged where the
     crank-slider misses the slider's position (an outlier) ``disengage_misses`` times running.
@@ -69,6 +72,7 @@ class TrackSettings:
     initial_torque_sigma: float = 5.0
     motor_scale_sigma: float = 0.05
     motor_scale_walk: float = 0.001
+    signal_latency: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -95,6 +99,8 @@ class TrackSettings:
             raise MeasurementError("track.engage_drop", self.engage_drop, "a distance in (0, 0.01) m")
         if not (isinstance(self.disengage_misses, int) and self.disengage_misses >= 1):
             raise MeasurementError("track.disengage_misses", self.disengage_misses, "an integer >= 1")
+        if not (isinstance(self.signal_latency, float | int) and 0.0 <= self.signal_latency <= 0.1):
+            raise MeasurementError("track.signal_latency", self.signal_latency, "a time in [0, 0.1] s")
         if self.prediction not in PREDICTIONS:
             raise MeasurementError("track.prediction", self.prediction, "one of " + ", ".join(PREDICTIONS))
         if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):

@@ -64,6 +64,21 @@ class StrokeTable:
         #: strokes finished since the start (those taken off :attr:`strokes` too)
         self.closed = 0
 
+    def state(self) -> tuple:
+        """Return the count closed and the stroke under way, for :meth:`set_state`.
+
+        The list of strokes is its owner's to keep (a tracker's checkpoint keeps its length).
+        """
+        return self.closed, None if self.current is None else dict(vars(self.current))
+
+    def set_state(self, state: tuple) -> None:
+        """Come back to a :meth:`state`."""
+        self.closed, current = state
+        self.current = None
+        if current is not None:
+            self.current = StrokeEstimate.__new__(StrokeEstimate)
+            vars(self.current).update(current)
+
     def begin(self, index: int, t: float) -> None:
         """Start stroke ``index`` at time ``t``."""
         self.current = StrokeEstimate(index, t)

@@ -55,6 +55,7 @@ from ..solvers import ADAPTIVE_SOLVERS
 from . import lags
 from .measurements import Measurement, MeasurementError, ModeSignal
 from .settings import TrackSettings
+from .signal_timing import SignalTiming
 from .strokes import StrokeTable, stroke_index
 from .unknown_inputs import UnknownInputs
 from .unscented import unscented_step
@@ -213,6 +214,21 @@ class Tracker:
         self._stroke = self._stroke_now()
         if self._stroke is not None:
             self.strokes.begin(self._stroke, self.sim.t)
+        #: the log-likelihood of the last measurement taken (:meth:`take`)
+        self.score = 0.0
+        #: the first of :attr:`innovations` replaced since :meth:`take_replaced` was last called
+        #: (a mode signal's command tried earlier: the measurements since taken again)
+        self.replaced_from: int | None = None
+        #: when a late mode signal's command took effect (None where signals are on time)
+        self.timing: SignalTiming | None = None
+        if s.signal_latency > 0.0:
+            if not self.sim.rewindable:
+                raise MeasurementError(
+                    "track.signal_latency",
+                    s.signal_latency,
+                    f"0 with solver {self.sim.solver.name!r}, which cannot rewind to try a command earlier",
+                )
+            self.timing = SignalTiming(s.signal_latency)
 
     # -- the state ----------------------------------------------------------------------
     @property
@@ -316,6 +332,58 @@ class Tracker:
         T[2, 2 * n] = 1.0
         return T @ self.P @ T.T
 
+    # -- checkpoints ----------------------------------------------------------------------
+    def checkpoint(self) -> tuple:
+        """Return the tracker's state now, for :meth:`restore` (the model run's among it).
+
+        Of its logs (:attr:`innovations`, the strokes closed) it keeps how long they were.
+        """
+        d = dict(self.__dict__)
+        d["x"], d["P"] = self.x.copy(), self.P.copy()
+        d["rejected"], d["inferred"], d["_last"] = dict(self.rejected), dict(self.inferred), dict(self._last)
+        logs = (len(self.innovations), len(self.strokes.strokes))
+        return d, logs, self.strokes.state(), list(self.inputs.values), self.sim.checkpoint()
+
+    def restore(self, cp: tuple) -> None:
+        """Come back to a :meth:`checkpoint`: its logs cut to the lengths they had.
+
+        What the logs held before then is what they hold now (:meth:`set_logs` writes them
+        again); whether the press gives mode signals stays as it is now.
+        """
+        d, (n_innovations, n_strokes), strokes, inputs, sim = cp
+        signalled, replaced = self.signalled, self.replaced_from
+        self.__dict__.clear()
+        self.__dict__.update(d)
+        self.x, self.P = d["x"].copy(), d["P"].copy()
+        self.rejected, self.inferred = Counter(d["rejected"]), Counter(d["inferred"])
+        self._last = dict(d["_last"])
+        self.signalled = signalled
+        del self.innovations[n_innovations:]
+        del self.strokes.strokes[n_strokes:]
+        self.replaced_from = n_innovations if replaced is None else min(replaced, n_innovations)
+        self.strokes.set_state(strokes)
+        self.inputs.values[:] = inputs
+        self.sim.restore(sim)
+
+    def logs_since(self, cp: tuple) -> tuple[list, list]:
+        """Return the innovations and the strokes closed since a :meth:`checkpoint` (copies)."""
+        n_innovations, n_strokes = cp[1]
+        return self.innovations[n_innovations:], self.strokes.strokes[n_strokes:]
+
+    def set_logs(self, cp: tuple, logs: tuple[list, list]) -> None:
+        """Write the logs since a :meth:`checkpoint` (what :meth:`logs_since` gave)."""
+        n_innovations, n_strokes = cp[1]
+        innovations, strokes = logs
+        self.innovations[n_innovations:] = innovations
+        self.strokes.strokes[n_strokes:] = strokes
+        if self.replaced_from is None or n_innovations < self.replaced_from:
+            self.replaced_from = n_innovations
+
+    def take_replaced(self) -> int | None:
+        """Return the first of :attr:`innovations` replaced since the last call (None: none)."""
+        out, self.replaced_from = self.replaced_from, None
+        return out
+
     # -- mode signals ---------------------------------------------------------------------
     def mode(self, signal: ModeSignal) -> None:
         """Apply a mode signal of the press's controller at its stamp (now, if it is past;
@@ -326,13 +394,22 @@ class Tracker:
             return
         if self.origin:
             signal = ModeSignal(signal.t - self.origin, signal.command)
-        if signal.t > self.sim.t:
+        if self.timing is not None:
+            self.timing.signal(self, signal)
+            return
+        self.apply_command(signal.command, signal.t)
+
+    def apply_command(self, command: str, t: float) -> None:
+        """Apply a command to the model at ``t`` on the tracker's clock: scheduled where the
+        run is before it, now where it is there or past it (counted ``mode`` where the model
+        refuses it)."""
+        if t > self.sim.t:
             try:
-                self.sim.command(signal.command, signal.t)
+                self.sim.command(command, t)
             except MpsError:
                 self.rejected["mode"] += 1
             return
-        self._command_now(signal.command)
+        self._command_now(command)
 
     def _command_now(self, command: str) -> bool:
         """Apply a command to the model now, the state carried into the chart view it leaves
@@ -424,10 +501,18 @@ class Tracker:
             self.start(m.t)
         if self.origin:
             m = replace(m, t=m.t - self.origin)
+        if self.timing is not None:
+            return self.timing.take(self, m)
+        return self.take(m)
+
+    def take(self, m: Measurement) -> bool:
+        """Take one measurement on the tracker's clock (:meth:`update`'s work); set
+        :attr:`score` to its log-likelihood."""
         gap = m.t - self._t_last > self.settings.timeout
         reason = self._screen(m, recent=not gap)
         if reason is not None:
             self.rejected[reason] += 1
+            self.score = -self.settings.gate  # worse than any innovation computed
             return False
         if gap and self._t_last > -math.inf:
             self.rejected["gap"] += 1
@@ -676,15 +761,18 @@ class Tracker:
         PH = self.P @ H
         S = float(H @ PH) + m.variance
         nis = y * y / S
-        if nis > self.settings.gate:
+        gate = self.settings.gate
+        self.score = -0.5 * (min(nis, gate) + math.log(S / m.variance))
+        if nis > gate:
             self.rejected["outlier"] += 1
             return False
         K = PH / S
         x = self.x + K * y
         IKH = np.eye(len(x)) - np.outer(K, H)
         P = IKH @ self.P @ IKH.T + m.variance * np.outer(K, K)
-        if not self._take(x, P):
+        if not self._set_state(x, P):
             self.rejected["model"] += 1
+            self.score = -gate
             return False
         self.innovations.append((m.t + self.origin, m.kind, nis))
         self._follow_strokes()
@@ -703,7 +791,7 @@ class Tracker:
         k = 2 * self.n + 3
         self.P[k, k] = self.settings.motor_scale_sigma**2
 
-    def _take(self, x: np.ndarray, P: np.ndarray) -> bool:
+    def _set_state(self, x: np.ndarray, P: np.ndarray) -> bool:
         """Restart the model's run at state x (covariance P); False (the run and the estimate as
         they were) where x has no configuration in the present chart. Where the corrected
         state changes the structure (the top stop lets go of a slider it would now pull), the

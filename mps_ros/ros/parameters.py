@@ -299,6 +299,15 @@ PARAMETERS: tuple[Parameter, ...] = (
         "`disengage`); empty: none",
     ),
     P(
+        "track_signal_latency",
+        0.01,
+        "following a press: how late a mode signal may come after its command took effect (s; a "
+        "String has no stamp): the command is searched for over that window before the signal, the "
+        "measurements since taken again (docs/tracking.md, Late mode signals); 0: applied when it comes",
+        lo=0.0,
+        hi=0.1,
+    ),
+    P(
         "track_encoder_bits",
         17,
         "following a press: the crank encoder's bits a turn (the angle's variance LSB²/12 + noise)",
@@ -455,6 +464,7 @@ class NodeSettings:
     foxglove_address: str
     track: str
     track_mode: str
+    track_signal_latency: float
     track_encoder_bits: int
     track_encoder_noise: float
     track_torque_noise: float

@@ -85,7 +85,11 @@ def tracking_run(node: Any) -> TrackingRun:
     from ..run.sinks import Fanout
 
     st = node.settings
-    settings = TrackSettings(max_jump=_radians(st.track_max_jump), timeout=st.track_timeout)
+    settings = TrackSettings(
+        max_jump=_radians(st.track_max_jump),
+        timeout=st.track_timeout,
+        signal_latency=st.track_signal_latency if st.track_mode else 0.0,
+    )
     run = TrackingRun(
         node.twin.scene,
         Fanout([node.endpoints.sink]),

@@ -35,6 +35,35 @@ def test_emulate_then_track(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+def test_late_signals_emulated_and_searched_for(tmp_path, capsys):
+    m, truth = tmp_path / "m.csv", tmp_path / "truth.csv"
+    emulate = [
+        "emulate",
+        "press-cycle",
+        "--t-end",
+        "0.06",
+        "--slider",
+        "--csv",
+        str(m),
+        "--truth",
+        str(truth),
+    ]
+    assert main([*emulate, "--signals-late", "0.004"]) == 0
+    _, modes = read_measurements(m, {"crank_angle": 1.0, "slider_position": 1.0})
+    assert modes[0].command == "engage" and modes[0].t == pytest.approx(0.008 + 0.004)
+    locked = [r["locked"] for r in csv.DictReader(truth.open())]
+    assert locked[0] == "0" and locked[-1] == "1"  # the latch closed within the 60 ms
+    assert main(["track", "press-cycle", "--csv", str(m)]) == 0
+    said = capsys.readouterr().out
+    assert "rejected or reported: none" in said
+    found = float(said.split("their commands found (ms before their stamps) ")[1].split()[0].rstrip(","))
+    assert abs(found - 4.0) < 1.0, said
+    assert main(["track", "press-cycle", "--csv", str(m), "--signal-latency", "0"]) == 0
+    assert "outlier" in capsys.readouterr().out  # applied at its stamp: the model behind the press
+    assert main(["track", "press-cycle", "--csv", str(m), "--signal-latency", "0.5"]) == 2
+    assert "--signal-latency = 0.5: expected a time in [0, 0.1] s" in capsys.readouterr().err
+
+
 def test_a_malformed_measurements_file_is_named(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("t,crank_angle_rad,pressure\n0.001,0.5,3\n")

@@ -129,6 +129,11 @@ class _StandIn:
         self.rejected: Counter = Counter()
         self.accepted = 0
         self.strokes = StrokeTable()
+        self.replaced_from = None
+
+    def take_replaced(self):
+        out, self.replaced_from = self.replaced_from, None
+        return out
 
     def estimate(self):
         return SimpleNamespace(
@@ -168,6 +173,24 @@ def test_innovations_beyond_their_bound_warn_and_a_lost_track_is_an_error():
     tr.take(0.046, 1.0)
     assert mon.observe(tr, _m(0.046)).level == "WARN"  # found again; the window still high
     assert [e.level for e in mon.events] == ["OK", "WARN", "ERROR", "WARN"]
+
+
+def test_innovations_taken_again_replace_theirs_in_the_window():
+    s = DiagnosticSettings(window=20)
+    mon, tr = TrackingMonitor(s), _StandIn()
+    for k in range(20):
+        tr.take(k * 1e-3, 1.0)
+        mon.observe(tr, _m(k * 1e-3))
+    for k in range(20, 25):  # a late signal applied at its stamp: the model off the press
+        tr.take(k * 1e-3, 9.0)
+        mon.observe(tr, _m(k * 1e-3))
+    assert mon.status.level == "WARN"
+    del tr.innovations[18:]  # the command found earlier: taken again from the 19th
+    tr.replaced_from = 18
+    for k in range(18, 26):
+        tr.take(k * 1e-3, 1.0)
+    assert mon.observe(tr, _m(0.025)).level == "OK"
+    assert "mean NIS 1.00 over the last 20" in mon.status.message
 
 
 @pytest.mark.parametrize(
