@@ -71,10 +71,16 @@ class SignalTiming:
         self._due: list[ModeSignal] = []
         #: signals applied (signal, the time applied at), searched once the estimate is ``latency`` past
         self._applied: list[tuple[ModeSignal, float]] = []
-        #: how long before its stamp each signal's command was found to take effect (s), in order
-        self.shifts: list[float] = []
+        #: each signal searched (on the tracker's clock) and how long before its stamp its
+        #: command was found to take effect (s), in order
+        self.found: list[tuple[ModeSignal, float]] = []
         #: the hypotheses tried, in all
         self.tried = 0
+
+    @property
+    def shifts(self) -> list[float]:
+        """Return how long before its stamp each signal's command was found (s), in order."""
+        return [shift for _signal, shift in self.found]
 
     def signal(self, tracker: Searched, signal: ModeSignal) -> None:
         """Take a signal (on the tracker's clock): applied at its stamp (now where the estimate is past it).
@@ -83,7 +89,7 @@ class SignalTiming:
         """
         for earlier in self._due:
             tracker.apply_command(earlier.command, earlier.t)
-            self.shifts.append(0.0)
+            self.found.append((earlier, 0.0))
         self._due.clear()
         while self._applied:
             self._resolve(tracker, *self._applied.pop(0))
@@ -139,7 +145,7 @@ class SignalTiming:
         )
         window = history[first:]
         if not window:
-            self.shifts.append(t_s - applied)
+            self.found.append((signal, t_s - applied))
             return
         present = tracker.checkpoint()
         opened = window[0].before
@@ -170,7 +176,7 @@ class SignalTiming:
         tracker.restore(state)
         tracker.set_logs(opened, logs)
         self._history = deque(kept)
-        self.shifts.append(t_s - tau)
+        self.found.append((signal, t_s - tau))
 
 
 def _take(tracker: Searched, m: Measurement, into: deque[_Taken] | list[_Taken]) -> bool:

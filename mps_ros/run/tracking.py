@@ -191,6 +191,7 @@ class TrackingRun:
         self.slider_variance = float(slider_variance)
         self.torque_sensor = torque_sensor or TorqueSensor()
         self._torque_said = False
+        self._found_said = 0  # the mode signals searched for, said
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -380,6 +381,7 @@ class TrackingRun:
                 new = tr.rejected - before
                 for reason in new:
                     self._say(reason, t, m)
+            self._say_found()
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])
@@ -445,6 +447,20 @@ class TrackingRun:
                 f"tracking: mode signal {signal.command} at t = {signal.t:.6f} s (the estimate at "
                 f"t = {self.tracker.t:.6f} s)",
             )
+            self._say_found()
+
+    def _say_found(self) -> None:
+        """Say where the commands of the mode signals searched for since the last call were found."""
+        timing, tr = self.tracker.timing, self.tracker
+        if timing is None or len(timing.found) == self._found_said:
+            return
+        for signal, shift in timing.found[self._found_said :]:
+            self.log(
+                "info",
+                f"tracking: mode signal {signal.command} at t = {signal.t + tr.origin:.6f} s: its command "
+                f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms)",
+            )
+        self._found_said = len(timing.found)
 
     def _reject(self, reason: str, t: float, why: str) -> None:
         """Count and say an input this run rejects itself."""

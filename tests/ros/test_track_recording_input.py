@@ -23,6 +23,7 @@ from mps_core import load_scene
 from mps_core.cli import main
 from mps_core.track import Sensors, run_truth, truth_scene
 from mps_core.track.recording_input import SLIDER_VARIANCE
+from mps_core.track.settings import TrackSettings
 from mps_core.track.truth import nominal_scene
 from mps_ros.recording.recorder import Recorder
 from mps_ros.run.sinks import Fanout, RecordingSink
@@ -73,7 +74,15 @@ def follow(tmp: Path, clock_ns: int = 0, torque: bool = False) -> tuple[Tracking
     recorders = [Recorder(p, scene_name=nominal.name, scene_text=nominal.text) for p in paths]
     names = {RECEIVED_JOINTS.key: "/press/joint_states", RECEIVED_MODE.key: "/press/mode"}
     sinks = Fanout([RecordingSink(r, names=names) for r in recorders])
-    run = TrackingRun(load_scene(SCENE), sinks, late_after=math.inf)
+    said: list[tuple[str, str]] = []
+    run = TrackingRun(
+        load_scene(SCENE),
+        sinks,
+        late_after=math.inf,
+        settings=TrackSettings(signal_latency=0.01),  # the node's, its mode topic given
+        log=lambda level, line: said.append((level, line)),
+    )
+    run.said = said
     source = TrackingSource(None, run)  # its callbacks use the run only
     todo = sorted(truth.modes, key=lambda s: s.t)
     prev = None
@@ -110,6 +119,10 @@ def test_mps_track_over_the_node_s_recording_gives_its_live_estimates(followed, 
     offline = tracked(SCENE, mcap, tmp_path / "est.csv", "--loads")
     said = capsys.readouterr().out
     assert "397 taken; rejected or reported: duplicate 2, jump 1, out-of-order 2" in said
+    # the engage signal searched for (on time: kept where it came), said once
+    found = [line for _level, line in run.said if "its command found" in line]
+    assert len(found) == 1 and "mode signal engage at t = 0.008012" in found[0], found
+    assert "found 0.00 ms before it (searched over 10 ms)" in found[0]
     assert differences(node, offline) == dict.fromkeys(differences(node, offline), 0.0)
     assert all(offline[t] == est for t, est in node.items())  # bit for bit, every stamp
     # a bag directory of the same run reads the same
