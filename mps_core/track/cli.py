@@ -344,6 +344,11 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
             f"max {us.max():.0f} us ({len(cpu)} measurements)"
         )
+    if tracker.restarted:
+        print(
+            f"the model's run started again {tracker.restarted} times (its state had no configuration "
+            "to go on from: see the tracker-restart events)"
+        )
     timing = tracker.timing
     if timing is not None and timing.shifts:
         said = ", ".join(f"{1e3 * d:.2f}" for d in timing.shifts[:8]) + (

@@ -145,18 +145,32 @@ class Tracker:
         solver = scene.solver
         if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
             solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
+
+        def new_run(initial: tuple, t0: float) -> Simulation:
+            return Simulation(
+                mech,
+                scene.structure,
+                effects,
+                initial,
+                solver=solver,
+                charts=scene.charts,
+                t0=t0,
+                change_point=scene.change_point,
+            )
+
+        def initial_state(phi: float, phi_dot: float) -> tuple:
+            i = scene.initial
+            psi, psi_dot = i.get("psi"), i.get("psi_dot", 0.0)
+            return mech.initial_state(scene.structure, phi, phi_dot, psi, psi_dot, sigma=scene.assembly)
+
+        #: a model run from the scene's initial structure at a crank angle and rate, and at a time
+        #: (the first, and where a run fails: :meth:`_start_again`)
+        self._new_run, self._initial_state, self._sigma = new_run, initial_state, sigma
+        self._initial_rate = float(scene.initial["phi_dot"])
+        self._initial_structure = scene.structure
         #: the model's run, which the estimate's mean follows (on the tracker's own clock: the
         #: press's less :attr:`origin`)
-        self.sim = Simulation(
-            mech,
-            scene.structure,
-            effects,
-            initial or scene.initial_state(mech),
-            solver=solver,
-            charts=scene.charts,
-            t0=t0,
-            change_point=scene.change_point,
-        )
+        self.sim = new_run(initial or scene.initial_state(mech), t0)
         #: the press's time at the model run's time 0 (s): the first measurement's stamp less
         #: ``t0`` where that stamp is over the ``timeout`` past ``t0`` (a press's stamps on
         #: the system's clock, 1.8e9 s: the run keeps its times small, its steps exact)
@@ -167,20 +181,7 @@ class Tracker:
         self._early: list[ModeSignal] = []
         self.phi_tdc = float(phi_tdc)
         s = self.settings
-        e = self.sim.solver.current
-        lag = s.force_lag
-        self.x = np.concatenate([e.q, e.qd, np.zeros(4)])
-        scales = np.asarray(self.sim.view.scales, dtype=float)
-        self.P = np.diag(
-            np.concatenate(
-                [
-                    (sigma[0] * scales) ** 2,
-                    (sigma[1] * scales) ** 2,
-                    [s.initial_force_sigma**2, s.initial_torque_sigma**2, 0.0, 0.0],
-                ]
-            )
-        )
-        self.x, self.P = lags.restart(self.x, self.P, self.n, lag)
+        self.x, self.P = self._initial_estimate(0.0, s.initial_torque_sigma**2, 0.0, 0.0)
         if not self._window_now():
             self._hold_force()
 
@@ -201,6 +202,8 @@ class Tracker:
         #: the times the crank was acquired again, off the model by more than the gate
         #: allows (the first measurement, or the first after a gap)
         self.acquired = 0
+        #: the times the model's run failed and was started again (:meth:`_start_again`)
+        self.restarted = 0
         self._slider_misses = 0
         self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
@@ -242,6 +245,66 @@ class Tracker:
         out = [dict(ev, t=ev["t"] + self.origin) if self.origin and "t" in ev else ev for ev in events]
         del events[:]
         return out
+
+    def _initial_estimate(
+        self, torque: float, torque_variance: float, motor_scale: float, motor_scale_variance: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Return (x, P) at the run's present state, the initial 1-σ of (q, q̇) and of the force,
+        the load torque and the motor's share as given, the smoother's slots started."""
+        s = self.settings
+        e = self.sim.solver.current
+        x = np.concatenate([e.q, e.qd, [0.0, torque, 0.0, motor_scale]])
+        scales = np.asarray(self.sim.view.scales, dtype=float)
+        sigma = self._sigma
+        P = np.diag(
+            np.concatenate(
+                [
+                    (sigma[0] * scales) ** 2,
+                    (sigma[1] * scales) ** 2,
+                    [s.initial_force_sigma**2, torque_variance, 0.0, motor_scale_variance],
+                ]
+            )
+        )
+        return lags.restart(x, P, self.n, s.force_lag)
+
+    def _start_again(self, m: Measurement, e0: Any, error: Exception) -> None:
+        """Start the model's run again at ``m``'s time, its prediction there from ``e0`` having failed.
+
+        The run's state had no configuration to go on from (a singular position, equations
+        without a solution: the estimate had wandered where the press cannot be). The new run
+        starts in the scene's initial structure, its crank at the angle measured (or where its
+        rate at ``e0`` takes it) at that rate, with the initial covariance; the load torque and the
+        motor's share are kept. Counted (:attr:`restarted`) and logged as an event
+        (``tracker-restart``).
+        """
+        n = self.n
+        x, P = self.x, self.P
+        try:
+            phi, phi_dot = self.sim.observables.observe(e0)["phi"]
+        except (MpsError, ArithmeticError, ValueError):
+            phi, phi_dot = math.nan, math.nan
+        if not math.isfinite(phi_dot):
+            phi_dot = self._initial_rate
+        if m.kind == "crank_angle":
+            phi = m.value
+        elif math.isfinite(phi):
+            phi = phi + phi_dot * (m.t - e0.t)
+        else:
+            phi = 0.0
+        self.sim = self._new_run(self._initial_state(phi, phi_dot), m.t)
+        i = 2 * n
+        self.x, self.P = self._initial_estimate(
+            float(x[i + 1]), float(P[i + 1, i + 1]), float(x[i + 3]), float(P[i + 3, i + 3])
+        )
+        self.inputs.set(0.0, float(self.x[2 * self.n + 1]))
+        self._starts = []
+        if not self._window_now():
+            self._hold_force()
+        self.restarted += 1
+        self.sim.events.append(
+            {"t": m.t, "kind": "tracker-restart", "structure": self._initial_structure, "why": str(error)}
+        )
+        self._follow_strokes()
 
     @property
     def n(self) -> int:
@@ -516,7 +579,11 @@ class Tracker:
             return False
         if gap and self._t_last > -math.inf:
             self.rejected["gap"] += 1
-        self._predict(m.t)
+        e0 = self.sim.solver.current
+        try:
+            self._predict(m.t)
+        except (MpsError, ArithmeticError, ValueError) as exc:
+            self._start_again(m, e0, exc)
         if gap and m.kind == "crank_angle":
             self._acquire(m)
         taken = self._correct(m)

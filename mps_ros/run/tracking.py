@@ -192,6 +192,7 @@ class TrackingRun:
         self.torque_sensor = torque_sensor or TorqueSensor()
         self._torque_said = False
         self._found_said = 0  # the mode signals searched for, said
+        self._restarts_said = 0  # the model's runs started again, said
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -382,6 +383,13 @@ class TrackingRun:
                 for reason in new:
                     self._say(reason, t, m)
             self._say_found()
+            if tr.restarted > self._restarts_said:
+                self._restarts_said = tr.restarted
+                self.log(
+                    "warn",
+                    f"tracking: at t = {t:.6f} s the model's run failed and started again in the scene's "
+                    f"initial structure at the crank measured ({tr.restarted} so far; tracker-restart)",
+                )
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])

@@ -205,3 +205,34 @@ def test_a_correction_that_lets_the_stop_go_carries_the_state_into_the_free_stru
         tracker.estimate()
         structures.add(tracker.sim.structure)
     assert {"held", "free"} <= structures and tracker.sim.structure == "free"
+
+
+def test_a_run_that_fails_is_started_again_at_the_crank_measured(monkeypatch):
+    """The model's run cannot go on from its state (a singular position): the tracker starts a
+    run again in the scene's initial structure at the crank measured, keeps the load torque,
+    counts it and logs an event; the measurement is taken, nothing raises."""
+    from mps_core.errors import SingularConfiguration
+
+    nominal = load_scene("press-cycle")
+    truth = run_truth(truth_scene(nominal), 0.05, seed=1)
+    tracker = Tracker(nominal)
+    ms = truth.measurements
+    for m in ms[:20]:
+        tracker.update(m)
+    torque = tracker.estimate().torque
+    failing = tracker.sim
+
+    def fail(t1):
+        raise SingularConfiguration("no chart of structure 'free' is regular here", t1, {})
+
+    monkeypatch.setattr(failing, "advance_to", fail)
+    assert tracker.update(ms[20])
+    assert tracker.sim is not failing and tracker.restarted == 1
+    est = tracker.estimate()
+    assert abs(est.phi - ms[20].value) < 1e-3 and est.torque == pytest.approx(torque)
+    event = next(e for e in tracker.take_events() if e["kind"] == "tracker-restart")
+    assert event["t"] == ms[20].t and "no chart of structure 'free'" in event["why"]
+    assert event["structure"] == nominal.structure == "held"
+    for m in ms[21:]:
+        tracker.update(m)
+    assert np.isfinite(tracker.x).all() and tracker.restarted == 1
