@@ -12,10 +12,11 @@ one's log-likelihood. A signal stamped t is applied at t, as without the search;
 estimate is L past t (or at the first measurement rejected since), its command is tried in each
 gap between the measurements that meets [t − L, t] (at the middle of what of the gap lies
 within it), the measurements from there taken again, and the hypothesis whose measurements
-since t − L are the likeliest is kept, the one applied at t among them. A measurement's
+since t − L are the likeliest is kept: the one applied at t unless another beats it by
+``EVIDENCE`` (a likelihood ratio chance gives one time in twenty). A measurement's
 log-likelihood is −½·(NIS + log S/R), the NIS capped at the gate, a rejection before any
 innovation −gate: never positive, so a hypothesis is dropped as soon as its sum falls below the
-best one's. The estimates already given stay as they were; the tracker's state, counts,
+one to beat. The estimates already given stay as they were; the tracker's state, counts,
 innovations and strokes are the kept hypothesis's
 (:attr:`~mps_core.track.tracker.Tracker.replaced_from` says from where).
 """
@@ -27,7 +28,11 @@ from typing import Any, NamedTuple, Protocol
 
 from .measurements import Measurement, ModeSignal
 
-__all__ = ["SignalTiming"]
+__all__ = ["EVIDENCE", "SignalTiming"]
+
+#: how much likelier (log) a command earlier than its signal must make the measurements than
+#: the signal on time: half χ²(1)'s 95 % quantile
+EVIDENCE = 0.5 * 3.841
 
 
 class Searched(Protocol):
@@ -151,27 +156,45 @@ class SignalTiming:
         opened = window[0].before
         assert opened is not None
         main = tracker.logs_since(opened)  # the present run's, since the window opened
-        best = (sum(h.score for h in window), applied, present, history, main)
-        prefix = 0.0
+        # the signal on time is the hypothesis to beat, by a likelihood ratio that chance gives
+        # one time in twenty (χ²(1) 95 %): near its stamp the measurements say little, and a
+        # command moved by noise is off where it was not
+        best = (sum(h.score for h in window) + EVIDENCE, applied, present, history, main)
+
+        def attempt(j: int, tau: float, prefix: float) -> bool:
+            """Try the command at tau in the gap before window[j]; return whether it is the best."""
+            nonlocal best
+            h = window[j]
+            assert h.before is not None
+            tracker.restore(h.before)
+            tracker.apply_command(command, tau)
+            again: list[_Taken] = []
+            total = prefix
+            for later in window[j:]:
+                _take(tracker, later.m, again)
+                total += again[-1].score
+                if total <= best[0]:  # no score is positive: it cannot win
+                    break
+            self.tried += 1
+            if total <= best[0]:
+                return False
+            (n_i, n_s), (o_i, o_s) = h.before[1], opened[1]
+            innovations, strokes = tracker.logs_since(h.before)
+            logs = (main[0][: n_i - o_i] + innovations, main[1][: n_s - o_s] + strokes)
+            best = (total, tau, tracker.checkpoint(), history[: first + j] + again, logs)
+            return True
+
+        prefix, won = 0.0, None
         for j, h in enumerate(window):
             if h.before is not None and h.t_before < t_s:
-                tau = 0.5 * (max(h.t_before, t_open) + min(h.m.t, t_s))
-                tracker.restore(h.before)
-                tracker.apply_command(command, tau)
-                again: list[_Taken] = []
-                total = prefix
-                for later in window[j:]:
-                    _take(tracker, later.m, again)
-                    total += again[-1].score
-                    if total <= best[0]:  # no score is positive: it cannot win
-                        break
-                self.tried += 1
-                if total > best[0]:
-                    (n_i, n_s), (o_i, o_s) = h.before[1], opened[1]
-                    innovations, strokes = tracker.logs_since(h.before)
-                    logs = (main[0][: n_i - o_i] + innovations, main[1][: n_s - o_s] + strokes)
-                    best = (total, tau, tracker.checkpoint(), history[: first + j] + again, logs)
+                lo, hi = max(h.t_before, t_open), min(h.m.t, t_s)
+                if attempt(j, 0.5 * (lo + hi), prefix):
+                    won = (j, lo, hi, prefix)
             prefix += h.score
+        if won is not None:  # the gap's quarters: a command a quarter of a sample off moves an impact
+            j, lo, hi, prefix = won
+            for tau in (0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi):
+                attempt(j, tau, prefix)
         _total, tau, state, kept, logs = best
         tracker.restore(state)
         tracker.set_logs(opened, logs)
