@@ -6,30 +6,35 @@ network and the executor add to it. Applied at that time, the model engages late
 press already moves as engaged, and a few milliseconds of that lose the track
 (docs/tracking.md, Late mode signals).
 
-With a ``signal_latency`` L the tracker keeps its state before each of its last measurements (a
-checkpoint, for the last 1.5·L and back to the window of a signal not yet searched) and each
-one's log-likelihood. A signal stamped t is applied at t, as without the search; once the
-estimate is L past t (or at the first measurement rejected since), its command is tried in each
-gap between the measurements that meets [t − L, t] (at the middle of what of the gap lies
-within it), the measurements from there taken again, and the hypothesis whose measurements
-since t − L are the likeliest is kept: the one applied at t unless another beats it by
-``EVIDENCE`` (a likelihood ratio chance gives one time in twenty). A measurement's
-log-likelihood is −½·(NIS + log S/R), the NIS capped at the gate, a rejection before any
-innovation −gate: never positive, so a hypothesis is dropped as soon as its sum falls below the
-one to beat. The estimates already given stay as they were; the tracker's state, counts,
-innovations and strokes are the kept hypothesis's
+With a ``signal_latency`` L the tracker keeps, for its last 1.5·L of measurements (and back
+to the window of a signal not yet searched), each one's log-likelihood and a checkpoint of its
+state every ``CHECKPOINT_EVERY`` stamps. A signal stamped t is applied at t, as without the
+search; once the estimate is L past t (or at the first measurement rejected since), its command
+is tried at the middle of each gap between the measurements that meets [t − L, t], then at the
+quarters of the best gap: from the last checkpoint before the gap, the measurements taken again.
+The hypothesis whose measurements since t − L are the likeliest is kept: the one applied at t
+unless another beats it by ``EVIDENCE`` (a likelihood ratio chance gives one time in twenty).
+A measurement's log-likelihood is −½·(NIS + log S/R), the NIS capped at the gate, a rejection
+before any innovation −gate: never positive, so a hypothesis is dropped as soon as its sum falls
+below the one to beat. The estimates already given stay as they were; the tracker's state,
+counts, innovations and strokes are the kept hypothesis's
 (:attr:`~mps_core.track.tracker.Tracker.replaced_from` says from where).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from itertools import islice
 from typing import Any, NamedTuple, Protocol
 
 from .measurements import Measurement, ModeSignal
 
-__all__ = ["EVIDENCE", "SignalTiming"]
+__all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SignalTiming"]
 
+#: the gaps between stamps a checkpoint is kept for (the states between are taken again from the
+#: one before: a checkpoint kept at every gap costs the measurements after it about 15 µs each,
+#: the memory it holds on to being what the next steps would have used again)
+CHECKPOINT_EVERY = 4
 #: how much likelier (log) a command earlier than its signal must make the measurements than
 #: the signal on time: half χ²(1)'s 95 % quantile
 EVIDENCE = 0.5 * 3.841
@@ -44,21 +49,23 @@ class Searched(Protocol):
 
     def checkpoint(self) -> tuple: ...
     def restore(self, cp: tuple) -> None: ...
-    def logs_since(self, cp: tuple) -> tuple[list, list]: ...
-    def set_logs(self, cp: tuple, logs: tuple[list, list]) -> None: ...
+    def log_lengths(self) -> tuple[int, int]: ...
+    def logs_since(self, lengths: tuple[int, int]) -> tuple[list, list]: ...
+    def set_logs(self, lengths: tuple[int, int], logs: tuple[list, list]) -> None: ...
     def apply_command(self, command: str, t: float) -> None: ...
     def take(self, m: Measurement) -> bool: ...
 
 
 class _Taken(NamedTuple):
-    """A measurement taken: the tracker's time and checkpoint before it, its score, whether taken.
+    """A measurement taken: the tracker's time, logs and checkpoint before it, its score, whether taken.
 
-    The checkpoint is None where the tracker's time is the measurement's stamp already (no gap
-    to try a command in).
+    The checkpoint is kept every ``CHECKPOINT_EVERY`` gaps between stamps (None between, and
+    where the tracker's time is the measurement's stamp already: no gap to try a command in).
     """
 
     m: Measurement
     t_before: float
+    logs: tuple[int, int]
     before: tuple | None
     score: float
     taken: bool
@@ -72,6 +79,7 @@ class SignalTiming:
         #: its stamp its measurements are gathered before the search
         self.latency = float(latency)
         self._history: deque[_Taken] = deque()
+        self._gaps = 0  # the gaps between stamps so far (a checkpoint every CHECKPOINT_EVERY)
         #: signals stamped ahead of the estimate (applied at their stamp once a measurement reaches it)
         self._due: list[ModeSignal] = []
         #: signals applied (signal, the time applied at), searched once the estimate is ``latency`` past
@@ -114,21 +122,29 @@ class SignalTiming:
         while self._applied and m.t > self._applied[0][0].t + self.latency:
             self._resolve(tracker, *self._applied.pop(0))
         history = self._history
-        keep = (
-            m.t - 1.5 * self.latency
-        )  # a signal stamped a little behind the estimate still finds its window
+        # kept back far enough that a signal stamped a little behind the estimate finds its window
+        keep = m.t - 1.5 * self.latency
         if self._applied:
             keep = min(keep, self._applied[0][0].t - self.latency)
-        while history and history[0].m.t < keep:
+        while len(history) > 1 and history[0].m.t < keep:
+            # a checkpoint is kept while it is the last one at or before keep (where the window's
+            # measurements are taken again from)
+            later = next((h for h in islice(history, 1, None) if h.before is not None), None)
+            if history[0].before is not None and (later is None or later.m.t > keep):
+                break
             history.popleft()
         t_before = tracker.sim.t
-        before = tracker.checkpoint() if m.t > t_before else None
+        logs = tracker.log_lengths()
+        gap = m.t > t_before
+        if gap:
+            self._gaps += 1
+        before = tracker.checkpoint() if gap and self._gaps % CHECKPOINT_EVERY == 0 else None
         while self._due and self._due[0].t <= m.t:
             signal = self._due.pop(0)
             self._applied.append((signal, signal.t))
             tracker.apply_command(signal.command, signal.t)
         taken = tracker.take(m)
-        history.append(_Taken(m, t_before, before, tracker.score, taken))
+        history.append(_Taken(m, t_before, logs, before, tracker.score, taken))
         if not taken and self._applied:
             self._resolve(tracker, *self._applied.pop(0))
             taken = self._history[-1].taken
@@ -138,55 +154,62 @@ class SignalTiming:
         """Keep the signal's command where the measurements since its window opened say it was.
 
         Tried in each gap between the measurements that meets [stamp − latency, stamp], against
-        where it was applied (the present run).
+        where it was applied (the present run), from the last checkpoint before the gap.
         """
         t_s, command = signal.t, signal.command
         t_open = t_s - self.latency
         history = list(self._history)
-        # the window opens at the first measurement after t_open with a gap before it (those
-        # before it are every hypothesis's alike)
-        first = next(
-            (i for i, h in enumerate(history) if h.m.t > t_open and h.before is not None), len(history)
-        )
-        window = history[first:]
-        if not window:
-            self.found.append((signal, t_s - applied))
+        first = next((i for i, h in enumerate(history) if h.m.t > t_open), len(history))
+        if first == len(history):
+            self.found.append((signal, t_s - applied))  # nothing measured since its window opened
             return
+        window = history[first:]
         present = tracker.checkpoint()
-        opened = window[0].before
-        assert opened is not None
+        opened = window[0].logs
         main = tracker.logs_since(opened)  # the present run's, since the window opened
         # the signal on time is the hypothesis to beat, by a likelihood ratio that chance gives
         # one time in twenty (χ²(1) 95 %): near its stamp the measurements say little, and a
         # command moved by noise is off where it was not
         best = (sum(h.score for h in window) + EVIDENCE, applied, present, history, main)
+        base = None  # the last entry with a checkpoint, at or before the one tried
+        bases = []
+        for i, h in enumerate(history):
+            if h.before is not None:
+                base = i
+            bases.append(base)
 
         def attempt(j: int, tau: float, prefix: float) -> bool:
-            """Try the command at tau in the gap before window[j]; return whether it is the best."""
+            """Try the command at tau in the gap before history[j]; return whether it is the best."""
             nonlocal best
-            h = window[j]
-            assert h.before is not None
-            tracker.restore(h.before)
-            tracker.apply_command(command, tau)
+            k = bases[j]
+            if k is None:
+                return False
+            start = history[k].before
+            assert start is not None
+            tracker.restore(start)
             again: list[_Taken] = []
+            for i in range(k, j):  # as they were: no command before the gap
+                _take(tracker, history[i], again)
+            tracker.apply_command(command, tau)
             total = prefix
-            for later in window[j:]:
-                _take(tracker, later.m, again)
+            for i in range(j, len(history)):
+                _take(tracker, history[i], again)
                 total += again[-1].score
                 if total <= best[0]:  # no score is positive: it cannot win
                     break
             self.tried += 1
             if total <= best[0]:
                 return False
-            (n_i, n_s), (o_i, o_s) = h.before[1], opened[1]
-            innovations, strokes = tracker.logs_since(h.before)
+            (n_i, n_s), (o_i, o_s) = history[j].logs, opened
+            innovations, strokes = tracker.logs_since(history[j].logs)
             logs = (main[0][: n_i - o_i] + innovations, main[1][: n_s - o_s] + strokes)
-            best = (total, tau, tracker.checkpoint(), history[: first + j] + again, logs)
+            best = (total, tau, tracker.checkpoint(), history[:k] + again, logs)
             return True
 
         prefix, won = 0.0, None
-        for j, h in enumerate(window):
-            if h.before is not None and h.t_before < t_s:
+        for j in range(first, len(history)):
+            h = history[j]
+            if h.t_before < t_s and h.m.t > h.t_before:
                 lo, hi = max(h.t_before, t_open), min(h.m.t, t_s)
                 if attempt(j, 0.5 * (lo + hi), prefix):
                     won = (j, lo, hi, prefix)
@@ -202,10 +225,13 @@ class SignalTiming:
         self.found.append((signal, t_s - tau))
 
 
-def _take(tracker: Searched, m: Measurement, into: deque[_Taken] | list[_Taken]) -> bool:
-    """Take ``m`` into the tracker, its checkpoint before it and its score kept in ``into``."""
-    t_before = tracker.sim.t
-    before = tracker.checkpoint() if m.t > t_before else None
-    taken = tracker.take(m)
-    into.append(_Taken(m, t_before, before, tracker.score, taken))
-    return taken
+def _take(tracker: Searched, taken: _Taken, into: list[_Taken]) -> None:
+    """Take ``taken``'s measurement into the tracker again, into ``into`` as it was.
+
+    With a checkpoint before it where it had one.
+    """
+    m = taken.m
+    t_before, logs = tracker.sim.t, tracker.log_lengths()
+    before = tracker.checkpoint() if taken.before is not None else None
+    ok = tracker.take(m)
+    into.append(_Taken(m, t_before, logs, before, tracker.score, ok))

@@ -404,8 +404,7 @@ class Tracker:
         d = dict(self.__dict__)
         d["x"], d["P"] = self.x.copy(), self.P.copy()
         d["rejected"], d["inferred"], d["_last"] = dict(self.rejected), dict(self.inferred), dict(self._last)
-        logs = (len(self.innovations), len(self.strokes.strokes))
-        return d, logs, self.strokes.state(), list(self.inputs.values), self.sim.checkpoint()
+        return d, self.log_lengths(), self.strokes.state(), list(self.inputs.values), self.sim.checkpoint()
 
     def restore(self, cp: tuple) -> None:
         """Come back to a :meth:`checkpoint`: its logs cut to the lengths they had.
@@ -428,14 +427,18 @@ class Tracker:
         self.inputs.values[:] = inputs
         self.sim.restore(sim)
 
-    def logs_since(self, cp: tuple) -> tuple[list, list]:
-        """Return the innovations and the strokes closed since a :meth:`checkpoint` (copies)."""
-        n_innovations, n_strokes = cp[1]
+    def log_lengths(self) -> tuple[int, int]:
+        """Return how long the logs are now (:attr:`innovations`, the strokes closed)."""
+        return len(self.innovations), len(self.strokes.strokes)
+
+    def logs_since(self, lengths: tuple[int, int]) -> tuple[list, list]:
+        """Return the innovations and the strokes closed since the logs had ``lengths`` (copies)."""
+        n_innovations, n_strokes = lengths
         return self.innovations[n_innovations:], self.strokes.strokes[n_strokes:]
 
-    def set_logs(self, cp: tuple, logs: tuple[list, list]) -> None:
-        """Write the logs since a :meth:`checkpoint` (what :meth:`logs_since` gave)."""
-        n_innovations, n_strokes = cp[1]
+    def set_logs(self, lengths: tuple[int, int], logs: tuple[list, list]) -> None:
+        """Write the logs since they had ``lengths`` (what :meth:`logs_since` gave)."""
+        n_innovations, n_strokes = lengths
         innovations, strokes = logs
         self.innovations[n_innovations:] = innovations
         self.strokes.strokes[n_strokes:] = strokes

@@ -1,7 +1,7 @@
 """``mps emulator``: a press to follow on ROS, its sensors' readings published from a truth scene.
 
     mps emulator SCENE [--t-end S] [--seed N] [--slider] [--motor-torque] [--fault T:KIND ...]
-                       [--glitch T:KIND ...]
+                       [--glitch T:KIND ...] [--signals-late S]
                        [--topic /press/joint_states] [--mode-topic /press/mode]
                        [--real-time-factor F] [--subscribers N] [--wait S]
 
@@ -49,6 +49,13 @@ def register(subparsers: Any) -> None:
         help="a bad measurement at T s: jump, duplicate, out-of-order (repeatable)",
     )
     p.add_argument(
+        "--signals-late",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="publish each mode signal S seconds after its command took effect (a controller's latency)",
+    )
+    p.add_argument(
         "--topic", default="/press/joint_states", help="the measurements' topic (sensor_msgs/JointState)"
     )
     p.add_argument(
@@ -91,6 +98,7 @@ def _emulator(args: argparse.Namespace) -> int:
     """Check the arguments, run the truth, publish its sensors' readings."""
     from mps_core import MpsError, load_scene
     from mps_core.track import Fault, Sensors, run_truth, truth_scene
+    from mps_core.track.measurements import ModeSignal
     from mps_core.track.truth import FAULTS, nominal_scene, timed_kinds
 
     def say(text: str) -> None:
@@ -103,6 +111,8 @@ def _emulator(args: argparse.Namespace) -> int:
             raise ValueError(
                 f"--real-time-factor = {args.real_time_factor!r}: expected a number from 0.001 to 1000"
             )
+        if not (0.0 <= args.signals_late <= 1.0):
+            raise ValueError(f"--signals-late = {args.signals_late!r}: expected a time in [0, 1] s")
         if args.subscribers < 0:
             raise ValueError(f"--subscribers = {args.subscribers!r}: expected an integer >= 0")
         faults = tuple(Fault(t, k) for t, k in timed_kinds(args.fault, "--fault", FAULTS))
@@ -129,7 +139,7 @@ def _emulator(args: argparse.Namespace) -> int:
     try:
         return mod.publish(
             stream,
-            list(truth.modes),
+            [ModeSignal(m.t + args.signals_late, m.command) for m in truth.modes],
             [mod.Glitch(t, k) for t, k in glitch_specs],
             topic=args.topic,
             mode_topic=args.mode_topic,

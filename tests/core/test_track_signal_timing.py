@@ -112,3 +112,18 @@ def test_from_the_crank_alone_a_signal_on_time_stays_at_its_stamp():
     tracker, monitor, _ = _follow(nominal, truth, 0.01)
     assert tracker.timing is not None and tracker.timing.shifts[0] == 0.0
     assert [s.level for s in monitor.events] == ["OK"]
+
+
+@pytest.mark.parametrize("every", [1, 7])
+def test_the_search_is_the_same_from_sparser_or_denser_checkpoints(cycle, monkeypatch, every):
+    """A hypothesis starts from the last checkpoint before its gap and takes the measurements
+    between again: the same estimates, whichever stamps the checkpoints were kept at."""
+    from mps_core.track import signal_timing
+
+    nominal, truth = cycle
+    tracker, _, rows = _follow(nominal, truth, 0.01, LATE)
+    monkeypatch.setattr(signal_timing, "CHECKPOINT_EVERY", every)
+    other, _, other_rows = _follow(nominal, truth, 0.01, LATE)
+    assert other.timing is not None and tracker.timing is not None
+    assert other.timing.shifts == tracker.timing.shifts
+    assert np.array_equal(other_rows, rows)

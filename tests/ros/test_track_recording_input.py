@@ -56,13 +56,15 @@ def _joints(t: float, angle: float, slider: float | None, torque: float | None =
     )
 
 
-def follow(tmp: Path, clock_ns: int = 0, torque: bool = False) -> tuple[TrackingRun, list[Path]]:
+def follow(
+    tmp: Path, clock_ns: int = 0, torque: bool = False, late_ns: int = 12_345
+) -> tuple[TrackingRun, list[Path]]:
     """Follow the emulated press with the node's source and run; record it as a file and a bag.
 
     Each message goes to the node ``clock_ns`` after its stamp on the middleware's clock (its
     source timestamp); a mode signal before the first measurement at or after its time, as
-    the emulator sends them; ``torque``: the motor's torque measured too. Return the run and
-    the recordings.
+    the emulator sends them, ``late_ns`` after its command; ``torque``: the motor's torque
+    measured too. Return the run and the recordings.
     """
     from mps_ros.ros.emulator import samples
     from mps_ros.ros.tracking_source import TrackingSource
@@ -88,9 +90,9 @@ def follow(tmp: Path, clock_ns: int = 0, torque: bool = False) -> tuple[Tracking
     prev = None
     for i, s in enumerate(samples(truth.measurements)):
         info = {"source_timestamp": clock_ns + _ns(s.t), "received_timestamp": clock_ns + _ns(s.t) + 90_000}
-        while todo and todo[0].t <= s.t:
+        while todo and todo[0].t + late_ns * 1e-9 <= s.t:
             m = todo.pop(0)
-            source.on_mode(string({"data": m.command}), {"source_timestamp": clock_ns + _ns(m.t) + 12_345})
+            source.on_mode(string({"data": m.command}), {"source_timestamp": clock_ns + _ns(m.t) + late_ns})
         glitch = GLITCHES.get(i)
         angle = s.angle + math.radians(20.0) if glitch == "jump" else s.angle
         source.on_measurement(_joints(s.t, angle, s.slider, s.torque), info)
@@ -127,6 +129,22 @@ def test_mps_track_over_the_node_s_recording_gives_its_live_estimates(followed, 
     assert all(offline[t] == est for t, est in node.items())  # bit for bit, every stamp
     # a bag directory of the same run reads the same
     assert tracked(SCENE, bag, tmp_path / "bag.csv") == offline
+
+
+def test_a_late_engage_is_found_where_it_was_and_tracked_again_alike(tmp_path, capsys):
+    """The engage signal sent 4 ms after its command: the node's run finds the command there,
+    rejects nothing but the glitches, and says so; mps track over its recording gives its
+    estimates bit for bit (the same search)."""
+    run, (mcap, _bag) = follow(tmp_path, late_ns=4_000_000)
+    assert run.rejected() == {"jump": 1, "duplicate": 2, "out-of-order": 2}
+    found = [line for _level, line in run.said if "its command found" in line]
+    assert len(found) == 1 and "mode signal engage at t = 0.012" in found[0], found
+    shift = float(found[0].split("found ")[1].split(" ms")[0])
+    assert 3.0 < shift < 5.0, found
+    node = node_estimates(mcap)
+    offline = tracked(SCENE, mcap, tmp_path / "est.csv")
+    assert "mode signals: 1, their commands found" in capsys.readouterr().out
+    assert all(offline[t] == est for t, est in node.items())
 
 
 def test_without_its_mode_signals_the_engage_is_found_later(followed, tmp_path, capsys):
