@@ -164,7 +164,8 @@ def publish(
             + (f", glitches: {', '.join(f'{g.kind} at {g.t:g} s' for g in glitches)}" if glitches else "")
             + (
                 f"; published after its time p50 {np.percentile(ms, 50):.3g} ms, p99 "
-                f"{np.percentile(ms, 99):.3g} ms"
+                f"{np.percentile(ms, 99):.3g} ms, max {ms.max():.3g} ms "
+                f"(at t = {stream[int(ms.argmax())].t:.4f} s)"
                 if len(ms)
                 else ""
             )
