@@ -47,12 +47,12 @@ from mps_core.track.tracker import LOAD_COLUMNS
 from mps_core.track.truth import nominal_scene
 
 from ..wire import diagnostics
-from ..wire.cdr import Preset, string, wrench_stamped
+from ..wire.cdr import Preset, msgdef, string, wrench_stamped
 from ..wire.diagnostics import hardware_id
 from ..wire.json_text import to_json
 from ..wire.measured import measurements, ns_seconds
 from ..wire.step_messages import StepMessages
-from ..wire.topics import OUTPUTS
+from ..wire.topics import BY_KEY, OUTPUTS
 from ..wire.track_topics import (
     PROCESS_FORCE,
     PROCESS_FORCE_NOW,
@@ -60,6 +60,7 @@ from ..wire.track_topics import (
     RECEIVED_JOINTS,
     RECEIVED_MODE,
     STROKES,
+    TRACKING_BY_KEY,
     sigma,
 )
 from .commands import Inbox, shown
@@ -247,7 +248,14 @@ class TrackingRun:
 
     # -- the node's runner, as far as the node calls it ------------------------------------
     def prepare(self) -> None:
-        """Make the sinks ready for the topics of the estimates and the inputs."""
+        """Make the sinks ready for the topics of the estimates and the inputs.
+
+        The recording's channels are registered as their first messages come (a channel is in
+        the file where its topic has messages), but their types' definitions are read now: the
+        first measurement would otherwise wait 0.13 s for rosbags' type store.
+        """
+        for msgtype in sorted({t.msgtype for t in (*BY_KEY.values(), *TRACKING_BY_KEY.values())}):
+            msgdef(msgtype)
         self.sinks.prepare([])
 
     def close(self) -> None:
