@@ -31,9 +31,10 @@ from .measurements import Measurement, ModeSignal
 
 __all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SignalTiming"]
 
-#: the gaps between stamps a checkpoint is kept for (the states between are taken again from the
-#: one before: a checkpoint kept at every gap costs the measurements after it about 15 µs each,
-#: the memory it holds on to being what the next steps would have used again)
+#: the gaps between stamps a checkpoint is kept for: the states between are taken again from the
+#: one before, in a search; a checkpoint copies some 7 µs of state, and while it is held the steps
+#: after it are slower too, about as much with one every fourth stamp as with one at each
+#: (docs/tracking.md, Late mode signals)
 CHECKPOINT_EVERY = 4
 #: how much likelier (log) a command earlier than its signal must make the measurements than
 #: the signal on time: half χ²(1)'s 95 % quantile
