@@ -36,8 +36,16 @@ import numpy as np
 from .diagnostics import TrackingMonitor
 from .measurements import Measurement, MeasurementError, ModeSignal, TorqueSensor
 from .recording import TrackRecording
-from .recording_input import JOINTS_TOPIC, MODE_TOPIC, Input, in_time_order, recording_variances, split_inputs
-from .settings import PREDICTIONS, TrackSettings
+from .recording_input import (
+    JOINTS_TOPIC,
+    MODE_TOPIC,
+    Input,
+    Tuning,
+    in_time_order,
+    recording_variances,
+    split_inputs,
+)
+from .settings import PREDICTIONS, SIGNAL_LATENCY, TrackSettings
 from .tracker import LOAD_COLUMNS, Tracker
 
 __all__ = ["register"]
@@ -131,10 +139,11 @@ def register(subparsers: Any) -> None:
     t.add_argument(
         "--signal-latency",
         type=float,
-        default=0.01,
+        default=None,
         metavar="S",
         help="how late a mode signal may come after its command took effect (s): its command is searched "
-        "for over that window (0: applied at its stamp)",
+        f"for over that window (0: applied at its stamp; {SIGNAL_LATENCY:g} unless a recording records "
+        "the node's)",
     )
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
     t.add_argument(
@@ -248,7 +257,8 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
 
         mode = MODE_TOPIC if args.mode_topic is None else (args.mode_topic or None)
         topics = RecordedTopics(args.joints_topic, mode, mode_required=args.mode_topic is not None)
-        inputs = read_recording_inputs(args.recording, recording_variances(), topics)
+        inputs = read_recording_inputs(args.recording, topics)
+        args.tuning = inputs.tuning
         return (inputs, *split_inputs(inputs))
     if args.joints_topic != JOINTS_TOPIC or args.mode_topic is not None:
         given = "--joints-topic" if args.joints_topic != JOINTS_TOPIC else "--mode-topic"
@@ -382,10 +392,23 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
 
 
 def _settings(args: argparse.Namespace, signals: bool) -> TrackSettings:
-    """Return the tracker's settings of ``mps track``'s arguments (``signals``: whether mode signals come)."""
-    if not (math.isfinite(args.signal_latency) and 0.0 <= args.signal_latency <= 0.1):
-        raise MeasurementError("--signal-latency", args.signal_latency, "a time in [0, 0.1] s")
-    return TrackSettings(prediction=args.prediction, signal_latency=args.signal_latency if signals else 0.0)
+    """Return the tracker's settings of ``mps track``'s arguments (``signals``: whether mode signals come).
+
+    A recording's own tuning (the node's parameters it records) where it has them, the
+    signals' latency as given (``--signal-latency``) before the recording's.
+    """
+    tuning = getattr(args, "tuning", None) or Tuning()
+    latency = args.signal_latency
+    if latency is None:
+        latency = SIGNAL_LATENCY if tuning.signal_latency is None else tuning.signal_latency
+    if not (math.isfinite(latency) and 0.0 <= latency <= 0.1):
+        raise MeasurementError("--signal-latency", latency, "a time in [0, 0.1] s")
+    given: dict[str, Any] = {}
+    if tuning.timeout is not None:
+        given["timeout"] = tuning.timeout
+    if tuning.max_jump_deg is not None:
+        given["max_jump"] = math.radians(tuning.max_jump_deg)
+    return TrackSettings(prediction=args.prediction, signal_latency=latency if signals else 0.0, **given)
 
 
 def _against_truth(args: argparse.Namespace, nominal: Any) -> int:

@@ -10,8 +10,10 @@ slider's the joint ``slider``'s, at the header's stamp; the mode signals (``enga
 each at its log time. They are taken in the recording's order, as the node took them live: a
 mode signal between the measurements it came between. A node's recording (it records what it
 received under the topics it subscribed to) tracked again gives the node's estimates
-(``tests/ros/test_track_recording_input.py``). The variances are the node's defaults
-(:func:`recording_variances`). A measurement the tracker rejects (a jump, a duplicate, out of
+(``tests/ros/test_track_recording_input.py``): the node records the parameters it followed
+with (its encoder, torque sensor, timeout, jump and the signals' latency, :class:`Tuning`) in
+the recording's ``mps`` metadata, and they are read back from there (the node's defaults where
+a recording has none). A measurement the tracker rejects (a jump, a duplicate, out of
 order, not finite) is handed to it as recorded: it rejects and counts it, as the node did.
 
 The core knows no recording format: the reader registered under the format's name in the
@@ -22,20 +24,23 @@ to a writer.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import MpsError
 from ..plugins import TRACK_READERS, track_plugin
-from .measurements import Encoder, Measurement, MeasurementError, ModeSignal
+from .measurements import Encoder, Measurement, MeasurementError, ModeSignal, TorqueSensor
 
 __all__ = [
     "JOINTS_TOPIC",
     "MODE_TOPIC",
     "SLIDER_VARIANCE",
+    "RecordedInputs",
     "RecordedTopics",
     "RecordingReaderMissing",
+    "Tuning",
     "in_time_order",
     "read_recording_inputs",
     "recording_format",
@@ -69,6 +74,88 @@ class RecordedTopics:
     mode_required: bool = False
 
 
+@dataclass(frozen=True)
+class Tuning:
+    """The sensors' noise and the tracker's thresholds a press was followed with.
+
+    The node's parameters ``track_encoder_bits``, ``track_encoder_noise``,
+    ``track_torque_noise``, ``track_timeout``, ``track_max_jump`` (degrees) and
+    ``track_signal_latency`` (0 where no mode topic was given), recorded under those names in
+    the ``mps`` metadata record; None where a recording has none (the defaults then).
+    """
+
+    encoder: Encoder = field(default_factory=Encoder)
+    torque: TorqueSensor = field(default_factory=TorqueSensor)
+    timeout: float | None = None
+    max_jump_deg: float | None = None
+    signal_latency: float | None = None
+
+    def metadata(self) -> dict[str, str]:
+        """Return the ``mps`` metadata that records it (the values given, as text)."""
+        out = {
+            "track_encoder_bits": str(self.encoder.bits),
+            "track_encoder_noise": repr(float(self.encoder.noise_counts)),
+            "track_torque_noise": repr(float(self.torque.relative)),
+        }
+        for key, value in (
+            ("track_timeout", self.timeout),
+            ("track_max_jump", self.max_jump_deg),
+            ("track_signal_latency", self.signal_latency),
+        ):
+            if value is not None:
+                out[key] = repr(float(value))
+        return out
+
+    @classmethod
+    def of(cls, meta: Mapping[str, str], where: str) -> Tuning:
+        """Return the tuning a recording's ``mps`` metadata records (``where``: the recording, for errors)."""
+
+        def number(key: str, lo: float, hi: float) -> float | None:
+            text = meta.get(key)
+            if text is None:
+                return None
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not lo <= value <= hi:
+                raise MeasurementError(
+                    f"{where}: metadata mps.{key}", text, f"a number from {lo:g} to {hi:g}"
+                )
+            return value
+
+        bits = number("track_encoder_bits", 8, 32)
+        if bits is not None and bits != int(bits):
+            raise MeasurementError(
+                f"{where}: metadata mps.track_encoder_bits", bits, "an integer from 8 to 32"
+            )
+        noise = number("track_encoder_noise", 0.0, 1e3)
+        torque = number("track_torque_noise", 1e-6, 1.0)
+        default = Encoder()
+        return cls(
+            encoder=Encoder(
+                default.bits if bits is None else int(bits),
+                default.noise_counts if noise is None else noise,
+            ),
+            torque=TorqueSensor() if torque is None else TorqueSensor(torque),
+            timeout=number("track_timeout", 1e-3, 3600.0),
+            max_jump_deg=number("track_max_jump", 0.1, 180.0),
+            signal_latency=number("track_signal_latency", 0.0, 0.1),
+        )
+
+    def variances(self) -> dict[str, float]:
+        """Return the variances of the recording's measurements by kind (the torque's: :attr:`torque`)."""
+        return recording_variances(self.encoder)
+
+
+class RecordedInputs(list):
+    """A recording's measurements and mode signals, in its order, and the :class:`Tuning` it records."""
+
+    def __init__(self, inputs: Iterable[Input] = (), tuning: Tuning | None = None) -> None:
+        super().__init__(inputs)
+        self.tuning = tuning or Tuning()
+
+
 class RecordingReaderMissing(MpsError, ValueError):
     """No installed package reads a press's measurements out of recordings of the format given."""
 
@@ -93,13 +180,11 @@ def recording_format(path: str | Path) -> str:
     raise MeasurementError("--recording", str(path), "an .mcap file or a bag directory")
 
 
-def read_recording_inputs(
-    path: str | Path, variances: dict[str, float], topics: RecordedTopics | None = None
-) -> list[Input]:
-    """Return the measurements and mode signals of a recording, in its order.
+def read_recording_inputs(path: str | Path, topics: RecordedTopics | None = None) -> RecordedInputs:
+    """Return the measurements and mode signals of a recording, in its order, with its tuning.
 
-    Read by the reader registered for its format (:func:`recording_format`); ``variances``:
-    kind → variance of its measurements (:func:`recording_variances`).
+    Read by the reader registered for its format (:func:`recording_format`), with the
+    variances of the :class:`Tuning` the recording records.
     """
     fmt = recording_format(path)
     read = track_plugin(
@@ -110,7 +195,7 @@ def read_recording_inputs(
         RecordingReaderMissing,
         "give the measurements as CSV (--csv FILE)",
     )
-    return list(read(Path(path), topics or RecordedTopics(), variances))
+    return read(Path(path), topics or RecordedTopics())
 
 
 def in_time_order(measurements: Sequence[Measurement], modes: Iterable[ModeSignal]) -> list[Input]:

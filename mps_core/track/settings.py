@@ -13,11 +13,14 @@ from dataclasses import dataclass
 
 from .measurements import MeasurementError
 
-__all__ = ["PREDICTIONS", "TrackSettings"]
+__all__ = ["PREDICTIONS", "SIGNAL_LATENCY", "TrackSettings"]
 
 #: how the covariance is predicted: the step map's Jacobian (an extended Kalman filter) or
 #: sigma points through the model's run (unscented)
 PREDICTIONS = ("jacobian", "unscented")
+#: how late a press's mode signals may come (s) where they come and nothing else is said: the
+#: node's ``track_signal_latency`` and ``mps track --signal-latency`` unless given
+SIGNAL_LATENCY = 0.01
 
 
 @dataclass(frozen=True)

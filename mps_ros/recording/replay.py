@@ -437,6 +437,8 @@ class TopicMessages:
     channels: list[tuple[str, str, str, int]]
     messages: list[tuple[str, str, int, bytes]]
     warnings: list[str] = field(default_factory=list)
+    #: the metadata records of the (first) file, by name
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 def _readable(path) -> Path:
@@ -459,8 +461,9 @@ def read_topics(path, topics: Collection[str]) -> TopicMessages:
     :func:`read_recording` does (not MCAP, cut short, an empty bag).
     """
     path = _readable(path)
-    _meta, channels, _library, complete, _n, _digest = _scan_all(_parts(path), keep=set(topics))
-    out = TopicMessages(path, [(c.topic, c.schema, c.encoding, c.count) for c in channels.values()], [])
+    meta, channels, _library, complete, _n, _digest = _scan_all(_parts(path), keep=set(topics))
+    channel_list = [(c.topic, c.schema, c.encoding, c.count) for c in channels.values()]
+    out = TopicMessages(path, channel_list, [], metadata=meta)
     if not complete:
         out.warnings.append(
             "the file has no footer (its summary is missing or cut short); every message was read"

@@ -19,13 +19,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from mps_core.track.measurements import MODE_COMMANDS, Measurement, MeasurementError, ModeSignal, TorqueSensor
+from mps_core.track.recording_input import RecordedInputs, Tuning
 
 from ..wire.measured import CRANK, crank_and_slider, crank_torque, measurements, ns_seconds, stamp_seconds
 from .mcap_writer import ENCODING_CDR
-from .replay import TopicMessages, joint_state_readings, read_topics, string_data
+from .replay import META_SOFTWARE, TopicMessages, joint_state_readings, read_topics, string_data
 
 if TYPE_CHECKING:
-    from mps_core.track.recording_input import Input, RecordedTopics
+    from mps_core.track.recording_input import RecordedTopics
 
 __all__ = ["read"]
 
@@ -33,18 +34,24 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 STRING = "std_msgs/msg/String"
 
 
-def read(path: Path, topics: RecordedTopics, variances: dict[str, float]) -> list[Input]:
-    """Return the measurements and mode signals of the recording ``path``, in its order."""
+def read(path: Path, topics: RecordedTopics) -> RecordedInputs:
+    """Return the measurements and mode signals of the recording ``path``, in its order.
+
+    With the tuning it records (its ``mps`` metadata): the variances of its measurements are
+    that tuning's.
+    """
     wanted = [("--joints-topic", topics.joints, JOINT_STATE, True)]
     if topics.mode and (topics.mode != topics.joints or topics.mode_required):
         wanted.append(("--mode-topic", topics.mode, STRING, topics.mode_required))
     got = read_topics(path, {topic for _f, topic, _t, _r in wanted})
     present = _check_topics(got, wanted)
-    out: list[Input] = []
+    tuning = Tuning.of(got.metadata.get(META_SOFTWARE, {}), str(path))
+    variances = tuning.variances()
+    out = RecordedInputs(tuning=tuning)
     k = 0  # the measurement messages so far
     for topic, _type, t_ns, data in got.messages:
         if topic == topics.joints:
-            out += _measurements(path, topic, k, t_ns, data, variances)
+            out += _measurements(path, topic, k, t_ns, data, variances, tuning.torque)
             k += 1
         elif topic in present:
             out.append(_mode(path, topic, t_ns, data))
@@ -79,7 +86,7 @@ def _check_topics(got: TopicMessages, wanted: list[tuple[str, str, str, bool]]) 
 
 
 def _measurements(
-    path: Path, topic: str, k: int, t_ns: int, data: bytes, variances: dict[str, float]
+    path: Path, topic: str, k: int, t_ns: int, data: bytes, variances: dict[str, float], torque: TorqueSensor
 ) -> list[Measurement]:
     """Return the crank angle (the slider's position, the motor's torque) of the ``k``-th JointState."""
     where = f"{path}: {topic}: message {k} (log time {t_ns} ns)"
@@ -103,7 +110,7 @@ def _measurements(
         crank_torque(names, efforts),
         variances["crank_angle"],
         variances["slider_position"],
-        TorqueSensor(),
+        torque,
     )
 
 

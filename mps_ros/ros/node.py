@@ -272,6 +272,10 @@ class PressTwin(LifecycleNode):
         meta["ros_domain_id"] = os.environ.get("ROS_DOMAIN_ID", "0")
         meta["rmw_implementation"] = os.environ.get("RMW_IMPLEMENTATION", "")
         meta["fastdds_profiles_file"] = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
+        if st.track:  # followed again by mps track --recording with the same tuning
+            from .tracking_source import tracking_tuning
+
+            meta.update(tracking_tuning(st).metadata())
         link = FoxgloveLink(self) if self.settings.foxglove_port else None
         self.foxglove = link
         try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from mps_core.derivatives import SCHEMES
+from mps_core.track.settings import SIGNAL_LATENCY
 
 from ..run.runner import PACINGS
 from ..run.twin import check_outputs
@@ -300,7 +301,7 @@ PARAMETERS: tuple[Parameter, ...] = (
     ),
     P(
         "track_signal_latency",
-        0.01,
+        SIGNAL_LATENCY,
         "following a press: how late a mode signal may come after its command took effect (s; a "
         "String has no stamp): the command is searched for over that window before the signal, the "
         "measurements since taken again (docs/tracking.md, Late mode signals); 0: applied when it comes",

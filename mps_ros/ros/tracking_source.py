@@ -28,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from mps_core.track import Encoder, TorqueSensor, TrackSettings
+from mps_core.track.recording_input import Tuning
 
 from ..recording.replay import joint_state_readings
 from ..run.tracking import TrackingRun
@@ -77,6 +78,21 @@ def _topic(node: Any, parameter: str, name: str) -> str:
         ) from None
 
 
+def tracking_tuning(st: Any) -> Tuning:
+    """Return the sensors' noise and the tracker's thresholds of the node's settings ``st``.
+
+    Recorded in the node's recording (its ``mps`` metadata), so that ``mps track --recording``
+    follows the press with them again.
+    """
+    return Tuning(
+        encoder=Encoder(bits=st.track_encoder_bits, noise_counts=st.track_encoder_noise),
+        torque=TorqueSensor(relative=st.track_torque_noise),
+        timeout=st.track_timeout,
+        max_jump_deg=st.track_max_jump,
+        signal_latency=st.track_signal_latency if st.track_mode else 0.0,
+    )
+
+
 def tracking_run(node: Any) -> TrackingRun:
     """Return the node's tracking run, publishing through its endpoints' sink, its source attached.
 
@@ -85,10 +101,11 @@ def tracking_run(node: Any) -> TrackingRun:
     from ..run.sinks import Fanout
 
     st = node.settings
+    tuning = tracking_tuning(st)
     settings = TrackSettings(
         max_jump=_radians(st.track_max_jump),
         timeout=st.track_timeout,
-        signal_latency=st.track_signal_latency if st.track_mode else 0.0,
+        signal_latency=tuning.signal_latency or 0.0,
     )
     run = TrackingRun(
         node.twin.scene,
@@ -96,8 +113,8 @@ def tracking_run(node: Any) -> TrackingRun:
         name=node.get_fully_qualified_name().lstrip("/"),
         outputs=st.outputs,
         settings=settings,
-        encoder=Encoder(bits=st.track_encoder_bits, noise_counts=st.track_encoder_noise),
-        torque_sensor=TorqueSensor(relative=st.track_torque_noise),
+        encoder=tuning.encoder,
+        torque_sensor=tuning.torque,
         sigma_every=st.track_sigma_every,
         max_behind=st.track_max_behind,
         timeout=st.track_timeout,

@@ -22,7 +22,8 @@ from track_estimates import differences, node_estimates, tracked
 from mps_core import load_scene
 from mps_core.cli import main
 from mps_core.track import Sensors, run_truth, truth_scene
-from mps_core.track.recording_input import SLIDER_VARIANCE
+from mps_core.track.measurements import MeasurementError
+from mps_core.track.recording_input import SLIDER_VARIANCE, Tuning
 from mps_core.track.settings import TrackSettings
 from mps_core.track.truth import nominal_scene
 from mps_ros.recording.recorder import Recorder
@@ -57,14 +58,15 @@ def _joints(t: float, angle: float, slider: float | None, torque: float | None =
 
 
 def follow(
-    tmp: Path, clock_ns: int = 0, torque: bool = False, late_ns: int = 12_345
+    tmp: Path, clock_ns: int = 0, torque: bool = False, late_ns: int = 12_345, tuning: Tuning | None = None
 ) -> tuple[TrackingRun, list[Path]]:
     """Follow the emulated press with the node's source and run; record it as a file and a bag.
 
     Each message goes to the node ``clock_ns`` after its stamp on the middleware's clock (its
     source timestamp); a mode signal before the first measurement at or after its time, as
     the emulator sends them, ``late_ns`` after its command; ``torque``: the motor's torque
-    measured too. Return the run and the recordings.
+    measured too; ``tuning``: the node's parameters other than its defaults, recorded as the
+    node records them. Return the run and the recordings.
     """
     from mps_ros.ros.emulator import samples
     from mps_ros.ros.tracking_source import TrackingSource
@@ -73,7 +75,9 @@ def follow(
     sensors = Sensors(slider=True, motor_torque=torque)
     truth = run_truth(truth_scene(nominal), T_END, sensors=sensors, seed=0)
     paths = [tmp / "node.mcap", tmp / "node-bag"]
-    recorders = [Recorder(p, scene_name=nominal.name, scene_text=nominal.text) for p in paths]
+    meta = None if tuning is None else tuning.metadata()
+    recorders = [Recorder(p, scene_name=nominal.name, scene_text=nominal.text, metadata=meta) for p in paths]
+    tuning = tuning or Tuning(signal_latency=0.01)  # the node's, its mode topic given
     names = {RECEIVED_JOINTS.key: "/press/joint_states", RECEIVED_MODE.key: "/press/mode"}
     sinks = Fanout([RecordingSink(r, names=names) for r in recorders])
     said: list[tuple[str, str]] = []
@@ -81,7 +85,13 @@ def follow(
         load_scene(SCENE),
         sinks,
         late_after=math.inf,
-        settings=TrackSettings(signal_latency=0.01),  # the node's, its mode topic given
+        settings=TrackSettings(
+            signal_latency=tuning.signal_latency or 0.0,
+            timeout=tuning.timeout or TrackSettings.timeout,
+            max_jump=math.radians(tuning.max_jump_deg) if tuning.max_jump_deg else TrackSettings.max_jump,
+        ),
+        encoder=tuning.encoder,
+        torque_sensor=tuning.torque,
         log=lambda level, line: said.append((level, line)),
     )
     run.said = said
@@ -145,6 +155,33 @@ def test_a_late_engage_is_found_where_it_was_and_tracked_again_alike(tmp_path, c
     offline = tracked(SCENE, mcap, tmp_path / "est.csv")
     assert "mode signals: 1, their commands found" in capsys.readouterr().out
     assert all(offline[t] == est for t, est in node.items())
+
+
+def test_the_node_s_own_tuning_is_recorded_and_tracked_again_alike(tmp_path, capsys):
+    """A node run with its own encoder, torque sensor, timeout, jump and signals' latency
+    records them; mps track over its recording follows with them: the live estimates, bit for
+    bit. Tracked with the defaults instead (the tuning left out of the file), they part."""
+    from mps_core.track import Encoder, TorqueSensor
+
+    tuning = Tuning(
+        Encoder(16, 0.5), TorqueSensor(0.03), timeout=0.08, max_jump_deg=7.0, signal_latency=0.004
+    )
+    run, (mcap, _bag) = follow(tmp_path, torque=True, late_ns=3_000_000, tuning=tuning)
+    node = node_estimates(mcap)
+    offline = tracked(SCENE, mcap, tmp_path / "est.csv")
+    capsys.readouterr()
+    assert all(offline[t] == est for t, est in node.items())
+    (tmp_path / "bare").mkdir()
+    _, (bare, _bag) = follow(tmp_path / "bare", torque=True, late_ns=3_000_000)  # the defaults
+    assert node_estimates(bare) != node  # the tuning moves the estimates: the equality is not given
+
+
+def test_a_recording_s_tuning_out_of_range_is_named():
+    with pytest.raises(MeasurementError, match=r"r.mcap: metadata mps.track_encoder_bits = '40': expected a"):
+        Tuning.of({"track_encoder_bits": "40"}, "r.mcap")
+    assert Tuning.of({}, "r.mcap") == Tuning()
+    t = Tuning(signal_latency=0.004, max_jump_deg=7.0)
+    assert Tuning.of(t.metadata(), "r.mcap") == t
 
 
 def test_without_its_mode_signals_the_engage_is_found_later(followed, tmp_path, capsys):
