@@ -76,6 +76,8 @@ class ModeSignal:
     def __post_init__(self) -> None:
         if self.command not in MODE_COMMANDS:
             raise MeasurementError("mode.command", self.command, "one of " + ", ".join(MODE_COMMANDS))
+        if not math.isfinite(self.t):
+            raise MeasurementError("mode.t", self.t, "a finite time (s)")
 
 
 @dataclass(frozen=True)

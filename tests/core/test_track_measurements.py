@@ -84,6 +84,7 @@ def test_a_gap_is_reported_and_the_estimate_goes_on(stream):
         (lambda: Measurement(0.1, "crank_angel", 0.0, 1e-9), "kind"),
         (lambda: Measurement(0.1, "crank_angle", 0.0, 0.0), "crank_angle.variance"),
         (lambda: ModeSignal(0.1, "engage!"), "mode.command"),
+        (lambda: ModeSignal(float("nan"), "engage"), "mode.t"),
         (lambda: Encoder(bits=7), "encoder.bits"),
         (lambda: Encoder().angle(1 << 17), "crank_angle.count"),
         (lambda: Encoder().angle(2.5), "crank_angle.count"),
