@@ -164,8 +164,9 @@ class TrackingMonitor:
             for _ in range(min(self._seen - replaced, len(self._nis))):
                 self._nis.pop()
             self._seen = replaced
-        new = tracker.innovations[self._seen :]
-        self._seen = len(tracker.innovations)
+        dropped = getattr(tracker, "innovations_dropped", 0)  # the log's first ones, dropped
+        new = tracker.innovations[max(self._seen - dropped, 0) :]
+        self._seen = dropped + len(tracker.innovations)
         w = self.settings.window
         self._nis.extend(v for _t, _k, v in new)
         f = self._findings["innovations"]

@@ -208,6 +208,12 @@ class Tracker:
         self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
         self.innovations: list[tuple[float, str, float]] = []
+        #: how many of the first innovations were dropped (where :attr:`keep_innovations` bounds
+        #: them): an innovation's number is this plus its place in :attr:`innovations`
+        self.innovations_dropped = 0
+        #: keep the last this many innovations at least, the older dropped as twice as many
+        #: gather (None: every one; a node following a press for days keeps a bounded log)
+        self.keep_innovations: int | None = None
         self._last: dict[str, float] = {}
         self._t_last = -math.inf
         #: the start times of the last steps (the lagged forces' steps)
@@ -414,13 +420,14 @@ class Tracker:
         """
         d, (n_innovations, n_strokes), strokes, inputs, sim = cp
         signalled, replaced = self.signalled, self.replaced_from
+        dropped, keep = self.innovations_dropped, self.keep_innovations
         self.__dict__.clear()
         self.__dict__.update(d)
         self.x, self.P = d["x"].copy(), d["P"].copy()
         self.rejected, self.inferred = Counter(d["rejected"]), Counter(d["inferred"])
         self._last = dict(d["_last"])
-        self.signalled = signalled
-        del self.innovations[n_innovations:]
+        self.signalled, self.innovations_dropped, self.keep_innovations = signalled, dropped, keep
+        del self.innovations[max(n_innovations - dropped, 0) :]
         del self.strokes.strokes[n_strokes:]
         self.replaced_from = n_innovations if replaced is None else min(replaced, n_innovations)
         self.strokes.set_state(strokes)
@@ -429,24 +436,26 @@ class Tracker:
 
     def log_lengths(self) -> tuple[int, int]:
         """Return how long the logs are now (:attr:`innovations`, the strokes closed)."""
-        return len(self.innovations), len(self.strokes.strokes)
+        return self.innovations_dropped + len(self.innovations), len(self.strokes.strokes)
 
     def logs_since(self, lengths: tuple[int, int]) -> tuple[list, list]:
         """Return the innovations and the strokes closed since the logs had ``lengths`` (copies)."""
         n_innovations, n_strokes = lengths
-        return self.innovations[n_innovations:], self.strokes.strokes[n_strokes:]
+        return self.innovations[max(n_innovations - self.innovations_dropped, 0) :], self.strokes.strokes[
+            n_strokes:
+        ]
 
     def set_logs(self, lengths: tuple[int, int], logs: tuple[list, list]) -> None:
         """Write the logs since they had ``lengths`` (what :meth:`logs_since` gave)."""
         n_innovations, n_strokes = lengths
         innovations, strokes = logs
-        self.innovations[n_innovations:] = innovations
+        self.innovations[max(n_innovations - self.innovations_dropped, 0) :] = innovations
         self.strokes.strokes[n_strokes:] = strokes
         if self.replaced_from is None or n_innovations < self.replaced_from:
             self.replaced_from = n_innovations
 
     def take_replaced(self) -> int | None:
-        """Return the first of :attr:`innovations` replaced since the last call (None: none)."""
+        """Return the number of the first innovation replaced since the last call (None: none)."""
         out, self.replaced_from = self.replaced_from, None
         return out
 
@@ -845,6 +854,11 @@ class Tracker:
             self.score = -gate
             return False
         self.innovations.append((m.t + self.origin, m.kind, nis))
+        keep = self.keep_innovations
+        if keep is not None and len(self.innovations) > 2 * keep:
+            cut = len(self.innovations) - keep
+            del self.innovations[:cut]
+            self.innovations_dropped += cut
         self._follow_strokes()
         return True
 

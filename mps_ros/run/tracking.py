@@ -28,8 +28,6 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import numpy as np
-
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from mps_core.scene import Scene
 from mps_core.track import (
@@ -64,6 +62,7 @@ from ..wire.track_topics import (
     sigma,
 )
 from .commands import Inbox, shown
+from .metrics import Timings
 from .sinks import Fanout, Message
 
 __all__ = ["TrackingRun"]
@@ -87,9 +86,14 @@ def _stamp(t_ns: int) -> dict:
     return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
 
 
-def _percentile(xs: Sequence[float], q: float) -> float:
-    """Return the ``q``-th percentile of ``xs`` (NaN where empty)."""
-    return float(np.percentile(xs, q)) if len(xs) else math.nan
+#: the innovations a node's tracker keeps at least (10 s at 1 kHz): the tracking status reads
+#: each as it comes, a late signal's search the last 1.5 of its windows
+KEEP_INNOVATIONS = 10_000
+
+
+def _percentile_ms(timings: Timings, q: float) -> float:
+    """Return the ``q``-th percentile of ``timings`` in ms (to 1 %; NaN where empty)."""
+    return timings.percentile(q) * 1e3 if timings.n else math.nan
 
 
 class _Estimated:
@@ -186,6 +190,9 @@ class TrackingRun:
         self.name = name
         self.outputs = tuple(outputs)
         self.tracker = Tracker(self.scene, settings)
+        # a press followed for days: the tracking status reads the innovations as they come,
+        # a late signal's search the last few; the older are dropped
+        self.tracker.keep_innovations = KEEP_INNOVATIONS
         #: whether the press still moves as the model says (the ``NAME: tracking`` status)
         self.monitor = TrackingMonitor()
         self.encoder = encoder or Encoder()
@@ -211,10 +218,11 @@ class TrackingRun:
         self.input_rejected: Counter[str] = Counter()
         self.received = 0  # measurements received (messages)
         self.estimates = 0  # estimates published (one a measurement message taken)
-        #: CPU (s, this thread's) from a measurement's arrival to its estimate handed out
-        self.cpu: list[float] = []
+        #: CPU (s, this thread's) from a measurement's arrival to its estimate handed out (a
+        #: histogram: a run of days keeps no more than a run of seconds)
+        self.cpu = Timings()
         #: wall seconds from a measurement's arrival to its estimate handed to every sink
-        self.delay: list[float] = []
+        self.delay = Timings()
         #: the press's clock on the wall clock: the least (sent - stamp) of the measurements
         self._offset = math.inf
         #: the process's CPU time (s) at the first measurement and after the last estimate:
@@ -423,9 +431,9 @@ class TrackingRun:
                 self._process_cpu[1] = time.process_time()
                 return True
             self._publish(est)
-            self.cpu.append(time.thread_time() - cpu0)
+            self.cpu.add(time.thread_time() - cpu0)
             delay = self.clock() - arrival
-            self.delay.append(delay)
+            self.delay.add(delay)
             if delay > self.late_after:
                 self.late += 1
             self._process_cpu[1] = time.process_time()
@@ -584,18 +592,17 @@ class TrackingRun:
 
     def stats(self) -> dict:
         """Return the run's figures: inputs, estimates, rejections, CPU and delay a measurement (ms)."""
-        cpu = [c * 1e3 for c in self.cpu]
-        delay = [d * 1e3 for d in self.delay]
+        cpu, delay = self.cpu, self.delay
         out: dict[str, Any] = {
             "t": self.tracker.t,
             "received": self.received,
             "estimates": self.estimates,
             "rejected": sum(self.rejected().values()) - self.tracker.rejected["gap"],
-            "cpu_p50_ms": _percentile(cpu, 50),
-            "cpu_p99_ms": _percentile(cpu, 99),
-            "delay_p50_ms": _percentile(delay, 50),
-            "delay_p99_ms": _percentile(delay, 99),
-            "delay_max_ms": max(delay, default=math.nan),
+            "cpu_p50_ms": _percentile_ms(cpu, 50),
+            "cpu_p99_ms": _percentile_ms(cpu, 99),
+            "delay_p50_ms": _percentile_ms(delay, 50),
+            "delay_p99_ms": _percentile_ms(delay, 99),
+            "delay_max_ms": delay.max * 1e3 if delay.n else math.nan,
             "process_cpu_ms": (
                 (self._process_cpu[1] - self._process_cpu[0]) * 1e3 / max(self.received - 1, 1)
                 if self._process_cpu

@@ -23,10 +23,12 @@ def cycle():
     return nominal, run_truth(truth_scene(nominal), 0.5, sensors=Sensors(slider=True), seed=0)
 
 
-def _follow(nominal, truth, latency, late=0.0):
+def _follow(nominal, truth, latency, late=0.0, keep=None):
     """Run a tracker over the truth's measurements, its signals ``late`` seconds after their
-    commands; return the tracker, its monitor and the estimates (t, φ, φ̇, x_C) after each."""
+    commands (``keep``: the innovations it keeps at least); return the tracker, its monitor and
+    the estimates (t, φ, φ̇, x_C) after each."""
     tracker = Tracker(nominal, TrackSettings(signal_latency=latency))
+    tracker.keep_innovations = keep
     monitor = TrackingMonitor()
     modes = sorted((ModeSignal(s.t + late, s.command) for s in truth.modes), key=lambda s: s.t)
     rows = []
@@ -127,3 +129,17 @@ def test_the_search_is_the_same_from_sparser_or_denser_checkpoints(cycle, monkey
     assert other.timing is not None and tracker.timing is not None
     assert other.timing.shifts == tracker.timing.shifts
     assert np.array_equal(other_rows, rows)
+
+
+def test_a_bounded_log_of_innovations_gives_the_same_estimates_and_status(cycle):
+    """A node keeps the last innovations only (a press followed for days): the searches and
+    the tracking status work on the log's numbers, the estimates and statuses the same."""
+    nominal, truth = cycle
+    tracker, monitor, rows = _follow(nominal, truth, 0.01, LATE)
+    bounded, bounded_monitor, bounded_rows = _follow(nominal, truth, 0.01, LATE, keep=50)
+    assert np.array_equal(bounded_rows, rows)
+    assert [(s.level, s.message) for s in bounded_monitor.events] == [
+        (s.level, s.message) for s in monitor.events
+    ]
+    assert len(bounded.innovations) <= 100 and bounded.innovations_dropped > 0
+    assert bounded.innovations == tracker.innovations[-len(bounded.innovations) :]
