@@ -365,7 +365,7 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             " ..." if len(timing.shifts) > 8 else ""
         )
         print(
-            f"mode signals: {len(timing.shifts)}, their commands found (ms before their stamps) {said} "
+            f"mode signals: {timing.searched}, their commands found (ms before their stamps) {said} "
             f"({timing.tried} hypotheses tried)"
         )
     if tracker.motor_measured:

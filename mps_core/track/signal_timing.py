@@ -36,6 +36,8 @@ __all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SignalTiming"]
 #: after it are slower too, about as much with one every fourth stamp as with one at each
 #: (docs/tracking.md, Late mode signals)
 CHECKPOINT_EVERY = 4
+#: the last signals searched that :attr:`SignalTiming.found` keeps (a press followed for days)
+FOUND_KEPT = 1000
 #: how much likelier (log) a command earlier than its signal must make the measurements than
 #: the signal on time: half χ²(1)'s 95 % quantile
 EVIDENCE = 0.5 * 3.841
@@ -87,9 +89,16 @@ class SignalTiming:
         self._applied: list[tuple[ModeSignal, float]] = []
         #: each signal searched (on the tracker's clock) and how long before its stamp its
         #: command was found to take effect (s), in order
-        self.found: list[tuple[ModeSignal, float]] = []
+        self.found: deque[tuple[ModeSignal, float]] = deque(maxlen=FOUND_KEPT)
+        #: the signals searched, in all (:attr:`found` keeps the last ``FOUND_KEPT``)
+        self.searched = 0
         #: the hypotheses tried, in all
         self.tried = 0
+
+    def _found(self, item: tuple[ModeSignal, float]) -> None:
+        """Record a signal searched and where its command was found."""
+        self.found.append(item)
+        self.searched += 1
 
     @property
     def shifts(self) -> list[float]:
@@ -103,7 +112,7 @@ class SignalTiming:
         """
         for earlier in self._due:
             tracker.apply_command(earlier.command, earlier.t)
-            self.found.append((earlier, 0.0))
+            self._found((earlier, 0.0))
         self._due.clear()
         while self._applied:
             self._resolve(tracker, *self._applied.pop(0))
@@ -162,7 +171,7 @@ class SignalTiming:
         history = list(self._history)
         first = next((i for i, h in enumerate(history) if h.m.t > t_open), len(history))
         if first == len(history):
-            self.found.append((signal, t_s - applied))  # nothing measured since its window opened
+            self._found((signal, t_s - applied))  # nothing measured since its window opened
             return
         window = history[first:]
         present = tracker.checkpoint()
@@ -223,7 +232,7 @@ class SignalTiming:
         tracker.restore(state)
         tracker.set_logs(opened, logs)
         self._history = deque(kept)
-        self.found.append((signal, t_s - tau))
+        self._found((signal, t_s - tau))
 
 
 def _take(tracker: Searched, taken: _Taken, into: list[_Taken]) -> None:

@@ -477,15 +477,16 @@ class TrackingRun:
     def _say_found(self) -> None:
         """Say where the commands of the mode signals searched for since the last call were found."""
         timing, tr = self.tracker.timing, self.tracker
-        if timing is None or len(timing.found) == self._found_said:
+        if timing is None or timing.searched == self._found_said:
             return
-        for signal, shift in timing.found[self._found_said :]:
+        new = min(timing.searched - self._found_said, len(timing.found))  # the last ``new`` of them
+        for signal, shift in list(timing.found)[len(timing.found) - new :]:
             self.log(
                 "info",
                 f"tracking: mode signal {signal.command} at t = {signal.t + tr.origin:.6f} s: its command "
                 f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms)",
             )
-        self._found_said = len(timing.found)
+        self._found_said = timing.searched
 
     def _reject(self, reason: str, t: float, why: str) -> None:
         """Count and say an input this run rejects itself."""
