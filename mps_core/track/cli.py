@@ -46,7 +46,7 @@ from .recording_input import (
     split_inputs,
 )
 from .settings import PREDICTIONS, SIGNAL_LATENCY, TrackSettings
-from .tracker import LOAD_COLUMNS, Tracker
+from .tracker import KEEP_INNOVATIONS, LOAD_COLUMNS, Tracker
 
 __all__ = ["register"]
 
@@ -215,6 +215,7 @@ def _track(args: argparse.Namespace) -> int:
         return _against_truth(args, nominal)
     inputs, measurements, modes = _inputs(args)
     tracker = Tracker(nominal, _settings(args, bool(modes)))
+    tracker.keep_innovations = KEEP_INNOVATIONS  # a long recording: the status reads them as they come
     args.loads = args.loads or args.out_recording is not None
     monitor = TrackingMonitor()
     recording = None

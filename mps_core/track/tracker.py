@@ -63,7 +63,7 @@ from .unscented import unscented_step
 if TYPE_CHECKING:
     from ..scene import Scene
 
-__all__ = ["LOAD_COLUMNS", "Estimate", "LoadEstimates", "Tracker"]
+__all__ = ["KEEP_INNOVATIONS", "LOAD_COLUMNS", "Estimate", "LoadEstimates", "Tracker"]
 
 #: the reactions and foundation load a tracker estimates (the residual checks left out)
 LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
@@ -73,6 +73,10 @@ _LOAD_INDEX = tuple(list(REACTION_COLUMNS).index(c) for c in LOAD_COLUMNS)
 _FOUND_X, _FOUND_Y = LOAD_COLUMNS.index("F_found_x"), LOAD_COLUMNS.index("F_found_y")
 #: the process loads a tracker's model leaves out (the unknown input stands for them)
 PROCESS_EFFECTS = ("blanking",)
+#: the innovations a tracker that follows a press for long keeps at least (10 s at 1 kHz;
+#: :attr:`Tracker.keep_innovations`): the tracking status reads each as it comes, a late
+#: signal's search the last few of its windows
+KEEP_INNOVATIONS = 10_000
 #: the reasons a measurement is rejected for
 REJECTIONS = ("duplicate", "out-of-order", "late", "not-finite", "jump", "outlier", "model")
 

@@ -41,7 +41,7 @@ from mps_core.track import (
     TrackSettings,
 )
 from mps_core.track.diagnostics import TrackingMonitor
-from mps_core.track.tracker import LOAD_COLUMNS
+from mps_core.track.tracker import KEEP_INNOVATIONS, LOAD_COLUMNS
 from mps_core.track.truth import nominal_scene
 
 from ..wire import diagnostics
@@ -84,11 +84,6 @@ def _ns(t: float) -> int:
 def _stamp(t_ns: int) -> dict:
     """Return builtin_interfaces/Time of ``t_ns``."""
     return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
-
-
-#: the innovations a node's tracker keeps at least (10 s at 1 kHz): the tracking status reads
-#: each as it comes, a late signal's search the last 1.5 of its windows
-KEEP_INNOVATIONS = 10_000
 
 
 def _percentile_ms(timings: Timings, q: float) -> float:
