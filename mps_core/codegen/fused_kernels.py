@@ -188,6 +188,19 @@ def input_slot(tape, slots: list):
     return slot
 
 
+#: the prefix of the names a ``live`` effect's list of values is bound under in a generated
+#: function's namespace (``_live0``, ``_live1``…)
+LIVE = "_live"
+
+
+def live_inputs(effect, slot, lives: dict) -> list:
+    """Return a ``live`` effect's values as inputs of a trace (read ``_live{j}[k]`` at each call),
+    its list bound in ``lives`` under ``_live{j}`` for the function's namespace."""
+    name = f"{LIVE}{len(lives)}"
+    lives[name] = effect.values
+    return [slot(f"{name}[{k}]", v) for k, v in enumerate(effect.values)]
+
+
 def fused_kernel(engine, view, exact, t: float, ql: list, vl: list, kinematics, virtual_work):
     """The fused function of ``view`` (whose exact kernel is ``exact``), with the effects
     traced at (t, q, q̇); None where one of them cannot be traced or the point gives no
@@ -265,10 +278,7 @@ def _trace_forces(engine, n, tt, tv, lists, tA, th, kinematics, virtual_work, sl
         Qc = [0.0] * n
         for fast, e, conservative in engine.effect_paths():
             if getattr(e, "live", False):
-                name = f"_live{len(lives)}"
-                lives[name] = e.values
-                values = [slot(f"{name}[{k}]", v) for k, v in enumerate(e.values)]
-                Qe = virtual_work(e.live_loads(tt, kin, values), kin)
+                Qe = virtual_work(e.live_loads(tt, kin, live_inputs(e, slot, lives)), kin)
             else:
                 Qe = fast(tt, kin) if fast is not None else virtual_work(e.loads(tt, kin), kin)
             if Qe is not None:

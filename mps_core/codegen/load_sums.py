@@ -10,7 +10,7 @@ import math
 from ..derivatives.tracing import BranchChanged, Tape, Traced
 from ..model.effects.base import Version, watch_all
 from .emitter import inline_once, live_lines, load
-from .fused_kernels import emit_tape, fingerprint, input_slot
+from .fused_kernels import emit_tape, fingerprint, input_slot, live_inputs
 
 
 class LoadSums:
@@ -177,9 +177,7 @@ def traced_sums(sums: LoadSums, t: float, kin):
     live: dict = {}
     for e, _motor in sums.effects:
         if getattr(e, "live", False):
-            name = f"_live{len(lives)}"
-            lives[name] = e.values
-            live[e] = [slot(f"{name}[{k}]", v) for k, v in enumerate(e.values)]
+            live[e] = live_inputs(e, slot, lives)
     try:
         out = sums.sums(tkin.t, tkin, live)
         values = [x.value if isinstance(x, Traced) else float(x) for x in out]

@@ -47,6 +47,7 @@ from ..derivatives.tracing import BranchChanged
 from ..model.mechanism import FRAME
 from .emitter import Writer, inline_once, kernel_key, live_lines, load
 from .exact_kernels import Forward, angular, forward, linear_parts, trace_view
+from .fused_kernels import LIVE
 from .load_sums import LoadSums
 
 
@@ -184,7 +185,7 @@ def with_loads(kernel, sums):
     unpacking between them. Made once per pair. It raises what either raises. Sums that read a
     ``live`` effect's values (``_live{j}``, bound in their namespace) give a function that reads
     the same lists, made for them alone (never kept for another pair of the same code)."""
-    lives = {k: v for k, v in sums.__globals__.items() if k.startswith("_live")}
+    lives = {k: v for k, v in sums.__globals__.items() if k.startswith(LIVE)}
     key = ("reactions with loads", kernel.serial, sums.serial)
     made = None if lives else _WITH_LOADS.get(key)
     if made is not None:
