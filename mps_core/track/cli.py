@@ -404,12 +404,7 @@ def _settings(args: argparse.Namespace, signals: bool) -> TrackSettings:
         latency = SIGNAL_LATENCY if tuning.signal_latency is None else tuning.signal_latency
     if not (math.isfinite(latency) and 0.0 <= latency <= 0.1):
         raise MeasurementError("--signal-latency", latency, "a time in [0, 0.1] s")
-    given: dict[str, Any] = {}
-    if tuning.timeout is not None:
-        given["timeout"] = tuning.timeout
-    if tuning.max_jump_deg is not None:
-        given["max_jump"] = math.radians(tuning.max_jump_deg)
-    return TrackSettings(prediction=args.prediction, signal_latency=latency if signals else 0.0, **given)
+    return tuning.settings(prediction=args.prediction, signal_latency=latency if signals else 0.0)
 
 
 def _against_truth(args: argparse.Namespace, nominal: Any) -> int:

@@ -28,10 +28,12 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ..errors import MpsError
 from ..plugins import TRACK_READERS, track_plugin
 from .measurements import Encoder, Measurement, MeasurementError, ModeSignal, TorqueSensor
+from .settings import TrackSettings
 
 __all__ = [
     "JOINTS_TOPIC",
@@ -142,6 +144,20 @@ class Tuning:
             max_jump_deg=number("track_max_jump", 0.1, 180.0),
             signal_latency=number("track_signal_latency", 0.0, 0.1),
         )
+
+    def settings(self, **given: Any) -> TrackSettings:
+        """Return a tracker's settings with this tuning's timeout, jump and signals' latency.
+
+        Where it has them; ``given`` (any :class:`TrackSettings` field) over them.
+        """
+        own: dict[str, Any] = {}
+        if self.timeout is not None:
+            own["timeout"] = self.timeout
+        if self.max_jump_deg is not None:
+            own["max_jump"] = math.radians(self.max_jump_deg)
+        if self.signal_latency is not None:
+            own["signal_latency"] = self.signal_latency
+        return TrackSettings(**(own | given))
 
     def variances(self) -> dict[str, float]:
         """Return the variances of the recording's measurements by kind (the torque's: :attr:`torque`)."""

@@ -27,7 +27,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from mps_core.track import Encoder, TorqueSensor, TrackSettings
+from mps_core.track import Encoder, TorqueSensor
 from mps_core.track.recording_input import Tuning
 
 from ..recording.replay import joint_state_readings
@@ -102,17 +102,12 @@ def tracking_run(node: Any) -> TrackingRun:
 
     st = node.settings
     tuning = tracking_tuning(st)
-    settings = TrackSettings(
-        max_jump=_radians(st.track_max_jump),
-        timeout=st.track_timeout,
-        signal_latency=tuning.signal_latency or 0.0,
-    )
     run = TrackingRun(
         node.twin.scene,
         Fanout([node.endpoints.sink]),
         name=node.get_fully_qualified_name().lstrip("/"),
         outputs=st.outputs,
-        settings=settings,
+        settings=tuning.settings(),
         encoder=tuning.encoder,
         torque_sensor=tuning.torque,
         sigma_every=st.track_sigma_every,
@@ -127,13 +122,6 @@ def tracking_run(node: Any) -> TrackingRun:
     source = TrackingSource(node, run)
     run.on_start = source.subscribe
     return run
-
-
-def _radians(degrees: float) -> float:
-    """Return ``degrees`` in radians."""
-    import math
-
-    return math.radians(degrees)
 
 
 class _TakenApart(CallbackGroup):

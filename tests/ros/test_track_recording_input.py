@@ -24,7 +24,6 @@ from mps_core.cli import main
 from mps_core.track import Sensors, run_truth, truth_scene
 from mps_core.track.measurements import MeasurementError
 from mps_core.track.recording_input import SLIDER_VARIANCE, Tuning
-from mps_core.track.settings import TrackSettings
 from mps_core.track.truth import nominal_scene
 from mps_ros.recording.recorder import Recorder
 from mps_ros.run.sinks import Fanout, RecordingSink
@@ -85,11 +84,7 @@ def follow(
         load_scene(SCENE),
         sinks,
         late_after=math.inf,
-        settings=TrackSettings(
-            signal_latency=tuning.signal_latency or 0.0,
-            timeout=tuning.timeout or TrackSettings.timeout,
-            max_jump=math.radians(tuning.max_jump_deg) if tuning.max_jump_deg else TrackSettings.max_jump,
-        ),
+        settings=tuning.settings(),
         encoder=tuning.encoder,
         torque_sensor=tuning.torque,
         log=lambda level, line: said.append((level, line)),
