@@ -836,8 +836,7 @@ class Tracker:
         if m.kind == "slider_position" and not self.signalled:
             S0 = float(H @ self.P @ H) + m.variance
             self._infer_mode(m, value, y * y / S0)
-            if self.sim.view.n != (len(H) - 3) // 2 or len(H) != len(self.x):
-                value, H, y = self._innovation(m)  # the structure moved: predicted again
+            value, H, y = self._innovation(m)  # predicted again: the structure may have moved
         i = 2 * self.n
         #: the process force's variance before this measurement (what it learned: how much less after)
         self.force_prior_variance = float(self.P[i, i])
