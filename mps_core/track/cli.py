@@ -213,8 +213,8 @@ def _track(args: argparse.Namespace) -> int:
     nominal = _nominal(args.scene)
     if args.against_truth is not None:
         return _against_truth(args, nominal)
-    inputs, measurements, modes = _inputs(args)
-    tracker = Tracker(nominal, _settings(args, bool(modes)))
+    inputs, measurements, modes, tuning = _inputs(args)
+    tracker = Tracker(nominal, _settings(args, bool(modes), tuning))
     tracker.keep_innovations = KEEP_INNOVATIONS  # a long recording: the status reads them as they come
     args.loads = args.loads or args.out_recording is not None
     monitor = TrackingMonitor()
@@ -250,17 +250,16 @@ def _outs(outs: list[str]) -> tuple[str | None, str | None]:
     return (csv_out[0] if csv_out else None), (mcap_out[0] if mcap_out else None)
 
 
-def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], list[ModeSignal]]:
-    """Return the tracker's inputs in the order it takes them, and the measurements and mode
-    signals among them, of ``--csv`` or ``--recording``."""
+def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], list[ModeSignal], Tuning]:
+    """Return the tracker's inputs in the order it takes them, the measurements and mode signals
+    among them, of ``--csv`` or ``--recording``, and the tuning it records (a CSV's: the defaults)."""
     if args.recording is not None:
         from .recording_input import RecordedTopics, read_recording_inputs
 
         mode = MODE_TOPIC if args.mode_topic is None else (args.mode_topic or None)
         topics = RecordedTopics(args.joints_topic, mode, mode_required=args.mode_topic is not None)
         inputs = read_recording_inputs(args.recording, topics)
-        args.tuning = inputs.tuning
-        return (inputs, *split_inputs(inputs))
+        return (inputs, *split_inputs(inputs), inputs.tuning)
     if args.joints_topic != JOINTS_TOPIC or args.mode_topic is not None:
         given = "--joints-topic" if args.joints_topic != JOINTS_TOPIC else "--mode-topic"
         raise MeasurementError(
@@ -277,7 +276,7 @@ def _inputs(args: argparse.Namespace) -> tuple[list[Input], list[Measurement], l
         "motor_torque": TorqueSensor().variance,
     }
     measurements, modes = read_measurements(args.csv, variances)
-    return in_time_order(measurements, modes), measurements, modes
+    return in_time_order(measurements, modes), measurements, modes, Tuning()
 
 
 def _follow(
@@ -392,13 +391,13 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         )
 
 
-def _settings(args: argparse.Namespace, signals: bool) -> TrackSettings:
+def _settings(args: argparse.Namespace, signals: bool, tuning: Tuning | None = None) -> TrackSettings:
     """Return the tracker's settings of ``mps track``'s arguments (``signals``: whether mode signals come).
 
-    A recording's own tuning (the node's parameters it records) where it has them, the
+    ``tuning``: a recording's own (the node's parameters it records), where it has them; the
     signals' latency as given (``--signal-latency``) before the recording's.
     """
-    tuning = getattr(args, "tuning", None) or Tuning()
+    tuning = tuning or Tuning()
     latency = args.signal_latency
     if latency is None:
         latency = SIGNAL_LATENCY if tuning.signal_latency is None else tuning.signal_latency
