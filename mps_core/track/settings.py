@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..derivatives import SCHEMES
 from .measurements import MeasurementError
 
 __all__ = ["PREDICTIONS", "SIGNAL_LATENCY", "TrackSettings"]
@@ -53,6 +54,11 @@ class TrackSettings:
     ``signal_latency``: how late a mode signal may come after its command took effect (s; 0:
     on time, applied at its stamp): the command is searched for over that window before its
     stamp (:mod:`~mps_core.track.signal_timing`).
+    ``derivatives``: the model's derivative scheme, one of :data:`mps_core.derivatives.SCHEMES`
+    (its mass matrix's derivatives in the velocity terms): ``autodiff`` by exact derivatives,
+    each step's evaluations one generated function (the default: the estimates as the seed's
+    central differences give them to the digits printed, at less CPU; docs/tracking.md),
+    ``central`` as the seed differences them.
     Without mode signals the structure follows a slider scale: engaged where the slider is
     measured ``engage_drop`` (m) below its top stop while held there, disengaged where the
     crank-slider misses the slider's position (an outlier) ``disengage_misses`` times running.
@@ -76,6 +82,7 @@ class TrackSettings:
     motor_scale_sigma: float = 0.05
     motor_scale_walk: float = 0.001
     signal_latency: float = 0.0
+    derivatives: str = "autodiff"
 
     def __post_init__(self) -> None:
         for name in (
@@ -106,6 +113,8 @@ class TrackSettings:
             raise MeasurementError("track.signal_latency", self.signal_latency, "a time in [0, 0.1] s")
         if self.prediction not in PREDICTIONS:
             raise MeasurementError("track.prediction", self.prediction, "one of " + ", ".join(PREDICTIONS))
+        if self.derivatives not in SCHEMES:
+            raise MeasurementError("track.derivatives", self.derivatives, "one of " + ", ".join(SCHEMES))
         if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):
             raise MeasurementError("track.force_lag", self.force_lag, "an integer from 0 to 10 (steps)")
         if not (self.event_inflation >= 1.0 and math.isfinite(self.event_inflation)):

@@ -146,7 +146,7 @@ class Tracker:
         self.inputs = UnknownInputs()
         effects.append(self.inputs)
         self.motor = next((e for e in effects if e.kind == "motor"), None)
-        solver = scene.solver
+        solver = replace(scene.solver, scheme=self.settings.derivatives)
         if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
             solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
 
