@@ -175,6 +175,8 @@ class Simulation:
         self.observables = Observables(self)
         self.phys: dict[str, float] = {}
         self._phys_of = None  # the evaluation phys was last read from
+        #: (evaluation, phys's evaluation, joint state) of the last :meth:`joint_state`
+        self._joint_memo: tuple | None = None
         #: the steps of a run with steps longer than its outputs (``Recorder.run_long_steps``)
         self._spans = None
         self.solver = self._new_solver(t0, q, qd)
@@ -319,11 +321,17 @@ class Simulation:
     # -- the state, for sinks ---------------------------------------------------------------
     def joint_state(self) -> tuple:
         """(φ, φ̇, ψ, ψ̇, x_C, ẋ_C) of the present state, floats: the numbers :meth:`snapshot`
-        gives under those names, without the energies."""
+        gives under those names, without the energies (read again from the same evaluation, with
+        the angles' references unchanged, they are the same numbers: kept)."""
         e = self.solver.current
+        memo = self._joint_memo
+        if memo is not None and memo[0] is e and memo[1] is self._phys_of:
+            return memo[2]
         obs = self.observables.observe(e)
         phi, psi, x = obs["phi"], obs["psi"], obs["x_C"]
-        return (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
+        out = (phi[0], phi[1], psi[0], psi[1], x[0], e.kin.vxy("C")[0])
+        self._joint_memo = (e, self._phys_of, out)
+        return out
 
     def snapshot(self) -> dict:
         """The present state by the trajectory's column names (physical φ, ψ, x_C and rates,

@@ -41,6 +41,7 @@ reactions' Jacobian in the state (forward differences) and the state's covarianc
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
@@ -697,10 +698,8 @@ class Tracker:
         of n coordinates: exp to second order, and the slots shifted
         (:mod:`~mps_core.track.lags`)."""
         k = Adt.shape[0]
-        m = len(self.x)
-        Phi = np.zeros((m, m))
-        Phi[:k, :k] = np.eye(k) + Adt + 0.5 * (Adt @ Adt)
-        lags.step_rows(Phi, n, self.settings.force_lag)
+        Phi = _step_rows(len(self.x), n, self.settings.force_lag).copy()
+        Phi[:k, :k] = _identity(k) + Adt + 0.5 * (Adt @ Adt)
         return Phi
 
     def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
@@ -711,7 +710,8 @@ class Tracker:
         n = view.n
         m = lags.core_size(n)
         J = np.zeros((m, m))
-        J[:n, n : 2 * n] = np.eye(n)
+        for i in range(n):
+            J[i, n + i] = 1.0
         ql, vl = e.q.tolist(), e.qd.tolist()
         base = np.asarray(e.qdd, dtype=float)
         for i in range(n):
@@ -850,7 +850,7 @@ class Tracker:
             return False
         K = PH / S
         x = self.x + K * y
-        IKH = np.eye(len(x)) - np.outer(K, H)
+        IKH = _identity(len(x)) - np.outer(K, H)
         P = IKH @ self.P @ IKH.T + m.variance * np.outer(K, K)
         if not self._set_state(x, P):
             self.rejected["model"] += 1
@@ -1029,6 +1029,24 @@ class Tracker:
             return np.array([values[k] for k in _LOAD_INDEX], dtype=float)
         rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, a, kin=e.kin)
         return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+
+
+@functools.cache
+def _identity(m: int) -> np.ndarray:
+    """Return the identity of size m (read-only: one for every caller)."""
+    out = np.eye(m)
+    out.flags.writeable = False
+    return out
+
+
+@functools.cache
+def _step_rows(m: int, n: int, lag: int) -> np.ndarray:
+    """Return a step's Φ of a state of size m in a chart view of n coordinates with only its slots'
+    rows filled (:func:`~mps_core.track.lags.step_rows`; read-only: copied, the core's rows set)."""
+    out = np.zeros((m, m))
+    lags.step_rows(out, n, lag)
+    out.flags.writeable = False
+    return out
 
 
 def _per_unit_input(e: Any) -> np.ndarray:
