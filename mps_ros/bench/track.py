@@ -1,19 +1,20 @@
 """The node following a press, measured: ``python -m mps_ros.bench track`` (not a test).
 
     python -m mps_ros.bench track [--scene working] [--seconds 10] [--sigma-every 1,10]
-                                  [--neighbours 0] [--json FILE]
+                                  [--neighbours 0] [--slider] [--modes] [--json FILE]
 
 For each ``--sigma-every`` (the node's ``track_sigma_every``), ``mps node SCENE`` follows
-``mps emulator SCENE`` (a 17-bit encoder at 1 kHz, its truth off the nominal press) for
-``--seconds``, with ``--neighbours`` busy processes beside them; the node's last line gives what
-it measured itself: the measurements received and the estimates published, the CPU a
-measurement of the thread that takes it (p50, p99) and of the whole process (its CPU time over
-the measurements), the delay from a measurement's arrival to its estimate published (p50,
-p99, max), the estimates later than 1 ms and those taken but not published (over
+``mps emulator SCENE`` (a 17-bit encoder at 1 kHz, its truth off the nominal press; with ``--slider``
+its slider scale too, and with ``--modes`` the node follows the press's mode signals,
+``track_mode``) for ``--seconds``, with ``--neighbours`` busy processes beside them; the node's
+last line gives what it measured itself: the measurements received and the estimates published,
+the CPU a measurement of the thread that takes it (p50, p99) and of the whole process (its CPU
+time over the measurements), the delay from a measurement's arrival to its estimate published
+(p50, p99, max), the estimates later than 1 ms and those taken but not published (over
 ``track_max_behind`` behind). Beside each run, in this process and on the same machine at the
 same time, the *plain loop*: the same tracking run over the same kind of measurements with no
-ROS at all (:class:`~mps_ros.run.tracking.TrackingRun` into a sink that drops the messages),
-CPU a measurement; the node's process CPU over it is the cost of following through ROS.
+ROS at all (:class:`~mps_ros.run.tracking.TrackingRun` into a sink that drops the messages), CPU
+a measurement; the node's process CPU over it is the cost of following through ROS.
 
 Every process stays on loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set); give
 the command a ROS_DOMAIN_ID of its own.
@@ -31,11 +32,12 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from ..commands.demo import ros_env, stop_group
 from .processes import neighbours
 
-__all__ = ["main", "node_figures", "plain_loop", "track_run"]
+__all__ = ["main", "node_figures", "plain_loop", "plain_run", "track_run"]
 
 _SUMMARY = re.compile(
     r"tracking run .*? at t = [\d.e+-]+ s: (\d+) measurements received, (\d+) estimates published, "
@@ -67,14 +69,37 @@ def node_figures(log: str) -> dict:
     }
 
 
-def plain_loop(scene: str, sigma_every: int, measurements: int = 2000, seed: int = 0) -> float:
-    """Return the CPU ms a measurement of the node's tracking run with no ROS (the messages dropped).
+def plain_loop(
+    scene: str,
+    sigma_every: int,
+    measurements: int = 2000,
+    seed: int = 0,
+    slider: bool = False,
+    modes: bool = False,
+) -> float:
+    """Return the CPU ms a measurement of the node's tracking run with no ROS (:func:`plain_run`)."""
+    return plain_run(scene, sigma_every, measurements, seed, slider, modes)[1]
 
-    The truth of ``scene`` read by its encoder for ``measurements`` samples; each taken by a
-    :class:`~mps_ros.run.tracking.TrackingRun` into a sink that keeps nothing.
+
+def plain_run(
+    scene: str,
+    sigma_every: int,
+    measurements: int = 2000,
+    seed: int = 0,
+    slider: bool = False,
+    modes: bool = False,
+) -> tuple[Any, float]:
+    """Return the node's tracking run with no ROS (the messages dropped) and its CPU ms a measurement.
+
+    The truth of ``scene`` read by its encoder (and its slider scale: ``slider``) for
+    ``measurements`` samples; each taken by a :class:`~mps_ros.run.tracking.TrackingRun` into a
+    sink that keeps nothing, the truth's mode signals given before the first sample at or after
+    their time where ``modes`` (the node's ``track_mode``, searched for as its default
+    ``track_signal_latency`` has it).
     """
     from mps_core import load_scene
-    from mps_core.track import run_truth, truth_scene
+    from mps_core.track import Sensors, TrackSettings, run_truth, truth_scene
+    from mps_core.track.settings import SIGNAL_LATENCY
     from mps_core.track.truth import nominal_scene
 
     from ..run.sinks import Fanout, Sink
@@ -87,17 +112,37 @@ def plain_loop(scene: str, sigma_every: int, measurements: int = 2000, seed: int
             pass
 
     nominal = nominal_scene(load_scene(scene))
-    truth = run_truth(truth_scene(nominal), measurements * 1e-3, seed=seed)
-    run = TrackingRun(nominal, Fanout([Dropped()]), sigma_every=sigma_every)
-    crank = [m for m in truth.measurements if m.kind == "crank_angle"]
+    truth = run_truth(truth_scene(nominal), measurements * 1e-3, sensors=Sensors(slider=slider), seed=seed)
+    settings = TrackSettings(signal_latency=SIGNAL_LATENCY if modes and truth.modes else 0.0)
+    run = TrackingRun(nominal, Fanout([Dropped()]), settings=settings, sigma_every=sigma_every)
+    by_t: dict[float, dict[str, float]] = {}
+    for m in truth.measurements:
+        by_t.setdefault(m.t, {})[m.kind] = m.value
+    signals = list(truth.modes) if modes else []
+    offset = time.monotonic() - min(by_t, default=0.0)  # the press's clock on the wall clock
     t0 = time.thread_time()
-    for m in crank:
-        run.measurement(m.t, m.value, None, b"", time.time())
-    return (time.thread_time() - t0) / max(len(crank), 1) * 1e3
+    for t in sorted(by_t):
+        while signals and signals[0].t <= t:
+            s = signals.pop(0)
+            run.mode(s.command, b"", s.t + offset)
+        v = by_t[t]
+        run.measurement(t, v.get("crank_angle"), v.get("slider_position"), b"", time.monotonic(), t + offset)
+    return run, (time.thread_time() - t0) / max(len(by_t), 1) * 1e3
 
 
-def track_run(scene: str, seconds: float, sigma_every: int, env: dict, tmp: Path) -> dict:
-    """Return the figures of ``mps node SCENE`` following ``mps emulator SCENE`` for ``seconds``."""
+def track_run(
+    scene: str,
+    seconds: float,
+    sigma_every: int,
+    env: dict,
+    tmp: Path,
+    slider: bool = False,
+    modes: bool = False,
+) -> dict:
+    """Return the figures of ``mps node SCENE`` following ``mps emulator SCENE`` for ``seconds``.
+
+    ``slider``: the press's slider scale too; ``modes``: its mode signals followed.
+    """
     log = tmp / f"node-{sigma_every}.log"
     cli = [sys.executable, "-m", "mps_core.cli"]
     node = subprocess.Popen(
@@ -110,6 +155,7 @@ def track_run(scene: str, seconds: float, sigma_every: int, env: dict, tmp: Path
             "track:=/press/joint_states",
             "-p",
             f"track_sigma_every:={sigma_every}",
+            *(["-p", "track_mode:=/press/mode"] if modes else []),
         ],
         env=env,
         stdout=open(log, "wb"),
@@ -119,7 +165,7 @@ def track_run(scene: str, seconds: float, sigma_every: int, env: dict, tmp: Path
     try:
         # the emulator waits for its subscriber: it starts when the node follows
         emulator = subprocess.run(
-            [*cli, "emulator", scene, "--t-end", str(seconds)],
+            [*cli, "emulator", scene, "--t-end", str(seconds), *(["--slider"] if slider else [])],
             env=env,
             capture_output=True,
             text=True,
@@ -151,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
         help="the node's track_sigma_every values, comma-separated (default 1,10)",
     )
     p.add_argument("--neighbours", type=int, default=0, help="busy processes beside the node (default 0)")
+    p.add_argument("--slider", action="store_true", help="the press's slider scale too (emulator --slider)")
+    p.add_argument("--modes", action="store_true", help="the node follows the press's mode signals")
     p.add_argument("--json", help="write the figures to this file")
     a = p.parse_args(argv)
     try:
@@ -169,14 +217,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="mps-bench-track-") as d:
             for every in everys:
-                fig = track_run(a.scene, a.seconds, every, env, Path(d))
+                fig = track_run(a.scene, a.seconds, every, env, Path(d), a.slider, a.modes)
                 fig["sigma_every"] = every
-                fig["plain_loop_ms"] = plain_loop(a.scene, every)
+                fig["plain_loop_ms"] = plain_loop(a.scene, every, slider=a.slider, modes=a.modes)
                 rows.append(fig)
     finally:
         for n in busy:
             stop_group(n)
-    print(f"mps node {a.scene} following mps emulator {a.scene} at 1 kHz for {a.seconds:g} s")
+    sensors = " with its slider scale" if a.slider else ""
+    followed = ", its mode signals followed" if a.modes else ""
+    what = f"mps node {a.scene} following mps emulator {a.scene}{sensors} at 1 kHz for {a.seconds:g} s"
+    print(what + followed)
     print(
         f"{'sigma every':>11s} {'received':>8s} {'published':>9s} {'CPU p50/p99 ms':>15s} "
         f"{'process ms':>10s} {'plain loop ms':>13s} {'delay p50/p99/max ms':>21s} "

@@ -57,3 +57,18 @@ def test_keep_logs_copies_the_runs_logs_and_figures(tmp_path):
     assert '"/clock": 1' in (keep / "soak.json").read_text()
     shutil.rmtree(run)  # kept after the run's own folder is gone
     assert (keep / "soak-node.log").exists()
+
+
+def test_the_tracking_bench_s_plain_loop_takes_the_slider_and_the_mode_signals_as_the_node_does():
+    from mps_ros.bench.track import plain_run
+
+    run, cpu_ms = plain_run("press-cycle", 10, measurements=300, slider=True, modes=True)
+    tracker = run.tracker
+    assert run.received == run.estimates == 299 and cpu_ms > 0.0  # stamps 1 ms to 299 ms
+    assert tracker.accepted == 2 * 299  # the crank's and the slider's at each stamp
+    assert tracker.signalled and tracker.sim.structure == "locked"  # engaged by its signal
+    assert tracker.timing is not None  # searched for over the node's default latency
+    crank_only, _ = plain_run("press-cycle", 10, measurements=300, modes=True)
+    assert crank_only.tracker.accepted == 299 and crank_only.tracker.signalled
+    unsignalled, _ = plain_run("working", 10, measurements=100)
+    assert unsignalled.tracker.accepted == 99 and unsignalled.tracker.timing is None
