@@ -274,3 +274,41 @@ def test_the_machine_is_watched_live_and_a_double_blank_reported():
     st = names["press_twin: tracking"]
     assert st["level"] == diagnostics.ERROR and "double blank" in st["message"]
     assert names["press_twin: tracking input"]["level"] == diagnostics.OK
+
+
+def test_a_prepared_run_meets_no_code_it_has_not_made_and_estimates_as_an_unprepared_one():
+    """prepare() takes the nominal press's first second in a copy of the run: the code a press
+    that engages and disengages meets is made then, none when its measurements come, and the
+    run's messages are those of a run that made its code as it went."""
+    from mps_core import caches
+    from mps_core.codegen import emitter
+    from mps_core.track import Sensors
+
+    nominal = nominal_scene(load_scene("press-cycle"))
+    press = run_truth(truth_scene(nominal), 0.6, sensors=Sensors(slider=True), seed=2)
+    by_t: dict[float, dict[str, float]] = {}
+    for m in press.measurements:
+        by_t.setdefault(m.t, {})[m.kind] = m.value
+
+    def follow(run: TrackingRun) -> int:
+        made = emitter._SERIAL[0]  # code made, or read from the disk cache, so far
+        signals = list(press.modes)
+        for t in sorted(by_t):
+            while signals and signals[0].t <= t:
+                s = signals.pop(0)
+                run.mode(s.command, b"", s.t + 100.0)
+            v = by_t[t]
+            assert run.measurement(t, v["crank_angle"], v["slider_position"], b"", 100.0 + t, 100.0 + t)
+        return emitter._SERIAL[0] - made
+
+    sinks = ListSink(), ListSink()
+    caches.clear()
+    cold = TrackingRun(nominal, Fanout([sinks[0]]))
+    assert follow(cold) > 0
+    caches.clear()
+    warm = TrackingRun(nominal, Fanout([sinks[1]]))
+    warm.prepare()
+    assert follow(warm) == 0
+    assert cold.tracker.accepted == warm.tracker.accepted == 2 * len(by_t)
+    published = [[msg for msg in sink.msgs if msg[0] != "/diagnostics"] for sink in sinks]
+    assert published[0] == published[1] and len(published[0]) > 10 * len(by_t)
