@@ -115,19 +115,11 @@ def plain_run(
     truth = run_truth(truth_scene(nominal), measurements * 1e-3, sensors=Sensors(slider=slider), seed=seed)
     settings = TrackSettings(signal_latency=SIGNAL_LATENCY if modes and truth.modes else 0.0)
     run = TrackingRun(nominal, Fanout([Dropped()]), settings=settings, sigma_every=sigma_every)
-    by_t: dict[float, dict[str, float]] = {}
-    for m in truth.measurements:
-        by_t.setdefault(m.t, {})[m.kind] = m.value
-    signals = list(truth.modes) if modes else []
-    offset = time.monotonic() - min(by_t, default=0.0)  # the press's clock on the wall clock
+    stamps = len({m.t for m in truth.measurements})
+    offset = time.monotonic() - truth.measurements[0].t  # the press's clock on the wall clock
     t0 = time.thread_time()
-    for t in sorted(by_t):
-        while signals and signals[0].t <= t:
-            s = signals.pop(0)
-            run.mode(s.command, b"", s.t + offset)
-        v = by_t[t]
-        run.measurement(t, v.get("crank_angle"), v.get("slider_position"), b"", time.monotonic(), t + offset)
-    return run, (time.thread_time() - t0) / max(len(by_t), 1) * 1e3
+    run.take_all(truth.measurements, truth.modes if modes else [], offset)
+    return run, (time.thread_time() - t0) / max(stamps, 1) * 1e3
 
 
 def track_run(

@@ -295,18 +295,31 @@ class TrackingRun:
         motor = self.tracker.motor is not None
         press = run_truth(self.scene, seconds, sensors=Sensors(slider=True, motor_torque=motor), fine_dt=2e-4)
         copy = TrackingRun(self.scene, Fanout([]), sigma_every=1, clock=self.clock, **self._made)
-        signals = list(press.modes)
+        copy.take_all(press.measurements, press.modes, self.clock() - press.measurements[0].t)
+
+    def take_all(
+        self, measurements: Sequence[Measurement], modes: Sequence[ModeSignal], offset: float
+    ) -> int:
+        """Take measurements and mode signals as a press sends them; return the messages taken.
+
+        No middleware: the measurements of one stamp make one message (the crank's, the slider's, the motor's
+        torque), sent at its stamp plus ``offset`` on :attr:`clock` and arriving as it is taken; a
+        mode signal goes before the first message at or after its time, sent at its time plus
+        ``offset`` (a benchmark's plain loop, a warm-up, a test).
+        """
         by_t: dict[float, dict[str, float]] = {}
-        for m in press.measurements:
+        for m in measurements:
             by_t.setdefault(m.t, {})[m.kind] = m.value
-        now = self.clock()
+        signals = sorted(modes, key=lambda s: s.t)
+        taken = 0
         for t in sorted(by_t):
             while signals and signals[0].t <= t:
                 s = signals.pop(0)
-                copy.mode(s.command, b"", s.t + now)
+                self.mode(s.command, b"", s.t + offset)
             v = by_t[t]
             angle, slider, torque = v.get("crank_angle"), v.get("slider_position"), v.get("motor_torque")
-            copy.measurement(t, angle, slider, b"", self.clock(), t + now, torque)
+            taken += self.measurement(t, angle, slider, b"", self.clock(), t + offset, torque)
+        return taken
 
     def close(self) -> None:
         """End what the run started beside it: nothing (it runs in the node's threads)."""

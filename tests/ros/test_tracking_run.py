@@ -286,19 +286,11 @@ def test_a_prepared_run_meets_no_code_it_has_not_made_and_estimates_as_an_unprep
 
     nominal = nominal_scene(load_scene("press-cycle"))
     press = run_truth(truth_scene(nominal), 0.6, sensors=Sensors(slider=True), seed=2)
-    by_t: dict[float, dict[str, float]] = {}
-    for m in press.measurements:
-        by_t.setdefault(m.t, {})[m.kind] = m.value
+    stamps = len({m.t for m in press.measurements})
 
     def follow(run: TrackingRun) -> int:
         made = emitter._SERIAL[0]  # code made, or read from the disk cache, so far
-        signals = list(press.modes)
-        for t in sorted(by_t):
-            while signals and signals[0].t <= t:
-                s = signals.pop(0)
-                run.mode(s.command, b"", s.t + 100.0)
-            v = by_t[t]
-            assert run.measurement(t, v["crank_angle"], v["slider_position"], b"", 100.0 + t, 100.0 + t)
+        assert run.take_all(press.measurements, press.modes, 100.0) == stamps
         return emitter._SERIAL[0] - made
 
     sinks = ListSink(), ListSink()
@@ -309,6 +301,6 @@ def test_a_prepared_run_meets_no_code_it_has_not_made_and_estimates_as_an_unprep
     warm = TrackingRun(nominal, Fanout([sinks[1]]))
     warm.prepare()
     assert follow(warm) == 0
-    assert cold.tracker.accepted == warm.tracker.accepted == 2 * len(by_t)
+    assert cold.tracker.accepted == warm.tracker.accepted == 2 * stamps
     published = [[msg for msg in sink.msgs if msg[0] != "/diagnostics"] for sink in sinks]
-    assert published[0] == published[1] and len(published[0]) > 10 * len(by_t)
+    assert published[0] == published[1] and len(published[0]) > 10 * stamps
