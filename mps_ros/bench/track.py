@@ -37,7 +37,7 @@ from typing import Any
 from ..commands.demo import ros_env, stop_group
 from .processes import neighbours
 
-__all__ = ["main", "node_figures", "plain_loop", "plain_run", "track_run"]
+__all__ = ["main", "node_figures", "plain_run", "track_run"]
 
 _SUMMARY = re.compile(
     r"tracking run .*? at t = [\d.e+-]+ s: (\d+) measurements received, (\d+) estimates published, "
@@ -67,18 +67,6 @@ def node_figures(log: str) -> dict:
         "late": int(g[9]),
         "skipped": int(g[10]),
     }
-
-
-def plain_loop(
-    scene: str,
-    sigma_every: int,
-    measurements: int = 2000,
-    seed: int = 0,
-    slider: bool = False,
-    modes: bool = False,
-) -> float:
-    """Return the CPU ms a measurement of the node's tracking run with no ROS (:func:`plain_run`)."""
-    return plain_run(scene, sigma_every, measurements, seed, slider, modes)[1]
 
 
 def plain_run(
@@ -211,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             for every in everys:
                 fig = track_run(a.scene, a.seconds, every, env, Path(d), a.slider, a.modes)
                 fig["sigma_every"] = every
-                fig["plain_loop_ms"] = plain_loop(a.scene, every, slider=a.slider, modes=a.modes)
+                fig["plain_loop_ms"] = plain_run(a.scene, every, slider=a.slider, modes=a.modes)[1]
                 rows.append(fig)
     finally:
         for n in busy:
