@@ -205,6 +205,9 @@ class PartialSystems:
         #: what the generated code reads of the mechanism (:mod:`mps_core.codegen.emitter`)
         self.tables = self.maps.tables
         self._plans: dict = {}
+        #: the views' ``accel`` and ``fun`` (:meth:`accelerator`, :meth:`evaluator`), made once
+        #: each: they read the plans as they are called
+        self._functions: dict = {}
         #: the two derivative schemes' evaluations (:mod:`~mps_core.dynamics.central`,
         #: :mod:`~mps_core.dynamics.exact`), the scheme's one used
         self.central, self.exact = CentralScheme(self), ExactScheme(self)
@@ -265,9 +268,23 @@ class PartialSystems:
             return self.evaluate(view, t, np.array(ql, float), np.array(vl, float)).qdd.tolist()
         return out[3]
 
+    def _function(self, kind: str, view: ChartView, make: Callable) -> Any:
+        """Return the view's function of ``kind``, made by ``make(view)`` the first time."""
+        key = (kind, view)
+        fn = self._functions.get(key)
+        if fn is None:
+            if len(self._functions) > 512:
+                self._functions.clear()
+            fn = self._functions[key] = make(view)
+        return fn
+
     def accelerator(self, view: ChartView) -> Accelerator:
         """``accel(t, q, q̇)``: :meth:`accelerations` in ``view``, the fused function called
-        without the lookups where it holds (a solver's stages)."""
+        without the lookups where it holds (a solver's stages); made once a view."""
+        return self._function("accel", view, self._make_accelerator)
+
+    def _make_accelerator(self, view: ChartView) -> Accelerator:
+        """Make :meth:`accelerator`'s function for ``view``."""
         accelerations = PartialSystems.accelerations
         engine = self
         counts = self.counts
@@ -316,8 +333,12 @@ class PartialSystems:
 
     def evaluator(self, view: ChartView):
         """``fun(t, q, q̇) -> Evaluation``: :meth:`evaluate` in ``view``, the fused evaluation
-        called without the lookups where it holds (a solver's kept evaluations). An
-        ``evaluate`` set on the engine object (a spy, a budget) is called instead."""
+        called without the lookups where it holds (a solver's kept evaluations); made once a
+        view. An ``evaluate`` set on the engine object (a spy, a budget) is called instead."""
+        return self._function("fun", view, self._make_evaluator)
+
+    def _make_evaluator(self, view: ChartView):
+        """Make :meth:`evaluator`'s function for ``view``."""
         evaluate = PartialSystems.evaluate
         engine = self
         counts, plans, version = self.counts, self._plans, self.version
