@@ -354,6 +354,12 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             f"CPU per measurement: median {np.median(us):.0f} us, p99 {np.percentile(us, 99):.0f} us, "
             f"max {us.max():.0f} us ({len(cpu)} measurements)"
         )
+    if tracker.acquired:
+        print(
+            f"the crank acquired again {tracker.acquired} times, the model off it by more than its "
+            "covariance allowed (the first measurement, after a gap, or latch open after angles "
+            "rejected running)"
+        )
     if tracker.restarted:
         print(
             f"the model's run started again {tracker.restarted} times (its state had no configuration "

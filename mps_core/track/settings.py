@@ -54,6 +54,10 @@ class TrackSettings:
     ``signal_latency``: how late a mode signal may come after its command took effect (s; 0:
     on time, applied at its stamp): the command is searched for over that window before its
     stamp (:mod:`~mps_core.track.signal_timing`).
+    ``reacquire_after``: crank angles rejected running (beyond the gate, or a jump) after which,
+    latch open (``held``, ``free``), the crank is acquired again as after a gap: the crank does
+    not see the slider there, and a slider whose motion, or impact at its stop, the model has
+    off moves the crank where the model cannot follow it (docs/tracking.md, What is not built).
     ``derivatives``: the model's derivative scheme, one of :data:`mps_core.derivatives.SCHEMES`
     (its mass matrix's derivatives in the velocity terms): ``autodiff`` by exact derivatives,
     each step's evaluations one generated function (the default: the estimates as the seed's
@@ -83,6 +87,7 @@ class TrackSettings:
     motor_scale_walk: float = 0.001
     signal_latency: float = 0.0
     derivatives: str = "autodiff"
+    reacquire_after: int = 3
 
     def __post_init__(self) -> None:
         for name in (
@@ -113,6 +118,8 @@ class TrackSettings:
             raise MeasurementError("track.signal_latency", self.signal_latency, "a time in [0, 0.1] s")
         if self.prediction not in PREDICTIONS:
             raise MeasurementError("track.prediction", self.prediction, "one of " + ", ".join(PREDICTIONS))
+        if not (isinstance(self.reacquire_after, int) and self.reacquire_after >= 1):
+            raise MeasurementError("track.reacquire_after", self.reacquire_after, "an integer >= 1")
         if self.derivatives not in SCHEMES:
             raise MeasurementError("track.derivatives", self.derivatives, "one of " + ", ".join(SCHEMES))
         if not (isinstance(self.force_lag, int) and 0 <= self.force_lag <= 10):

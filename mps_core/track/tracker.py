@@ -205,11 +205,14 @@ class Tracker:
         #: the commands inferred from the measurements, by name
         self.inferred: Counter[str] = Counter()
         #: the times the crank was acquired again, off the model by more than the gate
-        #: allows (the first measurement, or the first after a gap)
+        #: allows (the first measurement, the first after a gap, or, latch open, after
+        #: ``reacquire_after`` rejected running)
         self.acquired = 0
         #: the times the model's run failed and was started again (:meth:`_start_again`)
         self.restarted = 0
         self._slider_misses = 0
+        #: crank angles rejected running (beyond the gate, jumps: ``reacquire_after``)
+        self._crank_misses = 0
         self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
         self.innovations: list[tuple[float, str, float]] = []
@@ -589,9 +592,16 @@ class Tracker:
         """Take one measurement on the tracker's clock (:meth:`update`'s work); set
         :attr:`score` to its log-likelihood."""
         gap = m.t - self._t_last > self.settings.timeout
-        reason = self._screen(m, recent=not gap)
+        crank = m.kind == "crank_angle"
+        # latch open, the crank does not see the slider: where its angles are rejected running,
+        # the model's slider has gone off the press's, and the crank is acquired again
+        misses = self._crank_misses
+        lost = crank and self.sim.structure != "locked" and misses >= self.settings.reacquire_after
+        reason = self._screen(m, recent=not (gap or lost))
         if reason is not None:
             self.rejected[reason] += 1
+            if reason == "jump":
+                self._crank_misses += 1
             self.score = -self.settings.gate  # worse than any innovation computed
             return False
         if gap and self._t_last > -math.inf:
@@ -601,9 +611,11 @@ class Tracker:
             self._predict(m.t)
         except (MpsError, ArithmeticError, ValueError) as exc:
             self._start_again(m, e0, exc)
-        if gap and m.kind == "crank_angle":
+        if crank and (gap or lost):
             self._acquire(m)
         taken = self._correct(m)
+        if crank:
+            self._crank_misses = 0 if taken else self._crank_misses + 1
         self._last[m.kind] = m.t
         if taken:
             self._t_last = max(self._t_last, m.t)

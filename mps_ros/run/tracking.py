@@ -212,6 +212,7 @@ class TrackingRun:
         self._torque_said = False
         self._found_said = 0  # the mode signals searched for, said
         self._restarts_said = 0  # the model's runs started again, said
+        self._acquired_said = 0  # the crank's acquisitions, counted
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -464,6 +465,15 @@ class TrackingRun:
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])
+            if tr.acquired > self._acquired_said:
+                self._acquired_said = tr.acquired
+                if tr.acquired == 1 or tr.acquired % 100 == 0:
+                    self.log(
+                        "info",
+                        f"tracking: at t = {t:.6f} s the crank acquired again, the model off it by more than "
+                        f"its covariance allows ({tr.acquired} so far: the first measurement, after a gap, "
+                        "or latch open after angles rejected running)",
+                    )
             est = tr.estimate()  # one for the status, the stroke table and the messages
             self._watch_machine(ms[0], est)
             if not taken:

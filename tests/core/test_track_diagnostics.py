@@ -84,6 +84,27 @@ def test_a_healthy_press_cycle_through_its_disengage_and_idle_is_ok_throughout()
     assert [e.level for e in events] == ["OK"], [e.line() for e in events]
 
 
+def test_from_the_crank_alone_the_idle_slider_s_swings_are_followed_by_acquiring_the_crank_again():
+    """press-cycle from its crank alone through the disengage and the idle four-bar's swings
+    (seed 3): the crank does not see the slider there, and its impacts at the stop move the
+    crank where the model's slider is off; latch open, the crank is acquired again after three
+    angles rejected running, and the track is never lost. Without that it is lost twice, the
+    second time for good."""
+    from dataclasses import replace
+
+    from mps_core.track import TrackSettings
+
+    nominal = load_scene("press-cycle")
+    tracker = Tracker(nominal)
+    events = _watched(nominal, 0.9, seed=3, tracker=tracker)
+    assert [e.level for e in events] == ["OK"], [e.line() for e in events]
+    assert tracker.acquired >= 1 and sum(tracker.rejected.values()) <= 8  # measured: 1, and 4 outliers
+    never = Tracker(nominal, replace(TrackSettings(), reacquire_after=10**9))
+    events = _watched(nominal, 0.9, seed=3, tracker=never)
+    assert [e.level for e in events].count("ERROR") == 2  # at 0.538 s, then from 0.702 s on
+    assert sum(never.rejected.values()) > 50  # measured: 257 (92 outliers, 156 jumps)
+
+
 def test_a_double_blank_is_reported_within_a_revolution():
     """Injected just after a cut (the worst case: the next cut is most of a revolution on)."""
     t_fault = 0.2

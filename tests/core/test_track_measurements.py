@@ -90,6 +90,7 @@ def test_a_gap_is_reported_and_the_estimate_goes_on(stream):
         (lambda: Encoder().angle(2.5), "crank_angle.count"),
         (lambda: TrackSettings(gate=-1.0), "track.gate"),
         (lambda: TrackSettings(derivatives="exact"), "track.derivatives"),
+        (lambda: TrackSettings(reacquire_after=0), "track.reacquire_after"),
         (lambda: Fault(0.1, "meteor"), "fault.kind"),
         (lambda: Sensors(jitter=6e-4), "sensors.jitter"),
     ],
