@@ -29,6 +29,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
+from mps_core.errors import MpsError
 from mps_core.scene import Scene
 from mps_core.track import (
     Encoder,
@@ -294,9 +295,15 @@ class TrackingRun:
         from mps_core.track import Sensors, run_truth
 
         motor = self.tracker.motor is not None
-        press = run_truth(self.scene, seconds, sensors=Sensors(slider=True, motor_torque=motor), fine_dt=2e-4)
-        copy = TrackingRun(self.scene, Fanout([]), sigma_every=1, clock=self.clock, **self._made)
-        copy.take_all(press.measurements, press.modes, self.clock() - press.measurements[0].t)
+        try:
+            sensors = Sensors(slider=True, motor_torque=motor)
+            press = run_truth(self.scene, seconds, sensors=sensors, fine_dt=2e-4)
+            copy = TrackingRun(self.scene, Fanout([]), sigma_every=1, clock=self.clock, **self._made)
+            copy.take_all(press.measurements, press.modes, self.clock() - press.measurements[0].t)
+        except (MpsError, ArithmeticError, ValueError, IndexError) as exc:
+            # a scene whose own run cannot go so far: its code is made as the press's
+            # measurements come, as without the warm-up
+            self.log("warn", f"tracking: the warm-up on the nominal press stopped ({exc}); the run goes on")
 
     def take_all(
         self, measurements: Sequence[Measurement], modes: Sequence[ModeSignal], offset: float

@@ -304,3 +304,21 @@ def test_a_prepared_run_meets_no_code_it_has_not_made_and_estimates_as_an_unprep
     assert cold.tracker.accepted == warm.tracker.accepted == 2 * stamps
     published = [[msg for msg in sink.msgs if msg[0] != "/diagnostics"] for sink in sinks]
     assert published[0] == published[1] and len(published[0]) > 10 * stamps
+
+
+def test_a_warm_up_that_cannot_run_is_said_and_the_run_goes_on(monkeypatch, truth):
+    """A scene whose own run stops in the warm-up: a warning, and the run follows its press."""
+    import mps_core.track
+
+    def failing(*args, **kwargs):
+        raise ValueError("no configuration at t = 0.3 s")
+
+    monkeypatch.setattr(mps_core.track, "run_truth", failing)
+    logs: list = []
+    run, _sink = _run(logs)
+    run.prepare()
+    said = [level for level, text in logs if "warm-up" in text and "no configuration at t = 0.3 s" in text]
+    assert said == ["warn"]
+    for i, m in enumerate(truth.measurements):
+        assert run.measurement(m.t, m.value, None, b"m%d" % i, float(i))
+    assert run.estimates == len(truth.measurements)
