@@ -214,6 +214,7 @@ class TrackingRun:
         self._found_said = 0  # the mode signals searched for, said
         self._restarts_said = 0  # the model's runs started again, said
         self._acquired_said = 0  # the crank's acquisitions, counted
+        self._prepared = False  # prepare() done (once: its warm-up takes about 1 s)
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -274,8 +275,12 @@ class TrackingRun:
         The recording's channels are registered as their first messages come (a channel is in
         the file where its topic has messages), but their types' definitions are read now: the
         first measurement would otherwise wait for rosbags' type store (in process, the first
-        measurement took 82 ms before, 11.5 ms after). Then :meth:`warm_up` (about 1 s).
+        measurement took 82 ms before, 11.5 ms after). Then :meth:`warm_up` (about 1 s). The
+        node calls it as the run is made and again as it starts: the second call does nothing.
         """
+        if self._prepared:
+            return
+        self._prepared = True
         for msgtype in sorted({t.msgtype for t in (*BY_KEY.values(), *TRACKING_BY_KEY.values())}):
             msgdef(msgtype)
         self.sinks.prepare([])
@@ -310,10 +315,10 @@ class TrackingRun:
     ) -> int:
         """Take measurements and mode signals as a press sends them; return the messages taken.
 
-        No middleware: the measurements of one stamp make one message (the crank's, the slider's, the motor's
-        torque), sent at its stamp plus ``offset`` on :attr:`clock` and arriving as it is taken; a
-        mode signal goes before the first message at or after its time, sent at its time plus
-        ``offset`` (a benchmark's plain loop, a warm-up, a test).
+        No middleware: the measurements of one stamp make one message (the crank's, the
+        slider's, the motor's torque), sent at its stamp plus ``offset`` on :attr:`clock` and
+        arriving as it is taken; a mode signal goes before the first message at or after its
+        time, sent at its time plus ``offset`` (a benchmark's plain loop, a warm-up, a test).
         """
         by_t: dict[float, dict[str, float]] = {}
         for m in measurements:

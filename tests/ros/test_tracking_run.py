@@ -317,6 +317,7 @@ def test_a_warm_up_that_cannot_run_is_said_and_the_run_goes_on(monkeypatch, trut
     logs: list = []
     run, _sink = _run(logs)
     run.prepare()
+    run.prepare()  # the node's second call (as the run starts) does nothing
     said = [level for level, text in logs if "warm-up" in text and "no configuration at t = 0.3 s" in text]
     assert said == ["warn"]
     for i, m in enumerate(truth.measurements):
