@@ -57,7 +57,8 @@ class TrackSettings:
     ``reacquire_after``: crank angles rejected running (beyond the gate, or a jump) after which,
     latch open (``held``, ``free``), the crank is acquired again as after a gap: the crank does
     not see the slider there, and a slider whose motion, or impact at its stop, the model has
-    off moves the crank where the model cannot follow it (docs/tracking.md, What is not built).
+    off moves the crank where the model cannot follow it (docs/tracking.md, The crank acquired
+    again, latch open).
     ``derivatives``: the model's derivative scheme, one of :data:`mps_core.derivatives.SCHEMES`
     (its mass matrix's derivatives in the velocity terms): ``autodiff`` by exact derivatives,
     each step's evaluations one generated function (the default: the estimates as the seed's
