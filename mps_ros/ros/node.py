@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from mps_core import MpsError
@@ -43,6 +43,7 @@ from .environment import env_defaults
 from .foxglove_link import FoxgloveLink, endpoint_settings
 from .parameters import ParameterError, declare, read
 from .recording_files import claim_recording, discard_recording, next_recording
+from .spinning import SpinThread, close
 
 DEFAULT_SCENE = "press-cycle"
 
@@ -537,8 +538,7 @@ def main(argv=None) -> int:
     old = _stop_on_signals(stop, runner_box)
     rclpy.init(args=[NODE_NAME, *ros], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = None
-    executor = None
-    thread = None
+    spin = None
     try:
         try:
             node = PressTwin(scene)
@@ -546,9 +546,7 @@ def main(argv=None) -> int:
             print(f"press_twin: error: {exc}", file=sys.stderr, flush=True)
             return 2
         runner_box["node"] = node
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        thread = _spin_in_background(node, executor)
+        spin = _spin_in_background(node)
         _start(node)
         while not (node.activated.is_set() or node.ending.is_set() or stop.is_set()):
             stop.wait(0.05)
@@ -562,12 +560,12 @@ def main(argv=None) -> int:
             code = max(code, status)
         return code
     finally:
-        if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-        if thread is not None:
-            thread.join(timeout=2.0)
-        if node is not None:
-            node.destroy_node()
+        if not close(spin, [node]):
+            print(
+                "press_twin: the executor's thread did not end: the node is left to the process's end",
+                file=sys.stderr,
+                flush=True,
+            )
         rclpy.try_shutdown()
         for s, h in old.items():
             signal.signal(s, h)
@@ -588,23 +586,18 @@ def _stop_on_signals(stop: threading.Event, runner_box: dict) -> dict:
     return {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
 
-def _spin_in_background(node: PressTwin, executor: SingleThreadedExecutor) -> threading.Thread:
-    """The executor spun in a thread of its own (the node's callbacks), started; a callback
-    that fails ends the node's run."""
+def _spin_in_background(node: PressTwin) -> SpinThread:
+    """The node's callbacks spun in a thread of their own, started; a callback that fails ends
+    the node's run."""
 
-    def spin():
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-        except Exception as exc:  # a callback failed: the run must not go on deaf
-            if node.runner is None or node.runner.stop_reason is None:
-                node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
-                node._end("error")
+    def failed(exc: Exception) -> None:  # the run must not go on deaf
+        if node.runner is None or node.runner.stop_reason is None:
+            node.get_logger().error(f"executor stopped: {type(exc).__name__}: {exc}")
+            node._end("error")
 
-    thread = threading.Thread(target=spin, name="press_twin-executor", daemon=True)
-    thread.start()
-    return thread
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    return SpinThread(executor, "press_twin-executor", failed)
 
 
 def _start(node: PressTwin) -> None:

@@ -210,8 +210,9 @@ def run_live(
         max_lag = _follow(inbox, out, taker, stop, 1.0 / hz, duration)
     finally:
         taking.set()
-        taker.join(timeout=2.0)
-        node.destroy_node()
+        taker.join(timeout=10.0)
+        if not taker.is_alive():  # rclpy: never destroy what another thread takes from
+            node.destroy_node()
         rclpy.try_shutdown()
         for s, h in old.items():
             signal.signal(s, h)

@@ -320,12 +320,12 @@ def test_recording_read_back_by_rosbags(commanded):
 def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
     """~/structure goes out when the structure changes, offered transient-local: a subscriber
     that joins later (and asks for transient local) gets the present structure at once."""
-    import threading
-
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
+
+    from mps_ros.ros.spinning import SpinThread, close
 
     # engaged at 0.008 s, the latch closes soon after: locked until the disengage at 0.4351 s
     # (8.7 wall seconds at x0.05)
@@ -339,7 +339,7 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
         wait_timeout=30.0,
     )
     lis = Listener()
-    late_node = executor = thread = None
+    late_node = spin = None
     try:
         with NodeProcess(tmp_path, params):
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.05, 60, "/clock >= 0.05 s")
@@ -358,18 +358,12 @@ def test_structure_is_latched_for_a_late_subscriber(ros, tmp_path):
             )
             executor = SingleThreadedExecutor()
             executor.add_node(late_node)
-            thread = threading.Thread(target=executor.spin, daemon=True)
-            thread.start()
+            spin = SpinThread(executor, "late")
             lis.wait_for(lambda: got, 20, "the latched structure")
             data, t_seen = got[0]
             assert data == "locked" and t_seen < 0.4351, got
     finally:
-        if executor is not None:  # as Listener.close: the spinning thread ends first
-            executor.shutdown(timeout_sec=2.0)
-        if thread is not None:
-            thread.join(timeout=3.0)
-        if late_node is not None:
-            late_node.destroy_node()
+        assert close(spin, [late_node]), "the late node's executor thread did not end"
         lis.close()
 
 

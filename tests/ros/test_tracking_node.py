@@ -45,10 +45,11 @@ class RawListener:
         self.msgs: dict[str, list[bytes]] = {n: [] for n in names}
         for name, cls in names.items():
             self.node.create_subscription(cls, name, self._cb(name), qos, raw=True)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        from mps_ros.ros.spinning import SpinThread
+
+        executor = SingleThreadedExecutor()
+        executor.add_node(self.node)
+        self.spin = SpinThread(executor, "tracking-probe")
 
     def _cb(self, name: str):
         def cb(data: bytes) -> None:
@@ -63,10 +64,10 @@ class RawListener:
             return list(self.msgs[name])
 
     def close(self) -> None:
-        """Stop spinning and destroy the node."""
-        self.executor.shutdown(timeout_sec=2.0)
-        self.thread.join(timeout=3.0)
-        self.node.destroy_node()
+        """Stop spinning, then destroy the node."""
+        from mps_ros.ros.spinning import close
+
+        assert close(self.spin, [self.node]), "the probe's executor thread did not end"
 
 
 def _padded(data: bytes) -> bytes:

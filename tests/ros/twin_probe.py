@@ -159,16 +159,14 @@ class Listener:
         self.Trigger = Trigger
         self.calls = 0  # the service calls made
         self.spin_error: str | None = None  # why the executor's thread ended, if it did
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        executor = SingleThreadedExecutor()
+        executor.add_node(self.node)
+        from mps_ros.ros.spinning import SpinThread
 
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception as exc:  # kept: a listener that stops taking messages says why
-            self.spin_error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+        self.spin = SpinThread(executor, "listener", self._failed)
+
+    def _failed(self, exc: Exception) -> None:  # kept: a listener that stops taking messages says why
+        self.spin_error = f"{type(exc).__name__}: {exc}\n{''.join(traceback.format_exception(exc))}"
 
     def _cb(self, name):
         def cb(msg):
@@ -231,15 +229,17 @@ class Listener:
             return answer
         raise AssertionError(
             f"no answer from service {word} ({tries} asked; the listener's executor "
-            + (f"ended: {self.spin_error})" if self.spin_error else f"alive: {self.thread.is_alive()})")
+            + (f"ended: {self.spin_error})" if self.spin_error else f"alive: {self.spin.alive()})")
         )
 
     def close(self):
-        self.executor.shutdown(timeout_sec=2.0)
-        self.thread.join(timeout=3.0)
-        self.client_executor.shutdown(timeout_sec=2.0)
+        """Stop the spinning thread, then destroy the nodes (rclpy: never a node another thread
+        spins); one left spinning fails the test rather than the process."""
+        from mps_ros.ros.spinning import close
+
+        assert close(self.spin, [self.node]), "the listener's executor thread did not end"
+        self.client_executor.shutdown()  # spun by the threads that call, none of them now
         self.client_node.destroy_node()
-        self.node.destroy_node()
 
 
 class RtpsSniffer:
