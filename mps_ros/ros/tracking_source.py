@@ -118,6 +118,7 @@ def tracking_run(node: Any) -> TrackingRun:
         markers_scale=st.markers_scale,
         clock=time.time,  # the middleware's timestamps are on the system clock
         log=node._log,
+        freeze_gc=True,
     )
     source = TrackingSource(node, run)
     run.on_start = source.subscribe

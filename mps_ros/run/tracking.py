@@ -21,6 +21,7 @@ has the runner's few methods the node calls (:meth:`prepare`, :meth:`run`,
 
 from __future__ import annotations
 
+import gc
 import math
 import threading
 import time
@@ -181,6 +182,7 @@ class TrackingRun:
         markers_hz: float = 30.0,
         markers_scale: float | None = None,
         log: Callable[[str, str], None] | None = None,
+        freeze_gc: bool = False,
     ) -> None:
         if not (isinstance(sigma_every, int) and sigma_every >= 1):
             raise MeasurementError("track_sigma_every", sigma_every, "an integer >= 1")
@@ -215,6 +217,10 @@ class TrackingRun:
         self._restarts_said = 0  # the model's runs started again, said
         self._acquired_said = 0  # the crank's acquisitions, counted
         self._prepared = False  # prepare() done (once: its warm-up takes about 1 s)
+        #: once prepared, the objects made so far are frozen out of the garbage collector's
+        #: passes (``gc.freeze``, a process-wide choice: the node's), as a simulating run's are
+        #: (:attr:`~mps_ros.run.runner.RealtimeSettings.freeze_gc`)
+        self.freeze_gc = bool(freeze_gc)
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -275,8 +281,11 @@ class TrackingRun:
         The recording's channels are registered as their first messages come (a channel is in
         the file where its topic has messages), but their types' definitions are read now: the
         first measurement would otherwise wait for rosbags' type store (in process, the first
-        measurement took 82 ms before, 11.5 ms after). Then :meth:`warm_up` (about 1 s). The
-        node calls it as the run is made and again as it starts: the second call does nothing.
+        measurement took 82 ms before, 11.5 ms after). Then :meth:`warm_up` (about 1 s), and
+        the garbage collector's freeze where :attr:`freeze_gc`: a full collection that scanned
+        every object the process had made held a measurement up for 44–48 ms in process
+        (press-cycle with its slider scale and signals). The node calls it as the run is made
+        and again as it starts: the second call does nothing.
         """
         if self._prepared:
             return
@@ -285,6 +294,9 @@ class TrackingRun:
             msgdef(msgtype)
         self.sinks.prepare([])
         self.warm_up()
+        if self.freeze_gc:
+            gc.collect()
+            gc.freeze()
 
     def warm_up(self, seconds: float = WARM_UP) -> None:
         """Take the nominal press's own first ``seconds`` in a copy of this run.

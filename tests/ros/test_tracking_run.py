@@ -323,3 +323,29 @@ def test_a_warm_up_that_cannot_run_is_said_and_the_run_goes_on(monkeypatch, trut
     for i, m in enumerate(truth.measurements):
         assert run.measurement(m.t, m.value, None, b"m%d" % i, float(i))
     assert run.estimates == len(truth.measurements)
+
+
+@pytest.mark.parametrize("freeze", [True, False])
+def test_a_prepared_run_freezes_the_garbage_collector_where_asked(freeze):
+    """freeze_gc (the node's): once prepared, what the process has made is out of the garbage
+    collector's passes, so a full collection during the run scans only what came since. In a
+    process of its own: a freeze holds for the process."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gc, sys\n"
+        "from mps_core import load_scene\n"
+        "from mps_ros.run.sinks import Fanout\n"
+        "from mps_ros.run.tracking import TrackingRun\n"
+        "run = TrackingRun(load_scene('working'), Fanout([]), freeze_gc=sys.argv[1] == 'True')\n"
+        "before = gc.get_freeze_count()\n"
+        "run.prepare()\n"
+        "print(before, gc.get_freeze_count())\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(freeze)], capture_output=True, text=True, timeout=300, check=True
+    )
+    before, after = map(int, out.stdout.split())
+    assert before == 0
+    assert (after > 10_000) if freeze else (after == 0)
