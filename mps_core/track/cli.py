@@ -372,7 +372,8 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         )
         print(
             f"mode signals: {timing.searched}, their commands found (ms before their stamps) {said} "
-            f"({timing.tried} hypotheses tried)"
+            f"({timing.unsearched} kept unsearched: the measurements since said nothing against them; "
+            f"{timing.tried} hypotheses tried)"
         )
     if tracker.motor_measured:
         est = tracker.estimate()

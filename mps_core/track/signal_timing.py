@@ -14,6 +14,10 @@ is tried at the middle of each gap between the measurements that meets [t − L,
 quarters of the best gap: from the last checkpoint before the gap, the measurements taken again.
 The hypothesis whose measurements since t − L are the likeliest is kept: the one applied at t
 unless another beats it by ``EVIDENCE`` (a likelihood ratio chance gives one time in twenty).
+Unless the measurements since t − L say nothing against the signal on time (none rejected,
+their NIS no more than ``SEARCH_ABOVE`` each on average: a consistent filter's mean), in which
+case it is kept at its stamp unsearched: a search holds a node's measurements up for tens of
+milliseconds (docs/tracking.md, Late mode signals, measures what this screen lets through).
 A measurement's log-likelihood is −½·(NIS + log S/R), the NIS capped at the gate, a rejection
 before any innovation −gate: never positive, so a hypothesis is dropped as soon as its sum falls
 below the one to beat. The estimates already given stay as they were; the tracker's state,
@@ -29,7 +33,7 @@ from typing import Any, NamedTuple, Protocol
 
 from .measurements import Measurement, ModeSignal
 
-__all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SignalTiming"]
+__all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SEARCH_ABOVE", "Found", "SignalTiming"]
 
 #: the gaps between stamps a checkpoint is kept for: the states between are taken again from the
 #: one before, in a search; a checkpoint copies some 7 µs of state, and while it is held the steps
@@ -41,6 +45,21 @@ FOUND_KEPT = 1000
 #: how much likelier (log) a command earlier than its signal must make the measurements than
 #: the signal on time: half χ²(1)'s 95 % quantile
 EVIDENCE = 0.5 * 3.841
+#: the measurements' mean NIS since a signal's window opened above which its command is
+#: searched for (none rejected and at most this: kept at its stamp, unsearched): χ²(1)'s mean
+SEARCH_ABOVE = 1.0
+
+
+class Found(NamedTuple):
+    """Where a mode signal's command was put: ``shift`` s before its stamp.
+
+    ``searched``: found by the search (False: kept where it was applied, the measurements since
+    saying nothing against it, or none measured yet).
+    """
+
+    signal: ModeSignal
+    shift: float
+    searched: bool
 
 
 class Searched(Protocol):
@@ -87,23 +106,27 @@ class SignalTiming:
         self._due: list[ModeSignal] = []
         #: signals applied (signal, the time applied at), searched once the estimate is ``latency`` past
         self._applied: list[tuple[ModeSignal, float]] = []
-        #: each signal searched (on the tracker's clock) and how long before its stamp its
-        #: command was found to take effect (s), in order
-        self.found: deque[tuple[ModeSignal, float]] = deque(maxlen=FOUND_KEPT)
-        #: the signals searched, in all (:attr:`found` keeps the last ``FOUND_KEPT``)
+        #: each signal resolved (on the tracker's clock), how long before its stamp its command
+        #: was put (s) and whether it was searched for, in order
+        self.found: deque[Found] = deque(maxlen=FOUND_KEPT)
+        #: the signals resolved, in all (:attr:`found` keeps the last ``FOUND_KEPT``)
         self.searched = 0
+        #: of them, those kept where they were applied unsearched
+        self.unsearched = 0
         #: the hypotheses tried, in all
         self.tried = 0
 
-    def _found(self, item: tuple[ModeSignal, float]) -> None:
-        """Record a signal searched and where its command was found."""
-        self.found.append(item)
+    def _found(self, signal: ModeSignal, shift: float, searched: bool) -> None:
+        """Record a signal resolved and where its command was put."""
+        self.found.append(Found(signal, shift, searched))
         self.searched += 1
+        if not searched:
+            self.unsearched += 1
 
     @property
     def shifts(self) -> list[float]:
-        """Return how long before its stamp each signal's command was found (s), in order."""
-        return [shift for _signal, shift in self.found]
+        """Return how long before its stamp each signal's command was put (s), in order."""
+        return [f.shift for f in self.found]
 
     def signal(self, tracker: Searched, signal: ModeSignal) -> None:
         """Take a signal (on the tracker's clock): applied at its stamp (now where the estimate is past it).
@@ -112,7 +135,7 @@ class SignalTiming:
         """
         for earlier in self._due:
             tracker.apply_command(earlier.command, earlier.t)
-            self._found((earlier, 0.0))
+            self._found(earlier, 0.0, False)
         self._due.clear()
         while self._applied:
             self._resolve(tracker, *self._applied.pop(0))
@@ -171,12 +194,16 @@ class SignalTiming:
         history = list(self._history)
         first = next((i for i, h in enumerate(history) if h.m.t > t_open), len(history))
         if first == len(history):
-            self._found((signal, t_s - applied))  # nothing measured since its window opened
+            self._found(signal, t_s - applied, False)  # nothing measured since its window opened
             return
         window = history[first:]
-        present = tracker.checkpoint()
         opened = window[0].logs
         main = tracker.logs_since(opened)  # the present run's, since the window opened
+        nis = [v for _t, _kind, v in main[0]]
+        if all(h.taken for h in window) and sum(nis) <= SEARCH_ABOVE * len(nis):
+            self._found(signal, t_s - applied, False)  # nothing against the signal on time
+            return
+        present = tracker.checkpoint()
         # the signal on time is the hypothesis to beat, by a likelihood ratio that chance gives
         # one time in twenty (χ²(1) 95 %): near its stamp the measurements say little, and a
         # command moved by noise is off where it was not
@@ -232,7 +259,7 @@ class SignalTiming:
         tracker.restore(state)
         tracker.set_logs(opened, logs)
         self._history = deque(kept)
-        self._found((signal, t_s - tau))
+        self._found(signal, t_s - tau, True)
 
 
 def _take(tracker: Searched, taken: _Taken, into: list[_Taken]) -> None:

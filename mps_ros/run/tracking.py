@@ -568,11 +568,17 @@ class TrackingRun:
         if timing is None or timing.searched == self._found_said:
             return
         new = min(timing.searched - self._found_said, len(timing.found))  # the last ``new`` of them
-        for signal, shift in list(timing.found)[len(timing.found) - new :]:
+        for signal, shift, searched in list(timing.found)[len(timing.found) - new :]:
+            where = (
+                f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms)"
+                if searched
+                else f"kept {1e3 * shift:.2f} ms before it, unsearched (the measurements since say nothing "
+                "against it)"
+            )
             self.log(
                 "info",
-                f"tracking: mode signal {signal.command} at t = {signal.t + tr.origin:.6f} s: its command "
-                f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms)",
+                f"tracking: mode signal {signal.command} at t = {signal.t + tr.origin:.6f} s: "
+                f"its command {where}",
             )
         self._found_said = timing.searched
 
