@@ -28,7 +28,7 @@ counts, innovations and strokes are the kept hypothesis's
 from __future__ import annotations
 
 from collections import deque
-from itertools import islice
+from itertools import accumulate, islice
 from typing import Any, NamedTuple, Protocol
 
 from .measurements import Measurement, ModeSignal
@@ -223,6 +223,9 @@ class SignalTiming:
                 return False
             start = history[k].before
             assert start is not None
+            # the logs whole again first (a hypothesis dropped early leaves them shorter than
+            # a later checkpoint's, which a restore only cuts): the present run's up to it
+            tracker.set_logs(opened, main)
             tracker.restore(start)
             again: list[_Taken] = []
             for i in range(k, j):  # as they were: no command before the gap
@@ -243,14 +246,17 @@ class SignalTiming:
             best = (total, tau, tracker.checkpoint(), history[:k] + again, logs)
             return True
 
-        prefix, won = 0.0, None
-        for j in range(first, len(history)):
+        # the gaps nearest the stamp first: a command a little early (the commonest) is found
+        # first, and the one to beat rises with it, so the gaps further back are dropped sooner;
+        # the likeliest is the same in any order
+        prefixes = list(accumulate((h.score for h in history[first:]), initial=0.0))
+        won = None
+        for j in reversed(range(first, len(history))):
             h = history[j]
             if h.t_before < t_s and h.m.t > h.t_before:
                 lo, hi = max(h.t_before, t_open), min(h.m.t, t_s)
-                if attempt(j, 0.5 * (lo + hi), prefix):
-                    won = (j, lo, hi, prefix)
-            prefix += h.score
+                if attempt(j, 0.5 * (lo + hi), prefixes[j - first]):
+                    won = (j, lo, hi, prefixes[j - first])
         if won is not None:  # the gap's quarters: a command a quarter of a sample off moves an impact
             j, lo, hi, prefix = won
             for tau in (0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi):
