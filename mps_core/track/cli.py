@@ -360,6 +360,14 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             "covariance allowed (the first measurement, after a gap, or latch open after angles "
             "rejected running)"
         )
+    if tracker.inferred:
+        said = ", ".join(f"{name} {n}" for name, n in sorted(tracker.inferred.items()))
+        print(f"modes followed from the slider scale (no mode signal): {said}")
+    if tracker.slider_acquired:
+        print(
+            f"the slider acquired again {tracker.slider_acquired} times, latch open after its positions "
+            "rejected running"
+        )
     if tracker.restarted:
         print(
             f"the model's run started again {tracker.restarted} times (its state had no configuration "

@@ -58,7 +58,8 @@ class TrackSettings:
     latch open (``held``, ``free``), the crank is acquired again as after a gap: the crank does
     not see the slider there, and a slider whose motion, or impact at its stop, the model has
     off moves the crank where the model cannot follow it (docs/tracking.md, The crank acquired
-    again, latch open).
+    again, latch open); so many slider positions rejected running there, the slider is
+    acquired again.
     ``derivatives``: the model's derivative scheme, one of :data:`mps_core.derivatives.SCHEMES`
     (its mass matrix's derivatives in the velocity terms): ``autodiff`` by exact derivatives,
     each step's evaluations one generated function (the default: the estimates as the seed's

@@ -208,11 +208,16 @@ class Tracker:
         #: allows (the first measurement, the first after a gap, or, latch open, after
         #: ``reacquire_after`` rejected running)
         self.acquired = 0
+        #: the times the slider was acquired again, latch open, after ``reacquire_after`` of its
+        #: positions rejected running
+        self.slider_acquired = 0
         #: the times the model's run failed and was started again (:meth:`_start_again`)
         self.restarted = 0
         self._slider_misses = 0
         #: crank angles rejected running (beyond the gate, jumps: ``reacquire_after``)
         self._crank_misses = 0
+        #: slider positions rejected running (beyond the gate: ``reacquire_after``)
+        self._slider_rejects = 0
         self._returned = True
         #: the normalised innovation squared of each accepted measurement: (t, kind, NIS)
         self.innovations: list[tuple[float, str, float]] = []
@@ -516,8 +521,9 @@ class Tracker:
 
     def _infer_mode(self, m: Measurement, predicted: float, nis: float) -> None:
         """Follow the structure from the slider's position where no mode signal comes: engaged
-        when the slider is measured ``engage_drop`` below its top stop while idle (and back on
-        its stop since the last disengage);
+        when the slider is measured ``engage_drop`` below where the idle model puts it (its top
+        stop, or lower where the model's slider swings free) while idle (and back on its stop
+        since the last disengage);
         disengaged when the crank-slider's slider position is missed ``disengage_misses``
         times running."""
         sim = self.sim
@@ -526,7 +532,7 @@ class Tracker:
         if sim.structure == "held":
             self._returned = True  # the slider back on its stop since the last disengage
         idle = sim.structure != "locked" and not sim.controls.engage_on and self._returned
-        if idle and top is not None and m.value < top - s.engage_drop:
+        if idle and top is not None and m.value < min(top, predicted) - s.engage_drop:
             if self._command_now("engage"):
                 self.inferred["engage"] += 1
                 self._widen(s.engage_drop)
@@ -569,6 +575,18 @@ class Tracker:
         self.acquired += 1
         self._widen_crank(abs(y), max(m.t - self._t_last, self.settings.timeout))
 
+    def _acquire_slider(self, m: Measurement) -> None:
+        """Acquire the slider again, latch open, after its positions were rejected running:
+        where the model's slider is off the measured one by more than the covariance allows,
+        widen the covariance of (q, q̇) by that distance (:meth:`_widen`), so the measurement is
+        taken and the next ones follow it (counted, ``slider_acquired``)."""
+        _value, H, y = self._innovation(m)
+        S = float(H @ self.P @ H) + m.variance
+        if y * y / S <= self.settings.gate:
+            return
+        self.slider_acquired += 1
+        self._widen(abs(y))
+
     # -- measurements ---------------------------------------------------------------------
     def update(self, m: Measurement) -> bool:
         """Take one measurement: predict to its stamp, correct; return whether it was taken.
@@ -593,10 +611,13 @@ class Tracker:
         :attr:`score` to its log-likelihood."""
         gap = m.t - self._t_last > self.settings.timeout
         crank = m.kind == "crank_angle"
+        slider = m.kind == "slider_position"
         # latch open, the crank does not see the slider: where its angles are rejected running,
-        # the model's slider has gone off the press's, and the crank is acquired again
-        misses = self._crank_misses
-        lost = crank and self.sim.structure != "locked" and misses >= self.settings.reacquire_after
+        # the model's slider has gone off the press's, and the crank is acquired again; so is a
+        # slider whose positions are rejected running there
+        latch_open = self.sim.structure != "locked"
+        misses = self._crank_misses if crank else self._slider_rejects if slider else 0
+        lost = (crank or slider) and latch_open and misses >= self.settings.reacquire_after
         reason = self._screen(m, recent=not (gap or lost))
         if reason is not None:
             self.rejected[reason] += 1
@@ -613,9 +634,13 @@ class Tracker:
             self._start_again(m, e0, exc)
         if crank and (gap or lost):
             self._acquire(m)
+        elif lost:
+            self._acquire_slider(m)
         taken = self._correct(m)
         if crank:
             self._crank_misses = 0 if taken else self._crank_misses + 1
+        elif slider:
+            self._slider_rejects = 0 if taken else self._slider_rejects + 1
         self._last[m.kind] = m.t
         if taken:
             self._t_last = max(self._t_last, m.t)

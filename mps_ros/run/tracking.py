@@ -216,6 +216,7 @@ class TrackingRun:
         self._found_said = 0  # the mode signals searched for, said
         self._restarts_said = 0  # the model's runs started again, said
         self._acquired_said = 0  # the crank's acquisitions, counted
+        self._slider_acquired_said = 0  # the slider's, counted
         self._prepared = False  # prepare() done (once: its warm-up takes about 1 s)
         #: once prepared, the objects made so far are frozen out of the garbage collector's
         #: passes (``gc.freeze``, a process-wide choice: the node's), as a simulating run's are
@@ -497,6 +498,14 @@ class TrackingRun:
                         f"tracking: at t = {t:.6f} s the crank acquired again, the model off it by more than "
                         f"its covariance allows ({tr.acquired} so far: the first measurement, after a gap, "
                         "or latch open after angles rejected running)",
+                    )
+            if tr.slider_acquired > self._slider_acquired_said:
+                self._slider_acquired_said = tr.slider_acquired
+                if tr.slider_acquired == 1 or tr.slider_acquired % 100 == 0:
+                    self.log(
+                        "info",
+                        f"tracking: at t = {t:.6f} s the slider acquired again ({tr.slider_acquired} so far: "
+                        "latch open after its positions rejected running)",
                     )
             est = tr.estimate()  # one for the status, the stroke table and the messages
             self._watch_machine(ms[0], est)
