@@ -124,7 +124,12 @@ def publish(
             mode_pub is not None and modes and mode_pub.get_subscription_count() < subscribers
         ):
             if time.monotonic() > deadline:
-                log(f"emulator: no follower on {pub.topic_name} after {wait:g} s: published nothing")
+                missing = [pub.topic_name] if pub.get_subscription_count() < subscribers else []
+                if mode_pub is not None and mode_pub.get_subscription_count() < subscribers:
+                    missing.append(
+                        f"{mode_pub.topic_name} (a follower without mode signals: --mode-topic '')"
+                    )
+                log(f"emulator: no follower on {' and '.join(missing)} after {wait:g} s: published nothing")
                 return 1
             time.sleep(0.01)
         pending = sorted(glitches, key=lambda g: g.t)

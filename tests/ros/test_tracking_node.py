@@ -195,3 +195,27 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
     assert len(node_est) == sent - 1
     offline = tracked("working", rec, tmp_path / "tracked.csv")
     assert all(offline[t] == est for t, est in node_est.items()), differences(node_est, offline)
+
+
+def test_an_emulator_with_no_follower_on_its_mode_topic_names_it(ros):
+    """The emulator waits for a follower of its measurements and, where it has mode signals to
+    send, of its mode topic; where the second is missing it names that topic and how to do
+    without it, and publishes nothing."""
+    from mps_core.track.measurements import ModeSignal
+    from mps_ros.ros.emulator import Samples, publish
+
+    said: list[str] = []
+    code = publish(
+        [Samples(0.001, 0.0, None, None)],
+        [ModeSignal(0.0005, "engage")],
+        [],
+        topic=f"/emulator_test_{os.getpid()}/joint_states",
+        mode_topic=f"/emulator_test_{os.getpid()}/mode",
+        subscribers=1,
+        wait=0.2,
+        log=said.append,
+    )
+    assert code == 1
+    assert len(said) == 1
+    assert f"/emulator_test_{os.getpid()}/joint_states and /emulator_test_{os.getpid()}/mode" in said[0]
+    assert "--mode-topic ''" in said[0] and "published nothing" in said[0]
