@@ -142,8 +142,8 @@ def register(subparsers: Any) -> None:
         default=None,
         metavar="S",
         help="how late a mode signal may come after its command took effect (s): its command is searched "
-        f"for over that window (0: applied at its stamp; {SIGNAL_LATENCY:g} unless a recording records "
-        "the node's)",
+        "for over that window where the measurements since say it is off (0: applied at its stamp; "
+        f"{SIGNAL_LATENCY:g} unless a recording records the node's)",
     )
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
     t.add_argument(
