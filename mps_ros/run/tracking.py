@@ -215,8 +215,8 @@ class TrackingRun:
         self._torque_said = False
         self._found_said = 0  # the mode signals searched for, said
         self._restarts_said = 0  # the model's runs started again, said
-        self._acquired_said = 0  # the crank's acquisitions, counted
-        self._slider_acquired_said = 0  # the slider's, counted
+        #: the crank's and the slider's acquisitions counted so far (said at the first and every 100th)
+        self._acquired_said: Counter[str] = Counter()
         self._prepared = False  # prepare() done (once: its warm-up takes about 1 s)
         #: once prepared, the objects made so far are frozen out of the garbage collector's
         #: passes (``gc.freeze``, a process-wide choice: the node's), as a simulating run's are
@@ -490,23 +490,19 @@ class TrackingRun:
             gap = tr.rejected["gap"] - self._said["gap"]
             if gap > 0:
                 self._say("gap", t, ms[0])
-            if tr.acquired > self._acquired_said:
-                self._acquired_said = tr.acquired
-                if tr.acquired == 1 or tr.acquired % 100 == 0:
-                    self.log(
-                        "info",
-                        f"tracking: at t = {t:.6f} s the crank acquired again, the model off it by more than "
-                        f"its covariance allows ({tr.acquired} so far: the first measurement, after a gap, "
-                        "or latch open after angles rejected running)",
-                    )
-            if tr.slider_acquired > self._slider_acquired_said:
-                self._slider_acquired_said = tr.slider_acquired
-                if tr.slider_acquired == 1 or tr.slider_acquired % 100 == 0:
-                    self.log(
-                        "info",
-                        f"tracking: at t = {t:.6f} s the slider acquired again ({tr.slider_acquired} so far: "
-                        "latch open after its positions rejected running)",
-                    )
+            self._say_acquired(
+                "crank",
+                tr.acquired,
+                f"tracking: at t = {t:.6f} s the crank acquired again, the model off it by more than its "
+                f"covariance allows ({tr.acquired} so far: the first measurement, after a gap, or latch "
+                "open after angles rejected running)",
+            )
+            self._say_acquired(
+                "slider",
+                tr.slider_acquired,
+                f"tracking: at t = {t:.6f} s the slider acquired again ({tr.slider_acquired} so far: latch "
+                "open after its positions rejected running)",
+            )
             est = tr.estimate()  # one for the status, the stroke table and the messages
             self._watch_machine(ms[0], est)
             if not taken:
@@ -570,6 +566,16 @@ class TrackingRun:
                 f"t = {self.tracker.t:.6f} s)",
             )
             self._say_found()
+
+    def _say_acquired(self, what: str, n: int, text: str) -> None:
+        """Say ``text`` where ``what`` (the crank, the slider) was acquired again since the last call.
+
+        Said where its count ``n`` is the first or a hundredth.
+        """
+        if n > self._acquired_said[what]:
+            self._acquired_said[what] = n
+            if n == 1 or n % 100 == 0:
+                self.log("info", text)
 
     def _say_found(self) -> None:
         """Say where the commands of the mode signals searched for since the last call were found."""
