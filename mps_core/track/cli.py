@@ -381,7 +381,13 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         print(
             f"mode signals: {timing.searched}, their commands found (ms before their stamps) {said} "
             f"({timing.unsearched} kept unsearched: the measurements since said nothing against them; "
-            f"{timing.tried} hypotheses tried)"
+            f"{timing.tried} hypotheses tried"
+            + (
+                f", the longest search {1e3 * max(f.cpu for f in timing.found):.1f} ms of CPU"
+                if timing.tried
+                else ""
+            )
+            + ")"
         )
     if tracker.motor_measured:
         est = tracker.estimate()

@@ -27,6 +27,7 @@ counts, innovations and strokes are the kept hypothesis's
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from itertools import accumulate, islice
 from typing import Any, NamedTuple, Protocol
@@ -54,12 +55,16 @@ class Found(NamedTuple):
     """Where a mode signal's command was put: ``shift`` s before its stamp.
 
     ``searched``: found by the search (False: kept where it was applied, the measurements since
-    saying nothing against it, or none measured yet).
+    saying nothing against it, or none measured yet); ``tried``: the hypotheses the search
+    tried; ``cpu``: the search's CPU (s, the thread's), which holds up the measurement that
+    closes it.
     """
 
     signal: ModeSignal
     shift: float
     searched: bool
+    tried: int = 0
+    cpu: float = 0.0
 
 
 class Searched(Protocol):
@@ -116,9 +121,11 @@ class SignalTiming:
         #: the hypotheses tried, in all
         self.tried = 0
 
-    def _found(self, signal: ModeSignal, shift: float, searched: bool) -> None:
+    def _found(
+        self, signal: ModeSignal, shift: float, searched: bool, tried: int = 0, cpu: float = 0.0
+    ) -> None:
         """Record a signal resolved and where its command was put."""
-        self.found.append(Found(signal, shift, searched))
+        self.found.append(Found(signal, shift, searched, tried, cpu))
         self.searched += 1
         if not searched:
             self.unsearched += 1
@@ -191,6 +198,7 @@ class SignalTiming:
         """
         t_s, command = signal.t, signal.command
         t_open = t_s - self.latency
+        cpu0, tried0 = time.thread_time(), self.tried
         history = list(self._history)
         first = next((i for i, h in enumerate(history) if h.m.t > t_open), len(history))
         if first == len(history):
@@ -265,7 +273,7 @@ class SignalTiming:
         tracker.restore(state)
         tracker.set_logs(opened, logs)
         self._history = deque(kept)
-        self._found(signal, t_s - tau, True)
+        self._found(signal, t_s - tau, True, self.tried - tried0, time.thread_time() - cpu0)
 
 
 def _take(tracker: Searched, taken: _Taken, into: list[_Taken]) -> None:

@@ -583,9 +583,10 @@ class TrackingRun:
         if timing is None or timing.searched == self._found_said:
             return
         new = min(timing.searched - self._found_said, len(timing.found))  # the last ``new`` of them
-        for signal, shift, searched in list(timing.found)[len(timing.found) - new :]:
+        for signal, shift, searched, tried, cpu in list(timing.found)[len(timing.found) - new :]:
             where = (
-                f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms)"
+                f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms: "
+                f"{tried} hypotheses, {1e3 * cpu:.1f} ms of CPU holding the measurements up)"
                 if searched
                 else f"kept {1e3 * shift:.2f} ms before it, unsearched (the measurements since say nothing "
                 "against it)"

@@ -53,6 +53,9 @@ def test_late_signals_are_found_where_their_commands_were(cycle):
     assert tracker.timing is not None and len(tracker.timing.shifts) == 2
     assert all(abs(shift - LATE) < 1e-3 for shift in tracker.timing.shifts), tracker.timing.shifts
     assert tracker.timing.unsearched == 0  # the measurements since each said it was off
+    # each search's hypotheses and CPU (what holds up the measurement that closes it)
+    assert all(f.searched and f.tried > 0 and f.cpu > 0.0 for f in tracker.timing.found)
+    assert sum(f.tried for f in tracker.timing.found) == tracker.timing.tried
     assert tracker.rejected["outlier"] == 0
     assert [s.level for s in monitor.events] == ["OK"]
     assert tracker.sim.structure != "locked"  # disengaged
@@ -71,6 +74,7 @@ def test_a_signal_on_time_is_kept_at_its_stamp(cycle):
     assert tracker.timing is not None and tracker.timing.shifts == [0.0, 0.0]
     assert [f.searched for f in tracker.timing.found] == [False, True]
     assert tracker.timing.unsearched == 1 and tracker.timing.tried > 0
+    assert tracker.timing.found[0][3:] == (0, 0.0)  # unsearched: no hypothesis, no CPU
     assert np.array_equal(searched, plain)
 
 

@@ -147,6 +147,7 @@ def test_a_late_engage_is_found_where_it_was_and_tracked_again_alike(tmp_path, c
     assert len(found) == 1 and "mode signal engage at t = 0.012" in found[0], found
     shift = float(found[0].split("found ")[1].split(" ms")[0])
     assert 3.0 < shift < 5.0, found
+    assert "hypotheses, " in found[0] and " ms of CPU holding the measurements up)" in found[0], found
     node = node_estimates(mcap)
     offline = tracked(SCENE, mcap, tmp_path / "est.csv")
     assert "mode signals: 1, their commands found" in capsys.readouterr().out
