@@ -142,8 +142,8 @@ def register(subparsers: Any) -> None:
         default=None,
         metavar="S",
         help="how late a mode signal may come after its command took effect (s): its command is searched "
-        "for over that window where the measurements since say it is off (0: applied at its stamp; "
-        f"{SIGNAL_LATENCY:g} unless a recording records the node's)",
+        f"for over that window (0: applied at its stamp; {SIGNAL_LATENCY:g} unless a recording records "
+        "the node's)",
     )
     t.add_argument("--seed", type=int, default=0, help="--against-truth: the noise's seed")
     t.add_argument(
@@ -380,8 +380,7 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         )
         print(
             f"mode signals: {timing.searched}, their commands found (ms before their stamps) {said} "
-            f"({timing.unsearched} kept unsearched: the measurements since said nothing against them; "
-            f"{timing.tried} hypotheses tried"
+            f"({timing.tried} hypotheses tried"
             + (
                 f", the longest search {1e3 * max(f.cpu for f in timing.found):.1f} ms of CPU"
                 if timing.tried

@@ -14,10 +14,6 @@ is tried at the middle of each gap between the measurements that meets [t − L,
 quarters of the best gap: from the last checkpoint before the gap, the measurements taken again.
 The hypothesis whose measurements since t − L are the likeliest is kept: the one applied at t
 unless another beats it by ``EVIDENCE`` (a likelihood ratio chance gives one time in twenty).
-Unless the measurements since t − L say nothing against the signal on time (none rejected,
-their NIS no more than ``SEARCH_ABOVE`` each on average: a consistent filter's mean), in which
-case it is kept at its stamp unsearched: a search holds a node's measurements up for tens of
-milliseconds (docs/tracking.md, Late mode signals, measures what this screen lets through).
 A measurement's log-likelihood is −½·(NIS + log S/R), the NIS capped at the gate, a rejection
 before any innovation −gate: never positive, so a hypothesis is dropped as soon as its sum falls
 below the one to beat. The estimates already given stay as they were; the tracker's state,
@@ -34,7 +30,7 @@ from typing import Any, NamedTuple, Protocol
 
 from .measurements import Measurement, ModeSignal
 
-__all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "SEARCH_ABOVE", "Found", "SignalTiming"]
+__all__ = ["CHECKPOINT_EVERY", "EVIDENCE", "Found", "SignalTiming"]
 
 #: the gaps between stamps a checkpoint is kept for: the states between are taken again from the
 #: one before, in a search; a checkpoint copies some 7 µs of state, and while it is held the steps
@@ -46,18 +42,15 @@ FOUND_KEPT = 1000
 #: how much likelier (log) a command earlier than its signal must make the measurements than
 #: the signal on time: half χ²(1)'s 95 % quantile
 EVIDENCE = 0.5 * 3.841
-#: the measurements' mean NIS since a signal's window opened above which its command is
-#: searched for (none rejected and at most this: kept at its stamp, unsearched): χ²(1)'s mean
-SEARCH_ABOVE = 1.0
 
 
 class Found(NamedTuple):
     """Where a mode signal's command was put: ``shift`` s before its stamp.
 
-    ``searched``: found by the search (False: kept where it was applied, the measurements since
-    saying nothing against it, or none measured yet); ``tried``: the hypotheses the search
-    tried; ``cpu``: the search's CPU (s, the thread's), which holds up the measurement that
-    closes it.
+    ``searched``: found by the search (False: kept where it was applied, nothing measured to
+    search with: none since its window opened, or a later signal came first); ``tried``: the
+    hypotheses the search tried; ``cpu``: the search's CPU (s, the thread's), which holds up
+    the measurement that closes it.
     """
 
     signal: ModeSignal
@@ -116,8 +109,6 @@ class SignalTiming:
         self.found: deque[Found] = deque(maxlen=FOUND_KEPT)
         #: the signals resolved, in all (:attr:`found` keeps the last ``FOUND_KEPT``)
         self.searched = 0
-        #: of them, those kept where they were applied unsearched
-        self.unsearched = 0
         #: the hypotheses tried, in all
         self.tried = 0
 
@@ -127,8 +118,6 @@ class SignalTiming:
         """Record a signal resolved and where its command was put."""
         self.found.append(Found(signal, shift, searched, tried, cpu))
         self.searched += 1
-        if not searched:
-            self.unsearched += 1
 
     @property
     def shifts(self) -> list[float]:
@@ -207,10 +196,6 @@ class SignalTiming:
         window = history[first:]
         opened = window[0].logs
         main = tracker.logs_since(opened)  # the present run's, since the window opened
-        nis = [v for _t, _kind, v in main[0]]
-        if all(h.taken for h in window) and sum(nis) <= SEARCH_ABOVE * len(nis):
-            self._found(signal, t_s - applied, False)  # nothing against the signal on time
-            return
         present = tracker.checkpoint()
         # the signal on time is the hypothesis to beat, by a likelihood ratio that chance gives
         # one time in twenty (χ²(1) 95 %): near its stamp the measurements say little, and a

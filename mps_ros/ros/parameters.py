@@ -304,9 +304,7 @@ PARAMETERS: tuple[Parameter, ...] = (
         SIGNAL_LATENCY,
         "following a press: how late a mode signal may come after its command took effect (s; a "
         "String has no stamp): the command is searched for over that window before the signal, the "
-        "measurements since taken again, unless they say nothing against the signal on time (none "
-        "rejected, their mean NIS at most 1: kept at its stamp unsearched; docs/tracking.md, Late "
-        "mode signals); 0: applied when it comes",
+        "measurements since taken again (docs/tracking.md, Late mode signals); 0: applied when it comes",
         lo=0.0,
         hi=0.1,
     ),

@@ -588,8 +588,7 @@ class TrackingRun:
                 f"found {1e3 * shift:.2f} ms before it (searched over {1e3 * timing.latency:g} ms: "
                 f"{tried} hypotheses, {1e3 * cpu:.1f} ms of CPU holding the measurements up)"
                 if searched
-                else f"kept {1e3 * shift:.2f} ms before it, unsearched (the measurements since say nothing "
-                "against it)"
+                else f"kept {1e3 * shift:.2f} ms before it, unsearched (nothing measured to search with)"
             )
             self.log(
                 "info",

@@ -52,7 +52,6 @@ def test_late_signals_are_found_where_their_commands_were(cycle):
     tracker, monitor, _ = _follow(nominal, truth, 0.01, LATE)
     assert tracker.timing is not None and len(tracker.timing.shifts) == 2
     assert all(abs(shift - LATE) < 1e-3 for shift in tracker.timing.shifts), tracker.timing.shifts
-    assert tracker.timing.unsearched == 0  # the measurements since each said it was off
     # each search's hypotheses and CPU (what holds up the measurement that closes it)
     assert all(f.searched and f.tried > 0 and f.cpu > 0.0 for f in tracker.timing.found)
     assert sum(f.tried for f in tracker.timing.found) == tracker.timing.tried
@@ -64,32 +63,14 @@ def test_late_signals_are_found_where_their_commands_were(cycle):
 
 
 def test_a_signal_on_time_is_kept_at_its_stamp(cycle):
-    """Signals at their commands' times, each kept at its stamp, and every estimate the one a
-    tracker without the search gives, bit for bit. The engage's 34 measurements since its
-    window opened say nothing against it (none rejected, NIS 19.8 in all: under χ²(1)'s mean
-    each): kept unsearched. The disengage's 40 have 43.2: searched, and found on time."""
+    """Signals at their commands' times: the search keeps each at its stamp, and every estimate
+    is the one a tracker without the search gives, bit for bit."""
     nominal, truth = cycle
     tracker, _, searched = _follow(nominal, truth, 0.01)
     _, _, plain = _follow(nominal, truth, 0.0)
     assert tracker.timing is not None and tracker.timing.shifts == [0.0, 0.0]
-    assert [f.searched for f in tracker.timing.found] == [False, True]
-    assert tracker.timing.unsearched == 1 and tracker.timing.tried > 0
-    assert tracker.timing.found[0][3:] == (0, 0.0)  # unsearched: no hypothesis, no CPU
+    assert [f.searched for f in tracker.timing.found] == [True, True] and tracker.timing.tried > 0
     assert np.array_equal(searched, plain)
-
-
-def test_the_search_kept_at_a_signal_on_time_finds_it_there_too(cycle, monkeypatch):
-    """The screen only spares the work: searched anyway (``SEARCH_ABOVE`` 0), the signals on
-    time are found at their stamps, the estimates the same bit for bit."""
-    from mps_core.track import signal_timing
-
-    nominal, truth = cycle
-    _, _, screened = _follow(nominal, truth, 0.01)
-    monkeypatch.setattr(signal_timing, "SEARCH_ABOVE", 0.0)
-    tracker, _, searched = _follow(nominal, truth, 0.01)
-    assert tracker.timing is not None and tracker.timing.shifts == [0.0, 0.0]
-    assert [f.searched for f in tracker.timing.found] == [True, True] and tracker.timing.unsearched == 0
-    assert np.array_equal(searched, screened)
 
 
 def test_a_measurement_taken_again_from_a_checkpoint_gives_the_same_estimate(cycle):

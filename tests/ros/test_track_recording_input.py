@@ -126,11 +126,10 @@ def test_mps_track_over_the_node_s_recording_gives_its_live_estimates(followed, 
     offline = tracked(SCENE, mcap, tmp_path / "est.csv", "--loads")
     said = capsys.readouterr().out
     assert "397 taken; rejected or reported: duplicate 2, jump 1, out-of-order 2" in said
-    # the engage signal on time: the measurements since say nothing against it, so it is kept
-    # where it came, unsearched; said once
-    found = [line for _level, line in run.said if "its command" in line]
+    # the engage signal searched for (on time: kept where it came), said once
+    found = [line for _level, line in run.said if "its command found" in line]
     assert len(found) == 1 and "mode signal engage at t = 0.008012" in found[0], found
-    assert "kept 0.00 ms before it, unsearched" in found[0]
+    assert "found 0.00 ms before it (searched over 10 ms: " in found[0]
     assert differences(node, offline) == dict.fromkeys(differences(node, offline), 0.0)
     assert all(offline[t] == est for t, est in node.items())  # bit for bit, every stamp
     # a bag directory of the same run reads the same
