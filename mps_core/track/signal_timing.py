@@ -194,9 +194,9 @@ class SignalTiming:
             self._found(signal, t_s - applied, False)  # nothing measured since its window opened
             return
         window = history[first:]
+        present = tracker.checkpoint()
         opened = window[0].logs
         main = tracker.logs_since(opened)  # the present run's, since the window opened
-        present = tracker.checkpoint()
         # the signal on time is the hypothesis to beat, by a likelihood ratio that chance gives
         # one time in twenty (χ²(1) 95 %): near its stamp the measurements say little, and a
         # command moved by noise is off where it was not
