@@ -284,7 +284,7 @@ class TrackingRun:
         first measurement would otherwise wait for rosbags' type store (in process, the first
         measurement took 82 ms before, 11.5 ms after). Then :meth:`warm_up` (about 1 s), and
         the garbage collector's freeze where :attr:`freeze_gc`: a full collection that scanned
-        every object the process had made held a measurement up for 44–48 ms in process
+        every object the process had made held a measurement up for 39–48 ms in process
         (press-cycle with its slider scale and signals). The node calls it as the run is made
         and again as it starts: the second call does nothing.
         """
@@ -493,15 +493,12 @@ class TrackingRun:
             self._say_acquired(
                 "crank",
                 tr.acquired,
-                f"tracking: at t = {t:.6f} s the crank acquired again, the model off it by more than its "
-                f"covariance allows ({tr.acquired} so far: the first measurement, after a gap, or latch "
-                "open after angles rejected running)",
+                t,
+                "the model off it by more than its covariance allows",
+                "the first measurement, after a gap, or latch open after angles rejected running",
             )
             self._say_acquired(
-                "slider",
-                tr.slider_acquired,
-                f"tracking: at t = {t:.6f} s the slider acquired again ({tr.slider_acquired} so far: latch "
-                "open after its positions rejected running)",
+                "slider", tr.slider_acquired, t, "", "latch open after its positions rejected running"
             )
             est = tr.estimate()  # one for the status, the stroke table and the messages
             self._watch_machine(ms[0], est)
@@ -567,15 +564,21 @@ class TrackingRun:
             )
             self._say_found()
 
-    def _say_acquired(self, what: str, n: int, text: str) -> None:
-        """Say ``text`` where ``what`` (the crank, the slider) was acquired again since the last call.
+    def _say_acquired(self, what: str, n: int, t: float, how: str, when: str) -> None:
+        """Say that ``what`` (the crank, the slider) was acquired again at ``t``.
 
-        Said where its count ``n`` is the first or a hundredth.
+        Said where it was since the last call and its count ``n`` is the first or a hundredth; the
+        line is made only then (the call comes with every measurement).
         """
         if n > self._acquired_said[what]:
             self._acquired_said[what] = n
             if n == 1 or n % 100 == 0:
-                self.log("info", text)
+                self.log(
+                    "info",
+                    f"tracking: at t = {t:.6f} s the {what} acquired again"
+                    + (f", {how}" if how else "")
+                    + f" ({n} so far: {when})",
+                )
 
     def _say_found(self) -> None:
         """Say where the commands of the mode signals searched for since the last call were found."""
