@@ -28,14 +28,38 @@ evaluated the equations there, while its next internal step starts where the las
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from ..caches import Memo
 from ..errors import ChartDomainError, NumericalError
 from .base import Advance, Solver, check_tolerances
+
+
+def _scipy_tableau():
+    """scipy's ``scipy.integrate._ivp.dop853_coefficients``, read from its file without
+    importing ``scipy.integrate`` (whose package imports scipy's optimizers, special functions
+    and sparse algebra: about a third of a second of every process's start), or imported
+    where it already is or the file is not where scipy keeps it."""
+    name = "scipy.integrate._ivp.dop853_coefficients"
+    if name not in sys.modules:
+        spec = importlib.util.find_spec("scipy")
+        for root in (spec.submodule_search_locations or []) if spec is not None else []:
+            path = Path(root) / "integrate" / "_ivp" / "dop853_coefficients.py"
+            if path.is_file():
+                at = importlib.util.spec_from_file_location("_mps_dop853_coefficients", path)
+                if at is not None and at.loader is not None:
+                    module = importlib.util.module_from_spec(at)
+                    at.loader.exec_module(module)
+                    return module
+    return importlib.import_module(name)
+
+
+_coef = _scipy_tableau()
 
 SAFETY = 0.9
 MIN_FACTOR = 0.2

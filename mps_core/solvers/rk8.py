@@ -23,10 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _coef
 
 from .base import GeneratedStep, stage_lines
-from .dop853 import _DenseOutput
+from .dop853 import _coef, _DenseOutput
 from .dop853 import _generated as _dop853_code
 
 STAGES = _coef.N_STAGES
