@@ -34,11 +34,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.optimize import brentq
 
 from ..dynamics.reactions import DESCRIPTIONS
 from ..errors import MpsError
+from ..run.roots import brent_root
 
 N_HARMONICS = 6
 TWO_PI = 2.0 * math.pi
@@ -80,6 +79,8 @@ def resample(t, y, t0: float, period: float, samples: int) -> np.ndarray:
             f"resample: the cycle [{t0:.9g}, {t0 + period:.9g}] s is not "
             f"inside the data [{t[0]:.9g}, {t[-1]:.9g}] s"
         )
+    from scipy.interpolate import CubicSpline  # (a quarter of a second: only where resampled)
+
     return CubicSpline(t, y)(tq)
 
 
@@ -122,7 +123,7 @@ def _crossings(t, phi, phi_dot):
         if fa == 0.0:
             out.append(float(t[i]))
         elif fa * fb < 0:
-            out.append(float(brentq(f, t[i], t[i + 1], xtol=1e-15, rtol=1e-15)))
+            out.append(float(brent_root(f, float(t[i]), float(t[i + 1]), xtol=1e-15, rtol=1e-15)))
         else:
             out.append(float(t[i + 1]))
     return out

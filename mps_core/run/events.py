@@ -15,10 +15,10 @@ caches only (the event lists, the last state's kinematics and switching values).
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..errors import ChartDomainError
 from ..model.mechanism import unwrap_to
+from .roots import brent_root
 from .structure_layer import _Event
 
 __all__ = ["EventLocator"]
@@ -178,7 +178,7 @@ class EventLocator:
                 if ga * b > 0.0:
                     # the recorded sign was set at an event's root: no bracket in this step
                     continue
-                root = brentq(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+                root = brent_root(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
             if first is None or root < first[0]:
                 first = (root, e, b)
         return first, vals

@@ -41,8 +41,6 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from scipy.stats import chi2
-
 from .measurements import Measurement, MeasurementError
 from .strokes import StrokeEstimate
 
@@ -122,6 +120,8 @@ class TrackingMonitor:
         self.settings = settings or DiagnosticSettings()
         s = self.settings
         #: the upper bound of the window's mean NIS (a χ²(window)/window quantile)
+        from scipy.stats import chi2  # (a quarter to half a second: only where a press is followed)
+
         self.nis_bound = float(chi2.ppf(0.5 + 0.5 * s.confidence, s.window)) / s.window
         self._nis: deque[float] = deque(maxlen=s.window)
         self._seen = 0
