@@ -14,8 +14,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
+from .diagnostics import chi2_quantile
 from .strokes import stroke_index
 from .tracker import Tracker, foundation_magnitude
 from .truth import TruthRun
@@ -39,7 +39,7 @@ class Followed:
         """Return the fraction of NEES values inside their 95 % χ² bound (upper)."""
         if not self.nees:
             return math.nan
-        bounds = chi2.ppf(0.95, np.asarray(self.nees_dof))
+        bounds = chi2_quantile(0.95, self.nees_dof)
         return float(np.mean(np.asarray(self.nees) <= bounds))
 
     def coverage(self) -> float:
@@ -59,7 +59,7 @@ def nis_inside(tracker: Tracker) -> float:
     if not tracker.innovations:
         return math.nan
     nis = np.array([v for _t, _k, v in tracker.innovations])
-    return float(np.mean(nis <= chi2.ppf(0.95, 1)))
+    return float(np.mean(nis <= chi2_quantile(0.95, 1)))
 
 
 def follow(tracker: Tracker, truth: TruthRun, *, loads: bool = True, cpu_clock: object = None) -> Followed:

@@ -228,3 +228,15 @@ def test_bad_settings_are_named(field, value, expected):
         MeasurementError, match=re.escape(f"diagnostics.{field} = {value!r}: expected {expected}")
     ):
         DiagnosticSettings(**{field: value})
+
+
+def test_the_chi2_quantile_is_scipy_stats():
+    import numpy as np
+    from scipy.stats import chi2
+
+    from mps_core.track.diagnostics import chi2_quantile
+
+    for p in (0.95, 0.975, 0.9995):
+        for dof in (1, 2, 3, 10, 50):
+            assert chi2_quantile(p, dof) == chi2.ppf(p, dof)
+    assert np.array_equal(chi2_quantile(0.95, [1, 4, 9]), chi2.ppf(0.95, [1, 4, 9]))
