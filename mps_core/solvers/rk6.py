@@ -25,7 +25,7 @@ from fractions import Fraction as _F
 import numpy as np
 
 from .base import CubicHermite, GeneratedStep
-from .rk8 import imaginary_limit, tableau_step_source
+from .rk8 import tableau_step_source
 
 STAGES = 7
 _ROWS: tuple[list[int | _F], ...] = (
@@ -48,7 +48,8 @@ _A = np.array([[float(x) for x in row] for row in A_EXACT])
 _B = np.array([float(x) for x in B_EXACT])
 _C = np.array([float(x) for x in C_EXACT])
 
-IMAGINARY_LIMIT = imaginary_limit(_A, _B)
+#: ``imaginary_limit(_A, _B)``, written out as RK8's is
+IMAGINARY_LIMIT = 0.0793
 
 
 class QuinticHermite(CubicHermite):

@@ -227,8 +227,12 @@ def test_float_dop853_shrinks_a_step_that_leaves_the_domain():
 def test_rk8_stability_limit_from_its_tableau():
     """The scan of the stability function gives RK4's known 2√2 from RK4's tableau, and the
     eighth-order method holds an undamped oscillation just inside its own limit, not beyond."""
+    from mps_core.solvers import rk6, rk8
     from mps_core.solvers.rk8 import IMAGINARY_LIMIT, imaginary_limit
 
+    # the limits the modules write out are their tableaus' scans
+    assert imaginary_limit(rk8._A, rk8._B) == pytest.approx(rk8.IMAGINARY_LIMIT, abs=1e-12)
+    assert imaginary_limit(rk6._A, rk6._B) == pytest.approx(rk6.IMAGINARY_LIMIT, abs=1e-12)
     A4 = [[0, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 1, 0]]
     assert imaginary_limit(A4, [1 / 6, 1 / 3, 1 / 3, 1 / 6]) == pytest.approx(2 * 2**0.5, abs=2e-4)
     assert 5.5 < IMAGINARY_LIMIT < 6.5
