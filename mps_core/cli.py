@@ -355,7 +355,7 @@ def _cache(action: str) -> int:
 
 
 def main(argv=None) -> int:
-    # a signal while the command starts (its imports take most of a second) ends it with one
+    # a signal while the command starts (its imports take a third of a second or more) ends it with one
     # line, as one later does; the commands that handle their signals themselves then do so
     old = signal.signal(signal.SIGTERM, raise_interrupted)
     try:
