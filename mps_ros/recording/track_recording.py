@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..wire import diagnostics
-from ..wire.cdr import encoder
+from ..wire.cdr import Preset, encoder, generic_encoder
+from ..wire.frames import MSGTYPE as _TF
 from ..wire.frames import TfLayout
 from ..wire.json_text import to_json
 from ..wire.topics import BY_KEY, FOUNDATION, FRAME_ID, JOINT_NAMES, WRENCHES, offered_qos, qos_yaml, resolve
@@ -67,10 +68,10 @@ def _stamp(t: float) -> dict[str, int]:
     return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
 
 
-def _wrench(t: float, frame_id: str, fx: float, fy: float, mz: float) -> dict[str, Any]:
+def _wrench(stamp: dict[str, int], frame_id: str, fx: float, fy: float, mz: float) -> dict[str, Any]:
     """Return a WrenchStamped message dict."""
     return {
-        "header": {"stamp": _stamp(t), "frame_id": frame_id},
+        "header": {"stamp": stamp, "frame_id": frame_id},
         "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
     }
 
@@ -84,6 +85,54 @@ class _Messages:
     def add(self, key: str, msgtype: str, msg: dict[str, Any], t: float) -> None:
         """Add one message (topic key, type, message dict) at time ``t`` (s)."""
         self.items.append((_ns(t), len(self.items), key, msgtype, encoder(msgtype)(msg)))
+
+    def add_bytes(self, key: str, msgtype: str, data: bytes, t: float) -> None:
+        """Add one message already encoded at time ``t`` (s)."""
+        self.items.append((_ns(t), len(self.items), key, msgtype, data))
+
+
+class _Packed:
+    """The estimated topics' messages of fixed layout: ``/tf``, the joint states, the wrenches.
+
+    Made as the node makes its own: each layout encoded once, then a message is one ``struct``
+    call (:class:`~mps_ros.wire.cdr.Preset`: the bytes of the message dict encoded)."""
+
+    def __init__(self, tf: TfLayout) -> None:
+        self._tf = Preset(generic_encoder(_TF), tf.message, tf.nfloats).pack
+        self._wrenches: dict[str, Any] = {}
+        self._joints: dict[tuple[int, int, int], Any] = {}
+
+    def tf(self, t: float, values: list) -> bytes:
+        """Return ``/tf``'s message at ``t`` with the frames' ``values``."""
+        sec, nsec = divmod(_ns(t), 1_000_000_000)
+        return self._tf(sec, nsec, values)
+
+    def wrench(self, t: float, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
+        """Return :func:`_wrench`'s message, encoded."""
+        pack = self._wrenches.get(frame_id)
+        if pack is None:
+
+            def make(stamp: dict, f: Any, frame_id: str = frame_id) -> dict[str, Any]:
+                return _wrench(stamp, frame_id, f[0], f[1], f[2])
+
+            pack = self._wrenches[frame_id] = Preset(encoder(_WRENCH), make, 3).pack
+        sec, nsec = divmod(_ns(t), 1_000_000_000)
+        return pack(sec, nsec, (fx, fy, mz))
+
+    def joints(self, t: float, positions: Any, velocities: Any, effort: Any) -> bytes:
+        """Return :func:`_joints`'s message, encoded."""
+        values = [float(v) for v in (*positions, *velocities, *effort)]
+        layout = (len(positions), len(velocities), len(effort))
+        pack = self._joints.get(layout)
+        if pack is None:
+            n_p, n_v, _n_e = layout
+
+            def make(stamp: dict, f: Any) -> dict[str, Any]:
+                return _joints(stamp, f[:n_p], f[n_p : n_p + n_v], f[n_p + n_v :])
+
+            pack = self._joints[layout] = Preset(encoder(_JOINTS), make, len(values)).pack
+        sec, nsec = divmod(_ns(t), 1_000_000_000)
+        return pack(sec, nsec, values)
 
 
 def write(path: Path, rec: TrackRecording) -> int:
@@ -117,6 +166,7 @@ def write(path: Path, rec: TrackRecording) -> int:
 def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
     """Add the estimated topics: each step with its loads, the events, statuses and strokes."""
     tf = TfLayout.of_scene(rec.scene)
+    packed = _Packed(tf)
     structure = None
     next_diagnostics = -math.inf
     first = True
@@ -130,29 +180,36 @@ def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
             msgs.add("/tf_static", "tf2_msgs/msg/TFMessage", tf.static_message(_stamp(t)), t)
             first = False
         phi, _rod, psi, x_c = step.positions
-        msgs.add("/tf", "tf2_msgs/msg/TFMessage", tf.message(_stamp(t), tf.values(phi, psi, x_c)), t)
+        msgs.add_bytes("/tf", _TF, packed.tf(t, tf.values(phi, psi, x_c)), t)
         value = {c: v for c, (v, _s) in loads.items()}
         sd = {c: s for c, (_v, s) in loads.items()}
         effort = [value["M_motor"], NAN, value["M_latch"], value["F_stop"]]
-        msgs.add("joint_states", _JOINTS, _joints(t, step.positions, step.velocities, effort), t)
+        msgs.add_bytes("joint_states", _JOINTS, packed.joints(t, step.positions, step.velocities, effort), t)
         pos_sd = (e["phi_sigma"], NAN, NAN, e["x_C_sigma"])
         vel_sd = (e["phi_dot_sigma"], NAN, NAN, NAN)
-        msgs.add(sigma("joint_states"), _JOINTS, _joints(t, pos_sd, vel_sd, []), t)
+        msgs.add_bytes(sigma("joint_states"), _JOINTS, packed.joints(t, pos_sd, vel_sd, []), t)
         for w in (*WRENCHES, FOUNDATION):
             for key, of in ((w.key, value), (sigma(w.key), sd)):
                 fx, fy = (0.0 if c is None else float(of[c]) for c in w.force)
                 mz = 0.0 if w.torque is None else float(of[w.torque])
-                msgs.add(key, _WRENCH, _wrench(t, w.frame_id, fx, fy, mz), t)
+                msgs.add_bytes(key, _WRENCH, packed.wrench(t, w.frame_id, fx, fy, mz), t)
         if step.structure != structure:
             structure = step.structure
             msgs.add("~/structure", _STRING, {"data": structure}, t)
         t_f = e["t_force_smoothed"]
-        msgs.add(PROCESS_FORCE.key, _WRENCH, _wrench(t_f, "press_C", e["force_smoothed"], 0.0, 0.0), t)
-        msgs.add(
-            sigma(PROCESS_FORCE.key), _WRENCH, _wrench(t_f, "press_C", e["force_smoothed_sigma"], 0.0, 0.0), t
+        msgs.add_bytes(
+            PROCESS_FORCE.key, _WRENCH, packed.wrench(t_f, "press_C", e["force_smoothed"], 0.0, 0.0), t
         )
-        msgs.add(LOAD_TORQUE.key, _WRENCH, _wrench(t, FRAME_ID, 0.0, 0.0, e["torque"]), t)
-        msgs.add(sigma(LOAD_TORQUE.key), _WRENCH, _wrench(t, FRAME_ID, 0.0, 0.0, e["torque_sigma"]), t)
+        msgs.add_bytes(
+            sigma(PROCESS_FORCE.key),
+            _WRENCH,
+            packed.wrench(t_f, "press_C", e["force_smoothed_sigma"], 0.0, 0.0),
+            t,
+        )
+        msgs.add_bytes(LOAD_TORQUE.key, _WRENCH, packed.wrench(t, FRAME_ID, 0.0, 0.0, e["torque"]), t)
+        msgs.add_bytes(
+            sigma(LOAD_TORQUE.key), _WRENCH, packed.wrench(t, FRAME_ID, 0.0, 0.0, e["torque_sigma"]), t
+        )
         if t >= next_diagnostics:
             _status(msgs, rec, step.status, t)
             next_diagnostics = t + PERIOD
@@ -165,10 +222,10 @@ def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
             msgs.add(STROKES.key, _STRING, {"data": to_json(s.row())}, s.t_end)
 
 
-def _joints(t: float, positions: Any, velocities: Any, effort: Any) -> dict[str, Any]:
+def _joints(stamp: dict[str, int], positions: Any, velocities: Any, effort: Any) -> dict[str, Any]:
     """Return a JointState of the twin's joints."""
     return {
-        "header": {"stamp": _stamp(t), "frame_id": FRAME_ID},
+        "header": {"stamp": stamp, "frame_id": FRAME_ID},
         "name": list(JOINT_NAMES),
         "position": [float(v) for v in positions],
         "velocity": [float(v) for v in velocities],

@@ -136,3 +136,29 @@ def test_bad_outputs_are_named(tracked, capsys):
     err = capsys.readouterr().err
     assert "--out = " in err and "a.mcap" in err and "expected at most one FILE.mcap (a recording)" in err
     assert not (d / "a.mcap").exists()
+
+
+def test_the_packed_messages_are_the_dicts_encoded():
+    """The estimated topics' fixed-layout messages, packed as the node packs its own, are the
+    bytes of their message dicts encoded: /tf, joint states (with NaN where nothing is
+    estimated, without efforts) and wrenches in each frame, at stamps of several seconds."""
+    from mps_core.scene import load_scene
+    from mps_ros.recording import track_recording as tr
+    from mps_ros.wire.cdr import encoder, generic_encoder
+    from mps_ros.wire.frames import MSGTYPE, TfLayout
+
+    tf = TfLayout.of_scene(load_scene("press-cycle"))
+    packed = tr._Packed(tf)
+    for t in (0.0, 0.001, 1.2345678905, 61.000000001):
+        stamp = tr._stamp(t)
+        values = tf.values(0.3 + t, 1.1, 0.02 - t * 1e-3)
+        assert packed.tf(t, values) == generic_encoder(MSGTYPE)(tf.message(stamp, values))
+        for pos, vel, eff in (
+            ((0.1, math.nan, 0.2, 0.03), (4.0, math.nan, -1.0, 0.5), (1.0, math.nan, -2.5, 3e3)),
+            ((1e-6, math.nan, math.nan, 2e-5), (3e-3, math.nan, math.nan, math.nan), ()),
+        ):
+            assert packed.joints(t, pos, vel, eff) == encoder(tr._JOINTS)(tr._joints(stamp, pos, vel, eff))
+        for frame in ("press_frame", "press_C", "press_B"):
+            got = packed.wrench(t, frame, -1.5e4 * (1 + t), 2.5, 0.0 if t else -7.0)
+            want = encoder(tr._WRENCH)(tr._wrench(stamp, frame, -1.5e4 * (1 + t), 2.5, 0.0 if t else -7.0))
+            assert got == want
