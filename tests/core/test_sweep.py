@@ -188,14 +188,25 @@ def test_an_interrupted_sweep_computes_only_what_is_missing(tmp_path):
     assert third.computed == 0 and [r["run"] for r in third.rows] == list(range(6))
 
 
+def _local_cluster(distributed):
+    """Two workers of one thread in this process, their HTTP servers (health, metrics) on the
+    loopback only: with ``dashboard_address=None`` the scheduler's and the workers' listen on
+    every interface (an in-process cluster's address is the machine's own)."""
+    return distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=False,
+        dashboard_address="127.0.0.1:0",
+        worker_dashboard_address="127.0.0.1:0",
+    )
+
+
 def test_worker_processes_and_a_dask_cluster_give_the_same_rows():
     distributed = pytest.importorskip("dask.distributed")
     one = sweep("press-cycle", [THICKNESS], workers=1, **SHORT)
     two = sweep("press-cycle", [THICKNESS], workers=2, **SHORT)
     with (
-        distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
-        ) as cluster,
+        _local_cluster(distributed) as cluster,
         distributed.Client(cluster) as client,
     ):
         dask = sweep("press-cycle", [THICKNESS], client=client, **SHORT)
@@ -383,9 +394,7 @@ def test_vectorised_batches_on_a_dask_cluster():
     distributed = pytest.importorskip("dask.distributed")
     local = sweep(EXACT, MASS_SPEED, workers=1, **WORKING)
     with (
-        distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
-        ) as cluster,
+        _local_cluster(distributed) as cluster,
         distributed.Client(cluster) as client,
     ):
         dask = sweep(EXACT, MASS_SPEED, client=client, **WORKING)
