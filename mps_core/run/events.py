@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ChartDomainError
+from ..errors import ChartDomainError, NumericalError
 from ..model.mechanism import unwrap_to
 from .roots import brent_root
 from .structure_layer import _Event
@@ -178,7 +178,14 @@ class EventLocator:
                 if ga * b > 0.0:
                     # the recorded sign was set at an event's root: no bracket in this step
                     continue
-                root = brent_root(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+                try:
+                    root = brent_root(g, t_a, t1, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+                except (ValueError, RuntimeError) as exc:
+                    raise NumericalError(
+                        f"event {e.name}: its time in the step [{t_a:.9g}, {t1:.9g}] s not found ({exc})",
+                        t1,
+                        sim.config(),
+                    ) from None
             if first is None or root < first[0]:
                 first = (root, e, b)
         return first, vals

@@ -16,6 +16,7 @@ returned.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 __all__ = ["brent_root"]
@@ -27,8 +28,9 @@ def brent_root(
     """Return x in [a, b] within ``xtol + rtol·|x|`` of a root of ``f``.
 
     f(a) and f(b) of opposite signs (or one of them zero); ValueError where they have the same
-    sign, RuntimeError where ``maxiter`` evaluations beyond the ends do not reach the tolerance."""
-    fa, fb = f(a), f(b)
+    sign or ``f`` gives a value that is not finite, RuntimeError where ``maxiter`` evaluations
+    beyond the ends do not reach the tolerance."""
+    fa, fb = _finite(f, a), _finite(f, b)
     if fa == 0.0:
         return a
     if fb == 0.0:
@@ -73,5 +75,13 @@ def brent_root(
             d = e = m
         a, fa = b, fb
         b += d if abs(d) > tol else (tol if m > 0.0 else -tol)
-        fb = f(b)
+        fb = _finite(f, b)
     raise RuntimeError(f"no root found to {xtol!r} + {rtol!r}·|x| in {maxiter} evaluations (last x = {b!r})")
+
+
+def _finite(f: Callable[[float], float], x: float) -> float:
+    """Return f(x), a ValueError where it is not a finite number."""
+    v = f(x)
+    if not math.isfinite(v):
+        raise ValueError(f"f({x!r}) = {v!r}: expected a finite value")
+    return v

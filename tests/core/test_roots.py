@@ -58,6 +58,32 @@ def test_too_few_evaluations_is_a_clear_error():
         brent_root(FUNCTIONS["step"], 0.0, 1.0, 1e-15, 0.0, maxiter=3)
 
 
+def test_a_value_that_is_not_finite_is_a_clear_error():
+    for bad in (math.nan, math.inf):
+        with pytest.raises(ValueError, match="expected a finite value"):
+            brent_root(lambda x, bad=bad: bad if x > 0.5 else -1.0, 0.0, 1.0, XTOL, RTOL)
+        with pytest.raises(ValueError, match="expected a finite value"):
+            brent_root(lambda x, bad=bad: bad if 0.4 < x < 0.6 else x - 0.5, 0.0, 1.0, XTOL, RTOL)
+
+
+def test_an_event_time_not_found_stops_the_run_with_its_name_and_state(monkeypatch):
+    """A root the finder cannot give (here: it fails at once) is a NumericalError naming the
+    event and its step, with the time and configuration, not a bare exception."""
+    import mps_core.run.events as events
+    from mps_core.errors import NumericalError
+    from mps_core.run.build import build
+    from mps_core.scene import load_scene
+
+    def fails(*_a, **_k):
+        raise RuntimeError("no root found")
+
+    monkeypatch.setattr(events, "brent_root", fails)
+    s = load_scene("press-cycle").with_overrides(t_end=0.5)
+    with pytest.raises(NumericalError, match=r"event [\w-]+: its time in the step \[") as err:
+        build(s).run(s.t_end, s.dt)
+    assert 0.0 < err.value.t <= 0.5 and "phi_deg" in err.value.config
+
+
 def test_a_run_with_events_imports_no_scipy_package():
     code = (
         "import sys\n"
