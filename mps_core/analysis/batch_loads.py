@@ -8,7 +8,7 @@ The method is the report's (:mod:`.loads`), on arrays of all runs:
 
 * the cycle: the last two passages of the crank through φ = 0 (mod 2π), each located on the
   cubic Hermite interpolant of (φ, φ̇) between its steps, by bisection to the last bit (the
-  report's :func:`scipy.optimize.brentq` stops within 1e-15 s);
+  report's root finder, :func:`mps_core.run.roots.brent_root`, stops within 1e-15 s);
 * the joint reactions solved at each run's cycle's steps only (the steps the report's spline
   goes through, three beyond each end);
 * the not-a-knot cubic spline through those steps (scipy's :class:`~scipy.interpolate.CubicSpline`
