@@ -45,8 +45,9 @@ class FileSpan:
 
 
 def files(bag) -> list[Path]:
-    """A bag's MCAP files in their order: those its ``metadata.yaml`` lists, else (a bag
-    whose writer was killed) every ``NAME_N.mcap`` in it by N, then any other ``.mcap``."""
+    """A bag's files in their order: those its ``metadata.yaml`` lists, else (a bag whose writer
+    was killed) every ``NAME_N.mcap`` in it by N, then any other ``.mcap``; a bag of rosbag2's
+    sqlite3 storage likewise its ``.db3`` files."""
     bag = Path(bag)
     meta = bag / METADATA
     if meta.is_file():
@@ -58,10 +59,12 @@ def files(bag) -> list[Path]:
             return [bag / str(p) for p in listed]
 
     def order(p: Path):
-        m = re.fullmatch(r"(.*)_(\d+)\.mcap", p.name)
+        m = re.fullmatch(r"(.*)_(\d+)\.(mcap|db3)", p.name)
         return (0, int(m.group(2)), p.name) if m else (1, 0, p.name)
 
-    return sorted((p for p in bag.iterdir() if p.suffix.lower() == ".mcap" and p.is_file()), key=order)
+    found = [p for p in bag.iterdir() if p.suffix.lower() == ".mcap" and p.is_file()]
+    found = found or [p for p in bag.iterdir() if p.suffix.lower() == ".db3" and p.is_file()]
+    return sorted(found, key=order)
 
 
 def write_metadata(bag, spans: list[FileSpan], topics: list[TopicCount], compression: str = "") -> Path:

@@ -45,6 +45,7 @@ import numpy as np
 from mps_core.errors import MpsError
 
 from ..wire.topics import BY_KEY, FOUNDATION, JOINT_NAMES, MODE, NODE_NAME, WRENCHES, resolve
+from . import sqlite_bag
 from .mcap_writer import ENCODING_CDR, MAGIC
 
 #: the recording's metadata records (as :mod:`mps_ros.recording.recorder` writes them)
@@ -376,7 +377,8 @@ def _stamped(times: list) -> np.ndarray:
 
 
 def _parts(path: Path) -> list[Path]:
-    """The MCAP files of a recording: the file itself, or a bag directory's files in order."""
+    """The files of a recording: the file itself, or a bag directory's files in order (MCAP, or
+    rosbag2's sqlite3 storage: :mod:`~mps_ros.recording.sqlite_bag`)."""
     if not path.is_dir():
         return [path]
     from .bag import files
@@ -386,7 +388,7 @@ def _parts(path: Path) -> list[Path]:
         raise ReplayError(
             f"{path}: a directory without a recording in it (expected a bag: "
             "metadata.yaml and its .mcap files, as the node writes where its "
-            "recording path does not end in .mcap; or an .mcap file)"
+            "recording path does not end in .mcap, or rosbag2's .db3 files; or an .mcap file)"
         )
     return parts
 
@@ -401,15 +403,21 @@ def _scan_all(parts: list[Path], keep: Collection[str] | None = None):
     complete, nmsg = True, 0
     for part in parts:
         head = _head(part)
-        if head[:8] != MAGIC:
+        if head[:16] == sqlite_bag.MAGIC:  # a bag file of rosbag2's sqlite3 storage
+            digest.update(part.read_bytes())
+            channels, n = sqlite_bag.scan(part, _Channel, keep, ReplayError)
+            meta, library, done = {}, "rosbag2 sqlite3", True
+        elif head[:8] != MAGIC:
             what = "empty" if not head else f"it starts with {head[:8]!r}"
             raise ReplayError(
                 f"{part}: not an MCAP file ({what}): expected a recording made by "
-                "`mps record SCENE --out FILE.mcap` or the node's recorder"
+                "`mps record SCENE --out FILE.mcap` or the node's recorder (or a rosbag2 bag's "
+                "file, MCAP or sqlite3)"
             )
-        data = part.read_bytes()
-        digest.update(data)
-        meta, channels, _schemas, library, done, n = _scan(part, data, keep)
+        else:
+            data = part.read_bytes()
+            digest.update(data)
+            meta, channels, _schemas, library, done, n = _scan(part, data, keep)
         first = first or (meta, library)
         complete, nmsg = complete and done, nmsg + n
         for ch in channels.values():

@@ -16,6 +16,7 @@ pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 yaml = pytest.importorskip("yaml")
 
+from sqlite_bags import as_sqlite3_bag  # noqa: E402
 from test_bag_metadata import _holds_what_the_file_holds, _summary  # noqa: E402
 from twin_probe import NodeProcess  # noqa: E402
 
@@ -133,6 +134,27 @@ def test_a_bag_split_by_size_and_the_load_report(tmp_path, capsys):
     capsys.readouterr()
     assert mps_main(["loads", str(bag)]) == 0
     assert "load report big:" in capsys.readouterr().out
+
+
+def test_a_bag_of_rosbag2_s_sqlite3_storage_reads_as_its_mcap(tmp_path, capsys):
+    """A recording copied into a bag of rosbag2's sqlite3 storage (the default before Iron) reads
+    as the file: every column the same, and the same load report."""
+    mcap = tmp_path / "run.mcap"
+    args = ["record", "press-cycle", "--out", str(mcap), "--dt", "0.001", "--t-end", "1.0", "-q"]
+    assert mps_main(args) == 0
+    bag = as_sqlite3_bag(mcap, tmp_path / "run-sqlite")
+    assert sorted(p.suffix for p in bag.iterdir()) == [".db3", ".yaml"]
+    a, b = read_recording(mcap), read_recording(bag)
+    # (the copy has the topics with messages: the file also names two the run never wrote to)
+    assert sorted(a.columns) == sorted(b.columns) and {k: n for k, n in a.topics.items() if n} == b.topics
+    for name, col in a.columns.items():
+        assert np.array_equal(col, b.columns[name], equal_nan=col.dtype.kind == "f"), name
+    capsys.readouterr()
+    reports = []
+    for path in (mcap, bag):
+        assert mps_main(["loads", str(path)]) == 0
+        reports.append(capsys.readouterr().out.replace(path.name, "NAME"))
+    assert reports[0] == reports[1] and "load report NAME:" in reports[0]
 
 
 def test_a_bag_is_never_written_over_and_a_file_is_not_split(tmp_path, capsys):

@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 
 import pytest
+from sqlite_bags import as_sqlite3_bag
 from track_estimates import differences, node_estimates, tracked
 
 from mps_core import load_scene
@@ -134,6 +135,31 @@ def test_mps_track_over_the_node_s_recording_gives_its_live_estimates(followed, 
     assert all(offline[t] == est for t, est in node.items())  # bit for bit, every stamp
     # a bag directory of the same run reads the same
     assert tracked(SCENE, bag, tmp_path / "bag.csv") == offline
+
+
+def test_a_bag_of_rosbag2_s_sqlite3_storage_reads_as_its_mcap(followed, tmp_path):
+    """The node's recording copied into a sqlite3 bag (rosbag2's storage before Iron) is tracked
+    again as the MCAP file is: the same estimates, bit for bit (its tuning the defaults, as the
+    node's was)."""
+    _run, (mcap, _bag) = followed
+    bag = as_sqlite3_bag(mcap, tmp_path / "sqlite-bag")
+    assert sorted(p.suffix for p in bag.iterdir()) == [".db3", ".yaml"]
+    assert tracked(SCENE, bag, tmp_path / "db3.csv") == tracked(SCENE, mcap, tmp_path / "mcap.csv")
+
+
+def test_a_sqlite_file_that_is_not_a_bag_is_named(tmp_path, capsys):
+    import sqlite3
+
+    bag = tmp_path / "not-a-bag"
+    bag.mkdir()
+    con = sqlite3.connect(bag / "x_0.db3")
+    con.execute("CREATE TABLE t (a INTEGER)")
+    con.commit()
+    con.close()
+    assert main(["track", SCENE, "--recording", str(bag)]) == 2
+    err = capsys.readouterr().err
+    assert "x_0.db3: an SQLite file that is not a rosbag2 bag file (no such table: topics)" in err
+    assert "expected the tables topics (id, name, type, serialization_format) and messages" in err
 
 
 def test_a_late_engage_is_found_where_it_was_and_tracked_again_alike(tmp_path, capsys):
