@@ -68,6 +68,12 @@ def parts(path: Path) -> list[Path]:
         found = bag_files(path)
         if not found:
             raise ServeError(f"recording {str(path)!r}: a bag with no .mcap file")
+        if any(f.suffix.lower() == ".db3" for f in found):
+            raise ServeError(
+                f"recording {str(path)!r}: a bag of rosbag2's sqlite3 storage (.db3 files): expected "
+                "MCAP files, which carry the message definitions a Foxglove client needs "
+                "(mps loads, mps view and mps track --recording read a sqlite3 bag)"
+            )
         return list(found)
     if not path.is_file():
         raise ServeError(f"recording {str(path)!r}: no such file: expected an .mcap file or a bag directory")

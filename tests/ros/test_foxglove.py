@@ -332,6 +332,18 @@ def test_the_endpoint_refuses_a_port_in_use_and_no_recording(tmp_path):
     assert p.returncode == 2 and "no such file" in p.stderr, p.stderr
 
 
+def test_mps_serve_names_a_bag_of_sqlite3_files_as_one_it_cannot_play(tmp_path):
+    """A rosbag2 bag in its sqlite3 storage carries no message definitions for a Foxglove client:
+    refused by name, with the commands that do read it."""
+    from sqlite_bags import as_sqlite3_bag
+
+    from mps_ros.foxglove.serve import ServeError, parts
+
+    bag = as_sqlite3_bag(SAMPLE, tmp_path / "sample-sqlite")
+    with pytest.raises(ServeError, match=r"rosbag2.s sqlite3 storage \(\.db3 files\): expected MCAP"):
+        parts(bag)
+
+
 def test_mps_serve_seeks_where_a_client_asks(tmp_path):
     """A client's seek (the protocol's playback control, as the Foxglove app sends it): played
     at 0.01 of real time, then asked to play from 0.9 s at 1000 times: it gets the latched
