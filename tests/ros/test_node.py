@@ -420,6 +420,30 @@ def test_recording_format(commanded):
 
 
 # -- SIGKILL and recovery ------------------------------------------------------------------------
+def _parent(proc: Path) -> int | None:
+    """The parent's pid of the process /proc/PID (None where it has ended)."""
+    try:
+        return int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def test_a_fatal_signal_says_where_each_thread_was(ros, tmp_path):
+    """A crash in native code (here SIGSEGV sent to the node's process) prints every thread's
+    Python stack before the process dies, and the stepping process inherits the same."""
+    params = dict(pacing="realtime", dt=DT, t_end=20.0, recording="none")
+    with NodeProcess(tmp_path, params) as node:
+        wait_until(lambda: "stepping starts" in node.log(), 60, "the run's start")
+        children = [p for p in Path("/proc").iterdir() if p.name.isdigit() and _parent(p) == node.pid]
+        envs = [(p / "environ").read_bytes().split(b"\0") for p in children]
+        os.kill(node.pid, signal.SIGSEGV)
+        assert node.wait(30) == -signal.SIGSEGV
+        text = node.log()
+    assert "Fatal Python error: Segmentation fault" in text, text[-2000:]
+    assert "Thread 0x" in text and "most recent call first" in text, text[-2000:]
+    assert envs and all(b"PYTHONFAULTHANDLER=1" in env for env in envs), children
+
+
 def test_sigkill_then_recover(ros, tmp_path):
     from rosbags.highlevel import AnyReader, AnyReaderError
 
