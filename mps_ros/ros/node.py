@@ -18,7 +18,6 @@ gives each one's description and range).
 from __future__ import annotations
 
 import contextlib
-import faulthandler
 import os
 import signal
 import sys
@@ -527,11 +526,7 @@ def _say_run_end(node: PressTwin, stats: dict) -> None:
 
 def main(argv=None) -> int:
     """``mps node [SCENE] [--ros-args ...]`` (argv without the program name)."""
-    env_defaults()
-    # a crash in the middleware's or rclpy's native code (a fatal signal) says where each thread
-    # was, this process's and its children's (the stepping and recording processes inherit it)
-    faulthandler.enable(all_threads=True)
-    os.environ["PYTHONFAULTHANDLER"] = "1"
+    env_defaults()  # (and a crash in native code said where each thread was)
     # the stepping, publishing and executor threads share the interpreter: a thread that wants
     # it waits at most this long for another to let go (the default 5 ms is five steps)
     sys.setswitchinterval(0.0002)
