@@ -24,7 +24,11 @@ def env_defaults() -> None:
     # a fatal signal (a crash in the middleware's or rclpy's native code) prints every thread's
     # Python stack, this process's and its children's (the node's stepping and recording
     # processes, which inherit the variable)
-    faulthandler.enable(all_threads=True)
+    if not faulthandler.is_enabled():
+        try:
+            faulthandler.enable(all_threads=True)
+        except (AttributeError, ValueError, OSError):  # a stderr without a file (captured)
+            pass
     os.environ["PYTHONFAULTHANDLER"] = "1"
 
 
