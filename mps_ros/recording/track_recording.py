@@ -62,10 +62,15 @@ def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
+def _sec_nsec(t: float) -> tuple[int, int]:
+    """Return a time (s) as builtin_interfaces/Time's (sec, nanosec)."""
+    return divmod(_ns(t), 1_000_000_000)
+
+
 def _stamp(t: float) -> dict[str, int]:
     """Return builtin_interfaces/Time of a time (s)."""
-    ns = _ns(t)
-    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+    sec, nsec = _sec_nsec(t)
+    return {"sec": sec, "nanosec": nsec}
 
 
 def _wrench(stamp: dict[str, int], frame_id: str, fx: float, fy: float, mz: float) -> dict[str, Any]:
@@ -104,8 +109,7 @@ class _Packed:
 
     def tf(self, t: float, values: list) -> bytes:
         """Return ``/tf``'s message at ``t`` with the frames' ``values``."""
-        sec, nsec = divmod(_ns(t), 1_000_000_000)
-        return self._tf(sec, nsec, values)
+        return self._tf(*_sec_nsec(t), values)
 
     def wrench(self, t: float, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
         """Return :func:`_wrench`'s message, encoded."""
@@ -116,8 +120,7 @@ class _Packed:
                 return _wrench(stamp, frame_id, f[0], f[1], f[2])
 
             pack = self._wrenches[frame_id] = Preset(encoder(_WRENCH), make, 3).pack
-        sec, nsec = divmod(_ns(t), 1_000_000_000)
-        return pack(sec, nsec, (fx, fy, mz))
+        return pack(*_sec_nsec(t), (fx, fy, mz))
 
     def joints(self, t: float, positions: Any, velocities: Any, effort: Any) -> bytes:
         """Return :func:`_joints`'s message, encoded."""
@@ -131,8 +134,7 @@ class _Packed:
                 return _joints(stamp, f[:n_p], f[n_p : n_p + n_v], f[n_p + n_v :])
 
             pack = self._joints[layout] = Preset(encoder(_JOINTS), make, len(values)).pack
-        sec, nsec = divmod(_ns(t), 1_000_000_000)
-        return pack(sec, nsec, values)
+        return pack(*_sec_nsec(t), values)
 
 
 def write(path: Path, rec: TrackRecording) -> int:

@@ -29,7 +29,7 @@ def env_defaults() -> None:
             faulthandler.enable(all_threads=True)
         except (AttributeError, ValueError, OSError):  # a stderr without a file (captured)
             pass
-    os.environ["PYTHONFAULTHANDLER"] = "1"
+    os.environ.setdefault("PYTHONFAULTHANDLER", "1")
 
 
 __all__ = ["FASTDDS_PROFILE", "env_defaults"]
