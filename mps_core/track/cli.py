@@ -368,6 +368,13 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             f"the slider acquired again {tracker.slider_acquired} times, latch open after its positions "
             "rejected running"
         )
+    if tracker.cuts_fitted or tracker.cuts_unfitted or tracker.cuts_without_part:
+        print(
+            f"cuts fitted whole: {tracker.cuts_fitted}"
+            + (f", {tracker.cuts_unfitted} not (the filter's peak kept)" if tracker.cuts_unfitted else "")
+            + (f", {tracker.cuts_without_part} with no part's work" if tracker.cuts_without_part else "")
+            + (f"; the part: {_part_line(tracker)}" if tracker.cuts_fitted else "")
+        )
     if tracker.restarted:
         print(
             f"the model's run started again {tracker.restarted} times (its state had no configuration "
@@ -400,15 +407,28 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             print(f"tracking OK throughout ({monitor.status.message})")
         for change in monitor.events[1:] if changes else ():
             print(f"t = {change.t:.4f} s: {change.line()}")
-    print("stroke  peak force (kN)      work (J)         peak foundation (kN)")
+    print("stroke  peak force (kN)  (the filter's)      work (J)         peak foundation (kN)")
     for s in tracker.strokes.strokes:
         found = "-"
         if math.isfinite(s.peak_foundation):
             found = f"{s.peak_foundation / 1e3:7.2f} ± {s.peak_foundation_sigma / 1e3:5.2f}"
+        filtered = f"{s.filter_peak_force / 1e3:7.2f} ± {s.filter_peak_force_sigma / 1e3:5.2f}"
         print(
-            f"{s.index:6d}  {s.peak_force / 1e3:7.2f} ± {s.peak_force_sigma / 1e3:5.2f}   "
+            f"{s.index:6d}  {s.peak_force / 1e3:7.2f} ± {s.peak_force_sigma / 1e3:5.2f}  "
+            f"({filtered if s.fit is not None else 'the same':>16})   "
             f"{s.work:6.2f} ± {s.work_sigma:5.2f}   {found}"
         )
+
+
+def _part_line(tracker: Tracker) -> str:
+    """Return the last fitted cut's part: its contact and breakthrough depth."""
+    fit = next((s.fit for s in reversed(tracker.strokes.strokes) if s.fit is not None), None)
+    if fit is None:
+        return "its strokes not closed yet"
+    return (
+        f"contact at x_C = {1e3 * fit.contact:.3f} ± {1e3 * fit.contact_sigma:.3f} mm, breaking through "
+        f"{1e3 * fit.depth:.3f} ± {1e3 * fit.depth_sigma:.3f} mm below (the last stroke's)"
+    )
 
 
 def _settings(args: argparse.Namespace, signals: bool, tuning: Tuning | None = None) -> TrackSettings:
@@ -447,7 +467,7 @@ def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
     )
     true = truth_strokes(truth)
     print(
-        "stroke  peak force err (%)  (truth's peak step average, %)  work err (%)  "
+        "stroke  peak force err (%)  (the filter's, %)  (truth's peak step average, %)  work err (%)  "
         "peak foundation err (%)   (complete strokes)"
     )
     for s in tracker.strokes.strokes:
@@ -457,7 +477,8 @@ def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
         found = 100 * (s.peak_foundation / t["peak_foundation_N"] - 1) if args.loads else math.nan
         resolvable = 100 * (t["peak_step_average_N"] / t["peak_force_N"] - 1)
         print(
-            f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.1f}  {resolvable:+30.1f}  "
+            f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.2f}  "
+            f"{100 * (s.filter_peak_force / t['peak_force_N'] - 1):+17.1f}  {resolvable:+30.1f}  "
             f"{100 * (s.work / t['work_J'] - 1):+12.1f}  {found:+22.1f}"
         )
     if tracker.fallbacks:

@@ -65,6 +65,9 @@ class TrackSettings:
     each step's evaluations one generated function (the default: the estimates as the seed's
     central differences give them to the digits printed, at less CPU; docs/tracking.md),
     ``central`` as the seed differences them.
+    ``fit_cuts``: whether each cut is fitted whole once over (the part's force curve from the
+    crank angles over the work window: :mod:`~mps_core.track.cut_fit`), the stroke's peak force
+    then the fit's.
     Without mode signals the structure follows a slider scale: engaged where the slider is
     measured ``engage_drop`` (m) below its top stop while held there, disengaged where the
     crank-slider misses the slider's position (an outlier) ``disengage_misses`` times running.
@@ -90,6 +93,7 @@ class TrackSettings:
     signal_latency: float = 0.0
     derivatives: str = "autodiff"
     reacquire_after: int = 3
+    fit_cuts: bool = True
 
     def __post_init__(self) -> None:
         for name in (

@@ -1,6 +1,10 @@
 """The per-stroke table: each working stroke's peak process force, its work and the peak load
 on the foundation, each with its standard deviation.
 
+The peak force is the stroke's cut fitted whole where it was (:mod:`~mps_core.track.cut_fit`:
+the part's force curve, its contact and breakthrough depth with it), else the largest of the
+filter's smoothed force; the filter's largest is kept beside it.
+
 A stroke runs from one top dead centre of the locked crank-slider to the next: stroke ``k`` is
 where ``floor((φ − φ_TDC)/2π) = k`` with the latch closed (φ_TDC = 0 for the press: the rocker
 locked at ψ = 0 puts O, A, B, C on the guide's axis there). The work is the filter's integrated
@@ -13,6 +17,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .cut_fit import CutFit
 
 __all__ = ["StrokeEstimate", "StrokeTable", "stroke_index"]
 
@@ -36,9 +44,15 @@ class StrokeEstimate:
     work_sigma: float = math.nan
     peak_foundation: float = -math.inf
     peak_foundation_sigma: float = math.nan
+    #: the largest of the filter's smoothed force, with its 1-σ and time
+    filter_peak_force: float = -math.inf
+    filter_peak_force_sigma: float = math.nan
+    #: the cut fitted whole (None where it was not)
+    fit: CutFit | None = None
 
     def row(self) -> dict[str, float]:
         """Return the stroke as a table's row (column name → value)."""
+        fit = self.fit
         return {
             "stroke": float(self.index),
             "t_start": self.t_start,
@@ -50,6 +64,13 @@ class StrokeEstimate:
             "work_sigma_J": self.work_sigma,
             "peak_foundation_N": self.peak_foundation,
             "peak_foundation_sigma_N": self.peak_foundation_sigma,
+            "filter_peak_force_N": self.filter_peak_force,
+            "filter_peak_force_sigma_N": self.filter_peak_force_sigma,
+            "contact_m": math.nan if fit is None else fit.contact,
+            "contact_sigma_m": math.nan if fit is None else fit.contact_sigma,
+            "breakthrough_depth_m": math.nan if fit is None else fit.depth,
+            "breakthrough_depth_sigma_m": math.nan if fit is None else fit.depth_sigma,
+            "fit_chi2_dof": math.nan if fit is None else fit.chi2 / max(fit.dof, 1),
         }
 
 
@@ -95,10 +116,20 @@ class StrokeTable:
         s = self.current
         if s is None:
             return
-        if force > s.peak_force:
-            s.peak_force, s.peak_force_sigma, s.t_peak_force = force, force_sigma, t
+        if force > s.filter_peak_force:
+            s.filter_peak_force, s.filter_peak_force_sigma = force, force_sigma
+            if s.fit is None:
+                s.peak_force, s.peak_force_sigma, s.t_peak_force = force, force_sigma, t
         if foundation is not None and foundation > s.peak_foundation:
             s.peak_foundation, s.peak_foundation_sigma = foundation, foundation_sigma
+
+    def fitted(self, fit: CutFit, t_peak: float) -> None:
+        """Take the stroke's cut fitted whole: its peak (at ``t_peak``) the stroke's from now on."""
+        s = self.current
+        if s is None:
+            return
+        s.fit = fit
+        s.peak_force, s.peak_force_sigma, s.t_peak_force = fit.peak_force, fit.peak_force_sigma, t_peak
 
     def close(self, t: float, work: float, work_sigma: float) -> StrokeEstimate | None:
         """End the stroke under way at ``t`` with its work; return it (None if none was)."""

@@ -54,6 +54,7 @@ from ..errors import MpsError
 from ..run.simulation import Simulation
 from ..solvers import ADAPTIVE_SOLVERS
 from . import lags
+from .cut_fit import CutStart, fit_cut, part_guess
 from .measurements import Measurement, MeasurementError, ModeSignal
 from .settings import TrackSettings
 from .signal_timing import SignalTiming
@@ -78,6 +79,8 @@ PROCESS_EFFECTS = ("blanking",)
 #: :attr:`Tracker.keep_innovations`): the tracking status reads each as it comes, a late
 #: signal's search the last few of its windows
 KEEP_INNOVATIONS = 10_000
+#: how far above the work window a cut's fit may start (m): the last state filtered there is its start
+CUT_MARGIN = 0.003
 #: the reasons a measurement is rejected for
 REJECTIONS = ("duplicate", "out-of-order", "late", "not-finite", "jump", "outlier", "model")
 
@@ -236,6 +239,21 @@ class Tracker:
         self._stroke = self._stroke_now()
         if self._stroke is not None:
             self.strokes.begin(self._stroke, self.sim.t)
+        #: the part's force curve (F_max, x_0, p_b) a cut's fit starts from: the nominal part's,
+        #: then the last cut's fitted (None: no cut is fitted)
+        self._part = part_guess([e.params for e in scene.effects if e.kind in PROCESS_EFFECTS])
+        if not self.settings.fit_cuts:
+            self._part = None
+        #: the last fit's load torque off its start's (None before a cut is fitted)
+        self._part_fitted: float | None = None
+        #: the last state filtered just above the work window (a cut's fit starts there)
+        self._cut_start: CutStart | None = None
+        #: the cut under way: its start and its crank angles taken, (t, angle, variance)
+        self._cut: tuple[CutStart, tuple] | None = None
+        #: the cuts fitted, those whose fit did not converge, those with no part to fit
+        self.cuts_fitted = 0
+        self.cuts_unfitted = 0
+        self.cuts_without_part = 0
         #: the log-likelihood of the last measurement taken (:meth:`take`)
         self.score = 0.0
         #: the first of :attr:`innovations` replaced since :meth:`take_replaced` was last called
@@ -317,6 +335,7 @@ class Tracker:
         )
         self.inputs.set(0.0, float(self.x[2 * self.n + 1]))
         self._starts = []
+        self._cut_start = self._cut = None  # a new run: the old one's checkpoints are not its
         if not self._window_now():
             self._hold_force()
         self.restarted += 1
@@ -645,6 +664,8 @@ class Tracker:
         if taken:
             self._t_last = max(self._t_last, m.t)
             self.accepted += 1
+        if self._part is not None:
+            self._follow_cut(m, taken)
         return taken
 
     def start(self, t: float) -> None:
@@ -943,6 +964,61 @@ class Tracker:
         if not carried:
             self.P = 0.5 * (P + P.T)  # (after the hold, which zeroed the force's variance before it)
         return True
+
+    # -- cuts -----------------------------------------------------------------------------
+    def _follow_cut(self, m: Measurement, taken: bool) -> None:
+        """Gather a cut's crank angles over the work window, from the last state filtered above
+        it; once the window closes, fit the cut whole (:mod:`~mps_core.track.cut_fit`)."""
+        if self._window_now():
+            if self._cut is None:
+                if self._cut_start is None:  # a window entered without a start: not fitted
+                    return
+                self._cut, self._cut_start = (self._cut_start, ()), None
+            if taken and m.kind == "crank_angle":
+                start, samples = self._cut
+                self._cut = (start, samples + ((m.t, m.value, m.variance),))
+            return
+        if self._cut is not None:
+            start, samples = self._cut
+            self._cut = None
+            if self.sim.structure == "locked":
+                self._fit_cut(start, samples)
+        self._cut_start = None
+        sim = self.sim
+        if not (taken and sim.structure == "locked" and self.n == 1):
+            return
+        kin = sim.solver.current.kin
+        if float(kin.vxy("C")[0]) < 0.0 and float(kin.xy("C")[0]) < self.work_zone_top + CUT_MARGIN:
+            i = 2 * self.n + 1
+            self._cut_start = CutStart(
+                sim.checkpoint(),
+                sim.t,
+                float(self.x[0]),
+                float(self.x[1]),
+                self.P[:2, :2].copy(),
+                float(self.x[i]),
+                float(self.P[i, i]),
+            )
+
+    def _fit_cut(self, start: CutStart, samples: tuple) -> None:
+        """Fit a cut whole; its stroke's peak force the fit's where it converges. A cut whose
+        work the filter finds within three of its 1-σ of none blanked no part: not fitted."""
+        assert self._part is not None
+        i = 2 * self.n + 2
+        if self.x[i] < 3.0 * _sd(self.P[i, i]):
+            self.cuts_without_part += 1
+            return
+        # the nominal part scaled to the filter's work until a cut is fitted, the last fit's after
+        if self._part_fitted is None:
+            fit = fit_cut(self.sim, self.inputs, start, samples, self._part, float(self.x[2 * self.n + 2]))
+        else:
+            fit = fit_cut(self.sim, self.inputs, start, samples, self._part, None, self._part_fitted)
+        if fit is None:
+            self.cuts_unfitted += 1
+            return
+        self.cuts_fitted += 1
+        self._part, self._part_fitted = fit.theta, fit.torque_offset
+        self.strokes.fitted(fit, fit.t_peak + self.origin)
 
     # -- strokes and loads ----------------------------------------------------------------
     def _follow_strokes(self) -> None:

@@ -1,0 +1,103 @@
+"""Each stroke's cut fitted whole: the part's force curve from the crank angles over the work
+window finds the truth's peak where the filter's random walk overshoots it, and the fit leaves
+the filter exactly as it found it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mps_core import load_scene
+from mps_core.track import Fault, Tracker, TrackSettings, run_truth, truth_scene
+from mps_core.track.evaluation import truth_strokes
+from mps_core.track.truth import TruthChanges, with_blanking
+
+#: the truth's part (TruthChanges' default): 1.5 mm at 300 MPa touching at -2 mm, breaking
+#: through at 60 % of its thickness
+TRUE_CONTACT, TRUE_DEPTH = -0.002, 0.6 * 0.0015
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    return with_blanking(load_scene("working").with_overrides(scheme="autodiff"))
+
+
+def _followed(nominal, truth, settings=None):
+    tracker = Tracker(nominal, settings)
+    for m in truth.measurements:
+        tracker.update(m)
+        tracker.observe_stroke()
+    return tracker
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_cut_fitted_whole_finds_the_truths_peak(nominal, seed):
+    """Three strokes of another press (masses, friction, motor, part all off the nominal): each
+    cut fitted, its peak within 3.5 % of the truth's and within three of its 1-sigma, the worst
+    of them nearer than the filter's worst; the part's contact and depth found within a few
+    hundredths of a mm."""
+    truth = run_truth(truth_scene(nominal), 0.45, seed=seed)
+    tracker = _followed(nominal, truth)
+    true = truth_strokes(truth)
+    strokes = [s for s in tracker.strokes.strokes if true.get(s.index, {}).get("complete")]
+    assert len(strokes) >= 2
+    assert tracker.cuts_unfitted == 0 and tracker.cuts_without_part == 0
+    for s in strokes:
+        peak = true[s.index]["peak_force_N"]
+        assert s.fit is not None
+        err = s.peak_force - peak
+        assert abs(err) <= 0.035 * peak
+        assert abs(err) <= 3.0 * s.peak_force_sigma
+        assert 0.2 * s.filter_peak_force_sigma < s.peak_force_sigma < 0.04 * peak
+        assert abs(s.fit.contact - TRUE_CONTACT) < 5e-5
+        assert abs(s.fit.depth - TRUE_DEPTH) < 8e-5
+        assert s.fit.chi2 / s.fit.dof < 5.0  # the model's own error: a few times the noise
+        assert s.row()["peak_force_N"] == s.peak_force
+        assert s.row()["filter_peak_force_N"] == s.filter_peak_force
+    worst = max(abs(s.peak_force / true[s.index]["peak_force_N"] - 1) for s in strokes)
+    assert worst < max(abs(s.filter_peak_force / true[s.index]["peak_force_N"] - 1) for s in strokes)
+
+
+def test_with_the_model_exact_the_fit_is_as_good_as_the_noise(nominal):
+    """The truth the nominal press but for its part: the residuals are the encoder's noise
+    (chi-square about its degrees of freedom) and the peak within 2.5 of its 1-sigma."""
+    same = {"slider_mass": 1.0, "rod_mass": 1.0, "friction": 1.0, "motor_torque": 1.0}
+    exact = TruthChanges(**same, joint_friction_nm=1e-9, guide_friction_n=1e-9)
+    truth = run_truth(truth_scene(nominal, exact), 0.3, seed=4)
+    tracker = _followed(nominal, truth)
+    true = truth_strokes(truth)
+    complete = [s for s in tracker.strokes.strokes if true.get(s.index, {}).get("complete")]
+    fitted = [s for s in complete if s.fit is not None]
+    assert fitted
+    for s in fitted:
+        assert s.fit.chi2 / s.fit.dof < 2.0
+        assert abs(s.peak_force - true[s.index]["peak_force_N"]) <= 2.5 * s.peak_force_sigma
+
+
+def test_fitting_the_cuts_leaves_the_filter_as_it_was(nominal):
+    """The fit rewinds the tracker's run and puts it back: every estimate, covariance and event
+    the same, bit for bit, with and without it."""
+    truth = run_truth(truth_scene(nominal), 0.2, seed=5)
+    with_fit, without = Tracker(nominal), Tracker(nominal, TrackSettings(fit_cuts=False))
+    for m in truth.measurements:
+        for tracker in (with_fit, without):
+            tracker.update(m)
+        assert np.array_equal(with_fit.x, without.x)
+        assert np.array_equal(with_fit.P, without.P)
+        assert with_fit.take_events() == without.take_events()
+    assert with_fit.cuts_fitted == 1 and without.cuts_fitted == 0
+    a, b = with_fit.strokes.strokes[0], without.strokes.strokes[0]
+    assert a.work == b.work and a.filter_peak_force == b.filter_peak_force
+    assert b.fit is None and math.isnan(b.row()["contact_m"])
+
+
+def test_a_stroke_without_its_part_is_not_fitted(nominal):
+    """A part missing from the die: the filter finds no work in that cut, which is not fitted
+    (its stroke keeps the filter's figures); the next cut is fitted again."""
+    truth = run_truth(truth_scene(nominal), 0.45, faults=(Fault(0.15, "missed-part"),), seed=2)
+    tracker = _followed(nominal, truth)
+    assert tracker.cuts_without_part == 1 and tracker.cuts_unfitted == 0
+    fits = [s.fit is not None for s in tracker.strokes.strokes]
+    assert fits[:3] == [True, False, True]
