@@ -23,20 +23,28 @@ the bottom), its three numbers are fitted to the crank angles measured over the 
   than the measurements' noise (the model's own error: the press is not the model).
 
 A crank-slider only (one coordinate: the latch closed); the fit of a cut that does not converge,
-or has too few angles, is not given (None) and the stroke keeps the filter's peak.
+or has too few angles, is not given (None) and the stroke keeps the filter's peak. A fit is
+made from plain values (:class:`CutJob`) on a model of its own (:class:`CutFitter`), never the
+filter's run: the same numbers in the tracker's process or in another (a node's fitting
+process, :mod:`mps_ros.run.cut_fits`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import MpsError
+from .nominal_model import NominalModel
+from .settings import TrackSettings
 
-__all__ = ["CutFit", "CutStart", "fit_cut", "part_guess"]
+if TYPE_CHECKING:
+    from ..scene import Scene
+
+__all__ = ["CutFit", "CutFitter", "CutJob", "CutStart", "part_guess"]
 
 #: the substep inside the part (s) and elsewhere in the window
 PART_STEP = 1e-4
@@ -51,19 +59,42 @@ MIN_SAMPLES = 8
 
 @dataclass(frozen=True)
 class CutStart:
-    """Where a cut's fit starts.
+    """Where a cut's fit starts: the last state filtered before the work window.
 
-    The run's checkpoint before the work window, the filtered (q, q̇) there and their
-    covariance, the load torque and its variance.
+    Plain values (a fit may run in another process): its time on the tracker's clock, the
+    structure, chart view (by name) and controls of the tracker's run then
+    (:meth:`~mps_core.track.nominal_model.NominalModel.controls_of`), the filtered (q, q̇) and
+    their covariance, the load torque and its variance.
     """
 
-    checkpoint: Any
     t: float
+    structure: str
+    chart: str
+    controls: dict
     q: float
     qd: float
     covariance: np.ndarray
     torque: float
     torque_variance: float
+
+
+@dataclass(frozen=True)
+class CutJob:
+    """A cut to fit.
+
+    Where it starts, its crank angles (t, angle, variance) on the tracker's clock, the curve
+    (F_max, x_0, p_b) the search begins at, scaled to ``work`` (J) where given, the load torque
+    the start's plus ``torque_offset``; the stroke it belongs to and its number among the
+    tracker's cuts (``serial``).
+    """
+
+    start: CutStart
+    samples: tuple
+    guess: tuple[float, float, float]
+    work: float | None
+    torque_offset: float
+    stroke: int
+    serial: int
 
 
 @dataclass(frozen=True)
@@ -85,11 +116,8 @@ class CutFit:
     chi2: float
     dof: int
     runs: int
-
-    @property
-    def theta(self) -> tuple[float, float, float]:
-        """Return (F_max, x_0, p_b): a guess for the next cut's fit."""
-        return self.peak_force, self.contact, self.depth
+    #: the fitted curve (F_max, x_0, p_b): the next cut's search begins there
+    curve: tuple[float, float, float]
 
 
 def part_guess(effect_params: list[dict]) -> tuple[float, float, float] | None:
@@ -116,19 +144,21 @@ class _Runner:
     It gives the angles at the samples' times and their derivatives in the parameters.
     """
 
-    def __init__(self, sim: Any, inputs: Any, start: CutStart, times: list[float]) -> None:
-        self.sim, self.inputs, self.start, self.times = sim, inputs, start, times
+    def __init__(self, model: NominalModel, start: CutStart, times: list[float]) -> None:
+        self.model, self.start, self.times = model, start, times
+        self.view = model.view(start.structure, start.chart)
         self.runs = 0
 
     def __call__(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
-        sim, inputs, st = self.sim, self.inputs, self.start
+        model, st = self.model, self.start
+        inputs = model.inputs
         self.runs += 1
         dq, dqd, tau = float(p[0]), float(p[1]), float(p[2])
         theta = p[3:6]
         x0, pb = float(theta[1]), float(theta[2])
-        sim.restore(st.checkpoint)
         inputs.set(0.0, tau)
-        sim.restart_at(np.array([st.q + dq]), np.array([st.qd + dqd]))
+        initial = (self.view, np.array([st.q + dq]), np.array([st.qd + dqd]))
+        sim = model.new_run(initial, st.t, st.structure, st.controls)
         force = 0.0
         # q's and q̇'s derivatives in the parameters, carried substep by substep (floats: six
         # columns are cheaper by hand than as arrays)
@@ -218,9 +248,23 @@ def _curve(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([f_max, x_mid + 0.5 * pb, pb]), T
 
 
+class CutFitter:
+    """Fit cuts on a nominal press's model of its own (:class:`NominalModel`).
+
+    Each fit from plain values (:class:`CutJob`), each trial a new run, so that a fit here and
+    one in another process made from the same scene give the same numbers.
+    """
+
+    def __init__(self, scene: Scene, settings: TrackSettings) -> None:
+        self.model = NominalModel(scene, settings)
+
+    def fit(self, job: CutJob) -> CutFit | None:
+        """Fit the cut ``job`` (:func:`fit_cut`)."""
+        return fit_cut(self.model, job.start, job.samples, job.guess, job.work, job.torque_offset)
+
+
 def fit_cut(
-    sim: Any,
-    inputs: Any,
+    model: NominalModel,
     start: CutStart,
     samples: tuple[tuple[float, float, float], ...],
     guess: tuple[float, float, float],
@@ -232,10 +276,9 @@ def fit_cut(
     ``samples``: (t, angle, variance) on the run's clock, from ``start`` (None where fewer
     than :data:`MIN_SAMPLES`). The search begins at the curve ``guess`` (F_max, x_0, p_b)
     scaled to ``work`` (J: the filter's, where given), the load torque the start's plus
-    ``torque_offset`` (the last fit's off its start's: what the model misses over a cut).
-
-    ``sim`` and ``inputs`` are the tracker's run and its unknown inputs: the run is rewound to
-    the start for each trial and left where it was found."""
+    ``torque_offset`` (the last fit's off its start's: what the model misses over a cut). Each
+    trial is a run of ``model`` from the start.
+    """
     if len(samples) < MIN_SAMPLES or start.covariance.shape != (2, 2):
         return None
     times = [s[0] for s in samples]
@@ -246,9 +289,7 @@ def fit_cut(
     except np.linalg.LinAlgError:
         return None
     tau_sd = math.sqrt(max(start.torque_variance, 1e-6))
-    now = sim.checkpoint()
-    saved = list(inputs.values)
-    run = _Runner(sim, inputs, start, times)
+    run = _Runner(model, start, times)
     m = len(z)
 
     def residuals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -294,9 +335,6 @@ def fit_cut(
                 lam *= 4.0
     except (MpsError, ArithmeticError, ValueError, np.linalg.LinAlgError):
         converged = False
-    finally:
-        sim.restore(now)
-        inputs.values[:] = saved
     if not converged:
         return None
     dof = len(r) - 6
@@ -324,4 +362,5 @@ def fit_cut(
         chi2=chi2,
         dof=dof,
         runs=run.runs,
+        curve=(float(theta[0]), float(theta[1]), float(theta[2])),
     )

@@ -49,6 +49,8 @@ class StrokeEstimate:
     filter_peak_force_sigma: float = math.nan
     #: the cut fitted whole (None where it was not)
     fit: CutFit | None = None
+    #: whether its cut's fit is being made elsewhere and has not come back
+    fit_pending: bool = False
 
     def row(self) -> dict[str, float]:
         """Return the stroke as a table's row (column name → value)."""
@@ -123,12 +125,33 @@ class StrokeTable:
         if foundation is not None and foundation > s.peak_foundation:
             s.peak_foundation, s.peak_foundation_sigma = foundation, foundation_sigma
 
-    def fitted(self, fit: CutFit, t_peak: float) -> None:
-        """Take the stroke's cut fitted whole: its peak (at ``t_peak``) the stroke's from now on."""
-        s = self.current
+    def _find(self, index: int) -> StrokeEstimate | None:
+        """Return the stroke ``index``: the one under way or one finished (None: neither)."""
+        if self.current is not None and self.current.index == index:
+            return self.current
+        for s in reversed(self.strokes):
+            if s.index == index:
+                return s
+        return None
+
+    def pending(self, index: int) -> None:
+        """Mark stroke ``index``'s cut as being fitted elsewhere."""
+        s = self._find(index)
+        if s is not None:
+            s.fit_pending = True
+
+    def unfitted(self, index: int) -> None:
+        """Stroke ``index``'s cut was not fitted: it keeps the filter's peak."""
+        s = self._find(index)
+        if s is not None:
+            s.fit_pending = False
+
+    def fitted(self, index: int, fit: CutFit, t_peak: float) -> None:
+        """Take stroke ``index``'s cut fitted whole: its peak (at ``t_peak``) the stroke's."""
+        s = self._find(index)
         if s is None:
             return
-        s.fit = fit
+        s.fit, s.fit_pending = fit, False
         s.peak_force, s.peak_force_sigma, s.t_peak_force = fit.peak_force, fit.peak_force_sigma, t_peak
 
     def close(self, t: float, work: float, work_sigma: float) -> StrokeEstimate | None:

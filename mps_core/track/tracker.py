@@ -44,6 +44,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -51,15 +52,13 @@ import numpy as np
 
 from ..dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
 from ..errors import MpsError
-from ..run.simulation import Simulation
-from ..solvers import ADAPTIVE_SOLVERS
 from . import lags
-from .cut_fit import CutStart, fit_cut, part_guess
+from .cut_fit import CutFit, CutFitter, CutJob, CutStart, part_guess
 from .measurements import Measurement, MeasurementError, ModeSignal
+from .nominal_model import PROCESS_EFFECTS, NominalModel
 from .settings import TrackSettings
 from .signal_timing import SignalTiming
 from .strokes import StrokeTable, stroke_index
-from .unknown_inputs import UnknownInputs
 from .unscented import unscented_step
 
 if TYPE_CHECKING:
@@ -73,8 +72,6 @@ LOAD_COLUMNS = tuple(c for c in REACTION_COLUMNS if "residual" not in c)
 _LOAD_INDEX = tuple(list(REACTION_COLUMNS).index(c) for c in LOAD_COLUMNS)
 #: the foundation force's components among LOAD_COLUMNS
 _FOUND_X, _FOUND_Y = LOAD_COLUMNS.index("F_found_x"), LOAD_COLUMNS.index("F_found_y")
-#: the process loads a tracker's model leaves out (the unknown input stands for them)
-PROCESS_EFFECTS = ("blanking",)
 #: the innovations a tracker that follows a press for long keeps at least (10 s at 1 kHz;
 #: :attr:`Tracker.keep_innovations`): the tracking status reads each as it comes, a late
 #: signal's search the last few of its windows
@@ -144,27 +141,13 @@ class Tracker:
         self.settings = settings or TrackSettings()
         #: the top of the work window (m): the slider below it moving down, the punch may work
         self.work_zone_top = work_zone_top(scene, self.settings)
-        mech = scene.mechanism()
-        effects = [e for e in scene.build_effects(mech) if e.kind not in PROCESS_EFFECTS]
+        model = NominalModel(scene, self.settings)
+        mech = model.mechanism
         #: the unknown inputs' effect (its values follow the state)
-        self.inputs = UnknownInputs()
-        effects.append(self.inputs)
-        self.motor = next((e for e in effects if e.kind == "motor"), None)
-        solver = replace(scene.solver, scheme=self.settings.derivatives)
-        if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
-            solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
-
-        def new_run(initial: tuple, t0: float) -> Simulation:
-            return Simulation(
-                mech,
-                scene.structure,
-                effects,
-                initial,
-                solver=solver,
-                charts=scene.charts,
-                t0=t0,
-                change_point=scene.change_point,
-            )
+        self.inputs = model.inputs
+        self.motor = model.motor
+        new_run = model.new_run
+        self._scene = scene
 
         def initial_state(phi: float, phi_dot: float) -> tuple:
             i = scene.initial
@@ -241,9 +224,7 @@ class Tracker:
             self.strokes.begin(self._stroke, self.sim.t)
         #: the part's force curve (F_max, x_0, p_b) a cut's fit starts from: the nominal part's,
         #: then the last cut's fitted (None: no cut is fitted)
-        self._part = part_guess([e.params for e in scene.effects if e.kind in PROCESS_EFFECTS])
-        if not self.settings.fit_cuts:
-            self._part = None
+        self._part = part_guess(model.process_params) if self.settings.fit_cuts else None
         #: the last fit's load torque off its start's (None before a cut is fitted)
         self._part_fitted: float | None = None
         #: the last state filtered just above the work window (a cut's fit starts there)
@@ -254,6 +235,19 @@ class Tracker:
         self.cuts_fitted = 0
         self.cuts_unfitted = 0
         self.cuts_without_part = 0
+        #: the cuts closed so far (a cut's job's ``serial``)
+        self._cuts = 0
+        #: fit the cuts elsewhere (another process, say): each cut's job is put on
+        #: :attr:`cut_jobs` for the owner, who hands the fit back (:meth:`take_fit`); the next
+        #: cut waits for it (:attr:`await_fit`), so that every fit begins where it would here
+        self.defer_fits = False
+        #: the cuts' jobs to fit (``defer_fits``), taken off by the owner
+        self.cut_jobs: list[CutJob] = []
+        #: return the fit of a job handed out (``defer_fits``), waiting for it
+        self.await_fit: Callable[[CutJob], CutFit | None] | None = None
+        #: the job handed out whose fit has not come back
+        self._pending: CutJob | None = None
+        self._fitter: CutFitter | None = None
         #: the log-likelihood of the last measurement taken (:meth:`take`)
         self.score = 0.0
         #: the first of :attr:`innovations` replaced since :meth:`take_replaced` was last called
@@ -335,7 +329,7 @@ class Tracker:
         )
         self.inputs.set(0.0, float(self.x[2 * self.n + 1]))
         self._starts = []
-        self._cut_start = self._cut = None  # a new run: the old one's checkpoints are not its
+        self._cut_start = self._cut = None  # a new run: the cut under way is not fitted
         if not self._window_now():
             self._hold_force()
         self.restarted += 1
@@ -982,7 +976,7 @@ class Tracker:
             start, samples = self._cut
             self._cut = None
             if self.sim.structure == "locked":
-                self._fit_cut(start, samples)
+                self._close_cut(start, samples)
         self._cut_start = None
         sim = self.sim
         if not (taken and sim.structure == "locked" and self.n == 1):
@@ -991,8 +985,10 @@ class Tracker:
         if float(kin.vxy("C")[0]) < 0.0 and float(kin.xy("C")[0]) < self.work_zone_top + CUT_MARGIN:
             i = 2 * self.n + 1
             self._cut_start = CutStart(
-                sim.checkpoint(),
                 sim.t,
+                sim.structure,
+                sim.view.name,
+                NominalModel.controls_of(sim),
                 float(self.x[0]),
                 float(self.x[1]),
                 self.P[:2, :2].copy(),
@@ -1000,25 +996,57 @@ class Tracker:
                 float(self.P[i, i]),
             )
 
-    def _fit_cut(self, start: CutStart, samples: tuple) -> None:
-        """Fit a cut whole; its stroke's peak force the fit's where it converges. A cut whose
-        work the filter finds within three of its 1-σ of none blanked no part: not fitted."""
+    def _close_cut(self, start: CutStart, samples: tuple) -> None:
+        """Fit a cut whole, or hand its job out (:attr:`defer_fits`). A cut whose work the
+        filter finds within three of its 1-σ of none blanked no part: not fitted."""
         assert self._part is not None
         i = 2 * self.n + 2
         if self.x[i] < 3.0 * _sd(self.P[i, i]):
             self.cuts_without_part += 1
             return
-        # the nominal part scaled to the filter's work until a cut is fitted, the last fit's after
-        if self._part_fitted is None:
-            fit = fit_cut(self.sim, self.inputs, start, samples, self._part, float(self.x[2 * self.n + 2]))
+        if self._pending is not None:  # the last cut's curve is where this one's search begins
+            job = self._pending
+            self.take_fit(job, self.await_fit(job) if self.await_fit is not None else self._fit(job))
+        self._cuts += 1
+        stroke = -1 if self._stroke is None else self._stroke
+        if self._part_fitted is None:  # the nominal part, scaled to the filter's work
+            job = CutJob(start, samples, self._part, float(self.x[i]), 0.0, stroke, self._cuts)
         else:
-            fit = fit_cut(self.sim, self.inputs, start, samples, self._part, None, self._part_fitted)
+            job = CutJob(start, samples, self._part, None, self._part_fitted, stroke, self._cuts)
+        if self.defer_fits:
+            self._pending = job
+            self.cut_jobs.append(job)
+            self.strokes.pending(stroke)
+            return
+        self.take_fit(job, self._fit(job))
+
+    def _fit(self, job: CutJob) -> CutFit | None:
+        """Fit ``job`` here."""
+        if self._fitter is None:
+            self._fitter = CutFitter(self._scene, self.settings)
+        return self._fitter.fit(job)
+
+    def take_fit(self, job: CutJob, fit: CutFit | None) -> bool:
+        """Take a cut's fit (None: it did not converge): the peak of its stroke, the curve the
+        next cut's search begins at. Return False (nothing taken) for a job the tracker no
+        longer waits for (a late signal's search took the measurements since again)."""
+        if self.defer_fits:
+            if job is not self._pending:
+                return False
+            self._pending = None
         if fit is None:
             self.cuts_unfitted += 1
-            return
+            self.strokes.unfitted(job.stroke)
+            return True
         self.cuts_fitted += 1
-        self._part, self._part_fitted = fit.theta, fit.torque_offset
-        self.strokes.fitted(fit, fit.t_peak + self.origin)
+        self._part, self._part_fitted = fit.curve, fit.torque_offset
+        self.strokes.fitted(job.stroke, fit, fit.t_peak + self.origin)
+        return True
+
+    @property
+    def fit_pending(self) -> bool:
+        """Return whether a cut's fit handed out has not come back (:attr:`defer_fits`)."""
+        return self._pending is not None
 
     # -- strokes and loads ----------------------------------------------------------------
     def _follow_strokes(self) -> None:

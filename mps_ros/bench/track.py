@@ -106,7 +106,12 @@ def plain_run(
     truth = run_truth(truth_scene(nominal), measurements * 1e-3, sensors=Sensors(slider=slider), seed=seed)
     settings = TrackSettings(signal_latency=SIGNAL_LATENCY if modes and truth.modes else 0.0)
     run = TrackingRun(
-        nominal, Fanout([Dropped()]), settings=settings, sigma_every=sigma_every, freeze_gc=prepared
+        nominal,
+        Fanout([Dropped()]),
+        settings=settings,
+        sigma_every=sigma_every,
+        freeze_gc=prepared,
+        fit_elsewhere=True,
     )
     if prepared:
         run.prepare()
@@ -114,7 +119,10 @@ def plain_run(
     offset = time.monotonic() - truth.measurements[0].t  # the press's clock on the wall clock
     t0 = time.thread_time()
     run.take_all(truth.measurements, truth.modes if modes else [], offset)
-    return run, (time.thread_time() - t0) / max(stamps, 1) * 1e3
+    cpu_ms = (time.thread_time() - t0) / max(stamps, 1) * 1e3
+    run.finish_fits()
+    run.close()
+    return run, cpu_ms
 
 
 def track_run(

@@ -470,8 +470,8 @@ def _status(node: PressTwin) -> int:
 
 def _closed(node: PressTwin) -> str | None:
     """The run closed, however it ended: commands refused from now on, its recording finished,
-    its stepping process ended. Why the recording could not be finished (said when it
-    happened: the sink's line), or None."""
+    its stepping process (or its cuts' fitting process) ended. Why the recording could not be
+    finished (said when it happened: the sink's line), or None."""
     node.closed = True
     recording_error = None
     if node.recorder is not None:
@@ -479,7 +479,7 @@ def _closed(node: PressTwin) -> str | None:
             node.recorder.finish()
         except OSError as exc:
             recording_error = str(exc)
-    if node.split:
+    if node.split or node.settings.track:  # the stepping process, the cuts' fitting process
         node._run().close()
     return recording_error
 
@@ -617,7 +617,7 @@ def _start(node: PressTwin) -> None:
 def _never_ran(node: PressTwin) -> int:
     """A node that ended before its run started (never activated): what was begun is undone
     (the stepping process ended, the recording discarded); its exit status."""
-    if node.split and node.runner is not None:
+    if (node.split or node.settings.track) and node.runner is not None:
         node.runner.close()
     if node.recorder is not None:
         with contextlib.suppress(OSError):

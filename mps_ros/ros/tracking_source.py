@@ -119,6 +119,7 @@ def tracking_run(node: Any) -> TrackingRun:
         clock=time.time,  # the middleware's timestamps are on the system clock
         log=node._log,
         freeze_gc=True,
+        fit_elsewhere=True,
     )
     source = TrackingSource(node, run)
     run.on_start = source.subscribe

@@ -80,7 +80,7 @@ import sys
 import threading
 import time
 
-from ..os_threads import widen_pipe
+from ..os_threads import die_with_parent, widen_pipe
 
 # -- frames -----------------------------------------------------------------------------------
 from ..wire.json_text import to_json
@@ -411,16 +411,6 @@ class _Ahead:
         return reply
 
 
-def _set_parent_death_signal() -> None:
-    """SIGTERM to this process when the process that started it dies (Linux)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 class _FromTheNode:
     """What the node's process sends the stepping process after its settings, taken by a
     thread of its own as it comes (see the module's docstring for the frames): the commands
@@ -483,7 +473,7 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     """The stepping process (``python -m mps_ros.run.stepping``): settings, ready, go, the run,
     its end; see the module's docstring."""
     parent = os.getppid()
-    _set_parent_death_signal()
+    die_with_parent()
     if fd_out == 1:  # the frames keep the pipe; whatever else prints goes to stderr
         fd_out = os.dup(1)
         os.dup2(2, 1)

@@ -27,6 +27,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 from mps_core.dynamics.reactions import REACTION_COLUMNS, compute_reactions, reaction_values
@@ -64,6 +65,7 @@ from ..wire.track_topics import (
     sigma,
 )
 from .commands import Inbox, shown
+from .cut_fits import CutFits
 from .metrics import Timings
 from .sinks import Fanout, Message
 
@@ -159,7 +161,9 @@ class TrackingRun:
     :data:`CAUGHT_UP` of its arrival (counted, said, WARN: the node catches up with its press;
     0: every estimate published however late). ``clock``: the wall clock
     the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
-    and timeouts are said.
+    and timeouts are said. ``fit_elsewhere``: the cuts fitted in a process of their own
+    (:mod:`~mps_ros.run.cut_fits`: the node's, so that a fit holds no measurement up; the
+    strokes the same), not where the measurements are taken; :meth:`close` ends it.
     """
 
     def __init__(
@@ -183,6 +187,7 @@ class TrackingRun:
         markers_scale: float | None = None,
         log: Callable[[str, str], None] | None = None,
         freeze_gc: bool = False,
+        fit_elsewhere: bool = False,
     ) -> None:
         if not (isinstance(sigma_every, int) and sigma_every >= 1):
             raise MeasurementError("track_sigma_every", sigma_every, "an integer >= 1")
@@ -207,6 +212,13 @@ class TrackingRun:
         # a press followed for days: the tracking status reads the innovations as they come,
         # a late signal's search the last few; the older are dropped
         self.tracker.keep_innovations = KEEP_INNOVATIONS
+        self.log = log or (lambda level, text: None)
+        #: the cuts fitted in a process of their own, not where the measurements are taken
+        #: (None: fitted here, where the tracker fits them at all)
+        self.fits: CutFits | None = None
+        if fit_elsewhere and self.tracker.settings.fit_cuts:
+            self.fits = CutFits(self.scene, self.tracker.settings, self.log)
+            self.fits.attach(self.tracker)
         #: whether the press still moves as the model says (the ``NAME: tracking`` status)
         self.monitor = TrackingMonitor()
         self.encoder = encoder or Encoder()
@@ -228,7 +240,6 @@ class TrackingRun:
         self.max_behind = float(max_behind)
         self.clock = clock
         self.period = float(diagnostics_period)
-        self.log = log or (lambda level, text: None)
         solve = "reactions" in self.outputs or "foundation" in self.outputs
         self.step = _Estimated(self.tracker, solve)
         self.messages = StepMessages(
@@ -294,6 +305,8 @@ class TrackingRun:
         for msgtype in sorted({t.msgtype for t in (*BY_KEY.values(), *TRACKING_BY_KEY.values())}):
             msgdef(msgtype)
         self.sinks.prepare([])
+        if self.fits is not None:
+            self.fits.start()  # the worker makes its model meanwhile
         self.warm_up()
         if self.freeze_gc:
             gc.collect()
@@ -316,7 +329,11 @@ class TrackingRun:
         try:
             sensors = Sensors(slider=True, motor_torque=motor)
             press = run_truth(self.scene, seconds, sensors=sensors, fine_dt=2e-4)
-            copy = TrackingRun(self.scene, Fanout([]), sigma_every=1, clock=self.clock, **self._made)
+            # the cuts fitted as this run fits them: here, or not at all (their code is then
+            # the fitting process's)
+            fit_here = self.fits is None and self.tracker.settings.fit_cuts
+            made = dict(self._made, settings=replace(self.tracker.settings, fit_cuts=fit_here))
+            copy = TrackingRun(self.scene, Fanout([]), sigma_every=1, clock=self.clock, **made)
             copy.take_all(press.measurements, press.modes, self.clock() - press.measurements[0].t)
         except (MpsError, ArithmeticError, ValueError, IndexError) as exc:
             # a scene whose own run cannot go so far: its code is made as the press's
@@ -348,7 +365,9 @@ class TrackingRun:
         return taken
 
     def close(self) -> None:
-        """End what the run started beside it: nothing (it runs in the node's threads)."""
+        """End what the run started beside it: the cuts' fitting process."""
+        if self.fits is not None:
+            self.fits.close()
 
     def request_stop(self, reason: str) -> None:
         """End :meth:`run` (``reason``: why, said at the run's end)."""
@@ -385,8 +404,19 @@ class TrackingRun:
                 self.publish_diagnostics()
         if self.on_end is not None:
             self.on_end()
+        self.finish_fits()
         self.publish_diagnostics()
         return self.stats()
+
+    def finish_fits(self) -> None:
+        """Wait for the cuts' fits still out and publish the strokes they held back."""
+        if self.fits is None:
+            return
+        with self._lock:
+            self.fits.finish(self.tracker)
+            msgs = self._strokes()
+            if msgs:
+                self.sinks.emit_all(msgs)
 
     def watch(self, now: float) -> None:
         """Count and say a silence of the source longer than the timeout (once a silence)."""
@@ -479,6 +509,9 @@ class TrackingRun:
                 new = tr.rejected - before
                 for reason in new:
                     self._say(reason, t, m)
+            if self.fits is not None:
+                self.fits.submit(tr)
+                self.fits.poll(tr)
             self._say_found()
             if tr.restarted > self._restarts_said:
                 self._restarts_said = tr.restarted
@@ -686,14 +719,17 @@ class TrackingRun:
         """Return the strokes finished since the last call as ``~/strokes`` messages.
 
         A JSON object each, stamped with the stroke's end; taken off the tracker's table (a
-        long run keeps none).
+        long run keeps none). A stroke whose cut's fit is out holds it and those after it back.
         """
         done = self.tracker.strokes.strokes
+        held = next((i for i, s in enumerate(done) if s.fit_pending), None)
+        if held is not None:
+            done = done[:held]
         msgs: list[Message] = [
             (STROKES.key, string({"data": to_json(s.row())}), _ns(s.t_end), False) for s in done
         ]
         self.strokes += len(done)
-        del done[:]
+        del self.tracker.strokes.strokes[: len(done)]
         return msgs
 
     # -- what it says ----------------------------------------------------------------------

@@ -93,6 +93,44 @@ def test_fitting_the_cuts_leaves_the_filter_as_it_was(nominal):
     assert b.fit is None and math.isnan(b.row()["contact_m"])
 
 
+def test_fits_made_elsewhere_are_the_fits_made_here(nominal):
+    """``defer_fits``: each cut's job handed out and its fit, made by a fitter of its own (as a
+    process of its own would), given back some measurements later; the next cut waits for the
+    last fit. The strokes are those of the tracker that fits its cuts itself, bit for bit, and
+    a stroke whose fit is out says so until it comes."""
+    from mps_core.track.cut_fit import CutFitter
+
+    truth = run_truth(truth_scene(nominal), 0.45, seed=6)
+    here = _followed(nominal, truth)
+    there = Tracker(nominal)
+    there.defer_fits = True
+    fitter = CutFitter(nominal, there.settings)
+    waited: list[int] = []
+
+    def await_fit(job):
+        waited.append(job.serial)
+        return fitter.fit(job)
+
+    there.await_fit = await_fit
+    out: list = []  # (job, when its fit comes back: so many measurements on)
+    seen_pending = False
+    for k, m in enumerate(truth.measurements):
+        there.update(m)
+        there.observe_stroke()
+        for job in there.cut_jobs:
+            out.append((job, k + (7 if job.serial % 2 else 200)))  # the second cut's fit late
+        there.cut_jobs.clear()
+        seen_pending |= any(s.fit_pending for s in [*there.strokes.strokes, there.strokes.current] if s)
+        for job, due in [o for o in out if o[1] <= k]:
+            out.remove((job, due))
+            there.take_fit(job, fitter.fit(job))
+    for job, _ in out:
+        there.take_fit(job, fitter.fit(job))
+    assert seen_pending and waited == [2]  # the third cut waited for the second's fit
+    assert there.cuts_fitted == here.cuts_fitted >= 3
+    assert [s.row() for s in there.strokes.strokes] == [s.row() for s in here.strokes.strokes]
+
+
 def test_a_stroke_without_its_part_is_not_fitted(nominal):
     """A part missing from the die: the filter finds no work in that cut, which is not fitted
     (its stroke keeps the filter's figures); the next cut is fitted again."""

@@ -1,8 +1,11 @@
 """The node following the emulator, end to end: every estimate published and recorded, a bad one
-counted; mps track over its recording gives the same estimates."""
+counted; mps track over its recording gives the same estimates and strokes."""
 
 from __future__ import annotations
 
+import csv
+import json
+import math
 import os
 import signal
 import struct
@@ -193,8 +196,17 @@ def test_the_node_follows_the_emulator(ros, tmp_path):
     # mps track over the node's recording gives the node's live estimates, bit for bit
     node_est = node_estimates(rec)
     assert len(node_est) == sent - 1
-    offline = tracked("working", rec, tmp_path / "tracked.csv")
+    offline = tracked("working", rec, tmp_path / "tracked.csv", "--strokes", str(tmp_path / "strokes.csv"))
     assert all(offline[t] == est for t, est in node_est.items()), differences(node_est, offline)
+    # the strokes' cuts fitted in the node's fitting process, as mps track fits them in its own
+    from mps_ros.recording.replay import string_data
+
+    rows = [json.loads(string_data(d)) for d in got.get(resolve("~/strokes"), [])]
+    assert rows and all(math.isfinite(r["contact_m"]) for r in rows), rows
+    with (tmp_path / "strokes.csv").open() as fh:
+        again = list(csv.DictReader(fh))
+    for key in ("peak_force_N", "peak_force_sigma_N", "contact_m", "breakthrough_depth_m", "work_J"):
+        assert [r[key] for r in rows] == [float(r[key]) for r in again[: len(rows)]], key
 
 
 def test_an_emulator_with_no_follower_on_its_mode_topic_names_it(ros):

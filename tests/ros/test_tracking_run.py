@@ -239,6 +239,37 @@ def test_each_stroke_finished_is_published_once_with_its_figures(sigma_every):
         assert math.isfinite(row["peak_foundation_N"]) == (sigma_every == 1)
 
 
+def test_cuts_fitted_in_a_process_of_their_own_give_the_same_strokes():
+    """The node's way (``fit_elsewhere``): each cut's fit made in the fitting process, taken
+    back as it comes, its stroke held back until then. Every estimate's messages are those of
+    a run that fits its cuts itself, in the same order, and so is every stroke's row, byte
+    for byte; the process ends with the run."""
+    truth = run_truth(truth_scene(nominal_scene(load_scene("working"))), 0.45, seed=4)
+    here, sink_here = _run()
+    there, sink_there = _run(fit_elsewhere=True)
+    try:
+        for m in truth.measurements:
+            for run in (here, there):
+                run.measurement(m.t, m.value, None, b"", 0.0)
+        there.finish_fits()
+        assert there.fits is not None and not there.fits.failed
+        proc = there.fits._proc
+    finally:
+        there.close()
+    assert proc is not None and proc.returncode == 0
+
+    def strokes(sink):
+        return [(d, t) for k, d, t, _ in sink.msgs if k == "~/strokes"]
+
+    def others(sink):
+        return [msg for msg in sink.msgs if msg[0] not in ("~/strokes", "/diagnostics")]
+
+    assert len(strokes(sink_here)) >= 2 and strokes(sink_there) == strokes(sink_here)
+    assert all(math.isfinite(json.loads(string_of(d))["contact_m"]) for d, _ in strokes(sink_here))
+    assert others(sink_there) == others(sink_here)
+    assert there.tracker.cuts_fitted == here.tracker.cuts_fitted >= 3
+
+
 def string_of(data: bytes) -> str:
     """Return a CDR std_msgs/String's text."""
     from mps_ros.recording.replay import string_data

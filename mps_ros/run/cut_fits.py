@@ -1,0 +1,204 @@
+"""A tracking node's cuts fitted in a process of their own.
+
+A cut's fit (:mod:`mps_core.track.cut_fit`: the part's force curve from a stroke's crank angles,
+some 15–30 ms of CPU on the nominal press's model) made where the measurements are taken
+would hold every measurement behind it up by as much: a node at 1 kHz published some twenty
+estimates a stroke more than 1 ms late. So the node's tracker hands each cut's job out
+(:attr:`~mps_core.track.Tracker.defer_fits`) and :class:`CutFits` has it fitted in the fitting
+process (``python -m mps_ros.run.cut_fits``, started at the first cut or as the node prepares),
+the fit taken back at the first measurement after it comes. That process makes the same
+fitter from the same scene and settings as ``mps track`` makes in its own, so the fits are
+the same numbers; the next cut's fit begins at the last's, and the tracker waits for it where
+it has not come (a machine far behind). A stroke whose fit is out is published once it comes.
+
+**Frames** (:mod:`mps_ros.wire.pipe`): to the process ``SETTINGS`` (pickle: the nominal scene
+and the tracker's settings), then ``FIT`` a job each (pickle: :class:`~mps_core.track.cut_fit.
+CutJob`); from it ``READY`` (JSON: or the error), then ``FITTED`` each job's serial and fit
+(pickle: None where it did not converge). It ends at the end of its input (or its parent's).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import subprocess
+import sys
+import threading
+from typing import TYPE_CHECKING, Any
+
+from ..os_threads import die_with_parent, widen_pipe
+from ..wire.pipe import Frame, FrameReader, FrameWriter
+
+if TYPE_CHECKING:
+    from mps_core.scene import Scene
+    from mps_core.track import Tracker, TrackSettings
+    from mps_core.track.cut_fit import CutFit, CutJob
+
+__all__ = ["CutFits", "serve"]
+
+
+class CutFits:
+    """Have a tracker's cuts fitted in the fitting process (see the module).
+
+    ``log(level, text)`` says a process that failed (its cuts then keep the filter's peak).
+    """
+
+    def __init__(self, scene: Scene, settings: TrackSettings, log: Any = None) -> None:
+        self.scene, self.settings = scene, settings
+        self.log = log or (lambda level, text: None)
+        self._proc: subprocess.Popen | None = None
+        self._out: FrameWriter | None = None
+        #: the jobs sent, in order
+        self.out: list[CutJob] = []
+        #: the fits come back, by their jobs' serials (the reader thread's)
+        self._fits: dict[int, CutFit | None] = {}
+        self._came = threading.Condition()
+        self._ended = False  # the process's output ended
+        self.failed = False
+
+    def start(self) -> None:
+        """Start the fitting process (it makes its model meanwhile)."""
+        if self._proc is not None or self.failed:
+            return
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "mps_ros.run.cut_fits"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+        )
+        stdin, stdout = self._proc.stdin, self._proc.stdout
+        assert stdin is not None and stdout is not None  # both are pipes
+        self._out = FrameWriter(stdin.fileno())
+        widen_pipe(stdin.fileno())
+        self._out.frame(Frame.SETTINGS, pickle.dumps((self.scene, self.settings)))
+        reader = FrameReader(stdout.fileno())
+        threading.Thread(target=self._listen, args=(reader,), name="mps-cut-fits", daemon=True).start()
+
+    def _listen(self, reader: FrameReader) -> None:
+        """Take the process's frames as they come (a thread of its own)."""
+        while True:
+            got = reader.read()
+            if not got:
+                break
+            for kind, payload in got:
+                if kind == Frame.READY:
+                    reply = json.loads(payload)
+                    if not reply.get("ready"):
+                        self._fail(reply.get("error", "it did not start"))
+                elif kind == Frame.FITTED:
+                    serial, fit = pickle.loads(payload)
+                    with self._came:
+                        self._fits[serial] = fit
+                        self._came.notify_all()
+        with self._came:
+            self._ended = True
+            self._came.notify_all()
+
+    def attach(self, tracker: Tracker) -> None:
+        """Have ``tracker`` hand its cuts' jobs out to this process and wait on it."""
+        tracker.defer_fits = True
+        tracker.await_fit = self.wait
+
+    def submit(self, tracker: Tracker) -> None:
+        """Send the process the jobs ``tracker`` has put out."""
+        jobs = tracker.cut_jobs
+        while jobs:
+            job = jobs.pop(0)
+            self.start()
+            if self.failed or self._out is None or not self._out.frame(Frame.FIT, pickle.dumps(job)):
+                self._fail("its input is closed")
+                tracker.take_fit(job, None)
+                continue
+            self.out.append(job)
+
+    def poll(self, tracker: Tracker) -> None:
+        """Give ``tracker`` the fits that have come back, in order."""
+        while self.out and (self.out[0].serial in self._fits or self._ended):
+            job = self.out.pop(0)
+            tracker.take_fit(job, self._take(job))
+
+    def wait(self, job: CutJob) -> CutFit | None:
+        """Return ``job``'s fit, waiting for it (the tracker's ``await_fit``)."""
+        if job in self.out:
+            self.out.remove(job)
+        with self._came:
+            self._came.wait_for(lambda: job.serial in self._fits or self._ended)
+        return self._take(job)
+
+    def finish(self, tracker: Tracker) -> None:
+        """Wait for every fit out and give them to ``tracker``."""
+        while self.out:
+            job = self.out.pop(0)
+            tracker.take_fit(job, self.wait(job))
+
+    def close(self) -> None:
+        """End the fitting process: its input closed, waited for (killed after 5 s)."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        for f in (proc.stdin,):
+            try:
+                if f is not None:
+                    f.close()
+            except OSError:
+                pass
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+    def _take(self, job: CutJob) -> CutFit | None:
+        """Return ``job``'s fit come back (None where the process ended without it)."""
+        with self._came:
+            if job.serial in self._fits:
+                return self._fits.pop(job.serial)
+        self._fail("it ended")
+        return None
+
+    def _fail(self, why: str) -> None:
+        if not self.failed:
+            self.failed = True
+            self.log(
+                "error",
+                f"tracking: the cuts' fitting process failed ({why}); the strokes keep the filter's peak",
+            )
+
+
+def serve(fd_in: int = 0, fd_out: int = 1) -> int:
+    """Serve as the fitting process (``python -m mps_ros.run.cut_fits``): see the module."""
+    die_with_parent()
+    if fd_out == 1:  # the frames keep the pipe; whatever else prints goes to stderr
+        fd_out = os.dup(1)
+        os.dup2(2, 1)
+    out = FrameWriter(fd_out)
+    widen_pipe(fd_out)
+    reader = FrameReader(fd_in)
+    frames = reader.read()
+    if not frames or frames[0][0] != Frame.SETTINGS:
+        return 2
+    try:
+        from mps_core.track.cut_fit import CutFitter
+
+        scene, settings = pickle.loads(frames[0][1])
+        fitter = CutFitter(scene, settings)
+    except Exception as exc:
+        out.frame(Frame.READY, json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
+        return 2
+    out.frame(Frame.READY, json.dumps({"ready": True, "pid": os.getpid()}).encode())
+    pending = frames[1:]
+    while True:
+        for kind, payload in pending:
+            if kind == Frame.FIT:
+                job = pickle.loads(payload)
+                out.frame(Frame.FITTED, pickle.dumps((job.serial, fitter.fit(job))))
+        pending = reader.read()
+        if not pending:
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(serve())
