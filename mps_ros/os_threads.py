@@ -29,17 +29,6 @@ def _libc():
     return ctypes, ctypes.CDLL(None, use_errno=True)
 
 
-def die_with_parent() -> None:
-    """Have SIGTERM sent to this process when the process that started it dies (Linux)."""
-    try:
-        import signal
-
-        _ctypes, libc = _libc()
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 def name_thread(name: str) -> bool:
     """Give the calling thread ``name`` (15 bytes at most) in the system's view."""
     try:

@@ -29,7 +29,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from .recording_input import (
 )
 from .settings import PREDICTIONS, SIGNAL_LATENCY, TrackSettings
 from .tracker import KEEP_INNOVATIONS, LOAD_COLUMNS, Tracker
+
+if TYPE_CHECKING:
+    from .fit_process import CutFits
 
 __all__ = ["register"]
 
@@ -137,6 +140,11 @@ def register(subparsers: Any) -> None:
     )
     t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
     t.add_argument(
+        "--no-fit-cuts",
+        action="store_true",
+        help="no stroke's cut fitted whole (its peak force the filter's; docs/tracking.md)",
+    )
+    t.add_argument(
         "--signal-latency",
         type=float,
         default=None,
@@ -213,6 +221,34 @@ def _track(args: argparse.Namespace) -> int:
     nominal = _nominal(args.scene)
     if args.against_truth is not None:
         return _against_truth(args, nominal)
+    fits = None
+    if not args.no_fit_cuts:  # on the second core, started now: it makes its model meanwhile
+        from .fit_process import CutFits
+
+        fits = CutFits(nominal, TrackSettings(), lambda level, text: print(text, file=sys.stderr))
+        fits.start()
+    try:
+        tracker, rows, cpu, monitor, recording = _follow_inputs(args, nominal, fits)
+    finally:
+        if fits is not None:
+            fits.close()
+    _write(args, tracker, rows)
+    if recording is not None:
+        from .recording import write_recording
+
+        recording.events = tracker.take_events()
+        recording.statuses = list(monitor.events)
+        recording.strokes = list(tracker.strokes.strokes)
+        n = write_recording(args.out_recording, recording)
+        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.out_recording}")
+    _summary(tracker, cpu, monitor)
+    return 0
+
+
+def _follow_inputs(args: argparse.Namespace, nominal: Any, fits: CutFits | None) -> tuple:
+    """Follow the press of ``--csv`` or ``--recording`` (its cuts fitted by ``fits`` where given);
+    return the tracker, the estimates' rows, the CPU of each measurement, the tracking status and
+    the recording gathered (None unless asked for)."""
     inputs, measurements, modes, tuning = _inputs(args)
     tracker = Tracker(nominal, _settings(args, bool(modes), tuning))
     tracker.keep_innovations = KEEP_INNOVATIONS  # a long recording: the status reads them as they come
@@ -226,18 +262,12 @@ def _track(args: argparse.Namespace) -> int:
             "measurements": str(args.csv or args.recording),
             "prediction": args.prediction,
         }
-    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording)
-    _write(args, tracker, rows)
-    if recording is not None:
-        from .recording import write_recording
-
-        recording.events = tracker.take_events()
-        recording.statuses = list(monitor.events)
-        recording.strokes = list(tracker.strokes.strokes)
-        n = write_recording(args.out_recording, recording)
-        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.out_recording}")
-    _summary(tracker, cpu, monitor)
-    return 0
+    if fits is not None:
+        fits.attach(tracker)
+    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording, fits)
+    if fits is not None:
+        fits.finish(tracker)
+    return tracker, rows, cpu, monitor, recording
 
 
 def _outs(outs: list[str]) -> tuple[str | None, str | None]:
@@ -285,10 +315,11 @@ def _follow(
     loads: bool,
     monitor: TrackingMonitor,
     recording: TrackRecording | None = None,
+    fits: CutFits | None = None,
 ) -> tuple[list[dict], np.ndarray]:
     """Run the tracker over the measurements and mode signals in their order, watched by
-    ``monitor`` (and gathered into ``recording``); return the estimates' rows and the CPU time
-    of each measurement."""
+    ``monitor`` (and gathered into ``recording``), its cuts fitted by ``fits`` where given;
+    return the estimates' rows and the CPU time of each measurement (this process's)."""
     rows: list[dict] = []
     cpu = []
     for m in inputs:
@@ -297,6 +328,9 @@ def _follow(
             continue
         c0 = time.process_time()
         taken = tracker.update(m)
+        if fits is not None:
+            fits.submit(tracker)
+            fits.poll(tracker)
         smoothed = tracker.smoothed_loads() if loads else None
         est = tracker.estimate()  # one for the stroke table, the status and the row
         tracker.observe_stroke(None if smoothed is None else smoothed[1], est)
@@ -443,7 +477,9 @@ def _settings(args: argparse.Namespace, signals: bool, tuning: Tuning | None = N
         latency = SIGNAL_LATENCY if tuning.signal_latency is None else tuning.signal_latency
     if not (math.isfinite(latency) and 0.0 <= latency <= 0.1):
         raise MeasurementError("--signal-latency", latency, "a time in [0, 0.1] s")
-    return tuning.settings(prediction=args.prediction, signal_latency=latency if signals else 0.0)
+    return tuning.settings(
+        prediction=args.prediction, signal_latency=latency if signals else 0.0, fit_cuts=not args.no_fit_cuts
+    )
 
 
 def _against_truth(args: argparse.Namespace, nominal: Any) -> int:

@@ -26,7 +26,7 @@ A crank-slider only (one coordinate: the latch closed); the fit of a cut that do
 or has too few angles, is not given (None) and the stroke keeps the filter's peak. A fit is
 made from plain values (:class:`CutJob`) on a model of its own (:class:`CutFitter`), never the
 filter's run: the same numbers in the tracker's process or in another (a node's fitting
-process, :mod:`mps_ros.run.cut_fits`).
+process, :mod:`~mps_core.track.fit_process`).
 """
 
 from __future__ import annotations

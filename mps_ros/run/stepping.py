@@ -80,7 +80,9 @@ import sys
 import threading
 import time
 
-from ..os_threads import die_with_parent, widen_pipe
+from mps_core.child_process import die_with_parent
+
+from ..os_threads import widen_pipe
 
 # -- frames -----------------------------------------------------------------------------------
 from ..wire.json_text import to_json

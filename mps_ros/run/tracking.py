@@ -44,6 +44,7 @@ from mps_core.track import (
     TrackSettings,
 )
 from mps_core.track.diagnostics import TrackingMonitor
+from mps_core.track.fit_process import CutFits
 from mps_core.track.tracker import KEEP_INNOVATIONS, LOAD_COLUMNS
 from mps_core.track.truth import nominal_scene
 
@@ -65,7 +66,6 @@ from ..wire.track_topics import (
     sigma,
 )
 from .commands import Inbox, shown
-from .cut_fits import CutFits
 from .metrics import Timings
 from .sinks import Fanout, Message
 
@@ -162,7 +162,7 @@ class TrackingRun:
     0: every estimate published however late). ``clock``: the wall clock
     the inputs' arrival and sending times are on (s). ``log(level, text)``: where rejections
     and timeouts are said. ``fit_elsewhere``: the cuts fitted in a process of their own
-    (:mod:`~mps_ros.run.cut_fits`: the node's, so that a fit holds no measurement up; the
+    (:mod:`~mps_core.track.fit_process`: the node's, so that a fit holds no measurement up; the
     strokes the same), not where the measurements are taken; :meth:`close` ends it.
     """
 

@@ -1,9 +1,9 @@
-"""The pipes to the node's child processes (the stepping, recording and fitting processes): a
+"""The pipes to the node's child processes (the stepping process, the recording process): a
 frame is one byte of kind (:class:`Frame`), the payload's length (u32), the payload.
 
 What each kind carries is said where it is written: :mod:`mps_ros.run.stepping` (the stepping
-process's frames, both ways), :class:`~mps_ros.recording.background.BackgroundRecorder` (the
-recording process's) and :mod:`mps_ros.run.cut_fits` (the cuts' fitting process's).
+process's frames, both ways) and :class:`~mps_ros.recording.background.BackgroundRecorder` (the
+recording process's).
 """
 
 from __future__ import annotations
@@ -40,9 +40,6 @@ class Frame(bytes, Enum):
     MESSAGES = b"M"
     ANSWER = b"A"
     LOG = b"L"
-    # -- to the cuts' fitting process: a cut's job (pickle); from it: its fit (pickle)
-    FIT = b"X"
-    FITTED = b"Y"
     # -- to the recording process
     CHANNEL = b"H"
     BATCH = b"B"

@@ -35,6 +35,31 @@ def test_emulate_then_track(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+def test_the_cuts_fitted_in_the_fitting_process_are_the_trackers_own(tmp_path, capsys):
+    """``mps track`` fits its cuts in a process of their own (the filter goes on meanwhile): its
+    stroke table is the one a tracker that fits them itself makes, number for number; with
+    ``--no-fit-cuts`` the peaks are the filter's."""
+    from mps_core.scene import load_scene
+    from mps_core.track import Tracker
+    from mps_core.track.truth import nominal_scene
+
+    m, strokes, plain = tmp_path / "m.csv", tmp_path / "strokes.csv", tmp_path / "plain.csv"
+    assert main(["emulate", "working", "--t-end", "0.45", "--seed", "3", "--csv", str(m)]) == 0
+    assert main(["track", "working", "--csv", str(m), "--strokes", str(strokes)]) == 0
+    assert "cuts fitted whole: 3" in capsys.readouterr().out
+    assert main(["track", "working", "--csv", str(m), "--strokes", str(plain), "--no-fit-cuts"]) == 0
+    measurements, _ = read_measurements(m, {"crank_angle": Encoder().variance})
+    tracker = Tracker(nominal_scene(load_scene("working")))
+    for x in measurements:
+        tracker.update(x)
+        tracker.observe_stroke()
+    table, unfitted = list(csv.DictReader(strokes.open())), list(csv.DictReader(plain.open()))
+    assert len(table) == len(tracker.strokes.strokes) >= 2
+    for row, off, s in zip(table, unfitted, tracker.strokes.strokes, strict=True):
+        assert float(row["peak_force_N"]) == s.peak_force and float(row["contact_m"]) == s.fit.contact
+        assert float(off["peak_force_N"]) == s.filter_peak_force and off["contact_m"] == "nan"
+
+
 def test_late_signals_emulated_and_searched_for(tmp_path, capsys):
     m, truth = tmp_path / "m.csv", tmp_path / "truth.csv"
     emulate = [

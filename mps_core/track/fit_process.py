@@ -1,39 +1,38 @@
-"""A tracking node's cuts fitted in a process of their own.
+"""Cuts fitted in a process of their own: the fitting process.
 
-A cut's fit (:mod:`mps_core.track.cut_fit`: the part's force curve from a stroke's crank angles,
-some 15–30 ms of CPU on the nominal press's model) made where the measurements are taken
-would hold every measurement behind it up by as much: a node at 1 kHz published some twenty
-estimates a stroke more than 1 ms late. So the node's tracker hands each cut's job out
-(:attr:`~mps_core.track.Tracker.defer_fits`) and :class:`CutFits` has it fitted in the fitting
-process (``python -m mps_ros.run.cut_fits``, started at the first cut or as the node prepares),
-the fit taken back at the first measurement after it comes. That process makes the same
-fitter from the same scene and settings as ``mps track`` makes in its own, so the fits are
-the same numbers; the next cut's fit begins at the last's, and the tracker waits for it where
-it has not come (a machine far behind). A stroke whose fit is out is published once it comes.
+A cut's fit (:mod:`~mps_core.track.cut_fit`: the part's force curve from a stroke's crank
+angles, some 15–30 ms of CPU on the nominal press's model) made where the measurements are
+taken holds every measurement behind it up by as much: a node at 1 kHz published some twenty
+estimates a stroke more than 1 ms late, and ``mps track`` spent as much CPU in its fits as in
+its filter. So a tracker hands each cut's job out (:attr:`~mps_core.track.Tracker.defer_fits`)
+and :class:`CutFits` has it fitted in the fitting process (``python -m
+mps_core.track.fit_process``, started at the first cut or before), the fit taken back
+(:meth:`CutFits.poll`) as it comes. That process makes the same fitter from the same scene and
+settings as a tracker makes in its own, so the fits are the same numbers; the next cut's fit
+begins at the last's, and the tracker waits for it where it has not come (a machine far
+behind). A stroke whose fit is out says so (``fit_pending``) until it comes.
 
-**Frames** (:mod:`mps_ros.wire.pipe`): to the process ``SETTINGS`` (pickle: the nominal scene
-and the tracker's settings), then ``FIT`` a job each (pickle: :class:`~mps_core.track.cut_fit.
-CutJob`); from it ``READY`` (JSON: or the error), then ``FITTED`` each job's serial and fit
-(pickle: None where it did not converge). It ends at the end of its input (or its parent's).
+**Messages** (:mod:`mps_core.child_process`: pickles): to the process the nominal scene and
+the tracker's settings, then a :class:`~mps_core.track.cut_fit.CutJob` each; from it
+``("ready", pid)`` (or ``("error", text)``), then (serial, fit) for each job (the fit None where
+it did not converge). It ends at the end of its input, or its parent's.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import pickle
 import subprocess
 import sys
 import threading
 from typing import TYPE_CHECKING, Any
 
-from ..os_threads import die_with_parent, widen_pipe
-from ..wire.pipe import Frame, FrameReader, FrameWriter
+from ..child_process import MessageReader, die_with_parent, write_message
 
 if TYPE_CHECKING:
-    from mps_core.scene import Scene
-    from mps_core.track import Tracker, TrackSettings
-    from mps_core.track.cut_fit import CutFit, CutJob
+    from ..scene import Scene
+    from .cut_fit import CutFit, CutJob
+    from .settings import TrackSettings
+    from .tracker import Tracker
 
 __all__ = ["CutFits", "serve"]
 
@@ -48,7 +47,7 @@ class CutFits:
         self.scene, self.settings = scene, settings
         self.log = log or (lambda level, text: None)
         self._proc: subprocess.Popen | None = None
-        self._out: FrameWriter | None = None
+        self._fd: int | None = None
         #: the jobs sent, in order
         self.out: list[CutJob] = []
         #: the fits come back, by their jobs' serials (the reader thread's)
@@ -61,33 +60,26 @@ class CutFits:
         """Start the fitting process (it makes its model meanwhile)."""
         if self._proc is not None or self.failed:
             return
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "mps_ros.run.cut_fits"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            bufsize=0,
-        )
+        command = [sys.executable, "-m", "mps_core.track.fit_process"]
+        self._proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         stdin, stdout = self._proc.stdin, self._proc.stdout
         assert stdin is not None and stdout is not None  # both are pipes
-        self._out = FrameWriter(stdin.fileno())
-        widen_pipe(stdin.fileno())
-        self._out.frame(Frame.SETTINGS, pickle.dumps((self.scene, self.settings)))
-        reader = FrameReader(stdout.fileno())
+        self._fd = stdin.fileno()
+        write_message(self._fd, (self.scene, self.settings))
+        reader = MessageReader(stdout.fileno())
         threading.Thread(target=self._listen, args=(reader,), name="mps-cut-fits", daemon=True).start()
 
-    def _listen(self, reader: FrameReader) -> None:
-        """Take the process's frames as they come (a thread of its own)."""
+    def _listen(self, reader: MessageReader) -> None:
+        """Take the process's messages as they come (a thread of its own)."""
         while True:
             got = reader.read()
             if not got:
                 break
-            for kind, payload in got:
-                if kind == Frame.READY:
-                    reply = json.loads(payload)
-                    if not reply.get("ready"):
-                        self._fail(reply.get("error", "it did not start"))
-                elif kind == Frame.FITTED:
-                    serial, fit = pickle.loads(payload)
+            for msg in got:
+                if msg[0] == "error":
+                    self._fail(msg[1])
+                elif msg[0] != "ready":
+                    serial, fit = msg
                     with self._came:
                         self._fits[serial] = fit
                         self._came.notify_all()
@@ -96,7 +88,15 @@ class CutFits:
             self._came.notify_all()
 
     def attach(self, tracker: Tracker) -> None:
-        """Have ``tracker`` hand its cuts' jobs out to this process and wait on it."""
+        """Have ``tracker`` hand its cuts' jobs out to this process and wait on it.
+
+        Its model must be the one this process was given: the same derivatives.
+        """
+        if tracker.settings.derivatives != self.settings.derivatives:
+            raise ValueError(
+                f"track.derivatives = {tracker.settings.derivatives!r}: expected the fitting process's "
+                f"{self.settings.derivatives!r}"
+            )
         tracker.defer_fits = True
         tracker.await_fit = self.wait
 
@@ -106,7 +106,7 @@ class CutFits:
         while jobs:
             job = jobs.pop(0)
             self.start()
-            if self.failed or self._out is None or not self._out.frame(Frame.FIT, pickle.dumps(job)):
+            if self.failed or self._fd is None or not write_message(self._fd, job):
                 self._fail("its input is closed")
                 tracker.take_fit(job, None)
                 continue
@@ -169,32 +169,28 @@ class CutFits:
 
 
 def serve(fd_in: int = 0, fd_out: int = 1) -> int:
-    """Serve as the fitting process (``python -m mps_ros.run.cut_fits``): see the module."""
+    """Serve as the fitting process (``python -m mps_core.track.fit_process``): see the module."""
     die_with_parent()
-    if fd_out == 1:  # the frames keep the pipe; whatever else prints goes to stderr
+    if fd_out == 1:  # the messages keep the pipe; whatever else prints goes to stderr
         fd_out = os.dup(1)
         os.dup2(2, 1)
-    out = FrameWriter(fd_out)
-    widen_pipe(fd_out)
-    reader = FrameReader(fd_in)
-    frames = reader.read()
-    if not frames or frames[0][0] != Frame.SETTINGS:
+    reader = MessageReader(fd_in)
+    got = reader.read()
+    if not got:
         return 2
     try:
-        from mps_core.track.cut_fit import CutFitter
+        from .cut_fit import CutFitter
 
-        scene, settings = pickle.loads(frames[0][1])
+        scene, settings = got[0]
         fitter = CutFitter(scene, settings)
     except Exception as exc:
-        out.frame(Frame.READY, json.dumps({"error": f"{type(exc).__name__}: {exc}"}).encode())
+        write_message(fd_out, ("error", f"{type(exc).__name__}: {exc}"))
         return 2
-    out.frame(Frame.READY, json.dumps({"ready": True, "pid": os.getpid()}).encode())
-    pending = frames[1:]
+    write_message(fd_out, ("ready", os.getpid()))
+    pending = got[1:]
     while True:
-        for kind, payload in pending:
-            if kind == Frame.FIT:
-                job = pickle.loads(payload)
-                out.frame(Frame.FITTED, pickle.dumps((job.serial, fitter.fit(job))))
+        for job in pending:
+            write_message(fd_out, (job.serial, fitter.fit(job)))
         pending = reader.read()
         if not pending:
             return 0
