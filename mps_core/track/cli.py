@@ -504,18 +504,21 @@ def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
     true = truth_strokes(truth)
     print(
         "stroke  peak force err (%)  (the filter's, %)  (truth's peak step average, %)  work err (%)  "
-        "peak foundation err (%)   (complete strokes)"
+        "peak foundation err (%)  (the filter's, %)   (complete strokes)"
     )
     for s in tracker.strokes.strokes:
         t = true.get(s.index)
         if t is None or not t["complete"]:
             continue
-        found = 100 * (s.peak_foundation / t["peak_foundation_N"] - 1) if args.loads else math.nan
+        found = 100 * (s.peak_foundation / t["peak_foundation_N"] - 1)
+        found_filter = math.nan
+        if args.loads:
+            found_filter = 100 * (s.filter_peak_foundation / t["peak_foundation_N"] - 1)
         resolvable = 100 * (t["peak_step_average_N"] / t["peak_force_N"] - 1)
         print(
             f"{s.index:6d}  {100 * (s.peak_force / t['peak_force_N'] - 1):+18.2f}  "
             f"{100 * (s.filter_peak_force / t['peak_force_N'] - 1):+17.1f}  {resolvable:+30.1f}  "
-            f"{100 * (s.work / t['work_J'] - 1):+12.1f}  {found:+22.1f}"
+            f"{100 * (s.work / t['work_J'] - 1):+12.1f}  {found:+22.1f}  {found_filter:+17.1f}"
         )
     if tracker.fallbacks:
         print(f"unscented prediction: {tracker.fallbacks} steps by the Jacobian", file=sys.stderr)

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..dynamics.reactions import compute_reactions
 from ..errors import MpsError
 from .nominal_model import NominalModel
 from .settings import TrackSettings
@@ -111,6 +112,9 @@ class CutFit:
     depth_sigma: float
     #: the fitted curve's work over the cut (J)
     work: float
+    #: the foundation force's largest magnitude over the fitted run (N), its 1-σ
+    peak_foundation: float
+    peak_foundation_sigma: float
     #: the load torque fitted over the cut less the filter's at its start (N·m)
     torque_offset: float
     chi2: float
@@ -149,7 +153,12 @@ class _Runner:
         self.view = model.view(start.structure, start.chart)
         self.runs = 0
 
-    def __call__(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
+    def __call__(self, p: np.ndarray, loads: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Return the angles at the samples' times, their derivatives in ``p``, what the run met.
+
+        What it met: the force's peak, the work, the lowest slider; with ``loads`` the
+        foundation force's largest magnitude and its change per newton of process force there.
+        """
         model, st = self.model, self.start
         inputs = model.inputs
         self.runs += 1
@@ -210,6 +219,8 @@ class _Runner:
                     s_v[j] = sv + h * acc
                 if f > info["peak"]:
                     info["peak"], info["t_peak"] = f, sim.t + hh
+                if loads:
+                    _foundation(model, sim, e, f, tau, unit_f, info)
                 sim.advance_to(sim.t + h)
                 x1 = float(sim.solver.current.kin.xy("C")[0])
                 if x1 < info["x_min"]:
@@ -220,6 +231,30 @@ class _Runner:
             rows[k] = s_q
             rows[k] *= float(sim.solver.current.kin.omega("crank")[0])
         return phi, rows, info
+
+
+def _foundation(
+    model: NominalModel, sim: Any, e: Any, force: float, tau: float, unit_f: float, info: dict
+) -> None:
+    """Keep the foundation force's magnitude at evaluation ``e`` where it is the largest so far.
+
+    In ``info``: ``found``, and its change per newton of process force there, ``found_per_N``
+    (the loads are affine in it, q̈ moving by ``unit_f`` a newton).
+    """
+    effects = sim.engine.effects
+    rx = compute_reactions(model.mechanism, effects, e.view, e.t, e.q, e.qd, e.qdd, kin=e.kin).values
+    fx, fy = rx["F_found_x"], rx["F_found_y"]
+    magnitude = math.hypot(fx, fy)
+    if magnitude <= info.get("found", -1.0):
+        return
+    model.inputs.set(force + 1.0, tau)
+    try:
+        qdd = np.asarray(e.qdd, dtype=float) + unit_f
+        r1 = compute_reactions(model.mechanism, effects, e.view, e.t, e.q, e.qd, qdd, kin=e.kin).values
+    finally:
+        model.inputs.set(force, tau)
+    per_n = ((r1["F_found_x"] - fx) * fx + (r1["F_found_y"] - fy) * fy) / magnitude if magnitude else 0.0
+    info["found"], info["found_per_N"], info["t_found"] = magnitude, per_n, e.t
 
 
 def _slopes(accelerations: Any, e: Any) -> tuple[float, float]:
@@ -346,6 +381,10 @@ def fit_cut(
         return None
     cov_curve = T @ cov[3:, 3:] @ T.T
     sd = np.sqrt(np.maximum(np.diag(cov_curve), 0.0))
+    try:  # the fitted run once more, its foundation force at each substep
+        loads = run(np.concatenate([p[:3], theta]), loads=True)[2]
+    except (MpsError, ArithmeticError, ValueError):
+        loads = {}
     # the peak the punch met: the curve's top, or where the slider turned inside the part
     depth_met = min(float(theta[1] - info["x_min"]) / float(theta[2]), 0.5)
     peak_scale = math.sin(math.pi * depth_met) if depth_met > 0.0 else 0.0
@@ -358,6 +397,9 @@ def fit_cut(
         depth=float(theta[2]),
         depth_sigma=float(sd[2]),
         work=float(info["work"]),
+        # the foundation's 1-σ from the peak force's: the state's own share is far smaller
+        peak_foundation=float(loads.get("found", math.nan)),
+        peak_foundation_sigma=float(abs(loads.get("found_per_N", math.nan)) * sd[0]),
         torque_offset=float(p[2] - start.torque),
         chi2=chi2,
         dof=dof,

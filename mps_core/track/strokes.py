@@ -1,9 +1,10 @@
 """The per-stroke table: each working stroke's peak process force, its work and the peak load
 on the foundation, each with its standard deviation.
 
-The peak force is the stroke's cut fitted whole where it was (:mod:`~mps_core.track.cut_fit`:
-the part's force curve, its contact and breakthrough depth with it), else the largest of the
-filter's smoothed force; the filter's largest is kept beside it.
+The peak force and the foundation's peak are the stroke's cut fitted whole where it was
+(:mod:`~mps_core.track.cut_fit`: the part's force curve, its contact and breakthrough depth
+with it; the foundation's largest over the fitted run), else the filter's largest; the
+filter's are kept beside them.
 
 A stroke runs from one top dead centre of the locked crank-slider to the next: stroke ``k`` is
 where ``floor((φ − φ_TDC)/2π) = k`` with the latch closed (φ_TDC = 0 for the press: the rocker
@@ -44,9 +45,11 @@ class StrokeEstimate:
     work_sigma: float = math.nan
     peak_foundation: float = -math.inf
     peak_foundation_sigma: float = math.nan
-    #: the largest of the filter's smoothed force, with its 1-σ and time
+    #: the largest of the filter's smoothed force, and of its foundation load, with their 1-σ
     filter_peak_force: float = -math.inf
     filter_peak_force_sigma: float = math.nan
+    filter_peak_foundation: float = -math.inf
+    filter_peak_foundation_sigma: float = math.nan
     #: the cut fitted whole (None where it was not)
     fit: CutFit | None = None
     #: whether its cut's fit is being made elsewhere and has not come back
@@ -68,6 +71,8 @@ class StrokeEstimate:
             "peak_foundation_sigma_N": self.peak_foundation_sigma,
             "filter_peak_force_N": self.filter_peak_force,
             "filter_peak_force_sigma_N": self.filter_peak_force_sigma,
+            "filter_peak_foundation_N": self.filter_peak_foundation,
+            "filter_peak_foundation_sigma_N": self.filter_peak_foundation_sigma,
             "contact_m": math.nan if fit is None else fit.contact,
             "contact_sigma_m": math.nan if fit is None else fit.contact_sigma,
             "breakthrough_depth_m": math.nan if fit is None else fit.depth,
@@ -122,8 +127,10 @@ class StrokeTable:
             s.filter_peak_force, s.filter_peak_force_sigma = force, force_sigma
             if s.fit is None:
                 s.peak_force, s.peak_force_sigma, s.t_peak_force = force, force_sigma, t
-        if foundation is not None and foundation > s.peak_foundation:
-            s.peak_foundation, s.peak_foundation_sigma = foundation, foundation_sigma
+        if foundation is not None and foundation > s.filter_peak_foundation:
+            s.filter_peak_foundation, s.filter_peak_foundation_sigma = foundation, foundation_sigma
+            if s.fit is None:
+                s.peak_foundation, s.peak_foundation_sigma = foundation, foundation_sigma
 
     def _find(self, index: int) -> StrokeEstimate | None:
         """Return the stroke ``index``: the one under way or one finished (None: neither)."""
@@ -153,6 +160,8 @@ class StrokeTable:
             return
         s.fit, s.fit_pending = fit, False
         s.peak_force, s.peak_force_sigma, s.t_peak_force = fit.peak_force, fit.peak_force_sigma, t_peak
+        if math.isfinite(fit.peak_foundation):
+            s.peak_foundation, s.peak_foundation_sigma = fit.peak_foundation, fit.peak_foundation_sigma
 
     def close(self, t: float, work: float, work_sigma: float) -> StrokeEstimate | None:
         """End the stroke under way at ``t`` with its work; return it (None if none was)."""

@@ -217,8 +217,8 @@ def test_a_bad_setting_names_its_field():
 @pytest.mark.parametrize("sigma_every", [1, 10])
 def test_each_stroke_finished_is_published_once_with_its_figures(sigma_every):
     """``~/strokes``: one JSON object a stroke at its end, the tracker's own stroke table's
-    figures; the foundation's peak where the loads are computed at every estimate only; the
-    run keeps no stroke once published."""
+    figures; the filter's foundation peak where the loads are computed at every estimate only
+    (the fitted cut's always); the run keeps no stroke once published."""
     from mps_core.track import Tracker
 
     truth = run_truth(truth_scene(nominal_scene(load_scene("working"))), 0.35, seed=4)
@@ -236,7 +236,10 @@ def test_each_stroke_finished_is_published_once_with_its_figures(sigma_every):
         assert t_ns == int(round(s.t_end * 1e9))
         for key in ("stroke", "t_end", "peak_force_N", "peak_force_sigma_N", "work_J", "work_sigma_J"):
             assert row[key] == s.row()[key], key
-        assert math.isfinite(row["peak_foundation_N"]) == (sigma_every == 1)
+        # the foundation's peak the fitted cut's; the filter's where its loads are computed at
+        # every estimate only
+        assert math.isfinite(row["peak_foundation_N"])
+        assert math.isfinite(row["filter_peak_foundation_N"]) == (sigma_every == 1)
 
 
 def test_cuts_fitted_in_a_process_of_their_own_give_the_same_strokes():
