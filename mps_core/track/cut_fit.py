@@ -157,7 +157,8 @@ class _Runner:
         """Return the angles at the samples' times, their derivatives in ``p``, what the run met.
 
         What it met: the force's peak, the work, the lowest slider; with ``loads`` the
-        foundation force's largest magnitude and its change per newton of process force there.
+        foundation force's largest magnitude inside the part and its change per newton of
+        process force there (over the whole window of `working`'s cuts the same peaks).
         """
         model, st = self.model, self.start
         inputs = model.inputs
@@ -219,7 +220,7 @@ class _Runner:
                     s_v[j] = sv + h * acc
                 if f > info["peak"]:
                     info["peak"], info["t_peak"] = f, sim.t + hh
-                if loads:
+                if loads and f:  # the foundation's peak is where the part's force is (measured)
                     _foundation(model, sim, e, f, tau, unit_f, info)
                 sim.advance_to(sim.t + h)
                 x1 = float(sim.solver.current.kin.xy("C")[0])
