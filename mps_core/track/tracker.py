@@ -1009,9 +1009,15 @@ class Tracker:
             self.take_fit(job, self.await_fit(job) if self.await_fit is not None else self._fit(job))
         self._cuts += 1
         stroke = -1 if self._stroke is None else self._stroke
+        work, work_sd = float(self.x[i]), _sd(self.P[i, i])
+        f_max, _x0, pb = self._part
         if self._part_fitted is None:  # the nominal part, scaled to the filter's work
-            job = CutJob(start, samples, self._part, float(self.x[i]), 0.0, stroke, self._cuts)
-        else:
+            job = CutJob(start, samples, self._part, work, 0.0, stroke, self._cuts)
+        elif abs(work - 2.0 * f_max * pb / math.pi) > 3.0 * work_sd:
+            # another part than the last (two in the die, none...): the last one's curve scaled
+            # to the filter's work
+            job = CutJob(start, samples, self._part, work, self._part_fitted, stroke, self._cuts)
+        else:  # the last cut's curve
             job = CutJob(start, samples, self._part, None, self._part_fitted, stroke, self._cuts)
         if self.defer_fits:
             self._pending = job

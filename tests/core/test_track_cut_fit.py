@@ -138,6 +138,19 @@ def test_fits_made_elsewhere_are_the_fits_made_here(nominal):
     assert [s.row() for s in there.strokes.strokes] == [s.row() for s in here.strokes.strokes]
 
 
+def test_a_double_blank_is_fitted_from_the_filters_work(nominal):
+    """Two parts in the die: the cut's work is twice the last's, so its search begins at the
+    last curve scaled to the filter's work (from the last curve alone it did not converge), and
+    finds the double force's peak."""
+    truth = run_truth(truth_scene(nominal), 0.45, faults=(Fault(0.2, "double-blank"),), seed=0)
+    tracker = _followed(nominal, truth)
+    true = truth_strokes(truth)
+    double = tracker.strokes.strokes[2]
+    assert tracker.cuts_unfitted == 0 and double.fit is not None
+    assert true[2]["peak_force_N"] > 1.8 * true[1]["peak_force_N"]
+    assert abs(double.peak_force / true[2]["peak_force_N"] - 1) < 0.03
+
+
 def test_a_stroke_without_its_part_is_not_fitted(nominal):
     """A part missing from the die: the filter finds no work in that cut, which is not fitted
     (its stroke keeps the filter's figures); the next cut is fitted again."""
