@@ -34,6 +34,11 @@ than the tracker's present time (``late``), not finite (``not-finite``), a crank
 (``outlier``) is rejected after the estimate is predicted to its stamp (it is not corrected).
 A gap longer than ``timeout`` is counted (``gap``) and the measurement taken.
 
+**Cuts.** Once a cut is over, its crank angles are fitted whole by the part's force curve
+(:mod:`~mps_core.track.cut_fit`), here or in the fitting process
+(:mod:`~mps_core.track.fit_process`, :attr:`Tracker.defer_fits`): the stroke's peak force and
+foundation load then the fit's. The filter's estimates are the same with and without.
+
 **Loads.** The joint reactions and the foundation load at the estimated state and inputs
 (:func:`~mps_core.dynamics.reactions.compute_reactions`), their standard deviations from the
 reactions' Jacobian in the state (forward differences) and the state's covariance.
