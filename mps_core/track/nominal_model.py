@@ -43,7 +43,7 @@ class NominalModel:
         if solver.name not in ADAPTIVE_SOLVERS and solver.step is None:
             solver = replace(solver, step=2e-3)  # a gap in the measurements: 2 ms steps at most
         self.solver = solver
-        #: the process loads the scene names: (kind, parameters)
+        #: the parameters of the process loads the scene names
         self.process_params = [dict(e.params) for e in scene.effects if e.kind in PROCESS_EFFECTS]
 
     def new_run(

@@ -231,7 +231,7 @@ class Tracker:
         #: then the last cut's fitted (None: no cut is fitted)
         self._part = part_guess(model.process_params) if self.settings.fit_cuts else None
         #: the last fit's load torque off its start's (None before a cut is fitted)
-        self._part_fitted: float | None = None
+        self._part_torque_offset: float | None = None
         #: the last state filtered just above the work window (a cut's fit starts there)
         self._cut_start: CutStart | None = None
         #: the cut under way: its start and its crank angles taken, (t, angle, variance)
@@ -1016,14 +1016,14 @@ class Tracker:
         stroke = -1 if self._stroke is None else self._stroke
         work, work_sd = float(self.x[i]), _sd(self.P[i, i])
         f_max, _x0, pb = self._part
-        if self._part_fitted is None:  # the nominal part, scaled to the filter's work
+        if self._part_torque_offset is None:  # the nominal part, scaled to the filter's work
             job = CutJob(start, samples, self._part, work, 0.0, stroke, self._cuts)
         elif abs(work - 2.0 * f_max * pb / math.pi) > 3.0 * work_sd:
             # another part than the last (two in the die, none...): the last one's curve scaled
             # to the filter's work
-            job = CutJob(start, samples, self._part, work, self._part_fitted, stroke, self._cuts)
+            job = CutJob(start, samples, self._part, work, self._part_torque_offset, stroke, self._cuts)
         else:  # the last cut's curve
-            job = CutJob(start, samples, self._part, None, self._part_fitted, stroke, self._cuts)
+            job = CutJob(start, samples, self._part, None, self._part_torque_offset, stroke, self._cuts)
         if self.defer_fits:
             self._pending = job
             self.cut_jobs.append(job)
@@ -1050,14 +1050,9 @@ class Tracker:
             self.strokes.unfitted(job.stroke)
             return True
         self.cuts_fitted += 1
-        self._part, self._part_fitted = fit.curve, fit.torque_offset
+        self._part, self._part_torque_offset = fit.curve, fit.torque_offset
         self.strokes.fitted(job.stroke, fit, fit.t_peak + self.origin)
         return True
-
-    @property
-    def fit_pending(self) -> bool:
-        """Return whether a cut's fit handed out has not come back (:attr:`defer_fits`)."""
-        return self._pending is not None
 
     # -- strokes and loads ----------------------------------------------------------------
     def _follow_strokes(self) -> None:
