@@ -112,10 +112,18 @@ def test_the_commands_of_mps_ros_are_entry_points():
 
 
 #: mps_core's layers, lowest first: a module imports (at its top or inside a function) from its
-#: own layer and the layers below only. The shared vocabulary (errors, names) is below all;
+#: own layer and the layers below only. The shared vocabulary (errors, names) and a child
+#: process's pipe are below all;
 #: ``mps_core`` itself (the public facade) is imported by the commands only.
 LAYERS = (
-    ("mps_core.errors", "mps_core.names", "mps_core.version", "mps_core.caches", "mps_core.plugins"),
+    (
+        "mps_core.errors",
+        "mps_core.names",
+        "mps_core.version",
+        "mps_core.caches",
+        "mps_core.plugins",
+        "mps_core.child_process",
+    ),
     ("mps_core.files",),
     ("mps_core.derivatives",),
     ("mps_core.solvers",),
