@@ -678,7 +678,9 @@ def test_one_node_a_name(ros, tmp_path):
     try:
         with NodeProcess(tmp_path, params, name="first") as first:
             lis.wait_for(lambda: (lis.clock() or 0.0) >= 0.2, 60, "the first node's /clock")
-            # side by side: a second of the first's name, and one of another name
+            # beside it a second of the first's name, then one of another name (one after the
+            # other: the second's discovery, 2.5 s, is not to share the machine with another
+            # node's start as well as with the first's real-time steps)
             second = subprocess.Popen(
                 mps_cmd(
                     "node", "press-cycle", "--ros-args", "-p", f"recording:={second_rec}", "-p", "t_end:=1.0"
@@ -687,6 +689,7 @@ def test_one_node_a_name(ros, tmp_path):
                 stderr=subprocess.PIPE,
                 text=True,
             )
+            second_out, second_err = second.communicate(timeout=120)
             other = subprocess.Popen(
                 mps_cmd(
                     "node",
@@ -705,7 +708,6 @@ def test_one_node_a_name(ros, tmp_path):
                 stderr=subprocess.PIPE,
                 text=True,
             )
-            second_out, second_err = second.communicate(timeout=120)
             other_out, other_err = other.communicate(timeout=120)
             assert second.returncode == 2, second_out + second_err
             err = [ln for ln in second_err.splitlines() if "error" in ln]
