@@ -11,9 +11,10 @@ from __future__ import annotations
 import os
 import pickle
 import struct
+from collections.abc import Callable
 from typing import Any
 
-__all__ = ["MessageReader", "die_with_parent", "write_message"]
+__all__ = ["MessageReader", "die_with_parent", "read_whole", "write_message"]
 
 _LENGTH = struct.Struct("<I")
 
@@ -30,6 +31,38 @@ def write_message(fd: int, obj: Any) -> bool:
     return True
 
 
+def read_whole(fd: int, buf: bytearray, split: Callable[[bytearray], list], size: int = 1 << 16) -> list:
+    """Return the whole messages ``split`` takes off the front of ``buf``.
+
+    ``fd`` is read into ``buf`` until there is one; [] once the other end closed.
+    """
+    while True:
+        got = split(buf)
+        if got:
+            return got
+        try:
+            chunk = os.read(fd, size)
+        except InterruptedError:
+            continue
+        if not chunk:
+            return []
+        buf.extend(chunk)
+
+
+def _split(buf: bytearray) -> list[Any]:
+    """Take the whole messages off the front of ``buf``, unpickled."""
+    got = []
+    pos = 0
+    while len(buf) - pos >= 4:
+        (n,) = _LENGTH.unpack_from(buf, pos)
+        if len(buf) - pos - 4 < n:
+            break
+        got.append(pickle.loads(bytes(buf[pos + 4 : pos + 4 + n])))
+        pos += 4 + n
+    del buf[:pos]
+    return got
+
+
 class MessageReader:
     """Whole messages from ``fd``: :meth:`read` waits for at least one ([] at the end)."""
 
@@ -39,26 +72,7 @@ class MessageReader:
 
     def read(self) -> list[Any]:
         """Return the messages come so far, waiting for one; [] once the other end closed."""
-        buf = self._buf
-        while True:
-            got = []
-            pos = 0
-            while len(buf) - pos >= 4:
-                (n,) = _LENGTH.unpack_from(buf, pos)
-                if len(buf) - pos - 4 < n:
-                    break
-                got.append(pickle.loads(bytes(buf[pos + 4 : pos + 4 + n])))
-                pos += 4 + n
-            del buf[:pos]
-            if got:
-                return got
-            try:
-                chunk = os.read(self.fd, 1 << 16)
-            except InterruptedError:
-                continue
-            if not chunk:
-                return []
-            buf.extend(chunk)
+        return read_whole(self.fd, self._buf, _split)
 
 
 def die_with_parent() -> None:

@@ -14,6 +14,8 @@ import struct
 import threading
 from enum import Enum
 
+from mps_core.child_process import read_whole
+
 #: a frame's head: its kind, its payload's length
 HEAD = struct.Struct("<cI")
 
@@ -100,18 +102,7 @@ class FrameReader:
 
     def read(self) -> list[tuple[bytes, bytes]]:
         """Return the whole frames come so far, waiting for one; [] at the end."""
-        buf = self._buf
-        while True:
-            got = _split(buf)
-            if got:
-                return got
-            try:
-                chunk = os.read(self.fd, 1 << 20)
-            except InterruptedError:
-                continue
-            if not chunk:
-                return []
-            buf.extend(chunk)
+        return read_whole(self.fd, self._buf, _split, 1 << 20)
 
 
 class PolledFrameReader:
