@@ -203,8 +203,8 @@ class _Runner:
                     slope_q, slope_v = _slopes(sim.engine.accelerations, e)
                 jac_x = float(kin.jac("C")[0][0])
                 a_inv = 1.0 / float(e.A[0, 0])
-                unit_f = jac_x * a_inv  # q̈ per unit force, and per unit torque
-                unit_tau = float(kin.omega("crank")[0]) * a_inv
+                unit_f = jac_x * a_inv  # q̈ per unit process force
+                unit_tau = float(kin.omega("crank")[0]) * a_inv  # and per unit load torque
                 forcing = (0.0, 0.0, unit_tau, unit_f * d_max, unit_f * d_x0, unit_f * d_pb)
                 # δq̈ = a_q·δq + a_v·δq̇ + forcing, taken at the substep's middle; a_q has the
                 # force's own change with the slider's position (∂F/∂x = −∂F/∂x₀): the part's
@@ -255,7 +255,7 @@ def _foundation(
     finally:
         model.inputs.set(force, tau)
     per_n = ((r1["F_found_x"] - fx) * fx + (r1["F_found_y"] - fy) * fy) / magnitude if magnitude else 0.0
-    info["found"], info["found_per_N"], info["t_found"] = magnitude, per_n, e.t
+    info["found"], info["found_per_N"] = magnitude, per_n
 
 
 def _slopes(accelerations: Any, e: Any) -> tuple[float, float]:
