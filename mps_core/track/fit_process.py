@@ -13,8 +13,8 @@ begins at the last's, and the tracker waits for it where it has not come (a mach
 behind). A stroke whose fit is out says so (``fit_pending``) until it comes.
 
 **Messages** (:mod:`mps_core.child_process`: pickles): to the process the nominal scene and
-the tracker's settings, then a :class:`~mps_core.track.cut_fit.CutJob` each; from it
-``("ready", pid)`` (or ``("error", text)``), then (serial, fit) for each job (the fit None where
+the tracker's settings, then (number, :class:`~mps_core.track.cut_fit.CutJob`) each; from it
+``("ready", pid)`` (or ``("error", text)``), then (number, fit) for each job (the fit None where
 it did not converge). It ends at the end of its input, or its parent's.
 """
 
@@ -48,13 +48,16 @@ class CutFits:
         self.log = log or (lambda level, text: None)
         self._proc: subprocess.Popen | None = None
         self._fd: int | None = None
-        #: the jobs sent, in order
-        self.out: list[CutJob] = []
-        #: the fits come back, by their jobs' serials (the reader thread's)
+        #: the jobs sent, in order, each with the number it was sent under (a job made again
+        #: after a late signal's search has its serial again: the numbers are this process's)
+        self.out: list[tuple[int, CutJob]] = []
+        self._sent = 0
+        #: the fits come back, by their numbers (the reader thread's)
         self._fits: dict[int, CutFit | None] = {}
         self._came = threading.Condition()
         self._ended = False  # the process's output ended
         self.failed = False
+        self._tracker: Tracker | None = None
 
     def start(self) -> None:
         """Start the fitting process (it makes its model meanwhile)."""
@@ -79,9 +82,9 @@ class CutFits:
                 if msg[0] == "error":
                     self._fail(msg[1])
                 elif msg[0] != "ready":
-                    serial, fit = msg
+                    number, fit = msg
                     with self._came:
-                        self._fits[serial] = fit
+                        self._fits[number] = fit
                         self._came.notify_all()
         with self._came:
             self._ended = True
@@ -99,6 +102,7 @@ class CutFits:
             )
         tracker.defer_fits = True
         tracker.await_fit = self.wait
+        self._tracker = tracker
 
     def submit(self, tracker: Tracker) -> None:
         """Send the process the jobs ``tracker`` has put out."""
@@ -106,30 +110,38 @@ class CutFits:
         while jobs:
             job = jobs.pop(0)
             self.start()
-            if self.failed or self._fd is None or not write_message(self._fd, job):
+            self._sent += 1
+            if self.failed or self._fd is None or not write_message(self._fd, (self._sent, job)):
                 self._fail("its input is closed")
                 tracker.take_fit(job, None)
                 continue
-            self.out.append(job)
+            self.out.append((self._sent, job))
 
     def poll(self, tracker: Tracker) -> None:
         """Give ``tracker`` the fits that have come back, in order."""
-        while self.out and (self.out[0].serial in self._fits or self._ended):
-            job = self.out.pop(0)
-            tracker.take_fit(job, self._take(job))
+        while self.out and (self.out[0][0] in self._fits or self._ended):
+            number, job = self.out.pop(0)
+            tracker.take_fit(job, self._take(number))
 
     def wait(self, job: CutJob) -> CutFit | None:
-        """Return ``job``'s fit, waiting for it (the tracker's ``await_fit``)."""
-        if job in self.out:
-            self.out.remove(job)
+        """Return ``job``'s fit, waiting for it (the tracker's ``await_fit``).
+
+        The tracker's jobs put out and not yet sent are sent first.
+        """
+        if self._tracker is not None:
+            self.submit(self._tracker)
+        number = next((n for n, j in self.out if j is job), None)
+        if number is None:
+            return None
+        self.out = [(n, j) for n, j in self.out if n != number]
         with self._came:
-            self._came.wait_for(lambda: job.serial in self._fits or self._ended)
-        return self._take(job)
+            self._came.wait_for(lambda: number in self._fits or self._ended)
+        return self._take(number)
 
     def finish(self, tracker: Tracker) -> None:
         """Wait for every fit out and give them to ``tracker``."""
         while self.out:
-            job = self.out.pop(0)
+            job = self.out[0][1]
             tracker.take_fit(job, self.wait(job))
 
     def close(self) -> None:
@@ -151,11 +163,11 @@ class CutFits:
         if proc.stdout is not None:
             proc.stdout.close()
 
-    def _take(self, job: CutJob) -> CutFit | None:
-        """Return ``job``'s fit come back (None where the process ended without it)."""
+    def _take(self, number: int) -> CutFit | None:
+        """Return the fit of the job sent under ``number`` (None where the process ended without it)."""
         with self._came:
-            if job.serial in self._fits:
-                return self._fits.pop(job.serial)
+            if number in self._fits:
+                return self._fits.pop(number)
         self._fail("it ended")
         return None
 
@@ -189,8 +201,8 @@ def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     write_message(fd_out, ("ready", os.getpid()))
     pending = got[1:]
     while True:
-        for job in pending:
-            write_message(fd_out, (job.serial, fitter.fit(job)))
+        for number, job in pending:
+            write_message(fd_out, (number, fitter.fit(job)))
         pending = reader.read()
         if not pending:
             return 0

@@ -138,6 +138,38 @@ def test_fits_made_elsewhere_are_the_fits_made_here(nominal):
     assert [s.row() for s in there.strokes.strokes] == [s.row() for s in here.strokes.strokes]
 
 
+def test_the_fitting_process_gives_each_job_its_own_fit(nominal):
+    """A job made again with its serial (a late signal's search took its cut's measurements
+    again) and the first one are both fitted by the fitting process; the tracker takes the one
+    it waits for, ignores the other, and the process ends with its input."""
+    from dataclasses import replace
+
+    from mps_core.track.fit_process import CutFits
+
+    truth = run_truth(truth_scene(nominal), 0.1, seed=7)
+    tracker = Tracker(nominal)
+    fits = CutFits(nominal, tracker.settings)
+    fits.attach(tracker)
+    try:
+        for m in truth.measurements:
+            tracker.update(m)
+            if tracker.cut_jobs:
+                break
+        (stale,) = tracker.cut_jobs
+        again = replace(stale)  # the same cut, the same serial, made again
+        tracker.cut_jobs.append(again)
+        tracker._pending = again
+        fits.submit(tracker)
+        assert [n for n, _ in fits.out] == [1, 2] and not tracker.cut_jobs
+        fits.finish(tracker)
+        assert not fits.failed and tracker.cuts_fitted == 1 and tracker.cuts_unfitted == 0
+        assert tracker.strokes.current.fit is not None and not tracker.strokes.current.fit_pending
+        proc = fits._proc
+    finally:
+        fits.close()
+    assert proc is not None and proc.returncode == 0
+
+
 def test_a_double_blank_is_fitted_from_the_filters_work(nominal):
     """Two parts in the die: the cut's work is twice the last's, so its search begins at the
     last curve scaled to the filter's work (from the last curve alone it did not converge), and
