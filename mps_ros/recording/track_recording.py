@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..wire import diagnostics
-from ..wire.cdr import Preset, encoder, generic_encoder
+from ..wire.cdr import Preset, encoder, generic_encoder, planar_wrench
 from ..wire.frames import MSGTYPE as _TF
 from ..wire.frames import TfLayout
 from ..wire.json_text import to_json
@@ -73,14 +73,6 @@ def _stamp(t: float) -> dict[str, int]:
     return {"sec": sec, "nanosec": nsec}
 
 
-def _wrench(stamp: dict[str, int], frame_id: str, fx: float, fy: float, mz: float) -> dict[str, Any]:
-    """Return a WrenchStamped message dict."""
-    return {
-        "header": {"stamp": stamp, "frame_id": frame_id},
-        "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
-    }
-
-
 class _Messages:
     """The recording's messages gathered by time, then written in time order."""
 
@@ -104,7 +96,6 @@ class _Packed:
 
     def __init__(self, tf: TfLayout) -> None:
         self._tf = Preset(generic_encoder(_TF), tf.message, tf.nfloats).pack
-        self._wrenches: dict[str, Any] = {}
         self._joints: dict[tuple[int, int, int], Any] = {}
 
     def tf(self, t: float, values: list) -> bytes:
@@ -112,15 +103,8 @@ class _Packed:
         return self._tf(*_sec_nsec(t), values)
 
     def wrench(self, t: float, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
-        """Return :func:`_wrench`'s message, encoded."""
-        pack = self._wrenches.get(frame_id)
-        if pack is None:
-
-            def make(stamp: dict, f: Any, frame_id: str = frame_id) -> dict[str, Any]:
-                return _wrench(stamp, frame_id, f[0], f[1], f[2])
-
-            pack = self._wrenches[frame_id] = Preset(encoder(_WRENCH), make, 3).pack
-        return pack(*_sec_nsec(t), (fx, fy, mz))
+        """Return a WrenchStamped's bytes at ``t`` (:func:`~mps_ros.wire.cdr.planar_wrench`)."""
+        return planar_wrench(*_sec_nsec(t), frame_id, fx, fy, mz)
 
     def joints(self, t: float, positions: Any, velocities: Any, effort: Any) -> bytes:
         """Return :func:`_joints`'s message, encoded."""

@@ -49,7 +49,7 @@ from mps_core.track.tracker import KEEP_INNOVATIONS, LOAD_COLUMNS
 from mps_core.track.truth import nominal_scene
 
 from ..wire import diagnostics
-from ..wire.cdr import Preset, msgdef, string, wrench_stamped
+from ..wire.cdr import msgdef, planar_wrench, string
 from ..wire.diagnostics import hardware_id
 from ..wire.json_text import to_json
 from ..wire.measured import measurements, ns_seconds
@@ -854,28 +854,8 @@ class TrackingRun:
 
 
 def _wrench(st: dict, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
-    """Return a WrenchStamped's bytes: force (fx, fy, 0), torque (0, 0, mz).
-
-    Its layout is kept per frame (:class:`~mps_ros.wire.cdr.Preset`: the encoder's bytes exactly).
-    """
-    pack = _WRENCHES.get(frame_id)
-    if pack is None:
-
-        def make(stamp: dict, f: list) -> dict:
-            return {
-                "header": {"stamp": stamp, "frame_id": frame_id},
-                "wrench": {
-                    "force": {"x": f[0], "y": f[1], "z": 0.0},
-                    "torque": {"x": 0.0, "y": 0.0, "z": f[2]},
-                },
-            }
-
-        pack = _WRENCHES[frame_id] = Preset(wrench_stamped, make, 3).pack
-    return pack(st["sec"], st["nanosec"], (fx, fy, mz))
-
-
-#: the WrenchStamped layouts by frame (:func:`_wrench`)
-_WRENCHES: dict[str, Any] = {}
+    """Return a WrenchStamped's bytes at stamp ``st``: force (fx, fy, 0), torque (0, 0, mz)."""
+    return planar_wrench(st["sec"], st["nanosec"], frame_id, fx, fy, mz)
 
 
 def _sigma(loads: dict[str, tuple[float, float]], column: str) -> float:

@@ -151,6 +151,31 @@ class Preset:
         self.nfloats = nfloats
 
 
+def planar_wrench(sec: int, nanosec: int, frame_id: str, fx: float, fy: float, mz: float) -> bytes:
+    """Return a WrenchStamped's bytes in ``frame_id``: force (fx, fy, 0), torque (0, 0, mz).
+
+    Its layout is kept per frame (:class:`Preset`: the encoder's bytes exactly).
+    """
+    pack = _PLANAR.get(frame_id)
+    if pack is None:
+
+        def make(stamp: dict, f: list) -> dict:
+            return {
+                "header": {"stamp": stamp, "frame_id": frame_id},
+                "wrench": {
+                    "force": {"x": f[0], "y": f[1], "z": 0.0},
+                    "torque": {"x": 0.0, "y": 0.0, "z": f[2]},
+                },
+            }
+
+        pack = _PLANAR[frame_id] = Preset(wrench_stamped, make, 3).pack
+    return pack(sec, nanosec, (fx, fy, mz))
+
+
+#: the planar wrenches' layouts by frame (:func:`planar_wrench`)
+_PLANAR: dict = {}
+
+
 # -- every other type: mcap-ros2-support's encoder, from rosbags' definitions ---------------
 _msgdefs: dict[str, str] = {}
 _encoders: dict[str, object] = {}

@@ -160,5 +160,13 @@ def test_the_packed_messages_are_the_dicts_encoded():
             assert packed.joints(t, pos, vel, eff) == encoder(tr._JOINTS)(tr._joints(stamp, pos, vel, eff))
         for frame in ("press_frame", "press_C", "press_B"):
             got = packed.wrench(t, frame, -1.5e4 * (1 + t), 2.5, 0.0 if t else -7.0)
-            want = encoder(tr._WRENCH)(tr._wrench(stamp, frame, -1.5e4 * (1 + t), 2.5, 0.0 if t else -7.0))
+            want = encoder(tr._WRENCH)(_wrench(stamp, frame, -1.5e4 * (1 + t), 2.5, 0.0 if t else -7.0))
             assert got == want
+
+
+def _wrench(stamp: dict, frame_id: str, fx: float, fy: float, mz: float) -> dict:
+    """Return a WrenchStamped message dict: force (fx, fy, 0), torque (0, 0, mz)."""
+    return {
+        "header": {"stamp": stamp, "frame_id": frame_id},
+        "wrench": {"force": {"x": fx, "y": fy, "z": 0.0}, "torque": {"x": 0.0, "y": 0.0, "z": mz}},
+    }
