@@ -1006,7 +1006,8 @@ class Tracker:
         filter finds within three of its 1-σ of none blanked no part: not fitted."""
         assert self._part is not None
         i = 2 * self.n + 2
-        if self.x[i] < 3.0 * _sd(self.P[i, i]):
+        work, work_sd = float(self.x[i]), _sd(self.P[i, i])
+        if work < 3.0 * work_sd:
             self.cuts_without_part += 1
             return
         if self._pending is not None:  # the last cut's curve is where this one's search begins
@@ -1014,7 +1015,6 @@ class Tracker:
             self.take_fit(job, self.await_fit(job) if self.await_fit is not None else self._fit(job))
         self._cuts += 1
         stroke = -1 if self._stroke is None else self._stroke
-        work, work_sd = float(self.x[i]), _sd(self.P[i, i])
         f_max, _x0, pb = self._part
         if self._part_torque_offset is None:  # the nominal part, scaled to the filter's work
             job = CutJob(start, samples, self._part, work, 0.0, stroke, self._cuts)
