@@ -20,6 +20,7 @@ it did not converge). It ends at the end of its input, or its parent's.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -149,12 +150,9 @@ class CutFits:
         proc, self._proc = self._proc, None
         if proc is None:
             return
-        for f in (proc.stdin,):
-            try:
-                if f is not None:
-                    f.close()
-            except OSError:
-                pass
+        if proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                proc.stdin.close()
         try:
             proc.wait(5)
         except subprocess.TimeoutExpired:
