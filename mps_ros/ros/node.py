@@ -479,8 +479,7 @@ def _closed(node: PressTwin) -> str | None:
             node.recorder.finish()
         except OSError as exc:
             recording_error = str(exc)
-    if node.split or node.settings.track:  # the stepping process, the cuts' fitting process
-        node._run().close()
+    node._run().close()  # what the run started beside it: a stepping or cuts' fitting process
     return recording_error
 
 
@@ -617,7 +616,7 @@ def _start(node: PressTwin) -> None:
 def _never_ran(node: PressTwin) -> int:
     """A node that ended before its run started (never activated): what was begun is undone
     (the stepping process ended, the recording discarded); its exit status."""
-    if (node.split or node.settings.track) and node.runner is not None:
+    if node.runner is not None:
         node.runner.close()
     if node.recorder is not None:
         with contextlib.suppress(OSError):
