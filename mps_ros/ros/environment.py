@@ -1,5 +1,5 @@
 """The ROS environment of a process, set once where the process starts (before rclpy starts):
-loopback-only discovery, a temporary log folder, Fast DDS with :data:`FASTDDS_PROFILE`'s writer
+loopback-only discovery, a temporary log folder, Fast DDS with :data:`FASTDDS_PROFILE`'s
 timers, each unless the environment says otherwise; and a crash in native code said where it
 happened. No rclpy here: importing it sets nothing.
 """
@@ -10,7 +10,8 @@ import faulthandler
 import os
 import tempfile
 
-#: the Fast DDS writer timers (reliable protocol only; the QoS comes from the code)
+#: the Fast DDS timers: a participant's announcements, and the reliable writers' (the QoS comes
+#: from the code)
 FASTDDS_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fastdds_profile.xml")
 
 
