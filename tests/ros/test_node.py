@@ -637,25 +637,32 @@ def test_refused_commands_services_and_loopback(ros, tmp_path, ros_domain):
         assert packets == [], f"DDS traffic off loopback: {packets[:5]}"  # ... all on lo
 
 
-def test_fastdds_profile_changes_the_writer_timers_only():
-    """The package's Fast DDS profile: the default writer profile with the heartbeat period and
-    the NACK suppression period, nothing else (every QoS policy stays the code's)."""
+def test_fastdds_profile_changes_the_timers_only():
+    """The package's Fast DDS profile: the default participant profile with its announcement
+    period, the default writer profile with the heartbeat period and the NACK suppression
+    period, nothing else (every QoS policy stays the code's, the lease its default)."""
     import xml.etree.ElementTree as ET
 
     ns_ = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     root = ET.parse(FASTDDS_PROFILE).getroot()
-    profiles = list(root)
-    assert [e.tag.split("}")[1] for e in profiles] == ["data_writer"]
-    writer = profiles[0]
-    assert writer.get("is_default_profile") == "true"
-    assert [e.tag.split("}")[1] for e in writer] == ["times"]
 
-    def seconds(name):
-        e = writer.find(f"p:times/p:{name}", ns_)
+    def tags(e):
+        return [c.tag.split("}")[1] for c in e]
+
+    assert tags(root) == ["participant", "data_writer"]
+    participant, writer = list(root)
+    assert participant.get("is_default_profile") == writer.get("is_default_profile") == "true"
+    assert tags(participant) == ["rtps"] and tags(participant[0]) == ["builtin"]
+    discovery = participant.find("p:rtps/p:builtin/p:discovery_config", ns_)
+    assert tags(participant[0][0]) == ["discovery_config"] and tags(discovery) == ["leaseAnnouncement"]
+    assert tags(writer) == ["times"]
+
+    def seconds(e):
         return int(e.find("p:sec", ns_).text) + int(e.find("p:nanosec", ns_).text) * 1e-9
 
-    assert seconds("heartbeatPeriod") == pytest.approx(0.1)
-    assert seconds("nackSupressionDuration") == pytest.approx(0.05)
+    assert seconds(discovery[0]) == pytest.approx(0.5)
+    assert seconds(writer.find("p:times/p:heartbeatPeriod", ns_)) == pytest.approx(0.1)
+    assert seconds(writer.find("p:times/p:nackSupressionDuration", ns_)) == pytest.approx(0.05)
 
 
 def test_one_node_a_name(ros, tmp_path):
