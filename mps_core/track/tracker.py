@@ -387,10 +387,9 @@ class Tracker:
         e = self.sim.solver.current
         kin = e.kin
         P = self.P
-        g_phi = np.asarray(kin.omega("crank"), dtype=float)
-        g_x = np.asarray(kin.jac("C")[0], dtype=float)
+        g_phi = kin.omega("crank")
+        g_x = kin.jac("C")[0]
         phi, phi_dot = self.sim.joint_state()[:2]
-        q, r = slice(0, n), slice(n, 2 * n)
         i = 2 * n
         lag = self.settings.force_lag
         j = lags.slot(n, lag).stop - 1 if lag else i
@@ -403,11 +402,11 @@ class Tracker:
             t=self.t,
             structure=self.sim.structure,
             phi=phi,
-            phi_sigma=_sd(g_phi @ P[q, q] @ g_phi),
+            phi_sigma=_sd(_quadratic(g_phi, P, 0)),
             phi_dot=phi_dot,
-            phi_dot_sigma=_sd(g_phi @ P[r, r] @ g_phi),
+            phi_dot_sigma=_sd(_quadratic(g_phi, P, n)),
             x_C=float(kin.xy("C")[0]),
-            x_C_sigma=_sd(g_x @ P[q, q] @ g_x),
+            x_C_sigma=_sd(_quadratic(g_x, P, 0)),
             force=float(self.x[i]),
             force_sigma=_sd(P[i, i]),
             torque=float(self.x[i + 1]),
@@ -762,43 +761,44 @@ class Tracker:
     def _jacobian(self, e: Any) -> tuple[np.ndarray, float]:
         """Return the continuous Jacobian J of (q̇, q̈, Ḟ_p, τ̇_b, Ẇ, ṡ_m) at the run's evaluation
         ``e`` (its A and analogs exact; ∂q̈/∂q, ∂q̈/∂q̇ by forward differences from its q̈),
-        and x_C there."""
+        and x_C there. On floats (n is 1 or 2: numpy's per-call cost would dominate)."""
         view, t = e.view, e.t
         n = view.n
         m = lags.core_size(n)
         J = np.zeros((m, m))
+        ql, vl = e.q.tolist(), e.qd.tolist()
+        base = e.qdd.tolist()
+        scales = view.scales
+        columns = [self._difference(view, t, ql, vl, base, i, 1e-6 * float(scales[i]), 0) for i in range(n)]
+        columns += [self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1) for i in range(n)]
         for i in range(n):
             J[i, n + i] = 1.0
-        ql, vl = e.q.tolist(), e.qd.tolist()
-        base = np.asarray(e.qdd, dtype=float)
-        for i in range(n):
-            J[n : 2 * n, i] = self._difference(view, t, ql, vl, base, i, 1e-6 * float(view.scales[i]), 0)
-            J[n : 2 * n, n + i] = self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1)
-        jx = np.asarray(e.kin.jac("C")[0], dtype=float)
+        J[n : 2 * n, : 2 * n] = np.array(columns).T
+        kin = e.kin
+        jx = kin.jac("C")[0]
         J[n : 2 * n, 2 * n : 2 * n + 2] = _per_unit_input(e)
         F = float(self.x[2 * n])
-        J[2 * n + 2, n : 2 * n] = -F * jx
-        J[2 * n + 2, 2 * n] = -float(jx @ e.qd)
-        return J, float(e.kin.xy("C")[0])
+        J[2 * n + 2, n : 2 * n] = [-F * a for a in jx]
+        J[2 * n + 2, 2 * n] = -sum(a * v for a, v in zip(jx, vl))
+        return J, float(kin.xy("C")[0])
 
     def _difference(
-        self, view: Any, t: float, ql: list, vl: list, base: np.ndarray, i: int, h: float, which: int
-    ) -> np.ndarray:
+        self, view: Any, t: float, ql: list, vl: list, base: list, i: int, h: float, which: int
+    ) -> list:
         """Return ∂q̈/∂q_i (which 0) or ∂q̈/∂q̇_i (which 1) by a forward difference of step h
-        from q̈ = ``base`` (a backward one where the step forward leaves the chart)."""
+        from q̈ = ``base`` (a backward one where the step forward leaves the chart), n floats."""
         accel = self.sim.engine.accelerations
-        plus = [list(ql), list(vl)]
-        plus[which][i] += h
-        try:
-            return (np.asarray(accel(view, t, plus[0], plus[1]), dtype=float) - base) / h
-        except (MpsError, ArithmeticError, ValueError):
-            pass
-        minus = [list(ql), list(vl)]
-        minus[which][i] -= h
-        try:
-            return (base - np.asarray(accel(view, t, minus[0], minus[1]), dtype=float)) / h
-        except (MpsError, ArithmeticError, ValueError):
-            return np.zeros(view.n)
+        for sign in (1.0, -1.0):
+            moved = list(ql if which == 0 else vl)
+            moved[i] += sign * h
+            try:
+                a = accel(view, t, moved, vl) if which == 0 else accel(view, t, ql, moved)
+            except (MpsError, ArithmeticError, ValueError):
+                continue
+            if sign > 0.0:
+                return [(x - b) / h for x, b in zip(a, base)]
+            return [(b - x) / h for x, b in zip(a, base)]
+        return [0.0] * view.n
 
     def process_noise(self, view: Any, structure: str, dt: float) -> np.ndarray:
         """Return the discrete process noise over a step of dt in a chart view and structure."""
@@ -1134,48 +1134,59 @@ class Tracker:
         q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
         saved = list(self.inputs.values)
         self.inputs.values[0] = float(force)
+        columns = []  # ∂(loads)/∂ each of q, q̇, the force, the torque
         try:
             e0 = present if present is not None else fun(t, q, qd)
             base = self._reaction_values(e0)
-            J = np.zeros((len(base), 2 * n + 2))
-            steps = np.concatenate([1e-6 * np.asarray(view.scales, float), 1e-4 * (1.0 + np.abs(qd))])
-            for j, h in enumerate(steps.tolist()):
+            zero = [0.0] * len(base)
+            scales, rates = view.scales, qd.tolist()
+            for j in range(2 * n):
                 qj, qdj = q.copy(), qd.copy()
-                (qj if j < n else qdj)[j % n] += h
+                if j < n:
+                    h = 1e-6 * float(scales[j])
+                    qj[j] += h
+                else:
+                    h = 1e-4 * (1.0 + abs(rates[j - n]))
+                    qdj[j - n] += h
                 try:
-                    J[:, j] = (self._reaction_values(fun(t, qj, qdj)) - base) / h
+                    moved = self._reaction_values(fun(t, qj, qdj))
                 except (MpsError, ArithmeticError, ValueError):
-                    pass
-            dqdd = _per_unit_input(e0)
-            qdd0 = np.asarray(e0.qdd, dtype=float)
+                    columns.append(zero)
+                    continue
+                columns.append([(a - b) / h for a, b in zip(moved, base)])
+            dqdd = _per_unit_input(e0).T.tolist()
+            qdd0 = e0.qdd.tolist()
             for k in range(2):
                 self.inputs.values[k] += 1.0
                 try:
-                    J[:, 2 * n + k] = self._reaction_values(e0, qdd0 + dqdd[:, k]) - base
+                    moved = self._reaction_values(e0, [a + d for a, d in zip(qdd0, dqdd[k])])
+                    columns.append([a - b for a, b in zip(moved, base)])
                 except (MpsError, ArithmeticError, ValueError):
-                    pass
+                    columns.append(zero)
                 self.inputs.values[k] -= 1.0
         finally:
             self.inputs.values[:] = saved
-        C = self.P[np.ix_(where, where)]
-        var = np.einsum("ij,jk,ik->i", J, C, J)
-        out = LoadEstimates((c, (float(v), _sd(s))) for c, v, s in zip(LOAD_COLUMNS, base, var))
+        J = np.array(columns).T
+        rows = np.asarray(where)
+        C = self.P[rows][:, rows]
+        var = np.einsum("ij,jk,ik->i", J, C, J).tolist()
+        out = LoadEstimates(zip(LOAD_COLUMNS, zip(base, map(_sd, var))))
         out.foundation_xy_covariance = float(J[_FOUND_X] @ C @ J[_FOUND_Y])
         return out
 
-    def _reaction_values(self, e: Any, qdd: np.ndarray | None = None) -> np.ndarray:
+    def _reaction_values(self, e: Any, qdd: list | None = None) -> list:
         """Return the reactions of :data:`LOAD_COLUMNS` at the run's evaluation ``e`` (at
-        accelerations ``qdd`` instead of its own, where given)."""
+        accelerations ``qdd`` instead of its own, where given), floats."""
         sim = self.sim
-        a = e.qdd if qdd is None else qdd
-        fast = reaction_values(
-            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), list(a), e.kin
-        )
+        a = e.qdd.tolist() if qdd is None else qdd
+        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), a, e.kin)
         if fast is not None:
             values = fast[0]
-            return np.array([values[k] for k in _LOAD_INDEX], dtype=float)
-        rx = compute_reactions(sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, a, kin=e.kin)
-        return np.array([rx.values[c] for c in LOAD_COLUMNS], dtype=float)
+            return [float(values[k]) for k in _LOAD_INDEX]
+        rx = compute_reactions(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q, e.qd, np.array(a, dtype=float), kin=e.kin
+        )
+        return [float(rx.values[c]) for c in LOAD_COLUMNS]
 
 
 @functools.cache
@@ -1202,11 +1213,11 @@ def _per_unit_input(e: Any) -> np.ndarray:
     A⁻¹·∂x_C/∂q and A⁻¹·∂φ/∂q: one solve for both (a division in a one-coordinate chart).
     """
     kin = e.kin
-    G = np.array([kin.jac("C")[0], kin.omega("crank")], dtype=float).T
-    A = np.atleast_2d(e.A)
-    if A.shape == (1, 1):
-        return G / float(A[0, 0])
-    return np.linalg.solve(A, G)
+    gx, gphi = kin.jac("C")[0], kin.omega("crank")
+    if e.view.n == 1:
+        a = float(e.A[0, 0])
+        return np.array([[gx[0] / a, gphi[0] / a]])
+    return np.linalg.solve(e.A, np.array([gx, gphi], dtype=float).T)
 
 
 def work_zone_top(scene: Scene, settings: TrackSettings) -> float:
@@ -1230,6 +1241,16 @@ def foundation_magnitude(loads: dict[str, tuple[float, float]]) -> tuple[float, 
         return 0.0, math.hypot(sx, sy)
     var = (fx * fx * sx * sx + fy * fy * sy * sy + 2.0 * fx * fy * cxy) / (f * f)
     return f, _sd(var)
+
+
+def _quadratic(g: list, P: np.ndarray, o: int) -> float:
+    """Return gᵀ·P[o:o+n, o:o+n]·g for n floats g, on floats ((gᵀ·P)·g in numpy's order)."""
+    n = len(g)
+    if n == 1:
+        return g[0] * float(P[o, o]) * g[0]
+    block = P[o : o + n, o : o + n].tolist()
+    row = [sum(g[a] * block[a][b] for a in range(n)) for b in range(n)]
+    return sum(row[b] * g[b] for b in range(n))
 
 
 def _sd(variance: float) -> float:
