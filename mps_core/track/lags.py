@@ -12,6 +12,8 @@ start again as copies of the present state, fully correlated with it.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 __all__ = ["core_size", "restart", "shifted", "slot", "step_rows"]
@@ -31,11 +33,20 @@ def slot(n: int, j: int) -> slice:
 def shifted(x: np.ndarray, n: int, lag: int) -> np.ndarray:
     """Return the slots after a step from state ``x``: its (q, q̇, F_p) in slot 1, the others
     one slot back."""
+    return x[_shifted_index(n, lag)]
+
+
+@functools.cache
+def _shifted_index(n: int, lag: int) -> np.ndarray:
+    """Return where :func:`shifted` takes each of its numbers from in the state (read-only): the
+    slots after a step are ``x[_shifted_index(n, lag)]``."""
     if lag == 0:
-        return x[:0]
-    first = np.concatenate([x[: 2 * n], x[2 * n : 2 * n + 1]])
-    rest = x[core_size(n) : core_size(n) + (lag - 1) * (2 * n + 1)]
-    return np.concatenate([first, rest])
+        out = np.zeros(0, dtype=np.intp)
+    else:
+        k = core_size(n)
+        out = np.array([*range(2 * n + 1), *range(k, k + (lag - 1) * (2 * n + 1))], dtype=np.intp)
+    out.flags.writeable = False
+    return out
 
 
 def step_rows(Phi: np.ndarray, n: int, lag: int) -> None:

@@ -725,13 +725,13 @@ class Tracker:
         J, x_C0 = self._jacobian(e0)
         Phi = self._step_map(J * dt, n)
         P = Phi @ self.P @ Phi.T + self.process_noise(view0, structure0, dt)
-        F, tau, W, s_m = self.x[2 * n : 2 * n + 4]
+        F, tau, W, s_m = self.x[2 * n : 2 * n + 4].tolist()
         lagged = lags.shifted(self.x, n, self.settings.force_lag)
         sim.advance_to(t1)
         e1 = sim.solver.current
         x_C1 = float(e1.kin.xy("C")[0])
         W = W - F * (x_C1 - x_C0)  # exact for a force constant over the step
-        x = np.concatenate([e1.q, e1.qd, [F, tau, W, s_m], lagged])
+        x = np.concatenate((e1.q, e1.qd, (F, tau, W, s_m), lagged))
         if sim.view is not view0:
             x, P = self._carry(x, P, e0, e1, structure0 != sim.structure)
         self.finish_step(t0, e0, structure0, x, P)
@@ -769,8 +769,9 @@ class Tracker:
         ql, vl = e.q.tolist(), e.qd.tolist()
         base = e.qdd.tolist()
         scales = view.scales
-        columns = [self._difference(view, t, ql, vl, base, i, 1e-6 * float(scales[i]), 0) for i in range(n)]
-        columns += [self._difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1) for i in range(n)]
+        difference = self._difference
+        columns = [difference(view, t, ql, vl, base, i, 1e-6 * float(scales[i]), 0) for i in range(n)]
+        columns += [difference(view, t, ql, vl, base, i, 1e-5 * (1.0 + abs(vl[i])), 1) for i in range(n)]
         for i in range(n):
             J[i, n + i] = 1.0
         J[n : 2 * n, : 2 * n] = np.array(columns).T
@@ -1087,15 +1088,19 @@ class Tracker:
             math.nan if sigma is None else sigma,
         )
 
-    def loads(self) -> dict[str, tuple[float, float]]:
+    def loads(self, reactions: list | None = None) -> dict[str, tuple[float, float]]:
         """Return the joint reactions and the foundation load at the present estimate: name →
-        (value, 1-σ)."""
+        (value, 1-σ). ``reactions``: those of the present estimate in ``REACTION_COLUMNS``
+        order, where the caller has solved them already (solved here otherwise)."""
         n = self.n
         i = 2 * n
         e = self.sim.solver.current
         where = list(range(2 * n)) + [i, i + 1]
         present = e if self.inputs.values[0] == float(self.x[i]) else None
-        return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present)
+        base = None
+        if present is not None and reactions is not None:
+            base = [float(reactions[k]) for k in _LOAD_INDEX]
+        return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present, base)
 
     def smoothed_loads(self) -> tuple[float, dict[str, tuple[float, float]]]:
         """Return the time ``force_lag`` steps back and the joint reactions and the foundation
@@ -1119,15 +1124,17 @@ class Tracker:
         force: float,
         where: list[int],
         present: Any = None,
+        base: list | None = None,
     ) -> dict[str, tuple[float, float]]:
         """Return the loads at (t, q, q̇) with the process force ``force`` and the present load
         torque, their 1-σ from the covariance of the state's components ``where`` (those of q,
         q̇, the force, the torque).
 
         ``present``: the run's evaluation at exactly that state and force, where the caller has
-        it (evaluated again otherwise). The loads' sensitivities to q and q̇ are forward
-        differences; to the force and the torque they are exact: the loads are affine in both
-        (q̈ moves by A⁻¹·∂x_C/∂q and A⁻¹·∂φ/∂q per unit, the kinematics stay).
+        it (evaluated again otherwise); ``base``: the loads there, where the caller has them.
+        The loads' sensitivities to q and q̇ are forward differences; to the force and the
+        torque they are exact: the loads are affine in both (q̈ moves by A⁻¹·∂x_C/∂q and
+        A⁻¹·∂φ/∂q per unit, the kinematics stay).
         """
         view, n = self.sim.view, self.n
         fun = self.sim.engine.evaluator(view)
@@ -1137,7 +1144,8 @@ class Tracker:
         columns = []  # ∂(loads)/∂ each of q, q̇, the force, the torque
         try:
             e0 = present if present is not None else fun(t, q, qd)
-            base = self._reaction_values(e0)
+            if base is None:
+                base = self._reaction_values(e0)
             zero = [0.0] * len(base)
             scales, rates = view.scales, qd.tolist()
             for j in range(2 * n):
@@ -1179,7 +1187,9 @@ class Tracker:
         accelerations ``qdd`` instead of its own, where given), floats."""
         sim = self.sim
         a = e.qdd.tolist() if qdd is None else qdd
-        fast = reaction_values(sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), a, e.kin)
+        fast = reaction_values(
+            sim.mechanism, sim.engine.effects, e.view, e.t, e.q.tolist(), e.qd.tolist(), a, e.kin
+        )
         if fast is not None:
             values = fast[0]
             return [float(values[k]) for k in _LOAD_INDEX]

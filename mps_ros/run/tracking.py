@@ -699,7 +699,7 @@ class TrackingRun:
         )
         loads = None
         if self.messages.wrenches and self.estimates % self.sigma_every == 0:
-            loads = tr.loads()
+            loads = tr.loads(step.reaction_list())  # the reactions solved for the messages above
             for w in self.messages.wrenches:
                 fx, fy = (0.0 if c is None else _sigma(loads, c) for c in w.force)
                 mz = 0.0 if w.torque is None else _sigma(loads, w.torque)
