@@ -286,7 +286,7 @@ class _Ahead:
                             lines.flush()
                             continue
                         wait += refill
-                        self.wake.wait(wait if wait < 0.05 else 0.05)
+                        self.wake.wait(wait)
                         self.wake.clear()
                         continue
                 k, msgs, c1 = runner.timed_step(deadline, clock)
