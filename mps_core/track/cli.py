@@ -441,7 +441,7 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
             print(f"tracking OK throughout ({monitor.status.message})")
         for change in monitor.events[1:] if changes else ():
             print(f"t = {change.t:.4f} s: {change.line()}")
-    print("stroke  peak force (kN)  (the filter's)      work (J)         peak foundation (kN)")
+    print("stroke  peak force (kN)  (the filter's)      work (J)         peak foundation (kN)  tracking")
     for s in tracker.strokes.strokes:
         found = "-"
         if math.isfinite(s.peak_foundation):
@@ -450,7 +450,7 @@ def _summary(tracker: Tracker, cpu: np.ndarray, monitor: TrackingMonitor | None 
         print(
             f"{s.index:6d}  {s.peak_force / 1e3:7.2f} ± {s.peak_force_sigma / 1e3:5.2f}  "
             f"({filtered if s.fit is not None else 'the same':>16})   "
-            f"{s.work:6.2f} ± {s.work_sigma:5.2f}   {found}"
+            f"{s.work:6.2f} ± {s.work_sigma:5.2f}   {found:<18}  {s.tracking}"
         )
 
 

@@ -167,7 +167,11 @@ class TrackingMonitor:
         est = estimate or tracker.estimate()
         self._torque(tracker, est.structure, est.phi, est.torque, est.torque_sigma, t)
         self._work(tracker, est.work, est.work_sigma, t)
-        return self._combine(t)
+        status = self._combine(t)
+        stroke = tracker.strokes.current
+        if stroke is not None and LEVELS.index(status.level) > LEVELS.index(stroke.tracking):
+            stroke.tracking = status.level  # the stroke under way says the worst of its statuses
+        return status
 
     # -- the tests --------------------------------------------------------------------------
     def _innovations(self, tracker: Tracker, t: float) -> None:

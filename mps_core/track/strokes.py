@@ -11,7 +11,9 @@ where ``floor((φ − φ_TDC)/2π) = k`` with the latch closed (φ_TDC = 0 for t
 locked at ψ = 0 puts O, A, B, C on the guide's axis there). The work is the filter's integrated
 state (the work the punch does on the part, −∫F_p·ẋ_C dt, whose variance the filter carries
 with its correlations), read at the stroke's end; the peaks are the largest estimates over the
-stroke, with the 1-σ of the estimate where the peak is.
+stroke, with the 1-σ of the estimate where the peak is. Each stroke says the worst tracking status of
+its measurements (``tracking``): where it is ERROR the press departed from the model during the
+stroke (a slipping clutch, a broken spring), and its figures are not the press's.
 """
 
 from __future__ import annotations
@@ -54,8 +56,11 @@ class StrokeEstimate:
     fit: CutFit | None = None
     #: whether its cut's fit is being made elsewhere and has not come back
     fit_pending: bool = False
+    #: the worst tracking status while it ran (OK, WARN, ERROR: :mod:`~mps_core.track.diagnostics`
+    #: says it at each measurement): a stroke's figures under a fault are no press's
+    tracking: str = "OK"
 
-    def row(self) -> dict[str, float]:
+    def row(self) -> dict[str, float | str]:
         """Return the stroke as a table's row (column name → value)."""
         fit = self.fit
         return {
@@ -78,6 +83,7 @@ class StrokeEstimate:
             "breakthrough_depth_m": math.nan if fit is None else fit.depth,
             "breakthrough_depth_sigma_m": math.nan if fit is None else fit.depth_sigma,
             "fit_chi2_dof": math.nan if fit is None else fit.chi2 / max(fit.dof, 1),
+            "tracking": self.tracking,
         }
 
 

@@ -120,6 +120,19 @@ def test_a_clutch_slip_is_reported_within_a_revolution():
     assert "load torque on the crank" in error.message and "slipping drive" in error.message
 
 
+def test_each_stroke_says_the_worst_status_it_ran_under():
+    """The strokes before a clutch slip say OK; the stroke it slips in says ERROR, in its row too
+    (its work is no part's: the slip's), as the status did while it ran."""
+    t_fault = 0.3
+    nominal = _working()
+    tracker = Tracker(nominal)
+    _watched(nominal, 0.45, [Fault(t_fault, "clutch-slip")], tracker=tracker)
+    strokes = tracker.strokes.strokes
+    assert [s.tracking for s in strokes if s.t_end < t_fault] == ["OK"] * 2, [s.row() for s in strokes]
+    slipped = next(s for s in strokes if s.t_start <= t_fault < s.t_end)
+    assert slipped.tracking == "ERROR" and slipped.row()["tracking"] == "ERROR"
+
+
 def test_a_broken_spring_is_reported_within_a_revolution():
     """press-cycle, latch closed: the springs' 2.5 kN gone loses the track at once."""
     t_fault = 0.25
