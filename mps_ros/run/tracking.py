@@ -65,7 +65,6 @@ from ..wire.track_topics import (
     TRACKING_BY_KEY,
     sigma,
 )
-from . import collection
 from .commands import Inbox, shown
 from .metrics import Timings
 from .sinks import Fanout, Message
@@ -235,8 +234,6 @@ class TrackingRun:
         #: passes (``gc.freeze``, a process-wide choice: the node's), as a simulating run's are
         #: (:attr:`~mps_ros.run.runner.RealtimeSettings.freeze_gc`)
         self.freeze_gc = bool(freeze_gc)
-        #: whether the interpreter's passes were on when the run took them over (None: it has not)
-        self._gc_held: bool | None = None
         self.sigma_every = sigma_every
         self.timeout = float(timeout)
         self.late_after = float(late_after)
@@ -314,8 +311,6 @@ class TrackingRun:
         if self.freeze_gc:
             gc.collect()
             gc.freeze()
-            # the young objects' passes made after each estimate is out, not inside one
-            self._gc_held = collection.hold()
 
     def warm_up(self, seconds: float = WARM_UP) -> None:
         """Take the nominal press's own first ``seconds`` in a copy of this run.
@@ -370,14 +365,9 @@ class TrackingRun:
         return taken
 
     def close(self) -> None:
-        """End what the run started beside it: the cuts' fitting process.
-
-        The garbage collector's passes go back to the interpreter."""
+        """End what the run started beside it: the cuts' fitting process."""
         if self.fits is not None:
             self.fits.close()
-        if self._gc_held is not None:
-            collection.release(self._gc_held)
-            self._gc_held = None
 
     def request_stop(self, reason: str) -> None:
         """End :meth:`run` (``reason``: why, said at the run's end)."""
@@ -482,28 +472,7 @@ class TrackingRun:
         bytes as received; ``arrival``: when it came (``clock``), ``sent``: when its publisher
         sent it (``clock``; None: ``arrival``); ``torque``: the motor's torque on the crank (N·m)
         or None. Return whether the tracker took it.
-
-        Once the run is prepared, the garbage collector's pass that is due is made after the
-        estimate is out (:mod:`~mps_ros.run.collection`): it counts in the process's CPU a
-        measurement, not in the measurement's own.
         """
-        try:
-            return self._measurement(t, angle, slider, raw, arrival, sent, torque)
-        finally:
-            if self._gc_held is not None:
-                collection.collect_due()
-
-    def _measurement(
-        self,
-        t: float,
-        angle: float | None,
-        slider: float | None,
-        raw: bytes,
-        arrival: float,
-        sent: float | None,
-        torque: float | None,
-    ) -> bool:
-        """:meth:`measurement`'s work."""
         cpu0 = time.thread_time()
         if not self._process_cpu:
             self._process_cpu = [time.process_time(), time.process_time()]
