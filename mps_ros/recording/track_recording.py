@@ -139,8 +139,12 @@ def write(path: Path, rec: TrackRecording) -> int:
         with Recorder(
             tmp, scene_name=rec.scene.name, scene_text=rec.scene.text, metadata=meta, file_name=path.name
         ) as recorder:
+            channels: dict[str, tuple[str, str]] = {}  # each key's topic and QoS, made once
             for t_ns, _order, key, msgtype, data in msgs.items:
-                recorder.write(resolve(key), msgtype, data, t_ns, qos.get(key) or qos_yaml())
+                channel = channels.get(key)
+                if channel is None:
+                    channel = channels[key] = (resolve(key), qos.get(key) or qos_yaml())
+                recorder.write(channel[0], msgtype, data, t_ns, channel[1])
             written = recorder.messages
         os.replace(tmp, path)
     finally:
