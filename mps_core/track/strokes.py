@@ -11,9 +11,9 @@ where ``floor((φ − φ_TDC)/2π) = k`` with the latch closed (φ_TDC = 0 for t
 locked at ψ = 0 puts O, A, B, C on the guide's axis there). The work is the filter's integrated
 state (the work the punch does on the part, −∫F_p·ẋ_C dt, whose variance the filter carries
 with its correlations), read at the stroke's end; the peaks are the largest estimates over the
-stroke, with the 1-σ of the estimate where the peak is. Each stroke says the worst tracking status of
-its measurements (``tracking``): where it is ERROR the press departed from the model during the
-stroke (a slipping clutch, a broken spring), and its figures are not the press's.
+stroke, with the 1-σ of the estimate where the peak is. Each stroke says the worst tracking status
+of its measurements (``tracking``): where it is ERROR the press departed from the model during
+the stroke (a slipping clutch, a broken spring), and its figures are not the press's.
 """
 
 from __future__ import annotations
