@@ -347,14 +347,15 @@ def _tables_digest(tables: Tables):
     h = hashlib.sha256()
     arrays = (tables.MT, tables.mass, tables.inertia) + (() if tables.offset is None else (tables.offset,))
     try:
-        disk_cache.encode(
-            (
-                _tables_kind(tables),
-                tuple(a.dtype.str for a in arrays),
-                tuple(tables.names.items()),
-                tuple(tables.body_index.items()),
-            ),
-            h,
+        h.update(
+            disk_cache.key_bytes(
+                (
+                    _tables_kind(tables),
+                    tuple(a.dtype.str for a in arrays),
+                    tuple(tables.names.items()),
+                    tuple(tables.body_index.items()),
+                )
+            )
         )
     except TypeError:
         return (_OWN, tables.number)

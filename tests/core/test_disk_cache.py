@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mps_core.cli import main
@@ -248,6 +249,32 @@ def test_keys_are_written_out_exactly_or_not_stored(tmp_path):
     assert store.entry("k", (1, object())) is None  # a process's own value: not stored
     assert store.entry("k", (1, 2)).digest == store.entry("k", (1, 2)).digest
     assert store.entry("k", 1).digest != store.entry("j", 1).digest
+    # numpy's scalars are their values; an array, a dict, a set are not written (marshal would
+    # write an array as its raw bytes, a set in the process's own order)
+    plain = store.entry("k", (1, 2.5, True, ("x",))).digest
+    assert store.entry("k", (np.int64(1), np.float64(2.5), np.bool_(True), ("x",))).digest == plain
+    for refused in (np.array([1.0]), {1: 2}, {1, 2}, 1 + 2j, bytearray(b"1")):
+        assert store.entry("k", (1, refused)) is None, refused
+
+
+def test_a_key_has_one_digest_in_every_process(tmp_path):
+    """The digest is the key's, not the process's: strings interned or not, another hash seed."""
+    key = ("view", ("phi", "psi"), 1.5, -0.0, None, [True, 3], "é" * 3)
+    here = KernelStore(tmp_path).entry("k", key).digest
+    script = (
+        "import sys; from mps_core.codegen.disk_cache import KernelStore; "
+        "key = ('view', ('ph' + 'i', sys.intern('psi')), 1.5, -0.0, None, [True, 3], 'é' * 3); "
+        "print(KernelStore(sys.argv[1]).entry('k', key).digest)"
+    )
+    for seed in ("0", "1"):
+        out = subprocess.run(
+            [sys.executable, "-c", script, str(tmp_path)],
+            env={**os.environ, "PYTHONHASHSEED": seed},
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        assert out.stdout.strip() == here
 
 
 def test_the_folder_is_kept_under_its_bound(tmp_path):
