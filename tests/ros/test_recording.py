@@ -578,3 +578,42 @@ def test_a_recorder_used_with_with_finishes_the_file_also_on_an_error(tmp_path, 
             raise RuntimeError("the caller's own error")
     back = read_all(path)  # finished: it reads back without recovery
     assert [t for t, _m, _raw in back["/clock"]][-1] == 50_000_000
+
+
+def test_message_definitions_are_kept_in_the_disk_cache_as_rosbags_makes_them(monkeypatch, tmp_path):
+    """A definition is rosbags' text, kept for the next process; an entry that is not valid is
+    made again from rosbags, never used."""
+    import subprocess
+    import sys
+
+    from rosbags.typesys import Stores, get_typestore
+
+    from mps_core.codegen import disk_cache
+    from mps_ros.wire import cdr
+
+    monkeypatch.setenv("MPS_CACHE_DIR", str(tmp_path))
+    script = (
+        "import json; from mps_core.codegen import disk_cache; from mps_ros.wire import cdr; "
+        "texts = [cdr.msgdef(t) for t in ('tf2_msgs/msg/TFMessage', 'sensor_msgs/msg/JointState')]; "
+        "print(json.dumps([texts, disk_cache.COUNTS]))"
+    )
+
+    def fresh():
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+        return json.loads(out.stdout)
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    truth = [
+        ts.generate_msgdef(t, ros_version=2)[0]
+        for t in ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/JointState")
+    ]
+    texts, counts = fresh()
+    assert texts == truth and counts["written"] == 2 and counts["read"] == 0
+    texts, counts = fresh()
+    assert texts == truth and counts["read"] == 2 and counts["written"] == 0
+    entry = disk_cache.entry("ros2msg definition", ("tf2_msgs/msg/TFMessage", cdr._rosbags_files()))
+    assert entry is not None and entry.path.exists()
+    data = entry.path.read_bytes()
+    entry.path.write_bytes(data.replace(b"geometry_msgs/Transform", b"geometry_msgs/Transfxrm"))
+    texts, counts = fresh()
+    assert texts == truth and counts["rejected"] == 1 and counts["written"] == 1 and counts["read"] == 1
