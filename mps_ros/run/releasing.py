@@ -21,6 +21,13 @@ from .commands import Command, Gate
 from .publication import Publication
 from .sinks import Fanout
 
+#: as fast as possible, the node tells the stepping process of its releases (frame
+#: ``RELEASED``) every this many steps, fewer than the steps it may compute ahead
+#: (``_Ahead.AHEAD`` of :mod:`mps_ros.run.stepping`): each frame wakes that process's reading
+#: thread, which takes the interpreter from the stepping thread (told at every release, the
+#: stepping process took about 7 % more CPU a step)
+TOLD_EVERY = 64
+
 
 class ForwardingInbox:
     """The node's inbox in a split run: each command is taken at once (:meth:`put`)."""
@@ -229,7 +236,7 @@ class SteppingProcess:
             # a run stopped early lets go of what it holds at once
             flush = end is not None and (end.get("stop_reason") or end.get("error"))
             self._release_due(now, flush, clock)
-            if self.afap and self.held.released is not None and self.held.released.k != told:
+            if self.afap and self.held.released is not None and self.held.released.k - told >= TOLD_EVERY:
                 # the stepping process steps on up to _Ahead.AHEAD past it
                 told = self.held.released.k
                 out.frame(Frame.RELEASED, marshal.dumps(told))

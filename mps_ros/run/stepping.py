@@ -169,8 +169,9 @@ class _Ahead:
     checkpoint at or before it and stepping again to it, or stepping on to it).
 
     ``afap`` (as fast as possible): no deadlines; the twin steps on while it is fewer than
-    :attr:`AHEAD` steps past the last step the node has released (frame ``RELEASED``), the steps
-    written :attr:`BATCH` at a time, the checkpoints kept as far back as the node may hold."""
+    :attr:`AHEAD` steps past the last step the node has told it it released (frame
+    ``RELEASED``, every :data:`~mps_ros.run.releasing.TOLD_EVERY` steps), the steps written
+    :attr:`BATCH` at a time, the checkpoints kept as far back as the node may hold."""
 
     #: steps written at once at most; a step due within this (wall s) goes at once
     BATCH, NEAR = 16, 0.002

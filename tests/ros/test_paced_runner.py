@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import struct
 import threading
 import time
 
@@ -521,6 +522,34 @@ def test_as_fast_as_possible_in_a_stepping_process_each_command_at_the_last_step
     done.got = list(rec.got)
     schedule = [(round(a["t"] * 1e9), a["command"]) for a in acks]
     assert _comparable(done) == _afap_with(schedule, fresh=True)
+
+
+def test_as_fast_as_possible_steps_on_past_what_it_may_compute_ahead():
+    """A run as fast as possible longer than the steps its stepping process may compute past the
+    last step released: told of the releases now and then (``TOLD_EVERY``, fewer than
+    ``_Ahead.AHEAD``), it steps on to the end, every step released once, in order."""
+    from mps_ros.run.releasing import TOLD_EVERY, SteppingProcess
+    from mps_ros.run.stepping import _Ahead
+
+    assert 0 < TOLD_EVERY < _Ahead.AHEAD
+    n = 3 * _Ahead.AHEAD + 7
+    tw = Twin("press-cycle", dt=DT, t_end=n * DT, scene_commands=False)
+    live = _Publishers(lambda t_ns: None)
+    spec = {
+        "scene": "press-cycle",
+        "twin": dict(dt=DT, t_end=n * DT, scene_commands=False, outputs=["joint_states", "clock"]),
+        "runner": dict(warm_up=0.0),
+        "grid": [tw.t0, tw.t_end, tw.n],
+        "afap": True,
+    }
+    runner = SteppingProcess(spec, live, lambda *a: None, Gate(), 0)
+    try:
+        st = runner.run()
+    finally:
+        runner.close()
+    assert runner.error is None and st["steps"] == n
+    clocks = [struct.unpack_from("<iI", d, 4) for k, d in live.got if k == "/clock"]
+    assert [round((sec + ns * 1e-9) / DT) for sec, ns in clocks] == list(range(n + 1))
 
 
 def _afap_with(schedule: list, fresh: bool) -> list:
