@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -33,6 +34,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
+from ..errors import Interrupted
 from .diagnostics import TrackingMonitor
 from .measurements import Measurement, MeasurementError, ModeSignal, TorqueSensor
 from .recording import TrackRecording
@@ -227,29 +229,87 @@ def _track(args: argparse.Namespace) -> int:
 
         fits = CutFits(nominal, TrackSettings(), lambda level, text: print(text, file=sys.stderr))
         fits.start()
-    try:
-        tracker, rows, cpu, monitor, recording = _follow_inputs(args, nominal, fits)
-    finally:
-        if fits is not None:
-            fits.close()
-    _write(args, tracker, rows)
-    if recording is not None:
-        from .recording import write_recording
+    with _Stop() as stop:  # through the writing too: a first signal there lets it finish
+        try:
+            tracker, rows, cpu, monitor, recording = _follow_inputs(args, nominal, fits, stop)
+        finally:
+            if fits is not None:
+                fits.close()
+        partial = where = None
+        if stop.signal is not None and len(cpu) < stop.total:
+            reached = f"t = {tracker.t:.6g} s" if tracker.started else "the first measurement"
+            where = f"followed to {reached}, {len(cpu)} of {stop.total} measurements"
+            partial = f"{where}: interrupted ({stop.signal})"
+        written = _write(args, tracker, rows, partial)
+        if recording is not None:
+            from .recording import write_recording
 
-        recording.events = tracker.take_events()
-        recording.statuses = list(monitor.events)
-        recording.strokes = list(tracker.strokes.strokes)
-        n = write_recording(args.out_recording, recording)
-        print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.out_recording}")
-    _summary(tracker, cpu, monitor)
+            recording.events = tracker.take_events()
+            recording.statuses = list(monitor.events)
+            recording.strokes = list(tracker.strokes.strokes)
+            if partial is not None:
+                recording.metadata["partial"] = partial
+            n = write_recording(args.out_recording, recording)
+            print(f"wrote {n} messages ({len(recording.steps)} estimates) to {args.out_recording}")
+            written.append(str(args.out_recording))
+        _summary(tracker, cpu, monitor)
+    if stop.signal is not None:
+        files = ", ".join(written)
+        if partial is None:
+            kept = (
+                f"{files or 'nothing asked to be written'}: whole, the signal came after the last measurement"
+            )
+        else:
+            kept = (
+                f"{files} written, marked partial ({where})"
+                if files
+                else f"nothing asked to be written ({where})"
+            )
+        raise Interrupted(stop.signal, kept)
     return 0
 
 
-def _follow_inputs(args: argparse.Namespace, nominal: Any, fits: CutFits | None) -> tuple:
-    """Follow the press of ``--csv`` or ``--recording`` (its cuts fitted by ``fits`` where given);
-    return the tracker, the estimates' rows, the CPU of each measurement, the tracking status and
-    the recording gathered (None unless asked for)."""
+class _Stop:
+    """Ctrl-C (SIGINT) or SIGTERM while ``mps track`` follows its measurements or writes what it
+    followed: the first stops the following before the next measurement (what was followed is
+    written, marked partial) and lets the writing finish; a second ends the command at once (an
+    output not finished is not written). A signal ignored where the command started (a
+    background job's SIGINT) stays ignored."""
+
+    def __init__(self) -> None:
+        #: the first signal's name, once one came
+        self.signal: str | None = None
+        #: the measurements there were to follow
+        self.total = 0
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _Stop:
+        for s in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(s) is not signal.SIG_IGN:
+                self._old[s] = signal.signal(s, self._on)
+        return self
+
+    def _on(self, signum: int, _frame: object) -> None:
+        name = signal.Signals(signum).name
+        if self.signal is not None:
+            raise Interrupted(name)
+        self.signal = name
+
+    def __exit__(self, *exc: object) -> None:
+        for s, handler in self._old.items():
+            signal.signal(s, handler)
+
+
+def _follow_inputs(
+    args: argparse.Namespace, nominal: Any, fits: CutFits | None, stop: _Stop | None = None
+) -> tuple:
+    """Follow the press of ``--csv`` or ``--recording`` (its cuts fitted by ``fits`` where given;
+    stopped by ``stop``'s signal where one comes); return the tracker, the estimates' rows, the
+    CPU of each measurement, the tracking status and the recording gathered (None unless asked
+    for)."""
     inputs, measurements, modes, tuning = _inputs(args)
+    if stop is not None:
+        stop.total = len(measurements)
     tracker = Tracker(nominal, _settings(args, bool(modes), tuning))
     tracker.keep_innovations = KEEP_INNOVATIONS  # a long recording: the status reads them as they come
     args.loads = args.loads or args.out_recording is not None
@@ -264,7 +324,12 @@ def _follow_inputs(args: argparse.Namespace, nominal: Any, fits: CutFits | None)
         }
     if fits is not None:
         fits.attach(tracker)
-    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording, fits)
+    span = f", {measurements[-1].t - measurements[0].t:.6g} s of the press" if measurements else ""
+    print(
+        f"following {len(measurements)} measurements{span} (Ctrl-C: stop, and write what was followed)",
+        file=sys.stderr,
+    )
+    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording, fits, stop)
     if fits is not None:
         fits.finish(tracker)
     return tracker, rows, cpu, monitor, recording
@@ -316,13 +381,23 @@ def _follow(
     monitor: TrackingMonitor,
     recording: TrackRecording | None = None,
     fits: CutFits | None = None,
+    stop: _Stop | None = None,
 ) -> tuple[list[dict], np.ndarray]:
     """Run the tracker over the measurements and mode signals in their order, watched by
-    ``monitor`` (and gathered into ``recording``), its cuts fitted by ``fits`` where given;
-    return the estimates' rows and the CPU time of each measurement (this process's)."""
+    ``monitor`` (and gathered into ``recording``), its cuts fitted by ``fits`` where given, up
+    to the end or to ``stop``'s signal; return the estimates' rows and the CPU time of each
+    measurement taken (this process's)."""
+    from ..run.progress import Progress
+
+    inputs = list(inputs)
+    times = [m.t for m in inputs]
+    progress = Progress(min(times, default=0.0), max(times, default=0.0), label="mps track")
     rows: list[dict] = []
     cpu = []
     for m in inputs:
+        if stop is not None and stop.signal is not None:
+            break
+        progress(m.t)
         if isinstance(m, ModeSignal):
             tracker.mode(m)
             continue
@@ -348,25 +423,37 @@ def _follow(
             rows.append(row)
             if recording is not None:
                 recording.add(tracker, {k: v for k, v in row.items() if isinstance(v, float)}, status)
+    progress.done()
     return rows, np.asarray(cpu)
 
 
-def _write(args: argparse.Namespace, tracker: Tracker, rows: list[dict]) -> None:
-    """Write the estimates (``--out``) and the per-stroke table (``--strokes``)."""
+def _write(
+    args: argparse.Namespace, tracker: Tracker, rows: list[dict], partial: str | None = None
+) -> list[str]:
+    """Write the estimates (``--out``) and the per-stroke table (``--strokes``); return the files
+    written. ``partial``: the following stopped short (why and where), said in each file's last
+    line (``# partial: ...``, as ``mps run`` marks its CSV)."""
     from ..files.outputs import written_whole
 
+    written = []
+    note = "" if partial is None else f"# partial: {partial}\n"
     if args.out:
         columns = [*ESTIMATE_COLUMNS, "tracking"]
         if args.loads:
             columns += ["t_loads"] + [c + s for c in LOAD_COLUMNS for s in ("", "_sigma")]
         with written_whole(args.out) as tmp, tmp.open("w") as fh:
             _table(fh, columns, rows)
+            fh.write(note)
         print(f"wrote {len(rows)} estimates to {args.out}")
+        written.append(str(args.out))
     if args.strokes:
         strokes = [s.row() for s in tracker.strokes.strokes]
         with written_whole(args.strokes) as tmp, tmp.open("w") as fh:
             _table(fh, list(strokes[0]) if strokes else ["stroke"], strokes)
+            fh.write(note)
         print(f"wrote {len(strokes)} strokes to {args.strokes}")
+        written.append(str(args.strokes))
+    return written
 
 
 def _table(fh: TextIO, columns: list[str], rows: list[dict]) -> None:

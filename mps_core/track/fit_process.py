@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -181,6 +182,9 @@ class CutFits:
 def serve(fd_in: int = 0, fd_out: int = 1) -> int:
     """Serve as the fitting process (``python -m mps_core.track.fit_process``): see the module."""
     die_with_parent()
+    # Ctrl-C reaches a terminal's whole process group: the process that started this one
+    # decides, and ends it by closing its input (after the fits it waits for)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if fd_out == 1:  # the messages keep the pipe; whatever else prints goes to stderr
         fd_out = os.dup(1)
         os.dup2(2, 1)

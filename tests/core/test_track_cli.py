@@ -4,6 +4,10 @@ estimates and the per-stroke table written, a malformed file named."""
 from __future__ import annotations
 
 import csv
+import re
+import signal
+import subprocess
+import sys
 
 import pytest
 
@@ -97,3 +101,52 @@ def test_a_malformed_measurements_file_is_named(tmp_path, capsys):
     bad.write_text("t,crank_angle_rad\n0.001,half\n")
     assert main(["track", "working", "--csv", str(bad)]) == 2
     assert ":2: crank_angle_rad = 'half': expected a number" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def four_seconds(tmp_path_factory):
+    """Four seconds of ``working``'s encoder (a few seconds to follow with a recording)."""
+    m = tmp_path_factory.mktemp("track") / "m.csv"
+    assert main(["emulate", "working", "--t-end", "4", "--seed", "3", "--csv", str(m)]) == 0
+    return m
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_mps_track_interrupted_writes_what_it_followed_marked_partial(tmp_path, four_seconds, sig):
+    """A signal once ``mps track`` says it is following: it stops before the next measurement,
+    writes its estimates, strokes and recording with what it followed, each marked partial
+    (the CSVs' last line, the recording's metadata), says so in one line and exits 128 + the
+    signal; the recording is whole (its summary read back)."""
+    from mcap.reader import make_reader
+
+    est, strokes, rec = tmp_path / "est.csv", tmp_path / "strokes.csv", tmp_path / "rec.mcap"
+    cmd = [sys.executable, "-m", "mps_core.cli", "track", "working", "--csv", str(four_seconds)]
+    cmd += ["--out", str(est), "--out", str(rec), "--strokes", str(strokes)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stderr.readline()  # said before the first measurement is taken
+        assert first.startswith("following 3999 measurements"), first
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    name = signal.Signals(sig).name
+    assert proc.returncode == 128 + sig, (out, err)
+    assert "Traceback" not in err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith(
+        f"mps track: interrupted ({name}): {est}, {strokes}, {rec} written, marked partial"
+    )
+    followed = re.search(r"\((followed to .*, (\d+) of 3999 measurements)\)$", line)
+    assert followed, line
+    taken = int(followed.group(2))
+    assert taken < 3999
+    partial = f"# partial: {followed.group(1)}: interrupted ({name})"
+    rows = est.read_text().splitlines()
+    assert rows[-1] == partial and len(rows) - 2 <= taken
+    assert strokes.read_text().splitlines()[-1] == partial
+    with rec.open("rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert meta["mps"]["partial"] == partial[len("# partial: ") :]
