@@ -191,22 +191,57 @@ def _emulate(args: argparse.Namespace) -> int:
         raise MeasurementError("--signals-late", args.signals_late, "a time in [0, 1] s")
     nominal = _nominal(args.scene)
     sensors = Sensors(slider=args.slider, motor_torque=args.motor_torque)
-    run = run_truth(
-        truth_scene(nominal), args.t_end, sensors=sensors, faults=_faults(args.fault), seed=args.seed
-    )
-    modes = [ModeSignal(m.t + args.signals_late, m.command) for m in run.modes]
-    with written_whole(args.csv) as tmp, tmp.open("w") as fh:
-        rows = write_measurements(fh, run.measurements, modes)
-    said = f"{len(run.measurements)} measurements, {len(run.modes)} mode signals"
-    print(f"wrote {rows} rows ({said}) to {args.csv}")
-    if args.truth:
-        with written_whole(args.truth) as tmp, tmp.open("w") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
-            columns = (run.t, run.phi, run.phi_dot, run.x_C, run.force, run.foundation_x, run.foundation_y)
-            for *row, locked in zip(*columns, run.locked):
-                w.writerow([repr(float(v)) for v in row] + [str(int(locked))])
-        print(f"wrote {len(run.t)} rows of the truth to {args.truth}")
+    from ..run.progress import Progress
+
+    progress = Progress(0.0, args.t_end, label="mps emulate")
+    with _Stop() as stop:  # a first signal ends the emulation where it is: what it made is written
+        print(
+            f"emulating {args.t_end:.6g} s of {args.scene}'s truth (Ctrl-C: stop, and write what was made)",
+            file=sys.stderr,
+        )
+        try:
+            run = run_truth(
+                truth_scene(nominal),
+                args.t_end,
+                sensors=sensors,
+                faults=_faults(args.fault),
+                seed=args.seed,
+                progress=progress,
+                stop=lambda: stop.signal is not None,
+            )
+        finally:
+            progress.done()
+        modes = [ModeSignal(m.t + args.signals_late, m.command) for m in run.modes]
+        written = []
+        with written_whole(args.csv) as tmp, tmp.open("w") as fh:
+            rows = write_measurements(fh, run.measurements, modes)
+        said = f"{len(run.measurements)} measurements, {len(run.modes)} mode signals"
+        print(f"wrote {rows} rows ({said}) to {args.csv}")
+        written.append(str(args.csv))
+        if args.truth:
+            with written_whole(args.truth) as tmp, tmp.open("w") as fh:
+                w = csv.writer(fh, lineterminator="\n")
+                w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
+                columns = (
+                    run.t,
+                    run.phi,
+                    run.phi_dot,
+                    run.x_C,
+                    run.force,
+                    run.foundation_x,
+                    run.foundation_y,
+                )
+                for *row, locked in zip(*columns, run.locked):
+                    w.writerow([repr(float(v)) for v in row] + [str(int(locked))])
+            print(f"wrote {len(run.t)} rows of the truth to {args.truth}")
+            written.append(str(args.truth))
+    if stop.signal is not None:
+        reached = float(run.t[-1])
+        short = reached < args.t_end - 1e-9
+        kept = f"{', '.join(written)} written, " + (
+            f"the emulation to t = {reached:.6g} s of {args.t_end:.6g}" if short else "the emulation whole"
+        )
+        raise Interrupted(stop.signal, kept)
     return 0
 
 

@@ -19,6 +19,7 @@ the punch has gone through where the part would be: the next cut blanks nothing)
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -249,8 +250,13 @@ def run_truth(
     faults: tuple[Fault, ...] = (),
     fine_dt: float = 5e-5,
     seed: int = 0,
+    progress: Callable[[float], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> TruthRun:
-    """Run the truth scene to ``t_end`` on a fine grid and sample its sensors."""
+    """Run the truth scene to ``t_end`` on a fine grid and sample its sensors.
+
+    ``progress(t)`` is called as it goes; where ``stop()`` turns true it ends there (the truth,
+    the measurements and the mode signals up to the time reached)."""
     sensors = sensors or Sensors()
     rng = np.random.default_rng(seed)
     mech = truth.mechanism()
@@ -280,7 +286,13 @@ def run_truth(
     rows: list[tuple] = [_truth_row(sim, blanking)]
     out: list[Measurement] = []
     enc = sensors.encoder
+    stopped = False
     for t, sampled in zip(times.tolist(), is_sample.tolist()):
+        if stop is not None and stop():
+            stopped = True
+            break
+        if progress is not None:
+            progress(t)
         while pending and pending[0][0] <= t:
             t_fault, action = pending.pop(0)
             if t_fault > sim.t:
@@ -300,7 +312,11 @@ def run_truth(
         if sampled:
             out.extend(_read(sensors, enc, row, rng, sim))
     cols = np.array([r[:7] for r in rows], dtype=float)
-    modes = [ModeSignal(float(c_t), c) for c_t, c in truth.commands if c in ("engage", "disengage")]
+    modes = [
+        ModeSignal(float(c_t), c)
+        for c_t, c in truth.commands
+        if c in ("engage", "disengage") and not (stopped and c_t > rows[-1][0])
+    ]
     return TruthRun(
         t=cols[:, 0],
         phi=cols[:, 1],

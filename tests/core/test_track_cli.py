@@ -150,3 +150,33 @@ def test_mps_track_interrupted_writes_what_it_followed_marked_partial(tmp_path, 
         assert reader.get_summary() is not None
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert meta["mps"]["partial"] == partial[len("# partial: ") :]
+
+
+def test_mps_emulate_interrupted_writes_the_press_it_emulated(tmp_path):
+    """A signal once ``mps emulate`` says it is emulating: it ends the emulation where it is and
+    writes its measurements and truth to there, files a tracker reads, says so in one line and
+    exits 128 + the signal."""
+    m, truth = tmp_path / "m.csv", tmp_path / "truth.csv"
+    cmd = [sys.executable, "-m", "mps_core.cli", "emulate", "working", "--t-end", "60"]
+    cmd += ["--csv", str(m), "--truth", str(truth)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stderr.readline()  # said before the truth's first step
+        assert first.startswith("emulating 60 s of working's truth"), first
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, (out, err)
+    line = err.strip().splitlines()[-1]
+    reached = re.fullmatch(
+        rf"mps emulate: interrupted \(SIGTERM\): {m}, {truth} written, the emulation to t = (\S+) s of 60",
+        line,
+    )
+    assert reached, line
+    measurements, _modes = read_measurements(m, {"crank_angle": Encoder().variance})
+    assert f"wrote {len(measurements)} rows" in out
+    t_reached = float(reached.group(1))  # said to six digits
+    assert all(x.t <= t_reached * (1 + 1e-5) for x in measurements)
+    rows = list(csv.DictReader(truth.open()))
+    assert rows and float(rows[-1]["t"]) == pytest.approx(t_reached, rel=1e-5)
