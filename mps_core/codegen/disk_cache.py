@@ -4,8 +4,7 @@ The generators (:mod:`mps_core.codegen`) write Python source for the chart views
 run meets and compile it; the process's memos (:mod:`mps_core.caches`) keep it for the process.
 This store keeps it for the next process: an entry holds the source text and its compiled code
 (``marshal``'s form, as a ``.pyc`` holds it), the exact kernels' parts (JSON), or a text
-another generator made (the ROS message definitions of :mod:`mps_ros.wire.cdr`), never a
-pickle. Loading an entry gives the code a generation would give: the same text, compiled the
+another package's generator made (message definitions), never a pickle. Loading an entry gives the code a generation would give: the same text, compiled the
 same.
 
 **The key.** An entry's name is the SHA-256 digest of what its content depends on: the

@@ -309,7 +309,7 @@ class _Stop:
     followed: the first stops the following before the next measurement (what was followed is
     written, marked partial) and lets the writing finish; a second ends the command at once (an
     output not finished is not written). A signal ignored where the command started (a
-    background job's SIGINT) stays ignored."""
+    background job's SIGINT) stays ignored; off the main thread nothing is taken."""
 
     def __init__(self) -> None:
         #: the first signal's name, once one came
@@ -319,6 +319,10 @@ class _Stop:
         self._old: dict[int, Any] = {}
 
     def __enter__(self) -> _Stop:
+        import threading
+
+        if threading.current_thread() is not threading.main_thread():
+            return self  # signals are the main thread's to take
         for s in (signal.SIGINT, signal.SIGTERM):
             if signal.getsignal(s) is not signal.SIG_IGN:
                 self._old[s] = signal.signal(s, self._on)

@@ -13,6 +13,7 @@ per-step message encoded and packs each step's values into it.
 
 from __future__ import annotations
 
+import functools
 import struct
 
 _HEAD = b"\x00\x01\x00\x00"  # encapsulation: CDR little endian
@@ -208,9 +209,11 @@ def msgdef(msgtype: str) -> str:
     return text
 
 
+@functools.cache
 def _rosbags_files() -> tuple:
     """What rosbags' definitions are made of: its type system's files, by name, size and time of
-    change (another rosbags, or a file changed, is another key); () where it cannot be found."""
+    change (another rosbags, or a file changed, is another key); () where it cannot be found.
+    Looked at once a process (about 1 ms)."""
     import importlib.util
     from pathlib import Path
 
