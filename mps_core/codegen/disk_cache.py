@@ -4,8 +4,8 @@ The generators (:mod:`mps_core.codegen`) write Python source for the chart views
 run meets and compile it; the process's memos (:mod:`mps_core.caches`) keep it for the process.
 This store keeps it for the next process: an entry holds the source text and its compiled code
 (``marshal``'s form, as a ``.pyc`` holds it), the exact kernels' parts (JSON), or a text
-another package's generator made (message definitions), never a pickle. Loading an entry gives the code a generation would give: the same text, compiled the
-same.
+another package's generator made (message definitions), never a pickle. Loading an entry gives
+the code a generation would give: the same text, compiled the same.
 
 **The key.** An entry's name is the SHA-256 digest of what its content depends on: the
 generator's version (:func:`generator_version`: the source files of ``mps_core/codegen`` and

@@ -60,6 +60,7 @@ class CutFits:
         self._ended = False  # the process's output ended
         self.failed = False
         self._tracker: Tracker | None = None
+        self._reader: threading.Thread | None = None
 
     def start(self) -> None:
         """Start the fitting process (it makes its model meanwhile)."""
@@ -72,7 +73,8 @@ class CutFits:
         self._fd = stdin.fileno()
         write_message(self._fd, (self.scene, self.settings))
         reader = MessageReader(stdout.fileno())
-        threading.Thread(target=self._listen, args=(reader,), name="mps-cut-fits", daemon=True).start()
+        self._reader = threading.Thread(target=self._listen, args=(reader,), name="mps-cut-fits", daemon=True)
+        self._reader.start()
 
     def _listen(self, reader: MessageReader) -> None:
         """Take the process's messages as they come (a thread of its own)."""
@@ -159,6 +161,11 @@ class CutFits:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
+        # the thread that reads it has read to its end before the pipe is closed: never a read of
+        # a closed (or reused) descriptor, never a thread still running as the interpreter ends
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            reader.join(10)
         if proc.stdout is not None:
             proc.stdout.close()
 
