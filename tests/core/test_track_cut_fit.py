@@ -170,6 +170,36 @@ def test_the_fitting_process_gives_each_job_its_own_fit(nominal):
     assert proc is not None and proc.returncode == 0
 
 
+def test_the_fitting_process_outlives_ctrl_c(nominal):
+    """Ctrl-C reaches a terminal's whole process group: the fitting process takes no notice (the
+    process that started it decides, and ends it with its input), so the cuts sent after it are
+    still fitted."""
+    import os
+    import signal
+
+    from mps_core.track.fit_process import CutFits
+
+    truth = run_truth(truth_scene(nominal), 0.3, seed=7)
+    tracker = Tracker(nominal)
+    fits = CutFits(nominal, tracker.settings)
+    fits.attach(tracker)
+    try:
+        for m in truth.measurements:
+            tracker.update(m)
+            fits.submit(tracker)
+            if fits.out and tracker.cuts_fitted == 0:
+                fits.finish(tracker)  # the first cut fitted: the process is past its start
+                assert tracker.cuts_fitted == 1
+                os.kill(fits._proc.pid, signal.SIGINT)
+            fits.poll(tracker)
+        fits.finish(tracker)
+        assert not fits.failed and tracker.cuts_unfitted == 0 and tracker.cuts_fitted >= 2
+        proc = fits._proc
+    finally:
+        fits.close()
+    assert proc is not None and proc.returncode == 0
+
+
 def test_a_double_blank_is_fitted_from_the_filters_work(nominal):
     """Two parts in the die: the cut's work is twice the last's, so its search begins at the
     last curve scaled to the filter's work (from the last curve alone it did not converge), and
