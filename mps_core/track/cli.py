@@ -610,11 +610,18 @@ def _settings(args: argparse.Namespace, signals: bool, tuning: Tuning | None = N
 
 def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
     """Emulate the truth, follow it, and print how the estimates compare with it."""
+    from ..run.progress import Progress
     from .evaluation import follow, nis_inside, truth_strokes
     from .truth import Sensors, run_truth, truth_scene
 
     sensors = Sensors(motor_torque=args.motor_torque)
-    truth = run_truth(truth_scene(nominal), args.against_truth, sensors=sensors, seed=args.seed)
+    progress = Progress(0.0, args.against_truth, label="mps track: the truth")  # on a terminal only
+    try:
+        truth = run_truth(
+            truth_scene(nominal), args.against_truth, sensors=sensors, seed=args.seed, progress=progress
+        )
+    finally:
+        progress.done()
     tracker = Tracker(nominal, _settings(args, bool(truth.modes)))
     f = follow(tracker, truth, loads=args.loads)
     _summary(tracker, np.asarray(f.cpu))
