@@ -291,9 +291,8 @@ def _track(args: argparse.Namespace) -> int:
     if stop.signal is not None:
         files = ", ".join(written)
         if partial is None:
-            kept = (
-                f"{files or 'nothing asked to be written'}: whole, the signal came after the last measurement"
-            )
+            done = f"{files} written whole" if files else "nothing asked to be written"
+            kept = f"{done} (the signal came after the last measurement)"
         else:
             kept = (
                 f"{files} written, marked partial ({where})"
