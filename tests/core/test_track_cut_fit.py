@@ -4,6 +4,7 @@ the filter exactly as it found it."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -144,13 +145,7 @@ def test_the_fitting_process_gives_each_job_its_own_fit(nominal):
     it waits for, ignores the other, and the process ends with its input."""
     from dataclasses import replace
 
-    from mps_core.track.fit_process import CutFits
-
-    truth = run_truth(truth_scene(nominal), 0.1, seed=7)
-    tracker = Tracker(nominal)
-    fits = CutFits(nominal, tracker.settings)
-    fits.attach(tracker)
-    try:
+    with _fitted_elsewhere(nominal, 0.1) as (truth, tracker, fits):
         for m in truth.measurements:
             tracker.update(m)
             if tracker.cut_jobs:
@@ -164,10 +159,6 @@ def test_the_fitting_process_gives_each_job_its_own_fit(nominal):
         fits.finish(tracker)
         assert not fits.failed and tracker.cuts_fitted == 1 and tracker.cuts_unfitted == 0
         assert tracker.strokes.current.fit is not None and not tracker.strokes.current.fit_pending
-        proc = fits._proc
-    finally:
-        fits.close()
-    assert proc is not None and proc.returncode == 0
 
 
 def test_the_fitting_process_outlives_ctrl_c(nominal):
@@ -177,13 +168,7 @@ def test_the_fitting_process_outlives_ctrl_c(nominal):
     import os
     import signal
 
-    from mps_core.track.fit_process import CutFits
-
-    truth = run_truth(truth_scene(nominal), 0.3, seed=7)
-    tracker = Tracker(nominal)
-    fits = CutFits(nominal, tracker.settings)
-    fits.attach(tracker)
-    try:
+    with _fitted_elsewhere(nominal, 0.3) as (truth, tracker, fits):
         for m in truth.measurements:
             tracker.update(m)
             fits.submit(tracker)
@@ -194,6 +179,20 @@ def test_the_fitting_process_outlives_ctrl_c(nominal):
             fits.poll(tracker)
         fits.finish(tracker)
         assert not fits.failed and tracker.cuts_unfitted == 0 and tracker.cuts_fitted >= 2
+
+
+@contextlib.contextmanager
+def _fitted_elsewhere(nominal, seconds: float):
+    """(truth, tracker, fits): ``seconds`` of the truth of ``nominal`` (seed 7), a tracker of it
+    whose cuts the fitting process fits; the process ended after, with status 0."""
+    from mps_core.track.fit_process import CutFits
+
+    truth = run_truth(truth_scene(nominal), seconds, seed=7)
+    tracker = Tracker(nominal)
+    fits = CutFits(nominal, tracker.settings)
+    fits.attach(tracker)
+    try:
+        yield truth, tracker, fits
         proc = fits._proc
     finally:
         fits.close()
