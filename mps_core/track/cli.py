@@ -140,6 +140,14 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="the reactions and foundation load at every step (the smoother's, two steps back, at t_loads)",
     )
+    t.add_argument(
+        "--sigma-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="the loads' 1-sigma at every N-th measurement (1: at each; the node's track_sigma_every); "
+        "the others NaN in --out FILE.csv and left out of a recording's sigma topics",
+    )
     t.add_argument("--prediction", choices=PREDICTIONS, default="jacobian", help="how P is predicted")
     t.add_argument(
         "--no-fit-cuts",
@@ -249,6 +257,8 @@ def _track(args: argparse.Namespace) -> int:
     """Run ``mps track``."""
     from ..files.outputs import check_outputs
 
+    if args.sigma_every < 1:
+        raise MeasurementError("--sigma-every", args.sigma_every, "a whole number of measurements, 1 or more")
     args.out, args.out_recording = _outs(args.out)
     check_outputs(
         {"--out": args.out, "--out (recording)": args.out_recording, "--strokes": args.strokes},
@@ -367,7 +377,7 @@ def _follow_inputs(
         f"following {len(measurements)} measurements{span} (Ctrl-C: stop, and write what was followed)",
         file=sys.stderr,
     )
-    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording, fits, stop)
+    rows, cpu = _follow(tracker, inputs, args.loads, monitor, recording, fits, stop, args.sigma_every)
     if fits is not None:
         fits.finish(tracker)
     return tracker, rows, cpu, monitor, recording
@@ -420,18 +430,21 @@ def _follow(
     recording: TrackRecording | None = None,
     fits: CutFits | None = None,
     stop: _Stop | None = None,
+    sigma_every: int = 1,
 ) -> tuple[list[dict], np.ndarray]:
     """Run the tracker over the measurements and mode signals in their order, watched by
     ``monitor`` (and gathered into ``recording``), its cuts fitted by ``fits`` where given, up
     to the end or to ``stop``'s signal; return the estimates' rows and the CPU time of each
-    measurement taken (this process's)."""
+    measurement taken (this process's). ``loads``: the smoother's loads at each measurement,
+    their 1-σ at every ``sigma_every``-th (the strokes' own foundation peak from them where that
+    is each, as the node's)."""
     from ..run.progress import Progress
 
     inputs = list(inputs)
     times = [m.t for m in inputs]
     progress = Progress(min(times, default=0.0), max(times, default=0.0), label="mps track")
     rows: list[dict] = []
-    cpu = []
+    cpu: list[float] = []
     for m in inputs:
         if stop is not None and stop.signal is not None:
             break
@@ -444,9 +457,9 @@ def _follow(
         if fits is not None:
             fits.submit(tracker)
             fits.poll(tracker)
-        smoothed = tracker.smoothed_loads() if loads else None
+        smoothed = tracker.smoothed_loads(sigma=len(cpu) % sigma_every == 0) if loads else None
         est = tracker.estimate()  # one for the stroke table, the status and the row
-        tracker.observe_stroke(None if smoothed is None else smoothed[1], est)
+        tracker.observe_stroke(None if smoothed is None or sigma_every != 1 else smoothed[1], est)
         status = monitor.observe(tracker, m, est)
         cpu.append(time.process_time() - c0)
         if recording is not None and smoothed is not None:

@@ -1102,19 +1102,23 @@ class Tracker:
             base = [float(reactions[k]) for k in _LOAD_INDEX]
         return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present, base)
 
-    def smoothed_loads(self) -> tuple[float, dict[str, tuple[float, float]]]:
+    def smoothed_loads(self, sigma: bool = True) -> tuple[float, dict[str, tuple[float, float]]]:
         """Return the time ``force_lag`` steps back and the joint reactions and the foundation
         load there, from the fixed-lag smoother's state and force (the present ones where the
-        slots have not filled since the chart view last changed)."""
+        slots have not filled since the chart view last changed); their 1-σ NaN unless ``sigma``
+        (the values the same either way: the sensitivities are what the 1-σ costs)."""
         lag = self.settings.force_lag
         if lag == 0 or len(self._starts) < lag:
-            return self.t, self.loads()
+            if sigma:
+                return self.t, self.loads()
+            e = self.sim.solver.current
+            return self.t, self._loads_at(e.t, e.q, e.qd, self.x[2 * self.n], [], sigma=False)
         n = self.n
         sl = lags.slot(n, lag)
         x = self.x[sl]
         where = list(range(sl.start, sl.start + 2 * n)) + [sl.stop - 1, 2 * n + 1]
         t = self._starts[-lag]
-        return t + self.origin, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where)
+        return t + self.origin, self._loads_at(t, x[:n], x[n : 2 * n], x[2 * n], where, sigma=sigma)
 
     def _loads_at(
         self,
@@ -1125,10 +1129,11 @@ class Tracker:
         where: list[int],
         present: Any = None,
         base: list | None = None,
+        sigma: bool = True,
     ) -> dict[str, tuple[float, float]]:
         """Return the loads at (t, q, q̇) with the process force ``force`` and the present load
         torque, their 1-σ from the covariance of the state's components ``where`` (those of q,
-        q̇, the force, the torque).
+        q̇, the force, the torque; NaN, and no sensitivity computed, unless ``sigma``).
 
         ``present``: the run's evaluation at exactly that state and force, where the caller has
         it (evaluated again otherwise); ``base``: the loads there, where the caller has them.
@@ -1146,6 +1151,10 @@ class Tracker:
             e0 = present if present is not None else fun(t, q, qd)
             if base is None:
                 base = self._reaction_values(e0)
+            if not sigma:
+                out = LoadEstimates(zip(LOAD_COLUMNS, zip(base, [math.nan] * len(base))))
+                out.foundation_xy_covariance = math.nan
+                return out
             zero = [0.0] * len(base)
             scales, rates = view.scales, qd.tolist()
             for j in range(2 * n):

@@ -178,8 +178,9 @@ def _estimated(msgs: _Messages, rec: TrackRecording) -> None:
         pos_sd = (e["phi_sigma"], NAN, NAN, e["x_C_sigma"])
         vel_sd = (e["phi_dot_sigma"], NAN, NAN, NAN)
         msgs.add_bytes(sigma("joint_states"), _JOINTS, packed.joints(t, pos_sd, vel_sd, []), t)
+        with_sigma = not math.isnan(sd["F_found_x"])  # the loads' 1-σ at this step (mps track --sigma-every)
         for w in (*WRENCHES, FOUNDATION):
-            for key, of in ((w.key, value), (sigma(w.key), sd)):
+            for key, of in ((w.key, value), (sigma(w.key), sd)) if with_sigma else ((w.key, value),):
                 fx, fy = (0.0 if c is None else float(of[c]) for c in w.force)
                 mz = 0.0 if w.torque is None else float(of[w.torque])
                 msgs.add_bytes(key, _WRENCH, packed.wrench(t, w.frame_id, fx, fy, mz), t)

@@ -138,6 +138,44 @@ def test_bad_outputs_are_named(tracked, capsys):
     assert not (d / "a.mcap").exists()
 
 
+def test_the_loads_1_sigma_every_nth_measurement(tracked, capsys):
+    """``--sigma-every N``: the loads at every step as before, their 1-σ at every N-th
+    measurement (the same numbers as at every step) and NaN between; the recording's sigma
+    topics at those steps only, its loads at every step; N under 1 named as an error."""
+    d, m, rows, rec = tracked
+    est, rec5 = d / "est5.csv", d / "run5.mcap"
+    argv = [
+        "track",
+        "press-cycle",
+        "--csv",
+        str(m),
+        "--out",
+        str(est),
+        "--out",
+        str(rec5),
+        "--sigma-every",
+        "5",
+    ]
+    assert main(argv) == 0
+    rows5 = list(csv.DictReader(est.open()))
+    assert len(rows5) == len(rows)
+    loads = [c for c in rows[0] if c + "_sigma" in rows[0] and c.startswith(("F_", "M_"))]
+    assert loads and all(r[c] == s[c] for r, s in zip(rows, rows5) for c in loads)
+    given = [i for i, r in enumerate(rows5) if r["F_found_x_sigma"] != "nan"]
+    assert 0 < len(given) < len(rows5) // 4
+    assert all(rows5[i][c + "_sigma"] == rows[i][c + "_sigma"] for i in given for c in loads)
+    assert all(rows5[i][c + "_sigma"] == "nan" for i in range(len(rows5)) if i not in given for c in loads)
+    every, fifth = _messages(rec), _messages(rec5)
+    assert len(fifth["/press_twin/foundation"]) == len(every["/press_twin/foundation"])
+    for topic in ("/press_twin/foundation/sigma", "/press_twin/reactions/A/sigma"):
+        full = {t: msg.wrench.force.x for t, _type, msg in every[topic]}
+        some = {t: msg.wrench.force.x for t, _type, msg in fifth[topic]}
+        assert 0 < len(some) <= len(given) and len(some) < len(full) // 4
+        assert all(full[t] == v for t, v in some.items())  # at their steps, the same 1-σ
+    assert main(["track", "press-cycle", "--csv", str(m), "--sigma-every", "0"]) == 2
+    assert "--sigma-every = 0: expected a whole number of measurements, 1 or more" in capsys.readouterr().err
+
+
 def test_the_packed_messages_are_the_dicts_encoded():
     """The estimated topics' fixed-layout messages, packed as the node packs its own, are the
     bytes of their message dicts encoded: /tf, joint states (with NaN where nothing is
