@@ -259,6 +259,10 @@ def _track(args: argparse.Namespace) -> int:
 
     if args.sigma_every < 1:
         raise MeasurementError("--sigma-every", args.sigma_every, "a whole number of measurements, 1 or more")
+    if args.sigma_every != 1 and args.against_truth is not None:
+        raise MeasurementError(
+            "--sigma-every", args.sigma_every, "1 with --against-truth (its loads' 1-sigma at each)"
+        )
     args.out, args.out_recording = _outs(args.out)
     check_outputs(
         {"--out": args.out, "--out (recording)": args.out_recording, "--strokes": args.strokes},

@@ -174,6 +174,8 @@ def test_the_loads_1_sigma_every_nth_measurement(tracked, capsys):
         assert all(full[t] == v for t, v in some.items())  # at their steps, the same 1-σ
     assert main(["track", "press-cycle", "--csv", str(m), "--sigma-every", "0"]) == 2
     assert "--sigma-every = 0: expected a whole number of measurements, 1 or more" in capsys.readouterr().err
+    assert main(["track", "press-cycle", "--against-truth", "0.1", "--sigma-every", "3"]) == 2
+    assert "--sigma-every = 3: expected 1 with --against-truth" in capsys.readouterr().err
 
 
 def test_the_packed_messages_are_the_dicts_encoded():
