@@ -1088,10 +1088,11 @@ class Tracker:
             math.nan if sigma is None else sigma,
         )
 
-    def loads(self, reactions: list | None = None) -> dict[str, tuple[float, float]]:
+    def loads(self, reactions: list | None = None, sigma: bool = True) -> dict[str, tuple[float, float]]:
         """Return the joint reactions and the foundation load at the present estimate: name →
-        (value, 1-σ). ``reactions``: those of the present estimate in ``REACTION_COLUMNS``
-        order, where the caller has solved them already (solved here otherwise)."""
+        (value, 1-σ; NaN unless ``sigma``). ``reactions``: those of the present estimate in
+        ``REACTION_COLUMNS`` order, where the caller has solved them already (solved here
+        otherwise)."""
         n = self.n
         i = 2 * n
         e = self.sim.solver.current
@@ -1100,7 +1101,7 @@ class Tracker:
         base = None
         if present is not None and reactions is not None:
             base = [float(reactions[k]) for k in _LOAD_INDEX]
-        return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present, base)
+        return self._loads_at(e.t, e.q, e.qd, self.x[i], where, present, base, sigma)
 
     def smoothed_loads(self, sigma: bool = True) -> tuple[float, dict[str, tuple[float, float]]]:
         """Return the time ``force_lag`` steps back and the joint reactions and the foundation
@@ -1109,10 +1110,7 @@ class Tracker:
         (the values the same either way: the sensitivities are what the 1-σ costs)."""
         lag = self.settings.force_lag
         if lag == 0 or len(self._starts) < lag:
-            if sigma:
-                return self.t, self.loads()
-            e = self.sim.solver.current
-            return self.t, self._loads_at(e.t, e.q, e.qd, self.x[2 * self.n], [], sigma=False)
+            return self.t, self.loads(sigma=sigma)
         n = self.n
         sl = lags.slot(n, lag)
         x = self.x[sl]
