@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from ..errors import Interrupted
+from ..run.progress import Progress
 from .diagnostics import TrackingMonitor
 from .measurements import Measurement, MeasurementError, ModeSignal, TorqueSensor
 from .recording import TrackRecording
@@ -199,8 +200,6 @@ def _emulate(args: argparse.Namespace) -> int:
         raise MeasurementError("--signals-late", args.signals_late, "a time in [0, 1] s")
     nominal = _nominal(args.scene)
     sensors = Sensors(slider=args.slider, motor_torque=args.motor_torque)
-    from ..run.progress import Progress
-
     progress = Progress(0.0, args.t_end, label="mps emulate")
     with _Stop() as stop:  # a first signal ends the emulation where it is: what it made is written
         print(
@@ -228,19 +227,7 @@ def _emulate(args: argparse.Namespace) -> int:
         written.append(str(args.csv))
         if args.truth:
             with written_whole(args.truth) as tmp, tmp.open("w") as fh:
-                w = csv.writer(fh, lineterminator="\n")
-                w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
-                columns = (
-                    run.t,
-                    run.phi,
-                    run.phi_dot,
-                    run.x_C,
-                    run.force,
-                    run.foundation_x,
-                    run.foundation_y,
-                )
-                for *row, locked in zip(*columns, run.locked):
-                    w.writerow([repr(float(v)) for v in row] + [str(int(locked))])
+                _write_truth(fh, run)
             print(f"wrote {len(run.t)} rows of the truth to {args.truth}")
             written.append(str(args.truth))
     if stop.signal is not None:
@@ -251,6 +238,15 @@ def _emulate(args: argparse.Namespace) -> int:
         )
         raise Interrupted(stop.signal, kept)
     return 0
+
+
+def _write_truth(fh: TextIO, run: Any) -> None:
+    """Write the truth's record on its fine grid as CSV (``mps emulate --truth``)."""
+    w = csv.writer(fh, lineterminator="\n")
+    w.writerow(["t", "phi", "phi_dot", "x_C", "force", "F_found_x", "F_found_y", "locked"])
+    columns = (run.t, run.phi, run.phi_dot, run.x_C, run.force, run.foundation_x, run.foundation_y)
+    for *row, locked in zip(*columns, run.locked):
+        w.writerow([repr(float(v)) for v in row] + [str(int(locked))])
 
 
 def _track(args: argparse.Namespace) -> int:
@@ -442,8 +438,6 @@ def _follow(
     measurement taken (this process's). ``loads``: the smoother's loads at each measurement,
     their 1-σ at every ``sigma_every``-th (the strokes' own foundation peak from them where that
     is each, as the node's)."""
-    from ..run.progress import Progress
-
     inputs = list(inputs)
     times = [m.t for m in inputs]
     progress = Progress(min(times, default=0.0), max(times, default=0.0), label="mps track")
@@ -626,7 +620,6 @@ def _settings(args: argparse.Namespace, signals: bool, tuning: Tuning | None = N
 
 def _against_truth(args: argparse.Namespace, nominal: Any) -> int:
     """Emulate the truth, follow it, and print how the estimates compare with it."""
-    from ..run.progress import Progress
     from .evaluation import follow, nis_inside, truth_strokes
     from .truth import Sensors, run_truth, truth_scene
 
